@@ -1,0 +1,44 @@
+// bhcl devices: the OpenCL platforms and devices, and which one BHCL_DEVICE / default picks.
+#include <cstdio>
+#include <cstdlib>
+
+#include "blockhash_cl/error.hpp"
+#include "blockhash_cl/runtime.hpp"
+#include "cli.hpp"
+#include "commands.hpp"
+
+namespace bhcl::cli {
+namespace {
+
+int run_devices(int argc, char** argv) {
+  Args args(argc, argv, 1);
+  args.allow_only({"device"});
+  auto devs = list_devices();
+  if (devs.empty()) {
+    std::printf("no OpenCL platform or device found (install pocl-opencl-icd; for NVIDIA set "
+                "OCL_ICD_VENDORS, see README)\n");
+    return 1;
+  }
+  std::printf("%-5s %-30s %-40s %-5s %4s %9s  %s\n", "spec", "platform", "device", "type", "CU",
+              "mem MiB", "version");
+  for (const auto& d : devs) {
+    std::printf("%zu:%-3zu %-30.30s %-40.40s %-5s %4u %9llu  %s\n", d.platform_index,
+                d.device_index, d.platform_name.c_str(), d.device_name.c_str(),
+                d.type_name().c_str(), d.compute_units, d.global_mem_bytes >> 20,
+                d.device_version.c_str());
+  }
+  std::string spec = args.str("device", "");
+  const char* env = std::getenv("BHCL_DEVICE");
+  DeviceInfo pick = select_device(spec);
+  std::printf("\nselected (%s): %zu:%zu %s\nquirks: %s\n",
+              !spec.empty() ? ("--device " + spec).c_str()
+                            : (env && *env ? ("BHCL_DEVICE=" + std::string(env)).c_str() : "default"),
+              pick.platform_index, pick.device_index, pick.summary().c_str(),
+              quirks_for(pick).description.c_str());
+  return 0;
+}
+
+RegisterCommand reg("devices", "devices [--device SPEC]", run_devices);
+
+}  // namespace
+}  // namespace bhcl::cli

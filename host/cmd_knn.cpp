@@ -1,0 +1,78 @@
+// bhcl knn: k nearest neighbours of every query of a point file, written as raw arrays.
+#include <cstdio>
+
+#include "blockhash_cl/error.hpp"
+#include "blockhash_cl/factory.hpp"
+#include "blockhash_cl/io.hpp"
+#include "blockhash_cl/runtime.hpp"
+#include "cli.hpp"
+#include "commands.hpp"
+
+namespace bhcl::cli {
+namespace {
+
+int run_knn(int argc, char** argv) {
+  Args args(argc, argv, 1);
+  args.allow_only(merge(kIndexOptions, {"points", "queries", "method", "device", "out-ids",
+                                        "out-dist2", "out-counts", "stats"}));
+  const std::string method = args.str("method", "bruteforce");
+  const std::string out_ids = args.str("out-ids");
+  const std::string out_dist2 = args.str("out-dist2");
+  SearchParams params = search_params(args);
+  MethodOptions mopt = method_options(args);
+
+  std::vector<float> points = read_points_file(args.str("points"));
+  if (points.empty()) throw Error(args.str("points") + ": the point file is empty (0 points)");
+  std::vector<float> queries = read_points_file(args.str("queries"));
+  if (queries.empty()) throw Error(args.str("queries") + ": the query file is empty (0 queries)");
+  const std::size_t N = points.size() / 3, n = queries.size() / 3;
+
+  auto rt = std::make_shared<Runtime>(args.str("device", ""));
+  auto index = make_index(method, rt, points.data(), N, mopt);
+  KnnResult result;
+  QueryStats st = index->query(queries.data(), n, params, result);
+
+  write_raw_file(out_ids, result.ids.data(), result.ids.size() * sizeof(std::int32_t));
+  write_raw_file(out_dist2, result.dist2.data(), result.dist2.size() * sizeof(float));
+  if (args.has("out-counts"))
+    write_raw_file(args.str("out-counts"), result.counts.data(),
+                   result.counts.size() * sizeof(std::int32_t));
+
+  std::size_t found = 0;
+  for (auto c : result.counts) found += static_cast<std::size_t>(c);
+  std::fprintf(stderr,
+               "bhcl knn: %s on %s: N=%zu n=%zu k=%d  build %.3f s  compile %.3f s  query %.4f s "
+               "(%.0f q/s)  neighbours found %zu\n",
+               index->method().c_str(), rt->info().device_name.c_str(), N, n, params.k,
+               index->build_seconds(), st.compile_s, st.query_s, st.queries_per_s(), found);
+  if (args.has("stats")) {
+    Json j;
+    j.add("method", index->method())
+        .add("device", rt->info().summary())
+        .add("N", N)
+        .add("n", n)
+        .add("k", params.k)
+        .add("max_radius", static_cast<double>(params.max_radius))
+        .add("build_s", index->build_seconds())
+        .add("compile_s", st.compile_s)
+        .add("query_s", st.query_s)
+        .add("upload_s", st.upload_s)
+        .add("download_s", st.download_s)
+        .add("wall_s", st.wall_s)
+        .add("queries_per_s", st.queries_per_s())
+        .add("batches", st.batches)
+        .add("nonfinite_queries", st.nonfinite_queries)
+        .add("neighbours_found", found)
+        .add("memory_bytes", index->memory_bytes());
+    j.write(args.str("stats"));
+  }
+  return 0;
+}
+
+RegisterCommand reg("knn",
+                    "knn --points P --queries Q --k K --method M [--max-radius R] [--device SPEC] "
+                    "--out-ids I --out-dist2 D [--out-counts C] [--stats S.json] [method options]",
+                    run_knn);
+
+}  // namespace
+}  // namespace bhcl::cli

@@ -1,0 +1,38 @@
+/* Exact kNN by brute force: one work-item per query, the points streamed through local memory in
+ * tiles of the work-group size. */
+#include "knn_common.h"
+
+__kernel void bruteforce_knn(__global const float4* points, uint n_points,
+                             __global const float* queries, ulong first, uint count, uint k,
+                             float max_r2, __global int* out_ids, __global float* out_d2,
+                             __global int* out_counts, __local float4* tile) {
+  /* A warm-up launch (count 0) compiles the kernel and returns before any barrier. */
+  if (count == 0) return;
+  uint gid = get_global_id(0);
+  uint lid = get_local_id(0);
+  uint lsz = get_local_size(0);
+  int active = gid < count;
+  ulong row = first + gid;
+  float3 q = active ? bhcl_load_query(queries, row) : (float3)(0.0f);
+  int search = active && bhcl_query_is_finite(q);
+
+  float best_d[BHCL_KMAX];
+  int best_i[BHCL_KMAX];
+  bhcl_topk_init(best_d, best_i, k);
+
+  for (uint base = 0; base < n_points; base += lsz) {
+    uint m = min(lsz, n_points - base);
+    barrier(CLK_LOCAL_MEM_FENCE);
+    if (lid < m) tile[lid] = points[base + lid];
+    barrier(CLK_LOCAL_MEM_FENCE);
+    if (search) {
+      for (uint j = 0; j < m; ++j) {
+        float d = bhcl_dist2(q, tile[j]);
+        int idx = (int)(base + j);
+        if (d <= max_r2 && bhcl_topk_accepts(best_d, best_i, k, d, idx))
+          bhcl_topk_insert(best_d, best_i, k, d, idx);
+      }
+    }
+  }
+  if (active) bhcl_write_row(out_ids, out_d2, out_counts, row, k, best_d, best_i);
+}

@@ -1,0 +1,13 @@
+// blockhash_cl: batched approximate kNN on 3D points with OpenCL kernels. Umbrella header.
+#pragma once
+
+#include "blockhash_cl/bruteforce.hpp"
+#include "blockhash_cl/datasets.hpp"
+#include "blockhash_cl/error.hpp"
+#include "blockhash_cl/factory.hpp"
+#include "blockhash_cl/io.hpp"
+#include "blockhash_cl/knn.hpp"
+#include "blockhash_cl/metrics.hpp"
+#include "blockhash_cl/quirks.hpp"
+#include "blockhash_cl/reference.hpp"
+#include "blockhash_cl/runtime.hpp"

@@ -1,0 +1,32 @@
+// Exact kNN by brute force on the OpenCL device: every query scans every point. O(N) per query;
+// the reference that the other device methods are tested against, and the fastest exact method
+// for small N.
+#pragma once
+
+#include <cstddef>
+#include <memory>
+
+#include "blockhash_cl/knn.hpp"
+
+namespace bhcl {
+
+class BruteForceIndex : public Index {
+ public:
+  // points: N x 3 floats (copied to the device). Throws for N == 0 or non-finite points.
+  BruteForceIndex(std::shared_ptr<Runtime> runtime, const float* points, std::size_t n_points);
+
+  std::string method() const override { return "bruteforce"; }
+  bool exact() const override { return true; }
+  std::size_t memory_bytes() const override { return size() * 16; }
+
+ protected:
+  cl::Event enqueue_batch(const cl::CommandQueue& queue, const cl::Buffer& queries,
+                          std::size_t first, std::size_t count, const ResultBuffers& out,
+                          const SearchParams& params, std::size_t local_size,
+                          const std::vector<cl::Event>* wait) const override;
+
+ private:
+  cl::Buffer points_;  // float4 per point, w = 0
+};
+
+}  // namespace bhcl

@@ -1,0 +1,165 @@
+// The result contract shared by every method, and the Index base class.
+//
+// Contract (nanoflann/FLANN/FAISS users expect this):
+//  - Queries are n x 3 float, row-major (x y z), as a host array or a caller-owned cl::Buffer.
+//  - Results are n x k int32 indices into the caller's original point order and n x k float
+//    SQUARED distances, row-major, each row sorted ascending by (distance, index): ties go to
+//    the lower index. counts[i] is the number of neighbours found for query i (<= k); the rest of
+//    the row is id -1 and distance +inf (k > N, or fewer points within max_radius).
+//  - A point is within the maximum radius r when its squared distance is <= r*r.
+//  - Distances are sum((q - p)^2) in float, never |q|^2 + |p|^2 - 2 q.p.
+//  - A query with a NaN or Inf coordinate gets an empty row (count 0); the host-array call
+//    reports how many there were in QueryStats::nonfinite_queries. Points must be finite: an
+//    index build throws naming the first bad point.
+//  - Results do not depend on batch size, work-group size or thread count.
+#pragma once
+
+#include <CL/opencl.hpp>
+
+#include <cstddef>
+#include <cstdint>
+#include <limits>
+#include <memory>
+#include <mutex>
+#include <set>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "blockhash_cl/runtime.hpp"
+
+namespace bhcl {
+
+// The largest k any kernel is compiled for. Kernels exist in variants of a maximum k (a -D
+// define); a query uses the smallest variant >= k.
+inline constexpr int kMaxK = 256;
+inline constexpr int kKmaxVariants[] = {8, 16, 32, 64, 128, 256};
+int kmax_variant(int k);  // smallest variant >= k; throws for k outside [1, kMaxK]
+
+// Search parameters: everything that can change from one query batch to the next. Build
+// parameters live in each method's own struct.
+struct SearchParams {
+  int k = 10;
+  float max_radius = std::numeric_limits<float>::infinity();  // Euclidean (not squared)
+  // Approximate methods (block hashing): examine at most A*k points per query.
+  float A = 8.0f;
+  // Block hashing: probe the near-side neighbour cells as well (-1: the index preset decides).
+  int neighbour_probes = -1;
+  // Dispatch: 0 picks the device default (Quirks::default_local_size).
+  std::size_t local_size = 0;
+  // Host-array calls split the batch so that one dispatch has at most this many queries
+  // (0: automatic, bounded by device memory). Results do not depend on it.
+  std::size_t max_batch = 0;
+};
+
+// Host-side results. ids/dist2 are n*k, counts is n.
+struct KnnResult {
+  std::size_t n = 0;
+  int k = 0;
+  std::vector<std::int32_t> ids;
+  std::vector<float> dist2;
+  std::vector<std::int32_t> counts;
+
+  void resize(std::size_t n_queries, int k_);
+  std::int32_t id(std::size_t q, int j) const { return ids[q * static_cast<std::size_t>(k) + j]; }
+  float d2(std::size_t q, int j) const { return dist2[q * static_cast<std::size_t>(k) + j]; }
+};
+
+// Caller-owned device buffers for the buffer-level call: ids (n*k int32), dist2 (n*k float),
+// counts (n int32).
+struct ResultBuffers {
+  cl::Buffer ids, dist2, counts;
+};
+
+// What one query call cost. Times in seconds.
+struct QueryStats {
+  std::size_t n_queries = 0;
+  std::size_t nonfinite_queries = 0;  // queries with NaN/Inf coordinates (empty rows)
+  std::size_t batches = 0;            // kernel dispatches
+  double compile_s = 0.0;  // program builds and first-launch compiles done during this call
+  double upload_s = 0.0;   // host -> device copies (event times)
+  double query_s = 0.0;    // kernel execution (event times), compile excluded
+  double download_s = 0.0; // device -> host copies (event times)
+  double wall_s = 0.0;     // the whole call, host clock
+  double queries_per_s() const { return query_s > 0 ? n_queries / query_s : 0.0; }
+};
+
+// Validates a point array (n x 3 float): finite everywhere. Throws bhcl::Error naming the first
+// bad point, its coordinates and `what` (e.g. "points").
+void validate_points(const float* xyz, std::size_t n, const char* what);
+
+// Base of every method. Subclasses build their structure on construction and implement
+// enqueue_batch(); the base does validation, batching, warm-up and timing.
+class Index {
+ public:
+  virtual ~Index() = default;
+  Index(const Index&) = delete;
+  Index& operator=(const Index&) = delete;
+
+  virtual std::string method() const = 0;      // "bruteforce", "kdtree", "blockhash", ...
+  virtual bool exact() const = 0;              // true for exact methods
+  virtual std::size_t memory_bytes() const = 0;  // device structure size, points included
+  std::size_t size() const { return n_points_; }
+  double build_seconds() const { return build_seconds_; }
+  Runtime& runtime() const { return *runtime_; }
+  const std::shared_ptr<Runtime>& runtime_ptr() const { return runtime_; }
+
+  // Host arrays. queries: n x 3 floats. Fills out (resized to n x k). Returns the call's stats.
+  // Virtual so that host-only methods (FLANN) can answer without a device.
+  virtual QueryStats query(const float* queries, std::size_t n, const SearchParams& params,
+                   KnnResult& out) const;
+  // Convenience overload (std::vector of n*3 floats).
+  KnnResult query(const std::vector<float>& queries, const SearchParams& params,
+                  QueryStats* stats = nullptr) const;
+
+  // Buffer level: queries is a caller-owned buffer of at least n*3 floats, the results go to the
+  // caller's buffers. Enqueued on the caller's queue (same context as the index), waiting for
+  // `wait`; returns the event of the last kernel. Nothing is read back; no host sync except a
+  // one-off warm-up launch on devices that compile at first launch.
+  cl::Event enqueue_query(const cl::CommandQueue& queue, const cl::Buffer& queries, std::size_t n,
+                          const ResultBuffers& out, const SearchParams& params,
+                          const std::vector<cl::Event>* wait = nullptr) const;
+
+  // Compiles the kernel variant for params (k, local size) and does the first launch, so that
+  // later query timings exclude compilation. Returns the seconds it took (0 if already done).
+  double warm_up(const SearchParams& params) const;
+
+ protected:
+  Index(std::shared_ptr<Runtime> runtime, std::size_t n_points)
+      : runtime_(std::move(runtime)), n_points_(n_points) {}
+
+  // Enqueue one dispatch answering queries [first, first+count) of the buffer, writing the same
+  // rows of the result buffers. count may be 0 (a warm-up launch). Must not block.
+  virtual cl::Event enqueue_batch(const cl::CommandQueue& queue, const cl::Buffer& queries,
+                                  std::size_t first, std::size_t count, const ResultBuffers& out,
+                                  const SearchParams& params, std::size_t local_size,
+                                  const std::vector<cl::Event>* wait) const = 0;
+
+  // Throws bhcl::Error for parameters this method cannot serve. The base checks k and radius.
+  virtual void check_params(const SearchParams& params) const;
+
+  // The most queries per dispatch this method allows (e.g. to bound scratch memory).
+  virtual std::size_t max_dispatch_queries() const { return std::size_t(1) << 20; }
+
+  std::size_t local_size_for(const SearchParams& params) const;
+
+  void set_build_seconds(double s) { build_seconds_ = s; }
+
+  // Serialises kernel argument setting and dispatch; subclasses lock it in enqueue_batch if they
+  // keep kernel objects.
+  mutable std::mutex dispatch_mutex_;
+
+ private:
+  cl::Event enqueue_impl(const cl::CommandQueue& queue, const cl::Buffer& queries, std::size_t n,
+                         const ResultBuffers& out, const SearchParams& params,
+                         const std::vector<cl::Event>* wait, std::vector<cl::Event>* kernels,
+                         double* compile_s) const;
+
+  std::shared_ptr<Runtime> runtime_;
+  std::size_t n_points_;
+  double build_seconds_ = 0.0;
+  mutable std::mutex warm_mutex_;
+  mutable std::set<std::pair<int, std::size_t>> warmed_;  // (kmax variant, local size)
+};
+
+}  // namespace bhcl

@@ -1,0 +1,46 @@
+#include "blockhash_cl/bruteforce.hpp"
+
+#include <chrono>
+#include <map>
+
+#include "blockhash_cl/error.hpp"
+#include "device_util.hpp"
+
+namespace bhcl {
+
+BruteForceIndex::BruteForceIndex(std::shared_ptr<Runtime> runtime, const float* points,
+                                 std::size_t n_points)
+    : Index(std::move(runtime), n_points) {
+  auto t0 = std::chrono::steady_clock::now();
+  if (n_points == 0) throw Error("bruteforce: the point set is empty (N = 0)");
+  if (n_points > 0x7ffffffeu) throw Error("bruteforce: N = " + std::to_string(n_points) + " exceeds the int32 index range");
+  validate_points(points, n_points, "points");
+  points_ = detail::upload_points4(runtime_ptr(), points, n_points, "bruteforce points");
+  set_build_seconds(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+}
+
+cl::Event BruteForceIndex::enqueue_batch(const cl::CommandQueue& queue, const cl::Buffer& queries,
+                                         std::size_t first, std::size_t count,
+                                         const ResultBuffers& out, const SearchParams& params,
+                                         std::size_t local_size,
+                                         const std::vector<cl::Event>* wait) const {
+  std::lock_guard<std::mutex> lock(dispatch_mutex_);
+  int kmax = kmax_variant(params.k);
+  cl::Kernel kernel = runtime().kernel("bruteforce_knn.cl", "bruteforce_knn",
+                                       "-DBHCL_KMAX=" + std::to_string(kmax));
+  detail::KernelArgs args(kernel, "bruteforce_knn");
+  args.add(points_)
+      .add(cl_uint(size()))
+      .add(queries)
+      .add(cl_ulong(first))
+      .add(cl_uint(count))
+      .add(cl_uint(params.k))
+      .add(detail::squared_radius(params.max_radius))
+      .add(out.ids)
+      .add(out.dist2)
+      .add(out.counts)
+      .add_local(local_size * sizeof(cl_float4));
+  return detail::launch_1d(queue, kernel, count, local_size, wait, "bruteforce_knn");
+}
+
+}  // namespace bhcl

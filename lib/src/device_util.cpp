@@ -1,0 +1,40 @@
+#include "device_util.hpp"
+
+#include <algorithm>
+
+namespace bhcl::detail {
+
+cl::Buffer upload_bytes(const std::shared_ptr<Runtime>& rt, const void* data, std::size_t bytes,
+                        const std::string& what) {
+  cl_int err = CL_SUCCESS;
+  cl::Buffer b(rt->context(), CL_MEM_READ_ONLY | CL_MEM_COPY_HOST_PTR, bytes,
+               const_cast<void*>(data), &err);
+  check_cl(err, "clCreateBuffer", what + ", " + std::to_string(bytes) + " bytes");
+  return b;
+}
+
+cl::Buffer upload_points4(const std::shared_ptr<Runtime>& rt, const float* xyz, std::size_t n,
+                          const std::string& what) {
+  std::vector<cl_float4> p(std::max<std::size_t>(n, 1));
+  for (std::size_t i = 0; i < n; ++i) {
+    p[i].s[0] = xyz[3 * i];
+    p[i].s[1] = xyz[3 * i + 1];
+    p[i].s[2] = xyz[3 * i + 2];
+    p[i].s[3] = 0.0f;
+  }
+  return upload_bytes(rt, p.data(), p.size() * sizeof(cl_float4), what);
+}
+
+cl::Event launch_1d(const cl::CommandQueue& queue, const cl::Kernel& kernel, std::size_t count,
+                    std::size_t local_size, const std::vector<cl::Event>* wait, const char* name) {
+  std::size_t groups = std::max<std::size_t>(1, (count + local_size - 1) / local_size);
+  cl::Event e;
+  check_cl(queue.enqueueNDRangeKernel(kernel, cl::NullRange, cl::NDRange(groups * local_size),
+                                      cl::NDRange(local_size), wait, &e),
+           "clEnqueueNDRangeKernel",
+           std::string(name) + ", global " + std::to_string(groups * local_size) + ", local " +
+               std::to_string(local_size));
+  return e;
+}
+
+}  // namespace bhcl::detail

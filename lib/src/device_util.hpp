@@ -1,0 +1,66 @@
+// Small pieces the device methods share: uploads, argument setting with error context, launches.
+#pragma once
+
+#include <CL/opencl.hpp>
+
+#include <cmath>
+#include <cstddef>
+#include <limits>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "blockhash_cl/error.hpp"
+#include "blockhash_cl/runtime.hpp"
+
+namespace bhcl::detail {
+
+// Copies n x 3 floats to a new device buffer of float4 (w = 0). Blocks until done.
+cl::Buffer upload_points4(const std::shared_ptr<Runtime>& rt, const float* xyz, std::size_t n,
+                          const std::string& what);
+
+// A read-only device buffer holding a copy of `bytes` bytes of host data (blocking).
+cl::Buffer upload_bytes(const std::shared_ptr<Runtime>& rt, const void* data, std::size_t bytes,
+                        const std::string& what);
+
+template <typename T>
+cl::Buffer upload_vector(const std::shared_ptr<Runtime>& rt, const std::vector<T>& v,
+                         const std::string& what) {
+  // A zero-size buffer is invalid in OpenCL: keep one element.
+  static const T zero{};
+  return upload_bytes(rt, v.empty() ? &zero : v.data(), std::max<std::size_t>(1, v.size()) * sizeof(T), what);
+}
+
+// r*r, with +inf for an infinite radius.
+inline float squared_radius(float r) {
+  return std::isinf(r) ? std::numeric_limits<float>::infinity() : r * r;
+}
+
+// Sets kernel arguments in order; a failure names the kernel and the argument index.
+class KernelArgs {
+ public:
+  KernelArgs(cl::Kernel& k, const char* name) : k_(k), name_(name) {}
+  template <typename T>
+  KernelArgs& add(const T& value) {
+    check_cl(k_.setArg(i_, value), "clSetKernelArg", name_ + " argument " + std::to_string(i_));
+    ++i_;
+    return *this;
+  }
+  KernelArgs& add_local(std::size_t bytes) {
+    check_cl(k_.setArg(i_, cl::Local(bytes)), "clSetKernelArg",
+             name_ + " local argument " + std::to_string(i_));
+    ++i_;
+    return *this;
+  }
+
+ private:
+  cl::Kernel& k_;
+  std::string name_;
+  cl_uint i_ = 0;
+};
+
+// Launches count work-items (rounded up to the local size; at least one group).
+cl::Event launch_1d(const cl::CommandQueue& queue, const cl::Kernel& kernel, std::size_t count,
+                    std::size_t local_size, const std::vector<cl::Event>* wait, const char* name);
+
+}  // namespace bhcl::detail

@@ -1,0 +1,30 @@
+// The quirks list: what differs between the OpenCL drivers we run on, decided once per device.
+#include "blockhash_cl/quirks.hpp"
+
+#include "blockhash_cl/runtime.hpp"
+
+namespace bhcl {
+
+Quirks quirks_for(const DeviceInfo& info) {
+  Quirks q;
+  if (info.is_pocl) {
+    // PoCL 3.1 compiles machine code per kernel and local size at the first enqueue.
+    q.compiles_at_first_launch = true;
+    // On the pthread device a work-group runs as one loop on one core: 64 items amortise the
+    // per-group cost while keeping enough groups for every core.
+    q.default_local_size = 64;
+    q.description = "pocl: compiles at first launch (warm-up launch before timing)";
+  } else if (info.is_nvidia) {
+    // NVIDIA's driver compiles at clBuildProgram; 64 items = 2 warps keep register pressure of
+    // the private top-k list manageable.
+    q.default_local_size = 64;
+    q.description = "nvidia: none";
+  } else {
+    q.description = "none known";
+  }
+  if (info.max_work_group_size && q.default_local_size > info.max_work_group_size)
+    q.default_local_size = info.max_work_group_size;
+  return q;
+}
+
+}  // namespace bhcl

@@ -1,0 +1,314 @@
+// Device choice, kernel sources (embedded or from BHCL_KERNEL_DIR), program building and caching.
+#include "blockhash_cl/runtime.hpp"
+
+#include <algorithm>
+#include <cctype>
+#include <chrono>
+#include <cstdlib>
+#include <fstream>
+#include <sstream>
+#include <string_view>
+#include <tuple>
+
+#include "blockhash_cl/error.hpp"
+
+namespace bhcl {
+namespace detail {
+const std::map<std::string, std::string_view>& embedded_kernel_files();
+}
+
+namespace {
+
+std::string lower(std::string s) {
+  std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return std::tolower(c); });
+  return s;
+}
+
+std::string trim_nul(std::string s) {
+  while (!s.empty() && (s.back() == '\0' || std::isspace(static_cast<unsigned char>(s.back()))))
+    s.pop_back();
+  return s;
+}
+
+template <typename T, cl_int Name, typename Obj>
+T info_of(const Obj& obj, const char* call) {
+  T value{};
+  check_cl(obj.getInfo(Name, &value), call);
+  return value;
+}
+
+std::string devices_listing(const std::vector<DeviceInfo>& devs) {
+  std::ostringstream os;
+  if (devs.empty()) os << "  (no OpenCL device found: is pocl-opencl-icd installed?)\n";
+  for (const auto& d : devs)
+    os << "  " << d.platform_index << ":" << d.device_index << "  " << d.summary() << "\n";
+  return os.str();
+}
+
+// Raw text of a kernels/ file: from BHCL_KERNEL_DIR when set, else the embedded copy.
+std::string raw_kernel_file(const std::string& file) {
+  if (const char* dir = std::getenv("BHCL_KERNEL_DIR"); dir && *dir) {
+    std::string path = std::string(dir) + "/" + file;
+    std::ifstream in(path, std::ios::binary);
+    if (!in) throw Error("kernel file '" + path + "' not found (BHCL_KERNEL_DIR=" + dir + ")");
+    std::ostringstream ss;
+    ss << in.rdbuf();
+    return ss.str();
+  }
+  const auto& files = detail::embedded_kernel_files();
+  auto it = files.find(file);
+  if (it == files.end()) throw Error("kernel file '" + file + "' is not embedded in the library");
+  return std::string(it->second);
+}
+
+void resolve_includes(const std::string& file, std::vector<std::string>& stack, std::string& out) {
+  if (std::find(stack.begin(), stack.end(), file) != stack.end()) return;  // include guard twin
+  stack.push_back(file);
+  std::istringstream in(raw_kernel_file(file));
+  std::string line;
+  int line_no = 0;
+  while (std::getline(in, line)) {
+    ++line_no;
+    std::string_view v(line);
+    size_t p = v.find_first_not_of(" \t");
+    if (p != std::string_view::npos && v.substr(p, 8) == "#include") {
+      size_t a = v.find('"', p), b = a == std::string_view::npos ? a : v.find('"', a + 1);
+      if (a != std::string_view::npos && b != std::string_view::npos) {
+        std::string inc(v.substr(a + 1, b - a - 1));
+        resolve_includes(inc, stack, out);
+        out += "#line " + std::to_string(line_no + 1) + "\n";
+        continue;
+      }
+    }
+    out += line;
+    out += '\n';
+  }
+}
+
+struct ProgramKey {
+  cl_context context;
+  cl_device_id device;
+  std::string file, options;
+  bool operator<(const ProgramKey& o) const {
+    return std::tie(context, device, file, options) < std::tie(o.context, o.device, o.file, o.options);
+  }
+};
+
+std::mutex& cache_mutex() {
+  static std::mutex m;
+  return m;
+}
+std::map<ProgramKey, cl::Program>& program_cache() {
+  static std::map<ProgramKey, cl::Program> cache;
+  return cache;
+}
+
+}  // namespace
+
+std::string DeviceInfo::type_name() const {
+  if (type & CL_DEVICE_TYPE_GPU) return "GPU";
+  if (type & CL_DEVICE_TYPE_CPU) return "CPU";
+  if (type & CL_DEVICE_TYPE_ACCELERATOR) return "accelerator";
+  return "other";
+}
+
+std::string DeviceInfo::summary() const {
+  std::ostringstream os;
+  os << platform_name << " / " << device_name << " (" << type_name() << ", " << compute_units
+     << " CU, " << (global_mem_bytes >> 20) << " MiB, " << device_version << ")";
+  return os.str();
+}
+
+std::vector<DeviceInfo> list_devices() {
+  std::vector<DeviceInfo> out;
+  std::vector<cl::Platform> platforms;
+  if (cl::Platform::get(&platforms) != CL_SUCCESS) return out;  // no ICD: no devices
+  for (size_t pi = 0; pi < platforms.size(); ++pi) {
+    std::vector<cl::Device> devices;
+    if (platforms[pi].getDevices(CL_DEVICE_TYPE_ALL, &devices) != CL_SUCCESS) continue;
+    for (size_t di = 0; di < devices.size(); ++di) {
+      const cl::Device& d = devices[di];
+      DeviceInfo info;
+      info.platform_index = pi;
+      info.device_index = di;
+      info.platform_name = trim_nul(platforms[pi].getInfo<CL_PLATFORM_NAME>());
+      info.platform_vendor = trim_nul(platforms[pi].getInfo<CL_PLATFORM_VENDOR>());
+      info.platform_version = trim_nul(platforms[pi].getInfo<CL_PLATFORM_VERSION>());
+      info.device_name = trim_nul(d.getInfo<CL_DEVICE_NAME>());
+      info.device_vendor = trim_nul(d.getInfo<CL_DEVICE_VENDOR>());
+      info.device_version = trim_nul(d.getInfo<CL_DEVICE_VERSION>());
+      info.driver_version = trim_nul(d.getInfo<CL_DRIVER_VERSION>());
+      info.type = d.getInfo<CL_DEVICE_TYPE>();
+      info.compute_units = d.getInfo<CL_DEVICE_MAX_COMPUTE_UNITS>();
+      info.global_mem_bytes = d.getInfo<CL_DEVICE_GLOBAL_MEM_SIZE>();
+      info.max_alloc_bytes = d.getInfo<CL_DEVICE_MAX_MEM_ALLOC_SIZE>();
+      info.max_work_group_size = d.getInfo<CL_DEVICE_MAX_WORK_GROUP_SIZE>();
+      std::string all = lower(info.platform_name + " " + info.platform_vendor);
+      info.is_pocl = all.find("portable computing language") != std::string::npos ||
+                     all.find("pocl") != std::string::npos;
+      info.is_nvidia = all.find("nvidia") != std::string::npos;
+      out.push_back(std::move(info));
+    }
+  }
+  return out;
+}
+
+DeviceInfo select_device(const std::string& spec_in) {
+  std::string spec = spec_in;
+  if (spec.empty()) {
+    if (const char* env = std::getenv("BHCL_DEVICE")) spec = env;
+  }
+  spec = lower(spec);
+  auto devs = list_devices();
+  auto fail = [&](const std::string& why) -> DeviceInfo {
+    throw Error("no OpenCL device matches '" + spec + "' (" + why + "); devices:\n" +
+                devices_listing(devs));
+  };
+  if (devs.empty()) fail("no OpenCL platform or device found");
+  if (spec.empty() || spec == "default") {
+    for (const auto& d : devs)
+      if (d.is_pocl) return d;
+    return devs.front();
+  }
+  // "P:D" numeric
+  size_t colon = spec.find(':');
+  std::string head = spec.substr(0, colon);
+  std::string tail = colon == std::string::npos ? "" : spec.substr(colon + 1);
+  auto is_number = [](const std::string& s) {
+    return !s.empty() && std::all_of(s.begin(), s.end(), [](unsigned char c) { return std::isdigit(c); });
+  };
+  if (is_number(head) && is_number(tail)) {
+    size_t p = std::stoul(head), d = std::stoul(tail);
+    for (const auto& dev : devs)
+      if (dev.platform_index == p && dev.device_index == d) return dev;
+    return fail("no device " + head + ":" + tail);
+  }
+  if (!tail.empty() && !is_number(tail)) return fail("expected NAME[:INDEX] or P:D");
+  size_t want = tail.empty() ? 0 : std::stoul(tail);
+  std::vector<DeviceInfo> matches;
+  for (const auto& d : devs) {
+    bool match;
+    if (head == "cpu") match = d.type & CL_DEVICE_TYPE_CPU;
+    else if (head == "gpu") match = d.type & CL_DEVICE_TYPE_GPU;
+    else
+      match = lower(d.platform_name + " " + d.platform_vendor + " " + d.device_name + " " +
+                    d.device_vendor)
+                  .find(head) != std::string::npos;
+    if (match) matches.push_back(d);
+  }
+  if (want >= matches.size())
+    return fail(std::to_string(matches.size()) + " device(s) match '" + head + "'");
+  return matches[want];
+}
+
+std::string kernel_source(const std::string& file) {
+  std::vector<std::string> stack;
+  std::string out;
+  resolve_includes(file, stack, out);
+  return out;
+}
+
+Runtime::Runtime(const std::string& spec) { init_from(select_device(spec)); }
+
+Runtime::Runtime(cl::Context context, cl::Device device, cl::CommandQueue queue)
+    : context_(std::move(context)), device_(std::move(device)), queue_(std::move(queue)) {
+  // Describe the caller's device the way list_devices() does.
+  cl_platform_id pid = device_.getInfo<CL_DEVICE_PLATFORM>();
+  for (const auto& d : list_devices()) {
+    std::vector<cl::Platform> platforms;
+    cl::Platform::get(&platforms);
+    std::vector<cl::Device> devices;
+    platforms[d.platform_index].getDevices(CL_DEVICE_TYPE_ALL, &devices);
+    if (platforms[d.platform_index]() == pid && devices[d.device_index]() == device_()) {
+      info_ = d;
+      break;
+    }
+  }
+  quirks_ = quirks_for(info_);
+}
+
+void Runtime::init_from(const DeviceInfo& info) {
+  info_ = info;
+  std::vector<cl::Platform> platforms;
+  check_cl(cl::Platform::get(&platforms), "clGetPlatformIDs");
+  std::vector<cl::Device> devices;
+  check_cl(platforms.at(info.platform_index).getDevices(CL_DEVICE_TYPE_ALL, &devices),
+           "clGetDeviceIDs", info.platform_name);
+  device_ = devices.at(info.device_index);
+  cl_int err = CL_SUCCESS;
+  context_ = cl::Context(device_, nullptr, nullptr, nullptr, &err);
+  check_cl(err, "clCreateContext", info.summary());
+  queue_ = cl::CommandQueue(context_, device_, CL_QUEUE_PROFILING_ENABLE, &err);
+  check_cl(err, "clCreateCommandQueue", info.summary());
+  quirks_ = quirks_for(info_);
+}
+
+std::string Runtime::build_options(const std::string& extra) const {
+  std::string opts = "-cl-std=CL1.2";
+  if (!quirks_.extra_build_options.empty()) opts += " " + quirks_.extra_build_options;
+  if (!extra.empty()) opts += " " + extra;
+  return opts;
+}
+
+cl::Program Runtime::build_source(const std::string& source, const std::string& options,
+                                  const std::string& name) const {
+  cl_int err = CL_SUCCESS;
+  cl::Program program(context_, source, false, &err);
+  check_cl(err, "clCreateProgramWithSource", name);
+  std::string opts = build_options(options);
+  auto t0 = std::chrono::steady_clock::now();
+  err = program.build(std::vector<cl::Device>{device_}, opts.c_str());
+  double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    build_seconds_ += s;
+  }
+  if (err != CL_SUCCESS) {
+    std::string log;
+    program.getBuildInfo(device_, CL_PROGRAM_BUILD_LOG, &log);
+    throw BuildError(err, name, opts, trim_nul(log));
+  }
+  return program;
+}
+
+cl::Program Runtime::program(const std::string& file, const std::string& options) const {
+  ProgramKey key{context_(), device_(), file, options};
+  {
+    std::lock_guard<std::mutex> lock(cache_mutex());
+    auto it = program_cache().find(key);
+    if (it != program_cache().end()) return it->second;
+  }
+  cl::Program p = build_source(kernel_source(file), options, file);
+  std::lock_guard<std::mutex> lock(cache_mutex());
+  return program_cache().emplace(key, p).first->second;
+}
+
+cl::Kernel Runtime::kernel(const std::string& file, const std::string& kernel_name,
+                           const std::string& options) const {
+  cl_int err = CL_SUCCESS;
+  cl::Kernel k(program(file, options), kernel_name.c_str(), &err);
+  check_cl(err, "clCreateKernel", kernel_name + " in " + file);
+  return k;
+}
+
+double Runtime::build_seconds() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return build_seconds_;
+}
+
+std::shared_ptr<Runtime> default_runtime() {
+  static std::mutex m;
+  static std::shared_ptr<Runtime> rt;
+  std::lock_guard<std::mutex> lock(m);
+  if (!rt) rt = std::make_shared<Runtime>();
+  return rt;
+}
+
+double event_seconds(const cl::Event& e) {
+  cl_ulong start = 0, end = 0;
+  check_cl(e.getProfilingInfo(CL_PROFILING_COMMAND_START, &start), "clGetEventProfilingInfo");
+  check_cl(e.getProfilingInfo(CL_PROFILING_COMMAND_END, &end), "clGetEventProfilingInfo");
+  return end > start ? (end - start) * 1e-9 : 0.0;
+}
+
+}  // namespace bhcl

@@ -1,0 +1,179 @@
+// The brute-force kernel against the host references: bit-exact against the float reference
+// (same arithmetic), tie-tolerant against the double-precision reference.
+#include "test_util.hpp"
+
+using namespace bhcl;
+
+namespace {
+
+void run_case(const std::vector<float>& pts, const std::vector<float>& qs, SearchParams p) {
+  const std::size_t N = pts.size() / 3, n = qs.size() / 3;
+  BruteForceIndex index(test::runtime(), pts.data(), N);
+  KnnResult r;
+  QueryStats st = index.query(qs.data(), n, p, r);
+  CHECK(st.n_queries == n);
+  KnnResult ref = reference::knn_float(pts.data(), N, qs.data(), n, p);
+  CHECK(r.ids == ref.ids);
+  CHECK(r.counts == ref.counts);
+  for (std::size_t i = 0; i < r.dist2.size(); ++i) {
+    INFO("entry " << i);
+    REQUIRE((r.dist2[i] == ref.dist2[i] || (std::isinf(r.dist2[i]) && std::isinf(ref.dist2[i]))));
+  }
+  test::check_exact_vs_double(r, pts.data(), N, qs.data(), n, p);
+}
+
+}  // namespace
+
+TEST_CASE("bruteforce_vs_reference: uniform, k from 1 to 256") {
+  auto pts = datasets::uniform(3000, 11);
+  auto qs = datasets::uniform(300, 12);
+  for (int k : {1, 7, 8, 10, 33, 64, 100, 256}) {
+    CAPTURE(k);
+    SearchParams p;
+    p.k = k;
+    run_case(pts, qs, p);
+  }
+}
+
+TEST_CASE("bruteforce_vs_reference: clustered and offset data") {
+  SearchParams p;
+  p.k = 16;
+  run_case(datasets::clustered(4000, 3, 8, 0.002f), datasets::clustered(400, 4, 8, 0.002f), p);
+  auto pts = datasets::uniform(2000, 5, -50.0f, 50.0f);
+  auto qs = datasets::uniform(200, 6, -50.0f, 50.0f);
+  datasets::offset(pts, 1e4, -2e4, 3e3);
+  datasets::offset(qs, 1e4, -2e4, 3e3);
+  run_case(pts, qs, p);
+}
+
+TEST_CASE("bruteforce_vs_reference: duplicates keep the lower index first") {
+  auto pts = datasets::with_duplicates(2000, 7, 0.5);
+  // Queries exactly on points: many zero distances that tie.
+  std::vector<float> qs(pts.begin(), pts.begin() + 3 * 200);
+  SearchParams p;
+  p.k = 12;
+  run_case(pts, qs, p);
+  // All points identical: the answer is ids 0..k-1 at distance d.
+  std::vector<float> same(3 * 100, 0.25f);
+  std::vector<float> q = {0.0f, 0.0f, 0.0f};
+  BruteForceIndex index(test::runtime(), same.data(), 100);
+  KnnResult r = index.query(q, p);
+  for (int j = 0; j < p.k; ++j) {
+    CHECK(r.id(0, j) == j);
+    CHECK(r.d2(0, j) == reference::dist2_float(same.data(), q.data()));
+  }
+}
+
+TEST_CASE("bruteforce_vs_reference: k > N fills the row with -1 / +inf") {
+  auto pts = datasets::uniform(5, 8);
+  auto qs = datasets::uniform(10, 9);
+  SearchParams p;
+  p.k = 32;
+  run_case(pts, qs, p);
+  BruteForceIndex index(test::runtime(), pts.data(), 5);
+  KnnResult r = index.query(qs, p);
+  for (std::size_t q = 0; q < 10; ++q) {
+    CHECK(r.counts[q] == 5);
+    CHECK(r.id(q, 5) == -1);
+    CHECK(std::isinf(r.d2(q, 31)));
+  }
+}
+
+TEST_CASE("bruteforce_vs_reference: maximum radius cuts the rows") {
+  auto pts = datasets::uniform(3000, 21);
+  auto qs = datasets::uniform(300, 22);
+  SearchParams p;
+  p.k = 40;
+  p.max_radius = 0.05f;
+  run_case(pts, qs, p);
+  p.max_radius = 0.0f;  // only exact hits
+  std::vector<float> on(pts.begin(), pts.begin() + 30);
+  run_case(pts, on, p);
+}
+
+TEST_CASE("bruteforce_vs_reference: results do not depend on batch or work-group size") {
+  auto pts = datasets::uniform(2500, 31);
+  auto qs = datasets::uniform(1000, 32);
+  BruteForceIndex index(test::runtime(), pts.data(), 2500);
+  SearchParams p;
+  p.k = 10;
+  KnnResult base = index.query(qs, p);
+  for (std::size_t local : {1, 16, 32, 128}) {
+    for (std::size_t batch : {0, 1, 77, 999}) {
+      CAPTURE(local);
+      CAPTURE(batch);
+      SearchParams q = p;
+      q.local_size = local;
+      q.max_batch = batch;
+      if (batch == 1 && local > 16) continue;  // 1000 dispatches: slow, nothing new
+      KnnResult r = index.query(qs, q);
+      CHECK(r.ids == base.ids);
+      CHECK(r.dist2 == base.dist2);
+    }
+  }
+}
+
+TEST_CASE("bruteforce: non-finite queries get empty rows, the rest are answered") {
+  auto pts = datasets::uniform(500, 41);
+  std::vector<float> qs = datasets::uniform(4, 42);
+  qs[3 * 1 + 0] = NAN;
+  qs[3 * 3 + 2] = INFINITY;
+  BruteForceIndex index(test::runtime(), pts.data(), 500);
+  SearchParams p;
+  p.k = 5;
+  QueryStats st;
+  KnnResult r = index.query(qs, p, &st);
+  CHECK(st.nonfinite_queries == 2);
+  CHECK(r.counts[0] == 5);
+  CHECK(r.counts[1] == 0);
+  CHECK(r.counts[2] == 5);
+  CHECK(r.counts[3] == 0);
+  CHECK(r.id(1, 0) == -1);
+}
+
+TEST_CASE("bruteforce: bad input is refused with a clear error") {
+  auto rt = test::runtime();
+  std::vector<float> pts = datasets::uniform(10, 1);
+  CHECK_THROWS_WITH_AS(BruteForceIndex(rt, pts.data(), 0), doctest::Contains("empty"), Error);
+  pts[3 * 4 + 1] = NAN;
+  CHECK_THROWS_WITH_AS(BruteForceIndex(rt, pts.data(), 10), doctest::Contains("point 4"), Error);
+  pts[3 * 4 + 1] = 0.5f;
+  BruteForceIndex index(rt, pts.data(), 10);
+  std::vector<float> qs = datasets::uniform(3, 2);
+  SearchParams p;
+  p.k = 0;
+  CHECK_THROWS_WITH_AS(index.query(qs, p), doctest::Contains("k = 0"), Error);
+  p.k = kMaxK + 1;
+  CHECK_THROWS_WITH_AS(index.query(qs, p), doctest::Contains("out of range"), Error);
+  p.k = 3;
+  p.max_radius = -1.0f;
+  CHECK_THROWS_WITH_AS(index.query(qs, p), doctest::Contains("max_radius"), Error);
+  p.max_radius = INFINITY;
+  std::vector<float> ragged = {1.0f, 2.0f};
+  CHECK_THROWS_WITH_AS(index.query(ragged, p), doctest::Contains("multiple of 3"), Error);
+  KnnResult empty = index.query(std::vector<float>{}, p);
+  CHECK(empty.n == 0);
+}
+
+TEST_CASE("bruteforce: buffer-level call on caller-owned buffers") {
+  auto rt = test::runtime();
+  auto pts = datasets::uniform(1000, 51);
+  auto qs = datasets::uniform(100, 52);
+  BruteForceIndex index(rt, pts.data(), 1000);
+  SearchParams p;
+  p.k = 8;
+  cl::Buffer qb(rt->context(), CL_MEM_READ_ONLY | CL_MEM_COPY_HOST_PTR, qs.size() * 4, qs.data());
+  ResultBuffers out{cl::Buffer(rt->context(), CL_MEM_READ_WRITE, 100 * 8 * 4),
+                    cl::Buffer(rt->context(), CL_MEM_READ_WRITE, 100 * 8 * 4),
+                    cl::Buffer(rt->context(), CL_MEM_READ_WRITE, 100 * 4)};
+  cl::Event e = index.enqueue_query(rt->queue(), qb, 100, out, p);
+  std::vector<cl::Event> wait{e};
+  std::vector<int> ids(800);
+  rt->queue().enqueueReadBuffer(out.ids, CL_TRUE, 0, 800 * 4, ids.data(), &wait);
+  KnnResult host = index.query(qs, p);
+  CHECK(ids == host.ids);
+  ResultBuffers small = out;
+  small.counts = cl::Buffer(rt->context(), CL_MEM_READ_WRITE, 10 * 4);
+  CHECK_THROWS_WITH_AS(index.enqueue_query(rt->queue(), qb, 100, small, p),
+                       doctest::Contains("counts buffer holds 40 bytes"), Error);
+}

@@ -1,0 +1,128 @@
+// The bhcl tool: bad input exits non-zero with one clear line; knn writes the documented files.
+#include "test_util.hpp"
+
+using namespace bhcl;
+
+namespace {
+
+std::string write_points(const std::string& name, const std::vector<float>& xyz) {
+  std::string path = test::tmp_path(name);
+  write_points_file(path, xyz);
+  return path;
+}
+
+}  // namespace
+
+TEST_CASE("cli: knn bruteforce writes ids, distances and stats") {
+  auto pts = datasets::uniform(2000, 61);
+  auto qs = datasets::uniform(50, 62);
+  std::string P = write_points("cli_p.f32", pts), Q = write_points("cli_q.f32", qs);
+  std::string I = test::tmp_path("cli_ids.i32"), D = test::tmp_path("cli_d2.f32"),
+              S = test::tmp_path("cli_stats.json");
+  std::string out;
+  int rc = test::run_bhcl("knn --points " + P + " --queries " + Q +
+                              " --k 7 --method bruteforce --out-ids " + I + " --out-dist2 " + D +
+                              " --stats " + S,
+                          &out);
+  INFO(out);
+  REQUIRE(rc == 0);
+  auto ids = test::read_raw<std::int32_t>(I);
+  auto d2 = test::read_raw<float>(D);
+  REQUIRE(ids.size() == 50 * 7);
+  REQUIRE(d2.size() == 50 * 7);
+  SearchParams p;
+  p.k = 7;
+  KnnResult ref = reference::knn_float(pts.data(), 2000, qs.data(), 50, p);
+  CHECK(ids == ref.ids);
+  CHECK(d2 == ref.dist2);
+  std::ifstream s(S);
+  std::stringstream ss;
+  ss << s.rdbuf();
+  std::string json = ss.str();
+  for (const char* key : {"\"method\": \"bruteforce\"", "\"N\": 2000", "\"n\": 50", "\"k\": 7",
+                          "\"build_s\"", "\"query_s\"", "\"compile_s\"", "\"device\""})
+    CHECK_MESSAGE(json.find(key) != std::string::npos, key);
+}
+
+TEST_CASE("cli: bad input exits non-zero with one clear line") {
+  auto pts = datasets::uniform(100, 71);
+  std::string P = write_points("bad_p.f32", pts);
+  std::string I = test::tmp_path("bad_ids"), D = test::tmp_path("bad_d2");
+  std::string common = " --out-ids " + I + " --out-dist2 " + D + " --method bruteforce";
+
+  struct Case {
+    std::string args, expect;
+    int rc;
+  };
+  std::string ragged = test::tmp_path("ragged.f32");
+  {
+    std::ofstream f(ragged, std::ios::binary);
+    f << std::string(13, 'x');
+  }
+  auto nan_pts = pts;
+  nan_pts[3 * 17 + 2] = NAN;
+  std::string NP = write_points("nan_p.f32", nan_pts);
+  std::string E = write_points("empty.f32", {});
+  std::vector<Case> cases = {
+      {"knn --points /no/such/file.f32 --queries " + P + " --k 3" + common, "/no/such/file.f32: cannot open", 1},
+      {"knn --points " + ragged + " --queries " + P + " --k 3" + common, "not a multiple of 12", 1},
+      {"knn --points " + NP + " --queries " + P + " --k 3" + common, "point 17 has a non-finite coordinate z", 1},
+      {"knn --points " + P + " --queries " + NP + " --k 3" + common, "point 17 has a non-finite", 1},
+      {"knn --points " + E + " --queries " + P + " --k 3" + common, "empty", 1},
+      {"knn --points " + P + " --queries " + P + " --k 0" + common, "--k must be in [1, 256]", 2},
+      {"knn --points " + P + " --queries " + P + " --k 257" + common, "--k must be in [1, 256]", 2},
+      {"knn --points " + P + " --queries " + P + " --k x" + common, "--k expects an integer", 2},
+      {"knn --points " + P + " --queries " + P + " --k 3 --method nope --out-ids " + I + " --out-dist2 " + D, "unknown method 'nope'", 1},
+      {"knn --points " + P + " --queries " + P + " --k 3 --bogus 1" + common, "unknown option --bogus", 2},
+      {"knn --points " + P + " --k 3" + common, "missing required option --queries", 2},
+      {"knn --points " + P + " --queries " + P + " --k 3 --device no-such-dev" + common, "no OpenCL device matches", 1},
+      {"knn --points " + P + " --queries " + P + " --k 3 --max-radius -2" + common, "--max-radius", 2},
+      {"frobnicate", "unknown command", 2},
+  };
+  for (const auto& c : cases) {
+    std::string out;
+    int rc = test::run_bhcl(c.args, &out);
+    INFO("bhcl " << c.args << "\n" << out);
+    CHECK(rc == c.rc);
+    CHECK(out.find(c.expect) != std::string::npos);
+    CHECK(out.find("terminate") == std::string::npos);
+  }
+}
+
+TEST_CASE("cli: devices lists the OpenCL devices and the pick") {
+  std::string out;
+  int rc = test::run_bhcl("devices", &out);
+  INFO(out);
+  CHECK(rc == 0);
+  CHECK(out.find("selected") != std::string::npos);
+}
+
+TEST_CASE("cli: knn bruteforce on the Stanford bunny agrees with the exact reference") {
+  std::string bunny = std::string(BHCL_SHARED_DATA_DIR) + "/bunny.xyz.f32";
+  if (!std::ifstream(bunny).good()) {
+    MESSAGE("skipped: " << bunny << " not present (../shared/data is not on this machine)");
+    return;
+  }
+  auto pts = read_points_file(bunny);
+  const std::size_t N = pts.size() / 3;
+  // Every 50th bunny point, nudged off the surface, as queries.
+  std::vector<float> qs;
+  for (std::size_t i = 0; i < N; i += 50)
+    for (int d = 0; d < 3; ++d) qs.push_back(pts[3 * i + d] + 1e-4f * float(d + 1));
+  std::string Q = write_points("bunny_q.f32", qs);
+  std::string I = test::tmp_path("bunny_ids"), D = test::tmp_path("bunny_d2");
+  std::string out;
+  int rc = test::run_bhcl("knn --points " + bunny + " --queries " + Q +
+                              " --k 16 --method bruteforce --out-ids " + I + " --out-dist2 " + D,
+                          &out);
+  INFO(out);
+  REQUIRE(rc == 0);
+  KnnResult r;
+  r.resize(qs.size() / 3, 16);
+  r.ids = test::read_raw<std::int32_t>(I);
+  r.dist2 = test::read_raw<float>(D);
+  for (std::size_t q = 0; q < r.n; ++q) r.counts[q] = 16;
+  SearchParams p;
+  p.k = 16;
+  test::check_exact_vs_double(r, pts.data(), N, qs.data(), r.n, p);
+}

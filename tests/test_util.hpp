@@ -1,0 +1,108 @@
+// Helpers shared by the test files: the runtime, generated data, result checks, running bhcl.
+#pragma once
+
+#include <doctest/doctest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <memory>
+#include <set>
+#include <sstream>
+#include <sys/wait.h>
+#include <string>
+#include <vector>
+
+#include "blockhash_cl/blockhash_cl.hpp"
+
+namespace bhcl::test {
+
+inline std::shared_ptr<Runtime> runtime() { return default_runtime(); }
+
+// Every row valid under the contract: ids in range and unique, distances sorted by (d2, id),
+// each distance equal to the kernel arithmetic's distance of its id, within max_radius, the
+// tail -1/+inf, count consistent.
+inline void check_contract(const KnnResult& r, const float* points, std::size_t N,
+                           const float* queries, const SearchParams& p) {
+  const float r2 = std::isinf(p.max_radius) ? INFINITY : p.max_radius * p.max_radius;
+  for (std::size_t q = 0; q < r.n; ++q) {
+    int c = r.counts[q];
+    REQUIRE(c >= 0);
+    REQUIRE(c <= r.k);
+    std::set<int> seen;
+    for (int j = 0; j < r.k; ++j) {
+      int id = r.id(q, j);
+      float d = r.d2(q, j);
+      if (j >= c) {
+        REQUIRE(id == -1);
+        REQUIRE(std::isinf(d));
+        continue;
+      }
+      REQUIRE(id >= 0);
+      REQUIRE(static_cast<std::size_t>(id) < N);
+      REQUIRE(seen.insert(id).second);
+      REQUIRE(d == reference::dist2_float(points + 3 * id, queries + 3 * q));
+      REQUIRE(d <= r2);
+      if (j > 0) {
+        float pd = r.d2(q, j - 1);
+        REQUIRE((pd < d || (pd == d && r.id(q, j - 1) < id)));
+      }
+    }
+  }
+}
+
+// An exact result against the double-precision reference: same counts; at each rank the same
+// id, or an id whose true distance ties the reference's within float rounding (relative 4e-7).
+inline void check_exact_vs_double(const KnnResult& r, const float* points, std::size_t N,
+                                  const float* queries, std::size_t n, const SearchParams& p) {
+  check_contract(r, points, N, queries, p);
+  KnnResult truth = reference::knn_double(points, N, queries, n, p);
+  std::size_t swapped = 0;
+  for (std::size_t q = 0; q < n; ++q) {
+    REQUIRE(r.counts[q] == truth.counts[q]);
+    for (int j = 0; j < r.counts[q]; ++j) {
+      int a = r.id(q, j), b = truth.id(q, j);
+      if (a == b) continue;
+      double da = reference::dist2_double(points, a, queries + 3 * q);
+      double db = reference::dist2_double(points, b, queries + 3 * q);
+      INFO("query " << q << " rank " << j << " id " << a << " (d2 " << da << ") vs reference id "
+                    << b << " (d2 " << db << ")");
+      REQUIRE(std::abs(da - db) <= 4e-7 * std::max(da, db) + 1e-37);
+      ++swapped;
+    }
+  }
+  MESSAGE("ranks differing from the double reference only by float-rounding ties: " << swapped);
+}
+
+// Runs `bhcl ARGS`, capturing stdout+stderr. Returns the exit status.
+inline int run_bhcl(const std::string& args, std::string* output = nullptr) {
+  std::string log = std::string(BHCL_TEST_TMP_DIR) + "/bhcl_out_" + std::to_string(std::rand()) + ".txt";
+  std::string cmd = std::string("\"") + BHCL_TOOL_PATH + "\" " + args + " > \"" + log + "\" 2>&1";
+  int status = std::system(cmd.c_str());
+  std::ifstream in(log);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  if (output) *output = ss.str();
+  std::remove(log.c_str());
+  if (status == -1) return -1;
+  return WIFEXITED(status) ? WEXITSTATUS(status) : 128;
+}
+
+inline std::string tmp_path(const std::string& name) {
+  return std::string(BHCL_TEST_TMP_DIR) + "/" + name;
+}
+
+template <typename T>
+std::vector<T> read_raw(const std::string& path) {
+  std::ifstream in(path, std::ios::binary | std::ios::ate);
+  REQUIRE(in.good());
+  std::size_t size = static_cast<std::size_t>(in.tellg());
+  std::vector<T> v(size / sizeof(T));
+  in.seekg(0);
+  in.read(reinterpret_cast<char*>(v.data()), static_cast<std::streamsize>(size));
+  return v;
+}
+
+}  // namespace bhcl::test
