@@ -9,6 +9,7 @@
 #include <cstdlib>
 #include <fstream>
 #include <memory>
+#include <array>
 #include <set>
 #include <sstream>
 #include <sys/wait.h>

@@ -21,7 +21,21 @@ std::vector<float> with_duplicates(std::size_t n, std::uint64_t seed, double fra
 // Adds (dx, dy, dz) to every point (offset data for numerical stress).
 void offset(std::vector<float>& xyz, double dx, double dy, double dz);
 
-// Generates by name: "uniform", "clustered", "duplicates" (10 % exact duplicates).
+// A photon-map-like set on the Cornell Box surfaces (cornell_box.hpp, mm), as RESEARCH.md's
+// study made it: half the points uniform by area over the 5 walls and the 2 blocks, half where
+// rays from the light's centre, drawn from a cos^8 lobe around straight down, first hit the
+// scene; about 1 % exact duplicates. Not photon tracing (the renderer does that): a stand-in with
+// the same planar, uneven, coincident structure.
+std::vector<float> cornell_photons(std::size_t n, std::uint64_t seed);
+
+// Query points drawn like cornell_photons, then moved offset_mm off the surface along its normal
+// (into the room): the case where planar data defeats naive thresholds.
+std::vector<float> cornell_queries(std::size_t n, std::uint64_t seed, float offset_mm = 0.5f);
+
+// Generates by name: "uniform", "clustered", "duplicates" (10 % exact duplicates), "cornell".
 std::vector<float> by_name(const std::string& name, std::size_t n, std::uint64_t seed);
+
+// Query points for a named set: like the points, except "cornell" (0.5 mm off the surfaces).
+std::vector<float> queries_by_name(const std::string& name, std::size_t n, std::uint64_t seed);
 
 }  // namespace bhcl::datasets
