@@ -13,6 +13,7 @@
 #include <set>
 #include <sstream>
 #include <sys/wait.h>
+#include <unistd.h>
 #include <string>
 #include <vector>
 
@@ -79,7 +80,10 @@ inline void check_exact_vs_double(const KnnResult& r, const float* points, std::
 
 // Runs `bhcl ARGS`, capturing stdout+stderr. Returns the exit status.
 inline int run_bhcl(const std::string& args, std::string* output = nullptr) {
-  std::string log = std::string(BHCL_TEST_TMP_DIR) + "/bhcl_out_" + std::to_string(std::rand()) + ".txt";
+  // The pid keeps parallel test processes (ctest -j) apart: std::rand() unseeded gives every
+  // process the same sequence.
+  std::string log = std::string(BHCL_TEST_TMP_DIR) + "/bhcl_out_" + std::to_string(getpid()) + "_" +
+                    std::to_string(std::rand()) + ".txt";
   std::string cmd = std::string("\"") + BHCL_TOOL_PATH + "\" " + args + " > \"" + log + "\" 2>&1";
   int status = std::system(cmd.c_str());
   std::ifstream in(log);

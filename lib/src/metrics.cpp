@@ -23,6 +23,22 @@ Accuracy evaluate_accuracy(const KnnResult& approx, const KnnResult& truth) {
     throw Error("evaluate_accuracy: shapes differ (" + std::to_string(approx.n) + " x " +
                 std::to_string(approx.k) + " vs truth " + std::to_string(truth.n) + " x " +
                 std::to_string(truth.k) + ")");
+  // Inconsistent arrays or counts would be read out of bounds: refuse them, naming which.
+  auto check_shape = [](const KnnResult& r, const char* which) {
+    const std::size_t nk = r.n * static_cast<std::size_t>(std::max(r.k, 0));
+    if ((r.k < 1 && r.n > 0) || r.ids.size() != nk || r.dist2.size() != nk || r.counts.size() != r.n)
+      throw Error(std::string("evaluate_accuracy: ") + which + " result arrays do not match " +
+                  std::to_string(r.n) + " x " + std::to_string(r.k) + " (ids " +
+                  std::to_string(r.ids.size()) + ", dist2 " + std::to_string(r.dist2.size()) +
+                  ", counts " + std::to_string(r.counts.size()) + ")");
+    for (std::size_t q = 0; q < r.n; ++q)
+      if (r.counts[q] < 0 || r.counts[q] > r.k)
+        throw Error(std::string("evaluate_accuracy: ") + which + " query " + std::to_string(q) +
+                    " has count " + std::to_string(r.counts[q]) + ", outside [0, " +
+                    std::to_string(r.k) + "]");
+  };
+  check_shape(approx, "approximate");
+  check_shape(truth, "truth");
   Accuracy a;
   const std::size_t k = static_cast<std::size_t>(truth.k);
   double recall_sum = 0, fn_missing = 0, fn_total = 0, dil_sum = 0, rel_sum = 0;

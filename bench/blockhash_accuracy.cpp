@@ -1,0 +1,281 @@
+// Block hashing accuracy and cost against exact kNN, both presets, the talk's A sweep.
+//
+//   blockhash_accuracy [--data uniform,cornell,dragon] [--n 1000000] [--queries 5000]
+//                      [--A 1,2,4,8,16,32] [--k 10,50] [--presets auto,paper] [--reps 3]
+//                      [--csv out.csv] [--data-dir DIR] [--seed 1] [--local WG] [--probes 0|1]
+//                      [--L L] [--X X] [--hilbert-seed S] [--box-order 0|1] [--target POINTS]  (auto only)
+//
+// Data sets: uniform in [0,1]^3; the Cornell photon-like set (datasets::cornell_photons, queries
+// 0.5 mm off the surfaces); the dragon scans file (DIR/dragon_stand_scans.xyz.f32: 5000 points
+// held out as queries, the rest indexed). Truth: the brute-force kernel (exact, same contract).
+// auto is built once per data set. paper follows the talk: B > A k / (X ln N) depends on A and
+// k, so paper is built once per distinct B (as the prototype study did).
+// Reported per (preset, k, A): recall@k, false negatives, max/mean distance dilation, incomplete
+// rows, mean points examined (the kernel's own count), query time per query (median of reps of the
+// kernel's event time, compile excluded by a warm-up), build time, memory per point.
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <map>
+#include <memory>
+#include <numeric>
+#include <random>
+#include <sstream>
+#include <string>
+#include <sys/stat.h>
+#include <vector>
+
+#include "blockhash_cl/blockhash_cl.hpp"
+
+using namespace bhcl;
+
+namespace {
+
+std::vector<std::string> split(const std::string& s) {
+  std::vector<std::string> out;
+  std::stringstream ss(s);
+  std::string item;
+  while (std::getline(ss, item, ',')) if (!item.empty()) out.push_back(item);
+  return out;
+}
+
+struct Options {
+  std::vector<std::string> data = {"uniform", "cornell", "dragon"};
+  std::size_t n = 1000000, queries = 5000;
+  std::vector<float> A = {1, 2, 4, 8, 16, 32};
+  std::vector<int> k = {10, 50};
+  std::vector<std::string> presets = {"auto", "paper"};
+  int reps = 3;
+  std::size_t local = 0;  // work-group size (0: the device default)
+  int probes = -1;        // SearchParams::neighbour_probes (-1: the preset's)
+  int L = -1, X = -1, seed_blocks = -1, box_order = -1;  // auto build overrides (-1: derive)
+  double target = 100;    // auto: target points per median occupied cell
+  std::string csv = "blockhash_accuracy.csv";
+  std::string data_dir = BHCL_DEFAULT_DATA_DIR;
+  std::uint64_t seed = 1;
+};
+
+struct DataSet {
+  std::string name;
+  std::vector<float> points, queries;
+};
+
+bool load_data(const std::string& name, const Options& o, DataSet& d) {
+  d.name = name;
+  if (name == "uniform") {
+    d.points = datasets::uniform(o.n, o.seed);
+    d.queries = datasets::uniform(o.queries, o.seed + 1000);
+  } else if (name == "cornell") {
+    d.points = datasets::cornell_photons(o.n, o.seed);
+    d.queries = datasets::cornell_queries(o.queries, o.seed + 1000, 0.5f);
+  } else if (name == "dragon") {
+    std::string path = o.data_dir + "/dragon_stand_scans.xyz.f32";
+    struct stat st;
+    if (stat(path.c_str(), &st) != 0) {
+      std::fprintf(stderr, "dragon: %s is absent: skipped\n", path.c_str());
+      return false;
+    }
+    std::vector<float> all = read_points_file(path);
+    const std::size_t N = all.size() / 3;
+    std::vector<std::size_t> idx(N);
+    std::iota(idx.begin(), idx.end(), 0);
+    std::mt19937_64 rng(o.seed);
+    std::shuffle(idx.begin(), idx.end(), rng);
+    std::vector<bool> held(N, false);
+    for (std::size_t i = 0; i < std::min(o.queries, N / 2); ++i) held[idx[i]] = true;
+    for (std::size_t i = 0; i < N; ++i) {
+      auto& dst = held[i] ? d.queries : d.points;
+      dst.insert(dst.end(), all.begin() + 3 * i, all.begin() + 3 * i + 3);
+    }
+  } else {
+    throw Error("unknown data set '" + name + "' (uniform, cornell, dragon)");
+  }
+  return true;
+}
+
+// Truth for the largest k; smaller k are its leading columns (rows are sorted by (d2, id)).
+KnnResult columns(const KnnResult& r, int k) {
+  KnnResult o;
+  o.resize(r.n, k);
+  for (std::size_t q = 0; q < r.n; ++q) {
+    for (int j = 0; j < k; ++j) {
+      o.ids[q * k + j] = r.id(q, j);
+      o.dist2[q * k + j] = r.d2(q, j);
+    }
+    o.counts[q] = std::min(r.counts[q], k);
+  }
+  return o;
+}
+
+double median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  return v.empty() ? 0 : v[v.size() / 2];
+}
+
+struct Row {
+  std::string data, preset;
+  std::size_t N;
+  int k;
+  float A;
+  BlockHashBuildInfo info;
+  double mem_per_point, overhead, talk_overhead;
+  Accuracy acc;
+  double examined, query_us, compile_s;
+};
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Options o;
+  for (int i = 1; i < argc; ++i) {
+    std::string a = argv[i];
+    auto val = [&]() -> std::string {
+      if (i + 1 >= argc) { std::fprintf(stderr, "%s needs a value\n", a.c_str()); std::exit(2); }
+      return argv[++i];
+    };
+    if (a == "--data") o.data = split(val());
+    else if (a == "--n") o.n = std::stoull(val());
+    else if (a == "--queries") o.queries = std::stoull(val());
+    else if (a == "--A") { o.A.clear(); for (auto& s : split(val())) o.A.push_back(std::stof(s)); }
+    else if (a == "--k") { o.k.clear(); for (auto& s : split(val())) o.k.push_back(std::stoi(s)); }
+    else if (a == "--presets") o.presets = split(val());
+    else if (a == "--reps") o.reps = std::stoi(val());
+    else if (a == "--csv") o.csv = val();
+    else if (a == "--data-dir") o.data_dir = val();
+    else if (a == "--seed") o.seed = std::stoull(val());
+    else if (a == "--local") o.local = std::stoull(val());
+    else if (a == "--probes") o.probes = std::stoi(val());
+    else if (a == "--L") o.L = std::stoi(val());
+    else if (a == "--X") o.X = std::stoi(val());
+    else if (a == "--hilbert-seed") o.seed_blocks = std::stoi(val());
+    else if (a == "--box-order") o.box_order = std::stoi(val());
+    else if (a == "--target") o.target = std::stod(val());
+    else { std::fprintf(stderr, "unknown option %s (see the top of bench/blockhash_accuracy.cpp)\n", a.c_str()); return 2; }
+  }
+  if (!std::getenv("POCL_CACHE_DIR")) setenv("POCL_CACHE_DIR", BHCL_BUILD_TREE_POCL_CACHE, 0);
+  try {
+    auto rt = std::make_shared<Runtime>();
+    std::fprintf(stderr, "device: %s\n", rt->info().summary().c_str());
+    std::vector<Row> rows;
+    const int kmax = *std::max_element(o.k.begin(), o.k.end());
+    for (const auto& name : o.data) {
+      DataSet d;
+      if (!load_data(name, o, d)) continue;
+      const std::size_t N = d.points.size() / 3, nq = d.queries.size() / 3;
+      std::fprintf(stderr, "%s: N = %zu, %zu queries; exact truth by the brute-force kernel ...\n",
+                   name.c_str(), N, nq);
+      auto t0 = std::chrono::steady_clock::now();
+      BruteForceIndex bf(rt, d.points.data(), N);
+      SearchParams tp;
+      tp.k = kmax;
+      KnnResult truth_all = bf.query(d.queries, tp);
+      std::fprintf(stderr, "  truth in %.1f s\n",
+                   std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+      for (const auto& pr : o.presets) {
+        BlockHashBuildParams bp;
+        bp.preset = BlockHashBuildParams::parse_preset(pr);
+        bp.seed = o.seed;
+        bp.verbose = N >= 200000;
+        if (bp.preset == BlockHashBuildParams::Preset::Auto) {
+          bp.L = o.L;
+          bp.X = o.X;
+          bp.hilbert_seed = o.seed_blocks;
+          bp.box_order = o.box_order;
+          bp.target_cell_points = o.target;
+        }
+        std::map<int, std::unique_ptr<BlockHashIndex>> by_b;  // paper: one build per B
+        std::unique_ptr<BlockHashIndex> single;
+        for (int k : o.k) {
+          KnnResult truth = columns(truth_all, k);
+          for (float A : o.A) {
+            BlockHashIndex* idx = nullptr;
+            if (bp.preset == BlockHashBuildParams::Preset::Paper) {
+              BlockHashBuildParams pb = bp;
+              pb.design_A = A;
+              pb.design_k = k;
+              double lnN = std::log(double(N));
+              int B = int(std::ceil(A * k / (10.0 * lnN))) + 1;
+              auto& slot = by_b[B];
+              if (!slot) {
+                std::fprintf(stderr, "  %s paper build (B = %d) ...\n", name.c_str(), B);
+                slot = std::make_unique<BlockHashIndex>(rt, d.points.data(), N, pb);
+                std::fprintf(stderr, "  %s\n", slot->info().summary().c_str());
+              }
+              idx = slot.get();
+            } else {
+              if (!single) {
+                std::fprintf(stderr, "  %s auto build ...\n", name.c_str());
+                single = std::make_unique<BlockHashIndex>(rt, d.points.data(), N, bp);
+                std::fprintf(stderr, "  %s\n", single->info().summary().c_str());
+              }
+              idx = single.get();
+            }
+            SearchParams p;
+            p.k = k;
+            p.A = A;
+            p.local_size = o.local;
+            p.neighbour_probes = o.probes;
+            Row row;
+            row.compile_s = idx->warm_up(p);
+            KnnResult r;
+            std::vector<std::int32_t> ex;
+            idx->query_examined(d.queries.data(), nq, p, r, ex);
+            std::vector<double> times;
+            for (int rep = 0; rep < o.reps; ++rep) {
+              KnnResult r2;
+              QueryStats st = idx->query(d.queries.data(), nq, p, r2);
+              times.push_back(st.query_s);
+              if (r2.ids != r.ids) throw Error("results differ between repetitions");
+            }
+            row.data = name;
+            row.preset = pr;
+            row.N = N;
+            row.k = k;
+            row.A = A;
+            row.info = idx->info();
+            row.mem_per_point = idx->memory_per_point();
+            row.overhead = idx->measured_overhead();
+            row.talk_overhead = BlockHashIndex::talk_overhead(N, A, k, idx->X());
+            row.acc = evaluate_accuracy(r, truth);
+            double sum = 0;
+            for (auto e : ex) sum += e;
+            row.examined = sum / double(nq);
+            row.query_us = median(times) / double(nq) * 1e6;
+            rows.push_back(row);
+            std::fprintf(stderr, "  %-7s %-5s k=%-3d A=%-4g recall %.4f  FN %.4f  dil max %7.3f mean %.4f  incompl %4zu  examined %7.1f  %.2f us/query\n",
+                         name.c_str(), pr.c_str(), k, A, row.acc.recall, row.acc.false_negative_rate,
+                         row.acc.max_dilation, row.acc.mean_dilation, row.acc.incomplete_queries,
+                         row.examined, row.query_us);
+          }
+        }
+      }
+    }
+    // The table and the CSV.
+    std::printf("\n| data | preset | k | A | L | P | B | X | recall@k | FN | dil. max | dil. mean | incompl. | examined | us/query | build s | B/point |%s\n",
+                " talk ovh | our ovh |");
+    std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+    std::ofstream csv(o.csv);
+    csv << "data,preset,N,k,A,L,P,B,X,recall,false_negative_rate,max_dilation,mean_dilation,incomplete,examined_mean,query_us,build_s,memory_per_point,overhead,talk_overhead,median_cell_points,p90_cell_blocks,compile_s\n";
+    for (const auto& r : rows) {
+      std::printf("| %s | %s | %d | %g | %d | %d | %d | %d | %.4f | %.4f | %.3f | %.4f | %zu | %.1f | %.2f | %.2f | %.1f | %.3f | %.3f |\n",
+                  r.data.c_str(), r.preset.c_str(), r.k, r.A, r.info.L, r.info.P, r.info.B, r.info.X,
+                  r.acc.recall, r.acc.false_negative_rate, r.acc.max_dilation, r.acc.mean_dilation,
+                  r.acc.incomplete_queries, r.examined, r.query_us, r.info.t_total, r.mem_per_point,
+                  r.talk_overhead, r.overhead);
+      csv << r.data << "," << r.preset << "," << r.N << "," << r.k << "," << r.A << "," << r.info.L << ","
+          << r.info.P << "," << r.info.B << "," << r.info.X << "," << r.acc.recall << ","
+          << r.acc.false_negative_rate << "," << r.acc.max_dilation << "," << r.acc.mean_dilation << ","
+          << r.acc.incomplete_queries << "," << r.examined << "," << r.query_us << "," << r.info.t_total
+          << "," << r.mem_per_point << "," << r.overhead << "," << r.talk_overhead << ","
+          << r.info.median_cell_points << "," << r.info.p90_cell_blocks << "," << r.compile_s << "\n";
+    }
+    std::fprintf(stderr, "CSV: %s\n", o.csv.c_str());
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "blockhash_accuracy: %s\n", e.what());
+    return 1;
+  }
+  return 0;
+}

@@ -1,0 +1,132 @@
+// bhcl eval: runs a method and an exact one on the same points and queries, prints the accuracy
+// metrics and both timings as one table (and JSON with --stats).
+#include <cstdio>
+#include <memory>
+#include <string>
+
+#include "blockhash_cl/error.hpp"
+#include "blockhash_cl/factory.hpp"
+#include "blockhash_cl/io.hpp"
+#include "blockhash_cl/metrics.hpp"
+#include "blockhash_cl/runtime.hpp"
+#include "cli.hpp"
+#include "commands.hpp"
+
+namespace bhcl::cli {
+namespace {
+
+struct Side {
+  std::unique_ptr<Index> index;
+  KnnResult result;
+  QueryStats stats;
+  Accuracy accuracy;
+};
+
+Side run_side(const std::string& method, const std::shared_ptr<Runtime>& rt,
+              const std::vector<float>& points, const std::vector<float>& queries,
+              const SearchParams& params, const MethodOptions& mopt) {
+  Side s;
+  s.index = make_index(method, rt, points.data(), points.size() / 3, mopt);
+  s.stats = s.index->query(queries.data(), queries.size() / 3, params, s.result);
+  return s;
+}
+
+std::string fmt(const char* f, double v) {
+  char b[64];
+  std::snprintf(b, sizeof b, f, v);
+  return b;
+}
+
+int run_eval(int argc, char** argv) {
+  Args args(argc, argv, 1);
+  args.allow_only(merge(kIndexOptions, {"points", "queries", "method", "truth", "device", "stats"}));
+  const std::string method = args.str("method");
+  const std::string truth_method = args.str("truth", "flann");
+  SearchParams params = search_params(args);
+  MethodOptions mopt = method_options(args);
+
+  std::vector<float> points = read_points_file(args.str("points"));
+  if (points.empty()) throw Error(args.str("points") + ": the point file is empty (0 points)");
+  std::vector<float> queries = read_points_file(args.str("queries"));
+  if (queries.empty()) throw Error(args.str("queries") + ": the query file is empty (0 queries)");
+  const std::size_t N = points.size() / 3, n = queries.size() / 3;
+
+  auto rt = std::make_shared<Runtime>(args.str("device", ""));
+  // The truth first: a bad --truth fails before the (possibly long) method run.
+  // Saving and loading an index belong to the method under test; the truth shares the rest
+  // (e.g. --threads for flann).
+  MethodOptions topt = mopt;
+  topt.load_index.clear();
+  topt.save_index.clear();
+  Side truth = run_side(truth_method, rt, points, queries, params, topt);
+  if (!truth.index->exact())
+    throw Error("--truth " + truth_method + " is not an exact method (use flann, bruteforce or kdtree)");
+  Side m = run_side(method, rt, points, queries, params, mopt);
+  m.accuracy = evaluate_accuracy(m.result, truth.result);
+  truth.accuracy = evaluate_accuracy(truth.result, truth.result);
+
+  std::printf("bhcl eval on %s: N=%zu n=%zu k=%d max_radius=%g\n", rt->info().summary().c_str(), N,
+              n, params.k, static_cast<double>(params.max_radius));
+  const std::string truth_head = truth.index->method() + " (truth)";
+  std::printf("%-22s %16s %16s\n", "", m.index->method().c_str(), truth_head.c_str());
+  auto row = [&](const char* name, const std::string& a, const std::string& b) {
+    std::printf("%-22s %16s %16s\n", name, a.c_str(), b.c_str());
+  };
+  auto both = [&](const char* name, const char* f, double a, double b) { row(name, fmt(f, a), fmt(f, b)); };
+  auto acc = [&](const char* name, const char* f, double Accuracy::*field) {
+    both(name, f, m.accuracy.*field, truth.accuracy.*field);
+  };
+  row("exact", m.index->exact() ? "yes" : "no", "yes");
+  both("build s", "%.4f", m.index->build_seconds(), truth.index->build_seconds());
+  both("compile s", "%.4f", m.stats.compile_s, truth.stats.compile_s);
+  both("query s", "%.4f", m.stats.query_s, truth.stats.query_s);
+  both("queries/s", "%.0f", m.stats.queries_per_s(), truth.stats.queries_per_s());
+  both("memory MiB", "%.2f", m.index->memory_bytes() / 1048576.0, truth.index->memory_bytes() / 1048576.0);
+  acc("recall", "%.4f", &Accuracy::recall);
+  acc("false negatives", "%.4f", &Accuracy::false_negative_rate);
+  acc("dilation max", "%.4f", &Accuracy::max_dilation);
+  acc("dilation mean", "%.5f", &Accuracy::mean_dilation);
+  acc("mean rel. dist. error", "%.2e", &Accuracy::mean_rel_distance_error);
+  both("incomplete queries", "%.0f", double(m.accuracy.incomplete_queries), double(truth.accuracy.incomplete_queries));
+  both("identical rows", "%.0f", double(m.accuracy.identical_rows), double(truth.accuracy.identical_rows));
+  both("compared queries", "%.0f", double(m.accuracy.queries), double(truth.accuracy.queries));
+
+  if (args.has("stats")) {
+    Json j;
+    auto side = [&](const std::string& p, const Side& s) {
+      j.add(p + "method", s.index->method())
+          .add(p + "exact", s.index->exact())
+          .add(p + "build_s", s.index->build_seconds())
+          .add(p + "compile_s", s.stats.compile_s)
+          .add(p + "query_s", s.stats.query_s)
+          .add(p + "wall_s", s.stats.wall_s)
+          .add(p + "queries_per_s", s.stats.queries_per_s())
+          .add(p + "memory_bytes", s.index->memory_bytes());
+    };
+    j.add("device", rt->info().summary())
+        .add("N", N)
+        .add("n", n)
+        .add("k", params.k)
+        .add("max_radius", static_cast<double>(params.max_radius));
+    side("", m);
+    side("truth_", truth);
+    j.add("recall", m.accuracy.recall)
+        .add("false_negative_rate", m.accuracy.false_negative_rate)
+        .add("max_dilation", m.accuracy.max_dilation)
+        .add("mean_dilation", m.accuracy.mean_dilation)
+        .add("mean_rel_distance_error", m.accuracy.mean_rel_distance_error)
+        .add("incomplete_queries", m.accuracy.incomplete_queries)
+        .add("identical_rows", m.accuracy.identical_rows)
+        .add("compared_queries", m.accuracy.queries);
+    j.write(args.str("stats"));
+  }
+  return 0;
+}
+
+RegisterCommand reg("eval",
+                    "eval --points P --queries Q --k K --method M [--truth flann|bruteforce|kdtree] "
+                    "[--max-radius R] [--device SPEC] [--stats S.json] [method options]",
+                    run_eval);
+
+}  // namespace
+}  // namespace bhcl::cli

@@ -1,0 +1,323 @@
+// bhcl render: the photon-mapping renderer end to end. Embree traces photons and rays; the
+// final-gather hit points of each pass are answered by one batched kNN call of the chosen
+// method; the image is written as half-float OpenEXR with a tone-mapped PNG preview.
+// --compare renders the same photon map with an exact method and with block hashing at several
+// A, and writes the images side by side with false-colour differences and error figures.
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <sstream>
+
+#include "blockhash_cl/error.hpp"
+#include "blockhash_cl/factory.hpp"
+#include "blockhash_cl/runtime.hpp"
+#include "cli.hpp"
+#include "commands.hpp"
+#include "compare.hpp"
+#include "embree_scene.hpp"
+#include "exr_io.hpp"
+#include "final_gather.hpp"
+#include "photon_trace.hpp"
+#include "png_io.hpp"
+#include "progress.hpp"
+
+namespace bhcl::cli {
+namespace {
+
+using namespace bhcl::render;
+using Clock = std::chrono::steady_clock;
+double since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
+
+void parse_size(const std::string& s, int& w, int& h) {
+  auto x = s.find('x');
+  try {
+    if (x == std::string::npos) throw 0;
+    std::size_t p1 = 0, p2 = 0;
+    w = std::stoi(s.substr(0, x), &p1);
+    h = std::stoi(s.substr(x + 1), &p2);
+    if (p1 != x || p2 != s.size() - x - 1) throw 0;
+  } catch (...) {
+    throw UsageError("--size expects WxH (e.g. 512x512), got '" + s + "'");
+  }
+  if (w < 1 || h < 1 || w > 16384 || h > 16384) throw UsageError("--size must be between 1x1 and 16384x16384");
+}
+
+std::string strip_ext(const std::string& path) {
+  auto slash = path.find_last_of('/');
+  auto dot = path.find_last_of('.');
+  if (dot == std::string::npos || (slash != std::string::npos && dot < slash)) return path;
+  return path.substr(0, dot);
+}
+
+std::vector<float> parse_list(const std::string& s) {
+  std::vector<float> v;
+  std::stringstream ss(s);
+  std::string item;
+  while (std::getline(ss, item, ',')) {
+    try {
+      std::size_t p = 0;
+      float a = std::stof(item, &p);
+      if (p != item.size() || !(a > 0)) throw 0;
+      v.push_back(a);
+    } catch (...) {
+      throw UsageError("--compare-A expects positive numbers separated by commas, got '" + s + "'");
+    }
+  }
+  if (v.empty()) throw UsageError("--compare-A is empty");
+  return v;
+}
+
+bool has_method(const std::string& m) {
+  for (const auto& n : method_names())
+    if (n == m) return true;
+  return false;
+}
+
+struct RenderRun {
+  std::string label, method;
+  float A = 0;
+  Image image;
+  RenderStats stats;
+  double build_s = 0, warm_s = 0, total_s = 0;
+};
+
+// Builds the index of `method` on the (shared) photon maps and renders.
+RenderRun render_with(const std::string& label, const std::string& method, float A, PhotonMaps& maps,
+                      const std::shared_ptr<Runtime>& rt, const MethodOptions& mopt,
+                      const EmbreeScene& es, const LightSampler& lights, RenderOptions ropt,
+                      bool quiet) {
+  RenderRun run;
+  run.label = label;
+  run.method = method;
+  run.A = A;
+  ropt.search.A = A;
+  auto t0 = Clock::now();
+  maps.global->build_index(method, rt, mopt);
+  if (maps.caustic) maps.caustic->build_index(method, rt, mopt);
+  run.build_s = maps.global->build_seconds() + (maps.caustic ? maps.caustic->build_seconds() : 0.0);
+  // Compile the kernel variants now, so that the query time excludes first-launch compiles.
+  if (maps.global->index()) run.warm_s += maps.global->index()->warm_up(ropt.search);
+  if (maps.caustic && maps.caustic->index()) {
+    SearchParams cp = ropt.search;
+    cp.k = ropt.caustic_k > 0 ? ropt.caustic_k : ropt.search.k;
+    run.warm_s += maps.caustic->index()->warm_up(cp);
+  }
+  FinalGatherRenderer renderer(es, lights, *maps.global, maps.caustic.get(), ropt);
+  Progress bar("render " + label, !quiet);
+  run.image = renderer.render(run.stats, &bar);
+  bar.finish();
+  run.total_s = since(t0);
+  return run;
+}
+
+void print_split(const char* title, const RenderRun& r, double photon_s) {
+  const RenderStats& s = r.stats;
+  std::fprintf(stderr,
+               "%s [%s]: photons %.2f s | index build %.2f s (+ kernel compile %.2f s) | camera+shadow+gather rays %.2f s | "
+               "gather queries %.2f s (kernel %.2f s, %zu queries in %zu calls, %.0f q/s) | shading %.2f s\n",
+               title, r.label.c_str(), photon_s, r.build_s, r.warm_s + s.compile_s, s.trace_s, s.query_s,
+               s.query_kernel_s, s.queries + s.caustic_queries, s.index_calls,
+               s.query_s > 0 ? (s.queries + s.caustic_queries) / s.query_s : 0.0, s.shade_s);
+}
+
+std::string run_json(const RenderRun& r, const ImageDiff* d) {
+  Json j;
+  j.add("label", r.label).add("method", r.method).add("A", static_cast<double>(r.A));
+  j.add("index_build_s", r.build_s).add("kernel_compile_s", r.warm_s + r.stats.compile_s);
+  j.add("trace_s", r.stats.trace_s).add("query_s", r.stats.query_s).add("query_kernel_s", r.stats.query_kernel_s);
+  j.add("shade_s", r.stats.shade_s).add("render_s", r.total_s);
+  j.add("queries", r.stats.queries).add("caustic_queries", r.stats.caustic_queries).add("index_calls", r.stats.index_calls);
+  if (d) {
+    j.add("rmse", d->rmse).add("relative_rmse", d->relative_rmse).add("mean_rel_error", d->mean_rel_error)
+        .add("max_abs_error", d->max_abs);
+  }
+  std::string s = j.str();
+  if (!s.empty() && s.back() == '\n') s.pop_back();
+  return s;
+}
+
+int run_render(int argc, char** argv) {
+  Args args(argc, argv, 1, {"compare", "quiet"});
+  args.allow_only(merge(kIndexOptions,
+                        {"scene", "method", "photons", "gather", "spp", "size", "out", "png", "stats", "device",
+                         "shadow-rays", "caustic-k", "caustic-radius", "batch", "exposure", "compare",
+                         "exact", "approx", "compare-A", "diff-scale", "quiet"}));
+  const auto t_start = Clock::now();
+  const bool quiet = args.flag("quiet");
+  const bool compare = args.flag("compare");
+  const std::string out = args.str("out");
+  const std::string base = strip_ext(out);
+
+  RenderOptions ropt;
+  parse_size(args.str("size", "512x512"), ropt.width, ropt.height);
+  ropt.search = search_params(args, 50);
+  ropt.spp = static_cast<int>(args.integer("spp", 1));
+  ropt.gather = static_cast<int>(args.integer("gather", 32));
+  ropt.shadow_rays = static_cast<int>(args.integer("shadow-rays", 4));
+  ropt.caustic_k = static_cast<int>(args.integer("caustic-k", 0));
+  ropt.caustic_radius = static_cast<float>(args.number("caustic-radius", 0));
+  long long batch = args.integer("batch", 262144);
+  if (ropt.spp < 1 || ropt.spp > 4096) throw UsageError("--spp must be in [1, 4096]");
+  if (ropt.gather < 0 || ropt.gather > 4096) throw UsageError("--gather must be in [0, 4096]");
+  if (ropt.shadow_rays < 1 || ropt.shadow_rays > 4096) throw UsageError("--shadow-rays must be in [1, 4096]");
+  if (ropt.caustic_k < 0 || ropt.caustic_k > kMaxK) throw UsageError("--caustic-k must be in [1, 256]");
+  if (!(ropt.caustic_radius >= 0)) throw UsageError("--caustic-radius must be >= 0");
+  if (batch < 1) throw UsageError("--batch must be >= 1");
+  ropt.batch_queries = static_cast<std::size_t>(batch);
+  MethodOptions mopt = method_options(args);
+  ropt.seed = mopt.seed;
+  ropt.threads = mopt.threads;
+  long long photons = args.integer("photons", 200000);
+  if (photons < 1) throw UsageError("--photons must be >= 1");
+  const double exposure_opt = args.number("exposure", 0.0);
+  if (exposure_opt < 0 || !std::isfinite(exposure_opt)) throw UsageError("--exposure must be >= 0 (0: automatic)");
+
+  // The scene, in Embree.
+  Scene scene = load_scene(args.str("scene", "cornell"));
+  EmbreeScene es(scene, mopt.threads);
+  LightSampler lights(scene);
+  Vec3 P = lights.total_power();
+  std::fprintf(stderr,
+               "bhcl render: scene '%s': %zu triangles, %zu emitter triangles, emitted power (%.4g, %.4g, %.4g) "
+               "[radiance x mm^2], %dx%d, %d spp, %d gather rays, k=%d\n",
+               scene.name.c_str(), scene.triangles.size(), lights.count(), P.x, P.y, P.z, ropt.width,
+               ropt.height, ropt.spp, ropt.gather, ropt.search.k);
+
+  // Photons.
+  PhotonTraceOptions popt;
+  popt.photons = static_cast<std::size_t>(photons);
+  popt.seed = mopt.seed;
+  popt.threads = mopt.threads;
+  PhotonMaps maps;
+  {
+    Progress bar("photons", !quiet);
+    maps = build_photon_maps(es, lights, popt, [&](double f) { bar.update(f); });
+  }
+  const double photon_s = maps.trace.seconds;
+  Vec3 sp = maps.trace.stored_power;
+  std::fprintf(stderr,
+               "bhcl render: %zu photons emitted, %zu stored in the global map (24-byte records, %.1f MiB) in %.2f s; "
+               "stored power (%.4g, %.4g, %.4g)\n",
+               maps.trace.emitted, maps.global->size(), maps.global->size() * sizeof(PhotonRecord) / 1048576.0,
+               photon_s, sp.x, sp.y, sp.z);
+  if (maps.caustic)
+    std::fprintf(stderr, "bhcl render: caustic map: %zu photons (paths light -> specular+ -> diffuse)\n",
+                 maps.caustic->size());
+  else
+    std::fprintf(stderr, "bhcl render: no specular surfaces in scene '%s': no caustic map built\n",
+                 scene.name.c_str());
+
+  auto rt = std::make_shared<Runtime>(args.str("device", ""));
+  const std::string device = rt->info().summary();
+
+  if (!compare) {
+    const std::string method = args.str("method", has_method("kdtree") ? "kdtree" : "bruteforce");
+    RenderRun r = render_with(method, method, ropt.search.A, maps, rt, mopt, es, lights, ropt, quiet);
+    write_exr(out, r.image);
+    const float exposure = exposure_opt > 0 ? static_cast<float>(exposure_opt) : auto_exposure(r.image);
+    const std::string png = args.str("png", base + ".png");
+    write_png(png, tonemap(r.image, exposure));
+    const double total = since(t_start);
+    print_split("bhcl render: time split", r, photon_s);
+    std::fprintf(stderr, "bhcl render: wrote %s and %s (exposure %.4g); total %.2f s on %s\n", out.c_str(),
+                 png.c_str(), exposure, total, device.c_str());
+    if (args.has("stats")) {
+      Json j;
+      j.add("scene", scene.name).add("method", method).add("device", device);
+      j.add("width", ropt.width).add("height", ropt.height).add("spp", ropt.spp).add("gather", ropt.gather);
+      j.add("k", ropt.search.k).add("A", static_cast<double>(ropt.search.A));
+      j.add("photons", maps.global->size()).add("photons_emitted", maps.trace.emitted);
+      j.add("caustic_photons", maps.caustic ? maps.caustic->size() : std::size_t(0));
+      j.add("queries", r.stats.queries).add("caustic_queries", r.stats.caustic_queries);
+      j.add("index_calls", r.stats.index_calls).add("gather_rays", r.stats.gather_rays);
+      j.add("gather_escaped", r.stats.gather_escaped).add("visible_points", r.stats.visible_points);
+      j.add("photon_s", photon_s).add("index_build_s", r.build_s).add("kernel_compile_s", r.warm_s + r.stats.compile_s);
+      j.add("trace_s", r.stats.trace_s).add("query_s", r.stats.query_s).add("query_kernel_s", r.stats.query_kernel_s);
+      j.add("shade_s", r.stats.shade_s).add("total_s", total);
+      j.write(args.str("stats"));
+    }
+    return 0;
+  }
+
+  // --compare: the same photon map (and the same rays: same seed) with each method.
+  const std::string exact = args.str("exact", has_method("kdtree") ? "kdtree" : "bruteforce");
+  const std::string approx = args.str("approx", "blockhash");
+  const std::vector<float> As = parse_list(args.str("compare-A", "4,8,16"));
+  std::vector<RenderRun> runs;
+  runs.push_back(render_with(exact, exact, ropt.search.A, maps, rt, mopt, es, lights, ropt, quiet));
+  for (float A : As) {
+    char label[64];
+    std::snprintf(label, sizeof label, "%s A=%g", approx.c_str(), A);
+    runs.push_back(render_with(label, approx, A, maps, rt, mopt, es, lights, ropt, quiet));
+  }
+  const Image& ref = runs[0].image;
+  const float exposure = exposure_opt > 0 ? static_cast<float>(exposure_opt) : auto_exposure(ref);
+  const float max_rel = static_cast<float>(args.number("diff-scale", 0.1));
+  if (!(max_rel > 0)) throw UsageError("--diff-scale must be > 0");
+  std::vector<Rgb8> top, bottom;
+  std::vector<ImageDiff> diffs;
+  std::vector<std::string> files;
+  for (std::size_t i = 0; i < runs.size(); ++i) {
+    const std::string tag = i == 0 ? "exact" : "A" + [&] {
+      char b[32];
+      std::snprintf(b, sizeof b, "%g", runs[i].A);
+      return std::string(b);
+    }();
+    const std::string exr = i == 0 ? out : base + "_" + tag + ".exr";
+    write_exr(exr, runs[i].image);
+    Rgb8 tm = tonemap(runs[i].image, exposure);
+    write_png(strip_ext(exr) + ".png", tm);
+    files.push_back(exr);
+    top.push_back(tm);
+    diffs.push_back(image_diff(runs[i].image, ref));
+    if (i > 0) {
+      Rgb8 fc = false_colour_difference(runs[i].image, ref, max_rel);
+      write_png(base + "_diff_" + tag + ".png", fc);
+      bottom.push_back(fc);
+    }
+  }
+  // Bottom-left cell: the colour scale of the difference images (0 at the bottom, max_rel at top).
+  bottom.insert(bottom.begin(), colour_scale(std::max(8, ref.width / 8), ref.height));
+  const std::string sheet = base + "_compare.png";
+  write_png(sheet, contact_sheet({top, bottom}, 8));
+
+  print_split("bhcl render: time split", runs[0], photon_s);
+  std::fprintf(stderr, "\nbhcl render --compare: scene '%s', %dx%d, %zu photons, k=%d, M=%d, device %s\n",
+               scene.name.c_str(), ropt.width, ropt.height, maps.global->size(), ropt.search.k, ropt.gather,
+               device.c_str());
+  std::fprintf(stderr, "  %-18s %12s %12s %14s %12s %12s %10s\n", "method", "RMSE", "rel. RMSE", "mean rel err",
+               "query s", "kernel s", "build s");
+  for (std::size_t i = 0; i < runs.size(); ++i)
+    std::fprintf(stderr, "  %-18s %12.5g %12.5g %14.5g %12.3f %12.3f %10.3f\n", runs[i].label.c_str(),
+                 diffs[i].rmse, diffs[i].relative_rmse, diffs[i].mean_rel_error, runs[i].stats.query_s,
+                 runs[i].stats.query_kernel_s, runs[i].build_s);
+  std::fprintf(stderr,
+               "  sheet %s: top row the renders (%s first, then A = %s), bottom row the colour scale and the "
+               "false-colour |relative luminance error| of each against the exact render (0 to %.0f%%)\n",
+               sheet.c_str(), exact.c_str(), args.str("compare-A", "4,8,16").c_str(), 100.0 * max_rel);
+  if (args.has("stats")) {
+    std::string arr = "[";
+    for (std::size_t i = 0; i < runs.size(); ++i) arr += (i ? ",\n" : "\n") + run_json(runs[i], &diffs[i]);
+    arr += "\n]";
+    Json j;
+    j.add("scene", scene.name).add("device", device).add("width", ropt.width).add("height", ropt.height);
+    j.add("spp", ropt.spp).add("gather", ropt.gather).add("k", ropt.search.k);
+    j.add("photons", maps.global->size()).add("photons_emitted", maps.trace.emitted);
+    j.add("caustic_photons", maps.caustic ? maps.caustic->size() : std::size_t(0));
+    j.add("photon_s", photon_s).add("total_s", since(t_start));
+    j.add_raw("runs", arr);
+    j.write(args.str("stats"));
+  }
+  return 0;
+}
+
+RegisterCommand reg(
+    "render",
+    "render [--scene cornell|NAME|FILE.obj] [--method M] [--A A] [--k K] [--photons N] [--gather M] "
+    "[--spp S] [--size WxH] --out IMAGE.exr [--png P.png] [--stats S.json] [--shadow-rays R] "
+    "[--caustic-k K] [--caustic-radius R] [--max-radius R] [--batch Q] [--exposure E] [--device SPEC] "
+    "[--seed S] [--threads T] [--quiet] [--compare [--exact M] [--approx M] [--compare-A 4,8,16] [--diff-scale 0.1]]",
+    run_render);
+
+}  // namespace
+}  // namespace bhcl::cli

@@ -1,0 +1,102 @@
+#include "compare.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+#include "blockhash_cl/error.hpp"
+
+namespace bhcl::render {
+namespace {
+
+// Turbo colour map (Google, 2019), polynomial approximation by its author; t in [0, 1].
+Vec3 turbo(float t) {
+  t = std::clamp(t, 0.0f, 1.0f);
+  const float r = 0.13572138f + t * (4.61539260f + t * (-42.66032258f + t * (132.13108234f + t * (-152.94239396f + t * 59.28637943f))));
+  const float g = 0.09140261f + t * (2.19418839f + t * (4.84296658f + t * (-14.18503333f + t * (4.27729857f + t * 2.82956604f))));
+  const float b = 0.10667330f + t * (12.64194608f + t * (-60.58204836f + t * (110.36276771f + t * (-89.90310912f + t * 27.34824973f))));
+  return {std::clamp(r, 0.0f, 1.0f), std::clamp(g, 0.0f, 1.0f), std::clamp(b, 0.0f, 1.0f)};
+}
+
+double mean_luminance(const Image& img) {
+  double s = 0;
+  for (std::size_t i = 0; i < img.pixels(); ++i) s += luminance(img.at(i));
+  return img.pixels() ? s / img.pixels() : 0.0;
+}
+
+void check_sizes(const Image& a, const Image& b) {
+  if (a.width != b.width || a.height != b.height)
+    throw Error("image comparison: sizes differ (" + std::to_string(a.width) + "x" + std::to_string(a.height) +
+                " vs " + std::to_string(b.width) + "x" + std::to_string(b.height) + ")");
+}
+
+}  // namespace
+
+ImageDiff image_diff(const Image& a, const Image& ref) {
+  check_sizes(a, ref);
+  ImageDiff d;
+  double se = 0, sum_ref = 0;
+  for (std::size_t i = 0; i < a.rgb.size(); ++i) {
+    double e = static_cast<double>(a.rgb[i]) - ref.rgb[i];
+    se += e * e;
+    sum_ref += ref.rgb[i];
+    d.max_abs = std::max(d.max_abs, std::fabs(e));
+  }
+  const double n = static_cast<double>(a.rgb.size());
+  d.rmse = n > 0 ? std::sqrt(se / n) : 0.0;
+  d.relative_rmse = sum_ref > 0 ? d.rmse / (sum_ref / n) : 0.0;
+  const double floor = 1e-3 * mean_luminance(ref);
+  double rel = 0;
+  for (std::size_t i = 0; i < a.pixels(); ++i) {
+    double lr = luminance(ref.at(i));
+    if (!(lr > floor)) continue;
+    rel += std::fabs(luminance(a.at(i)) - lr) / lr;
+    ++d.pixels_compared;
+  }
+  d.mean_rel_error = d.pixels_compared ? rel / d.pixels_compared : 0.0;
+  return d;
+}
+
+Rgb8 false_colour_difference(const Image& a, const Image& ref, float max_rel) {
+  check_sizes(a, ref);
+  const float floor = static_cast<float>(0.01 * mean_luminance(ref));
+  Rgb8 out(a.width, a.height);
+  for (std::size_t i = 0; i < a.pixels(); ++i) {
+    float lr = luminance(ref.at(i));
+    float e = std::fabs(luminance(a.at(i)) - lr) / std::max(lr, std::max(floor, 1e-30f));
+    Vec3 c = turbo(max_rel > 0 ? e / max_rel : 0.0f);
+    for (int k = 0; k < 3; ++k) out.px[3 * i + k] = static_cast<std::uint8_t>(std::lround(c[k] * 255.0f));
+  }
+  return out;
+}
+
+Rgb8 colour_scale(int width, int height) {
+  Rgb8 out(width, height);
+  for (int y = 0; y < height; ++y) {
+    Vec3 c = turbo(height > 1 ? 1.0f - static_cast<float>(y) / (height - 1) : 0.0f);
+    for (int x = 0; x < width; ++x)
+      for (int k = 0; k < 3; ++k)
+        out.px[(static_cast<std::size_t>(y) * width + x) * 3 + k] = static_cast<std::uint8_t>(std::lround(c[k] * 255.0f));
+  }
+  return out;
+}
+
+Rgb8 contact_sheet(const std::vector<std::vector<Rgb8>>& rows, int gap) {
+  int tw = 0, th = 0;
+  std::size_t cols = 0;
+  for (const auto& r : rows) {
+    cols = std::max(cols, r.size());
+    for (const auto& t : r) {
+      tw = std::max(tw, t.width);
+      th = std::max(th, t.height);
+    }
+  }
+  const int W = static_cast<int>(cols) * tw + (static_cast<int>(cols) + 1) * gap;
+  const int H = static_cast<int>(rows.size()) * th + (static_cast<int>(rows.size()) + 1) * gap;
+  Rgb8 sheet(W, H, 40);
+  for (std::size_t r = 0; r < rows.size(); ++r)
+    for (std::size_t c = 0; c < rows[r].size(); ++c)
+      sheet.blit(rows[r][c], gap + static_cast<int>(c) * (tw + gap), gap + static_cast<int>(r) * (th + gap));
+  return sheet;
+}
+
+}  // namespace bhcl::render

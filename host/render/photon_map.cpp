@@ -1,0 +1,52 @@
+#include "photon_map.hpp"
+
+#include <chrono>
+#include <cmath>
+
+#include "blockhash_cl/error.hpp"
+
+namespace bhcl::render {
+
+PhotonMap::PhotonMap(std::string name, std::vector<PhotonRecord> records, float power_scale)
+    : name_(std::move(name)), records_(std::move(records)), power_scale_(power_scale) {
+  positions_.resize(records_.size() * 3);
+  for (std::size_t i = 0; i < records_.size(); ++i)
+    for (int d = 0; d < 3; ++d) positions_[3 * i + d] = records_[i].position[d];
+}
+
+void PhotonMap::build_index(const std::string& method, std::shared_ptr<Runtime> runtime,
+                            const MethodOptions& options) {
+  index_.reset();
+  build_seconds_ = 0;
+  if (records_.empty()) return;
+  auto t0 = std::chrono::steady_clock::now();
+  index_ = make_index(method, std::move(runtime), positions_.data(), records_.size(), options);
+  build_seconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+QueryStats PhotonMap::query(const float* xyz, std::size_t n, const SearchParams& params,
+                            KnnResult& out) const {
+  if (!index_) throw Error("photon map '" + name_ + "': query before build_index (or the map is empty)");
+  return index_->query(xyz, n, params, out);
+}
+
+Vec3 PhotonMap::radiance(const KnnResult& r, std::size_t row, Vec3 n, Vec3 kd, float max_radius) const {
+  const int count = r.counts[row];
+  if (count <= 0) return {0, 0, 0};
+  float r2 = r.d2(row, count - 1);
+  // Fewer than k photons inside the maximum radius: the disc is the maximum radius.
+  if (count < r.k && std::isfinite(max_radius)) r2 = max_radius * max_radius;
+  if (!(r2 > 0)) return {0, 0, 0};  // all photons on the query point: no disc to divide by
+  const float radius = std::sqrt(r2);
+  Vec3 sum{0, 0, 0};
+  for (int j = 0; j < count; ++j) {
+    const PhotonRecord& p = records_[static_cast<std::size_t>(r.id(row, j))];
+    if (dot(p.get_direction_unnormalized(), n) <= 0) continue;  // arrived from behind the surface
+    float w = 1.0f - std::sqrt(r.d2(row, j)) / (kConeFilter * radius);
+    sum += p.get_power() * w;
+  }
+  const float norm = (1.0f - 2.0f / (3.0f * kConeFilter)) * kPi * r2;
+  return kd * sum * (power_scale_ / (kPi * norm));
+}
+
+}  // namespace bhcl::render

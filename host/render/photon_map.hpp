@@ -1,0 +1,57 @@
+// A photon map: the records, their positions in a kNN index of any method (make_index), and the
+// radiance estimate from the k nearest photons.
+//
+// Density estimate (Jensen's, with a cone filter): at a diffuse point x with albedo kd and normal
+// n (on the viewer's side), from the k nearest photons p within distance r (the k-th distance, or
+// the maximum radius when fewer are found):
+//     L(x) = (kd / pi) * sum_p w_p Phi_p / ((1 - 2 / (3 c)) pi r^2),   w_p = 1 - d_p / (c r)
+// with c = kConeFilter; photons arriving from behind the surface (dot(dir_p, n) <= 0) are
+// skipped. Units: Phi is radiance x mm^2 (photon_trace.hpp) and r is in mm, so L is radiance.
+#pragma once
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "blockhash_cl/factory.hpp"
+#include "blockhash_cl/knn.hpp"
+#include "photon.hpp"
+
+namespace bhcl::render {
+
+inline constexpr float kConeFilter = 1.1f;
+
+class PhotonMap {
+ public:
+  PhotonMap(std::string name, std::vector<PhotonRecord> records, float power_scale);
+
+  // (Re)builds the kNN index over the positions with any method make_index knows; the records
+  // stay, so several methods can answer queries on the same photons. No-op for an empty map.
+  void build_index(const std::string& method, std::shared_ptr<Runtime> runtime,
+                   const MethodOptions& options = {});
+
+  const std::string& name() const { return name_; }
+  std::size_t size() const { return records_.size(); }
+  bool empty() const { return records_.empty(); }
+  const std::vector<PhotonRecord>& records() const { return records_; }
+  const std::vector<float>& positions() const { return positions_; }
+  float power_scale() const { return power_scale_; }
+  const Index* index() const { return index_.get(); }
+  double build_seconds() const { return build_seconds_; }
+
+  // Answers all queries (n x 3) in ONE call of the index. Throws if no index was built.
+  QueryStats query(const float* xyz, std::size_t n, const SearchParams& params, KnnResult& out) const;
+
+  // The radiance estimate (see top of file) from row `row` of a query result.
+  Vec3 radiance(const KnnResult& r, std::size_t row, Vec3 n, Vec3 kd, float max_radius) const;
+
+ private:
+  std::string name_;
+  std::vector<PhotonRecord> records_;
+  std::vector<float> positions_;
+  float power_scale_;
+  std::unique_ptr<Index> index_;
+  double build_seconds_ = 0;
+};
+
+}  // namespace bhcl::render

@@ -1,0 +1,167 @@
+#include "photon_trace.hpp"
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <thread>
+
+#include "blockhash_cl/error.hpp"
+
+namespace bhcl::render {
+namespace {
+
+constexpr std::uint64_t kPhotonStream = 0x50484F54;  // "PHOT"
+
+struct ChunkOut {
+  std::vector<PhotonRecord> global, caustic;
+  Vec3 stored{0, 0, 0};
+};
+
+void trace_one(const EmbreeScene& es, const LightSampler& lights, const PhotonTraceOptions& opt,
+               float inv_lum_power, std::uint64_t index, ChunkOut& out) {
+  const Scene& scene = es.scene();
+  const float eps = es.ray_epsilon();
+  Rng rng(opt.seed, kPhotonStream, index);
+  float u0 = rng.uniform(), u1 = rng.uniform(), u2 = rng.uniform();
+  LightSampler::Sample ls = lights.sample(u0, u1, u2);
+  Vec3 dir = Frame(ls.normal).to_world(cosine_hemisphere(rng.uniform(), rng.uniform()));
+  // Power of the photon if it were the only one: pi Le / pdf_area (cosine emission), made
+  // relative to the total emitted luminance so that the stored halves are near 1.
+  Vec3 power = ls.emission * (kPi / ls.pdf_area) * inv_lum_power;
+  Vec3 org = ls.position + ls.normal * eps;
+  bool only_specular = true, had_specular = false;
+  for (int depth = 0; depth < opt.max_depth; ++depth) {
+    EmbreeScene::Hit hit;
+    if (!es.intersect(org, dir, 0.0f, INFINITY, hit)) return;
+    const Material& m = scene.material_of(hit.prim);
+    Vec3 x = org + dir * hit.t;
+    Vec3 ng = scene.geometric_normal(hit.prim);
+    bool front = dot(ng, dir) < 0;
+    Vec3 n = front ? ng : -ng;  // faces the incoming photon
+    if (m.is_diffuse()) {
+      PhotonRecord r;
+      r.position[0] = x.x;
+      r.position[1] = x.y;
+      r.position[2] = x.z;
+      r.set_power(power);
+      r.set_direction(-dir);
+      r.flags = static_cast<std::uint16_t>(std::min(depth, 255));
+      bool caustic = only_specular && had_specular;
+      if (caustic) r.flags |= PhotonRecord::kCaustic;
+      out.global.push_back(r);
+      out.stored += power;
+      if (caustic) out.caustic.push_back(r);
+      // Russian roulette on the albedo's largest channel: the surviving power never grows.
+      float p = std::fmin(1.0f, max_component(m.kd));
+      if (rng.uniform() >= p) return;
+      power = power * m.kd / p;
+      dir = Frame(n).to_world(cosine_hemisphere(rng.uniform(), rng.uniform()));
+      org = x + n * eps;
+      only_specular = false;
+    } else if (m.type == MaterialType::Mirror) {
+      float p = std::fmin(1.0f, max_component(m.ks));
+      if (!(p > 0) || rng.uniform() >= p) return;
+      power = power * m.ks / p;
+      dir = reflect(dir, n);
+      org = x + n * eps;
+      had_specular = true;
+    } else if (m.type == MaterialType::Glass) {
+      float p = std::fmin(1.0f, max_component(m.ks));
+      if (!(p > 0) || rng.uniform() >= p) return;
+      power = power * m.ks / p;
+      float eta = front ? 1.0f / m.ior : m.ior;
+      float cos_i = -dot(dir, n);
+      float F = fresnel_dielectric(cos_i, eta);
+      if (rng.uniform() < F) {
+        dir = reflect(dir, n);
+        org = x + n * eps;
+      } else {
+        float cos_t = std::sqrt(std::fmax(0.0f, 1.0f - eta * eta * (1.0f - cos_i * cos_i)));
+        dir = normalize(dir * eta + n * (eta * cos_i - cos_t));
+        org = x - n * eps;
+      }
+      had_specular = true;
+    } else {
+      return;  // black diffuse (e.g. a light without reflectance): absorbed
+    }
+  }
+}
+
+}  // namespace
+
+PhotonTraceResult trace_photons(const EmbreeScene& es, const LightSampler& lights,
+                                const PhotonTraceOptions& opt,
+                                const std::function<void(double)>& progress) {
+  if (opt.photons == 0) throw Error("photon tracing: --photons must be > 0");
+  auto t0 = std::chrono::steady_clock::now();
+  PhotonTraceResult res;
+  res.total_power = lights.total_power();
+  const float lum_power = luminance(res.total_power) > 0 ? luminance(res.total_power)
+                                                          : max_component(res.total_power);
+  const float inv_lum = 1.0f / lum_power;
+  // The chunk size depends only on the target, so the photon set does not depend on threads.
+  const std::size_t chunk = std::clamp<std::size_t>(opt.photons / 16, 64, 4096);
+  const std::size_t max_emitted = opt.max_emitted ? opt.max_emitted : 64 * opt.photons + 1000000;
+  int threads = opt.threads > 0 ? opt.threads : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  const std::size_t round_chunks = static_cast<std::size_t>(threads) * 8;
+
+  std::size_t next_chunk = 0;
+  bool done = false;
+  while (!done) {
+    std::vector<ChunkOut> outs(round_chunks);
+    std::atomic<std::size_t> cursor{0};
+    auto work = [&] {
+      for (;;) {
+        std::size_t c = cursor.fetch_add(1);
+        if (c >= round_chunks) return;
+        std::uint64_t first = static_cast<std::uint64_t>(next_chunk + c) * chunk;
+        for (std::uint64_t i = first; i < first + chunk; ++i) trace_one(es, lights, opt, inv_lum, i, outs[c]);
+      }
+    };
+    std::vector<std::thread> pool;
+    for (int t = 1; t < threads; ++t) pool.emplace_back(work);
+    work();
+    for (auto& t : pool) t.join();
+    es.check("photon tracing");
+    for (auto& o : outs) {
+      res.global.insert(res.global.end(), o.global.begin(), o.global.end());
+      res.caustic.insert(res.caustic.end(), o.caustic.begin(), o.caustic.end());
+      res.stored_power += o.stored;
+      res.emitted += chunk;
+      ++next_chunk;
+      if (res.global.size() >= opt.photons) {
+        done = true;
+        break;
+      }
+      if (res.emitted >= max_emitted)
+        throw Error("photon tracing: " + std::to_string(res.emitted) + " photons emitted but only " +
+                    std::to_string(res.global.size()) + " stored (of " + std::to_string(opt.photons) +
+                    " wanted): the lights reach almost no diffuse surface in scene '" +
+                    es.scene().name + "'");
+    }
+    if (progress) progress(std::min(1.0, static_cast<double>(res.global.size()) / opt.photons));
+  }
+  res.power_scale = lum_power / static_cast<float>(res.emitted);
+  res.stored_power *= res.power_scale;
+  res.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return res;
+}
+
+}  // namespace bhcl::render
+
+namespace bhcl::render {
+
+PhotonMaps build_photon_maps(const EmbreeScene& scene, const LightSampler& lights,
+                             const PhotonTraceOptions& options,
+                             const std::function<void(double)>& progress) {
+  PhotonMaps maps;
+  maps.trace = trace_photons(scene, lights, options, progress);
+  maps.global = std::make_unique<PhotonMap>("global", std::move(maps.trace.global), maps.trace.power_scale);
+  maps.trace.global.clear();
+  if (scene.scene().has_specular())
+    maps.caustic = std::make_unique<PhotonMap>("caustic", std::move(maps.trace.caustic), maps.trace.power_scale);
+  maps.trace.caustic.clear();
+  return maps;
+}
+
+}  // namespace bhcl::render

@@ -1,0 +1,297 @@
+/* Block hashing (Ma & McCool 2002): approximate kNN, one work-item per query.
+ *
+ * Per query: hash the query in each of the L tables (P thresholds per dimension, binary search);
+ * take the bucket of its cell (and, with probes, of the adjacent cell on the near side along each
+ * axis); order the non-empty buckets by |Q| (stable: table, then home/x/y/z); scan their blocks in
+ * that order, each block once, until ceil(A k) points have been examined; keep the k nearest in
+ * private memory. With BHCL_BH_BOXSKIP a block whose bounding box is farther than the current k-th
+ * distance (or the maximum radius) is skipped without counting: nothing in it can enter the list.
+ * lib/src/blockhash_query_ref.cpp is the host reference of exactly this algorithm: change both.
+ *
+ * Defines: BHCL_KMAX (top-k capacity), BHCL_BH_L (tables), BHCL_BH_DIRECT (1: all (P+1)^3 cells
+ * addressed directly; 0: binary search in the sorted directory of occupied cells),
+ * BHCL_BH_BOXSKIP, BHCL_BH_SCANCAP (most blocks scanned per query; X needs no define: each box
+ * holds its block's point count),
+ * BHCL_BH_BOXORDER (1: scan the gathered blocks in order of box distance with an early stop, the
+ * CPU form of DESIGN.md; 0: in bucket order, the talk's), BHCL_BH_MAXKEEP (box order: the most
+ * blocks a query keeps and scans; = BHCL_BH_SCANCAP). */
+#include "knn_common.h"
+#include "blockhash_layout.h"
+
+#ifndef BHCL_BH_L
+#define BHCL_BH_L 4
+#endif
+#ifndef BHCL_BH_DIRECT
+#define BHCL_BH_DIRECT 0
+#endif
+#ifndef BHCL_BH_BOXSKIP
+#define BHCL_BH_BOXSKIP 1
+#endif
+#ifndef BHCL_BH_SCANCAP
+#define BHCL_BH_SCANCAP 128
+#endif
+#ifndef BHCL_BH_BOXORDER
+#define BHCL_BH_BOXORDER 0
+#endif
+#ifndef BHCL_BH_MAXKEEP
+#define BHCL_BH_MAXKEEP 128
+#endif
+#define BHCL_BH_MAXBUCKETS (4 * BHCL_BH_L)
+
+/* (d, b) before (d2, b2): the candidate order of the box-order scan. */
+inline int bh_cand_less(float d, int b, float d2, int b2) { return d < d2 || (d == d2 && b < b2); }
+
+/* Offers candidate block b at box distance d to the sorted list of the `keep` nearest distinct
+ * blocks (n held); returns the new n. A block already held has the same d: skipped. */
+inline uint bh_keep(float* cd, int* cb, uint n, uint keep, float d, int b, float max_r2) {
+  if (d > max_r2) return n;
+  if (n == keep && !bh_cand_less(d, b, cd[n - 1], cb[n - 1])) return n;
+  for (uint i = 0; i < n; ++i)
+    if (cb[i] == b) return n;
+  uint pos = n < keep ? n : keep - 1;
+  while (pos > 0 && bh_cand_less(d, b, cd[pos - 1], cb[pos - 1])) {
+    cd[pos] = cd[pos - 1];
+    cb[pos] = cb[pos - 1];
+    --pos;
+  }
+  cd[pos] = d;
+  cb[pos] = b;
+  return n < keep ? n + 1 : n;
+}
+
+/* Scans one block into the top-k list; returns its point count. */
+inline uint bh_scan_block(float3 q, __global const bhcl_bh_block* blk, int cnt, float max_r2,
+                          float* best_d, int* best_i, uint k) {
+  for (int j = 0; j < cnt; ++j) {
+    float4 p = (float4)(blk->x[j], blk->y[j], blk->z[j], 0.0f);
+    float d = bhcl_dist2(q, p);
+    int id = blk->id[j];
+    if (d <= max_r2 && bhcl_topk_accepts(best_d, best_i, k, d, id))
+      bhcl_topk_insert(best_d, best_i, k, d, id);
+  }
+  return (uint)cnt;
+}
+
+/* h_T(t) = #{i : t_i <= t}; thresholds ascending, +inf padded. */
+inline uint bh_hash(__global const float* thr, uint P, float t) {
+  uint lo = 0, hi = P;
+  while (lo < hi) {
+    uint mid = (lo + hi) >> 1;
+    if (thr[mid] <= t) lo = mid + 1;
+    else hi = mid;
+  }
+  return lo;
+}
+
+/* The adjacent cell on the side of the nearer face, or -1 when that side is unbounded. */
+inline int bh_near_side(__global const float* thr, uint P, uint h, float t) {
+  float lo = h > 0 ? thr[h - 1] : -INFINITY;
+  float hi = h < P ? thr[h] : INFINITY;
+  float dlo = t - lo, dhi = hi - t;
+  if (dlo < dhi) return (int)h - 1;
+  if (isfinite(dhi)) return (int)h + 1;
+  return -1;
+}
+
+/* Squared distance from q to a block's box, in the order of bhcl_dist2: a lower bound of the
+ * distance of every point in the box, rounding included (every step is monotone). */
+inline float bh_box_dist2(float3 q, __global const bhcl_bh_box* b) {
+  float ex = fmax(fmax(b->lo_x - q.x, 0.0f), q.x - b->hi_x);
+  float ey = fmax(fmax(b->lo_y - q.y, 0.0f), q.y - b->hi_y);
+  float ez = fmax(fmax(b->lo_z - q.z, 0.0f), q.z - b->hi_z);
+  return ex * ex + ey * ey + ez * ez;
+}
+
+/* 3D Hilbert index of grid cell (x, y, z) < 2^bits (Skilling), as blockhash_hilbert.cpp. */
+inline ulong bh_hilbert_encode(uint x0, uint x1, uint x2, uint bits) {
+  uint X[3] = {x0, x1, x2};
+  uint M = 1u << (bits - 1);
+  for (uint Q = M; Q > 1; Q >>= 1) {
+    uint P = Q - 1;
+    for (int i = 0; i < 3; ++i) {
+      if (X[i] & Q) {
+        X[0] ^= P;
+      } else {
+        uint t = (X[0] ^ X[i]) & P;
+        X[0] ^= t;
+        X[i] ^= t;
+      }
+    }
+  }
+  X[1] ^= X[0];
+  X[2] ^= X[1];
+  uint t = 0;
+  for (uint Q = M; Q > 1; Q >>= 1)
+    if (X[2] & Q) t ^= Q - 1;
+  X[0] ^= t;
+  X[1] ^= t;
+  X[2] ^= t;
+  ulong key = 0;
+  for (int b = (int)bits - 1; b >= 0; --b)
+    for (int i = 0; i < 3; ++i) key = (key << 1) | (ulong)((X[i] >> b) & 1u);
+  return key;
+}
+
+/* The query's Hilbert key: quantised with the build's origin (xyz) and scale (w), in float. */
+inline ulong bh_query_key(float3 q, float4 qq, uint bits) {
+  float top = (float)((1u << bits) - 1);
+  float v0 = floor((q.x - qq.x) * qq.w), v1 = floor((q.y - qq.y) * qq.w), v2 = floor((q.z - qq.z) * qq.w);
+  v0 = v0 > 0.0f ? v0 : 0.0f;
+  v1 = v1 > 0.0f ? v1 : 0.0f;
+  v2 = v2 > 0.0f ? v2 : 0.0f;
+  v0 = v0 > top ? top : v0;
+  v1 = v1 > top ? top : v1;
+  v2 = v2 > top ? top : v2;
+  return bh_hilbert_encode((uint)v0, (uint)v1, (uint)v2, bits);
+}
+
+/* The bucket of a cell in a table, or -1. */
+inline long bh_find_bucket(__global const uint* keys, __global const uint* table_starts, uint P,
+                           int table, uint key) {
+#if BHCL_BH_DIRECT
+  ulong side = (ulong)P + 1;
+  return (long)((ulong)table * side * side * side + key);
+#else
+  uint lo = table_starts[table], hi = table_starts[table + 1];
+  while (lo < hi) {
+    uint mid = (lo + hi) >> 1;
+    if (keys[mid] < key) lo = mid + 1;
+    else hi = mid;
+  }
+  return (lo < table_starts[table + 1] && keys[lo] == key) ? (long)lo : -1;
+#endif
+}
+
+__kernel void blockhash_knn(__global const bhcl_bh_block* blocks,
+                            __global const bhcl_bh_box* boxes,
+                            __global const float* thresholds, uint P,
+                            __global const uint* keys, __global const uint* table_starts,
+                            __global const bhcl_bh_bucket* buckets, __global const int* refs,
+                            uint probes, __global const ulong* block_keys, uint n_blocks,
+                            float4 qquant, uint qbits, uint seeds,
+                            __global const float* queries, ulong first, uint count,
+                            uint k, float max_r2, uint budget, uint keep, __global int* out_ids,
+                            __global float* out_d2, __global int* out_counts,
+                            __global int* out_examined, uint want_examined) {
+  uint gid = get_global_id(0);
+  if (gid >= count) return; /* also the warm-up launch (count 0) */
+  ulong row = first + gid;
+  float3 q = bhcl_load_query(queries, row);
+
+  float best_d[BHCL_KMAX];
+  int best_i[BHCL_KMAX];
+  bhcl_topk_init(best_d, best_i, k);
+  uint examined = 0;
+
+  if (bhcl_query_is_finite(q)) {
+    /* 1. Buckets, sorted by |Q| with a stable insertion. */
+    uint cand_q[BHCL_BH_MAXBUCKETS];
+    uint cand_b[BHCL_BH_MAXBUCKETS];
+    uint ncand = 0;
+    const uint side = P + 1;
+    for (int t = 0; t < BHCL_BH_L; ++t) {
+      __global const float* thr = thresholds + (size_t)t * 3 * P;
+      uint h0 = bh_hash(thr, P, q.x), h1 = bh_hash(thr + P, P, q.y), h2 = bh_hash(thr + 2 * P, P, q.z);
+      int n0 = -1, n1 = -1, n2 = -1;
+      if (probes) {
+        n0 = bh_near_side(thr, P, h0, q.x);
+        n1 = bh_near_side(thr + P, P, h1, q.y);
+        n2 = bh_near_side(thr + 2 * P, P, h2, q.z);
+      }
+      for (int pr = 0; pr < (probes ? 4 : 1); ++pr) {
+        uint c0 = h0, c1 = h1, c2 = h2;
+        if (pr == 1) { if (n0 < 0) continue; c0 = (uint)n0; }
+        if (pr == 2) { if (n1 < 0) continue; c1 = (uint)n1; }
+        if (pr == 3) { if (n2 < 0) continue; c2 = (uint)n2; }
+        long b = bh_find_bucket(keys, table_starts, P, t, (c0 * side + c1) * side + c2);
+        if (b < 0) continue;
+        bhcl_bh_bucket bk = buckets[b];
+        if (bk.n_refs == 0) continue;
+        uint aq = (uint)abs(bk.q);
+        uint pos = ncand++;
+        while (pos > 0 && cand_q[pos - 1] > aq) {
+          cand_q[pos] = cand_q[pos - 1];
+          cand_b[pos] = cand_b[pos - 1];
+          --pos;
+        }
+        cand_q[pos] = aq;
+        cand_b[pos] = (uint)b;
+      }
+    }
+
+#if BHCL_BH_BOXORDER
+    /* 2. Box order (the CPU form of DESIGN.md): of the blocks of those buckets (and the Hilbert
+     * seeds), the `keep` nearest distinct by (box distance, block), kept sorted while gathering;
+     * scanned in that order until the budget is spent or the next box is farther than the k-th
+     * distance. keep = ceil(budget / X) + 1 blocks always spend the budget (every block but the
+     * last holds X points), so the bounded list scans what a full sort would. */
+    float cd[BHCL_BH_MAXKEEP];
+    int cb[BHCL_BH_MAXKEEP];
+    uint nc = 0;
+    if (seeds > 0) {
+      /* The blocks around the query's own Hilbert position. */
+      ulong key = bh_query_key(q, qquant, qbits);
+      uint lo = 0, hi = n_blocks;
+      while (lo < hi) {
+        uint mid = (lo + hi) >> 1;
+        if (block_keys[mid] <= key) lo = mid + 1;
+        else hi = mid;
+      }
+      int j = (int)lo - 1;
+      if (j < 0) j = 0;
+      int a = max(0, j - (int)seeds), e = min((int)n_blocks - 1, j + (int)seeds);
+      for (int b = a; b <= e; ++b) nc = bh_keep(cd, cb, nc, keep, bh_box_dist2(q, boxes + b), b, max_r2);
+    }
+    for (uint s = 0; s < ncand; ++s) {
+      bhcl_bh_bucket bk = buckets[cand_b[s]];
+      for (uint r = 0; r < bk.n_refs; ++r) {
+        int b = refs[bk.first_ref + r];
+        nc = bh_keep(cd, cb, nc, keep, bh_box_dist2(q, boxes + b), b, max_r2);
+      }
+    }
+    for (uint i = 0; i < nc; ++i) {
+      if (examined >= budget || cd[i] > bhcl_topk_bound(best_d, k)) break;
+      int b = cb[i];
+      examined += bh_scan_block(q, blocks + b, boxes[b].count, max_r2, best_d, best_i, k);
+    }
+#else
+    /* 2. Priority order (the talk's): the blocks of the buckets in bucket order, each scanned once,
+     * until the budget is spent. A 128-bit filter over the scanned blocks spares most of the
+     * linear duplicate searches. */
+    int scanned[BHCL_BH_SCANCAP];
+    uint nscanned = 0;
+    ulong seen0 = 0, seen1 = 0;
+    for (uint s = 0; s < ncand; ++s) {
+      bhcl_bh_bucket bk = buckets[cand_b[s]];
+      int done = 0;
+      for (uint r = 0; r < bk.n_refs; ++r) {
+        if (examined >= budget || nscanned >= BHCL_BH_SCANCAP) {
+          done = 1;
+          break;
+        }
+        int b = refs[bk.first_ref + r];
+        __global const bhcl_bh_box* box = boxes + b;
+#if BHCL_BH_BOXSKIP
+        float bd = bh_box_dist2(q, box);
+        if (bd > max_r2 || bd > bhcl_topk_bound(best_d, k)) continue;
+#endif
+        uint hb = ((uint)b * 0x9E3779B1u) >> 25;
+        ulong bit = (ulong)1 << (hb & 63);
+        int maybe = (hb & 64) ? (seen1 & bit) != 0 : (seen0 & bit) != 0;
+        if (maybe) {
+          int dup = 0;
+          for (uint u = 0; u < nscanned; ++u) dup |= scanned[u] == b;
+          if (dup) continue;
+        }
+        if (hb & 64) seen1 |= bit;
+        else seen0 |= bit;
+        scanned[nscanned++] = b;
+        examined += bh_scan_block(q, blocks + b, box->count, max_r2, best_d, best_i, k);
+      }
+      if (done) break;
+    }
+#endif
+  }
+  bhcl_write_row(out_ids, out_d2, out_counts, row, k, best_d, best_i);
+  if (want_examined) out_examined[row] = (int)examined;
+}

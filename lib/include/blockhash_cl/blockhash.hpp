@@ -1,0 +1,157 @@
+// Block Hashing (Ma & McCool, Graphics Hardware 2002): approximate kNN through L locality-sensitive
+// hash tables of 256-byte blocks of Hilbert-sorted points, answered by an OpenCL kernel, one
+// work-item per query. Two presets of one implementation (DESIGN.md "Block hashing, as we build it"):
+//   paper  the talk's scheme and defaults: L = P = round(ln N), X = 10, B = ceil(A k / (X ln N)) + 1
+//          for the design A and k, direct addressing of all (P+1)^3 cells, a full bucket drops
+//          new blocks, no neighbour probes, no bounding-box skipping.
+//   auto   (default) parameters from the data and what RESEARCH.md measured: guarded thresholds,
+//          P so that the median occupied cell holds ~target_cell_points points, B = 90th
+//          percentile of distinct blocks per occupied cell, keep-top-count overflow, L = 4, X = 16,
+//          a directory of occupied cells only, near-side neighbour probes, block bounding boxes
+//          and candidate blocks scanned in order of box distance until the next box is farther than
+//          the current k-th distance (DESIGN.md's CPU form; box_order = 0 gives the bucket order).
+// Every derived value can be overridden (-1 = derive). Query parameters (k, A, max_radius,
+// neighbour_probes) live in SearchParams; a query examines at most ceil(A k) points (counted
+// over the blocks it scans) and returns the k nearest of them under the result contract.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "blockhash_cl/knn.hpp"
+
+namespace bhcl {
+
+namespace blockhash {
+struct Structure;  // the host copy of every built array (lib/src/blockhash_build.hpp)
+}
+
+struct BlockHashBuildParams {
+  enum class Preset { Auto, Paper };
+  Preset preset = Preset::Auto;
+  int L = -1;  // tables
+  int P = -1;  // thresholds per dimension (cells per dimension: P + 1), <= 1024
+  int B = -1;  // block references per bucket
+  int X = -1;  // points per block, 1..16 (16 fills the 256-byte block)
+  // auto: P is chosen so that the median occupied cell holds about this many points.
+  double target_cell_points = 100.0;
+  // auto: B is this percentile of the distinct blocks touching an occupied cell.
+  double b_percentile = 0.90;
+  // paper: B follows the talk's rule B > A k / (X ln N) for this design A and k.
+  double design_A = 8.0;
+  int design_k = 10;
+  int hist_bins = 1024;       // histogram bins per dimension for the threshold CDFs
+  int hilbert_bits = 21;      // bits per dimension of the Hilbert keys (3 x 21 = 63-bit keys)
+  // -1 = preset default (paper: off; auto: on).
+  int guard_thresholds = -1;  // snap to bin edges, de-duplicate, keep off heavy bins
+  int keep_top_count = -1;    // overflow keeps the blocks holding most of the cell's points
+  int direct_addressing = -1; // all (P+1)^3 cells (paper) vs occupied cells only (auto)
+  int box_skip = -1;          // skip blocks whose bounding box is farther than the k-th distance
+  // Scan order of the gathered blocks: 0 = bucket order (the talk's, GPU-friendly), 1 = ascending
+  // bounding-box distance with an early stop (DESIGN.md's CPU form; needs no box_skip).
+  int box_order = -1;
+  // Box order: also gather the blocks around the query's own Hilbert key (binary search over the
+  // blocks' first keys), this many on each side (at least enough for k points); 0 = off. A query
+  // whose cells are all empty (far from the data) still gets k answers. -1: auto 1, paper 0.
+  int hilbert_seed = -1;
+  int neighbour_probes = -1;  // default for SearchParams::neighbour_probes == -1
+  std::uint64_t seed = 1;     // threshold jitter (a different jitter per table)
+  bool verbose = false;       // progress of the build stages on stderr
+
+  static Preset parse_preset(const std::string& name);  // "auto" | "paper"; throws otherwise
+  static const char* preset_name(Preset p);
+};
+
+// The values a build actually used (derived ones filled in) and what it cost.
+struct BlockHashBuildInfo {
+  BlockHashBuildParams::Preset preset = BlockHashBuildParams::Preset::Auto;
+  int L = 0, P = 0, B = 0, X = 0;
+  bool guard_thresholds = false, keep_top_count = false, direct_addressing = false;
+  bool box_skip = false, neighbour_probes = false, box_order = false;
+  int hilbert_seed = 0;
+  std::size_t n_points = 0, n_blocks = 0;
+  std::size_t occupied_cells = 0;      // over all tables
+  std::size_t overflowed_buckets = 0;  // over all tables
+  std::size_t block_refs = 0;          // stored references (paper: used slots), all tables
+  double median_cell_points = 0;       // table 0, occupied cells
+  double median_cell_blocks = 0;       // table 0: distinct blocks touching an occupied cell
+  double p90_cell_blocks = 0;
+  // Stage timings (seconds) and the total.
+  double t_hilbert = 0, t_blocks = 0, t_params = 0, t_thresholds = 0, t_tables = 0, t_upload = 0;
+  double t_total = 0;
+  std::string summary() const;  // one line
+};
+
+class BlockHashIndex : public Index {
+ public:
+  // points: N x 3 floats in the caller's order (copied). Throws for N == 0, N >= 2^31,
+  // non-finite points or parameters out of range.
+  BlockHashIndex(std::shared_ptr<Runtime> runtime, const float* points, std::size_t n_points,
+                 const BlockHashBuildParams& params = {});
+  ~BlockHashIndex() override;
+
+  // A saved index (versioned, checksummed). Throws bhcl::Error naming the file and the field for a
+  // missing, truncated, corrupt or foreign file.
+  static std::unique_ptr<BlockHashIndex> load(std::shared_ptr<Runtime> runtime,
+                                              const std::string& path);
+  void save(const std::string& path) const;
+  // The first caller index whose point differs from the indexed one (bit for bit), or -1 when the
+  // index holds exactly these n points (a loaded index is checked against the caller's points).
+  long first_mismatch(const float* points, std::size_t n) const;
+
+  std::string method() const override { return "blockhash"; }
+  bool exact() const override { return false; }
+  std::size_t memory_bytes() const override;  // every device array, points included
+  double memory_per_point() const { return double(memory_bytes()) / double(size()); }
+  // The talk's memory overhead (4 (Ak/X)(ln N)^3 + 12 (ln N)^2 + 1.6 N) / 24N, and ours measured
+  // the same way: bytes beyond the points' own (24 B per talk photon) over 24 N.
+  static double talk_overhead(std::size_t N, double A, int k, int X);
+  double measured_overhead() const;
+
+  const BlockHashBuildInfo& info() const { return info_; }
+  int L() const { return info_.L; }
+  int P() const { return info_.P; }
+  int B() const { return info_.B; }
+  int X() const { return info_.X; }
+
+  // The host reference of the query: the same candidates in the same order and the same float
+  // arithmetic as the kernel, so its results equal the kernel's bit for bit. examined (optional)
+  // gets the points examined per query. threads 0 = all hardware threads.
+  KnnResult reference_query(const float* queries, std::size_t n, const SearchParams& params,
+                            std::vector<std::int32_t>* examined = nullptr,
+                            unsigned threads = 0) const;
+
+  // The kernel with per-query statistics: examined[i] = points examined by query i.
+  QueryStats query_examined(const float* queries, std::size_t n, const SearchParams& params,
+                            KnnResult& out, std::vector<std::int32_t>& examined) const;
+
+  // ceil(A k): the points a query may examine.
+  static std::uint32_t budget(const SearchParams& params);
+
+  const blockhash::Structure& structure() const { return *s_; }
+
+ protected:
+  cl::Event enqueue_batch(const cl::CommandQueue& queue, const cl::Buffer& queries,
+                          std::size_t first, std::size_t count, const ResultBuffers& out,
+                          const SearchParams& params, std::size_t local_size,
+                          const std::vector<cl::Event>* wait) const override;
+  void check_params(const SearchParams& params) const override;
+
+ private:
+  BlockHashIndex(std::shared_ptr<Runtime> runtime, std::unique_ptr<blockhash::Structure> s);
+  void upload();
+  cl::Event enqueue_stats(const cl::CommandQueue& queue, const cl::Buffer& queries,
+                          std::size_t first, std::size_t count, const ResultBuffers& out,
+                          const SearchParams& params, std::size_t local_size,
+                          const std::vector<cl::Event>* wait, const cl::Buffer* examined) const;
+  std::string kernel_options(int kmax) const;
+
+  std::unique_ptr<blockhash::Structure> s_;
+  BlockHashBuildInfo info_;
+  cl::Buffer blocks_, boxes_, thresholds_, keys_, table_starts_, buckets_, refs_, block_keys_, dummy_;
+};
+
+}  // namespace bhcl

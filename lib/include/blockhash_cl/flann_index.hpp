@@ -1,0 +1,69 @@
+// FLANN on the host: the second exact baseline and the default ground truth of `bhcl eval`.
+//
+// flann::KDTreeSingleIndex with L2_Simple<float> (exact for 3D), queried by our own threads
+// (Debian's FLANN is used header-only, without OpenMP, so its `cores` parameter would do nothing).
+// Results follow the same contract as the device methods, bit for bit equal to brute force:
+//  - each neighbour's distance is the contract's float sum((q-p)^2), as reference::dist2_float
+//    computes it (FLANN's L2_Simple evaluates the same expression in the same order; checked at
+//    build time, recomputed if it ever differs);
+//  - FLANN's search feeds our result set, which keeps the k smallest (distance, index) pairs, ties
+//    to the lower index, and reports a bound slightly above the k-th distance so that FLANN's
+//    float pruning (incremental cell distances, strict `<` at the leaves) cannot drop a point that
+//    ties the k-th distance or beats it by a rounding error;
+//  - rows FLANN cannot fill (points whose squared distance overflows to +inf) are completed by a
+//    linear scan.
+// The buffer-level call (enqueue_query) is honest but not asynchronous: it waits for `wait`,
+// reads the queries back, answers them on the host and writes the results with blocking writes.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+
+#include "blockhash_cl/knn.hpp"
+
+namespace bhcl {
+
+struct FlannParams {
+  int threads = 0;         // query threads; 0 = all hardware threads
+  int leaf_max_size = 10;  // FLANN's default
+};
+
+class FlannIndex : public Index {
+ public:
+  // points: N x 3 floats (copied). The runtime serves the buffer-level call only. Throws for
+  // N == 0, non-finite points or a null runtime.
+  FlannIndex(std::shared_ptr<Runtime> runtime, const float* points, std::size_t n_points,
+             const FlannParams& params = {});
+  ~FlannIndex() override;
+
+  std::string method() const override { return "flann"; }
+  bool exact() const override { return true; }
+  // Host memory: FLANN's tree, its reordered copy of the points and our copy.
+  std::size_t memory_bytes() const override;
+  int threads() const { return threads_; }
+
+  // Answers on the host. QueryStats: query_s = wall time of the search itself (all threads),
+  // no compile, upload or download; batches = 0 (no kernel dispatch).
+  QueryStats query(const float* queries, std::size_t n, const SearchParams& params,
+                   KnnResult& out) const override;
+  using Index::query;
+
+  // Answers rows [0, n) into raw arrays (n*k ids and distances, n counts); returns how many
+  // queries had a non-finite coordinate (their rows are empty).
+  std::size_t search(const float* queries, std::size_t n, const SearchParams& params,
+                     std::int32_t* ids, float* dist2, std::int32_t* counts) const;
+
+ protected:
+  cl::Event enqueue_batch(const cl::CommandQueue& queue, const cl::Buffer& queries,
+                          std::size_t first, std::size_t count, const ResultBuffers& out,
+                          const SearchParams& params, std::size_t local_size,
+                          const std::vector<cl::Event>* wait) const override;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+  int threads_ = 1;
+};
+
+}  // namespace bhcl

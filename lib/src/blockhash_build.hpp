@@ -1,0 +1,192 @@
+// Block hashing, host side: the built structure and one function per build stage, so that the
+// tests can call each stage on its own. The stages, in order (blockhash_index.cpp runs them):
+//   blockhash_hilbert.cpp     quantise in the bounding box, 3D Hilbert keys, stable sort
+//   blockhash_blocks.cpp      cut the sorted points into blocks of X, a bounding box per block
+//   blockhash_params.cpp      derive L, P, B, X (paper formulas or auto from the data)
+//   blockhash_thresholds.cpp  histogram, CDF, stratified jittered inversion, guards; h_T(t)
+//   blockhash_tables.cpp      L tables of buckets: insertion, overflow, Q
+//   blockhash_query_ref.cpp   the host reference of the kernel's query
+//   blockhash_io.cpp          save / load
+#pragma once
+
+#include <cstddef>
+#include <algorithm>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "blockhash_cl/blockhash.hpp"
+#include "blockhash_layout.h"
+
+namespace bhcl::blockhash {
+
+struct Structure;
+
+// ---- Stage 1: Hilbert keys -------------------------------------------------------------------
+
+// Maps coordinates to a 2^bits grid over the points' bounding box. One scale for all three axes
+// (the largest extent), so a flat box keeps its shape and a zero extent maps to cell 0; computed in
+// double from the offset to the box's corner, so tiny, huge and far-offset boxes keep their
+// resolution.
+struct Quantiser {
+  double origin[3] = {0, 0, 0};
+  double scale = 0;  // cells per unit length
+  int bits = 21;
+  std::uint32_t cell(int dim, float v) const;
+};
+Quantiser make_quantiser(const float* xyz, std::size_t n, int bits);
+
+// The Hilbert index of grid cell (x, y, z), each < 2^bits, bits <= 21 (Skilling's transpose
+// algorithm). hilbert_decode is its inverse.
+std::uint64_t hilbert_encode(std::uint32_t x, std::uint32_t y, std::uint32_t z, int bits);
+void hilbert_decode(std::uint64_t key, int bits, std::uint32_t out[3]);
+
+std::vector<std::uint64_t> hilbert_keys(const float* xyz, std::size_t n, const Quantiser& q);
+// The permutation that sorts by (key, original index): order[i] = original index of the i-th point.
+std::vector<std::int32_t> hilbert_order(const std::vector<std::uint64_t>& keys);
+
+// The whole stage on a structure: s.order, s.block_keys (the key of each block's first point, for
+// X = s.info.X) and the query quantiser (s.q_*).
+void sort_points(const float* xyz, std::size_t n, int bits, Structure& s);
+
+// ---- Stage 2: blocks -------------------------------------------------------------------------
+
+// Cuts the points, taken in `order`, into blocks of X (the last one partial), each with its box.
+void make_blocks(const float* xyz, const std::vector<std::int32_t>& order, int X,
+                 std::vector<bhcl_bh_block>& blocks, std::vector<bhcl_bh_box>& boxes);
+
+// ---- Stage 3: thresholds ---------------------------------------------------------------------
+
+struct Histogram {
+  double lo = 0, hi = 0;  // range of the bins (the data's extent along the dimension)
+  std::vector<std::uint64_t> counts;
+  std::uint64_t total = 0;
+  double edge(int e) const { return lo + (hi - lo) * double(e) / double(counts.size()); }
+};
+// sorted_xyz: points in any order; dim 0..2. stride selects every stride-th point (sampling).
+Histogram histogram(const float* xyz, std::size_t n, int dim, int bins, std::size_t stride = 1);
+
+// P thresholds from the histogram's CDF inverted at the stratified samples (i + r_i) / P, r_i
+// uniform in [0, 1) from (seed, table, dim). guarded: snapped to bin edges, thresholds on the
+// range's ends dropped, a threshold bordering a heavy bin (holding more than N / P points) moved
+// one bin away from it, duplicates removed; the removed slots are +inf. The result is ascending.
+std::vector<float> make_thresholds(const Histogram& h, int P, std::uint64_t seed, int table,
+                                   int dim, bool guarded);
+
+// h_T(t) = #{i : t_i <= t}: 0 below t_0, P at or above the last threshold (the clamp).
+inline std::uint32_t hash_coord(const float* thr, std::uint32_t P, float t) {
+  std::uint32_t lo = 0, hi = P;
+  while (lo < hi) {
+    std::uint32_t mid = (lo + hi) >> 1;
+    if (thr[mid] <= t) lo = mid + 1;
+    else hi = mid;
+  }
+  return lo;
+}
+
+// ---- Stage 4: tables -------------------------------------------------------------------------
+
+struct TableStats {
+  std::size_t occupied_cells = 0, overflowed = 0, refs = 0;
+  std::vector<std::uint32_t> cell_points;  // table 0 only: points per occupied cell
+  std::vector<std::uint32_t> cell_blocks;  // table 0 only: distinct blocks per occupied cell
+};
+
+// ---- The structure ---------------------------------------------------------------------------
+
+struct Structure {
+  BlockHashBuildInfo info;
+  std::size_t n_points = 0;
+  std::vector<std::int32_t> order;       // Hilbert position -> caller's index
+  std::vector<bhcl_bh_block> blocks;
+  std::vector<bhcl_bh_box> boxes;
+  std::vector<float> thresholds;         // L * 3 * P
+  std::vector<std::uint32_t> table_starts;  // L + 1 offsets into keys/buckets
+  std::vector<std::uint32_t> keys;       // auto: sorted occupied cell keys per table; paper: empty
+  std::vector<bhcl_bh_bucket> buckets;
+  std::vector<std::int32_t> refs;
+  // Hilbert seeding: the key of each block's first point, and the query-side quantiser in float
+  // (the kernel and the reference compute the query's key with exactly these values).
+  std::vector<std::uint64_t> block_keys;
+  float q_origin[3] = {0, 0, 0};
+  float q_scale = 0;
+  int q_bits = 21;
+
+  const float* thr(int table, int dim) const {
+    return thresholds.data() + (std::size_t(table) * 3 + dim) * std::size_t(info.P);
+  }
+  std::uint32_t cell_key(const std::uint32_t h[3]) const {
+    std::uint32_t s = std::uint32_t(info.P) + 1;
+    return (h[0] * s + h[1]) * s + h[2];
+  }
+  // The bucket index of a cell of a table, or -1 when the cell has no bucket (auto: unoccupied).
+  long find_bucket(int table, std::uint32_t key) const;
+  // The coordinates of a sorted point (Hilbert position i).
+  void point(std::size_t i, float p[3]) const {
+    const bhcl_bh_block& b = blocks[i / info.X];
+    std::size_t j = i % info.X;
+    p[0] = b.x[j]; p[1] = b.y[j]; p[2] = b.z[j];
+  }
+  // The cell of a point in a table.
+  std::uint32_t point_cell(int table, const float p[3]) const {
+    std::uint32_t h[3];
+    for (int d = 0; d < 3; ++d) h[d] = hash_coord(thr(table, d), std::uint32_t(info.P), p[d]);
+    return cell_key(h);
+  }
+  // Device bytes of every array.
+  std::size_t device_bytes() const;
+  // Checks every invariant the kernel relies on (indices in range, sorted keys, ...); throws
+  // bhcl::Error naming `what` and the first violation. Used after load.
+  void validate(const std::string& what) const;
+};
+
+// Derives L, P, B, X and the flags (stage "params"): paper formulas, or auto from the data. The
+// structure's blocks must be built (X is decided first, by derive_x).
+int derive_x(const BlockHashBuildParams& p);
+void derive_params(const BlockHashBuildParams& p, Structure& s);
+
+// Fills s.thresholds for every table (needs s.info.P, L and the blocks).
+void build_thresholds(const BlockHashBuildParams& p, Structure& s);
+// Fills table_starts, keys, buckets, refs (needs thresholds). Returns table 0's statistics.
+TableStats build_tables(Structure& s);
+
+// Population statistics of table-0-like cells for a candidate P (used by auto's bisection):
+// median points per occupied cell over every stride-th sorted point.
+double median_cell_points(const Structure& s, const BlockHashBuildParams& p, int P,
+                          std::size_t stride);
+
+// The host reference query. examined may be null.
+void reference_query(const Structure& s, const float* queries, std::size_t n,
+                     const SearchParams& params, bool probes, KnnResult& out,
+                     std::vector<std::int32_t>* examined, unsigned threads);
+
+// The scan cap of a kernel variant: at most this many blocks are scanned per query (enough for
+// A <= 32 at k <= kmax; a larger budget stops here, in the kernel and the reference alike).
+inline std::uint32_t scan_cap(int kmax, int X) {
+  std::uint32_t c = std::uint32_t((32 * kmax + X - 1) / X + 1);
+  return c > 4096 ? 4096 : c;
+}
+
+// The Hilbert key of a query, in float arithmetic (the kernel's bh_query_key).
+std::uint64_t query_hilbert_key(const Structure& s, const float q[3]);
+
+// Box order: blocks seeded on each side of the query's Hilbert position for k.
+inline std::uint32_t seed_side(int hilbert_seed, int k, int X) {
+  if (hilbert_seed <= 0) return 0;
+  std::uint32_t need = std::uint32_t((k + 2 * X - 1) / (2 * X));
+  return std::max<std::uint32_t>(std::uint32_t(hilbert_seed), need);
+}
+
+// Box order: the blocks a query keeps (the nearest distinct by box distance) and at most scans:
+// ceil(budget / X) + 1 spend any budget (every block but the last holds X points), bounded by
+// the kernel variant's scan cap.
+inline std::uint32_t keep_blocks(std::uint32_t budget, int kmax, int X) {
+  std::uint64_t c = (std::uint64_t(budget) + X - 1) / X + 1;
+  return static_cast<std::uint32_t>(std::min<std::uint64_t>(c, scan_cap(kmax, X)));
+}
+
+// Save / load (blockhash_io.cpp).
+void save_structure(const Structure& s, const std::string& path);
+std::unique_ptr<Structure> load_structure(const std::string& path);
+
+}  // namespace bhcl::blockhash

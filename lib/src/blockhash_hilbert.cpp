@@ -1,0 +1,140 @@
+// Stage 1 of the block-hash build: positions quantised in the bounding box, 3D Hilbert keys, and
+// the stable sort by (key, original index) that makes builds deterministic.
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+
+#include "blockhash_build.hpp"
+#include "blockhash_cl/error.hpp"
+
+namespace bhcl::blockhash {
+
+Quantiser make_quantiser(const float* xyz, std::size_t n, int bits) {
+  if (bits < 1 || bits > 21) throw Error("blockhash: hilbert_bits must be in [1, 21], got " + std::to_string(bits));
+  Quantiser q;
+  q.bits = bits;
+  double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+  for (std::size_t i = 0; i < n; ++i)
+    for (int d = 0; d < 3; ++d) {
+      double v = xyz[3 * i + d];
+      lo[d] = std::min(lo[d], v);
+      hi[d] = std::max(hi[d], v);
+    }
+  double extent = 0;
+  for (int d = 0; d < 3; ++d) {
+    q.origin[d] = n ? lo[d] : 0.0;
+    if (n) extent = std::max(extent, hi[d] - lo[d]);  // double: no overflow for any finite floats
+  }
+  // One scale for all axes: a flat or thin box keeps its aspect, so Hilbert order stays local in
+  // space; an all-equal point set (extent 0) maps everything to cell 0.
+  q.scale = extent > 0 ? std::ldexp(1.0, bits) / extent : 0.0;
+  return q;
+}
+
+std::uint32_t Quantiser::cell(int dim, float v) const {
+  double c = std::floor((double(v) - origin[dim]) * scale);
+  double top = std::ldexp(1.0, bits) - 1;
+  if (!(c > 0)) return 0;  // also catches NaN
+  return static_cast<std::uint32_t>(std::min(c, top));
+}
+
+// Skilling, "Programming the Hilbert curve" (AIP Conf. Proc. 707, 2004): axes -> transposed index.
+std::uint64_t hilbert_encode(std::uint32_t x, std::uint32_t y, std::uint32_t z, int bits) {
+  std::uint32_t X[3] = {x, y, z};
+  const std::uint32_t M = 1u << (bits - 1);
+  for (std::uint32_t Q = M; Q > 1; Q >>= 1) {
+    std::uint32_t P = Q - 1;
+    for (int i = 0; i < 3; ++i) {
+      if (X[i] & Q) {
+        X[0] ^= P;
+      } else {
+        std::uint32_t t = (X[0] ^ X[i]) & P;
+        X[0] ^= t;
+        X[i] ^= t;
+      }
+    }
+  }
+  for (int i = 1; i < 3; ++i) X[i] ^= X[i - 1];
+  std::uint32_t t = 0;
+  for (std::uint32_t Q = M; Q > 1; Q >>= 1)
+    if (X[2] & Q) t ^= Q - 1;
+  for (int i = 0; i < 3; ++i) X[i] ^= t;
+  std::uint64_t key = 0;
+  for (int b = bits - 1; b >= 0; --b)
+    for (int i = 0; i < 3; ++i) key = (key << 1) | ((X[i] >> b) & 1u);
+  return key;
+}
+
+void hilbert_decode(std::uint64_t key, int bits, std::uint32_t out[3]) {
+  std::uint32_t X[3] = {0, 0, 0};
+  for (int b = bits - 1; b >= 0; --b)
+    for (int i = 0; i < 3; ++i) {
+      int shift = 3 * b + (2 - i);
+      X[i] |= std::uint32_t((key >> shift) & 1u) << b;
+    }
+  const std::uint32_t N = 2u << (bits - 1);
+  std::uint32_t t = X[2] >> 1;
+  for (int i = 2; i > 0; --i) X[i] ^= X[i - 1];
+  X[0] ^= t;
+  for (std::uint32_t Q = 2; Q != N; Q <<= 1) {
+    std::uint32_t P = Q - 1;
+    for (int i = 2; i >= 0; --i) {
+      if (X[i] & Q) {
+        X[0] ^= P;
+      } else {
+        std::uint32_t s = (X[0] ^ X[i]) & P;
+        X[0] ^= s;
+        X[i] ^= s;
+      }
+    }
+  }
+  out[0] = X[0];
+  out[1] = X[1];
+  out[2] = X[2];
+}
+
+std::uint64_t query_hilbert_key(const Structure& s, const float q[3]) {
+  const float top = float((1u << s.q_bits) - 1);
+  std::uint32_t c[3];
+  for (int d = 0; d < 3; ++d) {
+    float v = std::floor((q[d] - s.q_origin[d]) * s.q_scale);
+    if (!(v > 0.0f)) v = 0.0f;  // also NaN (inf * 0)
+    if (v > top) v = top;
+    c[d] = static_cast<std::uint32_t>(v);
+  }
+  return hilbert_encode(c[0], c[1], c[2], s.q_bits);
+}
+
+std::vector<std::uint64_t> hilbert_keys(const float* xyz, std::size_t n, const Quantiser& q) {
+  std::vector<std::uint64_t> keys(n);
+  for (std::size_t i = 0; i < n; ++i)
+    keys[i] = hilbert_encode(q.cell(0, xyz[3 * i]), q.cell(1, xyz[3 * i + 1]),
+                             q.cell(2, xyz[3 * i + 2]), q.bits);
+  return keys;
+}
+
+void sort_points(const float* xyz, std::size_t n, int bits, Structure& s) {
+  Quantiser q = make_quantiser(xyz, n, bits);
+  std::vector<std::uint64_t> keys = hilbert_keys(xyz, n, q);
+  s.order = hilbert_order(keys);
+  const std::size_t X = static_cast<std::size_t>(s.info.X);
+  s.block_keys.resize((n + X - 1) / X);
+  for (std::size_t b = 0; b < s.block_keys.size(); ++b) s.block_keys[b] = keys[s.order[b * X]];
+  for (int d = 0; d < 3; ++d) s.q_origin[d] = static_cast<float>(q.origin[d]);
+  // Finite even for a 1e-38-wide box (the clamp then maps every query to the grid's edge cells).
+  s.q_scale = static_cast<float>(std::min(q.scale, 3.0e38));
+  s.q_bits = q.bits;
+}
+
+std::vector<std::int32_t> hilbert_order(const std::vector<std::uint64_t>& keys) {
+  // Sort (key, index) pairs: equal keys (duplicates, or points sharing a grid cell) keep the
+  // caller's order, so the build is deterministic.
+  std::vector<std::pair<std::uint64_t, std::int32_t>> kv(keys.size());
+  for (std::size_t i = 0; i < keys.size(); ++i) kv[i] = {keys[i], static_cast<std::int32_t>(i)};
+  std::sort(kv.begin(), kv.end());
+  std::vector<std::int32_t> order(keys.size());
+  for (std::size_t i = 0; i < kv.size(); ++i) order[i] = kv[i].second;
+  return order;
+}
+
+}  // namespace bhcl::blockhash

@@ -1,0 +1,316 @@
+// BlockHashIndex: runs the build stages, uploads the arrays, dispatches the query kernel.
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstddef>
+#include <cstdio>
+#include <cstring>
+#include <sstream>
+
+#include "blockhash_build.hpp"
+#include "blockhash_cl/error.hpp"
+#include "device_util.hpp"
+
+// The host's view of the device layouts (kernels/blockhash_layout.h) must match OpenCL C's.
+static_assert(sizeof(bhcl_bh_block) == 256, "a block is one 256-byte memory unit");
+static_assert(offsetof(bhcl_bh_block, y) == 64 && offsetof(bhcl_bh_block, z) == 128 &&
+                  offsetof(bhcl_bh_block, id) == 192,
+              "bhcl_bh_block: structure of arrays, 64 bytes each");
+static_assert(sizeof(bhcl_bh_box) == 32 && offsetof(bhcl_bh_box, count) == 12 &&
+                  offsetof(bhcl_bh_box, hi_x) == 16 && offsetof(bhcl_bh_box, first) == 28,
+              "bhcl_bh_box layout");
+static_assert(sizeof(bhcl_bh_bucket) == 16 && offsetof(bhcl_bh_bucket, q) == 8,
+              "bhcl_bh_bucket layout");
+
+namespace bhcl {
+namespace {
+
+double seconds_since(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+double median_u32(std::vector<std::uint32_t> v) {
+  if (v.empty()) return 0;
+  auto mid = v.begin() + v.size() / 2;
+  std::nth_element(v.begin(), mid, v.end());
+  return *mid;
+}
+
+double percentile_u32(std::vector<std::uint32_t> v, double p) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  std::size_t idx = static_cast<std::size_t>(std::ceil(p * v.size()));
+  return v[std::min(v.size() - 1, idx ? idx - 1 : 0)];
+}
+
+void count_tables(blockhash::Structure& s) {
+  BlockHashBuildInfo& in = s.info;
+  in.occupied_cells = in.overflowed_buckets = in.block_refs = 0;
+  for (const auto& b : s.buckets) {
+    in.occupied_cells += b.n_refs ? 1 : 0;
+    in.overflowed_buckets += (b.flags & BHCL_BH_FLAG_OVERFLOWED) ? 1 : 0;
+    in.block_refs += b.n_refs;
+  }
+}
+
+}  // namespace
+
+std::string BlockHashBuildInfo::summary() const {
+  char buf[512];
+  std::snprintf(buf, sizeof buf,
+                "preset %s%s  L %d  P %d  B %d  X %d  blocks %zu  occupied cells %zu  overflowed %zu  "
+                "refs %zu (%.2f/point)  median cell %.0f points / %.0f blocks (p90 %.0f)  build %.2f s "
+                "(hilbert %.2f, blocks %.2f, params %.2f, thresholds %.2f, tables %.2f, upload %.2f)",
+                BlockHashBuildParams::preset_name(preset), box_order ? " (box order)" : "", L, P, B, X, n_blocks, occupied_cells,
+                overflowed_buckets, block_refs, n_points ? double(block_refs) / n_points : 0.0,
+                median_cell_points, median_cell_blocks, p90_cell_blocks, t_total, t_hilbert,
+                t_blocks, t_params, t_thresholds, t_tables, t_upload);
+  return buf;
+}
+
+BlockHashIndex::BlockHashIndex(std::shared_ptr<Runtime> runtime, const float* points,
+                               std::size_t n_points, const BlockHashBuildParams& params)
+    : Index(std::move(runtime), n_points), s_(std::make_unique<blockhash::Structure>()) {
+  using namespace blockhash;
+  auto t0 = std::chrono::steady_clock::now();
+  if (n_points == 0) throw Error("blockhash: the point set is empty (N = 0)");
+  if (n_points > 0x7ffffffeu)
+    throw Error("blockhash: N = " + std::to_string(n_points) + " exceeds the int32 index range");
+  validate_points(points, n_points, "points");
+  Structure& s = *s_;
+  s.n_points = n_points;
+  s.info.preset = params.preset;
+  s.info.n_points = n_points;
+  s.info.X = derive_x(params);
+  auto say = [&](const char* stage) {
+    if (params.verbose) std::fprintf(stderr, "blockhash: %s (%.2f s)\n", stage, seconds_since(t0));
+  };
+
+  auto t = std::chrono::steady_clock::now();
+  sort_points(points, n_points, params.hilbert_bits, s);
+  s.info.t_hilbert = seconds_since(t);
+  say("Hilbert keys sorted");
+
+  t = std::chrono::steady_clock::now();
+  make_blocks(points, s.order, s.info.X, s.blocks, s.boxes);
+  s.info.n_blocks = s.blocks.size();
+  s.info.t_blocks = seconds_since(t);
+  say("blocks cut");
+
+  t = std::chrono::steady_clock::now();
+  derive_params(params, s);
+  s.info.t_params = seconds_since(t);
+  say("parameters derived");
+
+  t = std::chrono::steady_clock::now();
+  build_thresholds(params, s);
+  s.info.t_thresholds = seconds_since(t);
+  say("thresholds built");
+
+  t = std::chrono::steady_clock::now();
+  TableStats st = build_tables(s);
+  s.info.median_cell_points = median_u32(st.cell_points);
+  s.info.median_cell_blocks = median_u32(st.cell_blocks);
+  s.info.p90_cell_blocks = percentile_u32(st.cell_blocks, 0.9);
+  count_tables(s);
+  s.info.t_tables = seconds_since(t);
+  say("tables filled");
+
+  t = std::chrono::steady_clock::now();
+  upload();
+  s.info.t_upload = seconds_since(t);
+  s.info.t_total = seconds_since(t0);
+  info_ = s.info;
+  set_build_seconds(s.info.t_total);
+  say("uploaded");
+}
+
+BlockHashIndex::BlockHashIndex(std::shared_ptr<Runtime> runtime, std::unique_ptr<blockhash::Structure> s)
+    : Index(std::move(runtime), s->n_points), s_(std::move(s)) {
+  auto t0 = std::chrono::steady_clock::now();
+  count_tables(*s_);
+  upload();
+  s_->info.t_upload = seconds_since(t0);
+  info_ = s_->info;
+  set_build_seconds(seconds_since(t0));
+}
+
+BlockHashIndex::~BlockHashIndex() = default;
+
+std::unique_ptr<BlockHashIndex> BlockHashIndex::load(std::shared_ptr<Runtime> runtime,
+                                                     const std::string& path) {
+  auto s = blockhash::load_structure(path);
+  return std::unique_ptr<BlockHashIndex>(new BlockHashIndex(std::move(runtime), std::move(s)));
+}
+
+void BlockHashIndex::save(const std::string& path) const { blockhash::save_structure(*s_, path); }
+
+long BlockHashIndex::first_mismatch(const float* points, std::size_t n) const {
+  if (n != s_->n_points) return 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    float p[3];
+    s_->point(i, p);
+    const float* c = points + 3 * static_cast<std::size_t>(s_->order[i]);
+    if (std::memcmp(p, c, sizeof p) != 0) return s_->order[i];
+  }
+  return -1;
+}
+
+void BlockHashIndex::upload() {
+  const auto& rt = runtime_ptr();
+  const blockhash::Structure& s = *s_;
+  blocks_ = detail::upload_vector(rt, s.blocks, "blockhash blocks");
+  boxes_ = detail::upload_vector(rt, s.boxes, "blockhash boxes");
+  thresholds_ = detail::upload_vector(rt, s.thresholds, "blockhash thresholds");
+  keys_ = detail::upload_vector(rt, s.keys, "blockhash directory keys");
+  table_starts_ = detail::upload_vector(rt, s.table_starts, "blockhash table starts");
+  buckets_ = detail::upload_vector(rt, s.buckets, "blockhash buckets");
+  refs_ = detail::upload_vector(rt, s.refs, "blockhash block references");
+  block_keys_ = detail::upload_vector(rt, s.block_keys, "blockhash block keys");
+  dummy_ = detail::upload_vector(rt, std::vector<std::int32_t>(1, 0), "blockhash dummy");
+}
+
+std::size_t BlockHashIndex::memory_bytes() const { return s_->device_bytes(); }
+
+double BlockHashIndex::talk_overhead(std::size_t N, double A, int k, int X) {
+  double n = double(N), l = std::log(std::max(n, 2.0));
+  return (4.0 * (A * k / X) * l * l * l + 12.0 * l * l + 1.6 * n) / (24.0 * n);
+}
+
+double BlockHashIndex::measured_overhead() const {
+  // Everything beyond the points' own records, over the talk's 24 bytes per photon.
+  double points = 24.0 * double(size());
+  return (double(memory_bytes()) - double(s_->blocks.size() * sizeof(bhcl_bh_block))) / points;
+}
+
+std::uint32_t BlockHashIndex::budget(const SearchParams& p) {
+  double b = std::ceil(double(p.A) * double(p.k));
+  return static_cast<std::uint32_t>(std::min(b, 4294967295.0));
+}
+
+void BlockHashIndex::check_params(const SearchParams& p) const {
+  Index::check_params(p);
+  if (!(p.A > 0) || !std::isfinite(p.A))
+    throw Error("blockhash: A must be a positive finite number, got " + std::to_string(p.A));
+  if (p.neighbour_probes < -1 || p.neighbour_probes > 1)
+    throw Error("blockhash: neighbour_probes must be -1 (preset), 0 or 1, got " +
+                std::to_string(p.neighbour_probes));
+}
+
+std::string BlockHashIndex::kernel_options(int kmax) const {
+  std::ostringstream os;
+  os << "-DBHCL_KMAX=" << kmax << " -DBHCL_BH_L=" << info_.L
+     << " -DBHCL_BH_DIRECT=" << (info_.direct_addressing ? 1 : 0)
+     << " -DBHCL_BH_BOXSKIP=" << (info_.box_skip && !info_.box_order ? 1 : 0)
+     << " -DBHCL_BH_BOXORDER=" << (info_.box_order ? 1 : 0);
+  // Only the defines the variant uses, so that indexes differing elsewhere share a program.
+  if (info_.box_order) os << " -DBHCL_BH_MAXKEEP=" << blockhash::scan_cap(kmax, info_.X);
+  else os << " -DBHCL_BH_SCANCAP=" << blockhash::scan_cap(kmax, info_.X);
+  return os.str();
+}
+
+cl::Event BlockHashIndex::enqueue_batch(const cl::CommandQueue& queue, const cl::Buffer& queries,
+                                        std::size_t first, std::size_t count,
+                                        const ResultBuffers& out, const SearchParams& params,
+                                        std::size_t local_size,
+                                        const std::vector<cl::Event>* wait) const {
+  return enqueue_stats(queue, queries, first, count, out, params, local_size, wait, nullptr);
+}
+
+cl::Event BlockHashIndex::enqueue_stats(const cl::CommandQueue& queue, const cl::Buffer& queries,
+                                        std::size_t first, std::size_t count,
+                                        const ResultBuffers& out, const SearchParams& params,
+                                        std::size_t local_size, const std::vector<cl::Event>* wait,
+                                        const cl::Buffer* examined) const {
+  std::lock_guard<std::mutex> lock(dispatch_mutex_);
+  int kmax = kmax_variant(params.k);
+  cl::Kernel kernel = runtime().kernel("blockhash_knn.cl", "blockhash_knn", kernel_options(kmax));
+  bool probes = params.neighbour_probes < 0 ? info_.neighbour_probes : params.neighbour_probes == 1;
+  detail::KernelArgs args(kernel, "blockhash_knn");
+  args.add(blocks_)
+      .add(boxes_)
+      .add(thresholds_)
+      .add(cl_uint(info_.P))
+      .add(keys_)
+      .add(table_starts_)
+      .add(buckets_)
+      .add(refs_)
+      .add(cl_uint(probes ? 1 : 0))
+      .add(block_keys_)
+      .add(cl_uint(s_->blocks.size()))
+      .add(cl_float4{{s_->q_origin[0], s_->q_origin[1], s_->q_origin[2], s_->q_scale}})
+      .add(cl_uint(s_->q_bits))
+      .add(cl_uint(blockhash::seed_side(info_.hilbert_seed, params.k, info_.X)))
+      .add(queries)
+      .add(cl_ulong(first))
+      .add(cl_uint(count))
+      .add(cl_uint(params.k))
+      .add(detail::squared_radius(params.max_radius))
+      .add(cl_uint(budget(params)))
+      .add(cl_uint(blockhash::keep_blocks(budget(params), kmax, info_.X)))
+      .add(out.ids)
+      .add(out.dist2)
+      .add(out.counts)
+      .add(examined ? *examined : dummy_)
+      .add(cl_uint(examined ? 1 : 0));
+  return detail::launch_1d(queue, kernel, count, local_size, wait, "blockhash_knn");
+}
+
+KnnResult BlockHashIndex::reference_query(const float* queries, std::size_t n,
+                                          const SearchParams& params,
+                                          std::vector<std::int32_t>* examined,
+                                          unsigned threads) const {
+  check_params(params);
+  bool probes = params.neighbour_probes < 0 ? info_.neighbour_probes : params.neighbour_probes == 1;
+  KnnResult out;
+  blockhash::reference_query(*s_, queries, n, params, probes, out, examined, threads);
+  return out;
+}
+
+QueryStats BlockHashIndex::query_examined(const float* queries, std::size_t n,
+                                          const SearchParams& params, KnnResult& out,
+                                          std::vector<std::int32_t>& examined) const {
+  auto t0 = std::chrono::steady_clock::now();
+  check_params(params);
+  QueryStats st;
+  st.n_queries = n;
+  out.resize(n, params.k);
+  examined.assign(n, 0);
+  if (n == 0) return st;
+  st.compile_s = warm_up(params);
+  const Runtime& rt = runtime();
+  const cl::CommandQueue& queue = rt.queue();
+  const std::size_t k = static_cast<std::size_t>(params.k);
+  cl_int err = CL_SUCCESS;
+  auto make = [&](std::size_t bytes, const char* what) {
+    cl::Buffer b(rt.context(), CL_MEM_READ_WRITE, bytes, nullptr, &err);
+    check_cl(err, "clCreateBuffer", std::string("blockhash ") + what + ", " + std::to_string(bytes) + " bytes");
+    return b;
+  };
+  cl::Buffer qbuf = make(n * 3 * sizeof(float), "queries");
+  ResultBuffers rb{make(n * k * 4, "ids"), make(n * k * 4, "dist2"), make(n * 4, "counts")};
+  cl::Buffer ex = make(n * 4, "examined");
+  check_cl(queue.enqueueWriteBuffer(qbuf, CL_TRUE, 0, n * 3 * sizeof(float), queries),
+           "clEnqueueWriteBuffer", "blockhash queries");
+  std::size_t local = local_size_for(params);
+  std::size_t per = params.max_batch ? params.max_batch : max_dispatch_queries();
+  for (std::size_t f = 0; f < n; f += per) {
+    std::size_t c = std::min(per, n - f);
+    cl::Event e = enqueue_stats(queue, qbuf, f, c, rb, params, local, nullptr, &ex);
+    check_cl(e.wait(), "clWaitForEvents", "blockhash_knn");
+    st.query_s += event_seconds(e);
+    ++st.batches;
+  }
+  check_cl(queue.enqueueReadBuffer(rb.ids, CL_TRUE, 0, n * k * 4, out.ids.data()), "clEnqueueReadBuffer", "ids");
+  check_cl(queue.enqueueReadBuffer(rb.dist2, CL_TRUE, 0, n * k * 4, out.dist2.data()), "clEnqueueReadBuffer", "dist2");
+  check_cl(queue.enqueueReadBuffer(rb.counts, CL_TRUE, 0, n * 4, out.counts.data()), "clEnqueueReadBuffer", "counts");
+  check_cl(queue.enqueueReadBuffer(ex, CL_TRUE, 0, n * 4, examined.data()), "clEnqueueReadBuffer", "examined");
+  for (std::size_t i = 0; i < n; ++i) {
+    const float* qq = queries + 3 * i;
+    if (!std::isfinite(qq[0]) || !std::isfinite(qq[1]) || !std::isfinite(qq[2])) ++st.nonfinite_queries;
+  }
+  st.wall_s = seconds_since(t0);
+  return st;
+}
+
+}  // namespace bhcl

@@ -1,0 +1,272 @@
+// Save and load of a built block-hash index, and the structure's invariant check.
+//
+// File format (little-endian), version 1:
+//   "BHCLIDX\0" magic, u32 version, u32 0x01020304 (byte-order check), u32 header bytes,
+//   u32 preset, L, P, B, X, flags (guard, top count, direct, box skip, probes, box order),
+//   u64 n_points, n_blocks, n_thresholds, n_table_starts, n_keys, n_buckets, n_refs,
+//   f64 median cell points, median cell blocks, p90 cell blocks,
+//   u64 FNV-1a 64 checksum of the payload,
+//   payload: order (i32 x N), blocks (256 B each), boxes (32 B each), thresholds (f32),
+//            table_starts (u32), keys (u32), buckets (16 B each), refs (i32), block keys (u64).
+//   (the header also holds the query quantiser: f32 origin xyz, f32 scale, u32 bits, u32 seed.)
+// A load reads the whole file, checks the sizes against the header and the file size, the
+// checksum, and then every structural invariant (Structure::validate) before anything is used.
+#include <cmath>
+#include <cstring>
+#include <fstream>
+#include <sstream>
+
+#include "blockhash_build.hpp"
+#include "blockhash_cl/error.hpp"
+
+namespace bhcl::blockhash {
+namespace {
+
+constexpr char kMagic[8] = {'B', 'H', 'C', 'L', 'I', 'D', 'X', '\0'};
+constexpr std::uint32_t kVersion = 1;
+constexpr std::uint32_t kHeaderBytes = 8 + 4 * 3 + 4 * 6 + 4 * 6 + 8 * 7 + 8 * 3 + 8;
+
+std::uint64_t fnv1a(const unsigned char* p, std::size_t n, std::uint64_t h = 0xcbf29ce484222325ull) {
+  for (std::size_t i = 0; i < n; ++i) {
+    h ^= p[i];
+    h *= 0x100000001b3ull;
+  }
+  return h;
+}
+
+struct Writer {
+  std::string buf;
+  template <typename T>
+  void put(const T& v) { buf.append(reinterpret_cast<const char*>(&v), sizeof(T)); }
+  template <typename T>
+  void put_vec(const std::vector<T>& v) {
+    buf.append(reinterpret_cast<const char*>(v.data()), v.size() * sizeof(T));
+  }
+};
+
+struct Reader {
+  const std::string& data;
+  std::size_t pos;
+  const std::string& path;
+  template <typename T>
+  T get(const char* field) {
+    if (data.size() - pos < sizeof(T))
+      throw Error(path + ": truncated block-hash index (field '" + field + "' at byte " +
+                  std::to_string(pos) + ")");
+    T v;
+    std::memcpy(&v, data.data() + pos, sizeof(T));
+    pos += sizeof(T);
+    return v;
+  }
+  template <typename T>
+  void get_vec(std::vector<T>& v, std::uint64_t n, const char* field) {
+    if (n > (data.size() - pos) / sizeof(T))
+      throw Error(path + ": truncated block-hash index (array '" + field + "' of " +
+                  std::to_string(n) + " elements at byte " + std::to_string(pos) + ")");
+    v.resize(static_cast<std::size_t>(n));
+    if (n) std::memcpy(v.data(), data.data() + pos, n * sizeof(T));
+    pos += n * sizeof(T);
+  }
+};
+
+}  // namespace
+
+std::size_t Structure::device_bytes() const {
+  return blocks.size() * sizeof(bhcl_bh_block) + boxes.size() * sizeof(bhcl_bh_box) +
+         block_keys.size() * 8 +
+         thresholds.size() * sizeof(float) + table_starts.size() * 4 + keys.size() * 4 +
+         buckets.size() * sizeof(bhcl_bh_bucket) + refs.size() * 4;
+}
+
+void Structure::validate(const std::string& what) const {
+  auto fail = [&](const std::string& why) { throw Error(what + ": invalid block-hash index: " + why); };
+  const BlockHashBuildInfo& in = info;
+  if (in.L < 1 || in.L > 64) fail("L = " + std::to_string(in.L) + " out of [1, 64]");
+  if (in.P < 1 || in.P > BHCL_BH_MAX_P) fail("P = " + std::to_string(in.P) + " out of range");
+  if (in.B < 1 || in.B > 65535) fail("B = " + std::to_string(in.B) + " out of range");
+  if (in.X < 1 || in.X > BHCL_BH_BLOCK_SLOTS) fail("X = " + std::to_string(in.X) + " out of range");
+  if (n_points < 1 || n_points > 0x7ffffffeu) fail("N = " + std::to_string(n_points) + " out of range");
+  const std::size_t nb = (n_points + in.X - 1) / in.X;
+  if (order.size() != n_points) fail("order has " + std::to_string(order.size()) + " entries");
+  if (blocks.size() != nb || boxes.size() != nb) fail("block count differs from ceil(N / X)");
+  std::vector<bool> seen(n_points, false);
+  for (std::size_t i = 0; i < n_points; ++i) {
+    std::int32_t o = order[i];
+    if (o < 0 || std::size_t(o) >= n_points || seen[o]) fail("order is not a permutation (entry " + std::to_string(i) + ")");
+    seen[o] = true;
+  }
+  for (std::size_t b = 0; b < nb; ++b) {
+    const bhcl_bh_box& box = boxes[b];
+    std::size_t first = b * in.X;
+    std::size_t cnt = std::min<std::size_t>(in.X, n_points - first);
+    if (box.count != std::int32_t(cnt) || box.first != std::int32_t(first))
+      fail("box " + std::to_string(b) + " has count/first " + std::to_string(box.count) + "/" + std::to_string(box.first));
+    for (std::size_t j = 0; j < cnt; ++j) {
+      const bhcl_bh_block& blk = blocks[b];
+      if (blk.id[j] != order[first + j]) fail("block " + std::to_string(b) + " slot " + std::to_string(j) + " id differs from order");
+      float p[3] = {blk.x[j], blk.y[j], blk.z[j]};
+      if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2]))
+        fail("block " + std::to_string(b) + " slot " + std::to_string(j) + " is not finite");
+      if (p[0] < box.lo_x || p[0] > box.hi_x || p[1] < box.lo_y || p[1] > box.hi_y || p[2] < box.lo_z || p[2] > box.hi_z)
+        fail("block " + std::to_string(b) + " has a point outside its box");
+    }
+  }
+  if (block_keys.size() != nb) fail("block key count differs from the block count");
+  for (std::size_t b = 1; b < nb; ++b)
+    if (block_keys[b - 1] > block_keys[b]) fail("block keys are not ascending");
+  if (q_bits < 1 || q_bits > 21) fail("hilbert bits = " + std::to_string(q_bits) + " out of [1, 21]");
+  if (!std::isfinite(q_scale) || q_scale < 0 || !std::isfinite(q_origin[0]) || !std::isfinite(q_origin[1]) || !std::isfinite(q_origin[2]))
+    fail("the quantiser is not finite");
+  if (in.hilbert_seed > 64) fail("hilbert seed " + std::to_string(in.hilbert_seed) + " out of [0, 64]");
+  if (thresholds.size() != std::size_t(in.L) * 3 * in.P) fail("threshold count differs from L * 3 * P");
+  for (int t = 0; t < in.L; ++t)
+    for (int d = 0; d < 3; ++d) {
+      const float* th = thr(t, d);
+      for (int i = 0; i < in.P; ++i)
+        if (std::isnan(th[i]) || (i && !(th[i - 1] <= th[i])))
+          fail("thresholds of table " + std::to_string(t) + " dimension " + std::to_string(d) + " are not ascending");
+    }
+  const std::uint64_t side = std::uint64_t(in.P) + 1, cells = side * side * side;
+  if (table_starts.size() != std::size_t(in.L) + 1) fail("table_starts has the wrong length");
+  if (in.direct_addressing) {
+    if (!keys.empty()) fail("a directly addressed index has directory keys");
+    if (buckets.size() != in.L * cells) fail("bucket count differs from L (P+1)^3");
+    if (refs.size() != buckets.size() * std::size_t(in.B)) fail("ref count differs from buckets * B");
+  } else {
+    if (buckets.size() != keys.size()) fail("bucket and key counts differ");
+    if (table_starts[0] != 0 || table_starts[in.L] != keys.size()) fail("table_starts do not span the keys");
+    for (int t = 0; t < in.L; ++t) {
+      if (table_starts[t] > table_starts[t + 1]) fail("table_starts are not ascending");
+      for (std::uint32_t i = table_starts[t]; i < table_starts[t + 1]; ++i)
+        if (keys[i] >= cells || (i > table_starts[t] && keys[i - 1] >= keys[i]))
+          fail("directory keys of table " + std::to_string(t) + " are not ascending cell keys");
+    }
+  }
+  for (std::size_t i = 0; i < buckets.size(); ++i) {
+    const bhcl_bh_bucket& bk = buckets[i];
+    if (bk.n_refs > std::uint32_t(in.B) || std::uint64_t(bk.first_ref) + bk.n_refs > refs.size())
+      fail("bucket " + std::to_string(i) + " refers outside the reference array");
+    if (in.direct_addressing && bk.first_ref != i * std::size_t(in.B)) fail("bucket " + std::to_string(i) + " is not at its slot");
+    for (std::uint32_t r = 0; r < bk.n_refs; ++r) {
+      std::int32_t b = refs[bk.first_ref + r];
+      if (b < 0 || std::size_t(b) >= nb) fail("bucket " + std::to_string(i) + " holds block " + std::to_string(b));
+    }
+  }
+}
+
+void save_structure(const Structure& s, const std::string& path) {
+  const BlockHashBuildInfo& in = s.info;
+  Writer payload;
+  payload.put_vec(s.order);
+  payload.put_vec(s.blocks);
+  payload.put_vec(s.boxes);
+  payload.put_vec(s.thresholds);
+  payload.put_vec(s.table_starts);
+  payload.put_vec(s.keys);
+  payload.put_vec(s.buckets);
+  payload.put_vec(s.refs);
+  payload.put_vec(s.block_keys);
+  Writer h;
+  h.buf.append(kMagic, 8);
+  h.put(kVersion);
+  h.put(std::uint32_t(0x01020304));
+  h.put(kHeaderBytes);
+  std::uint32_t flags = (in.guard_thresholds ? 1u : 0u) | (in.keep_top_count ? 2u : 0u) |
+                        (in.direct_addressing ? 4u : 0u) | (in.box_skip ? 8u : 0u) |
+                        (in.neighbour_probes ? 16u : 0u) | (in.box_order ? 32u : 0u);
+  for (std::uint32_t v : {std::uint32_t(in.preset == BlockHashBuildParams::Preset::Paper ? 1 : 0),
+                          std::uint32_t(in.L), std::uint32_t(in.P), std::uint32_t(in.B),
+                          std::uint32_t(in.X), flags})
+    h.put(v);
+  for (float v : {s.q_origin[0], s.q_origin[1], s.q_origin[2], s.q_scale}) h.put(v);
+  h.put(std::uint32_t(s.q_bits));
+  h.put(std::uint32_t(in.hilbert_seed));
+  for (std::uint64_t v : {std::uint64_t(s.n_points), std::uint64_t(s.blocks.size()),
+                          std::uint64_t(s.thresholds.size()), std::uint64_t(s.table_starts.size()),
+                          std::uint64_t(s.keys.size()), std::uint64_t(s.buckets.size()),
+                          std::uint64_t(s.refs.size())})
+    h.put(v);
+  for (double v : {in.median_cell_points, in.median_cell_blocks, in.p90_cell_blocks}) h.put(v);
+  h.put(fnv1a(reinterpret_cast<const unsigned char*>(payload.buf.data()), payload.buf.size()));
+  std::ofstream out(path, std::ios::binary | std::ios::trunc);
+  if (!out) throw Error(path + ": cannot open for writing the block-hash index");
+  out.write(h.buf.data(), static_cast<std::streamsize>(h.buf.size()));
+  out.write(payload.buf.data(), static_cast<std::streamsize>(payload.buf.size()));
+  out.close();
+  if (!out) throw Error(path + ": write of the block-hash index failed");
+}
+
+std::unique_ptr<Structure> load_structure(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw Error(path + ": cannot open the block-hash index");
+  std::ostringstream ss;
+  ss << in.rdbuf();
+  const std::string data = ss.str();
+  Reader r{data, 0, path};
+  char magic[8];
+  for (char& c : magic) c = r.get<char>("magic");
+  if (std::memcmp(magic, kMagic, 8) != 0) throw Error(path + ": not a block-hash index (bad magic)");
+  std::uint32_t version = r.get<std::uint32_t>("version");
+  if (version != kVersion)
+    throw Error(path + ": block-hash index version " + std::to_string(version) + ", this library reads version " + std::to_string(kVersion));
+  if (r.get<std::uint32_t>("byte order") != 0x01020304u) throw Error(path + ": block-hash index of another byte order");
+  if (r.get<std::uint32_t>("header bytes") != kHeaderBytes) throw Error(path + ": block-hash index header size differs");
+  auto s = std::make_unique<Structure>();
+  BlockHashBuildInfo& info = s->info;
+  std::uint32_t preset = r.get<std::uint32_t>("preset");
+  if (preset > 1) throw Error(path + ": block-hash index has an unknown preset " + std::to_string(preset));
+  info.preset = preset ? BlockHashBuildParams::Preset::Paper : BlockHashBuildParams::Preset::Auto;
+  info.L = static_cast<int>(r.get<std::uint32_t>("L") & 0x7fffffff);
+  info.P = static_cast<int>(r.get<std::uint32_t>("P") & 0x7fffffff);
+  info.B = static_cast<int>(r.get<std::uint32_t>("B") & 0x7fffffff);
+  info.X = static_cast<int>(r.get<std::uint32_t>("X") & 0x7fffffff);
+  std::uint32_t flags = r.get<std::uint32_t>("flags");
+  info.guard_thresholds = flags & 1;
+  info.keep_top_count = flags & 2;
+  info.direct_addressing = flags & 4;
+  info.box_skip = flags & 8;
+  info.neighbour_probes = flags & 16;
+  info.box_order = flags & 32;
+  if (flags > 63) throw Error(path + ": block-hash index has unknown flags " + std::to_string(flags));
+  for (int d = 0; d < 3; ++d) s->q_origin[d] = r.get<float>("quantiser origin");
+  s->q_scale = r.get<float>("quantiser scale");
+  s->q_bits = static_cast<int>(r.get<std::uint32_t>("hilbert bits") & 0xff);
+  info.hilbert_seed = static_cast<int>(r.get<std::uint32_t>("hilbert seed") & 0x7fffffff);
+  std::uint64_t n[7];
+  const char* names[7] = {"n_points", "n_blocks", "n_thresholds", "n_table_starts", "n_keys", "n_buckets", "n_refs"};
+  for (int i = 0; i < 7; ++i) n[i] = r.get<std::uint64_t>(names[i]);
+  info.median_cell_points = r.get<double>("median_cell_points");
+  info.median_cell_blocks = r.get<double>("median_cell_blocks");
+  info.p90_cell_blocks = r.get<double>("p90_cell_blocks");
+  std::uint64_t checksum = r.get<std::uint64_t>("checksum");
+  // The payload size from the header, overflow-safe, against the file's size.
+  const std::uint64_t elem[7] = {4, sizeof(bhcl_bh_block) + sizeof(bhcl_bh_box) + 8, 4, 4, 4, sizeof(bhcl_bh_bucket), 4};
+  std::uint64_t need = 0;
+  for (int i = 0; i < 7; ++i) {
+    if (i == 0 && n[0] > 0x7ffffffeull) throw Error(path + ": block-hash index field 'n_points' = " + std::to_string(n[0]) + " is out of range");
+    if (n[i] > (std::uint64_t(1) << 40)) throw Error(path + ": block-hash index field '" + names[i] + "' = " + std::to_string(n[i]) + " is out of range");
+    need += n[i] * elem[i];
+  }
+  const std::uint64_t have = data.size() - r.pos;
+  if (have != need)
+    throw Error(path + ": block-hash index payload is " + std::to_string(have) + " bytes, the header says " +
+                std::to_string(need) + (have < need ? " (truncated)" : " (trailing bytes)"));
+  if (fnv1a(reinterpret_cast<const unsigned char*>(data.data() + r.pos), have) != checksum)
+    throw Error(path + ": block-hash index checksum mismatch (corrupt file)");
+  s->n_points = static_cast<std::size_t>(n[0]);
+  r.get_vec(s->order, n[0], "order");
+  r.get_vec(s->blocks, n[1], "blocks");
+  r.get_vec(s->boxes, n[1], "boxes");
+  r.get_vec(s->thresholds, n[2], "thresholds");
+  r.get_vec(s->table_starts, n[3], "table_starts");
+  r.get_vec(s->keys, n[4], "keys");
+  r.get_vec(s->buckets, n[5], "buckets");
+  r.get_vec(s->refs, n[6], "refs");
+  r.get_vec(s->block_keys, n[1], "block_keys");
+  info.n_points = s->n_points;
+  info.n_blocks = s->blocks.size();
+  s->validate(path);
+  return s;
+}
+
+}  // namespace bhcl::blockhash

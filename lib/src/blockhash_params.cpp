@@ -1,0 +1,157 @@
+// The parameters of a block-hash build. paper: the talk's formulas (L = P = round(ln N),
+// B > A k / (X ln N)); auto: from the data, as RESEARCH.md section 4 measured (P so that the median
+// occupied cell holds ~100 points, B = 90th percentile of distinct blocks per cell, L = 4).
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+
+#include "blockhash_build.hpp"
+#include "blockhash_cl/error.hpp"
+
+namespace bhcl {
+
+BlockHashBuildParams::Preset BlockHashBuildParams::parse_preset(const std::string& name) {
+  if (name == "auto" || name.empty()) return Preset::Auto;
+  if (name == "paper") return Preset::Paper;
+  throw Error("blockhash: unknown preset '" + name + "' (auto, paper)");
+}
+
+const char* BlockHashBuildParams::preset_name(Preset p) {
+  return p == Preset::Paper ? "paper" : "auto";
+}
+
+}  // namespace bhcl
+
+namespace bhcl::blockhash {
+
+std::vector<std::uint64_t> cell_block_pairs(const Structure& s, const float* const thr[3],
+                                            std::uint32_t P, std::size_t stride);
+void cell_populations(const std::vector<std::uint64_t>& pairs, std::vector<std::uint32_t>* points,
+                      std::vector<std::uint32_t>* blocks);
+
+namespace {
+
+double median_of(std::vector<std::uint32_t> v) {
+  if (v.empty()) return 0;
+  auto mid = v.begin() + v.size() / 2;
+  std::nth_element(v.begin(), mid, v.end());
+  return *mid;
+}
+
+// Table-0 thresholds for a candidate P over every stride-th sorted point.
+std::vector<float> table0_thresholds(const Structure& s, const BlockHashBuildParams& p, int P,
+                                     std::size_t stride, const std::vector<float>& pts) {
+  std::vector<float> thr(3 * std::size_t(P));
+  for (int d = 0; d < 3; ++d) {
+    Histogram h = histogram(pts.data(), pts.size() / 3, d, p.hist_bins, stride);
+    auto t = make_thresholds(h, P, p.seed, 0, d, s.info.guard_thresholds);
+    std::copy(t.begin(), t.end(), thr.begin() + std::size_t(d) * P);
+  }
+  return thr;
+}
+
+std::vector<float> sorted_points(const Structure& s) {
+  std::vector<float> pts(3 * s.n_points);
+  for (std::size_t i = 0; i < s.n_points; ++i) s.point(i, &pts[3 * i]);
+  return pts;
+}
+
+}  // namespace
+
+int derive_x(const BlockHashBuildParams& p) {
+  int X = p.X > 0 ? p.X : (p.preset == BlockHashBuildParams::Preset::Paper ? 10 : BHCL_BH_BLOCK_SLOTS);
+  if (p.X == 0 || X > BHCL_BH_BLOCK_SLOTS)
+    throw Error("blockhash: X must be in [1, " + std::to_string(BHCL_BH_BLOCK_SLOTS) +
+                "] (points per 256-byte block), got " + std::to_string(p.X));
+  return X;
+}
+
+double median_cell_points(const Structure& s, const BlockHashBuildParams& p, int P,
+                          std::size_t stride) {
+  std::vector<float> pts = sorted_points(s);
+  std::vector<float> thr = table0_thresholds(s, p, P, stride, pts);
+  const float* t3[3] = {thr.data(), thr.data() + P, thr.data() + 2 * std::size_t(P)};
+  std::vector<std::uint32_t> np;
+  cell_populations(cell_block_pairs(s, t3, std::uint32_t(P), stride), &np, nullptr);
+  return median_of(np) * double(stride);
+}
+
+void derive_params(const BlockHashBuildParams& p, Structure& s) {
+  BlockHashBuildInfo& in = s.info;
+  const bool paper = p.preset == BlockHashBuildParams::Preset::Paper;
+  auto flag = [&](int v, bool paper_default) { return v < 0 ? (paper ? paper_default : !paper_default) : v != 0; };
+  in.preset = p.preset;
+  in.guard_thresholds = flag(p.guard_thresholds, false);
+  in.keep_top_count = flag(p.keep_top_count, false);
+  in.direct_addressing = flag(p.direct_addressing, true);
+  in.box_skip = flag(p.box_skip, false);
+  in.neighbour_probes = flag(p.neighbour_probes, false);
+  in.box_order = flag(p.box_order, false);
+  in.hilbert_seed = p.hilbert_seed < 0 ? (paper ? 0 : 1) : p.hilbert_seed;
+  if (in.hilbert_seed > 64) throw Error("blockhash: hilbert_seed must be in [0, 64], got " + std::to_string(p.hilbert_seed));
+  const double N = double(s.n_points), lnN = std::log(std::max(N, 1.0));
+  if (p.L == 0 || p.L > 64) throw Error("blockhash: L must be in [1, 64], got " + std::to_string(p.L));
+  if (p.P == 0 || p.P > BHCL_BH_MAX_P)
+    throw Error("blockhash: P must be in [1, " + std::to_string(BHCL_BH_MAX_P) + "], got " + std::to_string(p.P));
+  if (p.B == 0 || p.B > 65535) throw Error("blockhash: B must be in [1, 65535], got " + std::to_string(p.B));
+  if (!(p.target_cell_points >= 1)) throw Error("blockhash: target_cell_points must be >= 1");
+  if (!(p.b_percentile > 0 && p.b_percentile <= 1)) throw Error("blockhash: b_percentile must be in (0, 1]");
+  if (p.hist_bins < 2 || p.hist_bins > (1 << 22)) throw Error("blockhash: hist_bins must be in [2, 2^22]");
+  const int lnr = std::max(1, static_cast<int>(std::lround(lnN)));
+  if (paper) {
+    in.L = p.L > 0 ? p.L : std::min(64, lnr);
+    in.P = p.P > 0 ? p.P : std::min(BHCL_BH_MAX_P, lnr);
+    if (p.B > 0) {
+      in.B = p.B;
+    } else {
+      if (!(p.design_A > 0) || p.design_k < 1) throw Error("blockhash: design_A and design_k must be positive");
+      // The talk: B > A k / (X ln N). The prototype study used ceil(.) + 1 (B = 2..13 at 1M).
+      double x = p.design_A * p.design_k / (in.X * std::max(lnN, 1.0));
+      in.B = static_cast<int>(std::min(65535.0, std::ceil(x) + 1));
+    }
+    return;
+  }
+  in.L = p.L > 0 ? p.L : 4;
+  // P: bisection on the median points per occupied cell (table 0, guarded thresholds), over a
+  // stride sample of the Hilbert-sorted points (spatially even) of at most 2^18 points.
+  const std::size_t stride = std::max<std::size_t>(1, s.n_points >> 18);
+  if (p.P > 0) {
+    in.P = p.P;
+  } else {
+    const double target = p.target_cell_points;
+    auto f = [&](int P) { return median_cell_points(s, p, P, stride); };
+    int lo = 1, hi = BHCL_BH_MAX_P;
+    if (f(hi) > target) {
+      lo = hi;
+    } else {
+      while (lo < hi) {
+        int mid = (lo + hi) / 2;
+        if (f(mid) <= target) hi = mid;
+        else lo = mid + 1;
+      }
+    }
+    // lo: the smallest P whose median is <= target; P - 1 may be closer (in ratio).
+    in.P = lo;
+    if (lo > 1) {
+      double a = f(lo), b = f(lo - 1);
+      if (a > 0 && b > 0 && std::abs(std::log(b / target)) < std::abs(std::log(a / target))) in.P = lo - 1;
+    }
+    if (p.verbose) std::fprintf(stderr, "blockhash: auto P = %d (median cell ~%.0f points)\n", in.P, f(in.P));
+  }
+  if (p.B > 0) {
+    in.B = p.B;
+  } else {
+    // B: the percentile of distinct blocks per occupied cell of table 0, all points.
+    std::vector<float> pts = sorted_points(s);
+    std::vector<float> thr = table0_thresholds(s, p, in.P, 1, pts);
+    const float* t3[3] = {thr.data(), thr.data() + in.P, thr.data() + 2 * std::size_t(in.P)};
+    std::vector<std::uint32_t> nb;
+    cell_populations(cell_block_pairs(s, t3, std::uint32_t(in.P), 1), nullptr, &nb);
+    std::sort(nb.begin(), nb.end());
+    std::size_t idx = static_cast<std::size_t>(std::ceil(p.b_percentile * nb.size()));
+    idx = std::min(nb.size() - 1, idx ? idx - 1 : 0);
+    in.B = std::max<int>(1, std::min<int>(65535, static_cast<int>(nb.empty() ? 1 : nb[idx])));
+  }
+}
+
+}  // namespace bhcl::blockhash

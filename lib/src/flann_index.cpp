@@ -1,0 +1,279 @@
+// FLANN as an exact host baseline, mapped to the result contract (see flann_index.hpp).
+#include "blockhash_cl/flann_index.hpp"
+
+#include <flann/flann.hpp>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <exception>
+#include <limits>
+#include <mutex>
+#include <thread>
+#include <vector>
+
+#include "blockhash_cl/error.hpp"
+#include "blockhash_cl/reference.hpp"
+
+#ifndef BHCL_HAVE_FLANN
+#error "flann_index.cpp needs FLANN (BHCL_HAVE_FLANN): see the top-level CMakeLists.txt"
+#endif
+
+namespace bhcl {
+namespace {
+
+using FlannTree = flann::KDTreeSingleIndex<flann::L2_Simple<float>>;
+
+// The k smallest (distance, index) pairs under the contract's order, fed by FLANN's traversal.
+class ExactResultSet : public flann::ResultSet<float> {
+ public:
+  ExactResultSet(const float* points, int k, float r2, bool recompute)
+      : points_(points), k_(k), r2_(r2), recompute_(recompute) {
+    d_.resize(static_cast<std::size_t>(k));
+    id_.resize(static_cast<std::size_t>(k));
+  }
+
+  void reset(const float* query) {
+    q_ = query;
+    size_ = 0;
+    worst_ = slack(r2_);
+  }
+
+  bool full() const override { return size_ == k_; }
+
+  // FLANN's L2_Simple evaluates the contract's expression, ((0 + dx*dx) + dy*dy) + dz*dz with
+  // d = q - p, in this file's unfused float arithmetic, so its distance is the contract's bit for
+  // bit; FlannIndex checks that at build time and recomputes when it is not (`recompute`).
+  // Recomputing always would cost a cache miss per accepted candidate on the caller's array.
+  void addPoint(float dist, std::size_t index) override {
+    const auto id = static_cast<std::int32_t>(index);
+    add(recompute_ ? reference::dist2_float(points_ + 3 * index, q_) : dist, id);
+  }
+
+  void add(std::int32_t id) { add(reference::dist2_float(points_ + 3 * std::size_t(id), q_), id); }
+
+  void add(float d, std::int32_t id) {
+    if (!(d <= r2_)) return;
+    if (size_ == k_) {
+      const float wd = d_[k_ - 1];
+      if (!(d < wd || (d == wd && id < id_[k_ - 1]))) return;
+    } else {
+      ++size_;
+    }
+    int j = size_ - 1;
+    while (j > 0 && (d_[j - 1] > d || (d_[j - 1] == d && id_[j - 1] > id))) {
+      d_[j] = d_[j - 1];
+      id_[j] = id_[j - 1];
+      --j;
+    }
+    d_[j] = d;
+    id_[j] = id;
+    if (size_ == k_) worst_ = slack(std::min(r2_, d_[k_ - 1]));
+  }
+
+  // FLANN prunes a cell when its (incrementally summed, rounded) lower bound exceeds this, and
+  // takes a leaf point only when its distance is strictly below it. Its cell bound gathers about
+  // two roundings (2^-24 relative each) per tree level; a relative margin of 2^-10 covers that
+  // for trees thousands of levels deep, and the absolute one keeps ties at distance 0
+  // (duplicates) in. The margin only adds work; the list itself keeps the exact k.
+  float worstDist() const override { return worst_; }
+
+  int size() const { return size_; }
+  float d(int j) const { return d_[j]; }
+  std::int32_t id(int j) const { return id_[j]; }
+
+ private:
+  static float slack(float b) { return b + b * (1.0f / 1024.0f) + 1e-30f; }
+
+  const float* points_;
+  const float* q_ = nullptr;
+  int k_;
+  float r2_;
+  bool recompute_;
+  int size_ = 0;
+  float worst_ = 0.0f;
+  std::vector<float> d_;
+  std::vector<std::int32_t> id_;
+};
+
+}  // namespace
+
+struct FlannIndex::Impl {
+  std::vector<float> points;  // the caller's points, kept for FLANN (it keeps row pointers) and
+                              // for recomputing distances
+  std::unique_ptr<FlannTree> tree;
+  bool recompute = false;  // FLANN's distances differ from the contract's: recompute them
+};
+
+namespace {
+
+// True when FLANN's L2_Simple gives the contract's float distance on sample pairs of the data
+// (it should, by construction; a build with fused multiply-adds would break it).
+bool flann_distance_matches(const float* pts, std::size_t n) {
+  const flann::L2_Simple<float> l2;
+  const std::size_t step = std::max<std::size_t>(1, n / 64);
+  for (std::size_t i = 0; i < n; i += step)
+    for (std::size_t j : {std::size_t(0), n / 2, n - 1}) {
+      const float* p = pts + 3 * i;
+      const float q[3] = {pts[3 * j] * 1.1f + 0.37f, pts[3 * j + 1] * 0.9f - 0.11f, pts[3 * j + 2] + 1.3f};
+      const float a = l2(q, p, 3);
+      const float b = reference::dist2_float(p, q);
+      if (std::memcmp(&a, &b, sizeof a) != 0) return false;
+    }
+  return true;
+}
+
+}  // namespace
+
+FlannIndex::FlannIndex(std::shared_ptr<Runtime> runtime, const float* points,
+                       std::size_t n_points, const FlannParams& params)
+    : Index(std::move(runtime), n_points), impl_(std::make_unique<Impl>()) {
+  auto t0 = std::chrono::steady_clock::now();
+  if (!runtime_ptr()) throw Error("flann: the runtime is null (needed for the buffer-level call)");
+  if (n_points == 0) throw Error("flann: the point set is empty (N = 0)");
+  if (n_points > 0x7ffffffeu)
+    throw Error("flann: N = " + std::to_string(n_points) + " exceeds the int32 index range");
+  if (params.threads < 0) throw Error("flann: threads must be >= 0, got " + std::to_string(params.threads));
+  if (params.leaf_max_size < 1)
+    throw Error("flann: leaf_max_size must be >= 1, got " + std::to_string(params.leaf_max_size));
+  validate_points(points, n_points, "points");
+  threads_ = params.threads ? params.threads : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  impl_->points.assign(points, points + 3 * n_points);
+  try {
+    flann::Matrix<float> m(impl_->points.data(), n_points, 3);
+    impl_->tree = std::make_unique<FlannTree>(m, flann::KDTreeSingleIndexParams(params.leaf_max_size, true));
+    impl_->tree->buildIndex();
+    impl_->recompute = !flann_distance_matches(impl_->points.data(), n_points);
+  } catch (const std::exception& e) {
+    throw Error(std::string("flann: building KDTreeSingleIndex failed: ") + e.what());
+  }
+  set_build_seconds(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+}
+
+FlannIndex::~FlannIndex() = default;
+
+std::size_t FlannIndex::memory_bytes() const {
+  return static_cast<std::size_t>(std::max(0, impl_->tree->usedMemory())) + size() * 12 +
+         impl_->points.size() * sizeof(float);
+}
+
+std::size_t FlannIndex::search(const float* queries, std::size_t n, const SearchParams& params,
+                               std::int32_t* ids, float* dist2, std::int32_t* counts) const {
+  check_params(params);
+  const int k = params.k;
+  const float r2 = std::isinf(params.max_radius) ? std::numeric_limits<float>::infinity()
+                                                 : params.max_radius * params.max_radius;
+  const float* pts = impl_->points.data();
+  const std::size_t N = size();
+  const int full_row = static_cast<int>(std::min<std::size_t>(N, static_cast<std::size_t>(k)));
+  const flann::SearchParams fp(flann::FLANN_CHECKS_UNLIMITED, 0.0f);
+  std::atomic<std::size_t> next{0}, nonfinite{0};
+  constexpr std::size_t kChunk = 256;  // queries per grab: balances threads, little contention
+  auto work = [&]() {
+    ExactResultSet set(pts, k, r2, impl_->recompute);
+    std::size_t bad = 0;
+    for (;;) {
+      const std::size_t begin = next.fetch_add(kChunk);
+      if (begin >= n) break;
+      const std::size_t end = std::min(n, begin + kChunk);
+      for (std::size_t qi = begin; qi < end; ++qi) {
+        const float* q = queries + 3 * qi;
+        std::int32_t* row_ids = ids + qi * std::size_t(k);
+        float* row_d2 = dist2 + qi * std::size_t(k);
+        set.reset(q);
+        if (std::isfinite(q[0]) && std::isfinite(q[1]) && std::isfinite(q[2])) {
+          impl_->tree->findNeighbors(set, q, fp);
+          // FLANN takes a point only when its distance is below the bound, never at +inf: a row
+          // short of min(k, N) with no radius to blame holds such points; a scan completes it.
+          if (set.size() < full_row && std::isinf(r2)) {
+            set.reset(q);
+            for (std::size_t i = 0; i < N; ++i) set.add(static_cast<std::int32_t>(i));
+          }
+        } else {
+          ++bad;
+        }
+        const int c = set.size();
+        for (int j = 0; j < k; ++j) {
+          row_ids[j] = j < c ? set.id(j) : -1;
+          row_d2[j] = j < c ? set.d(j) : std::numeric_limits<float>::infinity();
+        }
+        counts[qi] = c;
+      }
+    }
+    nonfinite += bad;
+  };
+  const std::size_t nthreads =
+      std::min<std::size_t>(static_cast<std::size_t>(threads_), (n + kChunk - 1) / kChunk);
+  if (nthreads <= 1) {
+    work();
+  } else {
+    std::vector<std::thread> pool;
+    std::exception_ptr failure;
+    std::mutex failure_mutex;
+    for (std::size_t t = 0; t < nthreads; ++t)
+      pool.emplace_back([&]() {
+        try {
+          work();
+        } catch (...) {
+          std::lock_guard<std::mutex> lock(failure_mutex);
+          if (!failure) failure = std::current_exception();
+          next = n;  // stop the others
+        }
+      });
+    for (auto& th : pool) th.join();
+    if (failure) std::rethrow_exception(failure);
+  }
+  return nonfinite.load();
+}
+
+QueryStats FlannIndex::query(const float* queries, std::size_t n, const SearchParams& params,
+                             KnnResult& out) const {
+  auto t0 = std::chrono::steady_clock::now();
+  check_params(params);
+  QueryStats st;
+  st.n_queries = n;
+  out.resize(n, params.k);
+  if (n == 0) return st;
+  auto t1 = std::chrono::steady_clock::now();
+  st.nonfinite_queries = search(queries, n, params, out.ids.data(), out.dist2.data(), out.counts.data());
+  auto t2 = std::chrono::steady_clock::now();
+  st.query_s = std::chrono::duration<double>(t2 - t1).count();
+  st.wall_s = std::chrono::duration<double>(t2 - t0).count();
+  return st;
+}
+
+cl::Event FlannIndex::enqueue_batch(const cl::CommandQueue& queue, const cl::Buffer& queries,
+                                    std::size_t first, std::size_t count,
+                                    const ResultBuffers& out, const SearchParams& params,
+                                    std::size_t /*local_size*/,
+                                    const std::vector<cl::Event>* wait) const {
+  cl::Event e;
+  if (count == 0) {
+    // Nothing to compile: the warm-up launch is a marker.
+    check_cl(queue.enqueueMarkerWithWaitList(wait, &e), "clEnqueueMarkerWithWaitList", "flann warm-up");
+    return e;
+  }
+  const std::size_t k = static_cast<std::size_t>(params.k);
+  std::vector<float> q(count * 3);
+  check_cl(queue.enqueueReadBuffer(queries, CL_TRUE, first * 3 * sizeof(float), q.size() * sizeof(float),
+                                   q.data(), wait),
+           "clEnqueueReadBuffer", "flann: queries " + std::to_string(first) + ".." +
+                                      std::to_string(first + count));
+  std::vector<std::int32_t> ids(count * k), counts(count);
+  std::vector<float> d2(count * k);
+  search(q.data(), count, params, ids.data(), d2.data(), counts.data());
+  check_cl(queue.enqueueWriteBuffer(out.ids, CL_TRUE, first * k * sizeof(std::int32_t),
+                                    ids.size() * sizeof(std::int32_t), ids.data()),
+           "clEnqueueWriteBuffer", "flann: ids");
+  check_cl(queue.enqueueWriteBuffer(out.dist2, CL_TRUE, first * k * sizeof(float),
+                                    d2.size() * sizeof(float), d2.data()),
+           "clEnqueueWriteBuffer", "flann: dist2");
+  check_cl(queue.enqueueWriteBuffer(out.counts, CL_TRUE, first * sizeof(std::int32_t),
+                                    counts.size() * sizeof(std::int32_t), counts.data(), nullptr, &e),
+           "clEnqueueWriteBuffer", "flann: counts");
+  return e;
+}
+
+}  // namespace bhcl

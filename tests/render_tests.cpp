@@ -1,0 +1,286 @@
+// The photon-mapping renderer (host/render): determinism, energy conservation on a furnace
+// scene, EXR round trip, exact methods agreeing, scene-file errors and the `bhcl render` command.
+#ifdef BHCL_HAVE_RENDER
+
+#include "test_util.hpp"
+
+#include "compare.hpp"
+#include "embree_scene.hpp"
+#include "exr_io.hpp"
+#include "final_gather.hpp"
+#include "photon_trace.hpp"
+#include "png_io.hpp"
+#include "scene.hpp"
+
+using namespace bhcl;
+using namespace bhcl::render;
+
+namespace {
+
+struct SmallRender {
+  Image image;
+  RenderStats stats;
+  std::size_t photons = 0, caustic_photons = 0;
+  bool has_caustic_map = false;
+};
+
+SmallRender small_render(const Scene& scene, const std::string& method, std::size_t photons, int size,
+                         int gather, int threads, std::uint64_t seed = 7, int k = 16,
+                         int shadow_rays = 2, int spp = 1) {
+  EmbreeScene es(scene, threads);
+  LightSampler lights(scene);
+  PhotonTraceOptions po;
+  po.photons = photons;
+  po.seed = seed;
+  po.threads = threads;
+  PhotonMaps maps = build_photon_maps(es, lights, po);
+  maps.global->build_index(method, test::runtime());
+  if (maps.caustic) maps.caustic->build_index(method, test::runtime());
+  RenderOptions ro;
+  ro.width = ro.height = size;
+  ro.gather = gather;
+  ro.shadow_rays = shadow_rays;
+  ro.spp = spp;
+  ro.search.k = k;
+  ro.seed = seed;
+  ro.threads = threads;
+  ro.batch_queries = 4096;  // several passes, so the pass logic is exercised
+  SmallRender out;
+  FinalGatherRenderer r(es, lights, *maps.global, maps.caustic.get(), ro);
+  out.image = r.render(out.stats);
+  out.photons = maps.global->size();
+  out.has_caustic_map = maps.caustic != nullptr;
+  out.caustic_photons = maps.caustic ? maps.caustic->size() : 0;
+  return out;
+}
+
+// A closed cube whose every face emits Le and reflects diffusely with albedo rho, seen from the
+// inside: the radiance everywhere is Le / (1 - rho) (the white furnace).
+Scene furnace_scene(float Le, float rho) {
+  Scene s;
+  s.name = "furnace";
+  Material m;
+  m.name = "glowing white";
+  m.kd = {rho, rho, rho};
+  m.emission = {Le, Le, Le};
+  auto id = s.add_material(m);
+  const float L = 100.0f;
+  Vec3 p[8];
+  for (int i = 0; i < 8; ++i) p[i] = {(i & 1) ? L : 0.0f, (i & 2) ? L : 0.0f, (i & 4) ? L : 0.0f};
+  const int faces[6][4] = {{0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4}, {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}};
+  const Vec3 centre{L / 2, L / 2, L / 2};
+  for (const auto& f : faces) {
+    Vec3 a = p[f[0]], b = p[f[1]], c = p[f[2]], d = p[f[3]];
+    // Front side (the emitting one) towards the inside.
+    if (dot(cross(b - a, c - a), centre - a) < 0) std::swap(b, d);
+    s.add_quad(a, b, c, d, id);
+  }
+  s.camera.position = {30, 40, 45};
+  s.camera.direction = normalize(Vec3{1, 0.7f, 0.9f});
+  s.camera.up = {0, 1, 0};
+  s.camera.vfov_deg = 100;
+  return s;
+}
+
+bool has_method(const std::string& m) {
+  for (const auto& n : method_names())
+    if (n == m) return true;
+  return false;
+}
+
+std::string write_text(const std::string& name, const std::string& text) {
+  std::string path = test::tmp_path(name);
+  std::ofstream(path) << text;
+  return path;
+}
+
+}  // namespace
+
+TEST_CASE("render: photon records are 24 bytes and keep power and direction") {
+  CHECK(sizeof(PhotonRecord) == 24);
+  Rng rng(3, 4, 5);
+  for (int i = 0; i < 1000; ++i) {
+    Vec3 d = normalize(Vec3{rng.uniform() - 0.5f, rng.uniform() - 0.5f, rng.uniform() - 0.5f});
+    Vec3 pw{rng.uniform() * 3, rng.uniform(), rng.uniform() * 0.01f};
+    PhotonRecord r;
+    r.set_direction(d);
+    r.set_power(pw);
+    CHECK(dot(r.get_direction(), d) > 1.0f - 1e-6f);
+    Vec3 back = r.get_power();
+    for (int c = 0; c < 3; ++c) CHECK(std::fabs(back[c] - pw[c]) <= 1e-3f * pw[c] + 1e-7f);
+  }
+}
+
+TEST_CASE("render: a small Cornell render is deterministic and finite and non-negative for any thread count") {
+  Scene scene = cornell_scene();
+  SmallRender a = small_render(scene, "bruteforce", 3000, 40, 6, 1);
+  SmallRender b = small_render(scene, "bruteforce", 3000, 40, 6, 2);
+  CHECK_FALSE(a.has_caustic_map);  // no specular surfaces in the Cornell Box
+  CHECK(a.photons >= 3000);
+  CHECK(a.stats.queries > 0);
+  CHECK(a.stats.index_calls == a.stats.passes);  // one batched call per pass
+  CHECK(a.stats.passes > 1);
+  REQUIRE(a.image.rgb.size() == 40u * 40u * 3u);
+  std::size_t lit = 0;
+  for (float v : a.image.rgb) {
+    REQUIRE(std::isfinite(v));
+    REQUIRE(v >= 0.0f);
+    lit += v > 0;
+  }
+  CHECK(lit > a.image.rgb.size() / 2);
+  CHECK(a.image.rgb == b.image.rgb);  // bit for bit, 1 thread vs 2
+  SmallRender c = small_render(scene, "bruteforce", 3000, 40, 6, 2, /*seed=*/8);
+  CHECK(c.image.rgb != a.image.rgb);  // the seed does matter
+}
+
+TEST_CASE("render: energy is conserved in a white furnace where radiance is Le over 1 - rho") {
+  const float Le = 1.0f, rho = 0.5f, expect = Le / (1.0f - rho);
+  Scene scene = furnace_scene(Le, rho);
+  // Photon tracing alone: the power arriving at surfaces is Phi / (1 - rho).
+  {
+    EmbreeScene es(scene, 2);
+    LightSampler lights(scene);
+    PhotonTraceOptions po;
+    po.photons = 40000;
+    PhotonTraceResult t = trace_photons(es, lights, po);
+    Vec3 phi = lights.total_power();
+    CHECK(phi.x == doctest::Approx(kPi * Le * 6 * 100 * 100).epsilon(1e-4));
+    CHECK(t.stored_power.x / phi.x == doctest::Approx(1.0 / (1.0 - rho)).epsilon(0.02));
+  }
+  // The whole renderer: emission + direct light + final gather over the photon map.
+  // Enough light samples that a pixel's noise is a few per cent (area sampling of an emitter
+  // that surrounds the point is noisy near the cube's edges).
+  SmallRender r = small_render(scene, "bruteforce", 20000, 16, 24, 2, 11, 32, 48, 2);
+  double sum = 0, worst = 0;
+  for (std::size_t i = 0; i < r.image.pixels(); ++i) {
+    double l = luminance(r.image.at(i));
+    sum += l;
+    worst = std::max(worst, std::fabs(l - expect) / expect);
+  }
+  double mean = sum / r.image.pixels();
+
+  MESSAGE("furnace: mean radiance " << mean << " (expected " << expect << "), worst pixel off by "
+                                    << 100 * worst << "%");
+  CHECK(mean == doctest::Approx(expect).epsilon(0.03));
+  // Per pixel the estimate is noisy (light samples near the cube's edges), not biased: most pixels
+  // are close, none far off.
+  std::size_t close = 0;
+  for (std::size_t i = 0; i < r.image.pixels(); ++i)
+    close += std::fabs(luminance(r.image.at(i)) - expect) / expect < 0.15;
+  CHECK(close >= 0.9 * r.image.pixels());
+  CHECK(worst < 0.5);
+}
+
+TEST_CASE("render: the OpenEXR image round-trips and the PNG preview is written") {
+  Image img(37, 23);
+  Rng rng(1, 2, 3);
+  for (auto& v : img.rgb) v = rng.uniform() * 100.0f;
+  img.rgb[5] = 0.0f;
+  img.rgb[6] = 65504.0f;  // the largest half
+  std::string path = test::tmp_path("roundtrip.exr");
+  write_exr(path, img);
+  Image back = read_exr(path);
+  REQUIRE(back.width == 37);
+  REQUIRE(back.height == 23);
+  for (std::size_t i = 0; i < img.rgb.size(); ++i)
+    REQUIRE(back.rgb[i] == static_cast<float>(Imath::half(img.rgb[i])));  // exactly the halves
+  std::string png = test::tmp_path("roundtrip.png");
+  Rgb8 tm = tonemap(img, 0.01f);
+  write_png(png, tm);
+  Rgb8 pback = read_png(png);
+  CHECK(pback.width == 37);
+  CHECK(pback.px == tm.px);
+  CHECK_THROWS_WITH_AS(read_exr(test::tmp_path("no-such.exr")),
+                       doctest::Contains("no-such.exr: reading the OpenEXR image failed"), Error);
+  CHECK_THROWS_WITH_AS(write_exr("/no/such/dir/x.exr", img), doctest::Contains("/no/such/dir/x.exr"), Error);
+}
+
+TEST_CASE("render: brute force and the kd-tree give the same image") {
+  if (!has_method("kdtree")) {
+    MESSAGE("method kdtree not built: nothing to compare");
+    return;
+  }
+  Scene scene = cornell_scene();
+  SmallRender a = small_render(scene, "bruteforce", 3000, 32, 6, 2);
+  SmallRender b = small_render(scene, "kdtree", 3000, 32, 6, 2);
+  ImageDiff d = image_diff(b.image, a.image);
+  MESSAGE("kdtree vs bruteforce: max abs " << d.max_abs << ", rmse " << d.rmse);
+  // Both exact with the same tie rule: the same photons, so the same image (float sums may differ
+  // only if the two kernels rounded a distance differently).
+  CHECK(d.relative_rmse < 1e-5);
+}
+
+TEST_CASE("render: a specular scene builds a caustic map and renders finite") {
+  Scene scene = load_scene(std::string(BHCL_SCENES_DIR) + "/cornell-specular.obj");
+  CHECK(scene.has_specular());
+  SmallRender r = small_render(scene, "bruteforce", 4000, 32, 4, 2);
+  CHECK(r.has_caustic_map);
+  CHECK(r.caustic_photons > 0);
+  CHECK(r.caustic_photons < r.photons);
+  CHECK(r.stats.caustic_queries == r.stats.visible_points);
+  for (float v : r.image.rgb) REQUIRE((std::isfinite(v) && v >= 0));
+  // The glass and mirror blocks are visible and let light through: the image is not black there.
+  double sum = 0;
+  for (float v : r.image.rgb) sum += v;
+  CHECK(sum > 0);
+}
+
+TEST_CASE("render: bad scene files give errors naming the file and the line") {
+  std::string mtl = write_text("ok.mtl", "newmtl w\nKd 0.5 0.5 0.5\nnewmtl l\nKe 1 1 1\nKd 0 0 0\n");
+  const std::string head = "mtllib ok.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\n";
+  struct Case {
+    std::string text, expect;
+  };
+  std::vector<Case> cases = {
+      {head + "usemtl l\nf 1 2 3\nf 1 2 9\n", "bad1.obj:7: face vertex 9 out of range"},
+      {head + "usemtl nope\n", "bad2.obj:5: material 'nope' is not defined"},
+      {head + "v 1 x 2\n", "bad3.obj:5: bad number 'x'"},
+      {head + "frobnicate 1\n", "bad4.obj:5: unknown statement 'frobnicate'"},
+      {head + "usemtl w\nf 1 2\n", "bad5.obj:6: a face needs at least 3 vertices"},
+      {head + "usemtl w\nf 1 2 3\n", "no emitting surface"},
+      {"mtllib missing.mtl\n", "missing.mtl: cannot open the material file"},
+      {head + "usemtl l\nf 1 2 3\ncamera 0 0 0 0 0 0 0 1 0 40\n", "bad8.obj:7: camera target equals its position"},
+      {head + "usemtl l\nf 1 2 2\n", "bad9.obj: triangle 0 is degenerate"},
+  };
+  int i = 0;
+  for (const auto& c : cases) {
+    std::string path = write_text("bad" + std::to_string(++i) + ".obj", c.text);
+    INFO(c.text);
+    CHECK_THROWS_WITH_AS(load_scene(path), doctest::Contains(c.expect.c_str()), Error);
+  }
+  std::string badmtl = write_text("badm.mtl", "newmtl w\nKd 1.5 0.5 0.5\n");
+  std::string obj = write_text("badm.obj", "mtllib badm.mtl\n");
+  CHECK_THROWS_WITH_AS(load_scene(obj), doctest::Contains("badm.mtl:2: reflectance of 'w' must be in [0, 1]"), Error);
+  CHECK_THROWS_WITH_AS(load_scene("no-such-scene"), doctest::Contains("scene 'no-such-scene' not found"), Error);
+  // A good file loads, with the default camera when it has none.
+  std::string good = write_text("good.obj", head + "usemtl l\nf 1 2 3\nusemtl w\nf -3 -1 -2\n");
+  Scene s = load_scene(good);
+  CHECK(s.triangles.size() == 2);
+  CHECK(s.has_light());
+}
+
+TEST_CASE("render: bhcl render writes the EXR and the PNG and the stats") {
+  std::string exr = test::tmp_path("cli_render.exr"), json = test::tmp_path("cli_render.json");
+  std::string out;
+  int rc = test::run_bhcl("render --scene cornell --method bruteforce --photons 2000 --gather 4 --k 8 "
+                          "--size 24x16 --quiet --out " + exr + " --stats " + json, &out);
+  INFO(out);
+  REQUIRE(rc == 0);
+  CHECK(out.find("no caustic map built") != std::string::npos);
+  Image img = read_exr(exr);
+  CHECK(img.width == 24);
+  CHECK(img.height == 16);
+  CHECK(read_png(test::tmp_path("cli_render.png")).width == 24);
+  std::ifstream s(json);
+  std::stringstream ss;
+  ss << s.rdbuf();
+  for (const char* key : {"\"photons\"", "\"queries\"", "\"query_s\"", "\"total_s\"", "\"device\"", "\"photon_s\"",
+                          "\"index_build_s\"", "\"shade_s\""})
+    CHECK_MESSAGE(ss.str().find(key) != std::string::npos, key);
+  CHECK(test::run_bhcl("render --out " + exr + " --size 12", &out) == 2);
+  CHECK(out.find("--size expects WxH") != std::string::npos);
+  CHECK(test::run_bhcl("render --out " + exr + " --scene /no/such.obj", &out) == 1);
+  CHECK(out.find("/no/such.obj: cannot open the scene file") != std::string::npos);
+}
+
+#endif  // BHCL_HAVE_RENDER
