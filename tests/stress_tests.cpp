@@ -209,4 +209,33 @@ TEST_CASE("stress: extreme scales through the buffer-level call equal the host-a
     }
   }
 }
+
+TEST_CASE("stress: results do not depend on batch size, work-group size or query order") {
+  auto rt = test::runtime();
+  auto pts = datasets::cornell_photons(5000, 41);
+  auto qs = datasets::cornell_queries(700, 42);
+  qs[3 * 5] = NAN;  // a non-finite query inside the batch
+  for (const auto& method : method_names()) {
+    CAPTURE(method);
+    auto index = make_index(method, rt, pts.data(), 5000);
+    SearchParams p;
+    p.k = 12;
+    KnnResult base = index->query(qs, p);
+    struct Variant { std::size_t local, batch; bool sort; };
+    for (Variant v : {Variant{16, 0, false}, Variant{128, 0, false}, Variant{0, 97, false},
+                      Variant{0, 0, true}, Variant{32, 250, true}}) {
+      CAPTURE(v.local);
+      CAPTURE(v.batch);
+      CAPTURE(v.sort);
+      SearchParams q = p;
+      q.local_size = v.local;
+      q.max_batch = v.batch;
+      q.sort_queries = v.sort;
+      KnnResult r = index->query(qs, q);
+      CHECK(r.ids == base.ids);
+      CHECK(r.dist2 == base.dist2);
+      CHECK(r.counts == base.counts);
+    }
+  }
+}
 }

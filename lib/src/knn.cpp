@@ -8,6 +8,7 @@
 
 #include "blockhash_cl/error.hpp"
 #include "device_util.hpp"
+#include "query_order.hpp"
 
 namespace bhcl {
 
@@ -199,6 +200,26 @@ QueryStats Index::query(const float* queries, std::size_t n, const SearchParams&
                         KnnResult& out) const {
   auto t0 = std::chrono::steady_clock::now();
   check_params(params);
+  if (params.sort_queries && n > 1) {
+    // Dispatch in Hilbert order, return rows in the caller's order.
+    std::vector<std::size_t> order = detail::hilbert_query_order(queries, n);
+    std::vector<float> sorted(3 * n);
+    for (std::size_t i = 0; i < n; ++i)
+      for (int d = 0; d < 3; ++d) sorted[3 * i + d] = queries[3 * order[i] + d];
+    SearchParams p = params;
+    p.sort_queries = false;
+    KnnResult tmp;
+    QueryStats st = query(sorted.data(), n, p, tmp);
+    out.resize(n, params.k);
+    const std::size_t k = static_cast<std::size_t>(params.k);
+    for (std::size_t i = 0; i < n; ++i) {
+      std::copy_n(&tmp.ids[i * k], k, &out.ids[order[i] * k]);
+      std::copy_n(&tmp.dist2[i * k], k, &out.dist2[order[i] * k]);
+      out.counts[order[i]] = tmp.counts[i];
+    }
+    st.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    return st;
+  }
   QueryStats st;
   st.n_queries = n;
   out.resize(n, params.k);

@@ -55,6 +55,9 @@ struct SearchParams {
   // Host-array calls split the batch so that one dispatch has at most this many queries
   // (0: automatic, bounded by device memory). Results do not depend on it.
   std::size_t max_batch = 0;
+  // Host-array calls: dispatch the queries in 3D Hilbert order of their positions (results still
+  // come back in the caller's order). Helps when a batch is not already spatially coherent.
+  bool sort_queries = false;
 };
 
 // Host-side results. ids/dist2 are n*k, counts is n.
