@@ -238,4 +238,33 @@ TEST_CASE("stress: results do not depend on batch size, work-group size or query
     }
   }
 }
+
+TEST_CASE("stress: results do not depend on PoCL's thread count (or FLANN's)") {
+  auto pts = datasets::clustered(20000, 51, 8, 0.02f);
+  auto qs = datasets::clustered(3000, 52, 8, 0.02f);
+  std::string P = test::tmp_path("threads_p.f32"), Q = test::tmp_path("threads_q.f32");
+  write_points_file(P, pts);
+  write_points_file(Q, qs);
+  for (const auto& method : method_names()) {
+    CAPTURE(method);
+    std::vector<std::vector<std::int32_t>> ids;
+    std::vector<std::vector<float>> d2;
+    for (int threads : {1, 2, 3}) {
+      std::string I = test::tmp_path("threads_ids"), D = test::tmp_path("threads_d2");
+      std::string out;
+      int rc = test::run_bhcl("knn --points " + P + " --queries " + Q + " --k 20 --method " + method +
+                                  " --threads " + std::to_string(threads) + " --out-ids " + I +
+                                  " --out-dist2 " + D,
+                              &out, "POCL_MAX_PTHREAD_COUNT=" + std::to_string(threads));
+      INFO(out);
+      REQUIRE(rc == 0);
+      ids.push_back(test::read_raw<std::int32_t>(I));
+      d2.push_back(test::read_raw<float>(D));
+    }
+    CHECK(ids[0] == ids[1]);
+    CHECK(ids[0] == ids[2]);
+    CHECK(d2[0] == d2[1]);
+    CHECK(d2[0] == d2[2]);
+  }
+}
 }

@@ -89,10 +89,12 @@ inline void check_exact_vs_double(const KnnResult& r, const float* points, std::
   MESSAGE("ranks differing from the double reference only by float-rounding ties: " << swapped);
 }
 
-// Runs `bhcl ARGS`, capturing stdout+stderr. Returns the exit status.
-inline int run_bhcl(const std::string& args, std::string* output = nullptr) {
+// Runs `bhcl ARGS` (with `env`, e.g. "POCL_MAX_PTHREAD_COUNT=1", set for it), capturing
+// stdout+stderr. Returns the exit status.
+inline int run_bhcl(const std::string& args, std::string* output = nullptr, const std::string& env = "") {
   std::string log = std::string(BHCL_TEST_TMP_DIR) + "/bhcl_out_" + std::to_string(std::rand()) + ".txt";
-  std::string cmd = std::string("\"") + BHCL_TOOL_PATH + "\" " + args + " > \"" + log + "\" 2>&1";
+  std::string cmd = (env.empty() ? std::string() : "env " + env + " ") + "\"" + BHCL_TOOL_PATH +
+                    "\" " + args + " > \"" + log + "\" 2>&1";
   int status = std::system(cmd.c_str());
   std::ifstream in(log);
   std::stringstream ss;
