@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Installs the Debian 12 packages blockhash_cl builds and runs with, skipping those already there.
-# Usage: bash .ci/install-deps.sh        (as root, or a user with sudo)
+# Usage: bash .ci/install-deps.sh [--ci]   (as root, or a user with sudo)
+#   --ci adds what CI's sanitizer and fuzzing runs need (clang and its runtimes).
 set -euo pipefail
 
 packages=(
@@ -11,6 +12,9 @@ packages=(
   doctest-dev
   python3 python3-numpy python3-matplotlib
 )
+if [ "${1:-}" = "--ci" ]; then
+  packages+=(clang libclang-rt-14-dev)
+fi
 
 missing=()
 for p in "${packages[@]}"; do

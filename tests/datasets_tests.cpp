@@ -1,6 +1,8 @@
 // The embedded Cornell Box and the generated data sets.
 #include "test_util.hpp"
 
+#include "blockhash_cl/cornell_box.hpp"
+
 using namespace bhcl;
 
 namespace {

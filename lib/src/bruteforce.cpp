@@ -14,8 +14,9 @@ BruteForceIndex::BruteForceIndex(std::shared_ptr<Runtime> runtime, const float* 
   auto t0 = std::chrono::steady_clock::now();
   if (n_points == 0) throw Error("bruteforce: the point set is empty (N = 0)");
   if (n_points > 0x7ffffffeu) throw Error("bruteforce: N = " + std::to_string(n_points) + " exceeds the int32 index range");
-  validate_points(points, n_points, "points");
-  points_ = detail::upload_points4(runtime_ptr(), points, n_points, "bruteforce points");
+  std::vector<float> storage;
+  const float* pts = prepare_points(points, n_points, storage);
+  points_ = detail::upload_points4(runtime_ptr(), pts, n_points, "bruteforce points");
   set_build_seconds(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
 }
 

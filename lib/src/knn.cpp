@@ -1,11 +1,14 @@
 // The Index base: parameter checks, batching, warm-up launches and timing, shared by all methods.
 #include "blockhash_cl/knn.hpp"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <sstream>
 
 #include "blockhash_cl/error.hpp"
+#include "device_util.hpp"
+#include "query_order.hpp"
 
 namespace bhcl {
 
@@ -38,6 +41,39 @@ void validate_points(const float* xyz, std::size_t n, const char* what) {
   }
 }
 
+int Index::choose_scale_exponent(const float* points, std::size_t n) {
+  double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+  for (std::size_t i = 0; i < n; ++i)
+    for (int d = 0; d < 3; ++d) {
+      lo[d] = std::min(lo[d], double(points[3 * i + d]));
+      hi[d] = std::max(hi[d], double(points[3 * i + d]));
+    }
+  double extent = 0;
+  for (int d = 0; d < 3 && n; ++d) extent = std::max(extent, hi[d] - lo[d]);
+  // Squared distances stay normal floats with room to spare inside [2^-40, 2^40].
+  if (extent == 0 || (extent >= std::ldexp(1.0, -40) && extent <= std::ldexp(1.0, 40))) return 0;
+  return std::ilogb(extent);
+}
+
+const float* Index::prepare_points(const float* points, std::size_t n, std::vector<float>& storage) {
+  validate_points(points, n, "points");
+  scale_exp_ = choose_scale_exponent(points, n);
+  if (scale_exp_ == 0) return points;
+  storage.resize(3 * n);
+  for (std::size_t i = 0; i < 3 * n; ++i) storage[i] = std::ldexp(points[i], -scale_exp_);
+  return storage.data();
+}
+
+SearchParams Index::scaled(const SearchParams& p) const {
+  SearchParams s = p;
+  if (scale_exp_ != 0 && std::isfinite(p.max_radius)) s.max_radius = std::ldexp(p.max_radius, -scale_exp_);
+  return s;
+}
+
+double Index::host_search(const float*, std::size_t, const SearchParams&, KnnResult&) const {
+  throw Error(method() + ": host_search is not implemented by this method");
+}
+
 void Index::check_params(const SearchParams& p) const {
   kmax_variant(p.k);  // throws for k outside [1, kMaxK]
   if (std::isnan(p.max_radius) || p.max_radius < 0)
@@ -53,6 +89,7 @@ std::size_t Index::local_size_for(const SearchParams& p) const {
 
 double Index::warm_up(const SearchParams& params) const {
   check_params(params);
+  if (answers_on_host()) return 0.0;
   std::size_t local = local_size_for(params);
   auto key = std::make_pair(kmax_variant(params.k), local);
   std::lock_guard<std::mutex> lock(warm_mutex_);
@@ -121,13 +158,68 @@ cl::Event Index::enqueue_query(const cl::CommandQueue& queue, const cl::Buffer& 
   need(out.ids, nk * sizeof(std::int32_t), "ids");
   need(out.dist2, nk * sizeof(float), "dist2");
   need(out.counts, n * sizeof(std::int32_t), "counts");
-  return enqueue_impl(queue, queries, n, out, params, wait, nullptr, nullptr);
+  const SearchParams sp = scaled(params);
+  const cl::Context ctx = queue.getInfo<CL_QUEUE_CONTEXT>();
+  cl_int err = CL_SUCCESS;
+  if (answers_on_host()) {
+    // Honest but blocking: read the queries, answer on the host, write the rows back.
+    std::vector<float> q(n * 3);
+    check_cl(queue.enqueueReadBuffer(queries, CL_TRUE, 0, q.size() * sizeof(float), q.data(), wait),
+             "clEnqueueReadBuffer", method() + " queries");
+    KnnResult r;
+    r.resize(n, params.k);
+    if (scale_exp_)
+      for (auto& v : q) v = std::ldexp(v, -scale_exp_);
+    host_search(q.data(), n, sp, r);
+    if (scale_exp_)
+      for (auto& d : r.dist2) d = std::ldexp(d, 2 * scale_exp_);
+    cl::Event e;
+    check_cl(queue.enqueueWriteBuffer(out.ids, CL_TRUE, 0, nk * 4, r.ids.data()), "clEnqueueWriteBuffer", "ids");
+    check_cl(queue.enqueueWriteBuffer(out.dist2, CL_TRUE, 0, nk * 4, r.dist2.data()), "clEnqueueWriteBuffer", "dist2");
+    check_cl(queue.enqueueWriteBuffer(out.counts, CL_TRUE, 0, n * 4, r.counts.data(), nullptr, &e),
+             "clEnqueueWriteBuffer", "counts");
+    return e;
+  }
+  if (scale_exp_ == 0) return enqueue_impl(queue, queries, n, out, sp, wait, nullptr, nullptr);
+  // Extreme scales: scale a copy of the queries, answer, scale the distances back.
+  cl::Buffer scaled_q(ctx, CL_MEM_READ_WRITE, n * 3 * sizeof(float), nullptr, &err);
+  check_cl(err, "clCreateBuffer", "scaled queries");
+  const std::size_t local = local_size_for(params);
+  cl::Kernel copy = runtime_->kernel("scale.cl", "bhcl_scale_copy");
+  detail::KernelArgs(copy, "bhcl_scale_copy").add(queries).add(scaled_q).add(cl_ulong(n * 3)).add(cl_int(-scale_exp_));
+  cl::Event e0 = detail::launch_1d(queue, copy, n * 3, local, wait, "bhcl_scale_copy");
+  std::vector<cl::Event> w0{e0};
+  cl::Event e1 = enqueue_impl(queue, scaled_q, n, out, sp, &w0, nullptr, nullptr);
+  cl::Kernel back = runtime_->kernel("scale.cl", "bhcl_scale_in_place");
+  detail::KernelArgs(back, "bhcl_scale_in_place").add(out.dist2).add(cl_ulong(nk)).add(cl_int(2 * scale_exp_));
+  std::vector<cl::Event> w1{e1};
+  return detail::launch_1d(queue, back, nk, local, &w1, "bhcl_scale_in_place");
 }
 
 QueryStats Index::query(const float* queries, std::size_t n, const SearchParams& params,
                         KnnResult& out) const {
   auto t0 = std::chrono::steady_clock::now();
   check_params(params);
+  if (params.sort_queries && n > 1) {
+    // Dispatch in Hilbert order, return rows in the caller's order.
+    std::vector<std::size_t> order = detail::hilbert_query_order(queries, n);
+    std::vector<float> sorted(3 * n);
+    for (std::size_t i = 0; i < n; ++i)
+      for (int d = 0; d < 3; ++d) sorted[3 * i + d] = queries[3 * order[i] + d];
+    SearchParams p = params;
+    p.sort_queries = false;
+    KnnResult tmp;
+    QueryStats st = query(sorted.data(), n, p, tmp);
+    out.resize(n, params.k);
+    const std::size_t k = static_cast<std::size_t>(params.k);
+    for (std::size_t i = 0; i < n; ++i) {
+      std::copy_n(&tmp.ids[i * k], k, &out.ids[order[i] * k]);
+      std::copy_n(&tmp.dist2[i * k], k, &out.dist2[order[i] * k]);
+      out.counts[order[i]] = tmp.counts[i];
+    }
+    st.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    return st;
+  }
   QueryStats st;
   st.n_queries = n;
   out.resize(n, params.k);
@@ -135,6 +227,24 @@ QueryStats Index::query(const float* queries, std::size_t n, const SearchParams&
   for (std::size_t i = 0; i < n; ++i) {
     const float* q = queries + 3 * i;
     if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2])) ++st.nonfinite_queries;
+  }
+  const SearchParams sp = scaled(params);
+  // Queries in the structure's coordinates: the caller's, or a scaled copy (extreme scales).
+  std::vector<float> scaled_queries;
+  if (scale_exp_ != 0) {
+    scaled_queries.resize(3 * n);
+    for (std::size_t i = 0; i < 3 * n; ++i) scaled_queries[i] = std::ldexp(queries[i], -scale_exp_);
+    queries = scaled_queries.data();
+  }
+  auto unscale = [&](float* d2, std::size_t count) {
+    if (scale_exp_ != 0)
+      for (std::size_t i = 0; i < count; ++i) d2[i] = std::ldexp(d2[i], 2 * scale_exp_);
+  };
+  if (answers_on_host()) {
+    st.query_s = host_search(queries, n, sp, out);
+    unscale(out.dist2.data(), out.dist2.size());
+    st.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    return st;
   }
   const Runtime& rt = *runtime_;
   const cl::CommandQueue& queue = rt.queue();
@@ -160,7 +270,7 @@ QueryStats Index::query(const float* queries, std::size_t n, const SearchParams&
                                       nullptr, &up),
              "clEnqueueWriteBuffer", "queries");
     std::vector<cl::Event> kernels;
-    enqueue_impl(queue, qbuf, m, rb, params, nullptr, &kernels, &st.compile_s);
+    enqueue_impl(queue, qbuf, m, rb, sp, nullptr, &kernels, &st.compile_s);
     check_cl(queue.enqueueReadBuffer(rb.ids, CL_FALSE, 0, m * k * sizeof(std::int32_t),
                                      out.ids.data() + first * k, nullptr, &d1),
              "clEnqueueReadBuffer", "ids");
@@ -175,6 +285,7 @@ QueryStats Index::query(const float* queries, std::size_t n, const SearchParams&
     for (const auto& e : kernels) st.query_s += event_seconds(e);
     st.download_s += event_seconds(d1) + event_seconds(d2) + event_seconds(d3);
     st.batches += kernels.size();
+    unscale(out.dist2.data() + first * k, m * k);
   }
   st.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return st;

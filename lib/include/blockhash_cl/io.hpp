@@ -14,6 +14,11 @@ namespace bhcl {
 // coordinate. An empty file gives an empty vector.
 std::vector<float> read_points_file(const std::string& path, bool require_finite = true);
 
+// Parses the bytes of a point file (what read_points_file does after reading); `what` names the
+// source in errors. The fuzz target drives this.
+std::vector<float> parse_points(const void* data, std::size_t size, const std::string& what,
+                                bool require_finite = true);
+
 void write_points_file(const std::string& path, const std::vector<float>& xyz);
 
 // Writes raw bytes; throws bhcl::Error naming the path on failure.

@@ -12,6 +12,11 @@
 //    reports how many there were in QueryStats::nonfinite_queries. Points must be finite: an
 //    index build throws naming the first bad point.
 //  - Results do not depend on batch size, work-group size or thread count.
+//  - Extreme scales: when the points' extent is outside [2^-40, 2^40] (e.g. a 1e-20 or a 1e30
+//    box, or subnormal coordinates), every method computes in coordinates scaled by a power of
+//    two (exact: the ranking is that of the true distances) and scales the distances back. A
+//    squared distance beyond the float range then reads +inf, and such rows keep the order of
+//    the true distances rather than the index order among the +inf entries.
 #pragma once
 
 #include <CL/opencl.hpp>
@@ -50,6 +55,9 @@ struct SearchParams {
   // Host-array calls split the batch so that one dispatch has at most this many queries
   // (0: automatic, bounded by device memory). Results do not depend on it.
   std::size_t max_batch = 0;
+  // Host-array calls: dispatch the queries in 3D Hilbert order of their positions (results still
+  // come back in the caller's order). Helps when a batch is not already spatially coherent.
+  bool sort_queries = false;
 };
 
 // Host-side results. ids/dist2 are n*k, counts is n.
@@ -80,7 +88,7 @@ struct QueryStats {
   double upload_s = 0.0;   // host -> device copies (event times)
   double query_s = 0.0;    // kernel execution (event times), compile excluded
   double download_s = 0.0; // device -> host copies (event times)
-  double wall_s = 0.0;     // the whole call, host clock
+  double wall_s = 0.0;     // the whole call, host clock (host methods: their search time is query_s)
   double queries_per_s() const { return query_s > 0 ? n_queries / query_s : 0.0; }
 };
 
@@ -105,8 +113,7 @@ class Index {
   const std::shared_ptr<Runtime>& runtime_ptr() const { return runtime_; }
 
   // Host arrays. queries: n x 3 floats. Fills out (resized to n x k). Returns the call's stats.
-  // Virtual so that host-only methods (FLANN) can answer without a device.
-  virtual QueryStats query(const float* queries, std::size_t n, const SearchParams& params,
+  QueryStats query(const float* queries, std::size_t n, const SearchParams& params,
                    KnnResult& out) const;
   // Convenience overload (std::vector of n*3 floats).
   KnnResult query(const std::vector<float>& queries, const SearchParams& params,
@@ -127,6 +134,24 @@ class Index {
  protected:
   Index(std::shared_ptr<Runtime> runtime, std::size_t n_points)
       : runtime_(std::move(runtime)), n_points_(n_points) {}
+
+  // For the constructors of subclasses: validates the points (finite) and picks the coordinate
+  // scale (see the contract above). Returns the points the structure must be built from: `points`
+  // itself, or a copy scaled by 2^-scale_exponent() kept in `storage`.
+  const float* prepare_points(const float* points, std::size_t n, std::vector<float>& storage);
+  // Device (and host-method) coordinates are the caller's times 2^-e. Set by prepare_points, or
+  // by a subclass that loads a saved structure.
+  int scale_exponent() const { return scale_exp_; }
+  void set_scale_exponent(int e) { scale_exp_ = e; }
+  // The exponent prepare_points picks for a point set: 0 when its extent is within [2^-40, 2^40].
+  static int choose_scale_exponent(const float* points, std::size_t n);
+
+  // Host methods (FLANN) answer on the host: they return true and implement host_search, which
+  // gets queries and max_radius already in scaled coordinates and fills out's rows (distances in
+  // scaled coordinates too). Returns the search's own seconds.
+  virtual bool answers_on_host() const { return false; }
+  virtual double host_search(const float* queries, std::size_t n, const SearchParams& params,
+                             KnnResult& out) const;
 
   // Enqueue one dispatch answering queries [first, first+count) of the buffer, writing the same
   // rows of the result buffers. count may be 0 (a warm-up launch). Must not block.
@@ -150,6 +175,9 @@ class Index {
   mutable std::mutex dispatch_mutex_;
 
  private:
+  // The params a kernel or host search sees: max_radius in scaled coordinates.
+  SearchParams scaled(const SearchParams& params) const;
+
   cl::Event enqueue_impl(const cl::CommandQueue& queue, const cl::Buffer& queries, std::size_t n,
                          const ResultBuffers& out, const SearchParams& params,
                          const std::vector<cl::Event>* wait, std::vector<cl::Event>* kernels,
@@ -157,6 +185,7 @@ class Index {
 
   std::shared_ptr<Runtime> runtime_;
   std::size_t n_points_;
+  int scale_exp_ = 0;
   double build_seconds_ = 0.0;
   mutable std::mutex warm_mutex_;
   mutable std::set<std::pair<int, std::size_t>> warmed_;  // (kmax variant, local size)

@@ -1,0 +1,34 @@
+#include "query_order.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <utility>
+
+#include "blockhash_build.hpp"
+
+namespace bhcl::detail {
+
+std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n) {
+  std::vector<std::size_t> finite, rest;
+  for (std::size_t i = 0; i < n; ++i) {
+    const float* q = xyz + 3 * i;
+    (std::isfinite(q[0]) && std::isfinite(q[1]) && std::isfinite(q[2]) ? finite : rest).push_back(i);
+  }
+  std::vector<float> compact(3 * finite.size());
+  for (std::size_t j = 0; j < finite.size(); ++j)
+    for (int d = 0; d < 3; ++d) compact[3 * j + d] = xyz[3 * finite[j] + d];
+  // The block-hash build's quantiser and Hilbert keys, over the queries' own box.
+  blockhash::Quantiser q = blockhash::make_quantiser(compact.data(), finite.size(), 16);
+  std::vector<std::uint64_t> keys = blockhash::hilbert_keys(compact.data(), finite.size(), q);
+  std::vector<std::pair<std::uint64_t, std::size_t>> by_key(finite.size());
+  for (std::size_t j = 0; j < finite.size(); ++j) by_key[j] = {keys[j], finite[j]};
+  std::sort(by_key.begin(), by_key.end());
+  std::vector<std::size_t> order;
+  order.reserve(n);
+  for (const auto& kv : by_key) order.push_back(kv.second);
+  order.insert(order.end(), rest.begin(), rest.end());
+  return order;
+}
+
+}  // namespace bhcl::detail

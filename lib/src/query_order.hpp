@@ -1,0 +1,16 @@
+// Query batches sorted along a space-filling curve before dispatch (as cudaKDTree and ArborX do):
+// neighbouring work-items then walk the same buckets, blocks and tree nodes, which is what caches
+// and GPU memory coalescing reward.
+#pragma once
+
+#include <cstddef>
+#include <vector>
+
+namespace bhcl::detail {
+
+// The order that visits the queries along a 3D Hilbert curve over their own bounding box
+// (16 bits per axis); queries with a non-finite coordinate go last, in their own order.
+// order[i] = the caller's index of the i-th query to dispatch.
+std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n);
+
+}  // namespace bhcl::detail
