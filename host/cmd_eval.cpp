@@ -90,6 +90,8 @@ int run_eval(int argc, char** argv) {
   both("incomplete queries", "%.0f", double(m.accuracy.incomplete_queries), double(truth.accuracy.incomplete_queries));
   both("identical rows", "%.0f", double(m.accuracy.identical_rows), double(truth.accuracy.identical_rows));
   both("compared queries", "%.0f", double(m.accuracy.queries), double(truth.accuracy.queries));
+  std::printf("query s: kernel time for device methods (compile and transfers apart), search wall "
+              "time for host methods (flann)\n");
 
   if (args.has("stats")) {
     Json j;

@@ -210,16 +210,19 @@ TEST_CASE("kdtree: radius 0 finds exact hits only") {
 }
 
 TEST_CASE("kdtree: points whose distances overflow to +inf still fill the row") {
-  // |q - p|^2 overflows float for coordinates near 1e20: such points rank by index after every
-  // finite distance, as in brute force.
+  // |q - p|^2 overflows float for coordinates near 1e20: the index computes in coordinates
+  // scaled by a power of two (knn.hpp, "Extreme scales"), so the row is ordered by the true
+  // distances, as brute force orders it, and the distances read +inf.
   std::vector<float> pts = {0.0f, 0.0f, 0.0f, 3e19f, 0.0f, 0.0f, -3e19f, 1e19f, 0.0f,
                             1.0f, 1.0f, 1.0f, 0.0f, -3e19f, 2e19f};
   std::vector<float> qs = {0.5f, 0.5f, 0.5f, -3e19f, -3e19f, 0.0f};
   KdTreeIndex index(test::runtime(), pts.data(), 5);
+  BruteForceIndex brute(test::runtime(), pts.data(), 5);
   SearchParams p;
   p.k = 5;
-  test::require_identical(index.query(qs, p), reference::knn_float(pts.data(), 5, qs.data(), 2, p),
-                          "overflowing distances");
+  KnnResult r = index.query(qs, p);
+  test::require_identical(r, brute.query(qs, p), "overflowing distances");
+  test::check_exact_vs_double(r, pts.data(), 5, qs.data(), 2, p);
 }
 
 TEST_CASE("kdtree: balanced tree, iterative build, quick on degenerate data") {

@@ -97,6 +97,7 @@ struct TableStats {
 struct Structure {
   BlockHashBuildInfo info;
   std::size_t n_points = 0;
+  int scale_exp = 0;                     // stored coordinates = caller's * 2^-scale_exp (knn.hpp)
   std::vector<std::int32_t> order;       // Hilbert position -> caller's index
   std::vector<bhcl_bh_block> blocks;
   std::vector<bhcl_bh_box> boxes;

@@ -76,9 +76,11 @@ BlockHashIndex::BlockHashIndex(std::shared_ptr<Runtime> runtime, const float* po
   if (n_points == 0) throw Error("blockhash: the point set is empty (N = 0)");
   if (n_points > 0x7ffffffeu)
     throw Error("blockhash: N = " + std::to_string(n_points) + " exceeds the int32 index range");
-  validate_points(points, n_points, "points");
+  std::vector<float> scaled;
+  points = prepare_points(points, n_points, scaled);  // validates; extreme scales
   Structure& s = *s_;
   s.n_points = n_points;
+  s.scale_exp = scale_exponent();
   s.info.preset = params.preset;
   s.info.n_points = n_points;
   s.info.X = derive_x(params);
@@ -128,6 +130,7 @@ BlockHashIndex::BlockHashIndex(std::shared_ptr<Runtime> runtime, const float* po
 BlockHashIndex::BlockHashIndex(std::shared_ptr<Runtime> runtime, std::unique_ptr<blockhash::Structure> s)
     : Index(std::move(runtime), s->n_points), s_(std::move(s)) {
   auto t0 = std::chrono::steady_clock::now();
+  set_scale_exponent(s_->scale_exp);
   count_tables(*s_);
   upload();
   s_->info.t_upload = seconds_since(t0);
@@ -150,7 +153,9 @@ long BlockHashIndex::first_mismatch(const float* points, std::size_t n) const {
   for (std::size_t i = 0; i < n; ++i) {
     float p[3];
     s_->point(i, p);
-    const float* c = points + 3 * static_cast<std::size_t>(s_->order[i]);
+    const float* u = points + 3 * static_cast<std::size_t>(s_->order[i]);
+    const float c[3] = {std::ldexp(u[0], -s_->scale_exp), std::ldexp(u[1], -s_->scale_exp),
+                        std::ldexp(u[2], -s_->scale_exp)};
     if (std::memcmp(p, c, sizeof p) != 0) return s_->order[i];
   }
   return -1;

@@ -1,6 +1,6 @@
 // Save and load of a built block-hash index, and the structure's invariant check.
 //
-// File format (little-endian), version 1:
+// File format (little-endian), version 2:
 //   "BHCLIDX\0" magic, u32 version, u32 0x01020304 (byte-order check), u32 header bytes,
 //   u32 preset, L, P, B, X, flags (guard, top count, direct, box skip, probes, box order),
 //   u64 n_points, n_blocks, n_thresholds, n_table_starts, n_keys, n_buckets, n_refs,
@@ -8,7 +8,8 @@
 //   u64 FNV-1a 64 checksum of the payload,
 //   payload: order (i32 x N), blocks (256 B each), boxes (32 B each), thresholds (f32),
 //            table_starts (u32), keys (u32), buckets (16 B each), refs (i32), block keys (u64).
-//   (the header also holds the query quantiser: f32 origin xyz, f32 scale, u32 bits, u32 seed.)
+//   (the header also holds the query quantiser: f32 origin xyz, f32 scale, u32 bits, u32 seed,
+//   and i32 the coordinate scale exponent of extreme-scale data, see knn.hpp; new in version 2.)
 // A load reads the whole file, checks the sizes against the header and the file size, the
 // checksum, and then every structural invariant (Structure::validate) before anything is used.
 #include <cmath>
@@ -23,8 +24,8 @@ namespace bhcl::blockhash {
 namespace {
 
 constexpr char kMagic[8] = {'B', 'H', 'C', 'L', 'I', 'D', 'X', '\0'};
-constexpr std::uint32_t kVersion = 1;
-constexpr std::uint32_t kHeaderBytes = 8 + 4 * 3 + 4 * 6 + 4 * 6 + 8 * 7 + 8 * 3 + 8;
+constexpr std::uint32_t kVersion = 2;
+constexpr std::uint32_t kHeaderBytes = 8 + 4 * 3 + 4 * 6 + 4 * 7 + 8 * 7 + 8 * 3 + 8;
 
 std::uint64_t fnv1a(const unsigned char* p, std::size_t n, std::uint64_t h = 0xcbf29ce484222325ull) {
   for (std::size_t i = 0; i < n; ++i) {
@@ -181,6 +182,7 @@ void save_structure(const Structure& s, const std::string& path) {
   for (float v : {s.q_origin[0], s.q_origin[1], s.q_origin[2], s.q_scale}) h.put(v);
   h.put(std::uint32_t(s.q_bits));
   h.put(std::uint32_t(in.hilbert_seed));
+  h.put(std::int32_t(s.scale_exp));
   for (std::uint64_t v : {std::uint64_t(s.n_points), std::uint64_t(s.blocks.size()),
                           std::uint64_t(s.thresholds.size()), std::uint64_t(s.table_starts.size()),
                           std::uint64_t(s.keys.size()), std::uint64_t(s.buckets.size()),
@@ -232,6 +234,9 @@ std::unique_ptr<Structure> load_structure(const std::string& path) {
   s->q_scale = r.get<float>("quantiser scale");
   s->q_bits = static_cast<int>(r.get<std::uint32_t>("hilbert bits") & 0xff);
   info.hilbert_seed = static_cast<int>(r.get<std::uint32_t>("hilbert seed") & 0x7fffffff);
+  s->scale_exp = r.get<std::int32_t>("scale exponent");
+  if (s->scale_exp < -300 || s->scale_exp > 300)
+    throw Error(path + ": block-hash index has an impossible scale exponent " + std::to_string(s->scale_exp));
   std::uint64_t n[7];
   const char* names[7] = {"n_points", "n_blocks", "n_thresholds", "n_table_starts", "n_keys", "n_buckets", "n_refs"};
   for (int i = 0; i < 7; ++i) n[i] = r.get<std::uint64_t>(names[i]);

@@ -138,9 +138,10 @@ FlannIndex::FlannIndex(std::shared_ptr<Runtime> runtime, const float* points,
   if (params.threads < 0) throw Error("flann: threads must be >= 0, got " + std::to_string(params.threads));
   if (params.leaf_max_size < 1)
     throw Error("flann: leaf_max_size must be >= 1, got " + std::to_string(params.leaf_max_size));
-  validate_points(points, n_points, "points");
+  std::vector<float> scaled;
+  const float* pts = prepare_points(points, n_points, scaled);  // validates; extreme scales
   threads_ = params.threads ? params.threads : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
-  impl_->points.assign(points, points + 3 * n_points);
+  impl_->points.assign(pts, pts + 3 * n_points);
   try {
     flann::Matrix<float> m(impl_->points.data(), n_points, 3);
     impl_->tree = std::make_unique<FlannTree>(m, flann::KDTreeSingleIndexParams(params.leaf_max_size, true));
@@ -228,52 +229,12 @@ std::size_t FlannIndex::search(const float* queries, std::size_t n, const Search
   return nonfinite.load();
 }
 
-QueryStats FlannIndex::query(const float* queries, std::size_t n, const SearchParams& params,
-                             KnnResult& out) const {
+double FlannIndex::host_search(const float* queries, std::size_t n, const SearchParams& params,
+                               KnnResult& out) const {
   auto t0 = std::chrono::steady_clock::now();
-  check_params(params);
-  QueryStats st;
-  st.n_queries = n;
-  out.resize(n, params.k);
-  if (n == 0) return st;
-  auto t1 = std::chrono::steady_clock::now();
-  st.nonfinite_queries = search(queries, n, params, out.ids.data(), out.dist2.data(), out.counts.data());
-  auto t2 = std::chrono::steady_clock::now();
-  st.query_s = std::chrono::duration<double>(t2 - t1).count();
-  st.wall_s = std::chrono::duration<double>(t2 - t0).count();
-  return st;
+  search(queries, n, params, out.ids.data(), out.dist2.data(), out.counts.data());
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
-cl::Event FlannIndex::enqueue_batch(const cl::CommandQueue& queue, const cl::Buffer& queries,
-                                    std::size_t first, std::size_t count,
-                                    const ResultBuffers& out, const SearchParams& params,
-                                    std::size_t /*local_size*/,
-                                    const std::vector<cl::Event>* wait) const {
-  cl::Event e;
-  if (count == 0) {
-    // Nothing to compile: the warm-up launch is a marker.
-    check_cl(queue.enqueueMarkerWithWaitList(wait, &e), "clEnqueueMarkerWithWaitList", "flann warm-up");
-    return e;
-  }
-  const std::size_t k = static_cast<std::size_t>(params.k);
-  std::vector<float> q(count * 3);
-  check_cl(queue.enqueueReadBuffer(queries, CL_TRUE, first * 3 * sizeof(float), q.size() * sizeof(float),
-                                   q.data(), wait),
-           "clEnqueueReadBuffer", "flann: queries " + std::to_string(first) + ".." +
-                                      std::to_string(first + count));
-  std::vector<std::int32_t> ids(count * k), counts(count);
-  std::vector<float> d2(count * k);
-  search(q.data(), count, params, ids.data(), d2.data(), counts.data());
-  check_cl(queue.enqueueWriteBuffer(out.ids, CL_TRUE, first * k * sizeof(std::int32_t),
-                                    ids.size() * sizeof(std::int32_t), ids.data()),
-           "clEnqueueWriteBuffer", "flann: ids");
-  check_cl(queue.enqueueWriteBuffer(out.dist2, CL_TRUE, first * k * sizeof(float),
-                                    d2.size() * sizeof(float), d2.data()),
-           "clEnqueueWriteBuffer", "flann: dist2");
-  check_cl(queue.enqueueWriteBuffer(out.counts, CL_TRUE, first * sizeof(std::int32_t),
-                                    counts.size() * sizeof(std::int32_t), counts.data(), nullptr, &e),
-           "clEnqueueWriteBuffer", "flann: counts");
-  return e;
-}
 
 }  // namespace bhcl

@@ -107,7 +107,8 @@ KdTreeIndex::KdTreeIndex(std::shared_ptr<Runtime> runtime, const float* points,
   if (params.leaf_size < 1 || params.leaf_size > 1024)
     throw Error("kdtree: leaf_size = " + std::to_string(params.leaf_size) +
                 " is out of range: must be in [1, 1024]");
-  validate_points(points, n_points, "points");
+  std::vector<float> scaled;
+  points = prepare_points(points, n_points, scaled);  // validates; extreme scales
   leaf_size_ = params.leaf_size;
   BuiltTree tree = build_tree(points, n_points, static_cast<std::size_t>(leaf_size_));
   n_nodes_ = tree.nodes.size();

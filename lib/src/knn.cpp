@@ -70,6 +70,12 @@ SearchParams Index::scaled(const SearchParams& p) const {
   return s;
 }
 
+cl::Event Index::enqueue_batch(const cl::CommandQueue&, const cl::Buffer&, std::size_t, std::size_t,
+                               const ResultBuffers&, const SearchParams&, std::size_t,
+                               const std::vector<cl::Event>*) const {
+  throw Error(method() + ": no device kernel (a host method)");
+}
+
 double Index::host_search(const float*, std::size_t, const SearchParams&, KnnResult&) const {
   throw Error(method() + ": host_search is not implemented by this method");
 }

@@ -12,8 +12,8 @@
 //    ties the k-th distance or beats it by a rounding error;
 //  - rows FLANN cannot fill (points whose squared distance overflows to +inf) are completed by a
 //    linear scan.
-// The buffer-level call (enqueue_query) is honest but not asynchronous: it waits for `wait`,
-// reads the queries back, answers them on the host and writes the results with blocking writes.
+// The buffer-level call (Index::enqueue_query) is honest but not asynchronous: it waits for
+// `wait`, reads the queries back, answers them on the host and writes the results back blocking.
 #pragma once
 
 #include <cstddef>
@@ -43,22 +43,16 @@ class FlannIndex : public Index {
   std::size_t memory_bytes() const override;
   int threads() const { return threads_; }
 
-  // Answers on the host. QueryStats: query_s = wall time of the search itself (all threads),
-  // no compile, upload or download; batches = 0 (no kernel dispatch).
-  QueryStats query(const float* queries, std::size_t n, const SearchParams& params,
-                   KnnResult& out) const override;
-  using Index::query;
+  // Answers on the host (Index::query and enqueue_query call host_search). QueryStats: query_s =
+  // wall time of the search itself (all threads), no compile, upload or download; batches = 0.
+  bool answers_on_host() const override { return true; }
+  double host_search(const float* queries, std::size_t n, const SearchParams& params,
+                     KnnResult& out) const override;
 
   // Answers rows [0, n) into raw arrays (n*k ids and distances, n counts); returns how many
   // queries had a non-finite coordinate (their rows are empty).
   std::size_t search(const float* queries, std::size_t n, const SearchParams& params,
                      std::int32_t* ids, float* dist2, std::int32_t* counts) const;
-
- protected:
-  cl::Event enqueue_batch(const cl::CommandQueue& queue, const cl::Buffer& queries,
-                          std::size_t first, std::size_t count, const ResultBuffers& out,
-                          const SearchParams& params, std::size_t local_size,
-                          const std::vector<cl::Event>* wait) const override;
 
  private:
   struct Impl;

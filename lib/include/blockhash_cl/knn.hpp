@@ -155,10 +155,11 @@ class Index {
 
   // Enqueue one dispatch answering queries [first, first+count) of the buffer, writing the same
   // rows of the result buffers. count may be 0 (a warm-up launch). Must not block.
+  // Host methods (answers_on_host()) have no kernel and keep the default, which throws.
   virtual cl::Event enqueue_batch(const cl::CommandQueue& queue, const cl::Buffer& queries,
                                   std::size_t first, std::size_t count, const ResultBuffers& out,
                                   const SearchParams& params, std::size_t local_size,
-                                  const std::vector<cl::Event>* wait) const = 0;
+                                  const std::vector<cl::Event>* wait) const;
 
   // Throws bhcl::Error for parameters this method cannot serve. The base checks k and radius.
   virtual void check_params(const SearchParams& params) const;
