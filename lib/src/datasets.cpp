@@ -20,12 +20,14 @@ std::vector<float> uniform(std::size_t n, std::uint64_t seed, float lo, float hi
   return xyz;
 }
 
-std::vector<float> clustered(std::size_t n, std::uint64_t seed, int clusters, float sigma) {
-  std::mt19937_64 rng(seed);
+std::vector<float> clustered(std::size_t n, std::uint64_t seed, int clusters, float sigma,
+                             std::uint64_t centre_seed) {
+  std::mt19937_64 crng(centre_seed);
   std::uniform_real_distribution<float> u(0.0f, 1.0f);
-  std::normal_distribution<float> g(0.0f, sigma);
   std::vector<float> centres(3 * static_cast<std::size_t>(clusters));
-  for (auto& c : centres) c = u(rng);
+  for (auto& c : centres) c = u(crng);
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<float> g(0.0f, sigma);
   std::uniform_int_distribution<int> pick(0, clusters - 1);
   std::vector<float> xyz(3 * n);
   for (std::size_t i = 0; i < n; ++i) {

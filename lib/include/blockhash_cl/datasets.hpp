@@ -12,8 +12,10 @@ namespace bhcl::datasets {
 std::vector<float> uniform(std::size_t n, std::uint64_t seed, float lo = 0.0f, float hi = 1.0f);
 
 // N points in `clusters` Gaussian blobs of standard deviation sigma, centres uniform in [0,1]^3.
+// The centres come from centre_seed, the points from seed: sets with the same centre_seed (and
+// another seed) are drawn from the same distribution, e.g. points and their queries.
 std::vector<float> clustered(std::size_t n, std::uint64_t seed, int clusters = 16,
-                             float sigma = 0.01f);
+                             float sigma = 0.01f, std::uint64_t centre_seed = 0x5eed);
 
 // N points of which about `fraction` are exact copies of other points of the set.
 std::vector<float> with_duplicates(std::size_t n, std::uint64_t seed, double fraction);

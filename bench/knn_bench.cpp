@@ -1,0 +1,316 @@
+// knn_bench: run time against error, side by side, in one process.
+//
+// For each data set: the exact truth once (FLANN when built in, else the brute-force kernel, at
+// the largest k: its first k columns are the truth for a smaller k under the tie rule), then for
+// each method a build (timed), and for each k and A a warm-up launch (compile time, reported
+// apart) and R timed repetitions (kernel time from OpenCL profiling events; host methods by the
+// steady clock); the median is reported with recall@k, false negatives and distance dilation.
+// Rows go to stdout as a table and to a CSV file.
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <map>
+#include <random>
+#include <sstream>
+#include <thread>
+#include <string>
+#include <vector>
+
+#include "blockhash_cl/blockhash_cl.hpp"
+
+using namespace bhcl;
+
+namespace {
+
+struct Options {
+  std::vector<std::string> data = {"uniform"};
+  std::vector<std::size_t> sizes = {100000};
+  std::size_t queries = 20000;
+  std::vector<int> ks = {10, 50};
+  std::vector<float> As = {1, 2, 4, 8, 16, 32};
+  std::vector<std::string> methods;  // empty: every method
+  std::vector<std::string> presets = {"auto"};
+  int reps = 3;
+  std::string sort = "off";  // off, on, both
+  std::string csv = "bench_results.csv";
+  std::string device;
+  std::string truth = "auto";
+  std::string data_dir;
+  bool append = false;
+  // Block-hash build and search knobs (-1: the preset's).
+  int L = -1, P = -1, B = -1, X = -1, probes = -1;
+};
+
+[[noreturn]] void usage(const std::string& why) {
+  std::fprintf(stderr,
+               "knn_bench: %s\n"
+               "usage: knn_bench [--data uniform,cornell,clustered,bunny,dragon,autzen] [--N 1e5,1e6]\n"
+               "  [--queries n] [--k 10,50] [--A 1,2,4,...] [--methods a,b] [--presets auto,paper]\n"
+               "  [--reps R] [--sort off|on|both] [--csv out.csv] [--append] [--device SPEC]\n"
+               "  [--truth auto|flann|bruteforce] [--data-dir DIR] [--L L] [--P P] [--B B] [--X X]\n"
+               "  [--probes 0|1]\n",
+               why.c_str());
+  std::exit(2);
+}
+
+std::vector<std::string> split(const std::string& s) {
+  std::vector<std::string> out;
+  std::stringstream ss(s);
+  std::string item;
+  while (std::getline(ss, item, ','))
+    if (!item.empty()) out.push_back(item);
+  return out;
+}
+
+template <typename T>
+std::vector<T> split_num(const std::string& s) {
+  std::vector<T> out;
+  for (const auto& x : split(s)) out.push_back(static_cast<T>(std::stod(x)));
+  return out;
+}
+
+Options parse(int argc, char** argv) {
+  Options o;
+  const char* env_dir = std::getenv("BHCL_DATA_DIR");
+  o.data_dir = env_dir ? env_dir : BHCL_DEFAULT_DATA_DIR;
+  for (int i = 1; i < argc; ++i) {
+    std::string a = argv[i];
+    auto next = [&]() -> std::string {
+      if (i + 1 >= argc) usage("option " + a + " needs a value");
+      return argv[++i];
+    };
+    if (a == "--data") o.data = split(next());
+    else if (a == "--N") o.sizes = split_num<std::size_t>(next());
+    else if (a == "--queries") o.queries = static_cast<std::size_t>(std::stod(next()));
+    else if (a == "--k") o.ks = split_num<int>(next());
+    else if (a == "--A") o.As = split_num<float>(next());
+    else if (a == "--methods") o.methods = split(next());
+    else if (a == "--presets") o.presets = split(next());
+    else if (a == "--reps") o.reps = std::max(1, std::stoi(next()));
+    else if (a == "--sort") o.sort = next();
+    else if (a == "--csv") o.csv = next();
+    else if (a == "--append") o.append = true;
+    else if (a == "--device") o.device = next();
+    else if (a == "--truth") o.truth = next();
+    else if (a == "--data-dir") o.data_dir = next();
+    else if (a == "--L") o.L = std::stoi(next());
+    else if (a == "--P") o.P = std::stoi(next());
+    else if (a == "--B") o.B = std::stoi(next());
+    else if (a == "--X") o.X = std::stoi(next());
+    else if (a == "--probes") o.probes = std::stoi(next());
+    else usage("unknown option " + a);
+  }
+  if (o.sort != "off" && o.sort != "on" && o.sort != "both") usage("--sort must be off, on or both");
+  if (o.methods.empty()) o.methods = method_names();
+  return o;
+}
+
+double median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  std::size_t m = v.size() / 2;
+  return v.size() % 2 ? v[m] : 0.5 * (v[m - 1] + v[m]);
+}
+
+// Points and queries of a data set. File sets use a prefix of N points (or all when N is 0 or
+// larger), queries are data points jittered by 1e-3 of the median spacing scale, seeded.
+bool load_set(const Options& o, const std::string& name, std::size_t N, std::vector<float>& pts,
+              std::vector<float>& qs, std::string& label) {
+  static const std::map<std::string, std::string> files = {
+      {"bunny", "bunny.xyz.f32"}, {"dragon", "dragon_stand_scans.xyz.f32"}, {"autzen", "autzen.xyz.f32"}};
+  auto f = files.find(name);
+  if (f == files.end()) {
+    pts = datasets::by_name(name, N, 1);
+    qs = datasets::queries_by_name(name, o.queries, 2);
+    label = name;
+    return true;
+  }
+  std::string path = o.data_dir + "/" + f->second;
+  if (!std::ifstream(path).good()) {
+    std::printf("# %s: %s not present (set BHCL_DATA_DIR or --data-dir to ../shared/data): skipped\n",
+                name.c_str(), path.c_str());
+    return false;
+  }
+  pts = read_points_file(path);
+  if (N && N < pts.size() / 3) pts.resize(3 * N);
+  std::size_t n_pts = pts.size() / 3;
+  // Jitter scale: 1e-4 of the bounding box diagonal.
+  float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+  for (std::size_t i = 0; i < n_pts; ++i)
+    for (int d = 0; d < 3; ++d) lo[d] = std::min(lo[d], pts[3 * i + d]), hi[d] = std::max(hi[d], pts[3 * i + d]);
+  float diag = std::sqrt((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) +
+                         (hi[2] - lo[2]) * (hi[2] - lo[2]));
+  std::mt19937_64 rng(2);
+  std::uniform_int_distribution<std::size_t> pick(0, n_pts - 1);
+  std::normal_distribution<float> g(0.0f, 1e-4f * diag);
+  qs.resize(3 * o.queries);
+  for (std::size_t i = 0; i < o.queries; ++i) {
+    std::size_t j = pick(rng);
+    for (int d = 0; d < 3; ++d) qs[3 * i + d] = pts[3 * j + d] + g(rng);
+  }
+  label = name;
+  return true;
+}
+
+struct Row {
+  std::string data, method, preset, device, sort;
+  std::size_t N = 0, n = 0;
+  int k = 0, threads = 0;
+  float A = 0;
+  double build_s = 0, compile_s = 0, query_s = 0, qps = 0, mem_per_point = 0;
+  Accuracy acc;
+};
+
+void print_header() {
+  std::printf("%-8s %-10s %-6s %8s %6s %4s %5s %-4s %8s %8s %9s %11s %7s %7s %7s %7s %6s\n", "data",
+              "method", "preset", "N", "n", "k", "A", "sort", "build s", "compile", "query s",
+              "queries/s", "recall", "FN", "maxdil", "meandil", "B/pt");
+}
+
+void print_row(const Row& r) {
+  std::printf("%-8s %-10s %-6s %8zu %6zu %4d %5g %-4s %8.3f %8.3f %9.4f %11.0f %7.4f %7.4f %7.3f %7.4f %6.1f\n",
+              r.data.c_str(), r.method.c_str(), r.preset.c_str(), r.N, r.n, r.k, r.A, r.sort.c_str(),
+              r.build_s, r.compile_s, r.query_s, r.qps, r.acc.recall, r.acc.false_negative_rate,
+              r.acc.max_dilation, r.acc.mean_dilation, r.mem_per_point);
+  std::fflush(stdout);
+}
+
+void write_csv_row(std::ofstream& csv, const Row& r) {
+  csv << r.data << ',' << r.method << ',' << r.preset << ',' << r.N << ',' << r.n << ',' << r.k << ','
+      << r.A << ',' << r.sort << ',' << '"' << r.device << '"' << ',' << r.threads << ',' << r.build_s
+      << ',' << r.compile_s << ',' << r.query_s << ',' << r.qps << ',' << r.acc.recall << ','
+      << r.acc.false_negative_rate << ',' << r.acc.max_dilation << ',' << r.acc.mean_dilation << ','
+      << r.acc.mean_rel_distance_error << ',' << r.acc.incomplete_queries << ',' << r.mem_per_point
+      << '\n';
+  csv.flush();
+}
+
+// Columns 0..k-1 of a truth computed at a larger k.
+KnnResult slice(const KnnResult& t, int k) {
+  KnnResult r;
+  r.resize(t.n, k);
+  for (std::size_t q = 0; q < t.n; ++q) {
+    for (int j = 0; j < k; ++j) {
+      r.ids[q * k + j] = t.id(q, j);
+      r.dist2[q * k + j] = t.d2(q, j);
+    }
+    r.counts[q] = std::min(t.counts[q], k);
+  }
+  return r;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+#ifdef BHCL_BUILD_TREE_POCL_CACHE
+  setenv("POCL_CACHE_DIR", BHCL_BUILD_TREE_POCL_CACHE, 0);
+#endif
+  Options o = parse(argc, argv);
+  try {
+    auto rt = std::make_shared<Runtime>(o.device);
+    const char* pt = std::getenv("POCL_MAX_PTHREAD_COUNT");
+    int threads = pt ? std::atoi(pt) : static_cast<int>(std::thread::hardware_concurrency());
+    std::printf("# device: %s\n# host threads for host methods: %d (POCL_MAX_PTHREAD_COUNT=%s)\n",
+                rt->info().summary().c_str(), threads, pt ? pt : "unset");
+    std::ofstream csv(o.csv, o.append ? std::ios::app : std::ios::trunc);
+    if (!csv) throw Error(o.csv + ": cannot open for writing");
+    if (!o.append || csv.tellp() == 0)
+      csv << "data,method,preset,N,n,k,A,sort,device,threads,build_s,compile_s,query_s,queries_per_s,"
+             "recall,fn_rate,max_dilation,mean_dilation,mean_rel_err,incomplete,bytes_per_point\n";
+    const int kmax = *std::max_element(o.ks.begin(), o.ks.end());
+    print_header();
+    for (const auto& set : o.data) {
+      for (std::size_t N : o.sizes) {
+        std::vector<float> pts, qs;
+        std::string label;
+        if (!load_set(o, set, N, pts, qs, label)) continue;
+        const std::size_t n_pts = pts.size() / 3, n_q = qs.size() / 3;
+        // Exact truth, once, at the largest k.
+        SearchParams tp;
+        tp.k = kmax;
+        std::string truth_method = o.truth;
+        if (truth_method == "auto") {
+          auto names = method_names();
+          truth_method = std::find(names.begin(), names.end(), "flann") != names.end() ? "flann" : "bruteforce";
+        }
+        auto t0 = std::chrono::steady_clock::now();
+        MethodOptions topt;
+        topt.threads = threads;
+        auto truth_index = make_index(truth_method, rt, pts.data(), n_pts, topt);
+        KnnResult truth_all = truth_index->query(qs, tp);
+        truth_index.reset();
+        std::printf("# %s N=%zu: truth by %s in %.1f s\n", label.c_str(), n_pts, truth_method.c_str(),
+                    std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+        for (const auto& method : o.methods) {
+          bool is_bh = method == "blockhash";
+          std::vector<std::string> presets = is_bh ? o.presets : std::vector<std::string>{""};
+          for (const auto& preset : presets) {
+            MethodOptions mo;
+            mo.preset = preset;
+            mo.threads = threads;
+            mo.L = o.L;
+            mo.P = o.P;
+            mo.B = o.B;
+            mo.X = o.X;
+            std::unique_ptr<Index> index;
+            try {
+              index = make_index(method, rt, pts.data(), n_pts, mo);
+            } catch (const Error& e) {
+              std::printf("# %s on %s: %s: skipped\n", method.c_str(), label.c_str(), e.what());
+              continue;
+            }
+            std::vector<float> As = index->exact() ? std::vector<float>{0.0f} : o.As;
+            for (int k : o.ks) {
+              KnnResult truth = slice(truth_all, k);
+              for (float A : As) {
+                std::vector<std::string> sorts;
+                if (o.sort == "both") sorts = {"off", "on"};
+                else sorts = {o.sort};
+                for (const auto& sort : sorts) {
+                  SearchParams p;
+                  p.k = k;
+                  if (A > 0) p.A = A;
+                  p.neighbour_probes = o.probes;
+                  p.sort_queries = sort == "on";
+                  Row r;
+                  r.data = label;
+                  r.method = method;
+                  r.preset = preset;
+                  r.device = index->exact() && method == "flann" ? "host" : rt->info().device_name;
+                  r.N = n_pts;
+                  r.n = n_q;
+                  r.k = k;
+                  r.A = A;
+                  r.sort = sort;
+                  r.threads = threads;
+                  r.build_s = index->build_seconds();
+                  r.mem_per_point = double(index->memory_bytes()) / double(n_pts);
+                  r.compile_s = index->warm_up(p);
+                  std::vector<double> times;
+                  KnnResult res;
+                  for (int rep = 0; rep < o.reps; ++rep) {
+                    QueryStats st = index->query(qs.data(), n_q, p, res);
+                    times.push_back(st.query_s);
+                    r.compile_s += st.compile_s;
+                  }
+                  r.query_s = median(times);
+                  r.qps = r.query_s > 0 ? double(n_q) / r.query_s : 0.0;
+                  r.acc = evaluate_accuracy(res, truth);
+                  print_row(r);
+                  write_csv_row(csv, r);
+                }
+              }
+            }
+          }
+        }
+      }
+    }
+    std::printf("# rows written to %s\n", o.csv.c_str());
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "knn_bench: error: %s\n", e.what());
+    return 1;
+  }
+  return 0;
+}
