@@ -77,6 +77,7 @@ TEST_CASE("cli: bad input exits non-zero with one clear line") {
       {"knn --points " + P + " --k 3" + common, "missing required option --queries", 2},
       {"knn --points " + P + " --queries " + P + " --k 3 --device no-such-dev" + common, "no OpenCL device matches", 1},
       {"knn --points " + P + " --queries " + P + " --k 3 --max-radius -2" + common, "--max-radius", 2},
+      {"knn --points " + P + " --queries " + P + " --k 3 --method kdtree --save-index " + I + ".idx --out-ids " + I + " --out-dist2 " + D, "only block-hash indexes are saved", 1},
       {"frobnicate", "unknown command", 2},
   };
   for (const auto& c : cases) {

@@ -189,5 +189,9 @@ inline std::uint32_t keep_blocks(std::uint32_t budget, int kmax, int X) {
 // Save / load (blockhash_io.cpp).
 void save_structure(const Structure& s, const std::string& path);
 std::unique_ptr<Structure> load_structure(const std::string& path);
+// The parse behind load_structure, on the file's bytes; `what` names the source in errors. The
+// fuzz target turns the checksum test off so that its inputs reach the structural checks.
+std::unique_ptr<Structure> parse_structure(const std::string& data, const std::string& what,
+                                           bool verify_checksum = true);
 
 }  // namespace bhcl::blockhash

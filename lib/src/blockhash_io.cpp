@@ -203,7 +203,11 @@ std::unique_ptr<Structure> load_structure(const std::string& path) {
   if (!in) throw Error(path + ": cannot open the block-hash index");
   std::ostringstream ss;
   ss << in.rdbuf();
-  const std::string data = ss.str();
+  return parse_structure(ss.str(), path);
+}
+
+std::unique_ptr<Structure> parse_structure(const std::string& data, const std::string& path,
+                                           bool verify_checksum) {
   Reader r{data, 0, path};
   char magic[8];
   for (char& c : magic) c = r.get<char>("magic");
@@ -256,7 +260,8 @@ std::unique_ptr<Structure> load_structure(const std::string& path) {
   if (have != need)
     throw Error(path + ": block-hash index payload is " + std::to_string(have) + " bytes, the header says " +
                 std::to_string(need) + (have < need ? " (truncated)" : " (trailing bytes)"));
-  if (fnv1a(reinterpret_cast<const unsigned char*>(data.data() + r.pos), have) != checksum)
+  if (verify_checksum &&
+      fnv1a(reinterpret_cast<const unsigned char*>(data.data() + r.pos), have) != checksum)
     throw Error(path + ": block-hash index checksum mismatch (corrupt file)");
   s->n_points = static_cast<std::size_t>(n[0]);
   r.get_vec(s->order, n[0], "order");

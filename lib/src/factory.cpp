@@ -13,7 +13,8 @@ std::vector<std::string> method_names() { return {"bruteforce", "kdtree", "flann
 std::unique_ptr<Index> make_index(const std::string& method, std::shared_ptr<Runtime> runtime,
                                   const float* points, std::size_t n_points,
                                   const MethodOptions& options) {
-  (void)options;
+  if ((!options.load_index.empty() || !options.save_index.empty()) && method != "blockhash")
+    throw Error("--save-index / --load-index: only block-hash indexes are saved (method '" + method + "')");
   if (method == "blockhash") {
     // A saved index replaces the build (its build parameters are the saved ones).
     std::unique_ptr<BlockHashIndex> bh;

@@ -49,12 +49,12 @@ class FlannIndex : public Index {
   double host_search(const float* queries, std::size_t n, const SearchParams& params,
                      KnnResult& out) const override;
 
-  // Answers rows [0, n) into raw arrays (n*k ids and distances, n counts); returns how many
-  // queries had a non-finite coordinate (their rows are empty).
+ private:
+  // Answers rows [0, n) into raw arrays (n*k ids and distances, n counts), in the index's own
+  // (possibly scaled) coordinates; returns how many queries had a non-finite coordinate.
   std::size_t search(const float* queries, std::size_t n, const SearchParams& params,
                      std::int32_t* ids, float* dist2, std::int32_t* counts) const;
 
- private:
   struct Impl;
   std::unique_ptr<Impl> impl_;
   int threads_ = 1;

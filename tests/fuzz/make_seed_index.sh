@@ -1,0 +1,15 @@
+#!/usr/bin/env bash
+# Regenerates the seed index of fuzz_index_load: a small block-hash index saved by bhcl.
+# Usage: tests/fuzz/make_seed_index.sh BUILD_DIR
+set -euo pipefail
+build=${1:-build}
+dir=$(dirname "$0")/seeds/fuzz_index_load
+mkdir -p "$dir"
+python3 -c "
+import random, struct
+random.seed(1)
+open('/tmp/bhcl_seed_points.f32','wb').write(b''.join(struct.pack('<3f', random.random(), random.random(), random.random()) for _ in range(300)))"
+"$build/host/bhcl" knn --points /tmp/bhcl_seed_points.f32 --queries /tmp/bhcl_seed_points.f32 --k 4 \
+  --method blockhash --save-index "$dir/small_auto.bhidx" --out-ids /dev/null --out-dist2 /dev/null
+"$build/host/bhcl" knn --points /tmp/bhcl_seed_points.f32 --queries /tmp/bhcl_seed_points.f32 --k 4 \
+ls -la "$dir"
