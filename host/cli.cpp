@@ -6,6 +6,7 @@
 #include <fstream>
 
 #include "blockhash_cl/error.hpp"
+#include "blockhash_cl/io.hpp"
 
 namespace bhcl::cli {
 
@@ -136,6 +137,13 @@ void Json::write(const std::string& path) const {
 const std::set<std::string> kIndexOptions = {
     "k", "max-radius", "A", "probes", "local-size", "max-batch", "preset", "L", "P", "B", "X",
     "threads", "seed", "load-index", "save-index"};
+
+void read_points_and_queries(const Args& args, std::vector<float>& points, std::vector<float>& queries) {
+  points = read_points_file(args.str("points"));
+  if (points.empty()) throw Error(args.str("points") + ": the point file is empty (0 points)");
+  queries = read_points_file(args.str("queries"));
+  if (queries.empty()) throw Error(args.str("queries") + ": the query file is empty (0 queries)");
+}
 
 std::set<std::string> merge(std::set<std::string> a, const std::set<std::string>& b) {
   a.insert(b.begin(), b.end());

@@ -64,6 +64,9 @@ std::string json_escape(const std::string& s);
 extern const std::set<std::string> kIndexOptions;
 MethodOptions method_options(const Args& args);
 SearchParams search_params(const Args& args, int default_k = 10);
+// Reads --points and --queries (raw float32 x y z files); an empty file is an error naming it.
+void read_points_and_queries(const Args& args, std::vector<float>& points, std::vector<float>& queries);
+
 // Merges option sets for allow_only.
 std::set<std::string> merge(std::set<std::string> a, const std::set<std::string>& b);
 

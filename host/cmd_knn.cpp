@@ -21,10 +21,8 @@ int run_knn(int argc, char** argv) {
   SearchParams params = search_params(args);
   MethodOptions mopt = method_options(args);
 
-  std::vector<float> points = read_points_file(args.str("points"));
-  if (points.empty()) throw Error(args.str("points") + ": the point file is empty (0 points)");
-  std::vector<float> queries = read_points_file(args.str("queries"));
-  if (queries.empty()) throw Error(args.str("queries") + ": the query file is empty (0 queries)");
+  std::vector<float> points, queries;
+  read_points_and_queries(args, points, queries);
   const std::size_t N = points.size() / 3, n = queries.size() / 3;
 
   auto rt = std::make_shared<Runtime>(args.str("device", ""));

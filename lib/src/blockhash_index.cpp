@@ -73,9 +73,6 @@ BlockHashIndex::BlockHashIndex(std::shared_ptr<Runtime> runtime, const float* po
     : Index(std::move(runtime), n_points), s_(std::make_unique<blockhash::Structure>()) {
   using namespace blockhash;
   auto t0 = std::chrono::steady_clock::now();
-  if (n_points == 0) throw Error("blockhash: the point set is empty (N = 0)");
-  if (n_points > 0x7ffffffeu)
-    throw Error("blockhash: N = " + std::to_string(n_points) + " exceeds the int32 index range");
   std::vector<float> scaled;
   points = prepare_points(points, n_points, scaled);  // validates; extreme scales
   Structure& s = *s_;

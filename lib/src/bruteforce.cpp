@@ -12,8 +12,6 @@ BruteForceIndex::BruteForceIndex(std::shared_ptr<Runtime> runtime, const float* 
                                  std::size_t n_points)
     : Index(std::move(runtime), n_points) {
   auto t0 = std::chrono::steady_clock::now();
-  if (n_points == 0) throw Error("bruteforce: the point set is empty (N = 0)");
-  if (n_points > 0x7ffffffeu) throw Error("bruteforce: N = " + std::to_string(n_points) + " exceeds the int32 index range");
   std::vector<float> storage;
   const float* pts = prepare_points(points, n_points, storage);
   points_ = detail::upload_points4(runtime_ptr(), pts, n_points, "bruteforce points");

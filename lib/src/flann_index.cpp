@@ -132,9 +132,6 @@ FlannIndex::FlannIndex(std::shared_ptr<Runtime> runtime, const float* points,
     : Index(std::move(runtime), n_points), impl_(std::make_unique<Impl>()) {
   auto t0 = std::chrono::steady_clock::now();
   if (!runtime_ptr()) throw Error("flann: the runtime is null (needed for the buffer-level call)");
-  if (n_points == 0) throw Error("flann: the point set is empty (N = 0)");
-  if (n_points > 0x7ffffffeu)
-    throw Error("flann: N = " + std::to_string(n_points) + " exceeds the int32 index range");
   if (params.threads < 0) throw Error("flann: threads must be >= 0, got " + std::to_string(params.threads));
   if (params.leaf_max_size < 1)
     throw Error("flann: leaf_max_size must be >= 1, got " + std::to_string(params.leaf_max_size));

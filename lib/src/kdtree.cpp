@@ -101,9 +101,6 @@ KdTreeIndex::KdTreeIndex(std::shared_ptr<Runtime> runtime, const float* points,
                          std::size_t n_points, const KdTreeParams& params)
     : Index(std::move(runtime), n_points) {
   auto t0 = std::chrono::steady_clock::now();
-  if (n_points == 0) throw Error("kdtree: the point set is empty (N = 0)");
-  if (n_points > 0x7ffffffeu)
-    throw Error("kdtree: N = " + std::to_string(n_points) + " exceeds the int32 index range");
   if (params.leaf_size < 1 || params.leaf_size > 1024)
     throw Error("kdtree: leaf_size = " + std::to_string(params.leaf_size) +
                 " is out of range: must be in [1, 1024]");

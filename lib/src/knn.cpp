@@ -56,6 +56,9 @@ int Index::choose_scale_exponent(const float* points, std::size_t n) {
 }
 
 const float* Index::prepare_points(const float* points, std::size_t n, std::vector<float>& storage) {
+  if (n == 0) throw Error(method() + ": the point set is empty (N = 0)");
+  if (n > 0x7ffffffeu)
+    throw Error(method() + ": N = " + std::to_string(n) + " exceeds the int32 index range");
   validate_points(points, n, "points");
   scale_exp_ = choose_scale_exponent(points, n);
   if (scale_exp_ == 0) return points;

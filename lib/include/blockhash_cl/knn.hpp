@@ -135,7 +135,8 @@ class Index {
   Index(std::shared_ptr<Runtime> runtime, std::size_t n_points)
       : runtime_(std::move(runtime)), n_points_(n_points) {}
 
-  // For the constructors of subclasses: validates the points (finite) and picks the coordinate
+  // For the constructors of subclasses: validates the points (N in [1, 2^31 - 2], every
+  // coordinate finite: bhcl::Error naming the method or the first bad point) and picks the coordinate
   // scale (see the contract above). Returns the points the structure must be built from: `points`
   // itself, or a copy scaled by 2^-scale_exponent() kept in `storage`.
   const float* prepare_points(const float* points, std::size_t n, std::vector<float>& storage);
