@@ -106,15 +106,8 @@ void reference_query(const Structure& s, const float* queries, std::size_t n,
           float d = reference::dist2_float(p, q);
           std::int32_t id = blk.id[j];
           if (!(d <= r2)) continue;
-          if (!(d < bd[k - 1] || (d == bd[k - 1] && id < bi[k - 1]))) continue;
-          std::uint32_t m = k - 1;
-          while (m > 0 && (bd[m - 1] > d || (bd[m - 1] == d && bi[m - 1] > id))) {
-            bd[m] = bd[m - 1];
-            bi[m] = bi[m - 1];
-            --m;
-          }
-          bd[m] = d;
-          bi[m] = id;
+          if (!reference::ranks_before(d, id, bd[k - 1], bi[k - 1])) continue;
+          reference::topk_insert_at(bd.data(), bi.data(), k - 1, d, id);
         }
         ex += static_cast<std::uint32_t>(cnt);
       };

@@ -57,19 +57,11 @@ class ExactResultSet : public flann::ResultSet<float> {
   void add(float d, std::int32_t id) {
     if (!(d <= r2_)) return;
     if (size_ == k_) {
-      const float wd = d_[k_ - 1];
-      if (!(d < wd || (d == wd && id < id_[k_ - 1]))) return;
+      if (!reference::ranks_before(d, id, d_[k_ - 1], id_[k_ - 1])) return;
     } else {
       ++size_;
     }
-    int j = size_ - 1;
-    while (j > 0 && (d_[j - 1] > d || (d_[j - 1] == d && id_[j - 1] > id))) {
-      d_[j] = d_[j - 1];
-      id_[j] = id_[j - 1];
-      --j;
-    }
-    d_[j] = d;
-    id_[j] = id;
+    reference::topk_insert_at(d_.data(), id_.data(), std::size_t(size_ - 1), d, id);
     if (size_ == k_) worst_ = slack(std::min(r2_, d_[k_ - 1]));
   }
 
