@@ -267,4 +267,23 @@ TEST_CASE("stress: results do not depend on PoCL's thread count (or FLANN's)") {
     CHECK(d2[0] == d2[2]);
   }
 }
+
+TEST_CASE("stress: n x k that overflows the index type is refused, never wrapped") {
+  auto rt = test::runtime();
+  auto pts = datasets::uniform(100, 61);
+  cl::Buffer small(rt->context(), CL_MEM_READ_WRITE, 64);
+  ResultBuffers out{small, small, small};
+  SearchParams p;
+  p.k = 256;
+  for (const auto& method : method_names()) {
+    CAPTURE(method);
+    auto index = make_index(method, rt, pts.data(), 100);
+    const std::size_t huge = std::numeric_limits<std::size_t>::max() / 100;
+    CHECK_THROWS_WITH_AS(index->enqueue_query(rt->queue(), small, huge, out, p),
+                         doctest::Contains("overflows"), Error);
+    // A count that fits but exceeds the caller's buffers: refused before any kernel runs.
+    CHECK_THROWS_WITH_AS(index->enqueue_query(rt->queue(), small, 1000, out, p),
+                         doctest::Contains("bytes"), Error);
+  }
+}
 }

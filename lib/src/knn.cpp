@@ -161,8 +161,11 @@ cl::Event Index::enqueue_query(const cl::CommandQueue& queue, const cl::Buffer& 
                   std::to_string(params.k));
   };
   if (n == 0) throw Error("enqueue_query: no queries (n = 0)");
-  std::size_t nk = n * static_cast<std::size_t>(params.k);
-  if (nk / static_cast<std::size_t>(params.k) != n) throw Error("n * k overflows");
+  const std::size_t nk = n * static_cast<std::size_t>(params.k);
+  const std::size_t top = std::numeric_limits<std::size_t>::max();
+  if (n > top / 12 || nk / static_cast<std::size_t>(params.k) != n || nk > top / 4)
+    throw Error("enqueue_query: n = " + std::to_string(n) + " queries x k = " +
+                std::to_string(params.k) + " overflows the size type (refused, not wrapped)");
   need(queries, n * 3 * sizeof(float), "queries");
   need(out.ids, nk * sizeof(std::int32_t), "ids");
   need(out.dist2, nk * sizeof(float), "dist2");
