@@ -3,7 +3,8 @@
 
 usage: plot.py RESULTS.csv [MORE.csv ...] --out DIR
 
-Writes DIR/qps_vs_recall_<data>_N<N>_k<k>.png (one curve per method, the A sweep as points),
+Writes DIR/<csv name>_qps_vs_recall_<data>_N<N>_k<k>.png (one curve per method, the A sweep as
+points),
 DIR/build_vs_N.png and DIR/memory_vs_N.png when several N were run, and DIR/summary.md: per data
 set, N and k, every method's queries/s and recall, and block hashing's speed-up over each exact
 baseline at the smallest A whose recall@k >= 0.95.
@@ -19,7 +20,9 @@ def load(paths):
     rows = []
     for p in paths:
         with open(p, newline="") as f:
+            source = os.path.splitext(os.path.basename(p))[0]
             for r in csv.DictReader(f):
+                r["source"] = source
                 for key in ("N", "n", "k", "threads", "incomplete"):
                     r[key] = int(float(r[key]))
                 for key in ("A", "build_s", "compile_s", "query_s", "queries_per_s", "recall",
@@ -49,8 +52,8 @@ def plots(rows, out):
     made = []
     groups = defaultdict(list)
     for r in rows:
-        groups[(r["data"], r["N"], r["k"])].append(r)
-    for (data, N, k), rs in sorted(groups.items()):
+        groups[(r["source"], r["data"], r["N"], r["k"])].append(r)
+    for (source, data, N, k), rs in sorted(groups.items()):
         fig, ax = plt.subplots(figsize=(6.4, 4.4))
         curves = defaultdict(list)
         for r in rs:
@@ -73,7 +76,7 @@ def plots(rows, out):
         ax.set_title(f"{data}, N={N:,}, k={k}, {rs[0]['n']:,} queries\n{dev}", fontsize=9)
         ax.legend(fontsize=7)
         fig.tight_layout()
-        path = os.path.join(out, f"qps_vs_recall_{data}_N{N}_k{k}.png")
+        path = os.path.join(out, f"{source}_qps_vs_recall_{data}_N{N}_k{k}.png")
         fig.savefig(path, dpi=110)
         plt.close(fig)
         made.append(path)
@@ -109,9 +112,9 @@ def summary(rows, out):
     lines = ["# knn_bench summary", ""]
     groups = defaultdict(list)
     for r in rows:
-        groups[(r["data"], r["N"], r["k"], r["sort"])].append(r)
-    for (data, N, k, sort), rs in sorted(groups.items()):
-        lines.append(f"## {data}, N = {N:,}, k = {k}, queries {rs[0]['n']:,}"
+        groups[(r["source"], r["data"], r["N"], r["k"], r["sort"])].append(r)
+    for (source, data, N, k, sort), rs in sorted(groups.items()):
+        lines.append(f"## {source}: {data}, N = {N:,}, k = {k}, queries {rs[0]['n']:,}"
                      f"{', Hilbert-sorted queries' if sort == 'on' else ''}")
         lines.append(f"device: {rs[0]['device']}; host threads {rs[0]['threads']}")
         lines.append("")

@@ -39,4 +39,7 @@ case "$mode" in
     ;;
   *) echo "sweep: mode must be quick or full"; exit 2 ;;
 esac
-python3 "$(dirname "$0")/plot.py" "$out"/*.csv --out "$out"
+# Debian's python3 has python3-matplotlib; a python3 earlier on PATH (pyenv, venv) may not.
+py=python3
+if [ -x /usr/bin/python3 ] && /usr/bin/python3 -c "import matplotlib" 2>/dev/null; then py=/usr/bin/python3; fi
+"$py" "$(dirname "$0")/plot.py" "$out"/*.csv --out "$out"
