@@ -21,6 +21,7 @@
 #include <string>
 #include <vector>
 
+#include "bench_util.hpp"
 #include "blockhash_cl/blockhash_cl.hpp"
 
 using namespace bhcl;
@@ -84,11 +85,6 @@ Options parse(int argc, char** argv) {
   return o;
 }
 
-double median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  std::size_t m = v.size() / 2;
-  return v.size() % 2 ? v[m] : 0.5 * (v[m - 1] + v[m]);
-}
 
 // Queries from the data set's own distribution. Uniform: more uniform points. Real data: data
 // points picked at random and jittered by a Gaussian of `jitter` (so they sit on the surfaces,
@@ -199,26 +195,26 @@ int main(int argc, char** argv) {
       all_identical = all_identical && diff.empty();
       auto line = [&](const char* m, double build, double comp, const std::vector<double>& q,
                       const std::vector<double>& w) {
-        const double mq = median(q);
+        const double mq = bench::median(q);
         const auto mm = std::minmax_element(q.begin(), q.end());
         char spread[32];
         std::snprintf(spread, sizeof spread, "%.0f%%", 100.0 * (*mm.second - *mm.first) / mq);
         std::printf("%-8s %-7s %4d %8.3f %9.3f %9.4f %9.4f %11.0f %11.0f %7s %7d  %s\n", o.data.c_str(),
-                    m, p.k, build, comp, mq, median(w), n / mq, n / *mm.first, spread, o.threads,
+                    m, p.k, build, comp, mq, bench::median(w), n / mq, n / *mm.first, spread, o.threads,
                     diff.empty() ? "yes" : "NO");
         char buf[512];
         std::snprintf(buf, sizeof buf,
                       "%s\n    {\"method\": \"%s\", \"k\": %d, \"build_s\": %.6f, \"compile_s\": %.6f, "
                       "\"query_s\": %.6f, \"best_query_s\": %.6f, \"wall_s\": %.6f, \"queries_per_s\": %.1f, "
                       "\"identical\": %s}",
-                      json.back() == '[' ? "" : ",", m, p.k, build, comp, mq, *mm.first, median(w),
+                      json.back() == '[' ? "" : ",", m, p.k, build, comp, mq, *mm.first, bench::median(w),
                       n / mq, diff.empty() ? "true" : "false");
         json += buf;
       };
       line("kdtree", kd.build_seconds(), compile, kq, kw);
       line("flann", fl.build_seconds(), 0.0, fq, fw);
       std::printf("%-8s %-7s %4d  kdtree/flann queries/s = %.2f (medians), %.2f (best)\n",
-                  o.data.c_str(), "ratio", p.k, median(fq) / median(kq),
+                  o.data.c_str(), "ratio", p.k, bench::median(fq) / bench::median(kq),
                   *std::min_element(fq.begin(), fq.end()) / *std::min_element(kq.begin(), kq.end()));
       if (!diff.empty()) std::printf("  MISMATCH: %s\n", diff.c_str());
     }

@@ -29,6 +29,7 @@
 #include <vector>
 
 #include "blockhash_cl/blockhash_cl.hpp"
+#include "bench_util.hpp"
 
 using namespace bhcl;
 
@@ -96,24 +97,7 @@ bool load_data(const std::string& name, const Options& o, DataSet& d) {
   return true;
 }
 
-// Truth for the largest k; smaller k are its leading columns (rows are sorted by (d2, id)).
-KnnResult columns(const KnnResult& r, int k) {
-  KnnResult o;
-  o.resize(r.n, k);
-  for (std::size_t q = 0; q < r.n; ++q) {
-    for (int j = 0; j < k; ++j) {
-      o.ids[q * k + j] = r.id(q, j);
-      o.dist2[q * k + j] = r.d2(q, j);
-    }
-    o.counts[q] = std::min(r.counts[q], k);
-  }
-  return o;
-}
 
-double median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  return v.empty() ? 0 : v[v.size() / 2];
-}
 
 struct Row {
   std::string data, preset;
@@ -189,7 +173,7 @@ int main(int argc, char** argv) {
         std::map<int, std::unique_ptr<BlockHashIndex>> by_b;  // paper: one build per B
         std::unique_ptr<BlockHashIndex> single;
         for (int k : o.k) {
-          KnnResult truth = columns(truth_all, k);
+          KnnResult truth = truth_all.leading_columns(k);
           for (float A : o.A) {
             BlockHashIndex* idx = nullptr;
             if (bp.preset == BlockHashBuildParams::Preset::Paper) {
@@ -243,7 +227,7 @@ int main(int argc, char** argv) {
             double sum = 0;
             for (auto e : ex) sum += e;
             row.examined = sum / double(nq);
-            row.query_us = median(times) / double(nq) * 1e6;
+            row.query_us = bench::median(times) / double(nq) * 1e6;
             rows.push_back(row);
             std::fprintf(stderr, "  %-7s %-5s k=%-3d A=%-4g recall %.4f  FN %.4f  dil max %7.3f mean %.4f  incompl %4zu  examined %7.1f  %.2f us/query\n",
                          name.c_str(), pr.c_str(), k, A, row.acc.recall, row.acc.false_negative_rate,

@@ -20,6 +20,7 @@
 #include <vector>
 
 #include "blockhash_cl/blockhash_cl.hpp"
+#include "bench_util.hpp"
 
 using namespace bhcl;
 
@@ -108,11 +109,6 @@ Options parse(int argc, char** argv) {
   return o;
 }
 
-double median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  std::size_t m = v.size() / 2;
-  return v.size() % 2 ? v[m] : 0.5 * (v[m - 1] + v[m]);
-}
 
 // Points and queries of a data set. File sets use a prefix of N points (or all when N is 0 or
 // larger), queries are data points jittered by 1e-3 of the median spacing scale, seeded.
@@ -187,19 +183,6 @@ void write_csv_row(std::ofstream& csv, const Row& r) {
   csv.flush();
 }
 
-// Columns 0..k-1 of a truth computed at a larger k.
-KnnResult slice(const KnnResult& t, int k) {
-  KnnResult r;
-  r.resize(t.n, k);
-  for (std::size_t q = 0; q < t.n; ++q) {
-    for (int j = 0; j < k; ++j) {
-      r.ids[q * k + j] = t.id(q, j);
-      r.dist2[q * k + j] = t.d2(q, j);
-    }
-    r.counts[q] = std::min(t.counts[q], k);
-  }
-  return r;
-}
 
 }  // namespace
 
@@ -263,7 +246,7 @@ int main(int argc, char** argv) {
             }
             std::vector<float> As = index->exact() ? std::vector<float>{0.0f} : o.As;
             for (int k : o.ks) {
-              KnnResult truth = slice(truth_all, k);
+              KnnResult truth = truth_all.leading_columns(k);
               for (float A : As) {
                 std::vector<std::string> sorts;
                 if (o.sort == "both") sorts = {"off", "on"};
@@ -295,7 +278,7 @@ int main(int argc, char** argv) {
                     times.push_back(st.query_s);
                     r.compile_s += st.compile_s;
                   }
-                  r.query_s = median(times);
+                  r.query_s = bench::median(times);
                   r.qps = r.query_s > 0 ? double(n_q) / r.query_s : 0.0;
                   r.acc = evaluate_accuracy(res, truth);
                   print_row(r);

@@ -29,6 +29,19 @@ void KnnResult::resize(std::size_t n_queries, int k_) {
   counts.assign(n, 0);
 }
 
+KnnResult KnnResult::leading_columns(int k_) const {
+  if (k_ < 1 || k_ > k)
+    throw Error("leading_columns: k = " + std::to_string(k_) + " outside [1, " + std::to_string(k) + "]");
+  KnnResult r;
+  r.resize(n, k_);
+  for (std::size_t q = 0; q < n; ++q) {
+    std::copy_n(&ids[q * k], k_, &r.ids[q * k_]);
+    std::copy_n(&dist2[q * k], k_, &r.dist2[q * k_]);
+    r.counts[q] = std::min(counts[q], k_);
+  }
+  return r;
+}
+
 void validate_points(const float* xyz, std::size_t n, const char* what) {
   for (std::size_t i = 0; i < n; ++i) {
     const float* p = xyz + 3 * i;

@@ -69,6 +69,9 @@ struct KnnResult {
   std::vector<std::int32_t> counts;
 
   void resize(std::size_t n_queries, int k_);
+  // The first k_ columns of every row (k_ <= k): the exact answer for k_ when this one is exact,
+  // since rows are sorted by (distance, index).
+  KnnResult leading_columns(int k_) const;
   std::int32_t id(std::size_t q, int j) const { return ids[q * static_cast<std::size_t>(k) + j]; }
   float d2(std::size_t q, int j) const { return dist2[q * static_cast<std::size_t>(k) + j]; }
 };
