@@ -36,16 +36,7 @@ bool specular_bounce(const EmbreeScene& es, Rng& rng, Vec3& org, Vec3& dir,
     dir = reflect(dir, n);
     org = x + n * eps;
   } else {
-    float eta = front ? 1.0f / m.ior : m.ior;
-    float cos_i = -dot(dir, n);
-    if (rng.uniform() < fresnel_dielectric(cos_i, eta)) {
-      dir = reflect(dir, n);
-      org = x + n * eps;
-    } else {
-      float cos_t = std::sqrt(std::fmax(0.0f, 1.0f - eta * eta * (1.0f - cos_i * cos_i)));
-      dir = normalize(dir * eta + n * (eta * cos_i - cos_t));
-      org = x - n * eps;
-    }
+    glass_scatter(dir, org, x, n, front, m.ior, rng.uniform(), eps);
   }
   return !is_black(beta);
 }

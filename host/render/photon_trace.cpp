@@ -69,17 +69,7 @@ void trace_one(const EmbreeScene& es, const LightSampler& lights, const PhotonTr
       float p = std::fmin(1.0f, max_component(m.ks));
       if (!(p > 0) || rng.uniform() >= p) return;
       power = power * m.ks / p;
-      float eta = front ? 1.0f / m.ior : m.ior;
-      float cos_i = -dot(dir, n);
-      float F = fresnel_dielectric(cos_i, eta);
-      if (rng.uniform() < F) {
-        dir = reflect(dir, n);
-        org = x + n * eps;
-      } else {
-        float cos_t = std::sqrt(std::fmax(0.0f, 1.0f - eta * eta * (1.0f - cos_i * cos_i)));
-        dir = normalize(dir * eta + n * (eta * cos_i - cos_t));
-        org = x - n * eps;
-      }
+      glass_scatter(dir, org, x, n, front, m.ior, rng.uniform(), eps);
       had_specular = true;
     } else {
       return;  // black diffuse (e.g. a light without reflectance): absorbed

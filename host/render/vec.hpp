@@ -105,4 +105,21 @@ inline float fresnel_dielectric(float cos_i, float eta) {
   return 0.5f * (rs * rs + rp * rp);
 }
 
+// A ray meets a glass surface at x: reflected with the Fresnel probability (u uniform in [0, 1)),
+// else refracted by Snell's law. n faces the incoming ray; front: it arrives from outside (ior is
+// the glass's). org moves eps off the surface on the side the ray leaves to.
+inline void glass_scatter(Vec3& dir, Vec3& org, Vec3 x, Vec3 n, bool front, float ior, float u,
+                          float eps) {
+  float eta = front ? 1.0f / ior : ior;
+  float cos_i = -dot(dir, n);
+  if (u < fresnel_dielectric(cos_i, eta)) {
+    dir = reflect(dir, n);
+    org = x + n * eps;
+  } else {
+    float cos_t = std::sqrt(std::fmax(0.0f, 1.0f - eta * eta * (1.0f - cos_i * cos_i)));
+    dir = normalize(dir * eta + n * (eta * cos_i - cos_t));
+    org = x - n * eps;
+  }
+}
+
 }  // namespace bhcl::render
