@@ -54,6 +54,16 @@ void validate_points(const float* xyz, std::size_t n, const char* what) {
   }
 }
 
+namespace {
+
+// dst[i] = src[i] * 2^e, exact unless the result leaves the float range (kernels/scale.cl does
+// the same on the device). src and dst may be the same array.
+void ldexp_all(const float* src, float* dst, std::size_t count, int e) {
+  for (std::size_t i = 0; i < count; ++i) dst[i] = std::ldexp(src[i], e);
+}
+
+}  // namespace
+
 int Index::choose_scale_exponent(const float* points, std::size_t n) {
   double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
   for (std::size_t i = 0; i < n; ++i)
@@ -76,7 +86,7 @@ const float* Index::prepare_points(const float* points, std::size_t n, std::vect
   scale_exp_ = choose_scale_exponent(points, n);
   if (scale_exp_ == 0) return points;
   storage.resize(3 * n);
-  for (std::size_t i = 0; i < 3 * n; ++i) storage[i] = std::ldexp(points[i], -scale_exp_);
+  ldexp_all(points, storage.data(), 3 * n, -scale_exp_);
   return storage.data();
 }
 
@@ -194,10 +204,10 @@ cl::Event Index::enqueue_query(const cl::CommandQueue& queue, const cl::Buffer& 
     KnnResult r;
     r.resize(n, params.k);
     if (scale_exp_)
-      for (auto& v : q) v = std::ldexp(v, -scale_exp_);
+      ldexp_all(q.data(), q.data(), q.size(), -scale_exp_);
     host_search(q.data(), n, sp, r);
     if (scale_exp_)
-      for (auto& d : r.dist2) d = std::ldexp(d, 2 * scale_exp_);
+      ldexp_all(r.dist2.data(), r.dist2.data(), r.dist2.size(), 2 * scale_exp_);
     cl::Event e;
     check_cl(queue.enqueueWriteBuffer(out.ids, CL_TRUE, 0, nk * 4, r.ids.data()), "clEnqueueWriteBuffer", "ids");
     check_cl(queue.enqueueWriteBuffer(out.dist2, CL_TRUE, 0, nk * 4, r.dist2.data()), "clEnqueueWriteBuffer", "dist2");
@@ -258,12 +268,12 @@ QueryStats Index::query(const float* queries, std::size_t n, const SearchParams&
   std::vector<float> scaled_queries;
   if (scale_exp_ != 0) {
     scaled_queries.resize(3 * n);
-    for (std::size_t i = 0; i < 3 * n; ++i) scaled_queries[i] = std::ldexp(queries[i], -scale_exp_);
+    ldexp_all(queries, scaled_queries.data(), 3 * n, -scale_exp_);
     queries = scaled_queries.data();
   }
   auto unscale = [&](float* d2, std::size_t count) {
     if (scale_exp_ != 0)
-      for (std::size_t i = 0; i < count; ++i) d2[i] = std::ldexp(d2[i], 2 * scale_exp_);
+      ldexp_all(d2, d2, count, 2 * scale_exp_);
   };
   if (answers_on_host()) {
     st.query_s = host_search(queries, n, sp, out);
