@@ -9,7 +9,7 @@ packages=(
   ocl-icd-opencl-dev opencl-c-headers opencl-clhpp-headers pocl-opencl-icd clinfo
   libembree-dev libopenexr-dev libpng-dev
   libflann-dev liblz4-dev libnanoflann-dev
-  doctest-dev
+  doctest-dev libcli11-dev nlohmann-json3-dev
   python3 python3-numpy python3-matplotlib
 )
 if [ "${1:-}" = "--ci" ]; then

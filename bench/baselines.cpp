@@ -23,6 +23,8 @@
 
 #include "bench_util.hpp"
 #include "blockhash_cl/blockhash_cl.hpp"
+#include "blockhash_cl/datasets.hpp"
+#include "blockhash_cl/cornell_box.hpp"
 
 using namespace bhcl;
 

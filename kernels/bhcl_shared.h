@@ -1,6 +1,6 @@
 /* Constants and device layouts shared by the host library and the OpenCL kernels.
  * Valid OpenCL C and valid C++: the host includes it and checks the layouts with static_assert
- * (lib/src/layout_checks.cpp). Method-specific layouts live in their own *_layout.h files. */
+ * (lib/src/core/layout_checks.cpp). Method-specific layouts live in their own *_layout.h files. */
 #ifndef BHCL_SHARED_H
 #define BHCL_SHARED_H
 

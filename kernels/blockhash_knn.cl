@@ -6,7 +6,7 @@
  * that order, each block once, until ceil(A k) points have been examined; keep the k nearest in
  * private memory. With BHCL_BH_BOXSKIP a block whose bounding box is farther than the current k-th
  * distance (or the maximum radius) is skipped without counting: nothing in it can enter the list.
- * lib/src/blockhash_query_ref.cpp is the host reference of exactly this algorithm: change both.
+ * lib/src/blockhash/query_ref.cpp is the host reference of exactly this algorithm: change both.
  *
  * Defines: BHCL_KMAX (top-k capacity), BHCL_BH_L (tables), BHCL_BH_DIRECT (1: all (P+1)^3 cells
  * addressed directly; 0: binary search in the sorted directory of occupied cells),
@@ -102,7 +102,7 @@ inline float bh_box_dist2(float3 q, __global const bhcl_bh_box* b) {
   return ex * ex + ey * ey + ez * ez;
 }
 
-/* 3D Hilbert index of grid cell (x, y, z) < 2^bits (Skilling), as blockhash_hilbert.cpp. */
+/* 3D Hilbert index of grid cell (x, y, z) < 2^bits (Skilling), as lib/src/sfc/hilbert.cpp. */
 inline ulong bh_hilbert_encode(uint x0, uint x1, uint x2, uint bits) {
   uint X[3] = {x0, x1, x2};
   uint M = 1u << (bits - 1);

@@ -1,6 +1,6 @@
 /* Block hashing: the device layouts shared by the host build and kernels/blockhash_knn.cl.
  * Valid OpenCL C and C++ (the host checks sizes and offsets with static_assert in
- * lib/src/blockhash_index.cpp).
+ * lib/src/blockhash/index.cpp).
  *
  * Memory of a built index (all arrays are flat buffers):
  *  - blocks:  one bhcl_bh_block (256 bytes) per block of X <= 16 points, in Hilbert order.

@@ -1,5 +1,5 @@
-/* Device layout of the kd-tree (kernels/kdtree_knn.cl, lib/src/kdtree.cpp).
- * Valid OpenCL C and valid C++: the host checks it with static_assert (lib/src/kdtree.cpp).
+/* Device layout of the kd-tree (kernels/kdtree_knn.cl, lib/src/kdtree/kdtree.cpp).
+ * Valid OpenCL C and valid C++: the host checks it with static_assert (lib/src/kdtree/kdtree.cpp).
  *
  * Nodes are stored depth-first: an inner node's left child is the next node (index + 1), its right
  * child is `right`. A leaf holds `count` points starting at `begin` in the reordered point array,

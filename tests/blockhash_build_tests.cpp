@@ -1,8 +1,8 @@
-// Block hashing: each host build stage on its own (lib/src/blockhash_build.hpp).
+// Block hashing: each host build stage on its own (lib/src/blockhash/build.hpp).
 #include <map>
 #include <random>
 
-#include "blockhash_build.hpp"
+#include "blockhash/build.hpp"
 #include "test_util.hpp"
 
 using namespace bhcl;

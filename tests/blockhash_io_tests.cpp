@@ -3,7 +3,7 @@
 #include <fstream>
 #include <random>
 
-#include "blockhash_build.hpp"
+#include "blockhash/build.hpp"
 #include "test_util.hpp"
 
 using namespace bhcl;

@@ -1,6 +1,6 @@
 // Block hashing queries: the OpenCL kernel against its host reference (bit for bit), the result
 // contract, accuracy behaviour, the Cornell-wall case, the buffer-level call and the CLI.
-#include "blockhash_build.hpp"
+#include "blockhash/build.hpp"
 #include "test_util.hpp"
 
 using namespace bhcl;

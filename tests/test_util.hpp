@@ -19,6 +19,8 @@
 #include <vector>
 
 #include "blockhash_cl/blockhash_cl.hpp"
+#include "blockhash_cl/datasets.hpp"
+#include "blockhash_cl/cornell_box.hpp"
 
 namespace bhcl::test {
 

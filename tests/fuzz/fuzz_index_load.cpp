@@ -8,7 +8,7 @@
 #include <cstdlib>
 #include <string>
 
-#include "blockhash_build.hpp"
+#include "blockhash/build.hpp"
 #include "blockhash_cl/error.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {

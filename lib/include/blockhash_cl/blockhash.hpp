@@ -26,7 +26,7 @@
 namespace bhcl {
 
 namespace blockhash {
-struct Structure;  // the host copy of every built array (lib/src/blockhash_build.hpp)
+struct Structure;  // the host copy of every built array (lib/src/blockhash/build.hpp)
 }
 
 struct BlockHashBuildParams {

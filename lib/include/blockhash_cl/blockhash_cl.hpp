@@ -1,13 +1,14 @@
 // blockhash_cl: batched approximate kNN on 3D points with OpenCL kernels. Umbrella header.
 #pragma once
 
+#include "blockhash_cl/config.hpp"
 #include "blockhash_cl/blockhash.hpp"
 #include "blockhash_cl/bruteforce.hpp"
-#include "blockhash_cl/cornell_box.hpp"
-#include "blockhash_cl/datasets.hpp"
 #include "blockhash_cl/error.hpp"
 #include "blockhash_cl/factory.hpp"
+#if BHCL_HAVE_FLANN
 #include "blockhash_cl/flann_index.hpp"
+#endif
 #include "blockhash_cl/io.hpp"
 #include "blockhash_cl/kdtree.hpp"
 #include "blockhash_cl/knn.hpp"

@@ -8,7 +8,7 @@
 #include <vector>
 
 #include "blockhash_cl/error.hpp"
-#include "device_util.hpp"
+#include "core/device_util.hpp"
 #include "kdtree_layout.h"
 
 // The layout of kernels/kdtree_layout.h as the host writes it.

@@ -3,7 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
-#include "blockhash_build.hpp"
+#include "blockhash/build.hpp"
 #include "blockhash_cl/error.hpp"
 
 namespace bhcl::blockhash {

@@ -17,7 +17,7 @@
 #include <fstream>
 #include <sstream>
 
-#include "blockhash_build.hpp"
+#include "blockhash/build.hpp"
 #include "blockhash_cl/error.hpp"
 
 namespace bhcl::blockhash {

@@ -4,7 +4,7 @@
 #include <map>
 
 #include "blockhash_cl/error.hpp"
-#include "device_util.hpp"
+#include "core/device_util.hpp"
 
 namespace bhcl {
 

@@ -4,7 +4,7 @@
 #include <cmath>
 #include <numeric>
 
-#include "blockhash_build.hpp"
+#include "blockhash/build.hpp"
 #include "blockhash_cl/error.hpp"
 
 namespace bhcl::blockhash {

@@ -1,4 +1,4 @@
-#include "device_util.hpp"
+#include "core/device_util.hpp"
 
 #include <algorithm>
 

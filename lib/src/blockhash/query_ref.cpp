@@ -5,7 +5,7 @@
 #include <cmath>
 #include <thread>
 
-#include "blockhash_build.hpp"
+#include "blockhash/build.hpp"
 #include "blockhash_cl/error.hpp"
 #include "blockhash_cl/reference.hpp"
 

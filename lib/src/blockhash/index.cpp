@@ -7,9 +7,9 @@
 #include <cstring>
 #include <sstream>
 
-#include "blockhash_build.hpp"
+#include "blockhash/build.hpp"
 #include "blockhash_cl/error.hpp"
-#include "device_util.hpp"
+#include "core/device_util.hpp"
 
 // The host's view of the device layouts (kernels/blockhash_layout.h) must match OpenCL C's.
 static_assert(sizeof(bhcl_bh_block) == 256, "a block is one 256-byte memory unit");

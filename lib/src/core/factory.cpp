@@ -3,12 +3,21 @@
 #include "blockhash_cl/blockhash.hpp"
 #include "blockhash_cl/bruteforce.hpp"
 #include "blockhash_cl/error.hpp"
+#include "blockhash_cl/config.hpp"
+#if BHCL_HAVE_FLANN
 #include "blockhash_cl/flann_index.hpp"
+#endif
 #include "blockhash_cl/kdtree.hpp"
 
 namespace bhcl {
 
-std::vector<std::string> method_names() { return {"bruteforce", "kdtree", "flann", "blockhash"}; }
+std::vector<std::string> method_names() {
+#if BHCL_HAVE_FLANN
+  return {"bruteforce", "kdtree", "flann", "blockhash"};
+#else
+  return {"bruteforce", "kdtree", "blockhash"};
+#endif
+}
 
 std::unique_ptr<Index> make_index(const std::string& method, std::shared_ptr<Runtime> runtime,
                                   const float* points, std::size_t n_points,
@@ -43,11 +52,13 @@ std::unique_ptr<Index> make_index(const std::string& method, std::shared_ptr<Run
     return std::make_unique<BruteForceIndex>(std::move(runtime), points, n_points);
   if (method == "kdtree")
     return std::make_unique<KdTreeIndex>(std::move(runtime), points, n_points);
+#if BHCL_HAVE_FLANN
   if (method == "flann") {
     FlannParams fp;
     fp.threads = options.threads;
     return std::make_unique<FlannIndex>(std::move(runtime), points, n_points, fp);
   }
+#endif
   std::string known;
   for (const auto& m : method_names()) known += (known.empty() ? "" : ", ") + m;
   throw Error("unknown method '" + method + "' (known: " + known + ")");

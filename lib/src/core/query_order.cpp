@@ -1,11 +1,11 @@
-#include "query_order.hpp"
+#include "core/query_order.hpp"
 
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <utility>
 
-#include "blockhash_build.hpp"
+#include "blockhash/build.hpp"
 
 namespace bhcl::detail {
 

@@ -17,8 +17,10 @@
 #include "blockhash_cl/error.hpp"
 #include "blockhash_cl/reference.hpp"
 
-#ifndef BHCL_HAVE_FLANN
-#error "flann_index.cpp needs FLANN (BHCL_HAVE_FLANN): see the top-level CMakeLists.txt"
+#include "blockhash_cl/config.hpp"
+
+#if !BHCL_HAVE_FLANN
+#error "flann_index.cpp is compiled only with the FLANN component: see the top-level CMakeLists.txt"
 #endif
 
 namespace bhcl {

@@ -7,8 +7,8 @@
 #include <sstream>
 
 #include "blockhash_cl/error.hpp"
-#include "device_util.hpp"
-#include "query_order.hpp"
+#include "core/device_util.hpp"
+#include "core/query_order.hpp"
 
 namespace bhcl {
 

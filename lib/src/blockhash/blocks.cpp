@@ -4,7 +4,7 @@
 #include <cmath>
 #include <cstring>
 
-#include "blockhash_build.hpp"
+#include "blockhash/build.hpp"
 #include "blockhash_cl/error.hpp"
 
 namespace bhcl::blockhash {

@@ -5,7 +5,7 @@
 // Q = B - #blocks_inserted - #overflows, counted per distinct block.
 #include <algorithm>
 
-#include "blockhash_build.hpp"
+#include "blockhash/build.hpp"
 #include "blockhash_cl/error.hpp"
 
 namespace bhcl::blockhash {

@@ -1,12 +1,12 @@
 // Block hashing, host side: the built structure and one function per build stage, so that the
-// tests can call each stage on its own. The stages, in order (blockhash_index.cpp runs them):
-//   blockhash_hilbert.cpp     quantise in the bounding box, 3D Hilbert keys, stable sort
-//   blockhash_blocks.cpp      cut the sorted points into blocks of X, a bounding box per block
-//   blockhash_params.cpp      derive L, P, B, X (paper formulas or auto from the data)
-//   blockhash_thresholds.cpp  histogram, CDF, stratified jittered inversion, guards; h_T(t)
-//   blockhash_tables.cpp      L tables of buckets: insertion, overflow, Q
-//   blockhash_query_ref.cpp   the host reference of the kernel's query
-//   blockhash_io.cpp          save / load
+// tests can call each stage on its own. The stages, in order (blockhash/index.cpp runs them):
+//   sfc/hilbert.cpp           quantise in the bounding box, 3D Hilbert keys, stable sort
+//   blockhash/blocks.cpp      cut the sorted points into blocks of X, a bounding box per block
+//   blockhash/params.cpp      derive L, P, B, X (paper formulas or auto from the data)
+//   blockhash/thresholds.cpp  histogram, CDF, stratified jittered inversion, guards; h_T(t)
+//   blockhash/tables.cpp      L tables of buckets: insertion, overflow, Q
+//   blockhash/query_ref.cpp   the host reference of the kernel's query
+//   blockhash/io.cpp          save / load
 #pragma once
 
 #include <cstddef>
@@ -186,7 +186,7 @@ inline std::uint32_t keep_blocks(std::uint32_t budget, int kmax, int X) {
   return static_cast<std::uint32_t>(std::min<std::uint64_t>(c, scan_cap(kmax, X)));
 }
 
-// Save / load (blockhash_io.cpp).
+// Save / load (blockhash/io.cpp).
 void save_structure(const Structure& s, const std::string& path);
 std::unique_ptr<Structure> load_structure(const std::string& path);
 // The parse behind load_structure, on the file's bytes; `what` names the source in errors. The
