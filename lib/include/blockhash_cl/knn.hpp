@@ -28,6 +28,7 @@
 #include <mutex>
 #include <set>
 #include <string>
+#include <tuple>
 #include <utility>
 #include <vector>
 
@@ -58,6 +59,10 @@ struct SearchParams {
   // Host-array calls: dispatch the queries in 3D Hilbert order of their positions (results still
   // come back in the caller's order). Helps when a batch is not already spatially coherent.
   bool sort_queries = false;
+  // Kernel exploration (the benchmark's variants): extra "-DNAME=VALUE" defines appended to the
+  // kernel's build options, e.g. "-DBHCL_VEC_SCAN=0". Only -D tokens are accepted. Results of an
+  // exact method do not depend on them; the block-hash kernel's may (the defines are its knobs).
+  std::string kernel_defines;
 };
 
 // Host-side results. ids/dist2 are n*k, counts is n.
@@ -193,7 +198,7 @@ class Index {
   int scale_exp_ = 0;
   double build_seconds_ = 0.0;
   mutable std::mutex warm_mutex_;
-  mutable std::set<std::pair<int, std::size_t>> warmed_;  // (kmax variant, local size)
+  mutable std::set<std::tuple<int, std::size_t, std::string>> warmed_;  // (kmax, local size, defines)
 };
 
 }  // namespace bhcl

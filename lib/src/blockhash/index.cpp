@@ -226,7 +226,7 @@ cl::Event BlockHashIndex::enqueue_stats(const cl::CommandQueue& queue, const cl:
                                         const cl::Buffer* examined) const {
   std::lock_guard<std::mutex> lock(dispatch_mutex_);
   int kmax = kmax_variant(params.k);
-  cl::Kernel kernel = runtime().kernel("blockhash_knn.cl", "blockhash_knn", kernel_options(kmax));
+  cl::Kernel kernel = runtime().kernel("blockhash_knn.cl", "blockhash_knn", detail::with_defines(kernel_options(kmax), params));
   bool probes = params.neighbour_probes < 0 ? info_.neighbour_probes : params.neighbour_probes == 1;
   detail::KernelArgs args(kernel, "blockhash_knn");
   args.add(blocks_)

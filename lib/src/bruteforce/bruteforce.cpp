@@ -26,7 +26,7 @@ cl::Event BruteForceIndex::enqueue_batch(const cl::CommandQueue& queue, const cl
   std::lock_guard<std::mutex> lock(dispatch_mutex_);
   int kmax = kmax_variant(params.k);
   cl::Kernel kernel = runtime().kernel("bruteforce_knn.cl", "bruteforce_knn",
-                                       "-DBHCL_KMAX=" + std::to_string(kmax));
+                                       detail::with_defines("-DBHCL_KMAX=" + std::to_string(kmax), params));
   detail::KernelArgs args(kernel, "bruteforce_knn");
   args.add(points_)
       .add(cl_uint(size()))

@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "blockhash_cl/error.hpp"
+#include "blockhash_cl/knn.hpp"
 #include "blockhash_cl/runtime.hpp"
 
 namespace bhcl::detail {
@@ -34,6 +35,12 @@ cl::Buffer upload_vector(const std::shared_ptr<Runtime>& rt, const std::vector<T
 // r*r, with +inf for an infinite radius.
 inline float squared_radius(float r) {
   return std::isinf(r) ? std::numeric_limits<float>::infinity() : r * r;
+}
+
+// Build options plus the caller's extra -D defines (SearchParams::kernel_defines, validated by
+// Index::check_params).
+inline std::string with_defines(const std::string& options, const SearchParams& p) {
+  return p.kernel_defines.empty() ? options : options + " " + p.kernel_defines;
 }
 
 // Sets kernel arguments in order; a failure names the kernel and the argument index.

@@ -2,6 +2,7 @@
 #include "blockhash_cl/knn.hpp"
 
 #include <algorithm>
+#include <cctype>
 #include <chrono>
 #include <cmath>
 #include <sstream>
@@ -110,6 +111,19 @@ void Index::check_params(const SearchParams& p) const {
   kmax_variant(p.k);  // throws for k outside [1, kMaxK]
   if (std::isnan(p.max_radius) || p.max_radius < 0)
     throw Error("max_radius must be >= 0 (or +inf), got " + std::to_string(p.max_radius));
+  {
+    // kernel_defines: whitespace-separated -DNAME or -DNAME=VALUE tokens, nothing else.
+    std::istringstream is(p.kernel_defines);
+    std::string tok;
+    while (is >> tok) {
+      bool ok = tok.size() > 2 && tok.compare(0, 2, "-D") == 0;
+      for (std::size_t i = 2; ok && i < tok.size(); ++i) {
+        char c = tok[i];
+        ok = std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '=' || c == '.' || c == '-';
+      }
+      if (!ok) throw Error("kernel_defines: '" + tok + "' is not a -DNAME[=VALUE] define");
+    }
+  }
   if (p.local_size > runtime_->info().max_work_group_size && runtime_->info().max_work_group_size)
     throw Error("local_size " + std::to_string(p.local_size) + " exceeds the device maximum " +
                 std::to_string(runtime_->info().max_work_group_size));
@@ -123,7 +137,7 @@ double Index::warm_up(const SearchParams& params) const {
   check_params(params);
   if (answers_on_host()) return 0.0;
   std::size_t local = local_size_for(params);
-  auto key = std::make_pair(kmax_variant(params.k), local);
+  auto key = std::make_tuple(kmax_variant(params.k), local, params.kernel_defines);
   std::lock_guard<std::mutex> lock(warm_mutex_);
   if (warmed_.count(key)) return 0.0;
   auto t0 = std::chrono::steady_clock::now();

@@ -134,7 +134,7 @@ cl::Event KdTreeIndex::enqueue_batch(const cl::CommandQueue& queue, const cl::Bu
   const int stack = std::max(8, (depth_ + 7) / 8 * 8);
   cl::Kernel kernel = runtime().kernel(
       "kdtree_knn.cl", "kdtree_knn",
-      "-DBHCL_KMAX=" + std::to_string(kmax) + " -DBHCL_KD_STACK=" + std::to_string(stack));
+      detail::with_defines("-DBHCL_KMAX=" + std::to_string(kmax) + " -DBHCL_KD_STACK=" + std::to_string(stack), params));
   detail::KernelArgs args(kernel, "kdtree_knn");
   args.add(nodes_)
       .add(points_)
