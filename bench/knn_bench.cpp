@@ -111,47 +111,6 @@ Options parse(int argc, char** argv) {
   return o;
 }
 
-
-// Points and queries of a data set. File sets use a prefix of N points (or all when N is 0 or
-// larger), queries are data points jittered by 1e-3 of the median spacing scale, seeded.
-bool load_set(const Options& o, const std::string& name, std::size_t N, std::vector<float>& pts,
-              std::vector<float>& qs, std::string& label) {
-  static const std::map<std::string, std::string> files = {
-      {"bunny", "bunny.xyz.f32"}, {"dragon", "dragon_stand_scans.xyz.f32"}, {"autzen", "autzen.xyz.f32"}};
-  auto f = files.find(name);
-  if (f == files.end()) {
-    pts = datasets::by_name(name, N, 1);
-    qs = datasets::queries_by_name(name, o.queries, 2);
-    label = name;
-    return true;
-  }
-  std::string path = o.data_dir + "/" + f->second;
-  if (!std::ifstream(path).good()) {
-    std::printf("# %s: %s not present (set BHCL_DATA_DIR or --data-dir to ../shared/data): skipped\n",
-                name.c_str(), path.c_str());
-    return false;
-  }
-  pts = read_points_file(path);
-  if (N && N < pts.size() / 3) pts.resize(3 * N);
-  std::size_t n_pts = pts.size() / 3;
-  // Jitter scale: 1e-4 of the bounding box diagonal.
-  float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-  for (std::size_t i = 0; i < n_pts; ++i)
-    for (int d = 0; d < 3; ++d) lo[d] = std::min(lo[d], pts[3 * i + d]), hi[d] = std::max(hi[d], pts[3 * i + d]);
-  float diag = std::sqrt((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) +
-                         (hi[2] - lo[2]) * (hi[2] - lo[2]));
-  std::mt19937_64 rng(2);
-  std::uniform_int_distribution<std::size_t> pick(0, n_pts - 1);
-  std::normal_distribution<float> g(0.0f, 1e-4f * diag);
-  qs.resize(3 * o.queries);
-  for (std::size_t i = 0; i < o.queries; ++i) {
-    std::size_t j = pick(rng);
-    for (int d = 0; d < 3; ++d) qs[3 * i + d] = pts[3 * j + d] + g(rng);
-  }
-  label = name;
-  return true;
-}
-
 struct Row {
   std::string data, method, preset, device, sort;
   std::size_t N = 0, n = 0;
@@ -210,7 +169,8 @@ int main(int argc, char** argv) {
       for (std::size_t N : o.sizes) {
         std::vector<float> pts, qs;
         std::string label;
-        if (!load_set(o, set, N, pts, qs, label)) continue;
+        if (!bench::load_set(o.data_dir, set, N, o.queries, pts, qs)) continue;
+        label = set;
         const std::size_t n_pts = pts.size() / 3, n_q = qs.size() / 3;
         // Exact truth, once, at the largest k.
         SearchParams tp;

@@ -17,6 +17,7 @@
  * blocks a query keeps and scans; = BHCL_BH_SCANCAP). */
 #include "knn_common.h"
 #include "blockhash_layout.h"
+#include "blockhash_common.h"
 
 #ifndef BHCL_BH_L
 #define BHCL_BH_L 4
@@ -61,75 +62,15 @@ inline uint bh_keep(float* cd, int* cb, uint n, uint keep, float d, int b, float
 
 /* Scans one block into the top-k list; returns its point count. */
 inline uint bh_scan_block(float3 q, __global const bhcl_bh_block* blk, int cnt, float max_r2,
-                          float* best_d, int* best_i, uint k) {
+                          float* best_d, int* best_i, uint k, uint* nfound) {
   for (int j = 0; j < cnt; ++j) {
     float4 p = (float4)(blk->x[j], blk->y[j], blk->z[j], 0.0f);
     float d = bhcl_dist2(q, p);
     int id = blk->id[j];
     if (d <= max_r2 && bhcl_topk_accepts(best_d, best_i, k, d, id))
-      bhcl_topk_insert(best_d, best_i, k, d, id);
+      *nfound = bhcl_topk_push(best_d, best_i, k, *nfound, d, id);
   }
   return (uint)cnt;
-}
-
-/* h_T(t) = #{i : t_i <= t}; thresholds ascending, +inf padded. */
-inline uint bh_hash(__global const float* thr, uint P, float t) {
-  uint lo = 0, hi = P;
-  while (lo < hi) {
-    uint mid = (lo + hi) >> 1;
-    if (thr[mid] <= t) lo = mid + 1;
-    else hi = mid;
-  }
-  return lo;
-}
-
-/* The adjacent cell on the side of the nearer face, or -1 when that side is unbounded. */
-inline int bh_near_side(__global const float* thr, uint P, uint h, float t) {
-  float lo = h > 0 ? thr[h - 1] : -INFINITY;
-  float hi = h < P ? thr[h] : INFINITY;
-  float dlo = t - lo, dhi = hi - t;
-  if (dlo < dhi) return (int)h - 1;
-  if (isfinite(dhi)) return (int)h + 1;
-  return -1;
-}
-
-/* Squared distance from q to a block's box, in the order of bhcl_dist2: a lower bound of the
- * distance of every point in the box, rounding included (every step is monotone). */
-inline float bh_box_dist2(float3 q, __global const bhcl_bh_box* b) {
-  float ex = fmax(fmax(b->lo_x - q.x, 0.0f), q.x - b->hi_x);
-  float ey = fmax(fmax(b->lo_y - q.y, 0.0f), q.y - b->hi_y);
-  float ez = fmax(fmax(b->lo_z - q.z, 0.0f), q.z - b->hi_z);
-  return ex * ex + ey * ey + ez * ez;
-}
-
-/* 3D Hilbert index of grid cell (x, y, z) < 2^bits (Skilling), as lib/src/sfc/hilbert.cpp. */
-inline ulong bh_hilbert_encode(uint x0, uint x1, uint x2, uint bits) {
-  uint X[3] = {x0, x1, x2};
-  uint M = 1u << (bits - 1);
-  for (uint Q = M; Q > 1; Q >>= 1) {
-    uint P = Q - 1;
-    for (int i = 0; i < 3; ++i) {
-      if (X[i] & Q) {
-        X[0] ^= P;
-      } else {
-        uint t = (X[0] ^ X[i]) & P;
-        X[0] ^= t;
-        X[i] ^= t;
-      }
-    }
-  }
-  X[1] ^= X[0];
-  X[2] ^= X[1];
-  uint t = 0;
-  for (uint Q = M; Q > 1; Q >>= 1)
-    if (X[2] & Q) t ^= Q - 1;
-  X[0] ^= t;
-  X[1] ^= t;
-  X[2] ^= t;
-  ulong key = 0;
-  for (int b = (int)bits - 1; b >= 0; --b)
-    for (int i = 0; i < 3; ++i) key = (key << 1) | (ulong)((X[i] >> b) & 1u);
-  return key;
 }
 
 /* The query's Hilbert key: quantised with the build's origin (xyz) and scale (w), in float. */
@@ -181,6 +122,7 @@ __kernel void blockhash_knn(__global const bhcl_bh_block* blocks,
   float best_d[BHCL_KMAX];
   int best_i[BHCL_KMAX];
   bhcl_topk_init(best_d, best_i, k);
+  uint nfound = 0;
   uint examined = 0;
 
   if (bhcl_query_is_finite(q)) {
@@ -252,7 +194,7 @@ __kernel void blockhash_knn(__global const bhcl_bh_block* blocks,
     for (uint i = 0; i < nc; ++i) {
       if (examined >= budget || cd[i] > bhcl_topk_bound(best_d, k)) break;
       int b = cb[i];
-      examined += bh_scan_block(q, blocks + b, boxes[b].count, max_r2, best_d, best_i, k);
+      examined += bh_scan_block(q, blocks + b, boxes[b].count, max_r2, best_d, best_i, k, &nfound);
     }
 #else
     /* 2. Priority order (the talk's): the blocks of the buckets in bucket order, each scanned once,
@@ -286,7 +228,7 @@ __kernel void blockhash_knn(__global const bhcl_bh_block* blocks,
         if (hb & 64) seen1 |= bit;
         else seen0 |= bit;
         scanned[nscanned++] = b;
-        examined += bh_scan_block(q, blocks + b, box->count, max_r2, best_d, best_i, k);
+        examined += bh_scan_block(q, blocks + b, box->count, max_r2, best_d, best_i, k, &nfound);
       }
       if (done) break;
     }

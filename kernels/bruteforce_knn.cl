@@ -19,6 +19,7 @@ __kernel void bruteforce_knn(__global const float4* points, uint n_points,
   float best_d[BHCL_KMAX];
   int best_i[BHCL_KMAX];
   bhcl_topk_init(best_d, best_i, k);
+  uint nfound = 0;
 
   for (uint base = 0; base < n_points; base += lsz) {
     uint m = min(lsz, n_points - base);
@@ -30,7 +31,7 @@ __kernel void bruteforce_knn(__global const float4* points, uint n_points,
         float d = bhcl_dist2(q, tile[j]);
         int idx = (int)(base + j);
         if (d <= max_r2 && bhcl_topk_accepts(best_d, best_i, k, d, idx))
-          bhcl_topk_insert(best_d, best_i, k, d, idx);
+          nfound = bhcl_topk_push(best_d, best_i, k, nfound, d, idx);
       }
     }
   }

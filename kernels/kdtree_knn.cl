@@ -32,6 +32,7 @@ __kernel void kdtree_knn(__global const bhcl_kd_node* nodes, __global const floa
   float best_d[BHCL_KMAX];
   int best_i[BHCL_KMAX];
   bhcl_topk_init(best_d, best_i, k);
+  uint nfound = 0;
 
   if (bhcl_query_is_finite(q)) {
     /* Deferred far children: xyz = offsets to the cell, w = its lower bound. */
@@ -74,7 +75,7 @@ __kernel void kdtree_knn(__global const bhcl_kd_node* nodes, __global const floa
         if (d <= bound) {
           int idx = as_int(p.w);
           if (bhcl_topk_accepts(best_d, best_i, k, d, idx)) {
-            bhcl_topk_insert(best_d, best_i, k, d, idx);
+            nfound = bhcl_topk_push(best_d, best_i, k, nfound, d, idx);
             bound = min(max_r2, bhcl_topk_bound(best_d, k));
           }
         }

@@ -106,6 +106,21 @@ TEST_CASE("blockhash io: a consistent file with broken invariants is refused by 
   auto pts = datasets::uniform(800, 4);
   BlockHashBuildParams bp;
   bp.P = 4;
+  {
+    // Cell-aligned: a run past the last block, a block of no points.
+    BlockHashIndex c(test::runtime(), pts.data(), 800, bp);
+    REQUIRE(c.info().cell_aligned);
+    blockhash::Structure s = c.structure();
+    s.buckets.back().n_refs += 1000;
+    std::string path = test::tmp_path("bh_io_invalid_cells.bhi");
+    blockhash::save_structure(s, path);
+    CHECK_THROWS_WITH_AS(BlockHashIndex::load(test::runtime(), path), doctest::Contains("past the last block"), Error);
+    s = c.structure();
+    s.boxes[2].count = 0;
+    blockhash::save_structure(s, path);
+    CHECK_THROWS_WITH_AS(BlockHashIndex::load(test::runtime(), path), doctest::Contains("box 2"), Error);
+  }
+  bp.cell_aligned = 0;
   BlockHashIndex a(test::runtime(), pts.data(), 800, bp);
   blockhash::Structure s = a.structure();
   s.refs[0] = 1 << 20;  // a block that does not exist

@@ -34,7 +34,12 @@ void kernel_equals_reference(const BlockHashIndex& index, const std::vector<floa
   REQUIRE(plain.ids == r.ids);
   REQUIRE(plain.counts == r.counts);
   test::check_contract(r, pts.data(), pts.size() / 3, qs.data(), p);
-  for (std::size_t i = 0; i < n; ++i) REQUIRE(std::uint32_t(ex[i]) < BlockHashIndex::budget(p) + std::uint32_t(index.X()));
+  // The budget bounds the scan to within one block; cell-aligned queries whose cells held fewer than
+  // k points add at most the fallback window (2 max(seed, k) + 1 blocks).
+  std::uint32_t slack = std::uint32_t(index.X());
+  if (index.info().cell_aligned)
+    slack += (2 * blockhash::cells_seed_side(index.info().hilbert_seed, p.k) + 1) * std::uint32_t(index.X());
+  for (std::size_t i = 0; i < n; ++i) REQUIRE(std::uint32_t(ex[i]) < BlockHashIndex::budget(p) + slack);
 }
 
 }  // namespace
@@ -89,11 +94,22 @@ TEST_CASE("blockhash_vs_reference: radius, k > N, probes on/off, box skip off, n
   BlockHashIndex paper(test::runtime(), pts.data(), 6000, preset("paper"));
   p.neighbour_probes = 1;  // a paper index probes neighbours when asked
   kernel_equals_reference(paper, pts, qs, p);
+  for (int probes : {1, 2}) {  // cell-aligned: the octant, and the 4 x 4 x 4 block of cells
+    p.neighbour_probes = probes;
+    kernel_equals_reference(a, pts, qs, p);
+    p.max_radius = 0.01f;
+    kernel_equals_reference(a, pts, qs, p);
+    p.max_radius = INFINITY;
+  }
   BlockHashBuildParams nb = preset("auto");
   nb.box_skip = 0;
+  nb.cell_aligned = 0;  // the L-table layout of auto, with and without box skipping
   BlockHashIndex noskip(test::runtime(), pts.data(), 6000, nb);
   p.neighbour_probes = -1;
   kernel_equals_reference(noskip, pts, qs, p);
+  nb.box_skip = 1;
+  BlockHashIndex ltables(test::runtime(), pts.data(), 6000, nb);
+  kernel_equals_reference(ltables, pts, qs, p);
   // k larger than N and a budget over everything: every point, -1/+inf after them.
   auto few = datasets::uniform(7, 3);
   BlockHashIndex tiny(test::runtime(), few.data(), 7, preset("auto"));
@@ -234,7 +250,7 @@ TEST_CASE("blockhash: buffer-level call on the caller's queue and buffers") {
   bad.A = 0;
   CHECK_THROWS_WITH_AS(index.query(qs, bad), doctest::Contains("A must be"), Error);
   bad = p;
-  bad.neighbour_probes = 2;
+  bad.neighbour_probes = 3;
   CHECK_THROWS_AS(index.query(qs, bad), Error);
   CHECK_THROWS_WITH_AS(BlockHashIndex(rt, pts.data(), 0), doctest::Contains("empty"), Error);
   pts[3 * 17 + 2] = NAN;

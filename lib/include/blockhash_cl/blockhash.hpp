@@ -36,8 +36,15 @@ struct BlockHashBuildParams {
   int P = -1;  // thresholds per dimension (cells per dimension: P + 1), <= 1024
   int B = -1;  // block references per bucket
   int X = -1;  // points per block, 1..16 (16 fills the 256-byte block)
-  // auto: P is chosen so that the median occupied cell holds about this many points.
-  double target_cell_points = 100.0;
+  // auto: P is chosen so that the median occupied cell holds about this many points
+  // (-1: 24 with cell-aligned blocks, 100 without).
+  double target_cell_points = -1.0;
+  // auto: blocks aligned to the cells of the primary table (the points ordered by the Hilbert
+  // order of their cell, then by their own key; a bucket is the run of blocks holding exactly its
+  // cell's points), one table, threshold counts per axis from each axis's spread, and the cells
+  // visited near side first with a slab-distance skip (kernels/blockhash_cells_knn.cl).
+  // -1: on for auto, off for paper; 0 gives the L-table layout of the talk with auto's guards.
+  int cell_aligned = -1;
   // auto: B is this percentile of the distinct blocks touching an occupied cell.
   double b_percentile = 0.90;
   // paper: B follows the talk's rule B > A k / (X ln N) for this design A and k.
@@ -72,6 +79,8 @@ struct BlockHashBuildInfo {
   bool guard_thresholds = false, keep_top_count = false, direct_addressing = false;
   bool box_skip = false, neighbour_probes = false, box_order = false;
   int hilbert_seed = 0;
+  bool cell_aligned = false;  // blocks aligned to the primary table's cells (see the params)
+  int axis_P[3] = {0, 0, 0};  // cell-aligned: thresholds per axis actually used (<= P)
   std::size_t n_points = 0, n_blocks = 0;
   std::size_t occupied_cells = 0;      // over all tables
   std::size_t overflowed_buckets = 0;  // over all tables
@@ -148,10 +157,14 @@ class BlockHashIndex : public Index {
                           const SearchParams& params, std::size_t local_size,
                           const std::vector<cl::Event>* wait, const cl::Buffer* examined) const;
   std::string kernel_options(int kmax) const;
+  std::uint32_t cells_probes(const SearchParams& params) const;  // cell-aligned: 0, 1 or 2
 
   std::unique_ptr<blockhash::Structure> s_;
   BlockHashBuildInfo info_;
   cl::Buffer blocks_, boxes_, thresholds_, keys_, table_starts_, buckets_, refs_, block_keys_, dummy_;
+  cl::Buffer cell_table_;                      // cell-aligned: the direct table, or one dummy entry
+  std::uint32_t cell_dy_ = 0, cell_dz_ = 0;    // its dimensions (dz = 0: none, use the directory)
+  std::size_t cell_table_bytes_ = 0;
 };
 
 }  // namespace bhcl

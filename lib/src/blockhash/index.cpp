@@ -107,7 +107,13 @@ BlockHashIndex::BlockHashIndex(std::shared_ptr<Runtime> runtime, const float* po
   say("thresholds built");
 
   t = std::chrono::steady_clock::now();
-  TableStats st = build_tables(s);
+  TableStats st = s.info.cell_aligned ? build_cell_aligned(points, s) : build_tables(s);
+  if (s.info.cell_aligned) {
+    s.info.n_blocks = s.blocks.size();
+    std::uint32_t longest = 1;
+    for (const auto& b : s.buckets) longest = std::max(longest, b.n_refs);
+    s.info.B = static_cast<int>(std::min<std::uint32_t>(longest, 65535));
+  }
   s.info.median_cell_points = median_u32(st.cell_points);
   s.info.median_cell_blocks = median_u32(st.cell_blocks);
   s.info.p90_cell_blocks = percentile_u32(st.cell_blocks, 0.9);
@@ -170,9 +176,16 @@ void BlockHashIndex::upload() {
   refs_ = detail::upload_vector(rt, s.refs, "blockhash block references");
   block_keys_ = detail::upload_vector(rt, s.block_keys, "blockhash block keys");
   dummy_ = detail::upload_vector(rt, std::vector<std::int32_t>(1, 0), "blockhash dummy");
+  // The direct cell table where it is small: at most 2^20 cells or 2 per point (8 bytes each).
+  blockhash::CellTable ct = blockhash::make_cell_table(s, std::max<std::size_t>(std::size_t(1) << 20, 2 * s.n_points));
+  cell_dy_ = ct.dy;
+  cell_dz_ = ct.dz;
+  cell_table_bytes_ = ct.runs.size() * 4;
+  if (ct.runs.empty()) ct.runs.assign(2, 0);
+  cell_table_ = detail::upload_vector(rt, ct.runs, "blockhash cell table");
 }
 
-std::size_t BlockHashIndex::memory_bytes() const { return s_->device_bytes(); }
+std::size_t BlockHashIndex::memory_bytes() const { return s_->device_bytes() + cell_table_bytes_; }
 
 double BlockHashIndex::talk_overhead(std::size_t N, double A, int k, int X) {
   double n = double(N), l = std::log(std::max(n, 2.0));
@@ -185,6 +198,13 @@ double BlockHashIndex::measured_overhead() const {
   return (double(memory_bytes()) - double(s_->blocks.size() * sizeof(bhcl_bh_block))) / points;
 }
 
+std::uint32_t BlockHashIndex::cells_probes(const SearchParams& p) const {
+  if (p.neighbour_probes >= 0) return static_cast<std::uint32_t>(p.neighbour_probes);
+  // The octant, then the rest of the 4 x 4 x 4 block only for queries whose k-th distance still
+  // reaches past the octant (phase 2 of the kernel): it costs a comparison when not needed.
+  return info_.neighbour_probes ? 2u : 0u;
+}
+
 std::uint32_t BlockHashIndex::budget(const SearchParams& p) {
   double b = std::ceil(double(p.A) * double(p.k));
   return static_cast<std::uint32_t>(std::min(b, 4294967295.0));
@@ -194,13 +214,19 @@ void BlockHashIndex::check_params(const SearchParams& p) const {
   Index::check_params(p);
   if (!(p.A > 0) || !std::isfinite(p.A))
     throw Error("blockhash: A must be a positive finite number, got " + std::to_string(p.A));
-  if (p.neighbour_probes < -1 || p.neighbour_probes > 1)
-    throw Error("blockhash: neighbour_probes must be -1 (preset), 0 or 1, got " +
-                std::to_string(p.neighbour_probes));
+  const int top = info_.cell_aligned ? 2 : 1;
+  if (p.neighbour_probes < -1 || p.neighbour_probes > top)
+    throw Error("blockhash: neighbour_probes must be -1 (preset), 0 or 1" +
+                std::string(info_.cell_aligned ? " or 2 (cell-aligned: two near-side cells and the far one)" : "") +
+                ", got " + std::to_string(p.neighbour_probes));
 }
 
 std::string BlockHashIndex::kernel_options(int kmax) const {
   std::ostringstream os;
+  if (info_.cell_aligned) {
+    os << "-DBHCL_KMAX=" << kmax << " -DBHCL_BH_VECSCAN=" << (runtime().quirks().vector_scan ? 1 : 0);
+    return os.str();
+  }
   os << "-DBHCL_KMAX=" << kmax << " -DBHCL_BH_L=" << info_.L
      << " -DBHCL_BH_DIRECT=" << (info_.direct_addressing ? 1 : 0)
      << " -DBHCL_BH_BOXSKIP=" << (info_.box_skip && !info_.box_order ? 1 : 0)
@@ -226,6 +252,38 @@ cl::Event BlockHashIndex::enqueue_stats(const cl::CommandQueue& queue, const cl:
                                         const cl::Buffer* examined) const {
   std::lock_guard<std::mutex> lock(dispatch_mutex_);
   int kmax = kmax_variant(params.k);
+  if (info_.cell_aligned) {
+    cl::Kernel kernel = runtime().kernel("blockhash_cells_knn.cl", "blockhash_cells_knn",
+                                         detail::with_defines(kernel_options(kmax), params));
+    detail::KernelArgs args(kernel, "blockhash_cells_knn");
+    args.add(blocks_)
+        .add(boxes_)
+        .add(thresholds_)
+        .add(cl_uint(info_.P))
+        .add(keys_)
+        .add(cl_uint(s_->keys.size()))
+        .add(buckets_)
+        .add(cell_table_)
+        .add(cl_uint(cell_dy_))
+        .add(cl_uint(cell_dz_))
+        .add(cl_uint(cells_probes(params)))
+        .add(block_keys_)
+        .add(cl_uint(s_->blocks.size()))
+        .add(cl_uint(s_->cell_bits()))
+        .add(cl_uint(blockhash::cells_seed_side(info_.hilbert_seed, params.k)))
+        .add(queries)
+        .add(cl_ulong(first))
+        .add(cl_uint(count))
+        .add(cl_uint(params.k))
+        .add(detail::squared_radius(params.max_radius))
+        .add(cl_uint(budget(params)))
+        .add(out.ids)
+        .add(out.dist2)
+        .add(out.counts)
+        .add(examined ? *examined : dummy_)
+        .add(cl_uint(examined ? 1 : 0));
+    return detail::launch_1d(queue, kernel, count, local_size, wait, "blockhash_cells_knn");
+  }
   cl::Kernel kernel = runtime().kernel("blockhash_knn.cl", "blockhash_knn", detail::with_defines(kernel_options(kmax), params));
   bool probes = params.neighbour_probes < 0 ? info_.neighbour_probes : params.neighbour_probes == 1;
   detail::KernelArgs args(kernel, "blockhash_knn");
@@ -263,8 +321,12 @@ KnnResult BlockHashIndex::reference_query(const float* queries, std::size_t n,
                                           std::vector<std::int32_t>* examined,
                                           unsigned threads) const {
   check_params(params);
-  bool probes = params.neighbour_probes < 0 ? info_.neighbour_probes : params.neighbour_probes == 1;
   KnnResult out;
+  if (info_.cell_aligned) {
+    blockhash::reference_query_cells(*s_, queries, n, params, cells_probes(params), out, examined, threads);
+    return out;
+  }
+  bool probes = params.neighbour_probes < 0 ? info_.neighbour_probes : params.neighbour_probes == 1;
   blockhash::reference_query(*s_, queries, n, params, probes, out, examined, threads);
   return out;
 }

@@ -1,8 +1,8 @@
 // Save and load of a built block-hash index, and the structure's invariant check.
 //
-// File format (little-endian), version 2:
+// File format (little-endian), version 3:
 //   "BHCLIDX\0" magic, u32 version, u32 0x01020304 (byte-order check), u32 header bytes,
-//   u32 preset, L, P, B, X, flags (guard, top count, direct, box skip, probes, box order),
+//   u32 preset, L, P, B, X, flags (guard, top count, direct, box skip, probes, box order, cell-aligned: new in 3),
 //   u64 n_points, n_blocks, n_thresholds, n_table_starts, n_keys, n_buckets, n_refs,
 //   f64 median cell points, median cell blocks, p90 cell blocks,
 //   u64 FNV-1a 64 checksum of the payload,
@@ -24,7 +24,7 @@ namespace bhcl::blockhash {
 namespace {
 
 constexpr char kMagic[8] = {'B', 'H', 'C', 'L', 'I', 'D', 'X', '\0'};
-constexpr std::uint32_t kVersion = 2;
+constexpr std::uint32_t kVersion = 3;
 constexpr std::uint32_t kHeaderBytes = 8 + 4 * 3 + 4 * 6 + 4 * 7 + 8 * 7 + 8 * 3 + 8;
 
 std::uint64_t fnv1a(const unsigned char* p, std::size_t n, std::uint64_t h = 0xcbf29ce484222325ull) {
@@ -87,9 +87,15 @@ void Structure::validate(const std::string& what) const {
   if (in.B < 1 || in.B > 65535) fail("B = " + std::to_string(in.B) + " out of range");
   if (in.X < 1 || in.X > BHCL_BH_BLOCK_SLOTS) fail("X = " + std::to_string(in.X) + " out of range");
   if (n_points < 1 || n_points > 0x7ffffffeu) fail("N = " + std::to_string(n_points) + " out of range");
-  const std::size_t nb = (n_points + in.X - 1) / in.X;
+  const std::size_t nb = in.cell_aligned ? blocks.size() : (n_points + in.X - 1) / in.X;
   if (order.size() != n_points) fail("order has " + std::to_string(order.size()) + " entries");
-  if (blocks.size() != nb || boxes.size() != nb) fail("block count differs from ceil(N / X)");
+  if (in.cell_aligned) {
+    if (nb < (n_points + in.X - 1) / in.X || nb > n_points || boxes.size() != nb)
+      fail("block count " + std::to_string(nb) + " does not fit N and X");
+    if (in.L != 1 || in.direct_addressing) fail("a cell-aligned index has one table and a directory");
+  } else if (blocks.size() != nb || boxes.size() != nb) {
+    fail("block count differs from ceil(N / X)");
+  }
   std::vector<bool> seen(n_points, false);
   for (std::size_t i = 0; i < n_points; ++i) {
     std::int32_t o = order[i];
@@ -100,6 +106,13 @@ void Structure::validate(const std::string& what) const {
     const bhcl_bh_box& box = boxes[b];
     std::size_t first = b * in.X;
     std::size_t cnt = std::min<std::size_t>(in.X, n_points - first);
+    if (in.cell_aligned) {
+      // Runs of blocks: each starts where the previous ended and holds 1..X points.
+      first = b ? std::size_t(boxes[b - 1].first) + std::size_t(boxes[b - 1].count) : 0;
+      cnt = std::size_t(std::max<std::int32_t>(box.count, 0));
+      if (cnt < 1 || cnt > std::size_t(in.X) || first + cnt > n_points || (b + 1 == nb && first + cnt != n_points))
+        fail("box " + std::to_string(b) + " has count " + std::to_string(box.count));
+    }
     if (box.count != std::int32_t(cnt) || box.first != std::int32_t(first))
       fail("box " + std::to_string(b) + " has count/first " + std::to_string(box.count) + "/" + std::to_string(box.first));
     for (std::size_t j = 0; j < cnt; ++j) {
@@ -143,7 +156,10 @@ void Structure::validate(const std::string& what) const {
           fail("directory keys of table " + std::to_string(t) + " are not ascending cell keys");
     }
   }
-  for (std::size_t i = 0; i < buckets.size(); ++i) {
+  for (std::size_t i = 0; in.cell_aligned && i < buckets.size(); ++i)
+    if (std::uint64_t(buckets[i].first_ref) + buckets[i].n_refs > nb)
+      fail("bucket " + std::to_string(i) + " runs past the last block");
+  for (std::size_t i = 0; !in.cell_aligned && i < buckets.size(); ++i) {
     const bhcl_bh_bucket& bk = buckets[i];
     if (bk.n_refs > std::uint32_t(in.B) || std::uint64_t(bk.first_ref) + bk.n_refs > refs.size())
       fail("bucket " + std::to_string(i) + " refers outside the reference array");
@@ -174,7 +190,8 @@ void save_structure(const Structure& s, const std::string& path) {
   h.put(kHeaderBytes);
   std::uint32_t flags = (in.guard_thresholds ? 1u : 0u) | (in.keep_top_count ? 2u : 0u) |
                         (in.direct_addressing ? 4u : 0u) | (in.box_skip ? 8u : 0u) |
-                        (in.neighbour_probes ? 16u : 0u) | (in.box_order ? 32u : 0u);
+                        (in.neighbour_probes ? 16u : 0u) | (in.box_order ? 32u : 0u) |
+                        (in.cell_aligned ? 64u : 0u);
   for (std::uint32_t v : {std::uint32_t(in.preset == BlockHashBuildParams::Preset::Paper ? 1 : 0),
                           std::uint32_t(in.L), std::uint32_t(in.P), std::uint32_t(in.B),
                           std::uint32_t(in.X), flags})
@@ -233,7 +250,8 @@ std::unique_ptr<Structure> parse_structure(const std::string& data, const std::s
   info.box_skip = flags & 8;
   info.neighbour_probes = flags & 16;
   info.box_order = flags & 32;
-  if (flags > 63) throw Error(path + ": block-hash index has unknown flags " + std::to_string(flags));
+  info.cell_aligned = flags & 64;
+  if (flags > 127) throw Error(path + ": block-hash index has unknown flags " + std::to_string(flags));
   for (int d = 0; d < 3; ++d) s->q_origin[d] = r.get<float>("quantiser origin");
   s->q_scale = r.get<float>("quantiser scale");
   s->q_bits = static_cast<int>(r.get<std::uint32_t>("hilbert bits") & 0xff);

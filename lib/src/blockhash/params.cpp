@@ -41,10 +41,12 @@ double median_of(std::vector<std::uint32_t> v) {
 // Table-0 thresholds for a candidate P over every stride-th sorted point.
 std::vector<float> table0_thresholds(const Structure& s, const BlockHashBuildParams& p, int P,
                                      std::size_t stride, const std::vector<float>& pts) {
-  std::vector<float> thr(3 * std::size_t(P));
+  std::vector<float> thr(3 * std::size_t(P), INFINITY);
   for (int d = 0; d < 3; ++d) {
+    const int Pd = axis_threshold_count(s, P, d);
+    if (Pd == 0) continue;
     Histogram h = histogram(pts.data(), pts.size() / 3, d, p.hist_bins, stride);
-    auto t = make_thresholds(h, P, p.seed, 0, d, s.info.guard_thresholds);
+    auto t = make_thresholds(h, Pd, p.seed, 0, d, s.info.guard_thresholds);
     std::copy(t.begin(), t.end(), thr.begin() + std::size_t(d) * P);
   }
   return thr;
@@ -88,13 +90,19 @@ void derive_params(const BlockHashBuildParams& p, Structure& s) {
   in.neighbour_probes = flag(p.neighbour_probes, false);
   in.box_order = flag(p.box_order, false);
   in.hilbert_seed = p.hilbert_seed < 0 ? (paper ? 0 : 1) : p.hilbert_seed;
+  // Cell-aligned blocks hold one table: the default for auto unless more tables are asked for.
+  in.cell_aligned = p.cell_aligned < 0 ? (!paper && p.L <= 1) : p.cell_aligned != 0;
+  if (in.cell_aligned && p.L > 1)
+    throw Error("blockhash: the cell-aligned layout has one table (L = 1), got L = " + std::to_string(p.L) +
+                " (set cell_aligned = 0 for the L-table layout)");
   if (in.hilbert_seed > 64) throw Error("blockhash: hilbert_seed must be in [0, 64], got " + std::to_string(p.hilbert_seed));
   const double N = double(s.n_points), lnN = std::log(std::max(N, 1.0));
   if (p.L == 0 || p.L > 64) throw Error("blockhash: L must be in [1, 64], got " + std::to_string(p.L));
   if (p.P == 0 || p.P > BHCL_BH_MAX_P)
     throw Error("blockhash: P must be in [1, " + std::to_string(BHCL_BH_MAX_P) + "], got " + std::to_string(p.P));
   if (p.B == 0 || p.B > 65535) throw Error("blockhash: B must be in [1, 65535], got " + std::to_string(p.B));
-  if (!(p.target_cell_points >= 1)) throw Error("blockhash: target_cell_points must be >= 1");
+  if (!(p.target_cell_points >= 1) && p.target_cell_points != -1.0)
+    throw Error("blockhash: target_cell_points must be >= 1 (or -1: the layout's default)");
   if (!(p.b_percentile > 0 && p.b_percentile <= 1)) throw Error("blockhash: b_percentile must be in (0, 1]");
   if (p.hist_bins < 2 || p.hist_bins > (1 << 22)) throw Error("blockhash: hist_bins must be in [2, 2^22]");
   const int lnr = std::max(1, static_cast<int>(std::lround(lnN)));
@@ -111,14 +119,15 @@ void derive_params(const BlockHashBuildParams& p, Structure& s) {
     }
     return;
   }
-  in.L = p.L > 0 ? p.L : 4;
+  in.L = in.cell_aligned ? 1 : (p.L > 0 ? p.L : 4);
   // P: bisection on the median points per occupied cell (table 0, guarded thresholds), over a
   // stride sample of the Hilbert-sorted points (spatially even) of at most 2^18 points.
   const std::size_t stride = std::max<std::size_t>(1, s.n_points >> 18);
+  if (in.cell_aligned) measure_axis_spread(s, stride);
   if (p.P > 0) {
     in.P = p.P;
   } else {
-    const double target = p.target_cell_points;
+    const double target = p.target_cell_points > 0 ? p.target_cell_points : (in.cell_aligned ? 24.0 : 100.0);
     auto f = [&](int P) { return median_cell_points(s, p, P, stride); };
     int lo = 1, hi = BHCL_BH_MAX_P;
     if (f(hi) > target) {
@@ -140,6 +149,8 @@ void derive_params(const BlockHashBuildParams& p, Structure& s) {
   }
   if (p.B > 0) {
     in.B = p.B;
+  } else if (in.cell_aligned) {
+    in.B = 1;  // a bucket is a run of blocks, not B references: set to the longest run after the build
   } else {
     // B: the percentile of distinct blocks per occupied cell of table 0, all points.
     std::vector<float> pts = sorted_points(s);

@@ -188,4 +188,192 @@ void reference_query(const Structure& s, const float* queries, std::size_t n,
   for (auto& th : pool) th.join();
 }
 
+
+namespace {
+
+// bh_axis_cells of kernels/blockhash_cells_knn.cl: [0] home, [1] near side, [2] second near
+// side, [3] far side; absent cells have distance +inf.
+void axis_cells(const float* thr, std::uint32_t P, float t, std::uint32_t probes,
+                std::uint32_t* c, float* dd) {
+  std::uint32_t h = hash_coord(thr, P, t);
+  for (int i = 0; i < 4; ++i) {
+    c[i] = h;
+    dd[i] = INFINITY;
+  }
+  dd[0] = 0.0f;
+  if (probes == 0) return;
+  float lo = h > 0 ? thr[h - 1] : -INFINITY;
+  float hi = h < P ? thr[h] : INFINITY;
+  float dlo = t - lo, dhi = hi - t;
+  bool lower = dlo < dhi;
+  bool has_lo = std::isfinite(dlo), has_hi = std::isfinite(dhi);
+  if (lower ? has_lo : has_hi) {
+    c[1] = lower ? h - 1 : h + 1;
+    dd[1] = lower ? dlo * dlo : dhi * dhi;
+  }
+  if (probes < 2) return;
+  if (lower && has_lo && h >= 2) {
+    float e = t - thr[h - 2];
+    c[2] = h - 2;
+    dd[2] = e * e;
+  } else if (!lower && has_hi && h + 1 < P && std::isfinite(thr[h + 1])) {
+    float e = thr[h + 1] - t;
+    c[2] = h + 2;
+    dd[2] = e * e;
+  }
+  if (lower ? has_hi : has_lo) {
+    c[3] = lower ? h + 1 : h - 1;
+    dd[3] = lower ? dhi * dhi : dlo * dlo;
+  }
+}
+
+}  // namespace
+
+// Blocks of a run sorted at a time (BHCL_BH_CHUNK of blockhash_cells_knn.cl).
+constexpr std::uint32_t kCellChunk = 16;
+
+void reference_query_cells(const Structure& s, const float* queries, std::size_t n,
+                           const SearchParams& params, std::uint32_t probes, KnnResult& out,
+                           std::vector<std::int32_t>* examined, unsigned threads) {
+  const std::uint32_t k = static_cast<std::uint32_t>(params.k);
+  const std::uint32_t budget = BlockHashIndex::budget(params);
+  const float r2 = std::isinf(params.max_radius) ? INFINITY : params.max_radius * params.max_radius;
+  const std::uint32_t P = static_cast<std::uint32_t>(s.info.P);
+  const std::uint32_t side = P + 1;
+  const int bits = s.cell_bits();
+  const std::uint32_t seeds = cells_seed_side(s.info.hilbert_seed, params.k);
+  const long nb = static_cast<long>(s.blocks.size());
+  out.resize(n, params.k);
+  if (examined) examined->assign(n, 0);
+  if (threads == 0) threads = std::max(1u, std::thread::hardware_concurrency());
+
+  auto work = [&](std::size_t begin, std::size_t end) {
+    std::vector<float> bd(k);
+    std::vector<std::int32_t> bi(k);
+    std::vector<std::pair<float, long>> order;
+    std::vector<std::pair<float, std::uint32_t>> cellv;
+    for (std::size_t qi = begin; qi < end; ++qi) {
+      const float* q = queries + 3 * qi;
+      if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2])) continue;
+      std::fill(bd.begin(), bd.end(), INFINITY);
+      std::fill(bi.begin(), bi.end(), BHCL_EMPTY_SLOT_ID);
+      std::uint32_t found = 0, ex = 0;
+      auto bound = [&] { return bd[k - 1]; };
+      auto scan = [&](long b) {
+        const bhcl_bh_block& blk = s.blocks[b];
+        const std::int32_t cnt = s.boxes[b].count;
+        for (std::int32_t j = 0; j < cnt; ++j) {
+          const float p[3] = {blk.x[j], blk.y[j], blk.z[j]};
+          float d = reference::dist2_float(p, q);
+          std::int32_t id = blk.id[j];
+          if (!(d <= r2)) continue;
+          if (!reference::ranks_before(d, id, bd[k - 1], bi[k - 1])) continue;
+          reference::topk_insert_at(bd.data(), bi.data(), std::min(found, k - 1), d, id);
+          found = std::min(found + 1, k);
+        }
+        ex += static_cast<std::uint32_t>(cnt);
+      };
+      std::uint32_t c[3][4];
+      float dd[3][4];
+      for (int d = 0; d < 3; ++d) axis_cells(s.thr(0, d), P, q[d], probes, c[d], dd[d]);
+      std::vector<std::pair<long, long>> runs;  // entered, in order
+      bool stop = false;
+      for (int phase = 1; phase <= 2 && !stop; ++phase) {
+        const std::uint32_t span = phase == 1 ? 2 : 4;
+        const float bound0 = std::min(r2, bound());
+        if (phase == 2) {
+          if (probes < 2) break;
+          float nearest = INFINITY;
+          for (int d = 0; d < 3; ++d) nearest = std::min(nearest, std::min(dd[d][2], dd[d][3]));
+          if (!(nearest <= bound0)) break;
+        }
+        cellv.clear();
+        for (std::uint32_t a = 0; a < span; ++a)
+          for (std::uint32_t b = 0; b < span; ++b)
+            for (std::uint32_t e = 0; e < span; ++e) {
+              if (phase == 2 && a < 2 && b < 2 && e < 2) continue;
+              float cd = dd[0][a] + dd[1][b];
+              cd = cd + dd[2][e];
+              if (!(cd < INFINITY) || cd > bound0) continue;
+              cellv.emplace_back(cd, (c[0][a] * side + c[1][b]) * side + c[2][e]);
+            }
+        std::stable_sort(cellv.begin(), cellv.end(), [](const auto& x, const auto& y) { return x.first < y.first; });
+        for (const auto& [cd, key] : cellv) {
+          if (stop || cd > bound()) break;
+          if (ex >= budget) {
+            stop = true;
+            break;
+          }
+          long bk = s.find_bucket(0, key);
+          if (bk < 0) continue;
+          const bhcl_bh_bucket& bucket = s.buckets[bk];
+          runs.emplace_back(long(bucket.first_ref), long(bucket.first_ref) + long(bucket.n_refs));
+          // Chunks of kCellChunk blocks, each in order of (box distance, block).
+          for (std::uint32_t r0 = 0; r0 < bucket.n_refs && !stop; r0 += kCellChunk) {
+            std::uint32_t r1 = std::min(bucket.n_refs, r0 + kCellChunk);
+            float bnd = std::min(r2, bound());
+            order.clear();
+            for (std::uint32_t r = r0; r < r1; ++r) {
+              long blk = long(bucket.first_ref) + long(r);
+              float d = box_dist2(s.boxes[blk], q);
+              if (d > bnd) continue;
+              order.emplace_back(d, blk);
+            }
+            std::stable_sort(order.begin(), order.end(),
+                             [](const auto& x, const auto& y) { return x.first < y.first; });
+            for (const auto& [d, blk] : order) {
+              if (d > r2 || d > bound()) break;
+              if (ex >= budget) {
+                stop = true;
+                break;
+              }
+              scan(blk);
+            }
+          }
+        }
+      }
+      if (found < k && seeds > 0) {
+        std::uint64_t key = hilbert_encode(c[0][0], c[1][0], c[2][0], bits);
+        long j = long(std::upper_bound(s.block_keys.begin(), s.block_keys.end(), key) - s.block_keys.begin()) - 1;
+        if (j < 0) j = 0;
+        long wa = j - long(seeds), we = j + long(seeds);
+        if (wa < 0) {
+          we -= wa;
+          wa = 0;
+        }
+        if (we > nb - 1) {
+          wa -= we - (nb - 1);
+          we = nb - 1;
+          if (wa < 0) wa = 0;
+        }
+        for (long b = wa; b <= we; ++b) {
+          float d = box_dist2(s.boxes[b], q);
+          if (d > r2 || d > bound()) continue;
+          bool dup = false;
+          for (const auto& [f, e] : runs) dup = dup || (b >= f && b < e);
+          if (dup) continue;
+          scan(b);
+        }
+      }
+      std::size_t row = qi * k;
+      std::int32_t count = 0;
+      for (std::uint32_t j = 0; j < k; ++j) {
+        if (bi[j] == BHCL_EMPTY_SLOT_ID) continue;
+        out.ids[row + j] = bi[j];
+        out.dist2[row + j] = bd[j];
+        ++count;
+      }
+      out.counts[qi] = count;
+      if (examined) (*examined)[qi] = static_cast<std::int32_t>(ex);
+    }
+  };
+  std::vector<std::thread> pool;
+  std::size_t per = (n + threads - 1) / std::max(1u, threads);
+  for (unsigned t = 0; t < threads && per; ++t) {
+    std::size_t b = t * per, e = std::min(n, b + per);
+    if (b < e) pool.emplace_back(work, b, e);
+  }
+  for (auto& th : pool) th.join();
+}
+
 }  // namespace bhcl::blockhash

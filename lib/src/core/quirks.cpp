@@ -22,6 +22,9 @@ Quirks quirks_for(const DeviceInfo& info) {
   } else {
     q.description = "none known";
   }
+  // CPU devices (PoCL's pthread device, Intel's CPU runtime) vectorise explicit float16 scans.
+  q.vector_scan = (info.type & CL_DEVICE_TYPE_CPU) != 0;
+  if (q.vector_scan) q.description += "; cpu: float16 block scans";
   if (info.max_work_group_size && q.default_local_size > info.max_work_group_size)
     q.default_local_size = info.max_work_group_size;
   return q;

@@ -1,0 +1,524 @@
+// perf_harness: block hashing against the exact baselines, measured so that 10 % shows on a
+// noisy machine (issue 15, ../shared/PERF_STUDY.md "How it was measured").
+//
+// On a shared machine absolute queries/s move up to 3x between runs, but load that lasts seconds
+// hits runs made back to back alike. So for each data set every structure is built once (the
+// kd-tree kernel index, FLANN, each block-hash build), every (method, variant, k) is warmed up
+// (kernel compiles reported apart), and then, for R rounds, every variant runs once per query
+// order and k, in an order shuffled per round (baselines included, so no variant always follows
+// the same neighbour). A variant's figure is the median over rounds of t_kd / t_variant and
+// t_flann / t_variant, with the baselines' times from the same round, order and k: a ratio, not
+// an absolute rate. Times are QueryStats::query_s: kernel event time on the device, FLANN's own
+// search time on the host; uploads, downloads and compiles are excluded.
+//
+// Query orders: "random" is the set's own order, "sorted" the same queries sorted once on the
+// host in the library's 3D Hilbert order (what SearchParams::sort_queries does). Every method gets
+// the same array with sort_queries = false, so no method sorts on its own clock.
+// Accuracy comes from the first round's results against the kd-tree kernel's answer (exact, equal
+// to FLANN's: checked once, the differing rows are counted and printed).
+#include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <fstream>
+#include <map>
+#include <memory>
+#include <numeric>
+#include <random>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "bench_util.hpp"
+#include "blockhash_cl/blockhash_cl.hpp"
+#include "blockhash_cl/datasets.hpp"
+#include "core/query_order.hpp"  // detail::hilbert_query_order: the order sort_queries uses
+
+using namespace bhcl;
+
+namespace {
+
+struct BuildSpec { std::string name; BlockHashBuildParams params; };
+struct DefineSpec { std::string name, defines; };
+
+struct Options {
+  std::vector<std::string> data = {"cornell", "uniform", "autzen"};
+  std::size_t N = 1000000, queries = 100000;
+  std::vector<int> ks = {10, 50};
+  int rounds = 5;
+  std::vector<std::string> orders = {"random", "sorted"};
+  std::vector<float> As = {1, 1.5f, 2, 3, 4, 6, 8};
+  std::vector<int> probes = {-1};
+  std::vector<BuildSpec> builds = {{"auto", {}}};
+  std::vector<DefineSpec> defines = {{"base", ""}};
+  std::string baseline_defines, csv, device, data_dir;
+  int threads = 0;
+  double recall_target = 0.95;
+  unsigned long long seed = 1;
+};
+
+const char* kUsage =
+    "usage: perf_harness [--data cornell,uniform,autzen] [--N 1e6] [--queries 100000] [--k 10,50]\n"
+    "  [--rounds 5] [--order random,sorted] [--A 1,1.5,2,3,4,6,8] [--probes -1,0,1]\n"
+    "  [--bh-build \"name[:key=value,...];...\"] [--defines \"name:-DFOO=1 -DBAR;...\"]\n"
+    "  [--baseline-defines \"-DFOO=1\"] [--csv out.csv] [--device SPEC] [--threads T]\n"
+    "  [--recall-target 0.95] [--seed S] [--data-dir DIR]\n"
+    "--bh-build keys: preset L P B X target_cell_points cell_aligned hilbert_seed neighbour_probes\n"
+    "  box_order box_skip direct_addressing guard_thresholds keep_top_count b_percentile design_A\n"
+    "  design_k hist_bins hilbert_bits seed; a bare name is a preset (auto, paper).\n";
+
+// Bad options: one line, exit status 2.
+[[noreturn]] void bad(const std::string& why) {
+  std::fprintf(stderr, "perf_harness: %s (--help for usage)\n", why.c_str());
+  std::exit(2);
+}
+
+std::vector<std::string> split(const std::string& s, char sep) {
+  std::vector<std::string> out;
+  std::stringstream ss(s);
+  for (std::string item; std::getline(ss, item, sep);)
+    if (!item.empty()) out.push_back(item);
+  return out;
+}
+
+double num(const std::string& s, const std::string& what) {
+  char* end = nullptr;
+  double v = std::strtod(s.c_str(), &end);
+  if (s.empty() || *end || !std::isfinite(v)) bad(what + ": '" + s + "' is not a number");
+  return v;
+}
+
+long long integer(const std::string& s, const std::string& what, double lo, double hi) {
+  double v = num(s, what);  // through strtod, so that 1e6 is an integer too
+  if (v != std::floor(v) || v < lo || v > hi)
+    bad(what + ": '" + s + "' is not an integer in [" + std::to_string((long long)lo) + ", " +
+        std::to_string((long long)hi) + "]");
+  return static_cast<long long>(v);
+}
+
+// One key of a --bh-build spec. Range checks beyond "an integer" are the index's (exit 1 then).
+void set_key(BlockHashBuildParams& p, const std::string& key, const std::string& v, const std::string& what) {
+  auto i = [&] { return static_cast<int>(integer(v, what + " " + key, -1, 2147483647.0)); };
+  if (key == "preset") {
+    try { p.preset = BlockHashBuildParams::parse_preset(v); } catch (const Error& e) { bad(what + ": " + e.what()); }
+  } else if (key == "L") p.L = i();
+  else if (key == "P") p.P = i();
+  else if (key == "B") p.B = i();
+  else if (key == "X") p.X = i();
+  else if (key == "target_cell_points") p.target_cell_points = num(v, what + " " + key);
+  else if (key == "cell_aligned") p.cell_aligned = i();
+  else if (key == "hilbert_seed") p.hilbert_seed = i();
+  else if (key == "neighbour_probes") p.neighbour_probes = i();
+  else if (key == "box_order") p.box_order = i();
+  else if (key == "box_skip") p.box_skip = i();
+  else if (key == "direct_addressing") p.direct_addressing = i();
+  else if (key == "guard_thresholds") p.guard_thresholds = i();
+  else if (key == "keep_top_count") p.keep_top_count = i();
+  else if (key == "b_percentile") p.b_percentile = num(v, what + " " + key);
+  else if (key == "design_A") p.design_A = num(v, what + " " + key);
+  else if (key == "design_k") p.design_k = i();
+  else if (key == "hist_bins") p.hist_bins = i();
+  else if (key == "hilbert_bits") p.hilbert_bits = i();
+  else if (key == "seed") p.seed = static_cast<std::uint64_t>(integer(v, what + " seed", 0, 9.0e18));
+  else bad(what + ": unknown key '" + key + "'");
+}
+
+// Names appear in variant names (build/A/probes/defines) and CSV cells.
+std::string check_name(const std::string& name, const std::string& what) {
+  if (name.empty() || name.find_first_of("/,\" ") != std::string::npos)
+    bad(what + ": name '" + name + "' must be non-empty, without / , \" or spaces");
+  return name;
+}
+
+// "name:key=value,...;name2" -> builds. A bare name is a preset's defaults.
+std::vector<BuildSpec> parse_builds(const std::string& s) {
+  std::vector<BuildSpec> out;
+  for (const auto& spec : split(s, ';')) {
+    const auto colon = spec.find(':');
+    BuildSpec b;
+    b.name = check_name(spec.substr(0, colon), "--bh-build");
+    if (colon == std::string::npos) set_key(b.params, "preset", b.name, "--bh-build " + b.name);
+    else
+      for (const auto& kv : split(spec.substr(colon + 1), ',')) {
+        const auto eq = kv.find('=');
+        if (eq == std::string::npos) bad("--bh-build " + b.name + ": '" + kv + "' is not key=value");
+        set_key(b.params, kv.substr(0, eq), kv.substr(eq + 1), "--bh-build " + b.name);
+      }
+    for (const auto& o : out)
+      if (o.name == b.name) bad("--bh-build: name '" + b.name + "' given twice");
+    out.push_back(b);
+  }
+  if (out.empty()) bad("--bh-build: no build");
+  return out;
+}
+
+// Every token must be -DNAME[=VALUE] (the library checks again; this fails before any build).
+std::string check_defines(const std::string& d, const std::string& what) {
+  std::istringstream is(d);
+  for (std::string tok; is >> tok;)
+    if (tok.size() < 3 || tok.compare(0, 2, "-D") != 0) bad(what + ": '" + tok + "' is not -DNAME[=VALUE]");
+  return d;
+}
+
+std::vector<DefineSpec> parse_defines(const std::string& s) {
+  std::vector<DefineSpec> out;
+  for (const auto& spec : split(s, ';')) {
+    const auto colon = spec.find(':');
+    if (colon == std::string::npos) bad("--defines: '" + spec + "' is not name:-D...");
+    DefineSpec d{check_name(spec.substr(0, colon), "--defines"), ""};
+    d.defines = check_defines(spec.substr(colon + 1), "--defines " + d.name);
+    for (const auto& o : out)
+      if (o.name == d.name) bad("--defines: name '" + d.name + "' given twice");
+    out.push_back(d);
+  }
+  if (out.empty()) bad("--defines: no variant");
+  return out;
+}
+
+Options parse(int argc, char** argv) {
+  Options o;
+  const char* env_dir = std::getenv("BHCL_DATA_DIR");
+  o.data_dir = env_dir ? env_dir : BHCL_DEFAULT_DATA_DIR;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    if (a == "--help" || a == "-h") { std::fputs(kUsage, stdout); std::exit(0); }
+    static const char* known[] = {"--data", "--N", "--queries", "--k", "--rounds", "--order", "--A",
+                                  "--probes", "--bh-build", "--defines", "--baseline-defines", "--csv",
+                                  "--device", "--threads", "--recall-target", "--seed", "--data-dir"};
+    if (std::find(std::begin(known), std::end(known), a) == std::end(known)) bad("unknown option " + a);
+    if (i + 1 >= argc) bad("option " + a + " needs a value");
+    const std::string v = argv[++i];
+    auto list = [&](double lo, double hi) {
+      std::vector<long long> out;
+      for (const auto& x : split(v, ',')) out.push_back(integer(x, a, lo, hi));
+      if (out.empty()) bad(a + ": empty list");
+      return out;
+    };
+    if (a == "--data") o.data = split(v, ',');
+    else if (a == "--N") o.N = integer(v, a, 1, 2147483646.0);
+    else if (a == "--queries") o.queries = integer(v, a, 1, 1e9);
+    else if (a == "--k") { o.ks.clear(); for (long long k : list(1, kMaxK)) o.ks.push_back(int(k)); }
+    else if (a == "--rounds") o.rounds = int(integer(v, a, 1, 1000));
+    else if (a == "--order") o.orders = split(v, ',');
+    else if (a == "--A") {
+      o.As.clear();
+      for (const auto& x : split(v, ',')) o.As.push_back(float(num(x, a)));
+      if (o.As.empty() || *std::min_element(o.As.begin(), o.As.end()) <= 0) bad("--A: values must be > 0");
+    } else if (a == "--probes") { o.probes.clear(); for (long long p : list(-1, 2)) o.probes.push_back(int(p)); }
+    else if (a == "--bh-build") o.builds = parse_builds(v);
+    else if (a == "--defines") o.defines = parse_defines(v);
+    else if (a == "--baseline-defines") o.baseline_defines = check_defines(v, a);
+    else if (a == "--csv") o.csv = v;
+    else if (a == "--device") o.device = v;
+    else if (a == "--threads") o.threads = int(integer(v, a, 1, 4096));
+    else if (a == "--recall-target") {
+      o.recall_target = num(v, a);
+      if (o.recall_target <= 0 || o.recall_target > 1) bad("--recall-target must be in (0, 1]");
+    } else if (a == "--seed") o.seed = integer(v, a, 0, 9.0e18);
+    else if (a == "--data-dir") o.data_dir = v;
+  }
+  if (o.data.empty()) bad("--data: no data set");
+  for (const auto& d : o.data)  // file sets are bench::load_set's; the rest must be generated ones
+    if (d != "bunny" && d != "dragon" && d != "autzen") try {
+        datasets::by_name(d, 1, 1);
+      } catch (const std::exception& e) {
+        bad("--data: " + std::string(e.what()) + "; file sets: bunny, dragon, autzen");
+      }
+  if (o.orders.empty()) bad("--order: no order");
+  for (const auto& ord : o.orders)
+    if (ord != "random" && ord != "sorted") bad("--order: '" + ord + "' is not random or sorted");
+  return o;
+}
+
+// One timed configuration. Baselines have A = 0 and an empty build.
+struct Variant {
+  std::string name, method, build, defines_name;
+  const Index* index = nullptr;
+  SearchParams params;  // k set per run
+  double compile_s = 0;
+};
+
+// Per (order, k, variant): the round times and the first round's accuracy.
+struct Cell {
+  std::vector<double> t;
+  Accuracy acc;
+};
+
+std::string fmt_A(float A) {
+  char b[32];
+  std::snprintf(b, sizeof b, "%g", A);
+  return b;
+}
+
+std::string probes_name(int p) { return p < 0 ? "def" : std::to_string(p); }
+
+// Rows that differ (ids, distances bit for bit, or counts) between two results of one shape.
+std::size_t differing_rows(const KnnResult& a, const KnnResult& b) {
+  std::size_t rows = 0;
+  for (std::size_t q = 0; q < a.n; ++q) {
+    bool same = a.counts[q] == b.counts[q];
+    for (int j = 0; same && j < a.k; ++j)
+      same = a.id(q, j) == b.id(q, j) && std::memcmp(&a.dist2[q * a.k + j], &b.dist2[q * b.k + j], 4) == 0;
+    rows += !same;
+  }
+  return rows;
+}
+
+void run_set(const Options& o, const std::shared_ptr<Runtime>& rt, const std::string& set, int threads,
+             std::ofstream* csv) {
+  std::vector<float> pts, qs;
+  if (!bench::load_set(o.data_dir, set, o.N, o.queries, pts, qs)) return;
+  const std::size_t N = pts.size() / 3, n = qs.size() / 3;
+  std::printf("\n# %s: N = %zu points, n = %zu queries\n", set.c_str(), N, n);
+  if (N < o.N) std::printf("# %s: the file holds fewer than --N %zu points: all of them used\n", set.c_str(), o.N);
+
+  // Every structure once.
+  KdTreeIndex kd(rt, pts.data(), N);
+  std::printf("# build kdtree  %7.3f s\n", kd.build_seconds());
+  FlannParams fp;
+  fp.threads = threads;
+  FlannIndex fl(rt, pts.data(), N, fp);
+  std::printf("# build flann   %7.3f s (%d threads)\n", fl.build_seconds(), fl.threads());
+  std::vector<std::unique_ptr<BlockHashIndex>> bh;
+  for (const auto& b : o.builds) {
+    bh.push_back(std::make_unique<BlockHashIndex>(rt, pts.data(), N, b.params));
+    std::printf("# build %-7s %7.3f s  %s\n", b.name.c_str(), bh.back()->build_seconds(),
+                bh.back()->info().summary().c_str());
+  }
+  std::fflush(stdout);
+
+  // The query arrays, one per order, and the permutation that made the sorted one.
+  std::vector<std::vector<float>> order_q;
+  std::vector<std::vector<std::size_t>> order_perm;
+  for (const auto& ord : o.orders) {
+    std::vector<std::size_t> perm(n);
+    std::iota(perm.begin(), perm.end(), 0);
+    if (ord == "sorted") perm = detail::hilbert_query_order(qs.data(), n);
+    std::vector<float> q(3 * n);
+    for (std::size_t i = 0; i < n; ++i) std::copy_n(&qs[3 * perm[i]], 3, &q[3 * i]);
+    order_q.push_back(std::move(q));
+    order_perm.push_back(std::move(perm));
+  }
+
+  // Variants: the two baselines first (their times are the ratios' numerators), then block hashing
+  // grouped by (build, defines, probes) with A innermost, as the tables list them.
+  std::vector<Variant> vars;
+  auto base = [&](const std::string& name, const Index* idx, const std::string& defines) {
+    Variant v;
+    v.name = v.method = name;
+    v.index = idx;
+    v.params.kernel_defines = defines;
+    v.defines_name = defines.empty() ? "" : "baseline";
+    vars.push_back(v);
+  };
+  base("kdtree", &kd, o.baseline_defines);
+  base("flann", &fl, "");
+  for (std::size_t bi = 0; bi < o.builds.size(); ++bi)
+    for (const auto& d : o.defines)
+      for (int pr : o.probes)
+        for (float A : o.As) {
+          Variant v;
+          v.method = "blockhash";
+          v.build = o.builds[bi].name;
+          v.defines_name = d.name;
+          v.index = bh[bi].get();
+          v.params.A = A;
+          v.params.neighbour_probes = pr;
+          v.params.kernel_defines = d.defines;
+          v.name = v.build + "/A" + fmt_A(A) + "/p" + probes_name(pr) + "/" + d.name;
+          vars.push_back(v);
+        }
+  for (auto& v : vars) v.params.sort_queries = false;  // each order's array is dispatched as it is
+
+  // Warm-up: kernel compiles (PoCL compiles at the first launch) never land in a timed run.
+  // Reported per structure and defines variant (A and probes share a kernel).
+  std::vector<std::pair<std::string, double>> compiles;
+  for (auto& v : vars)
+    for (int k : o.ks) {
+      SearchParams p = v.params;
+      p.k = k;
+      v.compile_s += v.index->warm_up(p);
+    }
+  for (const auto& v : vars) {
+    const std::string label = v.method == "blockhash" ? v.build + "/" + v.defines_name : v.name;
+    if (compiles.empty() || compiles.back().first != label) compiles.emplace_back(label, 0.0);
+    compiles.back().second += v.compile_s;
+  }
+  std::printf("# compile (warm-up) s:");
+  for (const auto& c : compiles) std::printf(" %s %.2f", c.first.c_str(), c.second);
+  std::printf("\n");
+  std::fflush(stdout);
+
+  // Truth: the kd-tree kernel without the baseline defines (they are what is being explored), at
+  // the largest k; FLANN checked against it once.
+  const int kmax = *std::max_element(o.ks.begin(), o.ks.end());
+  SearchParams tp;
+  tp.k = kmax;
+  tp.sort_queries = false;
+  KnnResult truth_all, flann_all;
+  if (double c = kd.warm_up(tp); c > 0) std::printf("# compile (truth: kdtree without defines) s: %.2f\n", c);
+  kd.query(qs.data(), n, tp, truth_all);
+  fl.query(qs.data(), n, tp, flann_all);
+  std::printf("# flann vs kdtree kernel (k = %d): %zu of %zu rows differ\n", kmax,
+              differing_rows(truth_all, flann_all), n);
+  flann_all = KnnResult();
+  // truth[order][k]: the leading columns (exact for a smaller k under the tie rule), rows permuted.
+  std::vector<std::vector<KnnResult>> truth(o.orders.size());
+  for (std::size_t oi = 0; oi < o.orders.size(); ++oi)
+    for (int k : o.ks) {
+      KnnResult lead = truth_all.leading_columns(k), t;
+      t.resize(n, k);
+      for (std::size_t i = 0; i < n; ++i) {
+        const std::size_t src = order_perm[oi][i];
+        std::copy_n(&lead.ids[src * k], k, &t.ids[i * k]);
+        std::copy_n(&lead.dist2[src * k], k, &t.dist2[i * k]);
+        t.counts[i] = lead.counts[src];
+      }
+      truth[oi].push_back(std::move(t));
+    }
+  truth_all = KnnResult();
+
+  // Rounds. cells[oi][ki][vi].
+  std::vector<std::vector<std::vector<Cell>>> cells(
+      o.orders.size(), std::vector<std::vector<Cell>>(o.ks.size(), std::vector<Cell>(vars.size())));
+  std::mt19937_64 rng(o.seed);
+  const bool tty = isatty(STDERR_FILENO);
+  KnnResult res;
+  double stray_compile = 0;
+  for (int r = 0; r < o.rounds; ++r) {
+    if (tty) std::fprintf(stderr, "\rperf_harness: %s round %d/%d ", set.c_str(), r + 1, o.rounds);
+    for (std::size_t oi = 0; oi < o.orders.size(); ++oi)
+      for (std::size_t ki = 0; ki < o.ks.size(); ++ki) {
+        std::vector<std::size_t> run(vars.size());
+        std::iota(run.begin(), run.end(), 0);
+        std::shuffle(run.begin(), run.end(), rng);
+        for (std::size_t vi : run) {
+          SearchParams p = vars[vi].params;
+          p.k = o.ks[ki];
+          QueryStats st = vars[vi].index->query(order_q[oi].data(), n, p, res);
+          stray_compile += st.compile_s;
+          cells[oi][ki][vi].t.push_back(st.query_s);
+          if (r == 0) cells[oi][ki][vi].acc = evaluate_accuracy(res, truth[oi][ki]);
+        }
+      }
+  }
+  if (tty) std::fprintf(stderr, "\n");
+  if (stray_compile > 0)
+    std::printf("# warning: %.2f s of compiles happened in timed runs (not in query_s)\n", stray_compile);
+
+  // Report per (k, order).
+  std::size_t w = 8;
+  for (const auto& v : vars) w = std::max(w, v.name.size());
+  for (std::size_t ki = 0; ki < o.ks.size(); ++ki)
+    for (std::size_t oi = 0; oi < o.orders.size(); ++oi) {
+      const auto& row = cells[oi][ki];
+      const int k = o.ks[ki];
+      std::printf("\n## %s N=%zu n=%zu k=%d order=%s threads=%d rounds=%d (ratios: median over rounds "
+                  "of t_base / t_variant)\n",
+                  set.c_str(), N, n, k, o.orders[oi].c_str(), threads, o.rounds);
+      std::printf("%-*s %10s %7s %8s %13s %7s %7s %7s %8s\n", int(w), "variant", "q/s", "vs kd",
+                  "vs flann", "vs kd min-max", "recall", "FN", "maxdil", "meandil");
+      // Per-round ratios against the same round's baselines (vars[0] = kdtree, vars[1] = flann).
+      std::vector<double> med_kd(vars.size()), med_fl(vars.size());
+      for (std::size_t vi = 0; vi < vars.size(); ++vi) {
+        const Cell& c = row[vi];
+        std::vector<double> rk, rf, qps;
+        for (int r = 0; r < o.rounds; ++r) {
+          rk.push_back(row[0].t[r] / c.t[r]);
+          rf.push_back(row[1].t[r] / c.t[r]);
+          qps.push_back(double(n) / c.t[r]);
+        }
+        med_kd[vi] = bench::median(rk);
+        med_fl[vi] = bench::median(rf);
+        const auto mk = std::minmax_element(rk.begin(), rk.end());
+        const auto mf = std::minmax_element(rf.begin(), rf.end());
+        char range[40];
+        std::snprintf(range, sizeof range, "%.2f-%.2f", *mk.first, *mk.second);
+        std::printf("%-*s %10.0f %7.2f %8.2f %13s %7.4f %7.4f %7.3f %8.4f\n", int(w), vars[vi].name.c_str(),
+                    bench::median(qps), med_kd[vi], med_fl[vi], range, c.acc.recall,
+                    c.acc.false_negative_rate, c.acc.max_dilation, c.acc.mean_dilation);
+        if (csv) {
+          const Variant& v = vars[vi];
+          const bool bhv = v.method == "blockhash";
+          const std::string probes = bhv ? std::to_string(v.params.neighbour_probes) : "";
+          *csv << set << ',' << N << ',' << n << ',' << k << ',' << o.orders[oi] << ',' << v.name << ','
+               << v.method << ',' << v.build << ',' << (bhv ? fmt_A(v.params.A) : "") << ',' << probes << ','
+               << v.defines_name << ",\"" << v.params.kernel_defines << "\",\""
+               << (v.method == "flann" ? "host" : rt->info().device_name) << "\"," << threads << ','
+               << o.rounds << ',' << v.index->build_seconds() << ','
+               << v.compile_s << ',' << bench::median(qps) << ',' << med_kd[vi] << ',' << med_fl[vi] << ','
+               << *mk.first << ',' << *mk.second << ',' << *mf.first << ',' << *mf.second << ','
+               << c.acc.recall << ',' << c.acc.false_negative_rate << ',' << c.acc.max_dilation << ','
+               << c.acc.mean_dilation << '\n';
+        }
+      }
+      std::printf("kd-tree kernel vs FLANN: %.2f (median of per-round t_flann / t_kd)\n", med_fl[0]);
+      // Per (build, defines, probes) group (contiguous in vars): the smallest A reaching the target.
+      for (std::size_t g = 2; g < vars.size();) {
+        std::size_t end = g, best = 0;
+        double top = -1;
+        float top_A = 0;
+        for (; end < vars.size() && vars[end].build == vars[g].build && vars[end].defines_name == vars[g].defines_name &&
+               vars[end].params.neighbour_probes == vars[g].params.neighbour_probes;
+             ++end) {
+          const double rec = row[end].acc.recall;
+          if (rec >= o.recall_target && (!best || vars[end].params.A < vars[best].params.A)) best = end;
+          if (rec > top) top = rec, top_A = vars[end].params.A;
+        }
+        const Variant& v = vars[g];
+        if (best)
+          std::printf("smallest A with recall >= %g: %s ratio_kd %.2f ratio_flann %.2f\n", o.recall_target,
+                      vars[best].name.c_str(), med_kd[best], med_fl[best]);
+        else
+          std::printf("smallest A with recall >= %g: %s/A*/p%s/%s none reaches the target (best recall %.4f at A%s)\n",
+                      o.recall_target, v.build.c_str(),
+                      probes_name(v.params.neighbour_probes).c_str(),
+                      v.defines_name.c_str(), top, fmt_A(top_A).c_str());
+        g = end;
+      }
+    }
+  if (csv) csv->flush();
+  std::fflush(stdout);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Options o = parse(argc, argv);
+  // FLANN and PoCL on the same thread count. PoCL reads POCL_MAX_PTHREAD_COUNT once, when the
+  // device opens: set it from --threads when it is unset, warn when the two differ.
+  const char* env = std::getenv("POCL_MAX_PTHREAD_COUNT");
+  if (!o.threads) o.threads = env && std::atoi(env) > 0 ? std::atoi(env) : int(std::thread::hardware_concurrency());
+  if (!env) setenv("POCL_MAX_PTHREAD_COUNT", std::to_string(o.threads).c_str(), 1);
+  else if (std::atoi(env) != o.threads)
+    std::fprintf(stderr, "perf_harness: warning: POCL_MAX_PTHREAD_COUNT=%s but --threads %d\n", env, o.threads);
+#ifdef BHCL_BUILD_TREE_POCL_CACHE
+  setenv("POCL_CACHE_DIR", BHCL_BUILD_TREE_POCL_CACHE, 0);
+#endif
+  try {
+    auto rt = std::make_shared<Runtime>(o.device);
+    std::printf("# perf_harness: device %s; FLANN threads %d, POCL_MAX_PTHREAD_COUNT=%s; seed %llu\n",
+                rt->info().summary().c_str(), o.threads, std::getenv("POCL_MAX_PTHREAD_COUNT"), o.seed);
+    if (!o.baseline_defines.empty()) std::printf("# kdtree kernel defines: %s\n", o.baseline_defines.c_str());
+    for (const auto& d : o.defines)
+      if (!d.defines.empty()) std::printf("# defines %s: %s\n", d.name.c_str(), d.defines.c_str());
+    std::unique_ptr<std::ofstream> csv;
+    if (!o.csv.empty()) {
+      csv = std::make_unique<std::ofstream>(o.csv, std::ios::trunc);
+      if (!*csv) throw Error(o.csv + ": cannot open for writing");
+      *csv << "data,N,n,k,order,variant,method,build,A,probes,defines_name,defines,device,threads,rounds,"
+              "build_s,compile_s,qps_median,ratio_kd_median,ratio_flann_median,ratio_kd_min,ratio_kd_max,"
+              "ratio_flann_min,ratio_flann_max,recall,fn_rate,max_dilation,mean_dilation\n";
+    }
+    for (const auto& set : o.data) run_set(o, rt, set, o.threads, csv.get());
+    if (csv) std::printf("# rows written to %s\n", o.csv.c_str());
+  } catch (const std::exception& e) {  // bhcl::Error and the rest (bad_alloc, ...)
+    std::fprintf(stderr, "perf_harness: error: %s\n", e.what());
+    return 1;
+  }
+  return 0;
+}

@@ -1,0 +1,287 @@
+/* Block hashing with cell-aligned blocks (the auto preset's layout): approximate kNN, one
+ * work-item per query.
+ *
+ * The build orders the points by the Hilbert order of their cell in the primary table (then by
+ * their own Hilbert key) and cuts blocks that never cross a cell, so the bucket of a cell is a run
+ * of blocks holding exactly its points: first_ref is the run's first block, n_refs its length, and
+ * no reference array is read. Per query: the cell of the query, and per axis the near-side
+ * neighbour (probes >= 1) or the two near-side cells and the far-side one (probes 2); the cells of
+ * that product are visited home first, each skipped when its slab distance (from the thresholds,
+ * no memory) already exceeds the k-th distance; inside a cell, a block whose bounding box is
+ * farther than the k-th distance is skipped; the scan stops once ceil(A k) points are examined.
+ * A query whose cells hold fewer than k points (off the data, or k above the cells' population)
+ * then scans the blocks around its cell's position in the block order (a window of 2 `seeds` + 1
+ * blocks), so that every row is full whenever N >= k and the radius allows.
+ * lib/src/blockhash/query_ref.cpp (reference_query_cells) is the host reference of exactly this
+ * algorithm: change both.
+ *
+ * Defines: BHCL_KMAX (top-k capacity), BHCL_BH_VECSCAN (1: a block's 16 distances as one float16 and an any(d <= bound) skip, for CPU
+ * devices whose compilers vectorise it; 0: scalar, the GPU form; both give identical results). */
+#include "knn_common.h"
+#include "blockhash_layout.h"
+#include "blockhash_common.h"
+
+#ifndef BHCL_BH_VECSCAN
+#define BHCL_BH_VECSCAN 0
+#endif
+#ifndef BHCL_BH_CHUNK
+#define BHCL_BH_CHUNK 16
+#endif
+/* Cells per axis: home, near side, second near side, far side. */
+#define BHCL_BH_AXIS_CELLS 4
+#define BHCL_BH_MAXCELLS (BHCL_BH_AXIS_CELLS * BHCL_BH_AXIS_CELLS * BHCL_BH_AXIS_CELLS)
+
+/* The cells one axis contributes and their squared slab distances: [0] home (0), [1] the
+ * near-side neighbour, [2] the second cell on the near side, [3] the far-side neighbour; an
+ * absent cell (past the outermost threshold, or not asked for) has distance +inf. */
+inline void bh_axis_cells(__global const float* thr, uint P, float t, uint probes, uint* c,
+                          float* dd) {
+  uint h = bh_hash(thr, P, t);
+  for (int i = 0; i < BHCL_BH_AXIS_CELLS; ++i) {
+    c[i] = h;
+    dd[i] = INFINITY;
+  }
+  dd[0] = 0.0f;
+  if (probes == 0) return;
+  float lo = h > 0 ? thr[h - 1] : -INFINITY;
+  float hi = h < P ? thr[h] : INFINITY;
+  float dlo = t - lo, dhi = hi - t;
+  int lower = dlo < dhi;
+  int has_lo = isfinite(dlo), has_hi = isfinite(dhi);
+  if (lower ? has_lo : has_hi) {
+    c[1] = lower ? h - 1 : h + 1;
+    dd[1] = lower ? dlo * dlo : dhi * dhi;
+  }
+  if (probes < 2) return;
+  if (lower && has_lo && h >= 2) {
+    float e = t - thr[h - 2];
+    c[2] = h - 2;
+    dd[2] = e * e;
+  } else if (!lower && has_hi && h + 1 < P && isfinite(thr[h + 1])) {
+    float e = thr[h + 1] - t;
+    c[2] = h + 2;
+    dd[2] = e * e;
+  }
+  if (lower ? has_hi : has_lo) {
+    c[3] = lower ? h + 1 : h - 1;
+    dd[3] = lower ? dhi * dhi : dlo * dlo;
+  }
+}
+
+/* The run of a table-0 cell: from the direct table when there is one (one load: cells are
+ * numbered densely over the thresholds each axis actually has), else by binary search in the sorted
+ * directory. Returns 0 and sets *first, *n, or -1 for an empty cell. */
+inline int bh_cell_run(__global const uint2* direct, uint dy, uint dz, __global const uint* keys,
+                       uint n_keys, __global const bhcl_bh_bucket* buckets, uint side, uint cx,
+                       uint cy, uint cz, uint* first, uint* n) {
+  if (dz) {
+    uint2 e = direct[(cx * dy + cy) * dz + cz];
+    *first = e.x;
+    *n = e.y;
+    return e.y ? 0 : -1;
+  }
+  uint key = (cx * side + cy) * side + cz;
+  uint lo = 0, hi = n_keys;
+  while (lo < hi) {
+    uint mid = (lo + hi) >> 1;
+    if (keys[mid] < key) lo = mid + 1;
+    else hi = mid;
+  }
+  if (lo >= n_keys || keys[lo] != key) return -1;
+  *first = buckets[lo].first_ref;
+  *n = buckets[lo].n_refs;
+  return 0;
+}
+
+/* Scans one block into the top-k list (n entries held); returns its point count. */
+inline uint bh_cells_scan(float3 q, __global const bhcl_bh_block* blk, int cnt, float max_r2,
+                          float* best_d, int* best_i, uint k, uint* nfound) {
+#if BHCL_BH_VECSCAN
+  float16 dx = (float16)(q.x) - vload16(0, blk->x);
+  float16 dy = (float16)(q.y) - vload16(0, blk->y);
+  float16 dz = (float16)(q.z) - vload16(0, blk->z);
+  float16 d16 = dx * dx + dy * dy + dz * dz;
+  float bound = fmin(max_r2, bhcl_topk_bound(best_d, k));
+  /* The lanes within the bound as a bit mask (unused slots are NaN: never within), then only
+   * those lanes are visited, nearest-first order not needed: each is offered to the list in slot
+   * order, as the scalar loop does. */
+  int16 w = (d16 <= (float16)(bound)) &
+            (int16)(1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024, 2048, 4096, 8192, 16384, 32768);
+  int8 w8 = w.lo | w.hi;
+  int4 w4 = w8.lo | w8.hi;
+  int2 w2 = w4.lo | w4.hi;
+  uint mask = (uint)(w2.x | w2.y);
+  if (mask == 0u) return (uint)cnt;
+  float dd[16];
+  vstore16(d16, 0, dd);
+  while (mask) {
+    int j = 31 - (int)clz(mask & (0u - mask)); /* lowest set lane */
+    mask &= mask - 1u;
+    float d = dd[j];
+    if (d > bound) continue; /* the bound tightened since the mask was taken */
+    int id = blk->id[j];
+    if (bhcl_topk_accepts(best_d, best_i, k, d, id)) {
+      *nfound = bhcl_topk_push(best_d, best_i, k, *nfound, d, id);
+      bound = fmin(max_r2, bhcl_topk_bound(best_d, k));
+    }
+  }
+#else
+  for (int j = 0; j < cnt; ++j) {
+    float4 p = (float4)(blk->x[j], blk->y[j], blk->z[j], 0.0f);
+    float d = bhcl_dist2(q, p);
+    int id = blk->id[j];
+    if (d <= max_r2 && bhcl_topk_accepts(best_d, best_i, k, d, id))
+      *nfound = bhcl_topk_push(best_d, best_i, k, *nfound, d, id);
+  }
+#endif
+  return (uint)cnt;
+}
+
+__kernel void blockhash_cells_knn(__global const bhcl_bh_block* blocks,
+                                  __global const bhcl_bh_box* boxes,
+                                  __global const float* thresholds, uint P,
+                                  __global const uint* keys, uint n_keys,
+                                  __global const bhcl_bh_bucket* buckets,
+                                  __global const uint2* direct, uint dir_dy, uint dir_dz,
+                                  uint probes,
+                                  __global const ulong* block_keys, uint n_blocks, uint cell_bits,
+                                  uint seeds, __global const float* queries, ulong first,
+                                  uint count, uint k, float max_r2, uint budget,
+                                  __global int* out_ids, __global float* out_d2,
+                                  __global int* out_counts, __global int* out_examined,
+                                  uint want_examined) {
+  uint gid = get_global_id(0);
+  if (gid >= count) return; /* also the warm-up launch (count 0) */
+  ulong row = first + gid;
+  float3 q = bhcl_load_query(queries, row);
+
+  float best_d[BHCL_KMAX];
+  int best_i[BHCL_KMAX];
+  bhcl_topk_init(best_d, best_i, k);
+  uint nfound = 0;
+  uint examined = 0;
+
+  if (bhcl_query_is_finite(q)) {
+    uint cx[BHCL_BH_AXIS_CELLS], cy[BHCL_BH_AXIS_CELLS], cz[BHCL_BH_AXIS_CELLS];
+    float dx[BHCL_BH_AXIS_CELLS], dy[BHCL_BH_AXIS_CELLS], dz[BHCL_BH_AXIS_CELLS];
+    bh_axis_cells(thresholds, P, q.x, probes, cx, dx);
+    bh_axis_cells(thresholds + P, P, q.y, probes, cy, dy);
+    bh_axis_cells(thresholds + 2 * P, P, q.z, probes, cz, dz);
+    const uint side = P + 1;
+    uint run_first[BHCL_BH_MAXCELLS], run_end[BHCL_BH_MAXCELLS]; /* the runs entered, in order */
+    uint nruns = 0;
+    int stop = 0;
+    /* Phase 1: the octant (home and near-side cells), sorted by slab distance (stable: home
+     * first). Phase 2 (probes 2), only when the k-th distance still reaches past the octant: the
+     * other cells of the 4 x 4 x 4 block within the k-th distance, sorted the same way. Each
+     * visit stops at the first cell farther than the k-th distance. */
+    for (int phase = 1; phase <= 2 && !stop; ++phase) {
+      float ccd[BHCL_BH_MAXCELLS];
+      uint cid[BHCL_BH_MAXCELLS];
+      uint ncell = 0;
+      uint span = phase == 1 ? 2 : BHCL_BH_AXIS_CELLS;
+      float bound0 = fmin(max_r2, bhcl_topk_bound(best_d, k));
+      if (phase == 2) {
+        if (probes < 2) break;
+        float nearest = fmin(fmin(fmin(dx[2], dx[3]), fmin(dy[2], dy[3])), fmin(dz[2], dz[3]));
+        if (!(nearest <= bound0)) break;
+      }
+      for (uint a = 0; a < span; ++a)
+        for (uint b = 0; b < span; ++b)
+          for (uint c = 0; c < span; ++c) {
+            if (phase == 2 && a < 2 && b < 2 && c < 2) continue;
+            float cd = (dx[a] + dy[b]) + dz[c];
+            if (!(cd < INFINITY) || cd > bound0) continue;
+            uint pos = ncell++;
+            while (pos > 0 && ccd[pos - 1] > cd) {
+              ccd[pos] = ccd[pos - 1];
+              cid[pos] = cid[pos - 1];
+              --pos;
+            }
+            ccd[pos] = cd;
+            cid[pos] = (a << 4) | (b << 2) | c; /* axis slots, not the key: no divisions later */
+          }
+      for (uint i = 0; i < ncell && !stop; ++i) {
+        if (ccd[i] > bhcl_topk_bound(best_d, k)) break;
+        if (examined >= budget) {
+          stop = 1;
+          break;
+        }
+        uint sa = cid[i] >> 4, sb = (cid[i] >> 2) & 3u, sc = cid[i] & 3u, rf, rn;
+        if (bh_cell_run(direct, dir_dy, dir_dz, keys, n_keys, buckets, side, cx[sa], cy[sb], cz[sc],
+                        &rf, &rn) < 0)
+          continue;
+        run_first[nruns] = rf;
+        run_end[nruns] = rf + rn;
+        ++nruns;
+        /* The run's blocks in chunks of BHCL_BH_CHUNK, each scanned in order of box distance
+         * (ties: lower block) until a box is farther than the k-th distance: the budget goes to
+         * the nearest blocks first. */
+        for (uint r0 = 0; r0 < rn && !stop; r0 += BHCL_BH_CHUNK) {
+          float od[BHCL_BH_CHUNK];
+          int ob[BHCL_BH_CHUNK];
+          uint no = 0;
+          uint r1 = min(rn, r0 + BHCL_BH_CHUNK);
+          float bound = fmin(max_r2, bhcl_topk_bound(best_d, k));
+          for (uint r = r0; r < r1; ++r) {
+            int blk = (int)(rf + r);
+            float bd = bh_box_dist2(q, boxes + blk);
+            if (bd > bound) continue;
+            uint pos = no++;
+            while (pos > 0 && od[pos - 1] > bd) {
+              od[pos] = od[pos - 1];
+              ob[pos] = ob[pos - 1];
+              --pos;
+            }
+            od[pos] = bd;
+            ob[pos] = blk;
+          }
+          for (uint j = 0; j < no; ++j) {
+            if (od[j] > max_r2 || od[j] > bhcl_topk_bound(best_d, k)) break;
+            if (examined >= budget) {
+              stop = 1;
+              break;
+            }
+            int blk = ob[j];
+            examined += bh_cells_scan(q, blocks + blk, boxes[blk].count, max_r2, best_d, best_i,
+                                      k, &nfound);
+          }
+        }
+      }
+    }
+    if (nfound < k && seeds > 0) {
+      /* Fallback: the blocks around the home cell's position in the block order, except those of
+       * the runs already entered. */
+      ulong key = bh_hilbert_encode(cx[0], cy[0], cz[0], cell_bits);
+      uint lo = 0, hi = n_blocks;
+      while (lo < hi) {
+        uint mid = (lo + hi) >> 1;
+        if (block_keys[mid] <= key) lo = mid + 1;
+        else hi = mid;
+      }
+      long j = (long)lo - 1;
+      if (j < 0) j = 0;
+      long wa = j - (long)seeds, we = j + (long)seeds;
+      if (wa < 0) {
+        we -= wa;
+        wa = 0;
+      }
+      if (we > (long)n_blocks - 1) {
+        wa -= we - ((long)n_blocks - 1);
+        we = (long)n_blocks - 1;
+        if (wa < 0) wa = 0;
+      }
+      for (long b = wa; b <= we; ++b) {
+        float bd = bh_box_dist2(q, boxes + b);
+        if (bd > max_r2 || bd > bhcl_topk_bound(best_d, k)) continue;
+        int dup = 0;
+        for (uint u = 0; u < nruns; ++u) dup |= (ulong)b >= run_first[u] && (ulong)b < run_end[u];
+        if (dup) continue;
+        examined += bh_cells_scan(q, blocks + b, boxes[b].count, max_r2, best_d, best_i, k,
+                                  &nfound);
+      }
+    }
+  }
+  bhcl_write_row(out_ids, out_d2, out_counts, row, k, best_d, best_i);
+  if (want_examined) out_examined[row] = (int)examined;
+}
