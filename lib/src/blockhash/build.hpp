@@ -194,6 +194,14 @@ CellTable make_cell_table(const Structure& s, std::size_t max_entries);
 // median points per occupied cell over every stride-th sorted point.
 double median_cell_points(const Structure& s, const BlockHashBuildParams& p, int P,
                           std::size_t stride);
+// The same for many P over one sample: the stride-th sorted points and their histograms.
+struct CellSample {
+  std::size_t stride;
+  std::vector<float> pts;
+  Histogram hist[3];
+  CellSample(const Structure& s, const BlockHashBuildParams& p, std::size_t stride);
+  double median_points(const Structure& s, const BlockHashBuildParams& p, int P) const;
+};
 
 // Cell-aligned: the fallback window's half-width in blocks (each holds at least one point, so
 // 2 k + 1 blocks hold k points whenever N >= k).

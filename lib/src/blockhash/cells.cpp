@@ -7,6 +7,7 @@
 
 #include "blockhash/build.hpp"
 #include "blockhash_cl/error.hpp"
+#include "core/parallel.hpp"
 
 namespace bhcl::blockhash {
 
@@ -43,23 +44,62 @@ TableStats build_cell_aligned(const float* xyz, Structure& s) {
   const std::size_t n = s.n_points;
   const std::size_t X = static_cast<std::size_t>(s.info.X);
   const float* thr[3] = {s.thr(0, 0), s.thr(0, 1), s.thr(0, 2)};
-  // (cell Hilbert index << 31 | position): sorting keeps the Hilbert order inside a cell.
-  std::vector<std::uint64_t> kp(n);
+  // The cell of every point (in parallel), then a counting sort by cell, the cells taken in
+  // the Hilbert order of their coordinates: stable, so the points of a cell keep their Hilbert order.
   std::vector<std::uint32_t> cell_of(n);
-  for (std::size_t i = 0; i < n; ++i) {
-    const float* p = xyz + 3 * static_cast<std::size_t>(s.order[i]);
-    std::uint32_t h[3];
-    for (int d = 0; d < 3; ++d) h[d] = hash_coord(thr[d], P, p[d]);
-    kp[i] = (hilbert_encode(h[0], h[1], h[2], bits) << 31) | std::uint64_t(i);
-    cell_of[i] = s.cell_key(h);
+  detail::parallel_for(n, [&](std::size_t b, std::size_t e) {
+    for (std::size_t i = b; i < e; ++i) {
+      const float* p = xyz + 3 * static_cast<std::size_t>(s.order[i]);
+      std::uint32_t h[3];
+      for (int d = 0; d < 3; ++d) h[d] = hash_coord(thr[d], P, p[d]);
+      cell_of[i] = s.cell_key(h);
+    }
+  });
+  const std::uint32_t side = P + 1;
+  const std::uint64_t all_cells = std::uint64_t(side) * side * side;
+  // Occupied cells: a dense flag array when the key space is small, else a sort.
+  std::vector<std::uint32_t> occupied, dense;
+  if (all_cells <= (std::uint64_t(1) << 24)) {
+    dense.assign(all_cells, 0xffffffffu);
+    for (std::size_t i = 0; i < n; ++i) dense[cell_of[i]] = 0;
+    for (std::uint64_t c = 0; c < all_cells; ++c)
+      if (dense[c] == 0) {
+        dense[c] = static_cast<std::uint32_t>(occupied.size());
+        occupied.push_back(static_cast<std::uint32_t>(c));
+      }
+  } else {
+    occupied = cell_of;
+    std::sort(occupied.begin(), occupied.end());
+    occupied.erase(std::unique(occupied.begin(), occupied.end()), occupied.end());
   }
-  std::sort(kp.begin(), kp.end());
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> by_curve(occupied.size());  // (Hilbert, slot)
+  for (std::size_t c = 0; c < occupied.size(); ++c) {
+    std::uint32_t key = occupied[c];
+    by_curve[c] = {hilbert_encode(key / (side * side), (key / side) % side, key % side, bits),
+                   static_cast<std::uint32_t>(c)};
+  }
+  std::sort(by_curve.begin(), by_curve.end());
+  std::vector<std::uint32_t> start(occupied.size() + 1, 0), rank(occupied.size());
+  for (std::size_t r = 0; r < by_curve.size(); ++r) rank[by_curve[r].second] = static_cast<std::uint32_t>(r);
+  std::vector<std::uint32_t> slot(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    std::size_t c = dense.empty() ? std::size_t(std::lower_bound(occupied.begin(), occupied.end(), cell_of[i]) - occupied.begin())
+                                  : dense[cell_of[i]];
+    slot[i] = rank[c];
+    ++start[slot[i] + 1];
+  }
+  for (std::size_t r = 0; r < occupied.size(); ++r) start[r + 1] += start[r];
   std::vector<std::int32_t> order(n);
   std::vector<std::uint32_t> cells(n);
-  for (std::size_t j = 0; j < n; ++j) {
-    std::size_t i = static_cast<std::size_t>(kp[j] & 0x7fffffffu);
-    order[j] = s.order[i];
-    cells[j] = cell_of[i];
+  std::vector<std::uint64_t> curve(n);
+  {
+    std::vector<std::uint32_t> fill(start.begin(), start.end() - 1);
+    for (std::size_t i = 0; i < n; ++i) {
+      std::uint32_t j = fill[slot[i]]++;
+      order[j] = s.order[i];
+      cells[j] = cell_of[i];
+      curve[j] = by_curve[slot[i]].first;
+    }
   }
   // Blocks: runs of one cell cut into pieces of X (the last piece of a run partial).
   s.blocks.clear();
@@ -101,7 +141,7 @@ TableStats build_cell_aligned(const float* xyz, Structure& s) {
       }
       s.blocks.push_back(blk);
       s.boxes.push_back(box);
-      s.block_keys.push_back(kp[j] >> 31);
+      s.block_keys.push_back(curve[j]);
       ++run.n_blocks;
     }
     runs.push_back(run);

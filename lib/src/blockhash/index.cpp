@@ -61,7 +61,7 @@ std::string BlockHashBuildInfo::summary() const {
                 "preset %s%s  L %d  P %d  B %d  X %d  blocks %zu  occupied cells %zu  overflowed %zu  "
                 "refs %zu (%.2f/point)  median cell %.0f points / %.0f blocks (p90 %.0f)  build %.2f s "
                 "(hilbert %.2f, blocks %.2f, params %.2f, thresholds %.2f, tables %.2f, upload %.2f)",
-                BlockHashBuildParams::preset_name(preset), box_order ? " (box order)" : "", L, P, B, X, n_blocks, occupied_cells,
+                BlockHashBuildParams::preset_name(preset), cell_aligned ? " (cell-aligned)" : (box_order ? " (box order)" : ""), L, P, B, X, n_blocks, occupied_cells,
                 overflowed_buckets, block_refs, n_points ? double(block_refs) / n_points : 0.0,
                 median_cell_points, median_cell_blocks, p90_cell_blocks, t_total, t_hilbert,
                 t_blocks, t_params, t_thresholds, t_tables, t_upload);

@@ -7,6 +7,7 @@
 
 #include "blockhash/build.hpp"
 #include "blockhash_cl/error.hpp"
+#include "core/parallel.hpp"
 
 namespace bhcl {
 
@@ -68,14 +69,52 @@ int derive_x(const BlockHashBuildParams& p) {
   return X;
 }
 
+CellSample::CellSample(const Structure& s, const BlockHashBuildParams& p, std::size_t stride)
+    : stride(stride) {
+  pts.reserve(3 * (s.n_points / stride + 1));
+  for (std::size_t i = 0; i < s.n_points; i += stride) {
+    float q[3];
+    s.point(i, q);
+    pts.insert(pts.end(), q, q + 3);
+  }
+  for (int d = 0; d < 3; ++d) hist[d] = histogram(pts.data(), pts.size() / 3, d, p.hist_bins);
+}
+
+double CellSample::median_points(const Structure& s, const BlockHashBuildParams& p, int P) const {
+  std::vector<float> thr(3 * std::size_t(P), INFINITY);
+  for (int d = 0; d < 3; ++d) {
+    const int Pd = axis_threshold_count(s, P, d);
+    if (Pd == 0) continue;
+    auto t = make_thresholds(hist[d], Pd, p.seed, 0, d, s.info.guard_thresholds);
+    std::copy(t.begin(), t.end(), thr.begin() + std::size_t(d) * P);
+  }
+  const std::uint32_t side = std::uint32_t(P) + 1;
+  std::vector<std::uint32_t> keys(pts.size() / 3);
+  // Cells and a sort per half in parallel, then one merge.
+  const std::size_t half = keys.size() / 2;
+  detail::parallel_for(2, [&](std::size_t part, std::size_t) {
+    const std::size_t b = part ? half : 0, e = part ? keys.size() : half;
+    for (std::size_t i = b; i < e; ++i) {
+      std::uint32_t h[3];
+      for (int d = 0; d < 3; ++d) h[d] = hash_coord(thr.data() + std::size_t(d) * P, std::uint32_t(P), pts[3 * i + d]);
+      keys[i] = (h[0] * side + h[1]) * side + h[2];
+    }
+    std::sort(keys.begin() + b, keys.begin() + e);
+  }, 2, 1);
+  std::inplace_merge(keys.begin(), keys.begin() + half, keys.end());
+  std::vector<std::uint32_t> np;
+  for (std::size_t i = 0; i < keys.size();) {
+    std::size_t j = i;
+    while (j < keys.size() && keys[j] == keys[i]) ++j;
+    np.push_back(std::uint32_t(j - i));
+    i = j;
+  }
+  return median_of(np) * double(stride);
+}
+
 double median_cell_points(const Structure& s, const BlockHashBuildParams& p, int P,
                           std::size_t stride) {
-  std::vector<float> pts = sorted_points(s);
-  std::vector<float> thr = table0_thresholds(s, p, P, stride, pts);
-  const float* t3[3] = {thr.data(), thr.data() + P, thr.data() + 2 * std::size_t(P)};
-  std::vector<std::uint32_t> np;
-  cell_populations(cell_block_pairs(s, t3, std::uint32_t(P), stride), &np, nullptr);
-  return median_of(np) * double(stride);
+  return CellSample(s, p, stride).median_points(s, p, P);
 }
 
 void derive_params(const BlockHashBuildParams& p, Structure& s) {
@@ -128,7 +167,9 @@ void derive_params(const BlockHashBuildParams& p, Structure& s) {
     in.P = p.P;
   } else {
     const double target = p.target_cell_points > 0 ? p.target_cell_points : (in.cell_aligned ? 24.0 : 100.0);
-    auto f = [&](int P) { return median_cell_points(s, p, P, stride); };
+    // One sample and its histograms for every candidate P: only the inversion depends on P.
+    const CellSample sample(s, p, stride);
+    auto f = [&](int P) { return sample.median_points(s, p, P); };
     int lo = 1, hi = BHCL_BH_MAX_P;
     if (f(hi) > target) {
       lo = hi;

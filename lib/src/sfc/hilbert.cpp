@@ -6,6 +6,7 @@
 
 #include "blockhash/build.hpp"
 #include "blockhash_cl/error.hpp"
+#include "core/parallel.hpp"
 
 namespace bhcl::blockhash {
 
@@ -107,9 +108,11 @@ std::uint64_t query_hilbert_key(const Structure& s, const float q[3]) {
 
 std::vector<std::uint64_t> hilbert_keys(const float* xyz, std::size_t n, const Quantiser& q) {
   std::vector<std::uint64_t> keys(n);
-  for (std::size_t i = 0; i < n; ++i)
-    keys[i] = hilbert_encode(q.cell(0, xyz[3 * i]), q.cell(1, xyz[3 * i + 1]),
-                             q.cell(2, xyz[3 * i + 2]), q.bits);
+  detail::parallel_for(n, [&](std::size_t b, std::size_t e) {
+    for (std::size_t i = b; i < e; ++i)
+      keys[i] = hilbert_encode(q.cell(0, xyz[3 * i]), q.cell(1, xyz[3 * i + 1]),
+                               q.cell(2, xyz[3 * i + 2]), q.bits);
+  });
   return keys;
 }
 
@@ -131,7 +134,17 @@ std::vector<std::int32_t> hilbert_order(const std::vector<std::uint64_t>& keys) 
   // caller's order, so the build is deterministic.
   std::vector<std::pair<std::uint64_t, std::int32_t>> kv(keys.size());
   for (std::size_t i = 0; i < keys.size(); ++i) kv[i] = {keys[i], static_cast<std::int32_t>(i)};
-  std::sort(kv.begin(), kv.end());
+  // Two halves sorted in parallel, then merged: the same total order as one sort.
+  const std::size_t half = kv.size() / 2;
+  if (kv.size() >= (std::size_t(1) << 16) && detail::default_threads() > 1) {
+    detail::parallel_for(2, [&](std::size_t b, std::size_t) {
+      if (b == 0) std::sort(kv.begin(), kv.begin() + half);
+      else std::sort(kv.begin() + half, kv.end());
+    }, 2, 1);
+    std::inplace_merge(kv.begin(), kv.begin() + half, kv.end());
+  } else {
+    std::sort(kv.begin(), kv.end());
+  }
   std::vector<std::int32_t> order(keys.size());
   for (std::size_t i = 0; i < kv.size(); ++i) order[i] = kv[i].second;
   return order;
