@@ -17,7 +17,10 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <map>
 #include <memory>
+#include <mutex>
+#include <tuple>
 #include <string>
 #include <vector>
 
@@ -137,6 +140,21 @@ class BlockHashIndex : public Index {
   QueryStats query_examined(const float* queries, std::size_t n, const SearchParams& params,
                             KnnResult& out, std::vector<std::int32_t>& examined) const;
 
+  // A recall target instead of a budget. From `sample` of the indexed points (every N/sample-th,
+  // each moved off its point by half the distance to its nearest other point, so that it is not
+  // its own answer), their exact k nearest (the kd-tree kernel) and the block-hash answers for
+  // A in {1, 1.5, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64, 128}, picks the smallest A whose recall@k
+  // on the sample reaches target. reached is false (and A the largest) when none does.
+  struct RecallTuning {
+    float A = 0;
+    double recall = 0;       // measured on the sample at that A
+    std::size_t sample = 0;  // queries in the sample
+    bool reached = false;
+    double seconds = 0;      // the tuning's own time (exact answers included)
+  };
+  RecallTuning tune_for_recall(double target, const SearchParams& params,
+                               std::size_t sample = 2000) const;
+
   // ceil(A k): the points a query may examine.
   static std::uint32_t budget(const SearchParams& params);
 
@@ -158,6 +176,11 @@ class BlockHashIndex : public Index {
                           const std::vector<cl::Event>* wait, const cl::Buffer* examined) const;
   std::string kernel_options(int kmax) const;
   std::uint32_t cells_probes(const SearchParams& params) const;  // cell-aligned: 0, 1 or 2
+
+  // SearchParams::recall_target: the A tuned per (k, probes, radius, target), computed on first use.
+  float resolved_A(const SearchParams& params) const;
+  mutable std::mutex tune_mutex_;
+  mutable std::map<std::tuple<int, int, float, double>, float> tuned_A_;
 
   std::unique_ptr<blockhash::Structure> s_;
   BlockHashBuildInfo info_;

@@ -40,6 +40,8 @@ namespace bhcl {
 // define); a query uses the smallest variant >= k.
 inline constexpr int kMaxK = 256;
 inline constexpr int kKmaxVariants[] = {8, 16, 32, 64, 128, 256};
+// Batches at least this large are dispatched in Hilbert order by default (SearchParams::sort_queries).
+inline constexpr std::size_t kAutoSortQueries = 8192;
 int kmax_variant(int k);  // smallest variant >= k; throws for k outside [1, kMaxK]
 
 // Search parameters: everything that can change from one query batch to the next. Build
@@ -49,6 +51,10 @@ struct SearchParams {
   float max_radius = std::numeric_limits<float>::infinity();  // Euclidean (not squared)
   // Approximate methods (block hashing): examine at most A*k points per query.
   float A = 8.0f;
+  // Approximate methods: a recall@k to reach instead of a budget (e.g. 0.95). When > 0 the index
+  // picks A for this k from a sample of its own points (BlockHashIndex::tune_for_recall, done once
+  // per (k, target) and cached) and A above is ignored. 0 = use A.
+  double recall_target = 0.0;
   // Block hashing: probe the near-side neighbour cells as well (-1: the index preset decides).
   int neighbour_probes = -1;
   // Dispatch: 0 picks the device default (Quirks::default_local_size).
@@ -57,8 +63,10 @@ struct SearchParams {
   // (0: automatic, bounded by device memory). Results do not depend on it.
   std::size_t max_batch = 0;
   // Host-array calls: dispatch the queries in 3D Hilbert order of their positions (results still
-  // come back in the caller's order). Helps when a batch is not already spatially coherent.
-  bool sort_queries = false;
+  // come back in the caller's order). 1 always, 0 never, -1 (default) for batches of at least
+  // kAutoSortQueries queries, where the coherence gained outweighs the host sort (which counts in
+  // QueryStats::wall_s, not in query_s).
+  int sort_queries = -1;
   // Kernel exploration (the benchmark's variants): extra "-DNAME=VALUE" defines appended to the
   // kernel's build options, e.g. "-DBHCL_VEC_SCAN=0". Only -D tokens are accepted. Results of an
   // exact method do not depend on them; the block-hash kernel's may (the defines are its knobs).

@@ -212,13 +212,30 @@ std::uint32_t BlockHashIndex::budget(const SearchParams& p) {
 
 void BlockHashIndex::check_params(const SearchParams& p) const {
   Index::check_params(p);
-  if (!(p.A > 0) || !std::isfinite(p.A))
-    throw Error("blockhash: A must be a positive finite number, got " + std::to_string(p.A));
   const int top = info_.cell_aligned ? 2 : 1;
   if (p.neighbour_probes < -1 || p.neighbour_probes > top)
     throw Error("blockhash: neighbour_probes must be -1 (preset), 0 or 1" +
                 std::string(info_.cell_aligned ? " or 2 (cell-aligned: two near-side cells and the far one)" : "") +
                 ", got " + std::to_string(p.neighbour_probes));
+  if (!(p.recall_target >= 0 && p.recall_target <= 1))
+    throw Error("blockhash: recall_target must be in [0, 1] (0 = use A), got " + std::to_string(p.recall_target));
+  if (p.recall_target > 0) {
+    resolved_A(p);  // tunes now (once per k and target), outside any dispatch lock
+    return;
+  }
+  if (!(p.A > 0) || !std::isfinite(p.A))
+    throw Error("blockhash: A must be a positive finite number, got " + std::to_string(p.A));
+}
+
+float BlockHashIndex::resolved_A(const SearchParams& p) const {
+  if (!(p.recall_target > 0)) return p.A;
+  auto key = std::make_tuple(p.k, p.neighbour_probes, p.max_radius, p.recall_target);
+  std::lock_guard<std::mutex> lock(tune_mutex_);
+  auto it = tuned_A_.find(key);
+  if (it != tuned_A_.end()) return it->second;
+  float A = tune_for_recall(p.recall_target, p).A;
+  tuned_A_[key] = A;
+  return A;
 }
 
 std::string BlockHashIndex::kernel_options(int kmax) const {
@@ -247,9 +264,12 @@ cl::Event BlockHashIndex::enqueue_batch(const cl::CommandQueue& queue, const cl:
 
 cl::Event BlockHashIndex::enqueue_stats(const cl::CommandQueue& queue, const cl::Buffer& queries,
                                         std::size_t first, std::size_t count,
-                                        const ResultBuffers& out, const SearchParams& params,
+                                        const ResultBuffers& out, const SearchParams& params_in,
                                         std::size_t local_size, const std::vector<cl::Event>* wait,
                                         const cl::Buffer* examined) const {
+  SearchParams params = params_in;
+  params.A = resolved_A(params_in);
+  params.recall_target = 0;
   std::lock_guard<std::mutex> lock(dispatch_mutex_);
   int kmax = kmax_variant(params.k);
   if (info_.cell_aligned) {
@@ -317,10 +337,13 @@ cl::Event BlockHashIndex::enqueue_stats(const cl::CommandQueue& queue, const cl:
 }
 
 KnnResult BlockHashIndex::reference_query(const float* queries, std::size_t n,
-                                          const SearchParams& params,
+                                          const SearchParams& params_in,
                                           std::vector<std::int32_t>* examined,
                                           unsigned threads) const {
-  check_params(params);
+  check_params(params_in);
+  SearchParams params = params_in;
+  params.A = resolved_A(params_in);
+  params.recall_target = 0;
   KnnResult out;
   if (info_.cell_aligned) {
     blockhash::reference_query_cells(*s_, queries, n, params, cells_probes(params), out, examined, threads);

@@ -249,14 +249,15 @@ QueryStats Index::query(const float* queries, std::size_t n, const SearchParams&
                         KnnResult& out) const {
   auto t0 = std::chrono::steady_clock::now();
   check_params(params);
-  if (params.sort_queries && n > 1) {
+  const bool sort = params.sort_queries > 0 || (params.sort_queries < 0 && n >= kAutoSortQueries);
+  if (sort && n > 1) {
     // Dispatch in Hilbert order, return rows in the caller's order.
     std::vector<std::size_t> order = detail::hilbert_query_order(queries, n);
     std::vector<float> sorted(3 * n);
     for (std::size_t i = 0; i < n; ++i)
       for (int d = 0; d < 3; ++d) sorted[3 * i + d] = queries[3 * order[i] + d];
     SearchParams p = params;
-    p.sort_queries = false;
+    p.sort_queries = 0;
     KnnResult tmp;
     QueryStats st = query(sorted.data(), n, p, tmp);
     out.resize(n, params.k);
