@@ -4,19 +4,22 @@
  * The build orders the points by the Hilbert order of their cell in the primary table (then by
  * their own Hilbert key) and cuts blocks that never cross a cell, so the bucket of a cell is a run
  * of blocks holding exactly its points: first_ref is the run's first block, n_refs its length, and
- * no reference array is read. Per query: the cell of the query, and per axis the near-side
- * neighbour (probes >= 1) or the two near-side cells and the far-side one (probes 2); the cells of
- * that product are visited home first, each skipped when its slab distance (from the thresholds,
- * no memory) already exceeds the k-th distance; inside a cell, a block whose bounding box is
- * farther than the k-th distance is skipped; the scan stops once ceil(A k) points are examined.
+ * no reference array is read. Per query, in three phases: (0) the cell of the query, which sets
+ * a first k-th distance; (1) its near-side neighbours (the rest of the octant); (2) with probes 2,
+ * and only while the k-th distance still reaches past the octant, the rest of the 4 x 4 x 4 block
+ * (two near-side cells and the far one per axis). In each phase the cells within the bound (slab distances from the thresholds, no
+ * memory) give their blocks; the `keep` nearest by box distance are scanned nearest first until
+ * the next box is farther than the k-th distance or ceil(A k) points are examined.
  * A query whose cells hold fewer than k points (off the data, or k above the cells' population)
  * then scans the blocks around its cell's position in the block order (a window of 2 `seeds` + 1
  * blocks), so that every row is full whenever N >= k and the radius allows.
  * lib/src/blockhash/query_ref.cpp (reference_query_cells) is the host reference of exactly this
  * algorithm: change both.
  *
- * Defines: BHCL_KMAX (top-k capacity), BHCL_BH_VECSCAN (1: a block's 16 distances as one float16 and an any(d <= bound) skip, for CPU
- * devices whose compilers vectorise it; 0: scalar, the GPU form; both give identical results). */
+ * Defines: BHCL_KMAX (top-k capacity), BHCL_BH_MAXKEEP (the most blocks one phase keeps; the
+ * runtime `keep` <= it), BHCL_BH_VECSCAN (1: a block's 16 distances as one float16 and a lane
+ * mask, for CPU devices whose compilers vectorise it; 0: scalar, the GPU form; both give
+ * identical results). */
 #include "knn_common.h"
 #include "blockhash_layout.h"
 #include "blockhash_common.h"
@@ -24,8 +27,14 @@
 #ifndef BHCL_BH_VECSCAN
 #define BHCL_BH_VECSCAN 0
 #endif
-#ifndef BHCL_BH_CHUNK
-#define BHCL_BH_CHUNK 16
+/* 1: the home cell is a phase of its own (a first k-th distance before the neighbours are
+ * gathered); 0: the whole octant is gathered at once (an exploration switch: the host reference
+ * follows 1). */
+#ifndef BHCL_BH_HOMEFIRST
+#define BHCL_BH_HOMEFIRST 1
+#endif
+#ifndef BHCL_BH_MAXKEEP
+#define BHCL_BH_MAXKEEP 64
 #endif
 /* Cells per axis: home, near side, second near side, far side. */
 #define BHCL_BH_AXIS_CELLS 4
@@ -146,7 +155,7 @@ __kernel void blockhash_cells_knn(__global const bhcl_bh_block* blocks,
                                   uint probes,
                                   __global const ulong* block_keys, uint n_blocks, uint cell_bits,
                                   uint seeds, __global const float* queries, ulong first,
-                                  uint count, uint k, float max_r2, uint budget,
+                                  uint count, uint k, float max_r2, uint budget, uint keep,
                                   __global int* out_ids, __global float* out_d2,
                                   __global int* out_counts, __global int* out_examined,
                                   uint want_examined) {
@@ -175,12 +184,13 @@ __kernel void blockhash_cells_knn(__global const bhcl_bh_block* blocks,
      * first). Phase 2 (probes 2), only when the k-th distance still reaches past the octant: the
      * other cells of the 4 x 4 x 4 block within the k-th distance, sorted the same way. Each
      * visit stops at the first cell farther than the k-th distance. */
-    for (int phase = 1; phase <= 2 && !stop; ++phase) {
+    for (int phase = BHCL_BH_HOMEFIRST ? 0 : 1; phase <= 2 && !stop; ++phase) {
       float ccd[BHCL_BH_MAXCELLS];
       uint cid[BHCL_BH_MAXCELLS];
       uint ncell = 0;
-      uint span = phase == 1 ? 2 : BHCL_BH_AXIS_CELLS;
+      uint span = phase == 0 ? 1 : (phase == 1 ? 2 : BHCL_BH_AXIS_CELLS);
       float bound0 = fmin(max_r2, bhcl_topk_bound(best_d, k));
+      if (phase == 1 && probes < 1) break;
       if (phase == 2) {
         if (probes < 2) break;
         float nearest = fmin(fmin(fmin(dx[2], dx[3]), fmin(dy[2], dy[3])), fmin(dz[2], dz[3]));
@@ -189,6 +199,7 @@ __kernel void blockhash_cells_knn(__global const bhcl_bh_block* blocks,
       for (uint a = 0; a < span; ++a)
         for (uint b = 0; b < span; ++b)
           for (uint c = 0; c < span; ++c) {
+            if (BHCL_BH_HOMEFIRST && phase == 1 && a == 0 && b == 0 && c == 0) continue;
             if (phase == 2 && a < 2 && b < 2 && c < 2) continue;
             float cd = (dx[a] + dy[b]) + dz[c];
             if (!(cd < INFINITY) || cd > bound0) continue;
@@ -201,12 +212,15 @@ __kernel void blockhash_cells_knn(__global const bhcl_bh_block* blocks,
             ccd[pos] = cd;
             cid[pos] = (a << 4) | (b << 2) | c; /* axis slots, not the key: no divisions later */
           }
-      for (uint i = 0; i < ncell && !stop; ++i) {
-        if (ccd[i] > bhcl_topk_bound(best_d, k)) break;
-        if (examined >= budget) {
-          stop = 1;
-          break;
-        }
+      /* Gather: the blocks of those cells whose boxes are within the bound, the `keep` nearest by
+       * (box distance, block) kept sorted (at most 4 keep box tests per cell: a cell of a heap of
+       * duplicates cannot stall a query). keep = ceil(budget / X) + 1 blocks spend any budget, so
+       * the bounded list scans what a full sort would. */
+      float od[BHCL_BH_MAXKEEP];
+      int ob[BHCL_BH_MAXKEEP];
+      uint no = 0;
+      for (uint i = 0; i < ncell; ++i) {
+        if (ccd[i] > bound0) break;
         uint sa = cid[i] >> 4, sb = (cid[i] >> 2) & 3u, sc = cid[i] & 3u, rf, rn;
         if (bh_cell_run(direct, dir_dy, dir_dz, keys, n_keys, buckets, side, cx[sa], cy[sb], cz[sc],
                         &rf, &rn) < 0)
@@ -214,39 +228,33 @@ __kernel void blockhash_cells_knn(__global const bhcl_bh_block* blocks,
         run_first[nruns] = rf;
         run_end[nruns] = rf + rn;
         ++nruns;
-        /* The run's blocks in chunks of BHCL_BH_CHUNK, each scanned in order of box distance
-         * (ties: lower block) until a box is farther than the k-th distance: the budget goes to
-         * the nearest blocks first. */
-        for (uint r0 = 0; r0 < rn && !stop; r0 += BHCL_BH_CHUNK) {
-          float od[BHCL_BH_CHUNK];
-          int ob[BHCL_BH_CHUNK];
-          uint no = 0;
-          uint r1 = min(rn, r0 + BHCL_BH_CHUNK);
-          float bound = fmin(max_r2, bhcl_topk_bound(best_d, k));
-          for (uint r = r0; r < r1; ++r) {
-            int blk = (int)(rf + r);
-            float bd = bh_box_dist2(q, boxes + blk);
-            if (bd > bound) continue;
-            uint pos = no++;
-            while (pos > 0 && od[pos - 1] > bd) {
-              od[pos] = od[pos - 1];
-              ob[pos] = ob[pos - 1];
-              --pos;
-            }
-            od[pos] = bd;
-            ob[pos] = blk;
+        uint rt = min(rn, 4u * keep);
+        for (uint r = 0; r < rt; ++r) {
+          int blk = (int)(rf + r);
+          float bd = bh_box_dist2(q, boxes + blk);
+          if (bd > bound0) continue;
+          if (no == keep && !(bd < od[no - 1] || (bd == od[no - 1] && blk < ob[no - 1]))) continue;
+          uint pos = no < keep ? no : keep - 1;
+          while (pos > 0 && (od[pos - 1] > bd || (od[pos - 1] == bd && ob[pos - 1] > blk))) {
+            od[pos] = od[pos - 1];
+            ob[pos] = ob[pos - 1];
+            --pos;
           }
-          for (uint j = 0; j < no; ++j) {
-            if (od[j] > max_r2 || od[j] > bhcl_topk_bound(best_d, k)) break;
-            if (examined >= budget) {
-              stop = 1;
-              break;
-            }
-            int blk = ob[j];
-            examined += bh_cells_scan(q, blocks + blk, boxes[blk].count, max_r2, best_d, best_i,
-                                      k, &nfound);
-          }
+          od[pos] = bd;
+          ob[pos] = blk;
+          if (no < keep) ++no;
         }
+      }
+      /* Scan nearest first until the budget is spent or a box is farther than the k-th distance. */
+      for (uint j = 0; j < no; ++j) {
+        if (od[j] > bhcl_topk_bound(best_d, k)) break;
+        if (examined >= budget) {
+          stop = 1;
+          break;
+        }
+        int blk = ob[j];
+        examined += bh_cells_scan(q, blocks + blk, boxes[blk].count, max_r2, best_d, best_i, k,
+                                  &nfound);
       }
     }
     if (nfound < k && seeds > 0) {

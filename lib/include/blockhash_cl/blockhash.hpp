@@ -1,18 +1,24 @@
-// Block Hashing (Ma & McCool, Graphics Hardware 2002): approximate kNN through L locality-sensitive
+// Block Hashing (Ma & McCool, Graphics Hardware 2002): approximate kNN through locality-sensitive
 // hash tables of 256-byte blocks of Hilbert-sorted points, answered by an OpenCL kernel, one
 // work-item per query. Two presets of one implementation (DESIGN.md "Block hashing, as we build it"):
 //   paper  the talk's scheme and defaults: L = P = round(ln N), X = 10, B = ceil(A k / (X ln N)) + 1
 //          for the design A and k, direct addressing of all (P+1)^3 cells, a full bucket drops
-//          new blocks, no neighbour probes, no bounding-box skipping.
-//   auto   (default) parameters from the data and what RESEARCH.md measured: guarded thresholds,
-//          P so that the median occupied cell holds ~target_cell_points points, B = 90th
-//          percentile of distinct blocks per occupied cell, keep-top-count overflow, L = 4, X = 16,
-//          a directory of occupied cells only, near-side neighbour probes, block bounding boxes
-//          and candidate blocks scanned in order of box distance until the next box is farther than
-//          the current k-th distance (DESIGN.md's CPU form; box_order = 0 gives the bucket order).
-// Every derived value can be overridden (-1 = derive). Query parameters (k, A, max_radius,
-// neighbour_probes) live in SearchParams; a query examines at most ceil(A k) points (counted
-// over the blocks it scans) and returns the k nearest of them under the result contract.
+//          new blocks, no neighbour probes, no bounding-box skipping (kernels/blockhash_knn.cl).
+//   auto   (default) the talk's future work on clustering, measured in docs/PERFORMANCE.md: blocks
+//          aligned to the cells of one table (the points ordered by the Hilbert order of their cell,
+//          then their own key; a cell's bucket is the run of blocks holding exactly its points),
+//          guarded CDF thresholds with a count per axis from each axis's spread, P so that the
+//          median occupied cell holds ~24 points, a direct cell table where it is small. A query
+//          visits its cell and the near-side neighbours (the octant), nearest slab first, then --
+//          only while its k-th distance reaches past them -- the rest of the 4 x 4 x 4 block of
+//          cells; inside a cell, blocks in order of box distance with an early stop
+//          (kernels/blockhash_cells_knn.cl). cell_aligned = 0 (or L > 1) gives auto's L-table
+//          layout of the talk with guards, probes and box-ordered scans.
+// Every derived value can be overridden (-1 = derive). Query parameters (k, A or recall_target,
+// max_radius, neighbour_probes) live in SearchParams; a query examines at most ceil(A k) points
+// (counted over the blocks it scans; a cell-aligned query whose cells hold fewer than k points then
+// scans a window of blocks around its cell to fill the row) and returns the k nearest of them under
+// the result contract. Distances are squared.
 #pragma once
 
 #include <cstddef>

@@ -241,7 +241,8 @@ float BlockHashIndex::resolved_A(const SearchParams& p) const {
 std::string BlockHashIndex::kernel_options(int kmax) const {
   std::ostringstream os;
   if (info_.cell_aligned) {
-    os << "-DBHCL_KMAX=" << kmax << " -DBHCL_BH_VECSCAN=" << (runtime().quirks().vector_scan ? 1 : 0);
+    os << "-DBHCL_KMAX=" << kmax << " -DBHCL_BH_MAXKEEP=" << blockhash::scan_cap(kmax, info_.X)
+       << " -DBHCL_BH_VECSCAN=" << (runtime().quirks().vector_scan ? 1 : 0);
     return os.str();
   }
   os << "-DBHCL_KMAX=" << kmax << " -DBHCL_BH_L=" << info_.L
@@ -297,6 +298,7 @@ cl::Event BlockHashIndex::enqueue_stats(const cl::CommandQueue& queue, const cl:
         .add(cl_uint(params.k))
         .add(detail::squared_radius(params.max_radius))
         .add(cl_uint(budget(params)))
+        .add(cl_uint(blockhash::keep_blocks(budget(params), kmax, info_.X)))
         .add(out.ids)
         .add(out.dist2)
         .add(out.counts)

@@ -229,9 +229,6 @@ void axis_cells(const float* thr, std::uint32_t P, float t, std::uint32_t probes
 
 }  // namespace
 
-// Blocks of a run sorted at a time (BHCL_BH_CHUNK of blockhash_cells_knn.cl).
-constexpr std::uint32_t kCellChunk = 16;
-
 void reference_query_cells(const Structure& s, const float* queries, std::size_t n,
                            const SearchParams& params, std::uint32_t probes, KnnResult& out,
                            std::vector<std::int32_t>* examined, unsigned threads) {
@@ -242,6 +239,7 @@ void reference_query_cells(const Structure& s, const float* queries, std::size_t
   const std::uint32_t side = P + 1;
   const int bits = s.cell_bits();
   const std::uint32_t seeds = cells_seed_side(s.info.hilbert_seed, params.k);
+  const std::uint32_t keep = keep_blocks(budget, kmax_variant(params.k), s.info.X);
   const long nb = static_cast<long>(s.blocks.size());
   out.resize(n, params.k);
   if (examined) examined->assign(n, 0);
@@ -278,9 +276,10 @@ void reference_query_cells(const Structure& s, const float* queries, std::size_t
       for (int d = 0; d < 3; ++d) axis_cells(s.thr(0, d), P, q[d], probes, c[d], dd[d]);
       std::vector<std::pair<long, long>> runs;  // entered, in order
       bool stop = false;
-      for (int phase = 1; phase <= 2 && !stop; ++phase) {
-        const std::uint32_t span = phase == 1 ? 2 : 4;
+      for (int phase = 0; phase <= 2 && !stop; ++phase) {
+        const std::uint32_t span = phase == 0 ? 1 : (phase == 1 ? 2 : 4);
         const float bound0 = std::min(r2, bound());
+        if (phase == 1 && probes < 1) break;
         if (phase == 2) {
           if (probes < 2) break;
           float nearest = INFINITY;
@@ -291,6 +290,7 @@ void reference_query_cells(const Structure& s, const float* queries, std::size_t
         for (std::uint32_t a = 0; a < span; ++a)
           for (std::uint32_t b = 0; b < span; ++b)
             for (std::uint32_t e = 0; e < span; ++e) {
+              if (phase == 1 && a == 0 && b == 0 && e == 0) continue;
               if (phase == 2 && a < 2 && b < 2 && e < 2) continue;
               float cd = dd[0][a] + dd[1][b];
               cd = cd + dd[2][e];
@@ -298,38 +298,32 @@ void reference_query_cells(const Structure& s, const float* queries, std::size_t
               cellv.emplace_back(cd, (c[0][a] * side + c[1][b]) * side + c[2][e]);
             }
         std::stable_sort(cellv.begin(), cellv.end(), [](const auto& x, const auto& y) { return x.first < y.first; });
+        // Gather the blocks within the bound (at most 4 keep box tests per cell), keep the `keep`
+        // nearest by (box distance, block), scan them nearest first.
+        order.clear();
         for (const auto& [cd, key] : cellv) {
-          if (stop || cd > bound()) break;
-          if (ex >= budget) {
-            stop = true;
-            break;
-          }
+          if (cd > bound0) break;
           long bk = s.find_bucket(0, key);
           if (bk < 0) continue;
           const bhcl_bh_bucket& bucket = s.buckets[bk];
           runs.emplace_back(long(bucket.first_ref), long(bucket.first_ref) + long(bucket.n_refs));
-          // Chunks of kCellChunk blocks, each in order of (box distance, block).
-          for (std::uint32_t r0 = 0; r0 < bucket.n_refs && !stop; r0 += kCellChunk) {
-            std::uint32_t r1 = std::min(bucket.n_refs, r0 + kCellChunk);
-            float bnd = std::min(r2, bound());
-            order.clear();
-            for (std::uint32_t r = r0; r < r1; ++r) {
-              long blk = long(bucket.first_ref) + long(r);
-              float d = box_dist2(s.boxes[blk], q);
-              if (d > bnd) continue;
-              order.emplace_back(d, blk);
-            }
-            std::stable_sort(order.begin(), order.end(),
-                             [](const auto& x, const auto& y) { return x.first < y.first; });
-            for (const auto& [d, blk] : order) {
-              if (d > r2 || d > bound()) break;
-              if (ex >= budget) {
-                stop = true;
-                break;
-              }
-              scan(blk);
-            }
+          const std::uint32_t rt = std::min<std::uint32_t>(bucket.n_refs, 4 * keep);
+          for (std::uint32_t r = 0; r < rt; ++r) {
+            long blk = long(bucket.first_ref) + long(r);
+            float d = box_dist2(s.boxes[blk], q);
+            if (d > bound0) continue;
+            order.emplace_back(d, blk);
           }
+        }
+        std::sort(order.begin(), order.end());
+        if (order.size() > keep) order.resize(keep);
+        for (const auto& [d, blk] : order) {
+          if (d > bound()) break;
+          if (ex >= budget) {
+            stop = true;
+            break;
+          }
+          scan(blk);
         }
       }
       if (found < k && seeds > 0) {
