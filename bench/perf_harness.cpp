@@ -52,6 +52,7 @@ struct Options {
   int rounds = 5;
   std::vector<std::string> orders = {"random", "sorted"};
   std::vector<float> As = {1, 1.5f, 2, 3, 4, 6, 8};
+  std::vector<double> recalls;  // --recall: variants asking for a recall target instead of an A
   std::vector<int> probes = {-1};
   std::vector<BuildSpec> builds = {{"auto", {}}};
   std::vector<DefineSpec> defines = {{"base", ""}};
@@ -63,7 +64,7 @@ struct Options {
 
 const char* kUsage =
     "usage: perf_harness [--data cornell,uniform,autzen] [--N 1e6] [--queries 100000] [--k 10,50]\n"
-    "  [--rounds 5] [--order random,sorted] [--A 1,1.5,2,3,4,6,8] [--probes -1,0,1]\n"
+    "  [--rounds 5] [--order random,sorted] [--A 1,1.5,2,3,4,6,8] [--recall 0.95,0.99] [--probes -1,0,1]\n"
     "  [--bh-build \"name[:key=value,...];...\"] [--defines \"name:-DFOO=1 -DBAR;...\"]\n"
     "  [--baseline-defines \"-DFOO=1\"] [--csv out.csv] [--device SPEC] [--threads T]\n"
     "  [--recall-target 0.95] [--seed S] [--data-dir DIR]\n"
@@ -186,7 +187,7 @@ Options parse(int argc, char** argv) {
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     if (a == "--help" || a == "-h") { std::fputs(kUsage, stdout); std::exit(0); }
-    static const char* known[] = {"--data", "--N", "--queries", "--k", "--rounds", "--order", "--A",
+    static const char* known[] = {"--data", "--N", "--queries", "--k", "--rounds", "--order", "--A", "--recall",
                                   "--probes", "--bh-build", "--defines", "--baseline-defines", "--csv",
                                   "--device", "--threads", "--recall-target", "--seed", "--data-dir"};
     if (std::find(std::begin(known), std::end(known), a) == std::end(known)) bad("unknown option " + a);
@@ -204,6 +205,12 @@ Options parse(int argc, char** argv) {
     else if (a == "--k") { o.ks.clear(); for (long long k : list(1, kMaxK)) o.ks.push_back(int(k)); }
     else if (a == "--rounds") o.rounds = int(integer(v, a, 1, 1000));
     else if (a == "--order") o.orders = split(v, ',');
+    else if (a == "--recall") {
+      o.recalls.clear();
+      for (const auto& x : split(v, ',')) o.recalls.push_back(num(x, a));
+      for (double r : o.recalls)
+        if (!(r > 0 && r <= 1)) bad("--recall: targets must be in (0, 1]");
+    }
     else if (a == "--A") {
       o.As.clear();
       for (const auto& x : split(v, ',')) o.As.push_back(float(num(x, a)));
@@ -332,7 +339,25 @@ void run_set(const Options& o, const std::shared_ptr<Runtime>& rt, const std::st
           v.name = v.build + "/A" + fmt_A(A) + "/p" + probes_name(pr) + "/" + d.name;
           vars.push_back(v);
         }
-  for (auto& v : vars) v.params.sort_queries = false;  // each order's array is dispatched as it is
+  // Recall-target variants: the index tunes A per k at warm-up (BlockHashIndex::tune_for_recall).
+  for (std::size_t bi = 0; bi < o.builds.size(); ++bi)
+    for (const auto& d : o.defines)
+      for (int pr : o.probes)
+        for (double r : o.recalls) {
+          Variant v;
+          v.method = "blockhash";
+          v.build = o.builds[bi].name;
+          v.defines_name = d.name;
+          v.index = bh[bi].get();
+          v.params.recall_target = r;
+          v.params.neighbour_probes = pr;
+          v.params.kernel_defines = d.defines;
+          char rb[32];
+          std::snprintf(rb, sizeof rb, "R%.3g", r);
+          v.name = v.build + "/" + rb + "/p" + probes_name(pr) + "/" + d.name;
+          vars.push_back(v);
+        }
+  for (auto& v : vars) v.params.sort_queries = 0;  // each order's array is dispatched as it is
 
   // Warm-up: kernel compiles (PoCL compiles at the first launch) never land in a timed run.
   // Reported per structure and defines variant (A and probes share a kernel).
@@ -341,7 +366,16 @@ void run_set(const Options& o, const std::shared_ptr<Runtime>& rt, const std::st
     for (int k : o.ks) {
       SearchParams p = v.params;
       p.k = k;
-      v.compile_s += v.index->warm_up(p);
+      v.compile_s += v.index->warm_up(p);  // a recall-target variant tunes its A here, untimed
+      if (p.recall_target > 0) {
+        auto* b = dynamic_cast<const BlockHashIndex*>(v.index);
+        if (b) {
+          BlockHashIndex::RecallTuning t = b->tune_for_recall(p.recall_target, p);
+          std::printf("# %s k=%d: recall target %.3g -> A %g (sample recall %.4f on %zu queries%s, %.2f s)\n",
+                      v.name.c_str(), k, p.recall_target, double(t.A), t.recall, t.sample,
+                      t.reached ? "" : ", not reached", t.seconds);
+        }
+      }
     }
   for (const auto& v : vars) {
     const std::string label = v.method == "blockhash" ? v.build + "/" + v.defines_name : v.name;
