@@ -45,21 +45,10 @@ inline int bhcl_topk_accepts(const float* d, const int* id, uint k, float dist, 
   return dist < wd || (dist == wd && idx < id[k - 1]);
 }
 
-/* Inserts (dist, idx), which must be accepted, dropping the current k-th entry. */
-inline void bhcl_topk_insert(float* d, int* id, uint k, float dist, int idx) {
-  uint j = k - 1;
-  while (j > 0 && (d[j - 1] > dist || (d[j - 1] == dist && id[j - 1] > idx))) {
-    d[j] = d[j - 1];
-    id[j] = id[j - 1];
-    --j;
-  }
-  d[j] = dist;
-  id[j] = idx;
-}
-
-/* The same insertion into a list that holds n entries (n <= k), starting at the first free slot
- * while the list fills: the +inf tail is never shifted (at k = 50 the shifts cost ~30 % of a
- * kernel). The resulting list is the one bhcl_topk_insert gives. Returns the new count. */
+/* Inserts (dist, idx), which must be accepted, into a list that holds n entries (n <= k),
+ * dropping the k-th entry of a full list. It starts at the first free slot while the list fills,
+ * so the +inf tail is never shifted (at k = 50 the shifts cost ~30 % of a kernel). Returns the new
+ * count. */
 inline uint bhcl_topk_push(float* d, int* id, uint k, uint n, float dist, int idx) {
   uint j = n < k ? n : k - 1;
   while (j > 0 && (d[j - 1] > dist || (d[j - 1] == dist && id[j - 1] > idx))) {

@@ -54,6 +54,9 @@ void sort_points(const float* xyz, std::size_t n, int bits, Structure& s);
 // Cuts the points, taken in `order`, into blocks of X (the last one partial), each with its box.
 void make_blocks(const float* xyz, const std::vector<std::int32_t>& order, int X,
                  std::vector<bhcl_bh_block>& blocks, std::vector<bhcl_bh_box>& boxes);
+// One block of the points order[first, end) (at most 16) and its box; unused slots NaN / -1.
+void fill_block(const float* xyz, const std::vector<std::int32_t>& order, std::size_t first,
+                std::size_t end, bhcl_bh_block& blk, bhcl_bh_box& box);
 
 // ---- Stage 3: thresholds ---------------------------------------------------------------------
 

@@ -116,29 +116,8 @@ TableStats build_cell_aligned(const float* xyz, Structure& s) {
     for (std::size_t f = j; f < e; f += X) {
       std::size_t end = std::min(e, f + X);
       bhcl_bh_block blk;
-      for (int t = 0; t < BHCL_BH_BLOCK_SLOTS; ++t) {
-        blk.x[t] = blk.y[t] = blk.z[t] = NAN;  // never within any bound: the vector scan relies on it
-        blk.id[t] = -1;
-      }
       bhcl_bh_box box;
-      box.lo_x = box.lo_y = box.lo_z = INFINITY;
-      box.hi_x = box.hi_y = box.hi_z = -INFINITY;
-      box.count = static_cast<std::int32_t>(end - f);
-      box.first = static_cast<std::int32_t>(f);
-      for (std::size_t i = f; i < end; ++i) {
-        const float* p = xyz + 3 * static_cast<std::size_t>(order[i]);
-        int t = static_cast<int>(i - f);
-        blk.x[t] = p[0];
-        blk.y[t] = p[1];
-        blk.z[t] = p[2];
-        blk.id[t] = order[i];
-        box.lo_x = std::min(box.lo_x, p[0]);
-        box.lo_y = std::min(box.lo_y, p[1]);
-        box.lo_z = std::min(box.lo_z, p[2]);
-        box.hi_x = std::max(box.hi_x, p[0]);
-        box.hi_y = std::max(box.hi_y, p[1]);
-        box.hi_z = std::max(box.hi_z, p[2]);
-      }
+      fill_block(xyz, order, f, end, blk, box);
       s.blocks.push_back(blk);
       s.boxes.push_back(box);
       s.block_keys.push_back(curve[j]);

@@ -8,6 +8,7 @@
 #include "blockhash/build.hpp"
 #include "blockhash_cl/error.hpp"
 #include "blockhash_cl/reference.hpp"
+#include "core/parallel.hpp"
 
 namespace bhcl::blockhash {
 namespace {
@@ -26,6 +27,20 @@ inline long near_side(const float* thr, std::uint32_t P, std::uint32_t h, float 
   if (dlo < dhi) return long(h) - 1;
   if (std::isfinite(dhi)) return long(h) + 1;
   return -1;
+}
+
+// Row qi of the result from the top-k list (empty slots stay -1 / +inf), and its count.
+void write_row(KnnResult& out, std::size_t qi, std::uint32_t k, const std::vector<float>& bd,
+               const std::vector<std::int32_t>& bi) {
+  std::size_t row = qi * k;
+  std::int32_t count = 0;
+  for (std::uint32_t j = 0; j < k; ++j) {
+    if (bi[j] == BHCL_EMPTY_SLOT_ID) continue;
+    out.ids[row + j] = bi[j];
+    out.dist2[row + j] = bd[j];
+    ++count;
+  }
+  out.counts[qi] = count;
 }
 
 inline float box_dist2(const bhcl_bh_box& b, const float* q) {
@@ -55,7 +70,6 @@ void reference_query(const Structure& s, const float* queries, std::size_t n,
   const std::uint32_t seeds = seed_side(s.info.hilbert_seed, params.k, s.info.X);
   out.resize(n, params.k);
   if (examined) examined->assign(n, 0);
-  if (threads == 0) threads = std::max(1u, std::thread::hardware_concurrency());
 
   auto work = [&](std::size_t begin, std::size_t end) {
     std::vector<BucketRef> cand;
@@ -167,25 +181,11 @@ void reference_query(const Structure& s, const float* queries, std::size_t n,
         }
         if (done) break;
       }
-      std::size_t row = qi * k;
-      std::int32_t count = 0;
-      for (std::uint32_t j = 0; j < k; ++j) {
-        if (bi[j] == BHCL_EMPTY_SLOT_ID) continue;
-        out.ids[row + j] = bi[j];
-        out.dist2[row + j] = bd[j];
-        ++count;
-      }
-      out.counts[qi] = count;
+      write_row(out, qi, k, bd, bi);
       if (examined) (*examined)[qi] = static_cast<std::int32_t>(ex);
     }
   };
-  std::vector<std::thread> pool;
-  std::size_t per = (n + threads - 1) / std::max(1u, threads);
-  for (unsigned t = 0; t < threads && per; ++t) {
-    std::size_t b = t * per, e = std::min(n, b + per);
-    if (b < e) pool.emplace_back(work, b, e);
-  }
-  for (auto& th : pool) th.join();
+  detail::parallel_for(n, work, threads, 1);
 }
 
 
@@ -243,7 +243,6 @@ void reference_query_cells(const Structure& s, const float* queries, std::size_t
   const long nb = static_cast<long>(s.blocks.size());
   out.resize(n, params.k);
   if (examined) examined->assign(n, 0);
-  if (threads == 0) threads = std::max(1u, std::thread::hardware_concurrency());
 
   auto work = [&](std::size_t begin, std::size_t end) {
     std::vector<float> bd(k);
@@ -349,25 +348,11 @@ void reference_query_cells(const Structure& s, const float* queries, std::size_t
           scan(b);
         }
       }
-      std::size_t row = qi * k;
-      std::int32_t count = 0;
-      for (std::uint32_t j = 0; j < k; ++j) {
-        if (bi[j] == BHCL_EMPTY_SLOT_ID) continue;
-        out.ids[row + j] = bi[j];
-        out.dist2[row + j] = bd[j];
-        ++count;
-      }
-      out.counts[qi] = count;
+      write_row(out, qi, k, bd, bi);
       if (examined) (*examined)[qi] = static_cast<std::int32_t>(ex);
     }
   };
-  std::vector<std::thread> pool;
-  std::size_t per = (n + threads - 1) / std::max(1u, threads);
-  for (unsigned t = 0; t < threads && per; ++t) {
-    std::size_t b = t * per, e = std::min(n, b + per);
-    if (b < e) pool.emplace_back(work, b, e);
-  }
-  for (auto& th : pool) th.join();
+  detail::parallel_for(n, work, threads, 1);
 }
 
 }  // namespace bhcl::blockhash
