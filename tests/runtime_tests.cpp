@@ -30,7 +30,7 @@ TEST_CASE("runtime: device specs by index, type and name") {
 TEST_CASE("runtime: embedded kernel sources resolve their includes") {
   std::string src = kernel_source("bruteforce_knn.cl");
   CHECK(src.find("__kernel void bruteforce_knn") != std::string::npos);
-  CHECK(src.find("bhcl_topk_insert") != std::string::npos);   // from knn_common.h
+  CHECK(src.find("bhcl_topk_push") != std::string::npos);     // from knn_common.h
   CHECK(src.find("BHCL_EMPTY_SLOT_ID") != std::string::npos);  // from bhcl_shared.h
   CHECK(src.find("#include \"") == std::string::npos);
   CHECK_THROWS_WITH_AS(kernel_source("missing.cl"), doctest::Contains("missing.cl"), Error);
