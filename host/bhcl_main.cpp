@@ -1,32 +1,85 @@
-// bhcl: the blockhash_cl command-line tool. Errors are one line on stderr: exit 2 for a usage
-// mistake, 1 for anything else (bad input, OpenCL failure).
+// bhcl: the blockhash_cl command-line tool. Each sub-command's options are parsed by CLI11
+// (`bhcl CMD --help` lists them). Errors are one line on stderr: exit 2 for a usage mistake,
+// 1 for anything else (bad input, OpenCL failure).
 #include <algorithm>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <exception>
+#include <string>
+#include <vector>
 
+#include "blockhash_cl/config.hpp"
 #include "blockhash_cl/error.hpp"
 #include "cli.hpp"
 #include "commands.hpp"
 
 namespace bhcl::cli {
+
 std::vector<Command>& commands() {
   static std::vector<Command> all;
   return all;
 }
+
+namespace {
+
+const Command* find_command(const std::string& name) {
+  for (const auto& c : commands())
+    if (c.name == name) return &c;
+  return nullptr;
+}
+
+// CLI11's messages in the words bhcl uses everywhere.
+std::string usage_message(const CLI::ParseError& e) {
+  std::string m = e.what();
+  const std::string required = " is required";
+  if (m.rfind("--", 0) == 0 && m.size() > required.size() &&
+      m.compare(m.size() - required.size(), required.size(), required) == 0)
+    return "missing required option " + m.substr(0, m.size() - required.size());
+  if (e.get_name() == "ArgumentMismatch" && m.rfind("--", 0) == 0)
+    return "option " + m.substr(0, m.find(':')) + " needs a value";
+  return m;
+}
+
+}  // namespace
+
+int run_command(const std::vector<std::string>& argv) {
+  if (argv.empty()) throw UsageError("no command");
+  const Command* c = find_command(argv[0]);
+  if (!c) throw UsageError("unknown command '" + argv[0] + "'");
+  CLI::App app(c->summary, "bhcl " + c->name);
+  app.allow_extras();
+  app.get_formatter()->column_width(34);
+  Args args(&app, c->name);
+  c->declare(args);
+  std::vector<std::string> rest(argv.rbegin(), argv.rend() - 1);  // CLI11 takes them reversed
+  try {
+    app.parse(rest);
+  } catch (const CLI::CallForHelp&) {
+    std::fputs(app.help().c_str(), stdout);
+    return 0;
+  } catch (const CLI::ParseError& e) {
+    throw UsageError(usage_message(e));
+  }
+  args.check_extras();
+  return c->run(args);
+}
+
 }  // namespace bhcl::cli
 
 namespace {
 
-void print_help() {
+void print_help(std::FILE* to) {
   auto cmds = bhcl::cli::commands();
   std::sort(cmds.begin(), cmds.end(), [](const auto& a, const auto& b) { return a.name < b.name; });
-  std::printf("bhcl: batched approximate kNN on 3D points with OpenCL (blockhash_cl)\n\n");
-  for (const auto& c : cmds) std::printf("  bhcl %s\n", c.usage.c_str());
-  std::printf(
-      "\nEnvironment: BHCL_DEVICE picks the OpenCL device (see `bhcl devices`),\n"
-      "BHCL_KERNEL_DIR loads kernels/*.cl from disk instead of the embedded copies.\n");
+  std::fprintf(to, "bhcl %s: batched approximate kNN on 3D points with OpenCL (blockhash_cl)\n\n",
+               BHCL_VERSION_STRING);
+  std::fprintf(to, "usage: bhcl COMMAND [OPTIONS]   (bhcl COMMAND --help lists its options)\n\n");
+  for (const auto& c : cmds) std::fprintf(to, "  %-9s %s\n", c.name.c_str(), c.summary.c_str());
+  std::fprintf(to,
+               "\n  --version  print the version and exit\n"
+               "\nEnvironment: BHCL_DEVICE picks the OpenCL device (see `bhcl devices`),\n"
+               "BHCL_KERNEL_DIR loads kernels/*.cl from disk instead of the embedded copies.\n");
 }
 
 }  // namespace
@@ -36,24 +89,30 @@ int main(int argc, char** argv) {
   // Run from the build tree: PoCL's kernel cache goes there too, unless the user chose one.
   setenv("POCL_CACHE_DIR", BHCL_BUILD_TREE_POCL_CACHE, 0);
 #endif
-  if (argc < 2 || !std::strcmp(argv[1], "help") || !std::strcmp(argv[1], "--help") ||
-      !std::strcmp(argv[1], "-h")) {
-    print_help();
-    return argc < 2 ? 2 : 0;
+  if (argc < 2) {
+    print_help(stderr);
+    return 2;
   }
-  for (const auto& c : bhcl::cli::commands()) {
-    if (c.name != argv[1]) continue;
-    try {
-      return c.run(argc - 1, argv + 1);
-    } catch (const bhcl::cli::UsageError& e) {
-      std::fprintf(stderr, "bhcl %s: usage error: %s\nusage: bhcl %s\n", argv[1], e.what(),
-                   c.usage.c_str());
-      return 2;
-    } catch (const std::exception& e) {
-      std::fprintf(stderr, "bhcl %s: error: %s\n", argv[1], e.what());
-      return 1;
-    }
+  const std::string first = argv[1];
+  if (first == "help" || first == "--help" || first == "-h") {
+    print_help(stdout);
+    return 0;
   }
-  std::fprintf(stderr, "bhcl: unknown command '%s' (try `bhcl help`)\n", argv[1]);
-  return 2;
+  if (first == "--version") {
+    std::printf("bhcl %s\n", BHCL_VERSION_STRING);
+    return 0;
+  }
+  if (!bhcl::cli::find_command(first)) {
+    std::fprintf(stderr, "bhcl: unknown command '%s' (try `bhcl --help`)\n", first.c_str());
+    return 2;
+  }
+  try {
+    return bhcl::cli::run_command(std::vector<std::string>(argv + 1, argv + argc));
+  } catch (const bhcl::cli::UsageError& e) {
+    std::fprintf(stderr, "bhcl %s: usage error: %s (see `bhcl %s --help`)\n", argv[1], e.what(), argv[1]);
+    return 2;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "bhcl %s: error: %s\n", argv[1], e.what());
+    return 1;
+  }
 }

@@ -31,17 +31,34 @@ Side run_side(const std::string& method, const std::shared_ptr<Runtime>& rt,
   return s;
 }
 
+bool has_flann() {
+  for (const auto& m : method_names())
+    if (m == "flann") return true;
+  return false;
+}
+
 std::string fmt(const char* f, double v) {
   char b[64];
   std::snprintf(b, sizeof b, f, v);
   return b;
 }
 
-int run_eval(int argc, char** argv) {
-  Args args(argc, argv, 1);
-  args.allow_only(merge(kIndexOptions, {"points", "queries", "method", "truth", "device", "stats"}));
+void declare_eval(Args& a) {
+  a.add_required("points", "the point set (raw float32 x y z)");
+  a.add_required("queries", "the query points (same formats as --points)");
+  a.add_required("method", "the method evaluated: bruteforce, kdtree, flann or blockhash", "NAME");
+  a.add_text("truth", "the exact method giving the true neighbours: flann, bruteforce or kdtree",
+             has_flann() ? "flann" : "kdtree", "NAME");
+  a.add_text("stats", "write the metrics, timings and parameters here as JSON", "", "FILE");
+  a.add_text("device", "OpenCL device: P:D, cpu, gpu or a name fragment (default: BHCL_DEVICE, then PoCL)",
+             "", "SPEC");
+  declare_index_options(a);
+}
+
+int run_eval(const Args& args) {
   const std::string method = args.str("method");
-  const std::string truth_method = args.str("truth", "flann");
+  const std::string truth_method = args.str("truth", has_flann() ? "flann" : "kdtree");
+  check_method_options(args, {method, truth_method});
   SearchParams params = search_params(args);
   MethodOptions mopt = method_options(args);
 
@@ -123,10 +140,8 @@ int run_eval(int argc, char** argv) {
   return 0;
 }
 
-RegisterCommand reg("eval",
-                    "eval --points P --queries Q --k K --method M [--truth flann|bruteforce|kdtree] "
-                    "[--max-radius R] [--device SPEC] [--stats S.json] [method options]",
-                    run_eval);
+RegisterCommand reg("eval", "a method against an exact one: accuracy metrics and timings",
+                    declare_eval, run_eval);
 
 }  // namespace
 }  // namespace bhcl::cli

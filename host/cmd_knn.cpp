@@ -11,11 +11,22 @@
 namespace bhcl::cli {
 namespace {
 
-int run_knn(int argc, char** argv) {
-  Args args(argc, argv, 1);
-  args.allow_only(merge(kIndexOptions, {"points", "queries", "method", "device", "out-ids",
-                                        "out-dist2", "out-counts", "stats"}));
-  const std::string method = args.str("method", "bruteforce");
+void declare_knn(Args& a) {
+  a.add_required("points", "the point set (raw float32 x y z)");
+  a.add_required("queries", "the query points (same formats as --points)");
+  a.add_required("method", "bruteforce, kdtree, flann or blockhash", "NAME");
+  a.add_required("out-ids", "write the neighbour ids here (int32, n x k, row-major)");
+  a.add_required("out-dist2", "write the squared distances here (float32, n x k, row-major)");
+  a.add_text("out-counts", "write the neighbours found per query here (int32, n)", "", "FILE");
+  a.add_text("stats", "write timings and parameters here as JSON", "", "FILE");
+  a.add_text("device", "OpenCL device: P:D, cpu, gpu or a name fragment (default: BHCL_DEVICE, then PoCL)",
+             "", "SPEC");
+  declare_index_options(a);
+}
+
+int run_knn(const Args& args) {
+  const std::string method = args.str("method");
+  check_method_options(args, {method});
   const std::string out_ids = args.str("out-ids");
   const std::string out_dist2 = args.str("out-dist2");
   SearchParams params = search_params(args);
@@ -67,9 +78,7 @@ int run_knn(int argc, char** argv) {
   return 0;
 }
 
-RegisterCommand reg("knn",
-                    "knn --points P --queries Q --k K --method M [--max-radius R] [--device SPEC] "
-                    "--out-ids I --out-dist2 D [--out-counts C] [--stats S.json] [method options]",
+RegisterCommand reg("knn", "k nearest neighbours of every query, written as raw arrays", declare_knn,
                     run_knn);
 
 }  // namespace

@@ -136,12 +136,47 @@ std::string run_json(const RenderRun& r, const ImageDiff* d) {
   return s;
 }
 
-int run_render(int argc, char** argv) {
-  Args args(argc, argv, 1, {"compare", "quiet"});
-  args.allow_only(merge(kIndexOptions,
-                        {"scene", "method", "photons", "gather", "spp", "size", "out", "png", "stats", "device",
-                         "shadow-rays", "caustic-k", "caustic-radius", "batch", "exposure", "compare",
-                         "exact", "approx", "compare-A", "diff-scale", "quiet"}));
+void declare_render(Args& a) {
+  a.add_required("out", "the image (half-float OpenEXR); a PNG preview goes beside it", "IMAGE.exr");
+  a.add_text("scene", "cornell, a scene name from the scenes folder, or an OBJ file", "cornell", "SCENE");
+  a.add_text("method", "the kNN method of the final gather", has_method("kdtree") ? "kdtree" : "bruteforce",
+             "NAME");
+  a.add_integer("photons", "photons emitted", 1, Args::kNoLimit, "200000");
+  a.add_integer("gather", "final-gather rays per pixel sample", 0, 4096, "32");
+  a.add_integer("spp", "samples per pixel", 1, 4096, "1");
+  a.add_text("size", "image size WxH", "512x512", "WxH");
+  a.add_text("png", "the tone-mapped PNG preview", "OUT with .png", "FILE");
+  a.add_text("stats", "write timings and parameters here as JSON", "", "FILE");
+  a.add_text("device", "OpenCL device: P:D, cpu, gpu or a name fragment (default: BHCL_DEVICE, then PoCL)",
+             "", "SPEC");
+  a.add_integer("shadow-rays", "shadow rays per shading point", 1, 4096, "4");
+  a.add_integer("caustic-k", "photons per caustic estimate (0: --k)", 0, kMaxK, "0");
+  a.add_number("caustic-radius", "caustic gather radius (0: automatic)", "0");
+  a.add_integer("batch", "gather queries per kNN call", 1, Args::kNoLimit, "262144");
+  a.add_number("exposure", "tone-mapping exposure (0: automatic)", "0");
+  a.add_flag("quiet", "no progress bars");
+  a.group("Comparison");
+  a.add_flag("compare", "render with an exact method and with block hashing at several A, side by side");
+  a.add_text("exact", "--compare: the exact method", has_method("kdtree") ? "kdtree" : "bruteforce", "NAME");
+  a.add_text("approx", "--compare: the approximate method", "blockhash", "NAME");
+  a.add_text("compare-A", "--compare: the values of A, comma separated", "4,8,16", "LIST");
+  a.add_number("diff-scale", "--compare: relative error shown as full scale in the difference images", "0.1");
+  declare_index_options(a, 50);
+}
+
+int run_render(const Args& args) {
+  {
+    const bool cmp = args.flag("compare");
+    for (const char* o : {"exact", "approx", "compare-A", "diff-scale"})
+      if (!cmp && args.has(o)) throw UsageError("--" + std::string(o) + " applies only with --compare");
+    if (cmp && args.has("method")) throw UsageError("--method does not apply with --compare (see --exact, --approx)");
+    const std::string dflt = has_method("kdtree") ? "kdtree" : "bruteforce";
+    // --threads and --seed also drive Embree and the photon tracer.
+    if (cmp)
+      check_method_options(args, {args.str("exact", dflt), args.str("approx", "blockhash")}, {"threads", "seed"});
+    else
+      check_method_options(args, {args.str("method", dflt)}, {"threads", "seed"});
+  }
   const auto t_start = Clock::now();
   const bool quiet = args.flag("quiet");
   const bool compare = args.flag("compare");
@@ -156,19 +191,14 @@ int run_render(int argc, char** argv) {
   ropt.shadow_rays = static_cast<int>(args.integer("shadow-rays", 4));
   ropt.caustic_k = static_cast<int>(args.integer("caustic-k", 0));
   ropt.caustic_radius = static_cast<float>(args.number("caustic-radius", 0));
+  // The integer options above are range-checked as declared (declare_render).
   long long batch = args.integer("batch", 262144);
-  if (ropt.spp < 1 || ropt.spp > 4096) throw UsageError("--spp must be in [1, 4096]");
-  if (ropt.gather < 0 || ropt.gather > 4096) throw UsageError("--gather must be in [0, 4096]");
-  if (ropt.shadow_rays < 1 || ropt.shadow_rays > 4096) throw UsageError("--shadow-rays must be in [1, 4096]");
-  if (ropt.caustic_k < 0 || ropt.caustic_k > kMaxK) throw UsageError("--caustic-k must be in [1, 256]");
   if (!(ropt.caustic_radius >= 0)) throw UsageError("--caustic-radius must be >= 0");
-  if (batch < 1) throw UsageError("--batch must be >= 1");
   ropt.batch_queries = static_cast<std::size_t>(batch);
   MethodOptions mopt = method_options(args);
   ropt.seed = mopt.seed;
   ropt.threads = mopt.threads;
   long long photons = args.integer("photons", 200000);
-  if (photons < 1) throw UsageError("--photons must be >= 1");
   const double exposure_opt = args.number("exposure", 0.0);
   if (exposure_opt < 0 || !std::isfinite(exposure_opt)) throw UsageError("--exposure must be >= 0 (0: automatic)");
 
@@ -311,13 +341,8 @@ int run_render(int argc, char** argv) {
   return 0;
 }
 
-RegisterCommand reg(
-    "render",
-    "render [--scene cornell|NAME|FILE.obj] [--method M] [--A A] [--k K] [--photons N] [--gather M] "
-    "[--spp S] [--size WxH] --out IMAGE.exr [--png P.png] [--stats S.json] [--shadow-rays R] "
-    "[--caustic-k K] [--caustic-radius R] [--max-radius R] [--batch Q] [--exposure E] [--device SPEC] "
-    "[--seed S] [--threads T] [--quiet] [--compare [--exact M] [--approx M] [--compare-A 4,8,16] [--diff-scale 0.1]]",
-    run_render);
+RegisterCommand reg("render", "the photon-mapping renderer, final gather answered by a kNN method",
+                    declare_render, run_render);
 
 }  // namespace
 }  // namespace bhcl::cli

@@ -1,6 +1,8 @@
 // The bhcl tool: bad input exits non-zero with one clear line; knn writes the documented files.
 #include "test_util.hpp"
 
+#include "blockhash_cl/config.hpp"
+
 using namespace bhcl;
 
 namespace {
@@ -87,6 +89,85 @@ TEST_CASE("cli: bad input exits non-zero with one clear line") {
     CHECK(rc == c.rc);
     CHECK(out.find(c.expect) != std::string::npos);
     CHECK(out.find("terminate") == std::string::npos);
+  }
+}
+
+TEST_CASE("cli: --version prints the library version") {
+  std::string out;
+  CHECK(test::run_bhcl("--version", &out) == 0);
+  CHECK(out.find(BHCL_VERSION_STRING) != std::string::npos);
+}
+
+TEST_CASE("cli: every command's --help exits 0 and lists each option with its meaning and default") {
+  std::string out;
+  CHECK(test::run_bhcl("--help", &out) == 0);
+  for (const char* cmd : {"knn", "eval", "render", "demo", "devices"})
+    CHECK_MESSAGE(out.find(cmd) != std::string::npos, cmd);
+  struct Expect {
+    std::string cmd;
+    std::vector<std::string> shown;
+  };
+  const std::vector<std::string> index_options = {
+      "--k INT=10", "--max-radius NUM=inf", "--A NUM=8", "--probes", "--local-size", "--max-batch",
+      "--preset NAME=auto", "--L ", "--P ", "--B ", "--X ", "--seed INT=1", "--threads INT=0",
+      "--load-index", "--save-index"};
+  std::vector<Expect> cases = {
+      {"knn", {"--points FILE REQUIRED", "--queries FILE REQUIRED", "--method NAME REQUIRED",
+               "--out-ids FILE REQUIRED", "--out-dist2 FILE REQUIRED", "--out-counts", "--stats", "--device"}},
+      {"eval", {"--points FILE REQUIRED", "--method NAME REQUIRED", "--truth NAME=", "--stats", "--device"}},
+      {"render", {"--out IMAGE.exr REQUIRED", "--scene SCENE=cornell", "--photons INT=200000", "--size WxH=512x512",
+                  "--compare", "--compare-A LIST=4,8,16", "--quiet", "--k INT=50"}},
+      {"demo", {"--N INT=200000", "--n INT=20000", "--k INT=50", "--out-dir DIR=bhcl-demo", "--no-render"}},
+      {"devices", {"--device SPEC"}},
+  };
+  for (auto c : cases) {
+    if (c.cmd == "knn" || c.cmd == "eval")
+      for (const auto& o : index_options) c.shown.push_back(o);
+    int rc = test::run_bhcl(c.cmd + " --help", &out);
+    INFO("bhcl " << c.cmd << " --help\n" << out);
+    CHECK(rc == 0);
+    for (const auto& s : c.shown) CHECK_MESSAGE(out.find(s) != std::string::npos, s);
+    // Each option line carries its meaning: no line is only an option name.
+    std::istringstream lines(out);
+    for (std::string line; std::getline(lines, line);) {
+      if (line.rfind("  --", 0) != 0) continue;
+      std::size_t gap = line.find("  ", 4);
+      CHECK_MESSAGE((gap != std::string::npos && line.find_first_not_of(' ', gap) != std::string::npos), line);
+    }
+  }
+}
+
+TEST_CASE("cli: missing --method, an option the method does not read, an out-of-range integer") {
+  auto pts = datasets::uniform(100, 81);
+  std::string P = write_points("usage_p.f32", pts);
+  std::string I = test::tmp_path("usage_ids"), D = test::tmp_path("usage_d2");
+  const std::string base = "knn --points " + P + " --queries " + P + " --out-ids " + I + " --out-dist2 " + D;
+  struct Case {
+    std::string args, expect;
+  };
+  std::vector<Case> cases = {
+      {base + " --k 3", "missing required option --method"},
+      {base + " --k 3 --method kdtree --A 4", "--A does not apply to method kdtree"},
+      {base + " --k 3 --method bruteforce --threads 2", "--threads does not apply to method bruteforce"},
+      {base + " --k 3 --method kdtree --L 4", "--L does not apply to method kdtree"},
+      {base + " --k 99999999999999999999 --method kdtree", "--k must be in [1, 256]"},
+      {base + " --k 4294967299 --method kdtree", "--k must be in [1, 256]"},  // 2^32 + 3: not narrowed to 3
+      {base + " --k 3 --method blockhash --X 17", "--X must be in [-1, 16]"},
+      {base + " --k 3 --method blockhash --seed -1", "--seed must be >= 0"},
+      {base + " --k 3 --method kdtree --max-batch -5", "--max-batch must be >= 0"},
+      {base + " --k 3 --method kdtree --k", "option --k needs a value"},
+      {"eval --points " + P + " --queries " + P + " --method kdtree --truth bruteforce --threads 2",
+       "--threads does not apply to method kdtree and bruteforce"},
+      {"render --out " + I + ".exr --method bruteforce --A 4", "--A does not apply to method bruteforce"},
+      {"demo --N 0", "--N must be in [1, "},
+  };
+  for (const auto& c : cases) {
+    std::string out;
+    int rc = test::run_bhcl(c.args, &out);
+    INFO("bhcl " << c.args << "\n" << out);
+    CHECK(rc == 2);
+    CHECK(out.find(c.expect) != std::string::npos);
+    CHECK(std::count(out.begin(), out.end(), '\n') == 1);  // one line
   }
 }
 
