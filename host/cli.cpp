@@ -6,7 +6,12 @@
 #include <cstdio>
 #include <fstream>
 
+#include "blockhash_cl/blockhash.hpp"
+#include "blockhash_cl/config.hpp"
 #include "blockhash_cl/error.hpp"
+#if BHCL_HAVE_FLANN
+#include "blockhash_cl/flann_index.hpp"
+#endif
 #include "blockhash_cl/io.hpp"
 
 namespace bhcl::cli {
@@ -106,63 +111,65 @@ double Args::number(const std::string& key, double fallback) const {
   return x;
 }
 
-std::string json_escape(const std::string& s) {
-  std::string o = "\"";
-  for (char c : s) {
-    switch (c) {
-      case '"': o += "\\\""; break;
-      case '\\': o += "\\\\"; break;
-      case '\n': o += "\\n"; break;
-      case '\t': o += "\\t"; break;
-      default:
-        if (static_cast<unsigned char>(c) < 0x20) {
-          char b[8];
-          std::snprintf(b, sizeof b, "\\u%04x", c);
-          o += b;
-        } else {
-          o += c;
-        }
-    }
-  }
-  return o + "\"";
-}
-
-Json& Json::add(const std::string& key, const std::string& value) {
-  items_.emplace_back(key, json_escape(value));
-  return *this;
-}
-Json& Json::add(const std::string& key, double value) {
-  char b[64];
-  if (std::isfinite(value)) std::snprintf(b, sizeof b, "%.9g", value);
-  else std::snprintf(b, sizeof b, "null");
-  items_.emplace_back(key, b);
-  return *this;
-}
-Json& Json::add(const std::string& key, long long value) {
-  items_.emplace_back(key, std::to_string(value));
-  return *this;
-}
-Json& Json::add(const std::string& key, bool value) {
-  items_.emplace_back(key, value ? "true" : "false");
-  return *this;
-}
-Json& Json::add_raw(const std::string& key, const std::string& json) {
-  items_.emplace_back(key, json);
-  return *this;
-}
-
-std::string Json::str() const {
-  std::string o = "{";
-  for (size_t i = 0; i < items_.size(); ++i)
-    o += (i ? ",\n  " : "\n  ") + json_escape(items_[i].first) + ": " + items_[i].second;
-  return o + "\n}\n";
-}
-
-void Json::write(const std::string& path) const {
+void write_json(const std::string& path, const Json& j) {
   std::ofstream out(path);
   if (!out) throw bhcl::Error(path + ": cannot open the stats file for writing");
-  out << str();
+  // Non-finite numbers (an unbounded radius) are written as null.
+  out << j.dump(2) << "\n";
   if (!out) throw bhcl::Error(path + ": write failed");
+}
+
+Json stats_header(const std::string& command, const Runtime& rt) {
+  Json j;
+  j["tool"] = "bhcl";
+  j["version"] = BHCL_VERSION_STRING;
+  j["command"] = command;
+  j["device"] = rt.info().summary();
+  return j;
+}
+
+Json build_json(const Index& index, const MethodOptions& options) {
+  Json b;
+  if (const auto* bh = dynamic_cast<const BlockHashIndex*>(&index)) {
+    const BlockHashBuildInfo& i = bh->info();
+    b["preset"] = BlockHashBuildParams::preset_name(i.preset);
+    b["L"] = i.L;
+    b["P"] = i.P;
+    b["B"] = i.B;
+    b["X"] = i.X;
+    // A loaded index carries its own jitter; the seed given only matters for a build.
+    if (options.load_index.empty()) b["seed"] = options.seed;
+    b["guard_thresholds"] = i.guard_thresholds;
+    b["keep_top_count"] = i.keep_top_count;
+    b["direct_addressing"] = i.direct_addressing;
+    b["box_skip"] = i.box_skip;
+    b["neighbour_probes"] = i.neighbour_probes;
+    b["box_order"] = i.box_order;
+    b["hilbert_seed"] = i.hilbert_seed;
+    if (!options.load_index.empty()) b["load_index"] = options.load_index;
+    if (!options.save_index.empty()) b["save_index"] = options.save_index;
+  }
+#if BHCL_HAVE_FLANN
+  if (const auto* fl = dynamic_cast<const FlannIndex*>(&index)) b["threads"] = fl->threads();
+#endif
+  if (b.is_null()) b = Json::object();
+  return b;
+}
+
+Json search_json(const Index& index, const SearchParams& p) {
+  Json s;
+  s["k"] = p.k;
+  s["max_radius"] = p.max_radius;  // null: unbounded
+  if (const auto* bh = dynamic_cast<const BlockHashIndex*>(&index)) {
+    s["A"] = p.A;
+    s["neighbour_probes"] = p.neighbour_probes >= 0 ? p.neighbour_probes != 0 : bh->info().neighbour_probes;
+  }
+  if (index.method() != "flann") {  // the device methods
+    s["local_size"] = p.local_size ? p.local_size : index.runtime().quirks().default_local_size;
+    s["max_batch"] = p.max_batch;  // 0: automatic
+  }
+  s["sort_queries"] = p.sort_queries;
+  return s;
 }
 
 void declare_index_options(Args& a, int default_k) {

@@ -2,6 +2,7 @@
 #pragma once
 
 #include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
 
 #include <limits>
 #include <map>
@@ -67,25 +68,17 @@ class Args {
   std::map<std::string, std::pair<long long, long long>> ranges_;
 };
 
-// A flat JSON object written in insertion order.
-class Json {
- public:
-  Json& add(const std::string& key, const std::string& value);
-  Json& add(const std::string& key, const char* value) { return add(key, std::string(value)); }
-  Json& add(const std::string& key, double value);
-  Json& add(const std::string& key, long long value);
-  Json& add(const std::string& key, std::size_t value) { return add(key, static_cast<long long>(value)); }
-  Json& add(const std::string& key, int value) { return add(key, static_cast<long long>(value)); }
-  Json& add(const std::string& key, bool value);
-  Json& add_raw(const std::string& key, const std::string& json);
-  std::string str() const;
-  void write(const std::string& path) const;
-
- private:
-  std::vector<std::pair<std::string, std::string>> items_;
-};
-
-std::string json_escape(const std::string& s);
+// Stats files: JSON objects in insertion order (nlohmann-json).
+using Json = nlohmann::ordered_json;
+// Writes `j` (indented) to `path`; throws bhcl::Error naming the path on failure.
+void write_json(const std::string& path, const Json& j);
+// What every stats file starts with: the tool and library version, the command and the device.
+Json stats_header(const std::string& command, const Runtime& rt);
+// The build parameters an index actually used (derived ones filled in: block hashing's L, P, B, X
+// and switches; FLANN's threads) and the search parameters of a query with `p` (defaults
+// resolved: the work-group size, block hashing's probes), so that a run can be reproduced.
+Json build_json(const Index& index, const MethodOptions& options);
+Json search_json(const Index& index, const SearchParams& p);
 
 // Options shared by every command that builds and queries an index (knn, eval, render):
 // --k --max-radius --A --probes --local-size --max-batch and the build options

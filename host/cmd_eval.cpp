@@ -109,33 +109,36 @@ int run_eval(const Args& args) {
               "time for host methods (flann)\n");
 
   if (args.has("stats")) {
-    Json j;
-    auto side = [&](const std::string& p, const Side& s) {
-      j.add(p + "method", s.index->method())
-          .add(p + "exact", s.index->exact())
-          .add(p + "build_s", s.index->build_seconds())
-          .add(p + "compile_s", s.stats.compile_s)
-          .add(p + "query_s", s.stats.query_s)
-          .add(p + "wall_s", s.stats.wall_s)
-          .add(p + "queries_per_s", s.stats.queries_per_s())
-          .add(p + "memory_bytes", s.index->memory_bytes());
+    Json j = stats_header("eval", *rt);
+    auto side = [&](const std::string& p, const Side& s, const MethodOptions& o) {
+      j[p + "method"] = s.index->method();
+      j[p + "exact"] = s.index->exact();
+      j[p + "build"] = build_json(*s.index, o);
+      j[p + "search"] = search_json(*s.index, params);
+      j[p + "build_s"] = s.index->build_seconds();
+      j[p + "compile_s"] = s.stats.compile_s;
+      j[p + "query_s"] = s.stats.query_s;
+      j[p + "wall_s"] = s.stats.wall_s;
+      j[p + "queries_per_s"] = s.stats.queries_per_s();
+      j[p + "memory_bytes"] = s.index->memory_bytes();
     };
-    j.add("device", rt->info().summary())
-        .add("N", N)
-        .add("n", n)
-        .add("k", params.k)
-        .add("max_radius", static_cast<double>(params.max_radius));
-    side("", m);
-    side("truth_", truth);
-    j.add("recall", m.accuracy.recall)
-        .add("false_negative_rate", m.accuracy.false_negative_rate)
-        .add("max_dilation", m.accuracy.max_dilation)
-        .add("mean_dilation", m.accuracy.mean_dilation)
-        .add("mean_rel_distance_error", m.accuracy.mean_rel_distance_error)
-        .add("incomplete_queries", m.accuracy.incomplete_queries)
-        .add("identical_rows", m.accuracy.identical_rows)
-        .add("compared_queries", m.accuracy.queries);
-    j.write(args.str("stats"));
+    j["points"] = args.str("points");
+    j["queries"] = args.str("queries");
+    j["N"] = N;
+    j["n"] = n;
+    j["k"] = params.k;
+    j["max_radius"] = params.max_radius;  // null: unbounded
+    side("", m, mopt);
+    side("truth_", truth, topt);
+    j["recall"] = m.accuracy.recall;
+    j["false_negative_rate"] = m.accuracy.false_negative_rate;
+    j["max_dilation"] = m.accuracy.max_dilation;
+    j["mean_dilation"] = m.accuracy.mean_dilation;
+    j["mean_rel_distance_error"] = m.accuracy.mean_rel_distance_error;
+    j["incomplete_queries"] = m.accuracy.incomplete_queries;
+    j["identical_rows"] = m.accuracy.identical_rows;
+    j["compared_queries"] = m.accuracy.queries;
+    write_json(args.str("stats"), j);
   }
   return 0;
 }

@@ -55,25 +55,29 @@ int run_knn(const Args& args) {
                index->method().c_str(), rt->info().device_name.c_str(), N, n, params.k,
                index->build_seconds(), st.compile_s, st.query_s, st.queries_per_s(), found);
   if (args.has("stats")) {
-    Json j;
-    j.add("method", index->method())
-        .add("device", rt->info().summary())
-        .add("N", N)
-        .add("n", n)
-        .add("k", params.k)
-        .add("max_radius", static_cast<double>(params.max_radius))
-        .add("build_s", index->build_seconds())
-        .add("compile_s", st.compile_s)
-        .add("query_s", st.query_s)
-        .add("upload_s", st.upload_s)
-        .add("download_s", st.download_s)
-        .add("wall_s", st.wall_s)
-        .add("queries_per_s", st.queries_per_s())
-        .add("batches", st.batches)
-        .add("nonfinite_queries", st.nonfinite_queries)
-        .add("neighbours_found", found)
-        .add("memory_bytes", index->memory_bytes());
-    j.write(args.str("stats"));
+    Json j = stats_header("knn", *rt);
+    j["method"] = index->method();
+    j["exact"] = index->exact();
+    j["points"] = args.str("points");
+    j["queries"] = args.str("queries");
+    j["N"] = N;
+    j["n"] = n;
+    j["k"] = params.k;
+    j["max_radius"] = params.max_radius;  // null: unbounded
+    j["build"] = build_json(*index, mopt);
+    j["search"] = search_json(*index, params);
+    j["build_s"] = index->build_seconds();
+    j["compile_s"] = st.compile_s;
+    j["query_s"] = st.query_s;
+    j["upload_s"] = st.upload_s;
+    j["download_s"] = st.download_s;
+    j["wall_s"] = st.wall_s;
+    j["queries_per_s"] = st.queries_per_s();
+    j["batches"] = st.batches;
+    j["nonfinite_queries"] = st.nonfinite_queries;
+    j["neighbours_found"] = found;
+    j["memory_bytes"] = index->memory_bytes();
+    write_json(args.str("stats"), j);
   }
   return 0;
 }

@@ -1,6 +1,8 @@
 // The bhcl tool: bad input exits non-zero with one clear line; knn writes the documented files.
 #include "test_util.hpp"
 
+#include <nlohmann/json.hpp>
+
 #include "blockhash_cl/config.hpp"
 
 using namespace bhcl;
@@ -38,12 +40,52 @@ TEST_CASE("cli: knn bruteforce writes ids, distances and stats") {
   CHECK(ids == ref.ids);
   CHECK(d2 == ref.dist2);
   std::ifstream s(S);
-  std::stringstream ss;
-  ss << s.rdbuf();
-  std::string json = ss.str();
-  for (const char* key : {"\"method\": \"bruteforce\"", "\"N\": 2000", "\"n\": 50", "\"k\": 7",
-                          "\"build_s\"", "\"query_s\"", "\"compile_s\"", "\"device\""})
-    CHECK_MESSAGE(json.find(key) != std::string::npos, key);
+  const nlohmann::json j = nlohmann::json::parse(s);  // throws (fails the test) unless valid JSON
+  INFO(j.dump(2));
+  CHECK(j.at("method") == "bruteforce");
+  CHECK(j.at("exact") == true);
+  CHECK(j.at("N") == 2000);
+  CHECK(j.at("n") == 50);
+  CHECK(j.at("k") == 7);
+  CHECK(j.at("version") == BHCL_VERSION_STRING);
+  CHECK(j.at("command") == "knn");
+  CHECK(j.at("max_radius").is_null());  // unbounded
+  CHECK(j.at("search").at("k") == 7);
+  CHECK(j.at("search").at("local_size").get<int>() > 0);  // the default resolved
+  CHECK(!j.at("search").contains("A"));                   // an exact method: no A
+  CHECK(j.at("build").is_object());
+  for (const char* key : {"build_s", "query_s", "compile_s", "wall_s", "queries_per_s"})
+    CHECK_MESSAGE(j.at(key).get<double>() >= 0, key);
+  CHECK(j.at("neighbours_found") == 50 * 7);
+  CHECK(j.at("device").get<std::string>().size() > 0);
+}
+
+TEST_CASE("cli: the stats of a block-hash run carry the build and search parameters used") {
+  auto names = method_names();
+  if (std::find(names.begin(), names.end(), "blockhash") == names.end()) return;
+  auto pts = datasets::uniform(3000, 63);
+  std::string P = write_points("clibh_p.f32", pts);
+  std::string I = test::tmp_path("clibh_ids.i32"), D = test::tmp_path("clibh_d2.f32"),
+              S = test::tmp_path("clibh_stats.json");
+  std::string out;
+  int rc = test::run_bhcl("knn --points " + P + " --queries " + P + " --k 5 --method blockhash --A 3 --X 8 "
+                          "--preset paper --seed 7 --max-radius 0.5 --out-ids " + I + " --out-dist2 " + D +
+                          " --stats " + S, &out);
+  INFO(out);
+  REQUIRE(rc == 0);
+  std::ifstream s(S);
+  const nlohmann::json j = nlohmann::json::parse(s);
+  INFO(j.dump(2));
+  const auto& b = j.at("build");
+  CHECK(b.at("preset") == "paper");
+  CHECK(b.at("X") == 8);
+  CHECK(b.at("seed") == 7);
+  for (const char* key : {"L", "P", "B"}) CHECK_MESSAGE(b.at(key).get<int>() > 0, key);  // derived
+  const auto& sp = j.at("search");
+  CHECK(sp.at("A") == 3.0);
+  CHECK(sp.at("k") == 5);
+  CHECK(sp.at("max_radius").get<double>() == doctest::Approx(0.5));
+  CHECK(sp.at("neighbour_probes").is_boolean());
 }
 
 TEST_CASE("cli: bad input exits non-zero with one clear line") {
