@@ -44,7 +44,7 @@ std::string fmt(const char* f, double v) {
 }
 
 void declare_eval(Args& a) {
-  a.add_required("points", "the point set (raw float32 x y z)");
+  a.add_required("points", "the point set: PLY, NPY (N x 3 float32/float64), text (x y z per line) or raw float32");
   a.add_required("queries", "the query points (same formats as --points)");
   a.add_required("method", "the method evaluated: bruteforce, kdtree, flann or blockhash", "NAME");
   a.add_text("truth", "the exact method giving the true neighbours: flann, bruteforce or kdtree",

@@ -12,12 +12,12 @@ namespace bhcl::cli {
 namespace {
 
 void declare_knn(Args& a) {
-  a.add_required("points", "the point set (raw float32 x y z)");
+  a.add_required("points", "the point set: PLY, NPY (N x 3 float32/float64), text (x y z per line) or raw float32");
   a.add_required("queries", "the query points (same formats as --points)");
   a.add_required("method", "bruteforce, kdtree, flann or blockhash", "NAME");
-  a.add_required("out-ids", "write the neighbour ids here (int32, n x k, row-major)");
-  a.add_required("out-dist2", "write the squared distances here (float32, n x k, row-major)");
-  a.add_text("out-counts", "write the neighbours found per query here (int32, n)", "", "FILE");
+  a.add_required("out-ids", "write the neighbour ids here (int32, n x k, row-major; NPY when named .npy)");
+  a.add_required("out-dist2", "write the squared distances here (float32, n x k, row-major; NPY when named .npy)");
+  a.add_text("out-counts", "write the neighbours found per query here (int32, n; NPY when named .npy)", "", "FILE");
   a.add_text("stats", "write timings and parameters here as JSON", "", "FILE");
   a.add_text("device", "OpenCL device: P:D, cpu, gpu or a name fragment (default: BHCL_DEVICE, then PoCL)",
              "", "SPEC");
@@ -41,11 +41,9 @@ int run_knn(const Args& args) {
   KnnResult result;
   QueryStats st = index->query(queries.data(), n, params, result);
 
-  write_raw_file(out_ids, result.ids.data(), result.ids.size() * sizeof(std::int32_t));
-  write_raw_file(out_dist2, result.dist2.data(), result.dist2.size() * sizeof(float));
-  if (args.has("out-counts"))
-    write_raw_file(args.str("out-counts"), result.counts.data(),
-                   result.counts.size() * sizeof(std::int32_t));
+  write_array_file(out_ids, result.ids.data(), n, static_cast<std::size_t>(params.k));
+  write_array_file(out_dist2, result.dist2.data(), n, static_cast<std::size_t>(params.k));
+  if (args.has("out-counts")) write_array_file(args.str("out-counts"), result.counts.data(), n, 0);
 
   std::size_t found = 0;
   for (auto c : result.counts) found += static_cast<std::size_t>(c);
