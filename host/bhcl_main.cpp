@@ -1,7 +1,11 @@
 // bhcl: the blockhash_cl command-line tool. Each sub-command's options are parsed by CLI11
 // (`bhcl CMD --help` lists them). Errors are one line on stderr: exit 2 for a usage mistake,
 // 1 for anything else (bad input, OpenCL failure).
+#include <limits.h>
+#include <sys/stat.h>
+
 #include <algorithm>
+#include <cerrno>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -69,6 +73,45 @@ int run_command(const std::vector<std::string>& argv) {
 
 namespace {
 
+// mkdir -p; false when a component cannot be made.
+bool make_dirs(const std::string& path) {
+  for (std::size_t i = 1; i <= path.size(); ++i) {
+    if (i < path.size() && path[i] != '/') continue;
+    const std::string part = path.substr(0, i);
+    if (mkdir(part.c_str(), 0755) != 0 && errno != EEXIST) return false;
+  }
+  return true;
+}
+
+#ifdef BHCL_BUILD_TREE
+// True when this executable lies inside the build tree it was built in.
+bool run_from_build_tree() {
+  char exe[PATH_MAX], tree[PATH_MAX];
+  if (!realpath("/proc/self/exe", exe) || !realpath(BHCL_BUILD_TREE, tree)) return false;
+  const std::string e = exe, t = std::string(tree) + "/";
+  return e.compare(0, t.size(), t) == 0;
+}
+#endif
+
+// PoCL's kernel cache: where the user put it (POCL_CACHE_DIR), else the build tree's for a bhcl
+// run from its build tree, else the user's cache directory ($XDG_CACHE_HOME/blockhash_cl/pocl or
+// ~/.cache/blockhash_cl/pocl). `bhcl devices` shows which.
+void choose_pocl_cache() {
+  if (const char* set = std::getenv("POCL_CACHE_DIR"); set && *set) return;
+#ifdef BHCL_BUILD_TREE
+  if (run_from_build_tree()) {
+    setenv("POCL_CACHE_DIR", BHCL_BUILD_TREE_POCL_CACHE, 1);
+    return;
+  }
+#endif
+  std::string base;
+  if (const char* xdg = std::getenv("XDG_CACHE_HOME"); xdg && xdg[0] == '/') base = xdg;
+  else if (const char* home = std::getenv("HOME"); home && home[0] == '/') base = std::string(home) + "/.cache";
+  else return;  // PoCL's own default
+  const std::string dir = base + "/blockhash_cl/pocl";
+  if (make_dirs(dir)) setenv("POCL_CACHE_DIR", dir.c_str(), 1);
+}
+
 void print_help(std::FILE* to) {
   auto cmds = bhcl::cli::commands();
   std::sort(cmds.begin(), cmds.end(), [](const auto& a, const auto& b) { return a.name < b.name; });
@@ -85,10 +128,7 @@ void print_help(std::FILE* to) {
 }  // namespace
 
 int main(int argc, char** argv) {
-#ifdef BHCL_BUILD_TREE_POCL_CACHE
-  // Run from the build tree: PoCL's kernel cache goes there too, unless the user chose one.
-  setenv("POCL_CACHE_DIR", BHCL_BUILD_TREE_POCL_CACHE, 0);
-#endif
+  choose_pocl_cache();
   if (argc < 2) {
     print_help(stderr);
     return 2;

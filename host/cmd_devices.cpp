@@ -37,6 +37,8 @@ int run_devices(const Args& args) {
                             : (env && *env ? ("BHCL_DEVICE=" + std::string(env)).c_str() : "default"),
               pick.platform_index, pick.device_index, pick.summary().c_str(),
               quirks_for(pick).description.c_str());
+  const char* cache = std::getenv("POCL_CACHE_DIR");
+  std::printf("PoCL kernel cache: %s\n", cache && *cache ? cache : "PoCL's default");
   return 0;
 }
 

@@ -250,3 +250,35 @@ TEST_CASE("cli: knn bruteforce on the Stanford bunny agrees with the exact refer
   p.k = 16;
   test::check_exact_vs_double(r, pts.data(), N, qs.data(), r.n, p);
 }
+
+TEST_CASE("cli: PoCL's kernel cache: the build tree's, the user's cache directory when installed, or POCL_CACHE_DIR") {
+  // Run from the build tree: the build tree's cache (the one ctest also sets).
+  std::string out;
+  REQUIRE(test::run_bhcl("devices", &out, "-u POCL_CACHE_DIR") == 0);
+  INFO(out);
+  const char* build_cache = std::getenv("POCL_CACHE_DIR");
+  if (build_cache) CHECK(out.find(std::string("PoCL kernel cache: ") + build_cache) != std::string::npos);
+  // A copy outside the build tree stands for the installed bhcl.
+  char tmpl[] = "/tmp/bhcl_cache_test_XXXXXX";
+  REQUIRE(mkdtemp(tmpl) != nullptr);
+  const std::string dir = tmpl, exe = dir + "/bhcl", log = dir + "/out.txt";
+  REQUIRE(std::system(("cp \"" BHCL_TOOL_PATH "\" \"" + exe + "\"").c_str()) == 0);
+  auto run = [&](const std::string& env) {
+    int status = std::system(("env " + env + " \"" + exe + "\" devices > \"" + log + "\" 2>&1").c_str());
+    std::ifstream in(log);
+    std::stringstream ss;
+    ss << in.rdbuf();
+    INFO(ss.str());
+    CHECK(WIFEXITED(status));
+    CHECK(WEXITSTATUS(status) == 0);
+    return ss.str();
+  };
+  std::string o = run("-u POCL_CACHE_DIR XDG_CACHE_HOME=" + dir + "/xdg");
+  CHECK(o.find("PoCL kernel cache: " + dir + "/xdg/blockhash_cl/pocl") != std::string::npos);
+  CHECK(std::ifstream(dir + "/xdg/blockhash_cl/pocl").good());  // made
+  o = run("-u POCL_CACHE_DIR -u XDG_CACHE_HOME HOME=" + dir + "/home");
+  CHECK(o.find("PoCL kernel cache: " + dir + "/home/.cache/blockhash_cl/pocl") != std::string::npos);
+  o = run("POCL_CACHE_DIR=" + dir + "/mine XDG_CACHE_HOME=" + dir + "/xdg");
+  CHECK(o.find("PoCL kernel cache: " + dir + "/mine") != std::string::npos);
+  std::system(("rm -rf \"" + dir + "\"").c_str());
+}
