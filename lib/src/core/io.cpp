@@ -108,21 +108,22 @@ std::vector<float> parse_text(const void* data, std::size_t size, const std::str
     const char* eol = static_cast<const char*>(std::memchr(p, '\n', static_cast<std::size_t>(end - p)));
     if (!eol) eol = end;
     ++line_no;
-    std::string line(p, eol);
+    const char* q = p;
     p = eol + (eol < end ? 1 : 0);
-    if (auto hash = line.find('#'); hash != std::string::npos) line.resize(hash);
-    for (char& c : line)
-      if (c == ',' || c == '\t' || c == '\r') c = ' ';
-    std::istringstream ls(line);
     int count = 0;
-    while (ls >> token) {
+    auto separator = [](char c) { return c == ' ' || c == '\t' || c == ',' || c == '\r'; };
+    while (q < eol) {
+      while (q < eol && separator(*q)) ++q;
+      if (q == eol || *q == '#') break;  // the rest of the line is a comment
+      const char* t = q;
+      while (q < eol && !separator(*q) && *q != '#') ++q;
       ++count;
       if (count > 3) continue;
+      token.assign(t, q);
       // A byte that is no text at all: this is not a text file.
       for (unsigned char c : token)
         if (c < 0x20 || c >= 0x7f) fail(what, "line " + std::to_string(line_no) + ": binary data, not text");
       char* stop = nullptr;
-      errno = 0;
       const double v = std::strtod(token.c_str(), &stop);
       if (stop == token.c_str() || *stop != '\0')
         fail(what, "line " + std::to_string(line_no) + ": '" + token.substr(0, 40) +
