@@ -172,7 +172,7 @@ Json search_json(const Index& index, const SearchParams& p) {
   return s;
 }
 
-void declare_index_options(Args& a, int default_k) {
+void declare_index_options(Args& a, int default_k, bool render) {
   a.group("Search options");
   a.add_integer("k", "neighbours per query", 1, kMaxK, std::to_string(default_k));
   a.add_number("max-radius", "only neighbours within this Euclidean distance", "inf");
@@ -189,8 +189,12 @@ void declare_index_options(Args& a, int default_k) {
   a.add_integer("P", "blockhash: thresholds per dimension (-1: the preset decides)", -1, 1024, "-1");
   a.add_integer("B", "blockhash: block references per bucket (-1: the preset decides)", -1, 1 << 16, "-1");
   a.add_integer("X", "blockhash: points per block (-1: the preset decides)", -1, 16, "-1");
-  a.add_integer("seed", "blockhash: seed of the threshold jitter", 0, Args::kNoLimit, "1");
-  a.add_integer("threads", "flann: host threads (0: all hardware threads)", 0, 1 << 16, "0");
+  a.add_integer("seed", render ? "seed of the photons and rays, and of block hashing's threshold jitter"
+                                : "blockhash: seed of the threshold jitter",
+                0, Args::kNoLimit, "1");
+  a.add_integer("threads", render ? "host threads of Embree, the photon tracer and flann (0: all)"
+                                  : "flann: host threads (0: all hardware threads)",
+                0, 1 << 16, "0");
   a.add_text("load-index", "blockhash: load this saved index instead of building", "", "FILE");
   a.add_text("save-index", "blockhash: save the built index to this file", "", "FILE");
   a.group("");

@@ -83,7 +83,8 @@ Json search_json(const Index& index, const SearchParams& p);
 // Options shared by every command that builds and queries an index (knn, eval, render):
 // --k --max-radius --A --probes --local-size --max-batch and the build options
 // --preset --L --P --B --X --threads --seed --load-index --save-index.
-void declare_index_options(Args& args, int default_k = 10);
+// `render`: --seed and --threads also drive the renderer (their help says so).
+void declare_index_options(Args& args, int default_k = 10, bool render = false);
 MethodOptions method_options(const Args& args);
 SearchParams search_params(const Args& args, int default_k = 10);
 // Throws UsageError for a method option given although none of `methods` reads it (e.g. --A for

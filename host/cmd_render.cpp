@@ -200,7 +200,7 @@ void declare_render(Args& a) {
   a.add_text("approx", "--compare: the approximate method", "blockhash", "NAME");
   a.add_text("compare-A", "--compare: the values of A, comma separated", "4,8,16", "LIST");
   a.add_number("diff-scale", "--compare: relative error shown as full scale in the difference images", "0.1");
-  declare_index_options(a, 50);
+  declare_index_options(a, 50, true);
 }
 
 int run_render(const Args& args) {
