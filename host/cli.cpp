@@ -1,54 +1,95 @@
 #include "cli.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
 #include <fstream>
 
+#include "blockhash_cl/blockhash.hpp"
+#include "blockhash_cl/config.hpp"
 #include "blockhash_cl/error.hpp"
+#if BHCL_HAVE_FLANN
+#include "blockhash_cl/flann_index.hpp"
+#endif
 #include "blockhash_cl/io.hpp"
 
 namespace bhcl::cli {
 
-Args::Args(int argc, char** argv, int first, const std::set<std::string>& flags) {
-  for (int i = first; i < argc; ++i) {
-    std::string a = argv[i];
-    if (a.rfind("--", 0) != 0 || a.size() < 3) throw UsageError("unexpected argument '" + a + "'");
-    std::string key = a.substr(2);
-    std::string value;
-    size_t eq = key.find('=');
-    if (eq != std::string::npos) {
-      value = key.substr(eq + 1);
-      key = key.substr(0, eq);
-    } else if (!flags.count(key)) {
-      if (i + 1 >= argc) throw UsageError("option --" + key + " needs a value");
-      value = argv[++i];
-    }
-    values_[key] = value;
+CLI::Option* Args::add(const std::string& name, const std::string& help, const std::string& def,
+                       const std::string& type) {
+  CLI::Option* o = app_->add_option("--" + name, values_[name], help);
+  o->type_name(type)->multi_option_policy(CLI::MultiOptionPolicy::TakeLast);
+  if (!def.empty()) o->default_str(def);
+  if (!group_.empty()) o->group(group_);
+  return o;
+}
+
+void Args::add_text(const std::string& name, const std::string& help, const std::string& def,
+                    const std::string& type) {
+  add(name, help, def, type);
+}
+
+void Args::add_required(const std::string& name, const std::string& help, const std::string& type) {
+  add(name, help, "", type)->required();
+}
+
+void Args::add_integer(const std::string& name, const std::string& help, long long lo, long long hi,
+                       const std::string& def) {
+  ranges_[name] = {lo, hi};
+  std::string range = hi == kNoLimit ? " (>= " + std::to_string(lo) + ")"
+                                     : " (" + std::to_string(lo) + " to " + std::to_string(hi) + ")";
+  add(name, help + range, def, "INT");
+}
+
+void Args::add_number(const std::string& name, const std::string& help, const std::string& def) {
+  add(name, help, def, "NUM");
+}
+
+void Args::add_flag(const std::string& name, const std::string& help) {
+  CLI::Option* o = app_->add_flag("--" + name, help);
+  if (!group_.empty()) o->group(group_);
+}
+
+void Args::check_extras() const {
+  for (const std::string& a : app_->remaining()) {
+    if (a.rfind("--", 0) == 0 && a.size() > 2) throw UsageError("unknown option " + a.substr(0, a.find('=')));
+    throw UsageError("unexpected argument '" + a + "'");
   }
 }
 
+bool Args::has(const std::string& key) const { return app_->count("--" + key) != 0; }
+
 std::string Args::str(const std::string& key) const {
-  auto it = values_.find(key);
-  if (it == values_.end()) throw UsageError("missing required option --" + key);
-  return it->second;
+  if (!has(key)) throw UsageError("missing required option --" + key);
+  return values_.at(key);
 }
 
 std::string Args::str(const std::string& key, const std::string& fallback) const {
-  auto it = values_.find(key);
-  return it == values_.end() ? fallback : it->second;
+  return has(key) ? values_.at(key) : fallback;
 }
 
 long long Args::integer(const std::string& key) const {
-  std::string v = str(key);
-  size_t pos = 0;
+  const std::string v = str(key);
+  auto range = ranges_.find(key);
+  const long long lo = range == ranges_.end() ? std::numeric_limits<long long>::min() : range->second.first;
+  const long long hi = range == ranges_.end() ? kNoLimit : range->second.second;
+  auto out_of_range = [&] {
+    return UsageError(hi == kNoLimit ? "--" + key + " must be >= " + std::to_string(lo) + ", got " + v
+                                     : "--" + key + " must be in [" + std::to_string(lo) + ", " +
+                                           std::to_string(hi) + "], got " + v);
+  };
+  std::size_t pos = 0;
   long long x = 0;
   try {
     x = std::stoll(v, &pos);
+  } catch (const std::out_of_range&) {
+    throw out_of_range();
   } catch (...) {
     pos = 0;
   }
   if (pos == 0 || pos != v.size()) throw UsageError("--" + key + " expects an integer, got '" + v + "'");
+  if (x < lo || x > hi) throw out_of_range();
   return x;
 }
 
@@ -70,73 +111,120 @@ double Args::number(const std::string& key, double fallback) const {
   return x;
 }
 
-void Args::allow_only(const std::set<std::string>& known) const {
-  for (const auto& kv : values_)
-    if (!known.count(kv.first)) throw UsageError("unknown option --" + kv.first);
-}
-
-std::string json_escape(const std::string& s) {
-  std::string o = "\"";
-  for (char c : s) {
-    switch (c) {
-      case '"': o += "\\\""; break;
-      case '\\': o += "\\\\"; break;
-      case '\n': o += "\\n"; break;
-      case '\t': o += "\\t"; break;
-      default:
-        if (static_cast<unsigned char>(c) < 0x20) {
-          char b[8];
-          std::snprintf(b, sizeof b, "\\u%04x", c);
-          o += b;
-        } else {
-          o += c;
-        }
-    }
-  }
-  return o + "\"";
-}
-
-Json& Json::add(const std::string& key, const std::string& value) {
-  items_.emplace_back(key, json_escape(value));
-  return *this;
-}
-Json& Json::add(const std::string& key, double value) {
-  char b[64];
-  if (std::isfinite(value)) std::snprintf(b, sizeof b, "%.9g", value);
-  else std::snprintf(b, sizeof b, "null");
-  items_.emplace_back(key, b);
-  return *this;
-}
-Json& Json::add(const std::string& key, long long value) {
-  items_.emplace_back(key, std::to_string(value));
-  return *this;
-}
-Json& Json::add(const std::string& key, bool value) {
-  items_.emplace_back(key, value ? "true" : "false");
-  return *this;
-}
-Json& Json::add_raw(const std::string& key, const std::string& json) {
-  items_.emplace_back(key, json);
-  return *this;
-}
-
-std::string Json::str() const {
-  std::string o = "{";
-  for (size_t i = 0; i < items_.size(); ++i)
-    o += (i ? ",\n  " : "\n  ") + json_escape(items_[i].first) + ": " + items_[i].second;
-  return o + "\n}\n";
-}
-
-void Json::write(const std::string& path) const {
+void write_json(const std::string& path, const Json& j) {
   std::ofstream out(path);
   if (!out) throw bhcl::Error(path + ": cannot open the stats file for writing");
-  out << str();
+  // Non-finite numbers (an unbounded radius) are written as null.
+  out << j.dump(2) << "\n";
   if (!out) throw bhcl::Error(path + ": write failed");
 }
 
-const std::set<std::string> kIndexOptions = {
-    "k", "max-radius", "A", "probes", "local-size", "max-batch", "preset", "L", "P", "B", "X",
-    "threads", "seed", "load-index", "save-index"};
+Json stats_header(const std::string& command, const Runtime& rt) {
+  Json j;
+  j["tool"] = "bhcl";
+  j["version"] = BHCL_VERSION_STRING;
+  j["command"] = command;
+  j["device"] = rt.info().summary();
+  return j;
+}
+
+Json build_json(const Index& index, const MethodOptions& options) {
+  Json b;
+  if (const auto* bh = dynamic_cast<const BlockHashIndex*>(&index)) {
+    const BlockHashBuildInfo& i = bh->info();
+    b["preset"] = BlockHashBuildParams::preset_name(i.preset);
+    b["L"] = i.L;
+    b["P"] = i.P;
+    b["B"] = i.B;
+    b["X"] = i.X;
+    // A loaded index carries its own jitter; the seed given only matters for a build.
+    if (options.load_index.empty()) b["seed"] = options.seed;
+    b["guard_thresholds"] = i.guard_thresholds;
+    b["keep_top_count"] = i.keep_top_count;
+    b["direct_addressing"] = i.direct_addressing;
+    b["box_skip"] = i.box_skip;
+    b["neighbour_probes"] = i.neighbour_probes;
+    b["box_order"] = i.box_order;
+    b["hilbert_seed"] = i.hilbert_seed;
+    if (!options.load_index.empty()) b["load_index"] = options.load_index;
+    if (!options.save_index.empty()) b["save_index"] = options.save_index;
+  }
+#if BHCL_HAVE_FLANN
+  if (const auto* fl = dynamic_cast<const FlannIndex*>(&index)) b["threads"] = fl->threads();
+#endif
+  if (b.is_null()) b = Json::object();
+  return b;
+}
+
+Json search_json(const Index& index, const SearchParams& p) {
+  Json s;
+  s["k"] = p.k;
+  s["max_radius"] = p.max_radius;  // null: unbounded
+  if (const auto* bh = dynamic_cast<const BlockHashIndex*>(&index)) {
+    s["A"] = p.A;
+    s["neighbour_probes"] = p.neighbour_probes >= 0 ? p.neighbour_probes != 0 : bh->info().neighbour_probes;
+  }
+  if (index.method() != "flann") {  // the device methods
+    s["local_size"] = p.local_size ? p.local_size : index.runtime().quirks().default_local_size;
+    s["max_batch"] = p.max_batch;  // 0: automatic
+  }
+  s["sort_queries"] = p.sort_queries;
+  return s;
+}
+
+void declare_index_options(Args& a, int default_k, bool render) {
+  a.group("Search options");
+  a.add_integer("k", "neighbours per query", 1, kMaxK, std::to_string(default_k));
+  a.add_number("max-radius", "only neighbours within this Euclidean distance", "inf");
+  a.add_number("A", "blockhash: examine at most A*k points per query (accuracy against speed)", "8");
+  a.add_integer("probes", "blockhash: probe the near-side neighbour cells too (-1: the preset decides)",
+                -1, 1, "-1");
+  a.add_integer("local-size", "device methods: OpenCL work-group size (0: the device default)", 0,
+                1 << 20, "0");
+  a.add_integer("max-batch", "device methods: at most this many queries per dispatch (0: automatic)",
+                0, Args::kNoLimit, "0");
+  a.group("Build options");
+  a.add_text("preset", "blockhash: parameter preset, auto or paper", "auto", "NAME");
+  a.add_integer("L", "blockhash: hash tables (-1: the preset decides)", -1, 1 << 16, "-1");
+  a.add_integer("P", "blockhash: thresholds per dimension (-1: the preset decides)", -1, 1024, "-1");
+  a.add_integer("B", "blockhash: block references per bucket (-1: the preset decides)", -1, 1 << 16, "-1");
+  a.add_integer("X", "blockhash: points per block (-1: the preset decides)", -1, 16, "-1");
+  a.add_integer("seed", render ? "seed of the photons and rays, and of block hashing's threshold jitter"
+                                : "blockhash: seed of the threshold jitter",
+                0, Args::kNoLimit, "1");
+  a.add_integer("threads", render ? "host threads of Embree, the photon tracer and flann (0: all)"
+                                  : "flann: host threads (0: all hardware threads)",
+                0, 1 << 16, "0");
+  a.add_text("load-index", "blockhash: load this saved index instead of building", "", "FILE");
+  a.add_text("save-index", "blockhash: save the built index to this file", "", "FILE");
+  a.group("");
+}
+
+void check_method_options(const Args& args, const std::vector<std::string>& methods,
+                          const std::set<std::string>& also) {
+  const auto known = method_names();
+  for (const auto& m : methods)
+    if (std::find(known.begin(), known.end(), m) == known.end()) return;
+  // The options that only some methods read. --load-index / --save-index are left to make_index,
+  // which says which methods save.
+  static const std::map<std::string, std::set<std::string>> only = {
+      {"A", {"blockhash"}},      {"probes", {"blockhash"}}, {"preset", {"blockhash"}},
+      {"L", {"blockhash"}},      {"P", {"blockhash"}},      {"B", {"blockhash"}},
+      {"X", {"blockhash"}},      {"seed", {"blockhash"}},   {"threads", {"flann"}},
+      {"local-size", {"bruteforce", "kdtree", "blockhash"}},
+      {"max-batch", {"bruteforce", "kdtree", "blockhash"}}};
+  for (const auto& [option, users] : only) {
+    if (!args.has(option) || also.count(option)) continue;
+    bool used = false;
+    for (const auto& m : methods) used = used || users.count(m);
+    if (used) continue;
+    std::string list;
+    for (const auto& u : users) list += (list.empty() ? "" : ", ") + u;
+    std::string ms;
+    for (const auto& m : methods) ms += (ms.empty() ? "" : " and ") + m;
+    throw UsageError("--" + option + " does not apply to method " + ms + " (only to " + list + ")");
+  }
+}
 
 void read_points_and_queries(const Args& args, std::vector<float>& points, std::vector<float>& queries) {
   points = read_points_file(args.str("points"));
@@ -145,22 +233,17 @@ void read_points_and_queries(const Args& args, std::vector<float>& points, std::
   if (queries.empty()) throw Error(args.str("queries") + ": the query file is empty (0 queries)");
 }
 
-std::set<std::string> merge(std::set<std::string> a, const std::set<std::string>& b) {
-  a.insert(b.begin(), b.end());
-  return a;
-}
-
 MethodOptions method_options(const Args& args) {
   MethodOptions m;
   m.preset = args.str("preset", "");
   if (!m.preset.empty() && m.preset != "auto" && m.preset != "paper")
     throw UsageError("--preset must be auto or paper, got '" + m.preset + "'");
+  // The declared ranges fit an int: no narrowing.
   m.L = static_cast<int>(args.integer("L", -1));
   m.P = static_cast<int>(args.integer("P", -1));
   m.B = static_cast<int>(args.integer("B", -1));
   m.X = static_cast<int>(args.integer("X", -1));
   m.threads = static_cast<int>(args.integer("threads", 0));
-  if (m.threads < 0) throw UsageError("--threads must be >= 0");
   m.seed = static_cast<std::uint64_t>(args.integer("seed", 1));
   m.load_index = args.str("load-index", "");
   m.save_index = args.str("save-index", "");
@@ -169,22 +252,15 @@ MethodOptions method_options(const Args& args) {
 
 SearchParams search_params(const Args& args, int default_k) {
   SearchParams p;
-  long long k = args.integer("k", default_k);
-  if (k < 1 || k > kMaxK)
-    throw UsageError("--k must be in [1, " + std::to_string(kMaxK) + "], got " + std::to_string(k));
-  p.k = static_cast<int>(k);
+  p.k = static_cast<int>(args.integer("k", default_k));  // range-checked: [1, kMaxK]
   p.max_radius = static_cast<float>(args.number("max-radius", INFINITY));
   if (std::isnan(p.max_radius) || p.max_radius < 0)
     throw UsageError("--max-radius must be a non-negative number");
   p.A = static_cast<float>(args.number("A", p.A));
   if (!(p.A > 0) || !std::isfinite(p.A)) throw UsageError("--A must be a positive number");
   p.neighbour_probes = static_cast<int>(args.integer("probes", -1));
-  long long ls = args.integer("local-size", 0);
-  if (ls < 0) throw UsageError("--local-size must be >= 0");
-  p.local_size = static_cast<std::size_t>(ls);
-  long long mb = args.integer("max-batch", 0);
-  if (mb < 0) throw UsageError("--max-batch must be >= 0");
-  p.max_batch = static_cast<std::size_t>(mb);
+  p.local_size = static_cast<std::size_t>(args.integer("local-size", 0));
+  p.max_batch = static_cast<std::size_t>(args.integer("max-batch", 0));
   return p;
 }
 

@@ -1,6 +1,10 @@
 // Argument parsing and JSON output for the bhcl tool.
 #pragma once
 
+#include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
+
+#include <limits>
 #include <map>
 #include <set>
 #include <sstream>
@@ -18,56 +22,77 @@ struct UsageError : std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
-// "--key value" options and "--flag" switches after the sub-command.
+// The options of one sub-command, on CLI11: declared with their meaning and default (what
+// `bhcl CMD --help` lists), parsed, then read back with their checks (integers range-checked
+// against the declared range, never narrowed). Values are kept as the text given, so that every
+// check says what was wrong in the same words.
 class Args {
  public:
-  // flags: options that take no value.
-  Args(int argc, char** argv, int first, const std::set<std::string>& flags = {});
+  static constexpr long long kNoLimit = std::numeric_limits<long long>::max();
 
-  bool has(const std::string& key) const { return values_.count(key) != 0; }
+  Args(CLI::App* app, std::string command) : app_(app), command_(std::move(command)) {}
+  Args(const Args&) = delete;
+  Args& operator=(const Args&) = delete;
+
+  // Declarations, before parsing. `def` is the default as shown by --help ("" shows none).
+  void add_text(const std::string& name, const std::string& help, const std::string& def = "",
+                const std::string& type = "TEXT");
+  void add_required(const std::string& name, const std::string& help, const std::string& type = "FILE");
+  void add_integer(const std::string& name, const std::string& help, long long lo, long long hi,
+                   const std::string& def);
+  void add_number(const std::string& name, const std::string& help, const std::string& def);
+  void add_flag(const std::string& name, const std::string& help);
+  // The help group of the options declared next ("" for the main list).
+  void group(const std::string& name) { group_ = name; }
+
+  // After parsing: throws UsageError for an option nobody declared or a stray argument.
+  void check_extras() const;
+
+  const std::string& command() const { return command_; }
+  bool has(const std::string& key) const;
   std::string str(const std::string& key) const;  // required
   std::string str(const std::string& key, const std::string& fallback) const;
+  // Range-checked against the declared range (UsageError naming the option otherwise).
   long long integer(const std::string& key, long long fallback) const;
   long long integer(const std::string& key) const;  // required
   double number(const std::string& key, double fallback) const;
   bool flag(const std::string& key) const { return has(key); }
-  // Throws UsageError naming any option not in `known`.
-  void allow_only(const std::set<std::string>& known) const;
 
  private:
-  std::map<std::string, std::string> values_;
+  CLI::Option* add(const std::string& name, const std::string& help, const std::string& def,
+                   const std::string& type);
+  CLI::App* app_;
+  std::string command_;
+  std::string group_;
+  std::map<std::string, std::string> values_;  // node-based: CLI11 keeps pointers into it
+  std::map<std::string, std::pair<long long, long long>> ranges_;
 };
 
-// A flat JSON object written in insertion order.
-class Json {
- public:
-  Json& add(const std::string& key, const std::string& value);
-  Json& add(const std::string& key, const char* value) { return add(key, std::string(value)); }
-  Json& add(const std::string& key, double value);
-  Json& add(const std::string& key, long long value);
-  Json& add(const std::string& key, std::size_t value) { return add(key, static_cast<long long>(value)); }
-  Json& add(const std::string& key, int value) { return add(key, static_cast<long long>(value)); }
-  Json& add(const std::string& key, bool value);
-  Json& add_raw(const std::string& key, const std::string& json);
-  std::string str() const;
-  void write(const std::string& path) const;
+// Stats files: JSON objects in insertion order (nlohmann-json).
+using Json = nlohmann::ordered_json;
+// Writes `j` (indented) to `path`; throws bhcl::Error naming the path on failure.
+void write_json(const std::string& path, const Json& j);
+// What every stats file starts with: the tool and library version, the command and the device.
+Json stats_header(const std::string& command, const Runtime& rt);
+// The build parameters an index actually used (derived ones filled in: block hashing's L, P, B, X
+// and switches; FLANN's threads) and the search parameters of a query with `p` (defaults
+// resolved: the work-group size, block hashing's probes), so that a run can be reproduced.
+Json build_json(const Index& index, const MethodOptions& options);
+Json search_json(const Index& index, const SearchParams& p);
 
- private:
-  std::vector<std::pair<std::string, std::string>> items_;
-};
-
-std::string json_escape(const std::string& s);
-
-// Options shared by every command that builds and queries an index (knn, eval, bench, render):
+// Options shared by every command that builds and queries an index (knn, eval, render):
 // --k --max-radius --A --probes --local-size --max-batch and the build options
 // --preset --L --P --B --X --threads --seed --load-index --save-index.
-extern const std::set<std::string> kIndexOptions;
+// `render`: --seed and --threads also drive the renderer (their help says so).
+void declare_index_options(Args& args, int default_k = 10, bool render = false);
 MethodOptions method_options(const Args& args);
 SearchParams search_params(const Args& args, int default_k = 10);
-// Reads --points and --queries (raw float32 x y z files); an empty file is an error naming it.
+// Throws UsageError for a method option given although none of `methods` reads it (e.g. --A for
+// kdtree, --threads for anything but flann); `also` lists options the command itself reads.
+// An unknown method skips the check: make_index names it.
+void check_method_options(const Args& args, const std::vector<std::string>& methods,
+                          const std::set<std::string>& also = {});
+// Reads --points and --queries; an empty file is an error naming it.
 void read_points_and_queries(const Args& args, std::vector<float>& points, std::vector<float>& queries);
-
-// Merges option sets for allow_only.
-std::set<std::string> merge(std::set<std::string> a, const std::set<std::string>& b);
 
 }  // namespace bhcl::cli

@@ -25,14 +25,8 @@ namespace bhcl::cli {
 namespace {
 
 int run_registered(const std::string& name, std::vector<std::string> args) {
-  for (const auto& c : commands()) {
-    if (c.name != name) continue;
-    args.insert(args.begin(), name);
-    std::vector<char*> argv;
-    for (auto& a : args) argv.push_back(a.data());
-    return c.run(static_cast<int>(argv.size()), argv.data());
-  }
-  throw Error("demo: the '" + name + "' command is not built in");
+  args.insert(args.begin(), name);
+  return run_command(args);
 }
 
 void table(const std::shared_ptr<Runtime>& rt, std::size_t N, std::size_t n, int k) {
@@ -70,13 +64,20 @@ void table(const std::shared_ptr<Runtime>& rt, std::size_t N, std::size_t n, int
   }
 }
 
-int run_demo(int argc, char** argv) {
-  Args args(argc, argv, 1, {"no-render"});
-  args.allow_only({"N", "n", "k", "device", "out-dir", "no-render"});
+void declare_demo(Args& a) {
+  a.add_integer("N", "points of each benchmark set", 1, 1LL << 31, "200000");
+  a.add_integer("n", "queries of each benchmark set", 1, 1LL << 31, "20000");
+  a.add_integer("k", "neighbours per query in the benchmark", 1, kMaxK, "50");
+  a.add_text("device", "OpenCL device: P:D, cpu, gpu or a name fragment (default: BHCL_DEVICE, then PoCL)",
+             "", "SPEC");
+  a.add_text("out-dir", "directory for the images", "bhcl-demo", "DIR");
+  a.add_flag("no-render", "skip the Cornell Box render, print the benchmark table only");
+}
+
+int run_demo(const Args& args) {
   const std::size_t N = static_cast<std::size_t>(args.integer("N", 200000));
   const std::size_t n = static_cast<std::size_t>(args.integer("n", 20000));
   const int k = static_cast<int>(args.integer("k", 50));
-  if (N == 0 || n == 0) throw UsageError("--N and --n must be positive");
   const std::string dir = args.str("out-dir", "bhcl-demo");
   if (mkdir(dir.c_str(), 0755) != 0 && errno != EEXIST)
     throw Error(dir + ": cannot create the output directory");
@@ -97,9 +98,8 @@ int run_demo(int argc, char** argv) {
   return 0;
 }
 
-RegisterCommand reg("demo",
-                    "demo [--N POINTS] [--n QUERIES] [--k K] [--device SPEC] [--out-dir DIR] [--no-render]",
-                    run_demo);
+RegisterCommand reg("demo", "the README's main job: the Cornell Box render and a benchmark table",
+                    declare_demo, run_demo);
 
 }  // namespace
 }  // namespace bhcl::cli

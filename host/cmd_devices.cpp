@@ -10,9 +10,11 @@
 namespace bhcl::cli {
 namespace {
 
-int run_devices(int argc, char** argv) {
-  Args args(argc, argv, 1);
-  args.allow_only({"device"});
+void declare_devices(Args& a) {
+  a.add_text("device", "show which device this spec picks: P:D, cpu, gpu or a name fragment", "", "SPEC");
+}
+
+int run_devices(const Args& args) {
   auto devs = list_devices();
   if (devs.empty()) {
     std::printf("no OpenCL platform or device found (install pocl-opencl-icd; for NVIDIA set "
@@ -35,10 +37,13 @@ int run_devices(int argc, char** argv) {
                             : (env && *env ? ("BHCL_DEVICE=" + std::string(env)).c_str() : "default"),
               pick.platform_index, pick.device_index, pick.summary().c_str(),
               quirks_for(pick).description.c_str());
+  const char* cache = std::getenv("POCL_CACHE_DIR");
+  std::printf("PoCL kernel cache: %s\n", cache && *cache ? cache : "PoCL's default");
   return 0;
 }
 
-RegisterCommand reg("devices", "devices [--device SPEC]", run_devices);
+RegisterCommand reg("devices", "the OpenCL platforms and devices, and which one is picked",
+                    declare_devices, run_devices);
 
 }  // namespace
 }  // namespace bhcl::cli

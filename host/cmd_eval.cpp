@@ -31,17 +31,34 @@ Side run_side(const std::string& method, const std::shared_ptr<Runtime>& rt,
   return s;
 }
 
+bool has_flann() {
+  for (const auto& m : method_names())
+    if (m == "flann") return true;
+  return false;
+}
+
 std::string fmt(const char* f, double v) {
   char b[64];
   std::snprintf(b, sizeof b, f, v);
   return b;
 }
 
-int run_eval(int argc, char** argv) {
-  Args args(argc, argv, 1);
-  args.allow_only(merge(kIndexOptions, {"points", "queries", "method", "truth", "device", "stats"}));
+void declare_eval(Args& a) {
+  a.add_required("points", "the point set: PLY, NPY (N x 3 float32/float64), text (x y z per line) or raw float32");
+  a.add_required("queries", "the query points (same formats as --points)");
+  a.add_required("method", "the method evaluated: bruteforce, kdtree, flann or blockhash", "NAME");
+  a.add_text("truth", "the exact method giving the true neighbours: flann, bruteforce or kdtree",
+             has_flann() ? "flann" : "kdtree", "NAME");
+  a.add_text("stats", "write the metrics, timings and parameters here as JSON", "", "FILE");
+  a.add_text("device", "OpenCL device: P:D, cpu, gpu or a name fragment (default: BHCL_DEVICE, then PoCL)",
+             "", "SPEC");
+  declare_index_options(a);
+}
+
+int run_eval(const Args& args) {
   const std::string method = args.str("method");
-  const std::string truth_method = args.str("truth", "flann");
+  const std::string truth_method = args.str("truth", has_flann() ? "flann" : "kdtree");
+  check_method_options(args, {method, truth_method});
   SearchParams params = search_params(args);
   MethodOptions mopt = method_options(args);
 
@@ -92,41 +109,42 @@ int run_eval(int argc, char** argv) {
               "time for host methods (flann)\n");
 
   if (args.has("stats")) {
-    Json j;
-    auto side = [&](const std::string& p, const Side& s) {
-      j.add(p + "method", s.index->method())
-          .add(p + "exact", s.index->exact())
-          .add(p + "build_s", s.index->build_seconds())
-          .add(p + "compile_s", s.stats.compile_s)
-          .add(p + "query_s", s.stats.query_s)
-          .add(p + "wall_s", s.stats.wall_s)
-          .add(p + "queries_per_s", s.stats.queries_per_s())
-          .add(p + "memory_bytes", s.index->memory_bytes());
+    Json j = stats_header("eval", *rt);
+    auto side = [&](const std::string& p, const Side& s, const MethodOptions& o) {
+      j[p + "method"] = s.index->method();
+      j[p + "exact"] = s.index->exact();
+      j[p + "build"] = build_json(*s.index, o);
+      j[p + "search"] = search_json(*s.index, params);
+      j[p + "build_s"] = s.index->build_seconds();
+      j[p + "compile_s"] = s.stats.compile_s;
+      j[p + "query_s"] = s.stats.query_s;
+      j[p + "wall_s"] = s.stats.wall_s;
+      j[p + "queries_per_s"] = s.stats.queries_per_s();
+      j[p + "memory_bytes"] = s.index->memory_bytes();
     };
-    j.add("device", rt->info().summary())
-        .add("N", N)
-        .add("n", n)
-        .add("k", params.k)
-        .add("max_radius", static_cast<double>(params.max_radius));
-    side("", m);
-    side("truth_", truth);
-    j.add("recall", m.accuracy.recall)
-        .add("false_negative_rate", m.accuracy.false_negative_rate)
-        .add("max_dilation", m.accuracy.max_dilation)
-        .add("mean_dilation", m.accuracy.mean_dilation)
-        .add("mean_rel_distance_error", m.accuracy.mean_rel_distance_error)
-        .add("incomplete_queries", m.accuracy.incomplete_queries)
-        .add("identical_rows", m.accuracy.identical_rows)
-        .add("compared_queries", m.accuracy.queries);
-    j.write(args.str("stats"));
+    j["points"] = args.str("points");
+    j["queries"] = args.str("queries");
+    j["N"] = N;
+    j["n"] = n;
+    j["k"] = params.k;
+    j["max_radius"] = params.max_radius;  // null: unbounded
+    side("", m, mopt);
+    side("truth_", truth, topt);
+    j["recall"] = m.accuracy.recall;
+    j["false_negative_rate"] = m.accuracy.false_negative_rate;
+    j["max_dilation"] = m.accuracy.max_dilation;
+    j["mean_dilation"] = m.accuracy.mean_dilation;
+    j["mean_rel_distance_error"] = m.accuracy.mean_rel_distance_error;
+    j["incomplete_queries"] = m.accuracy.incomplete_queries;
+    j["identical_rows"] = m.accuracy.identical_rows;
+    j["compared_queries"] = m.accuracy.queries;
+    write_json(args.str("stats"), j);
   }
   return 0;
 }
 
-RegisterCommand reg("eval",
-                    "eval --points P --queries Q --k K --method M [--truth flann|bruteforce|kdtree] "
-                    "[--max-radius R] [--device SPEC] [--stats S.json] [method options]",
-                    run_eval);
+RegisterCommand reg("eval", "a method against an exact one: accuracy metrics and timings",
+                    declare_eval, run_eval);
 
 }  // namespace
 }  // namespace bhcl::cli

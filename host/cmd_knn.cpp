@@ -11,11 +11,22 @@
 namespace bhcl::cli {
 namespace {
 
-int run_knn(int argc, char** argv) {
-  Args args(argc, argv, 1);
-  args.allow_only(merge(kIndexOptions, {"points", "queries", "method", "device", "out-ids",
-                                        "out-dist2", "out-counts", "stats"}));
-  const std::string method = args.str("method", "bruteforce");
+void declare_knn(Args& a) {
+  a.add_required("points", "the point set: PLY, NPY (N x 3 float32/float64), text (x y z per line) or raw float32");
+  a.add_required("queries", "the query points (same formats as --points)");
+  a.add_required("method", "bruteforce, kdtree, flann or blockhash", "NAME");
+  a.add_required("out-ids", "write the neighbour ids here (int32, n x k, row-major; NPY when named .npy)");
+  a.add_required("out-dist2", "write the squared distances here (float32, n x k, row-major; NPY when named .npy)");
+  a.add_text("out-counts", "write the neighbours found per query here (int32, n; NPY when named .npy)", "", "FILE");
+  a.add_text("stats", "write timings and parameters here as JSON", "", "FILE");
+  a.add_text("device", "OpenCL device: P:D, cpu, gpu or a name fragment (default: BHCL_DEVICE, then PoCL)",
+             "", "SPEC");
+  declare_index_options(a);
+}
+
+int run_knn(const Args& args) {
+  const std::string method = args.str("method");
+  check_method_options(args, {method});
   const std::string out_ids = args.str("out-ids");
   const std::string out_dist2 = args.str("out-dist2");
   SearchParams params = search_params(args);
@@ -30,11 +41,9 @@ int run_knn(int argc, char** argv) {
   KnnResult result;
   QueryStats st = index->query(queries.data(), n, params, result);
 
-  write_raw_file(out_ids, result.ids.data(), result.ids.size() * sizeof(std::int32_t));
-  write_raw_file(out_dist2, result.dist2.data(), result.dist2.size() * sizeof(float));
-  if (args.has("out-counts"))
-    write_raw_file(args.str("out-counts"), result.counts.data(),
-                   result.counts.size() * sizeof(std::int32_t));
+  write_array_file(out_ids, result.ids.data(), n, static_cast<std::size_t>(params.k));
+  write_array_file(out_dist2, result.dist2.data(), n, static_cast<std::size_t>(params.k));
+  if (args.has("out-counts")) write_array_file(args.str("out-counts"), result.counts.data(), n, 0);
 
   std::size_t found = 0;
   for (auto c : result.counts) found += static_cast<std::size_t>(c);
@@ -44,32 +53,34 @@ int run_knn(int argc, char** argv) {
                index->method().c_str(), rt->info().device_name.c_str(), N, n, params.k,
                index->build_seconds(), st.compile_s, st.query_s, st.queries_per_s(), found);
   if (args.has("stats")) {
-    Json j;
-    j.add("method", index->method())
-        .add("device", rt->info().summary())
-        .add("N", N)
-        .add("n", n)
-        .add("k", params.k)
-        .add("max_radius", static_cast<double>(params.max_radius))
-        .add("build_s", index->build_seconds())
-        .add("compile_s", st.compile_s)
-        .add("query_s", st.query_s)
-        .add("upload_s", st.upload_s)
-        .add("download_s", st.download_s)
-        .add("wall_s", st.wall_s)
-        .add("queries_per_s", st.queries_per_s())
-        .add("batches", st.batches)
-        .add("nonfinite_queries", st.nonfinite_queries)
-        .add("neighbours_found", found)
-        .add("memory_bytes", index->memory_bytes());
-    j.write(args.str("stats"));
+    Json j = stats_header("knn", *rt);
+    j["method"] = index->method();
+    j["exact"] = index->exact();
+    j["points"] = args.str("points");
+    j["queries"] = args.str("queries");
+    j["N"] = N;
+    j["n"] = n;
+    j["k"] = params.k;
+    j["max_radius"] = params.max_radius;  // null: unbounded
+    j["build"] = build_json(*index, mopt);
+    j["search"] = search_json(*index, params);
+    j["build_s"] = index->build_seconds();
+    j["compile_s"] = st.compile_s;
+    j["query_s"] = st.query_s;
+    j["upload_s"] = st.upload_s;
+    j["download_s"] = st.download_s;
+    j["wall_s"] = st.wall_s;
+    j["queries_per_s"] = st.queries_per_s();
+    j["batches"] = st.batches;
+    j["nonfinite_queries"] = st.nonfinite_queries;
+    j["neighbours_found"] = found;
+    j["memory_bytes"] = index->memory_bytes();
+    write_json(args.str("stats"), j);
   }
   return 0;
 }
 
-RegisterCommand reg("knn",
-                    "knn --points P --queries Q --k K --method M [--max-radius R] [--device SPEC] "
-                    "--out-ids I --out-dist2 D [--out-counts C] [--stats S.json] [method options]",
+RegisterCommand reg("knn", "k nearest neighbours of every query, written as raw arrays", declare_knn,
                     run_knn);
 
 }  // namespace

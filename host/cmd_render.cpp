@@ -79,6 +79,7 @@ struct RenderRun {
   Image image;
   RenderStats stats;
   double build_s = 0, warm_s = 0, total_s = 0;
+  Json build, search;  // the parameters the global map's index used, for the stats
 };
 
 // Builds the index of `method` on the (shared) photon maps and renders.
@@ -96,7 +97,11 @@ RenderRun render_with(const std::string& label, const std::string& method, float
   if (maps.caustic) maps.caustic->build_index(method, rt, mopt);
   run.build_s = maps.global->build_seconds() + (maps.caustic ? maps.caustic->build_seconds() : 0.0);
   // Compile the kernel variants now, so that the query time excludes first-launch compiles.
-  if (maps.global->index()) run.warm_s += maps.global->index()->warm_up(ropt.search);
+  if (maps.global->index()) {
+    run.warm_s += maps.global->index()->warm_up(ropt.search);
+    run.build = build_json(*maps.global->index(), mopt);
+    run.search = search_json(*maps.global->index(), ropt.search);
+  }
   if (maps.caustic && maps.caustic->index()) {
     SearchParams cp = ropt.search;
     cp.k = ropt.caustic_k > 0 ? ropt.caustic_k : ropt.search.k;
@@ -120,28 +125,97 @@ void print_split(const char* title, const RenderRun& r, double photon_s) {
                s.query_s > 0 ? (s.queries + s.caustic_queries) / s.query_s : 0.0, s.shade_s);
 }
 
-std::string run_json(const RenderRun& r, const ImageDiff* d) {
+Json run_json(const RenderRun& r, const ImageDiff* d) {
   Json j;
-  j.add("label", r.label).add("method", r.method).add("A", static_cast<double>(r.A));
-  j.add("index_build_s", r.build_s).add("kernel_compile_s", r.warm_s + r.stats.compile_s);
-  j.add("trace_s", r.stats.trace_s).add("query_s", r.stats.query_s).add("query_kernel_s", r.stats.query_kernel_s);
-  j.add("shade_s", r.stats.shade_s).add("render_s", r.total_s);
-  j.add("queries", r.stats.queries).add("caustic_queries", r.stats.caustic_queries).add("index_calls", r.stats.index_calls);
+  j["label"] = r.label;
+  j["method"] = r.method;
+  j["A"] = r.A;
+  if (!r.build.is_null()) j["build"] = r.build;
+  if (!r.search.is_null()) j["search"] = r.search;
+  j["index_build_s"] = r.build_s;
+  j["kernel_compile_s"] = r.warm_s + r.stats.compile_s;
+  j["trace_s"] = r.stats.trace_s;
+  j["query_s"] = r.stats.query_s;
+  j["query_kernel_s"] = r.stats.query_kernel_s;
+  j["shade_s"] = r.stats.shade_s;
+  j["render_s"] = r.total_s;
+  j["queries"] = r.stats.queries;
+  j["caustic_queries"] = r.stats.caustic_queries;
+  j["index_calls"] = r.stats.index_calls;
   if (d) {
-    j.add("rmse", d->rmse).add("relative_rmse", d->relative_rmse).add("mean_rel_error", d->mean_rel_error)
-        .add("max_abs_error", d->max_abs);
+    j["rmse"] = d->rmse;
+    j["relative_rmse"] = d->relative_rmse;
+    j["mean_rel_error"] = d->mean_rel_error;
+    j["max_abs_error"] = d->max_abs;
   }
-  std::string s = j.str();
-  if (!s.empty() && s.back() == '\n') s.pop_back();
-  return s;
+  return j;
 }
 
-int run_render(int argc, char** argv) {
-  Args args(argc, argv, 1, {"compare", "quiet"});
-  args.allow_only(merge(kIndexOptions,
-                        {"scene", "method", "photons", "gather", "spp", "size", "out", "png", "stats", "device",
-                         "shadow-rays", "caustic-k", "caustic-radius", "batch", "exposure", "compare",
-                         "exact", "approx", "compare-A", "diff-scale", "quiet"}));
+// The scene and render settings every stats file of `bhcl render` carries.
+Json render_header(const Runtime& rt, const Args& args, const std::string& scene, const RenderOptions& ropt,
+                   const PhotonMaps& maps, std::size_t photons_requested) {
+  Json j = stats_header("render", rt);
+  j["scene"] = scene;
+  j["scene_arg"] = args.str("scene", "cornell");
+  j["width"] = ropt.width;
+  j["height"] = ropt.height;
+  j["spp"] = ropt.spp;
+  j["gather"] = ropt.gather;
+  j["shadow_rays"] = ropt.shadow_rays;
+  j["k"] = ropt.search.k;
+  j["caustic_k"] = ropt.caustic_k;
+  j["caustic_radius"] = ropt.caustic_radius;
+  j["batch"] = ropt.batch_queries;
+  j["seed"] = ropt.seed;
+  j["threads"] = ropt.threads;
+  j["photons_requested"] = photons_requested;
+  j["photons"] = maps.global->size();
+  j["photons_emitted"] = maps.trace.emitted;
+  j["caustic_photons"] = maps.caustic ? maps.caustic->size() : std::size_t(0);
+  return j;
+}
+
+void declare_render(Args& a) {
+  a.add_required("out", "the image (half-float OpenEXR); a PNG preview goes beside it", "IMAGE.exr");
+  a.add_text("scene", "cornell, a scene name from the scenes folder, or an OBJ file", "cornell", "SCENE");
+  a.add_text("method", "the kNN method of the final gather", has_method("kdtree") ? "kdtree" : "bruteforce",
+             "NAME");
+  a.add_integer("photons", "photons emitted", 1, Args::kNoLimit, "200000");
+  a.add_integer("gather", "final-gather rays per pixel sample", 0, 4096, "32");
+  a.add_integer("spp", "samples per pixel", 1, 4096, "1");
+  a.add_text("size", "image size WxH", "512x512", "WxH");
+  a.add_text("png", "the tone-mapped PNG preview", "OUT with .png", "FILE");
+  a.add_text("stats", "write timings and parameters here as JSON", "", "FILE");
+  a.add_text("device", "OpenCL device: P:D, cpu, gpu or a name fragment (default: BHCL_DEVICE, then PoCL)",
+             "", "SPEC");
+  a.add_integer("shadow-rays", "shadow rays per shading point", 1, 4096, "4");
+  a.add_integer("caustic-k", "photons per caustic estimate (0: --k)", 0, kMaxK, "0");
+  a.add_number("caustic-radius", "caustic gather radius (0: automatic)", "0");
+  a.add_integer("batch", "gather queries per kNN call", 1, Args::kNoLimit, "262144");
+  a.add_number("exposure", "tone-mapping exposure (0: automatic)", "0");
+  a.add_flag("quiet", "no progress bars");
+  a.group("Comparison");
+  a.add_flag("compare", "render with an exact method and with block hashing at several A, side by side");
+  a.add_text("exact", "--compare: the exact method", has_method("kdtree") ? "kdtree" : "bruteforce", "NAME");
+  a.add_text("approx", "--compare: the approximate method", "blockhash", "NAME");
+  a.add_text("compare-A", "--compare: the values of A, comma separated", "4,8,16", "LIST");
+  a.add_number("diff-scale", "--compare: relative error shown as full scale in the difference images", "0.1");
+  declare_index_options(a, 50, true);
+}
+
+int run_render(const Args& args) {
+  {
+    const bool cmp = args.flag("compare");
+    for (const char* o : {"exact", "approx", "compare-A", "diff-scale"})
+      if (!cmp && args.has(o)) throw UsageError("--" + std::string(o) + " applies only with --compare");
+    if (cmp && args.has("method")) throw UsageError("--method does not apply with --compare (see --exact, --approx)");
+    const std::string dflt = has_method("kdtree") ? "kdtree" : "bruteforce";
+    // --threads and --seed also drive Embree and the photon tracer.
+    if (cmp)
+      check_method_options(args, {args.str("exact", dflt), args.str("approx", "blockhash")}, {"threads", "seed"});
+    else
+      check_method_options(args, {args.str("method", dflt)}, {"threads", "seed"});
+  }
   const auto t_start = Clock::now();
   const bool quiet = args.flag("quiet");
   const bool compare = args.flag("compare");
@@ -156,19 +230,14 @@ int run_render(int argc, char** argv) {
   ropt.shadow_rays = static_cast<int>(args.integer("shadow-rays", 4));
   ropt.caustic_k = static_cast<int>(args.integer("caustic-k", 0));
   ropt.caustic_radius = static_cast<float>(args.number("caustic-radius", 0));
+  // The integer options above are range-checked as declared (declare_render).
   long long batch = args.integer("batch", 262144);
-  if (ropt.spp < 1 || ropt.spp > 4096) throw UsageError("--spp must be in [1, 4096]");
-  if (ropt.gather < 0 || ropt.gather > 4096) throw UsageError("--gather must be in [0, 4096]");
-  if (ropt.shadow_rays < 1 || ropt.shadow_rays > 4096) throw UsageError("--shadow-rays must be in [1, 4096]");
-  if (ropt.caustic_k < 0 || ropt.caustic_k > kMaxK) throw UsageError("--caustic-k must be in [1, 256]");
   if (!(ropt.caustic_radius >= 0)) throw UsageError("--caustic-radius must be >= 0");
-  if (batch < 1) throw UsageError("--batch must be >= 1");
   ropt.batch_queries = static_cast<std::size_t>(batch);
   MethodOptions mopt = method_options(args);
   ropt.seed = mopt.seed;
   ropt.threads = mopt.threads;
   long long photons = args.integer("photons", 200000);
-  if (photons < 1) throw UsageError("--photons must be >= 1");
   const double exposure_opt = args.number("exposure", 0.0);
   if (exposure_opt < 0 || !std::isfinite(exposure_opt)) throw UsageError("--exposure must be >= 0 (0: automatic)");
 
@@ -222,19 +291,27 @@ int run_render(int argc, char** argv) {
     std::fprintf(stderr, "bhcl render: wrote %s and %s (exposure %.4g); total %.2f s on %s\n", out.c_str(),
                  png.c_str(), exposure, total, device.c_str());
     if (args.has("stats")) {
-      Json j;
-      j.add("scene", scene.name).add("method", method).add("device", device);
-      j.add("width", ropt.width).add("height", ropt.height).add("spp", ropt.spp).add("gather", ropt.gather);
-      j.add("k", ropt.search.k).add("A", static_cast<double>(ropt.search.A));
-      j.add("photons", maps.global->size()).add("photons_emitted", maps.trace.emitted);
-      j.add("caustic_photons", maps.caustic ? maps.caustic->size() : std::size_t(0));
-      j.add("queries", r.stats.queries).add("caustic_queries", r.stats.caustic_queries);
-      j.add("index_calls", r.stats.index_calls).add("gather_rays", r.stats.gather_rays);
-      j.add("gather_escaped", r.stats.gather_escaped).add("visible_points", r.stats.visible_points);
-      j.add("photon_s", photon_s).add("index_build_s", r.build_s).add("kernel_compile_s", r.warm_s + r.stats.compile_s);
-      j.add("trace_s", r.stats.trace_s).add("query_s", r.stats.query_s).add("query_kernel_s", r.stats.query_kernel_s);
-      j.add("shade_s", r.stats.shade_s).add("total_s", total);
-      j.write(args.str("stats"));
+      Json j = render_header(*rt, args, scene.name, ropt, maps, popt.photons);
+      j["method"] = method;
+      j["A"] = ropt.search.A;
+      j["build"] = r.build;
+      j["search"] = r.search;
+      j["exposure"] = exposure;
+      j["queries"] = r.stats.queries;
+      j["caustic_queries"] = r.stats.caustic_queries;
+      j["index_calls"] = r.stats.index_calls;
+      j["gather_rays"] = r.stats.gather_rays;
+      j["gather_escaped"] = r.stats.gather_escaped;
+      j["visible_points"] = r.stats.visible_points;
+      j["photon_s"] = photon_s;
+      j["index_build_s"] = r.build_s;
+      j["kernel_compile_s"] = r.warm_s + r.stats.compile_s;
+      j["trace_s"] = r.stats.trace_s;
+      j["query_s"] = r.stats.query_s;
+      j["query_kernel_s"] = r.stats.query_kernel_s;
+      j["shade_s"] = r.stats.shade_s;
+      j["total_s"] = total;
+      write_json(args.str("stats"), j);
     }
     return 0;
   }
@@ -296,28 +373,22 @@ int run_render(int argc, char** argv) {
                "false-colour |relative luminance error| of each against the exact render (0 to %.0f%%)\n",
                sheet.c_str(), exact.c_str(), args.str("compare-A", "4,8,16").c_str(), 100.0 * max_rel);
   if (args.has("stats")) {
-    std::string arr = "[";
-    for (std::size_t i = 0; i < runs.size(); ++i) arr += (i ? ",\n" : "\n") + run_json(runs[i], &diffs[i]);
-    arr += "\n]";
-    Json j;
-    j.add("scene", scene.name).add("device", device).add("width", ropt.width).add("height", ropt.height);
-    j.add("spp", ropt.spp).add("gather", ropt.gather).add("k", ropt.search.k);
-    j.add("photons", maps.global->size()).add("photons_emitted", maps.trace.emitted);
-    j.add("caustic_photons", maps.caustic ? maps.caustic->size() : std::size_t(0));
-    j.add("photon_s", photon_s).add("total_s", since(t_start));
-    j.add_raw("runs", arr);
-    j.write(args.str("stats"));
+    Json j = render_header(*rt, args, scene.name, ropt, maps, popt.photons);
+    j["exact"] = exact;
+    j["approx"] = approx;
+    j["exposure"] = exposure;
+    j["diff_scale"] = max_rel;
+    j["photon_s"] = photon_s;
+    j["total_s"] = since(t_start);
+    j["runs"] = Json::array();
+    for (std::size_t i = 0; i < runs.size(); ++i) j["runs"].push_back(run_json(runs[i], &diffs[i]));
+    write_json(args.str("stats"), j);
   }
   return 0;
 }
 
-RegisterCommand reg(
-    "render",
-    "render [--scene cornell|NAME|FILE.obj] [--method M] [--A A] [--k K] [--photons N] [--gather M] "
-    "[--spp S] [--size WxH] --out IMAGE.exr [--png P.png] [--stats S.json] [--shadow-rays R] "
-    "[--caustic-k K] [--caustic-radius R] [--max-radius R] [--batch Q] [--exposure E] [--device SPEC] "
-    "[--seed S] [--threads T] [--quiet] [--compare [--exact M] [--approx M] [--compare-A 4,8,16] [--diff-scale 0.1]]",
-    run_render);
+RegisterCommand reg("render", "the photon-mapping renderer, final gather answered by a kNN method",
+                    declare_render, run_render);
 
 }  // namespace
 }  // namespace bhcl::cli

@@ -1,6 +1,10 @@
 // The bhcl tool: bad input exits non-zero with one clear line; knn writes the documented files.
 #include "test_util.hpp"
 
+#include <nlohmann/json.hpp>
+
+#include "blockhash_cl/config.hpp"
+
 using namespace bhcl;
 
 namespace {
@@ -36,12 +40,52 @@ TEST_CASE("cli: knn bruteforce writes ids, distances and stats") {
   CHECK(ids == ref.ids);
   CHECK(d2 == ref.dist2);
   std::ifstream s(S);
-  std::stringstream ss;
-  ss << s.rdbuf();
-  std::string json = ss.str();
-  for (const char* key : {"\"method\": \"bruteforce\"", "\"N\": 2000", "\"n\": 50", "\"k\": 7",
-                          "\"build_s\"", "\"query_s\"", "\"compile_s\"", "\"device\""})
-    CHECK_MESSAGE(json.find(key) != std::string::npos, key);
+  const nlohmann::json j = nlohmann::json::parse(s);  // throws (fails the test) unless valid JSON
+  INFO(j.dump(2));
+  CHECK(j.at("method") == "bruteforce");
+  CHECK(j.at("exact") == true);
+  CHECK(j.at("N") == 2000);
+  CHECK(j.at("n") == 50);
+  CHECK(j.at("k") == 7);
+  CHECK(j.at("version") == BHCL_VERSION_STRING);
+  CHECK(j.at("command") == "knn");
+  CHECK(j.at("max_radius").is_null());  // unbounded
+  CHECK(j.at("search").at("k") == 7);
+  CHECK(j.at("search").at("local_size").get<int>() > 0);  // the default resolved
+  CHECK(!j.at("search").contains("A"));                   // an exact method: no A
+  CHECK(j.at("build").is_object());
+  for (const char* key : {"build_s", "query_s", "compile_s", "wall_s", "queries_per_s"})
+    CHECK_MESSAGE(j.at(key).get<double>() >= 0, key);
+  CHECK(j.at("neighbours_found") == 50 * 7);
+  CHECK(j.at("device").get<std::string>().size() > 0);
+}
+
+TEST_CASE("cli: the stats of a block-hash run carry the build and search parameters used") {
+  auto names = method_names();
+  if (std::find(names.begin(), names.end(), "blockhash") == names.end()) return;
+  auto pts = datasets::uniform(3000, 63);
+  std::string P = write_points("clibh_p.f32", pts);
+  std::string I = test::tmp_path("clibh_ids.i32"), D = test::tmp_path("clibh_d2.f32"),
+              S = test::tmp_path("clibh_stats.json");
+  std::string out;
+  int rc = test::run_bhcl("knn --points " + P + " --queries " + P + " --k 5 --method blockhash --A 3 --X 8 "
+                          "--preset paper --seed 7 --max-radius 0.5 --out-ids " + I + " --out-dist2 " + D +
+                          " --stats " + S, &out);
+  INFO(out);
+  REQUIRE(rc == 0);
+  std::ifstream s(S);
+  const nlohmann::json j = nlohmann::json::parse(s);
+  INFO(j.dump(2));
+  const auto& b = j.at("build");
+  CHECK(b.at("preset") == "paper");
+  CHECK(b.at("X") == 8);
+  CHECK(b.at("seed") == 7);
+  for (const char* key : {"L", "P", "B"}) CHECK_MESSAGE(b.at(key).get<int>() > 0, key);  // derived
+  const auto& sp = j.at("search");
+  CHECK(sp.at("A") == 3.0);
+  CHECK(sp.at("k") == 5);
+  CHECK(sp.at("max_radius").get<double>() == doctest::Approx(0.5));
+  CHECK(sp.at("neighbour_probes").is_boolean());
 }
 
 TEST_CASE("cli: bad input exits non-zero with one clear line") {
@@ -90,6 +134,85 @@ TEST_CASE("cli: bad input exits non-zero with one clear line") {
   }
 }
 
+TEST_CASE("cli: --version prints the library version") {
+  std::string out;
+  CHECK(test::run_bhcl("--version", &out) == 0);
+  CHECK(out.find(BHCL_VERSION_STRING) != std::string::npos);
+}
+
+TEST_CASE("cli: every command's --help exits 0 and lists each option with its meaning and default") {
+  std::string out;
+  CHECK(test::run_bhcl("--help", &out) == 0);
+  for (const char* cmd : {"knn", "eval", "render", "demo", "devices"})
+    CHECK_MESSAGE(out.find(cmd) != std::string::npos, cmd);
+  struct Expect {
+    std::string cmd;
+    std::vector<std::string> shown;
+  };
+  const std::vector<std::string> index_options = {
+      "--k INT=10", "--max-radius NUM=inf", "--A NUM=8", "--probes", "--local-size", "--max-batch",
+      "--preset NAME=auto", "--L ", "--P ", "--B ", "--X ", "--seed INT=1", "--threads INT=0",
+      "--load-index", "--save-index"};
+  std::vector<Expect> cases = {
+      {"knn", {"--points FILE REQUIRED", "--queries FILE REQUIRED", "--method NAME REQUIRED",
+               "--out-ids FILE REQUIRED", "--out-dist2 FILE REQUIRED", "--out-counts", "--stats", "--device"}},
+      {"eval", {"--points FILE REQUIRED", "--method NAME REQUIRED", "--truth NAME=", "--stats", "--device"}},
+      {"render", {"--out IMAGE.exr REQUIRED", "--scene SCENE=cornell", "--photons INT=200000", "--size WxH=512x512",
+                  "--compare", "--compare-A LIST=4,8,16", "--quiet", "--k INT=50"}},
+      {"demo", {"--N INT=200000", "--n INT=20000", "--k INT=50", "--out-dir DIR=bhcl-demo", "--no-render"}},
+      {"devices", {"--device SPEC"}},
+  };
+  for (auto c : cases) {
+    if (c.cmd == "knn" || c.cmd == "eval")
+      for (const auto& o : index_options) c.shown.push_back(o);
+    int rc = test::run_bhcl(c.cmd + " --help", &out);
+    INFO("bhcl " << c.cmd << " --help\n" << out);
+    CHECK(rc == 0);
+    for (const auto& s : c.shown) CHECK_MESSAGE(out.find(s) != std::string::npos, s);
+    // Each option line carries its meaning: no line is only an option name.
+    std::istringstream lines(out);
+    for (std::string line; std::getline(lines, line);) {
+      if (line.rfind("  --", 0) != 0) continue;
+      std::size_t gap = line.find("  ", 4);
+      CHECK_MESSAGE((gap != std::string::npos && line.find_first_not_of(' ', gap) != std::string::npos), line);
+    }
+  }
+}
+
+TEST_CASE("cli: missing --method, an option the method does not read, an out-of-range integer") {
+  auto pts = datasets::uniform(100, 81);
+  std::string P = write_points("usage_p.f32", pts);
+  std::string I = test::tmp_path("usage_ids"), D = test::tmp_path("usage_d2");
+  const std::string base = "knn --points " + P + " --queries " + P + " --out-ids " + I + " --out-dist2 " + D;
+  struct Case {
+    std::string args, expect;
+  };
+  std::vector<Case> cases = {
+      {base + " --k 3", "missing required option --method"},
+      {base + " --k 3 --method kdtree --A 4", "--A does not apply to method kdtree"},
+      {base + " --k 3 --method bruteforce --threads 2", "--threads does not apply to method bruteforce"},
+      {base + " --k 3 --method kdtree --L 4", "--L does not apply to method kdtree"},
+      {base + " --k 99999999999999999999 --method kdtree", "--k must be in [1, 256]"},
+      {base + " --k 4294967299 --method kdtree", "--k must be in [1, 256]"},  // 2^32 + 3: not narrowed to 3
+      {base + " --k 3 --method blockhash --X 17", "--X must be in [-1, 16]"},
+      {base + " --k 3 --method blockhash --seed -1", "--seed must be >= 0"},
+      {base + " --k 3 --method kdtree --max-batch -5", "--max-batch must be >= 0"},
+      {base + " --k 3 --method kdtree --k", "option --k needs a value"},
+      {"eval --points " + P + " --queries " + P + " --method kdtree --truth bruteforce --threads 2",
+       "--threads does not apply to method kdtree and bruteforce"},
+      {"render --out " + I + ".exr --method bruteforce --A 4", "--A does not apply to method bruteforce"},
+      {"demo --N 0", "--N must be in [1, "},
+  };
+  for (const auto& c : cases) {
+    std::string out;
+    int rc = test::run_bhcl(c.args, &out);
+    INFO("bhcl " << c.args << "\n" << out);
+    CHECK(rc == 2);
+    CHECK(out.find(c.expect) != std::string::npos);
+    CHECK(std::count(out.begin(), out.end(), '\n') == 1);  // one line
+  }
+}
+
 TEST_CASE("cli: devices lists the OpenCL devices and the pick") {
   std::string out;
   int rc = test::run_bhcl("devices", &out);
@@ -126,4 +249,36 @@ TEST_CASE("cli: knn bruteforce on the Stanford bunny agrees with the exact refer
   SearchParams p;
   p.k = 16;
   test::check_exact_vs_double(r, pts.data(), N, qs.data(), r.n, p);
+}
+
+TEST_CASE("cli: PoCL's kernel cache: the build tree's, the user's cache directory when installed, or POCL_CACHE_DIR") {
+  // Run from the build tree: the build tree's cache (the one ctest also sets).
+  std::string out;
+  REQUIRE(test::run_bhcl("devices", &out, "-u POCL_CACHE_DIR") == 0);
+  INFO(out);
+  const char* build_cache = std::getenv("POCL_CACHE_DIR");
+  if (build_cache) CHECK(out.find(std::string("PoCL kernel cache: ") + build_cache) != std::string::npos);
+  // A copy outside the build tree stands for the installed bhcl.
+  char tmpl[] = "/tmp/bhcl_cache_test_XXXXXX";
+  REQUIRE(mkdtemp(tmpl) != nullptr);
+  const std::string dir = tmpl, exe = dir + "/bhcl", log = dir + "/out.txt";
+  REQUIRE(std::system(("cp \"" BHCL_TOOL_PATH "\" \"" + exe + "\"").c_str()) == 0);
+  auto run = [&](const std::string& env) {
+    int status = std::system(("env " + env + " \"" + exe + "\" devices > \"" + log + "\" 2>&1").c_str());
+    std::ifstream in(log);
+    std::stringstream ss;
+    ss << in.rdbuf();
+    INFO(ss.str());
+    CHECK(WIFEXITED(status));
+    CHECK(WEXITSTATUS(status) == 0);
+    return ss.str();
+  };
+  std::string o = run("-u POCL_CACHE_DIR XDG_CACHE_HOME=" + dir + "/xdg");
+  CHECK(o.find("PoCL kernel cache: " + dir + "/xdg/blockhash_cl/pocl") != std::string::npos);
+  CHECK(std::ifstream(dir + "/xdg/blockhash_cl/pocl").good());  // made
+  o = run("-u POCL_CACHE_DIR -u XDG_CACHE_HOME HOME=" + dir + "/home");
+  CHECK(o.find("PoCL kernel cache: " + dir + "/home/.cache/blockhash_cl/pocl") != std::string::npos);
+  o = run("POCL_CACHE_DIR=" + dir + "/mine XDG_CACHE_HOME=" + dir + "/xdg");
+  CHECK(o.find("PoCL kernel cache: " + dir + "/mine") != std::string::npos);
+  std::system(("rm -rf \"" + dir + "\"").c_str());
 }

@@ -1,6 +1,8 @@
 // bhcl eval: the table and the JSON stats of a method against an exact truth; bad input.
 #include "test_util.hpp"
 
+#include <nlohmann/json.hpp>
+
 using namespace bhcl;
 
 namespace {
@@ -11,18 +13,14 @@ std::string write_points(const std::string& name, const std::vector<float>& xyz)
   return path;
 }
 
-std::string slurp(const std::string& path) {
+nlohmann::json read_json(const std::string& path) {
   std::ifstream in(path);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
+  return nlohmann::json::parse(in);  // throws (fails the test) unless valid JSON
 }
 
-// The number after "key": in a flat JSON object; NaN when the key is missing.
-double json_number(const std::string& json, const std::string& key) {
-  std::size_t p = json.find("\"" + key + "\": ");
-  if (p == std::string::npos) return NAN;
-  return std::strtod(json.c_str() + p + key.size() + 4, nullptr);
+// A number of the stats; NaN when the key is missing or not a number.
+double json_number(const nlohmann::json& j, const std::string& key) {
+  return j.contains(key) && j.at(key).is_number() ? j.at(key).get<double>() : NAN;
 }
 
 }  // namespace
@@ -42,10 +40,13 @@ TEST_CASE("eval_cli: kdtree against the flann truth prints one table and writes 
                           "recall", "false negatives", "dilation max", "dilation mean",
                           "mean rel. dist. error", "identical rows", "N=3000 n=150 k=12"})
     CHECK_MESSAGE(out.find(row) != std::string::npos, row);
-  std::string json = slurp(S);
-  INFO(json);
-  CHECK(json.find("\"method\": \"kdtree\"") != std::string::npos);
-  CHECK(json.find("\"truth_method\": \"flann\"") != std::string::npos);
+  const nlohmann::json json = read_json(S);
+  INFO(json.dump(2));
+  CHECK(json.at("method") == "kdtree");
+  CHECK(json.at("truth_method") == "flann");
+  CHECK(json.at("command") == "eval");
+  CHECK(json.at("version").get<std::string>().size() > 0);
+  CHECK(json.at("truth_build").at("threads") == 2);  // flann's --threads, as used
   CHECK(json_number(json, "N") == 3000);
   CHECK(json_number(json, "n") == 150);
   CHECK(json_number(json, "k") == 12);
@@ -61,7 +62,7 @@ TEST_CASE("eval_cli: kdtree against the flann truth prints one table and writes 
   CHECK(json_number(json, "truth_build_s") >= 0);
 }
 
-TEST_CASE("eval_cli: flann against the brute-force truth with a radius; rows cut short are compared") {
+TEST_CASE("eval_cli: flann against the brute-force truth with a radius: rows cut short are compared") {
   auto pts = datasets::uniform(2000, 411);
   auto qs = datasets::uniform(100, 412);
   std::string P = write_points("eval2_p.f32", pts), Q = write_points("eval2_q.f32", qs);
@@ -73,8 +74,8 @@ TEST_CASE("eval_cli: flann against the brute-force truth with a radius; rows cut
   INFO(out);
   REQUIRE(rc == 0);
   CHECK(out.find("bruteforce (truth)") != std::string::npos);
-  std::string json = slurp(S);
-  INFO(json);
+  const nlohmann::json json = read_json(S);
+  INFO(json.dump(2));
   SearchParams p;
   p.k = 20;
   p.max_radius = 0.08f;
@@ -164,8 +165,8 @@ TEST_CASE("eval_cli: an approximate method's metrics are those of its own knn ou
   SearchParams p;
   p.k = 10;
   Accuracy a = evaluate_accuracy(approx, reference::knn_float(pts.data(), 5000, qs.data(), 300, p));
-  std::string json = slurp(S);
-  INFO(json);
+  const nlohmann::json json = read_json(S);
+  INFO(json.dump(2));
   CHECK(json_number(json, "recall") == doctest::Approx(a.recall).epsilon(1e-8));
   CHECK(json_number(json, "false_negative_rate") == doctest::Approx(a.false_negative_rate).epsilon(1e-8));
   CHECK(json_number(json, "max_dilation") == doctest::Approx(a.max_dilation).epsilon(1e-8));

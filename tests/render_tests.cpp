@@ -4,6 +4,8 @@
 
 #include "test_util.hpp"
 
+#include <nlohmann/json.hpp>
+
 #include "compare.hpp"
 #include "embree_scene.hpp"
 #include "exr_io.hpp"
@@ -272,11 +274,16 @@ TEST_CASE("render: bhcl render writes the EXR and the PNG and the stats") {
   CHECK(img.height == 16);
   CHECK(read_png(test::tmp_path("cli_render.png")).width == 24);
   std::ifstream s(json);
-  std::stringstream ss;
-  ss << s.rdbuf();
-  for (const char* key : {"\"photons\"", "\"queries\"", "\"query_s\"", "\"total_s\"", "\"device\"", "\"photon_s\"",
-                          "\"index_build_s\"", "\"shade_s\""})
-    CHECK_MESSAGE(ss.str().find(key) != std::string::npos, key);
+  const nlohmann::json j = nlohmann::json::parse(s);
+  INFO(j.dump(2));
+  for (const char* key : {"photons", "queries", "query_s", "total_s", "photon_s", "index_build_s", "shade_s"})
+    CHECK_MESSAGE(j.at(key).is_number(), key);
+  CHECK(j.at("device").is_string());
+  CHECK(j.at("method") == "bruteforce");
+  CHECK(j.at("k") == 8);
+  CHECK(j.at("width") == 24);
+  CHECK(j.at("photons_requested") == 2000);
+  CHECK(j.at("search").at("k") == 8);
   CHECK(test::run_bhcl("render --out " + exr + " --size 12", &out) == 2);
   CHECK(out.find("--size expects WxH") != std::string::npos);
   CHECK(test::run_bhcl("render --out " + exr + " --scene /no/such.obj", &out) == 1);

@@ -1,5 +1,16 @@
-// Point files: raw little-endian float32, N x 3 (x y z per point), no header; N = size / 12.
-// Result files: raw int32 / float32, n x k row-major.
+// Point files, N x 3 (x y z per point), in the formats point clouds come in:
+//  - raw:  little-endian float32 x y z triples, no header; N = size / 12 (.f32, .bin, .raw)
+//  - text: one point per line, x y z separated by white space or commas; '#' starts a comment,
+//          blank lines are skipped (.txt, .xyz, .csv, .asc, .pts)
+//  - PLY:  ASCII, binary little or big endian; the vertex element's x, y, z properties as float
+//          or double; other properties and elements are skipped (.ply)
+//  - NPY:  NumPy arrays of float32 or float64, shape (N, 3), C order (.npy)
+// The format comes from the file name's extension, or, without a known one, from the content
+// (the PLY and NPY magic, text that is all printable, raw otherwise). A file whose content
+// contradicts its format (text or a PLY file named .f32, a PLY without x/y/z, an NPY of int32) is
+// refused with one line naming the file and what is wrong, never misread. Coordinates are read as
+// float; a double that does not fit a float is refused.
+// Result files: raw int32 / float32, n x k row-major, or NPY when the name ends in .npy.
 #pragma once
 
 #include <cstddef>
@@ -9,19 +20,44 @@
 
 namespace bhcl {
 
-// Reads a point file. Throws bhcl::Error naming the path for a missing/unreadable file, a size
-// that is not a multiple of 12 bytes, or (when require_finite) the first point with a NaN/Inf
-// coordinate. An empty file gives an empty vector.
+enum class PointFormat { Auto, Raw, Text, Ply, Npy };
+
+const char* point_format_name(PointFormat f);  // "auto", "raw float32", "text", "PLY", "NPY"
+
+// The format of a file named `path` (Auto when its extension says nothing).
+PointFormat point_format_from_name(const std::string& path);
+// The format the bytes look like: PLY or NPY by their magic, text when every byte is printable
+// text with a digit, raw otherwise.
+PointFormat sniff_point_format(const void* data, std::size_t size);
+
+// Reads a point file in any of the formats above. Throws bhcl::Error naming the path for a
+// missing/unreadable file, a malformed or contradicting file, or (when require_finite) the first
+// point with a NaN/Inf coordinate. An empty file (or zero points) gives an empty vector.
 std::vector<float> read_points_file(const std::string& path, bool require_finite = true);
 
 // Parses the bytes of a point file (what read_points_file does after reading); `what` names the
-// source in errors. The fuzz target drives this.
+// source in errors and, by its extension, picks the format (else the content does). The fuzz
+// target drives this.
 std::vector<float> parse_points(const void* data, std::size_t size, const std::string& what,
                                 bool require_finite = true);
+// The same in a given format (Auto: from `what`'s extension, else sniffed).
+std::vector<float> parse_points(const void* data, std::size_t size, const std::string& what,
+                                PointFormat format, bool require_finite);
 
+// Writes raw float32 x y z triples.
 void write_points_file(const std::string& path, const std::vector<float>& xyz);
 
 // Writes raw bytes; throws bhcl::Error naming the path on failure.
 void write_raw_file(const std::string& path, const void* data, std::size_t bytes);
+
+// Writes a rows x cols array (C order) as NPY version 1.0 ('<f4', '<i4').
+void write_npy_file(const std::string& path, const float* data, std::size_t rows, std::size_t cols);
+void write_npy_file(const std::string& path, const std::int32_t* data, std::size_t rows,
+                    std::size_t cols);
+// A result array: NPY (rows x cols; cols == 0 for a 1-D array of rows) when the path ends in
+// .npy, raw bytes otherwise.
+void write_array_file(const std::string& path, const float* data, std::size_t rows, std::size_t cols);
+void write_array_file(const std::string& path, const std::int32_t* data, std::size_t rows,
+                      std::size_t cols);
 
 }  // namespace bhcl
