@@ -57,7 +57,7 @@ TableStats build_cell_aligned(const float* xyz, Structure& s) {
   });
   const std::uint32_t side = P + 1;
   const std::uint64_t all_cells = std::uint64_t(side) * side * side;
-  // Occupied cells: a dense flag array when the key space is small, else a sort.
+  // Occupied cells: a flag array over the key space when it is small, else a sort of the points.
   std::vector<std::uint32_t> occupied, dense;
   if (all_cells <= (std::uint64_t(1) << 24)) {
     dense.assign(all_cells, 0xffffffffu);
@@ -68,10 +68,23 @@ TableStats build_cell_aligned(const float* xyz, Structure& s) {
         occupied.push_back(static_cast<std::uint32_t>(c));
       }
   } else {
-    occupied = cell_of;
-    std::sort(occupied.begin(), occupied.end());
-    occupied.erase(std::unique(occupied.begin(), occupied.end()), occupied.end());
+    // (cell << 32 | position), sorted in two halves in parallel and merged: the runs are the
+    // occupied cells; each position learns its cell's index (kept in `dense`, one per point).
+    std::vector<std::uint64_t> kv(n);
+    for (std::size_t i = 0; i < n; ++i) kv[i] = (std::uint64_t(cell_of[i]) << 32) | i;
+    const std::size_t half = n / 2;
+    detail::parallel_for(2, [&](std::size_t part, std::size_t) {
+      std::sort(kv.begin() + (part ? half : 0), part ? kv.end() : kv.begin() + half);
+    }, 2, 1);
+    std::inplace_merge(kv.begin(), kv.begin() + half, kv.end());
+    dense.resize(n);
+    for (std::size_t j = 0; j < n; ++j) {
+      std::uint32_t c = std::uint32_t(kv[j] >> 32);
+      if (occupied.empty() || occupied.back() != c) occupied.push_back(c);
+      dense[kv[j] & 0xffffffffu] = static_cast<std::uint32_t>(occupied.size() - 1);
+    }
   }
+  const bool per_point = all_cells > (std::uint64_t(1) << 24);  // dense indexed by position
   std::vector<std::pair<std::uint64_t, std::uint32_t>> by_curve(occupied.size());  // (Hilbert, slot)
   for (std::size_t c = 0; c < occupied.size(); ++c) {
     std::uint32_t key = occupied[c];
@@ -83,8 +96,7 @@ TableStats build_cell_aligned(const float* xyz, Structure& s) {
   for (std::size_t r = 0; r < by_curve.size(); ++r) rank[by_curve[r].second] = static_cast<std::uint32_t>(r);
   std::vector<std::uint32_t> slot(n);
   for (std::size_t i = 0; i < n; ++i) {
-    std::size_t c = dense.empty() ? std::size_t(std::lower_bound(occupied.begin(), occupied.end(), cell_of[i]) - occupied.begin())
-                                  : dense[cell_of[i]];
+    std::size_t c = per_point ? dense[i] : dense[cell_of[i]];
     slot[i] = rank[c];
     ++start[slot[i] + 1];
   }

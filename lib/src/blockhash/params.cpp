@@ -161,7 +161,12 @@ void derive_params(const BlockHashBuildParams& p, Structure& s) {
   in.L = in.cell_aligned ? 1 : (p.L > 0 ? p.L : 4);
   // P: bisection on the median points per occupied cell (table 0, guarded thresholds), over a
   // stride sample of the Hilbert-sorted points (spatially even) of at most 2^18 points.
-  const std::size_t stride = std::max<std::size_t>(1, s.n_points >> 18);
+  // The median of a stride sample's cell counts times the stride is only unbiased while a cell
+  // keeps several sampled points: the stride stays below a quarter of the target population
+  // (at 10M points a 2^18 sample put P at its cap with 3-point cells).
+  const double target_pts = p.target_cell_points > 0 ? p.target_cell_points : (in.cell_aligned ? 24.0 : 100.0);
+  const std::size_t stride = std::max<std::size_t>(
+      1, std::min<std::size_t>(s.n_points >> 18, static_cast<std::size_t>(target_pts / 4)));
   if (in.cell_aligned) measure_axis_spread(s, stride);
   if (p.P > 0) {
     in.P = p.P;
