@@ -161,8 +161,17 @@ Json search_json(const Index& index, const SearchParams& p) {
   s["k"] = p.k;
   s["max_radius"] = p.max_radius;  // null: unbounded
   if (const auto* bh = dynamic_cast<const BlockHashIndex*>(&index)) {
-    s["A"] = p.A;
-    s["neighbour_probes"] = p.neighbour_probes >= 0 ? p.neighbour_probes != 0 : bh->info().neighbour_probes;
+    if (p.recall_target > 0) {
+      // The A the index tuned for this target (cached: no second tuning).
+      BlockHashIndex::RecallTuning t = bh->recall_tuning(p);
+      s["recall_target"] = p.recall_target;
+      s["A"] = t.A;
+      s["tuned_sample_recall"] = t.recall;
+      s["tuned_reached"] = t.reached;
+    } else {
+      s["A"] = p.A;
+    }
+    s["neighbour_probes"] = p.neighbour_probes >= 0 ? p.neighbour_probes : (bh->info().neighbour_probes ? (bh->info().cell_aligned ? 2 : 1) : 0);
   }
   if (index.method() != "flann") {  // the device methods
     s["local_size"] = p.local_size ? p.local_size : index.runtime().quirks().default_local_size;
@@ -177,8 +186,11 @@ void declare_index_options(Args& a, int default_k, bool render) {
   a.add_integer("k", "neighbours per query", 1, kMaxK, std::to_string(default_k));
   a.add_number("max-radius", "only neighbours within this Euclidean distance", "inf");
   a.add_number("A", "blockhash: examine at most A*k points per query (accuracy against speed)", "8");
-  a.add_integer("probes", "blockhash: probe the near-side neighbour cells too (-1: the preset decides)",
-                -1, 1, "-1");
+  a.add_number("recall", "blockhash: a recall@k to reach instead of --A (e.g. 0.95): the index tunes "
+                         "A for this k on a sample of its points (0: use --A)", "0");
+  a.add_integer("probes", "blockhash: 0 the query's cell, 1 and its near-side neighbours, 2 and the "
+                          "4x4x4 block when needed (auto's cell-aligned layout; -1: the preset decides)",
+                -1, 2, "-1");
   a.add_integer("local-size", "device methods: OpenCL work-group size (0: the device default)", 0,
                 1 << 20, "0");
   a.add_integer("max-batch", "device methods: at most this many queries per dispatch (0: automatic)",
@@ -209,6 +221,7 @@ void check_method_options(const Args& args, const std::vector<std::string>& meth
   // which says which methods save.
   static const std::map<std::string, std::set<std::string>> only = {
       {"A", {"blockhash"}},      {"probes", {"blockhash"}}, {"preset", {"blockhash"}},
+      {"recall", {"blockhash"}},
       {"L", {"blockhash"}},      {"P", {"blockhash"}},      {"B", {"blockhash"}},
       {"X", {"blockhash"}},      {"seed", {"blockhash"}},   {"threads", {"flann"}},
       {"local-size", {"bruteforce", "kdtree", "blockhash"}},
@@ -258,6 +271,9 @@ SearchParams search_params(const Args& args, int default_k) {
     throw UsageError("--max-radius must be a non-negative number");
   p.A = static_cast<float>(args.number("A", p.A));
   if (!(p.A > 0) || !std::isfinite(p.A)) throw UsageError("--A must be a positive number");
+  p.recall_target = args.number("recall", 0.0);
+  if (!(p.recall_target >= 0 && p.recall_target <= 1)) throw UsageError("--recall must be in [0, 1] (0: use --A)");
+  if (p.recall_target > 0 && args.has("A")) throw UsageError("--recall and --A both set: give one");
   p.neighbour_probes = static_cast<int>(args.integer("probes", -1));
   p.local_size = static_cast<std::size_t>(args.integer("local-size", 0));
   p.max_batch = static_cast<std::size_t>(args.integer("max-batch", 0));

@@ -176,3 +176,26 @@ TEST_CASE("eval_cli: an approximate method's metrics are those of its own knn ou
   CHECK(json_number(json, "identical_rows") == double(a.identical_rows));
   MESSAGE("blockhash A=1 recall " << a.recall);
 }
+
+TEST_CASE("eval_cli: blockhash with --recall reaches the target and records the tuned A") {
+  auto pts = datasets::uniform(30000, 411);
+  auto qs = datasets::uniform(1000, 412);
+  std::string P = write_points("eval_recall_p.f32", pts), Q = write_points("eval_recall_q.f32", qs);
+  std::string S = test::tmp_path("eval_recall_stats.json");
+  std::string out;
+  int rc = test::run_bhcl("eval --points " + P + " --queries " + Q +
+                              " --k 10 --method blockhash --recall 0.95 --truth kdtree --stats " + S,
+                          &out);
+  INFO(out);
+  REQUIRE(rc == 0);
+  const nlohmann::json json = read_json(S);
+  INFO(json.dump(2));
+  CHECK(json.at("search").at("recall_target") == 0.95);
+  CHECK(json.at("search").at("A").get<double>() > 0);
+  CHECK(json.at("search").at("tuned_reached") == true);
+  CHECK(json_number(json, "recall") >= 0.94);
+  // A usage mistake: both knobs, or a target outside [0, 1].
+  CHECK(test::run_bhcl("eval --points " + P + " --queries " + Q + " --method blockhash --recall 0.9 --A 4", &out) == 2);
+  CHECK(test::run_bhcl("eval --points " + P + " --queries " + Q + " --method blockhash --recall 1.5", &out) == 2);
+  CHECK(test::run_bhcl("eval --points " + P + " --queries " + Q + " --method kdtree --recall 0.9", &out) == 2);
+}

@@ -160,6 +160,9 @@ class BlockHashIndex : public Index {
   };
   RecallTuning tune_for_recall(double target, const SearchParams& params,
                                std::size_t sample = 2000) const;
+  // The tuning a query with params.recall_target > 0 uses: computed on first use per (k, probes,
+  // radius, target) and cached.
+  RecallTuning recall_tuning(const SearchParams& params) const;
 
   // ceil(A k): the points a query may examine.
   static std::uint32_t budget(const SearchParams& params);
@@ -186,7 +189,7 @@ class BlockHashIndex : public Index {
   // SearchParams::recall_target: the A tuned per (k, probes, radius, target), computed on first use.
   float resolved_A(const SearchParams& params) const;
   mutable std::mutex tune_mutex_;
-  mutable std::map<std::tuple<int, int, float, double>, float> tuned_A_;
+  mutable std::map<std::tuple<int, int, float, double>, RecallTuning> tuned_;
 
   std::unique_ptr<blockhash::Structure> s_;
   BlockHashBuildInfo info_;

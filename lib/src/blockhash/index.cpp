@@ -227,15 +227,18 @@ void BlockHashIndex::check_params(const SearchParams& p) const {
     throw Error("blockhash: A must be a positive finite number, got " + std::to_string(p.A));
 }
 
-float BlockHashIndex::resolved_A(const SearchParams& p) const {
-  if (!(p.recall_target > 0)) return p.A;
+BlockHashIndex::RecallTuning BlockHashIndex::recall_tuning(const SearchParams& p) const {
   auto key = std::make_tuple(p.k, p.neighbour_probes, p.max_radius, p.recall_target);
   std::lock_guard<std::mutex> lock(tune_mutex_);
-  auto it = tuned_A_.find(key);
-  if (it != tuned_A_.end()) return it->second;
-  float A = tune_for_recall(p.recall_target, p).A;
-  tuned_A_[key] = A;
-  return A;
+  auto it = tuned_.find(key);
+  if (it != tuned_.end()) return it->second;
+  RecallTuning t = tune_for_recall(p.recall_target, p);
+  tuned_[key] = t;
+  return t;
+}
+
+float BlockHashIndex::resolved_A(const SearchParams& p) const {
+  return p.recall_target > 0 ? recall_tuning(p).A : p.A;
 }
 
 std::string BlockHashIndex::kernel_options(int kmax) const {
