@@ -500,6 +500,7 @@ void run_set(const Options& o, const std::shared_ptr<Runtime>& rt, const std::st
                vars[end].params.neighbour_probes == vars[g].params.neighbour_probes;
              ++end) {
           const double rec = row[end].acc.recall;
+          if (vars[end].params.recall_target > 0) continue;  // its A is the index's choice: own row
           if (rec >= o.recall_target && (!best || vars[end].params.A < vars[best].params.A)) best = end;
           if (rec > top) top = rec, top_A = vars[end].params.A;
         }

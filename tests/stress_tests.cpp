@@ -89,6 +89,44 @@ const std::vector<Case>& cases() {
 }  // namespace
 
 TEST_SUITE("stress") {
+  TEST_CASE("stress: block hashing's host reference and examined counts take the query path") {
+    // One query path: the host reference and the per-query examined counts scale coordinates as
+    // query() does, so on every hard case (1e-20 and 1e30 boxes, subnormals included) they give
+    // the kernel's rows, distances in the caller's units.
+    auto rt = test::runtime();
+    for (const char* preset : {"auto", "paper"}) {
+      for (const auto& c : cases()) {
+        const std::size_t N = c.pts.size() / 3, n = c.qs.size() / 3;
+        CAPTURE(preset);
+        CAPTURE(c.name);
+        BlockHashBuildParams bp;
+        bp.preset = BlockHashBuildParams::parse_preset(preset);
+        BlockHashIndex index(rt, c.pts.data(), N, bp);
+        for (int k : c.ks) {
+          CAPTURE(k);
+          SearchParams p;
+          p.k = k;
+          p.max_radius = c.max_radius;
+          p.sort_queries = 0;
+          KnnResult r = index.query(c.qs, p);
+          std::vector<std::int32_t> ex, ex_ref;
+          KnnResult ref = index.reference_query(c.qs.data(), n, p, &ex_ref);
+          KnnResult rex;
+          index.query_examined(c.qs.data(), n, p, rex, ex);
+          REQUIRE(ref.ids == r.ids);
+          REQUIRE(rex.ids == r.ids);
+          REQUIRE(ref.counts == r.counts);
+          REQUIRE(ex == ex_ref);
+          for (std::size_t i = 0; i < r.dist2.size(); ++i) {
+            INFO("entry " << i);
+            const bool both_inf = std::isinf(r.dist2[i]) && std::isinf(ref.dist2[i]) && std::isinf(rex.dist2[i]);
+            REQUIRE((both_inf || (ref.dist2[i] == r.dist2[i] && rex.dist2[i] == r.dist2[i])));
+          }
+        }
+      }
+    }
+  }
+
   TEST_CASE("stress: every method on the hard cases") {
     auto rt = test::runtime();
     std::map<std::string, int> runs;

@@ -136,13 +136,14 @@ class BlockHashIndex : public Index {
   int X() const { return info_.X; }
 
   // The host reference of the query: the same candidates in the same order and the same float
-  // arithmetic as the kernel, so its results equal the kernel's bit for bit. examined (optional)
-  // gets the points examined per query. threads 0 = all hardware threads.
+  // arithmetic as the kernel, so its results equal the kernel's bit for bit. It takes query()'s
+  // path (validation, recall target, coordinate scaling: distances in the caller's units).
+  // examined (optional) gets the points examined per query. threads 0 = all hardware threads.
   KnnResult reference_query(const float* queries, std::size_t n, const SearchParams& params,
                             std::vector<std::int32_t>* examined = nullptr,
                             unsigned threads = 0) const;
 
-  // The kernel with per-query statistics: examined[i] = points examined by query i.
+  // The kernel with per-query statistics, on query()'s path: examined[i] = points examined by query i.
   QueryStats query_examined(const float* queries, std::size_t n, const SearchParams& params,
                             KnnResult& out, std::vector<std::int32_t>& examined) const;
 
@@ -161,7 +162,7 @@ class BlockHashIndex : public Index {
   RecallTuning tune_for_recall(double target, const SearchParams& params,
                                std::size_t sample = 2000) const;
   // The tuning a query with params.recall_target > 0 uses: computed on first use per (k, probes,
-  // radius, target) and cached.
+  // target), without the radius, and cached.
   RecallTuning recall_tuning(const SearchParams& params) const;
 
   // ceil(A k): the points a query may examine.
@@ -186,10 +187,10 @@ class BlockHashIndex : public Index {
   std::string kernel_options(int kmax) const;
   std::uint32_t cells_probes(const SearchParams& params) const;  // cell-aligned: 0, 1 or 2
 
-  // SearchParams::recall_target: the A tuned per (k, probes, radius, target), computed on first use.
+  // SearchParams::recall_target: the A tuned per (k, probes, target), computed on first use.
   float resolved_A(const SearchParams& params) const;
   mutable std::mutex tune_mutex_;
-  mutable std::map<std::tuple<int, int, float, double>, RecallTuning> tuned_;
+  mutable std::map<std::tuple<int, int, double>, RecallTuning> tuned_;
 
   std::unique_ptr<blockhash::Structure> s_;
   BlockHashBuildInfo info_;

@@ -188,14 +188,18 @@ class Index {
 
   void set_build_seconds(double s) { build_seconds_ = s; }
 
+  // The coordinate scaling every entry point applies (see the contract): queries and max_radius
+  // into the structure's coordinates, squared distances back. to_structure returns `queries`
+  // itself when no scaling applies, else a scaled copy kept in `storage`.
+  SearchParams scaled(const SearchParams& params) const;
+  const float* to_structure(const float* queries, std::size_t n, std::vector<float>& storage) const;
+  void distances_to_caller(float* dist2, std::size_t count) const;
+
   // Serialises kernel argument setting and dispatch; subclasses lock it in enqueue_batch if they
   // keep kernel objects.
   mutable std::mutex dispatch_mutex_;
 
  private:
-  // The params a kernel or host search sees: max_radius in scaled coordinates.
-  SearchParams scaled(const SearchParams& params) const;
-
   cl::Event enqueue_impl(const cl::CommandQueue& queue, const cl::Buffer& queries, std::size_t n,
                          const ResultBuffers& out, const SearchParams& params,
                          const std::vector<cl::Event>* wait, std::vector<cl::Event>* kernels,

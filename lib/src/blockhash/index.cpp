@@ -228,11 +228,15 @@ void BlockHashIndex::check_params(const SearchParams& p) const {
 }
 
 BlockHashIndex::RecallTuning BlockHashIndex::recall_tuning(const SearchParams& p) const {
-  auto key = std::make_tuple(p.k, p.neighbour_probes, p.max_radius, p.recall_target);
+  // Tuned without the radius (in whichever coordinates the caller's path holds it): the budget
+  // a recall needs does not depend on it.
+  auto key = std::make_tuple(p.k, p.neighbour_probes, p.recall_target);
+  SearchParams tp = p;
+  tp.max_radius = INFINITY;
   std::lock_guard<std::mutex> lock(tune_mutex_);
   auto it = tuned_.find(key);
   if (it != tuned_.end()) return it->second;
-  RecallTuning t = tune_for_recall(p.recall_target, p);
+  RecallTuning t = tune_for_recall(p.recall_target, tp);
   tuned_[key] = t;
   return t;
 }
@@ -346,29 +350,42 @@ KnnResult BlockHashIndex::reference_query(const float* queries, std::size_t n,
                                           std::vector<std::int32_t>* examined,
                                           unsigned threads) const {
   check_params(params_in);
-  SearchParams params = params_in;
+  // The same path as query(): the tuned A, queries and radius in the structure's coordinates,
+  // distances back in the caller's.
+  SearchParams params = scaled(params_in);
   params.A = resolved_A(params_in);
   params.recall_target = 0;
+  std::vector<float> storage;
+  queries = to_structure(queries, n, storage);
   KnnResult out;
   if (info_.cell_aligned) {
     blockhash::reference_query_cells(*s_, queries, n, params, cells_probes(params), out, examined, threads);
-    return out;
+  } else {
+    bool probes = params.neighbour_probes < 0 ? info_.neighbour_probes : params.neighbour_probes == 1;
+    blockhash::reference_query(*s_, queries, n, params, probes, out, examined, threads);
   }
-  bool probes = params.neighbour_probes < 0 ? info_.neighbour_probes : params.neighbour_probes == 1;
-  blockhash::reference_query(*s_, queries, n, params, probes, out, examined, threads);
+  distances_to_caller(out.dist2.data(), out.dist2.size());
   return out;
 }
 
 QueryStats BlockHashIndex::query_examined(const float* queries, std::size_t n,
-                                          const SearchParams& params, KnnResult& out,
+                                          const SearchParams& params_in, KnnResult& out,
                                           std::vector<std::int32_t>& examined) const {
   auto t0 = std::chrono::steady_clock::now();
-  check_params(params);
+  check_params(params_in);
   QueryStats st;
   st.n_queries = n;
-  out.resize(n, params.k);
+  out.resize(n, params_in.k);
   examined.assign(n, 0);
   if (n == 0) return st;
+  for (std::size_t i = 0; i < n; ++i) {
+    const float* qq = queries + 3 * i;
+    if (!std::isfinite(qq[0]) || !std::isfinite(qq[1]) || !std::isfinite(qq[2])) ++st.nonfinite_queries;
+  }
+  // The same scaling as query(): structure coordinates in, caller's distances out.
+  const SearchParams params = scaled(params_in);
+  std::vector<float> storage;
+  queries = to_structure(queries, n, storage);
   st.compile_s = warm_up(params);
   const Runtime& rt = runtime();
   const cl::CommandQueue& queue = rt.queue();
@@ -397,10 +414,7 @@ QueryStats BlockHashIndex::query_examined(const float* queries, std::size_t n,
   check_cl(queue.enqueueReadBuffer(rb.dist2, CL_TRUE, 0, n * k * 4, out.dist2.data()), "clEnqueueReadBuffer", "dist2");
   check_cl(queue.enqueueReadBuffer(rb.counts, CL_TRUE, 0, n * 4, out.counts.data()), "clEnqueueReadBuffer", "counts");
   check_cl(queue.enqueueReadBuffer(ex, CL_TRUE, 0, n * 4, examined.data()), "clEnqueueReadBuffer", "examined");
-  for (std::size_t i = 0; i < n; ++i) {
-    const float* qq = queries + 3 * i;
-    if (!std::isfinite(qq[0]) || !std::isfinite(qq[1]) || !std::isfinite(qq[2])) ++st.nonfinite_queries;
-  }
+  distances_to_caller(out.dist2.data(), out.dist2.size());
   st.wall_s = seconds_since(t0);
   return st;
 }

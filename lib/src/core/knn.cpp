@@ -97,6 +97,17 @@ SearchParams Index::scaled(const SearchParams& p) const {
   return s;
 }
 
+const float* Index::to_structure(const float* queries, std::size_t n, std::vector<float>& storage) const {
+  if (scale_exp_ == 0) return queries;
+  storage.resize(3 * n);
+  ldexp_all(queries, storage.data(), 3 * n, -scale_exp_);
+  return storage.data();
+}
+
+void Index::distances_to_caller(float* dist2, std::size_t count) const {
+  if (scale_exp_ != 0) ldexp_all(dist2, dist2, count, 2 * scale_exp_);
+}
+
 cl::Event Index::enqueue_batch(const cl::CommandQueue&, const cl::Buffer&, std::size_t, std::size_t,
                                const ResultBuffers&, const SearchParams&, std::size_t,
                                const std::vector<cl::Event>*) const {
