@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Regenerates the seed index of fuzz_index_load: a small block-hash index saved by bhcl.
+# Regenerates the seed indexes of fuzz_index_load: small block-hash indexes saved by bhcl, one
+# per layout (auto: cell-aligned; paper: the L-table layout).
 # Usage: tests/fuzz/make_seed_index.sh BUILD_DIR
 set -euo pipefail
 build=${1:-build}
@@ -12,4 +13,5 @@ open('/tmp/bhcl_seed_points.f32','wb').write(b''.join(struct.pack('<3f', random.
 "$build/host/bhcl" knn --points /tmp/bhcl_seed_points.f32 --queries /tmp/bhcl_seed_points.f32 --k 4 \
   --method blockhash --save-index "$dir/small_auto.bhidx" --out-ids /dev/null --out-dist2 /dev/null
 "$build/host/bhcl" knn --points /tmp/bhcl_seed_points.f32 --queries /tmp/bhcl_seed_points.f32 --k 4 \
+  --method blockhash --preset paper --save-index "$dir/small_paper.bhidx" --out-ids /dev/null --out-dist2 /dev/null
 ls -la "$dir"
