@@ -43,6 +43,24 @@ void write_row(KnnResult& out, std::size_t qi, std::uint32_t k, const std::vecto
   out.counts[qi] = count;
 }
 
+// Offers block b's points to the top-k list (found entries held) as the kernels' block scans do;
+// returns the points examined.
+std::uint32_t scan_block(const Structure& s, long b, const float* q, float r2, std::uint32_t k,
+                         std::vector<float>& bd, std::vector<std::int32_t>& bi, std::uint32_t& found) {
+  const bhcl_bh_block& blk = s.blocks[b];
+  const std::int32_t cnt = s.boxes[b].count;
+  for (std::int32_t j = 0; j < cnt; ++j) {
+    const float p[3] = {blk.x[j], blk.y[j], blk.z[j]};
+    float d = reference::dist2_float(p, q);
+    std::int32_t id = blk.id[j];
+    if (!(d <= r2)) continue;
+    if (!reference::ranks_before(d, id, bd[k - 1], bi[k - 1])) continue;
+    reference::topk_insert_at(bd.data(), bi.data(), std::min(found, k - 1), d, id);
+    found = std::min(found + 1, k);
+  }
+  return static_cast<std::uint32_t>(cnt);
+}
+
 inline float box_dist2(const bhcl_bh_box& b, const float* q) {
   float ex = std::max(std::max(b.lo_x - q[0], 0.0f), q[0] - b.hi_x);
   float ey = std::max(std::max(b.lo_y - q[1], 0.0f), q[1] - b.hi_y);
@@ -112,19 +130,8 @@ void reference_query(const Structure& s, const float* queries, std::size_t n,
       std::fill(bd.begin(), bd.end(), INFINITY);
       std::fill(bi.begin(), bi.end(), BHCL_EMPTY_SLOT_ID);
       std::uint32_t ex = 0;
-      auto scan = [&](std::int32_t b) {
-        const bhcl_bh_block& blk = s.blocks[b];
-        const std::int32_t cnt = s.boxes[b].count;
-        for (std::int32_t j = 0; j < cnt; ++j) {
-          const float p[3] = {blk.x[j], blk.y[j], blk.z[j]};
-          float d = reference::dist2_float(p, q);
-          std::int32_t id = blk.id[j];
-          if (!(d <= r2)) continue;
-          if (!reference::ranks_before(d, id, bd[k - 1], bi[k - 1])) continue;
-          reference::topk_insert_at(bd.data(), bi.data(), k - 1, d, id);
-        }
-        ex += static_cast<std::uint32_t>(cnt);
-      };
+      std::uint32_t found = 0;
+      auto scan = [&](std::int32_t b) { ex += scan_block(s, b, q, r2, k, bd, bi, found); };
       if (box_order) {
         // 2a. Box order: every candidate (seeds, then the buckets' blocks) within the radius,
         //     sorted by (box distance, block); the first `keep` distinct are scanned in order
@@ -256,20 +263,7 @@ void reference_query_cells(const Structure& s, const float* queries, std::size_t
       std::fill(bi.begin(), bi.end(), BHCL_EMPTY_SLOT_ID);
       std::uint32_t found = 0, ex = 0;
       auto bound = [&] { return bd[k - 1]; };
-      auto scan = [&](long b) {
-        const bhcl_bh_block& blk = s.blocks[b];
-        const std::int32_t cnt = s.boxes[b].count;
-        for (std::int32_t j = 0; j < cnt; ++j) {
-          const float p[3] = {blk.x[j], blk.y[j], blk.z[j]};
-          float d = reference::dist2_float(p, q);
-          std::int32_t id = blk.id[j];
-          if (!(d <= r2)) continue;
-          if (!reference::ranks_before(d, id, bd[k - 1], bi[k - 1])) continue;
-          reference::topk_insert_at(bd.data(), bi.data(), std::min(found, k - 1), d, id);
-          found = std::min(found + 1, k);
-        }
-        ex += static_cast<std::uint32_t>(cnt);
-      };
+      auto scan = [&](long b) { ex += scan_block(s, b, q, r2, k, bd, bi, found); };
       std::uint32_t c[3][4];
       float dd[3][4];
       for (int d = 0; d < 3; ++d) axis_cells(s.thr(0, d), P, q[d], probes, c[d], dd[d]);
