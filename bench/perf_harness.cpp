@@ -324,39 +324,31 @@ void run_set(const Options& o, const std::shared_ptr<Runtime>& rt, const std::st
   };
   base("kdtree", &kd, o.baseline_defines);
   base("flann", &fl, "");
+  // Block-hash variants: build x defines x probes x (each A, then each recall target; a
+  // recall-target variant's A is tuned by the index at warm-up, BlockHashIndex::tune_for_recall).
   for (std::size_t bi = 0; bi < o.builds.size(); ++bi)
     for (const auto& d : o.defines)
-      for (int pr : o.probes)
-        for (float A : o.As) {
+      for (int pr : o.probes) {
+        auto add = [&](const std::string& knob, float A, double recall) {
           Variant v;
           v.method = "blockhash";
           v.build = o.builds[bi].name;
           v.defines_name = d.name;
           v.index = bh[bi].get();
           v.params.A = A;
+          v.params.recall_target = recall;
           v.params.neighbour_probes = pr;
           v.params.kernel_defines = d.defines;
-          v.name = v.build + "/A" + fmt_A(A) + "/p" + probes_name(pr) + "/" + d.name;
+          v.name = v.build + "/" + knob + "/p" + probes_name(pr) + "/" + d.name;
           vars.push_back(v);
-        }
-  // Recall-target variants: the index tunes A per k at warm-up (BlockHashIndex::tune_for_recall).
-  for (std::size_t bi = 0; bi < o.builds.size(); ++bi)
-    for (const auto& d : o.defines)
-      for (int pr : o.probes)
+        };
+        for (float A : o.As) add("A" + fmt_A(A), A, 0.0);
         for (double r : o.recalls) {
-          Variant v;
-          v.method = "blockhash";
-          v.build = o.builds[bi].name;
-          v.defines_name = d.name;
-          v.index = bh[bi].get();
-          v.params.recall_target = r;
-          v.params.neighbour_probes = pr;
-          v.params.kernel_defines = d.defines;
           char rb[32];
           std::snprintf(rb, sizeof rb, "R%.3g", r);
-          v.name = v.build + "/" + rb + "/p" + probes_name(pr) + "/" + d.name;
-          vars.push_back(v);
+          add(rb, SearchParams{}.A, r);
         }
+      }
   for (auto& v : vars) v.params.sort_queries = 0;  // each order's array is dispatched as it is
 
   // Warm-up: kernel compiles (PoCL compiles at the first launch) never land in a timed run.

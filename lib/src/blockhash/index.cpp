@@ -280,6 +280,22 @@ cl::Event BlockHashIndex::enqueue_stats(const cl::CommandQueue& queue, const cl:
   params.recall_target = 0;
   std::lock_guard<std::mutex> lock(dispatch_mutex_);
   int kmax = kmax_variant(params.k);
+  // The arguments both block-hash kernels end with: the queries, k, radius, budget, the blocks a
+  // query keeps, the results and the examined counts.
+  auto add_query_args = [&](detail::KernelArgs& args) {
+    args.add(queries)
+        .add(cl_ulong(first))
+        .add(cl_uint(count))
+        .add(cl_uint(params.k))
+        .add(detail::squared_radius(params.max_radius))
+        .add(cl_uint(budget(params)))
+        .add(cl_uint(blockhash::keep_blocks(budget(params), kmax, info_.X)))
+        .add(out.ids)
+        .add(out.dist2)
+        .add(out.counts)
+        .add(examined ? *examined : dummy_)
+        .add(cl_uint(examined ? 1 : 0));
+  };
   if (info_.cell_aligned) {
     cl::Kernel kernel = runtime().kernel("blockhash_cells_knn.cl", "blockhash_cells_knn",
                                          detail::with_defines(kernel_options(kmax), params));
@@ -298,19 +314,8 @@ cl::Event BlockHashIndex::enqueue_stats(const cl::CommandQueue& queue, const cl:
         .add(block_keys_)
         .add(cl_uint(s_->blocks.size()))
         .add(cl_uint(s_->cell_bits()))
-        .add(cl_uint(blockhash::cells_seed_side(info_.hilbert_seed, params.k)))
-        .add(queries)
-        .add(cl_ulong(first))
-        .add(cl_uint(count))
-        .add(cl_uint(params.k))
-        .add(detail::squared_radius(params.max_radius))
-        .add(cl_uint(budget(params)))
-        .add(cl_uint(blockhash::keep_blocks(budget(params), kmax, info_.X)))
-        .add(out.ids)
-        .add(out.dist2)
-        .add(out.counts)
-        .add(examined ? *examined : dummy_)
-        .add(cl_uint(examined ? 1 : 0));
+        .add(cl_uint(blockhash::cells_seed_side(info_.hilbert_seed, params.k)));
+    add_query_args(args);
     return detail::launch_1d(queue, kernel, count, local_size, wait, "blockhash_cells_knn");
   }
   cl::Kernel kernel = runtime().kernel("blockhash_knn.cl", "blockhash_knn", detail::with_defines(kernel_options(kmax), params));
@@ -329,19 +334,8 @@ cl::Event BlockHashIndex::enqueue_stats(const cl::CommandQueue& queue, const cl:
       .add(cl_uint(s_->blocks.size()))
       .add(cl_float4{{s_->q_origin[0], s_->q_origin[1], s_->q_origin[2], s_->q_scale}})
       .add(cl_uint(s_->q_bits))
-      .add(cl_uint(blockhash::seed_side(info_.hilbert_seed, params.k, info_.X)))
-      .add(queries)
-      .add(cl_ulong(first))
-      .add(cl_uint(count))
-      .add(cl_uint(params.k))
-      .add(detail::squared_radius(params.max_radius))
-      .add(cl_uint(budget(params)))
-      .add(cl_uint(blockhash::keep_blocks(budget(params), kmax, info_.X)))
-      .add(out.ids)
-      .add(out.dist2)
-      .add(out.counts)
-      .add(examined ? *examined : dummy_)
-      .add(cl_uint(examined ? 1 : 0));
+      .add(cl_uint(blockhash::seed_side(info_.hilbert_seed, params.k, info_.X)));
+  add_query_args(args);
   return detail::launch_1d(queue, kernel, count, local_size, wait, "blockhash_knn");
 }
 
