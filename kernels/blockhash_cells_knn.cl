@@ -36,46 +36,8 @@
 #ifndef BHCL_BH_MAXKEEP
 #define BHCL_BH_MAXKEEP 64
 #endif
-/* Cells per axis: home, near side, second near side, far side. */
-#define BHCL_BH_AXIS_CELLS 4
 #define BHCL_BH_MAXCELLS (BHCL_BH_AXIS_CELLS * BHCL_BH_AXIS_CELLS * BHCL_BH_AXIS_CELLS)
 
-/* The cells one axis contributes and their squared slab distances: [0] home (0), [1] the
- * near-side neighbour, [2] the second cell on the near side, [3] the far-side neighbour; an
- * absent cell (past the outermost threshold, or not asked for) has distance +inf. */
-inline void bh_axis_cells(__global const float* thr, uint P, float t, uint probes, uint* c,
-                          float* dd) {
-  uint h = bh_hash(thr, P, t);
-  for (int i = 0; i < BHCL_BH_AXIS_CELLS; ++i) {
-    c[i] = h;
-    dd[i] = INFINITY;
-  }
-  dd[0] = 0.0f;
-  if (probes == 0) return;
-  float lo = h > 0 ? thr[h - 1] : -INFINITY;
-  float hi = h < P ? thr[h] : INFINITY;
-  float dlo = t - lo, dhi = hi - t;
-  int lower = dlo < dhi;
-  int has_lo = isfinite(dlo), has_hi = isfinite(dhi);
-  if (lower ? has_lo : has_hi) {
-    c[1] = lower ? h - 1 : h + 1;
-    dd[1] = lower ? dlo * dlo : dhi * dhi;
-  }
-  if (probes < 2) return;
-  if (lower && has_lo && h >= 2) {
-    float e = t - thr[h - 2];
-    c[2] = h - 2;
-    dd[2] = e * e;
-  } else if (!lower && has_hi && h + 1 < P && isfinite(thr[h + 1])) {
-    float e = thr[h + 1] - t;
-    c[2] = h + 2;
-    dd[2] = e * e;
-  }
-  if (lower ? has_hi : has_lo) {
-    c[3] = lower ? h + 1 : h - 1;
-    dd[3] = lower ? dhi * dhi : dlo * dlo;
-  }
-}
 
 /* The run of a table-0 cell: from the direct table when there is one (one load: cells are
  * numbered densely over the thresholds each axis actually has), else by binary search in the sorted

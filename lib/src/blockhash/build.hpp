@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "blockhash_cl/blockhash.hpp"
+#include "bhcl_arith.h"
 #include "blockhash_layout.h"
 
 namespace bhcl::blockhash {
@@ -76,16 +77,9 @@ Histogram histogram(const float* xyz, std::size_t n, int dim, int bins, std::siz
 std::vector<float> make_thresholds(const Histogram& h, int P, std::uint64_t seed, int table,
                                    int dim, bool guarded);
 
-// h_T(t) = #{i : t_i <= t}: 0 below t_0, P at or above the last threshold (the clamp).
-inline std::uint32_t hash_coord(const float* thr, std::uint32_t P, float t) {
-  std::uint32_t lo = 0, hi = P;
-  while (lo < hi) {
-    std::uint32_t mid = (lo + hi) >> 1;
-    if (thr[mid] <= t) lo = mid + 1;
-    else hi = mid;
-  }
-  return lo;
-}
+// h_T(t) = #{i : t_i <= t}: 0 below t_0, P at or above the last threshold (the clamp). The
+// kernels' bh_hash (kernels/bhcl_arith.h).
+inline std::uint32_t hash_coord(const float* thr, std::uint32_t P, float t) { return bh_hash(thr, P, t); }
 
 // ---- Stage 4: tables -------------------------------------------------------------------------
 

@@ -18,17 +18,6 @@ struct BucketRef {
   std::uint32_t bucket;  // index into Structure::buckets
 };
 
-// Near-side neighbour along one axis: the adjacent cell on the side of the nearer cell face, or -1
-// when that side is unbounded (the clamp cells' outer side, or a dimension without thresholds).
-inline long near_side(const float* thr, std::uint32_t P, std::uint32_t h, float t) {
-  float lo = h > 0 ? thr[h - 1] : -INFINITY;
-  float hi = h < P ? thr[h] : INFINITY;
-  float dlo = t - lo, dhi = hi - t;
-  if (dlo < dhi) return long(h) - 1;
-  if (std::isfinite(dhi)) return long(h) + 1;
-  return -1;
-}
-
 // Row qi of the result from the top-k list (empty slots stay -1 / +inf), and its count.
 void write_row(KnnResult& out, std::size_t qi, std::uint32_t k, const std::vector<float>& bd,
                const std::vector<std::int32_t>& bi) {
@@ -54,22 +43,13 @@ std::uint32_t scan_block(const Structure& s, long b, const float* q, float r2, s
     float d = reference::dist2_float(p, q);
     std::int32_t id = blk.id[j];
     if (!(d <= r2)) continue;
-    if (!reference::ranks_before(d, id, bd[k - 1], bi[k - 1])) continue;
-    reference::topk_insert_at(bd.data(), bi.data(), std::min(found, k - 1), d, id);
-    found = std::min(found + 1, k);
+    if (!bhcl_topk_accepts(bd.data(), bi.data(), k, d, id)) continue;
+    found = bhcl_topk_push(bd.data(), bi.data(), k, found, d, id);
   }
   return static_cast<std::uint32_t>(cnt);
 }
 
-inline float box_dist2(const bhcl_bh_box& b, const float* q) {
-  float ex = std::max(std::max(b.lo_x - q[0], 0.0f), q[0] - b.hi_x);
-  float ey = std::max(std::max(b.lo_y - q[1], 0.0f), q[1] - b.hi_y);
-  float ez = std::max(std::max(b.lo_z - q[2], 0.0f), q[2] - b.hi_z);
-  float s = ex * ex;
-  s = s + ey * ey;
-  s = s + ez * ez;
-  return s;
-}
+inline float box_dist2(const bhcl_bh_box& b, const float* q) { return bh_box_dist2_xyz(q[0], q[1], q[2], &b); }
 
 }  // namespace
 
@@ -106,7 +86,7 @@ void reference_query(const Structure& s, const float* queries, std::size_t n,
         long nbr[3];
         for (int d = 0; d < 3; ++d) {
           h[d] = hash_coord(s.thr(t, d), P, q[d]);
-          nbr[d] = probes ? near_side(s.thr(t, d), P, h[d], q[d]) : -1;
+          nbr[d] = probes ? bh_near_side(s.thr(t, d), P, h[d], q[d]) : -1;
         }
         for (int pr = 0; pr < (probes ? 4 : 1); ++pr) {
           std::uint32_t c[3] = {h[0], h[1], h[2]};
@@ -198,41 +178,6 @@ void reference_query(const Structure& s, const float* queries, std::size_t n,
 
 namespace {
 
-// bh_axis_cells of kernels/blockhash_cells_knn.cl: [0] home, [1] near side, [2] second near
-// side, [3] far side; absent cells have distance +inf.
-void axis_cells(const float* thr, std::uint32_t P, float t, std::uint32_t probes,
-                std::uint32_t* c, float* dd) {
-  std::uint32_t h = hash_coord(thr, P, t);
-  for (int i = 0; i < 4; ++i) {
-    c[i] = h;
-    dd[i] = INFINITY;
-  }
-  dd[0] = 0.0f;
-  if (probes == 0) return;
-  float lo = h > 0 ? thr[h - 1] : -INFINITY;
-  float hi = h < P ? thr[h] : INFINITY;
-  float dlo = t - lo, dhi = hi - t;
-  bool lower = dlo < dhi;
-  bool has_lo = std::isfinite(dlo), has_hi = std::isfinite(dhi);
-  if (lower ? has_lo : has_hi) {
-    c[1] = lower ? h - 1 : h + 1;
-    dd[1] = lower ? dlo * dlo : dhi * dhi;
-  }
-  if (probes < 2) return;
-  if (lower && has_lo && h >= 2) {
-    float e = t - thr[h - 2];
-    c[2] = h - 2;
-    dd[2] = e * e;
-  } else if (!lower && has_hi && h + 1 < P && std::isfinite(thr[h + 1])) {
-    float e = thr[h + 1] - t;
-    c[2] = h + 2;
-    dd[2] = e * e;
-  }
-  if (lower ? has_hi : has_lo) {
-    c[3] = lower ? h + 1 : h - 1;
-    dd[3] = lower ? dhi * dhi : dlo * dlo;
-  }
-}
 
 }  // namespace
 
@@ -266,7 +211,7 @@ void reference_query_cells(const Structure& s, const float* queries, std::size_t
       auto scan = [&](long b) { ex += scan_block(s, b, q, r2, k, bd, bi, found); };
       std::uint32_t c[3][4];
       float dd[3][4];
-      for (int d = 0; d < 3; ++d) axis_cells(s.thr(0, d), P, q[d], probes, c[d], dd[d]);
+      for (int d = 0; d < 3; ++d) bh_axis_cells(s.thr(0, d), P, q[d], probes, c[d], dd[d]);
       std::vector<std::pair<long, long>> runs;  // entered, in order
       bool stop = false;
       for (int phase = 0; phase <= 2 && !stop; ++phase) {

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <thread>
 
+#include "bhcl_arith.h"
 #include "blockhash_cl/error.hpp"
 
 namespace bhcl::reference {
@@ -57,15 +58,7 @@ KnnResult knn_generic(const float* points, std::size_t n_points, const float* qu
 }  // namespace
 
 float dist2_float(const float* p, const float* q) {
-  float dx = q[0] - p[0];
-  float dy = q[1] - p[1];
-  float dz = q[2] - p[2];
-  // Separate statements keep the sum unfused and left to right (the file builds with
-  // -ffp-contract=off as well).
-  float s = dx * dx;
-  s = s + dy * dy;
-  s = s + dz * dz;
-  return s;
+  return bhcl_dist2_xyz(q[0], q[1], q[2], p[0], p[1], p[2]);
 }
 
 double dist2_double(const float* points, std::size_t i, const float* q) {

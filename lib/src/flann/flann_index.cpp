@@ -16,6 +16,7 @@
 
 #include "blockhash_cl/error.hpp"
 #include "blockhash_cl/reference.hpp"
+#include "bhcl_arith.h"
 
 #include "blockhash_cl/config.hpp"
 
@@ -58,12 +59,9 @@ class ExactResultSet : public flann::ResultSet<float> {
 
   void add(float d, std::int32_t id) {
     if (!(d <= r2_)) return;
-    if (size_ == k_) {
-      if (!reference::ranks_before(d, id, d_[k_ - 1], id_[k_ - 1])) return;
-    } else {
-      ++size_;
-    }
-    reference::topk_insert_at(d_.data(), id_.data(), std::size_t(size_ - 1), d, id);
+    const auto k = static_cast<bhcl_u32>(k_);
+    if (size_ == k_ && !bhcl_topk_accepts(d_.data(), id_.data(), k, d, id)) return;
+    size_ = static_cast<int>(bhcl_topk_push(d_.data(), id_.data(), k, static_cast<bhcl_u32>(size_), d, id));
     if (size_ == k_) worst_ = slack(std::min(r2_, d_[k_ - 1]));
   }
 

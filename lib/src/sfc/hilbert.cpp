@@ -39,31 +39,9 @@ std::uint32_t Quantiser::cell(int dim, float v) const {
   return static_cast<std::uint32_t>(std::min(c, top));
 }
 
-// Skilling, "Programming the Hilbert curve" (AIP Conf. Proc. 707, 2004): axes -> transposed index.
+// The kernels' bh_hilbert_encode (kernels/bhcl_arith.h): one definition for host and device.
 std::uint64_t hilbert_encode(std::uint32_t x, std::uint32_t y, std::uint32_t z, int bits) {
-  std::uint32_t X[3] = {x, y, z};
-  const std::uint32_t M = 1u << (bits - 1);
-  for (std::uint32_t Q = M; Q > 1; Q >>= 1) {
-    std::uint32_t P = Q - 1;
-    for (int i = 0; i < 3; ++i) {
-      if (X[i] & Q) {
-        X[0] ^= P;
-      } else {
-        std::uint32_t t = (X[0] ^ X[i]) & P;
-        X[0] ^= t;
-        X[i] ^= t;
-      }
-    }
-  }
-  for (int i = 1; i < 3; ++i) X[i] ^= X[i - 1];
-  std::uint32_t t = 0;
-  for (std::uint32_t Q = M; Q > 1; Q >>= 1)
-    if (X[2] & Q) t ^= Q - 1;
-  for (int i = 0; i < 3; ++i) X[i] ^= t;
-  std::uint64_t key = 0;
-  for (int b = bits - 1; b >= 0; --b)
-    for (int i = 0; i < 3; ++i) key = (key << 1) | ((X[i] >> b) & 1u);
-  return key;
+  return bh_hilbert_encode(x, y, z, static_cast<std::uint32_t>(bits));
 }
 
 void hilbert_decode(std::uint64_t key, int bits, std::uint32_t out[3]) {
