@@ -181,6 +181,38 @@ Json search_json(const Index& index, const SearchParams& p) {
   return s;
 }
 
+namespace {
+
+// The methods that read option `name` (a build option of their registry entry or one of their
+// search options), in display order.
+std::vector<std::string> option_users(const std::string& name) {
+  std::vector<std::string> users;
+  for (const MethodInfo& m : methods()) {
+    bool reads = std::find(m.search_options.begin(), m.search_options.end(), name) != m.search_options.end();
+    for (const OptionInfo& o : m.build_options) reads = reads || o.name == name;
+    if (reads) users.push_back(m.name);
+  }
+  return users;
+}
+
+std::string joined(const std::vector<std::string>& v, const char* sep) {
+  std::string s;
+  for (const auto& x : v) s += (s.empty() ? "" : sep) + x;
+  return s;
+}
+
+// Every build option of the registry once (the first entry that declares it describes it).
+std::vector<const OptionInfo*> build_options() {
+  std::vector<const OptionInfo*> all;
+  for (const MethodInfo& m : methods())
+    for (const OptionInfo& o : m.build_options)
+      if (std::none_of(all.begin(), all.end(), [&](const OptionInfo* x) { return x->name == o.name; }))
+        all.push_back(&o);
+  return all;
+}
+
+}  // namespace
+
 void declare_index_options(Args& a, int default_k, bool render) {
   a.group("Search options");
   a.add_integer("k", "neighbours per query", 1, kMaxK, std::to_string(default_k));
@@ -196,19 +228,23 @@ void declare_index_options(Args& a, int default_k, bool render) {
   a.add_integer("max-batch", "device methods: at most this many queries per dispatch (0: automatic)",
                 0, Args::kNoLimit, "0");
   a.group("Build options");
-  a.add_text("preset", "blockhash: parameter preset, auto or paper", "auto", "NAME");
-  a.add_integer("L", "blockhash: hash tables (-1: the preset decides)", -1, 1 << 16, "-1");
-  a.add_integer("P", "blockhash: thresholds per dimension (-1: the preset decides)", -1, 1024, "-1");
-  a.add_integer("B", "blockhash: block references per bucket (-1: the preset decides)", -1, 1 << 16, "-1");
-  a.add_integer("X", "blockhash: points per block (-1: the preset decides)", -1, 16, "-1");
-  a.add_integer("seed", render ? "seed of the photons and rays, and of block hashing's threshold jitter"
-                                : "blockhash: seed of the threshold jitter",
-                0, Args::kNoLimit, "1");
-  a.add_integer("threads", render ? "host threads of Embree, the photon tracer and flann (0: all)"
-                                  : "flann: host threads (0: all hardware threads)",
-                0, 1 << 16, "0");
-  a.add_text("load-index", "blockhash: load this saved index instead of building", "", "FILE");
-  a.add_text("save-index", "blockhash: save the built index to this file", "", "FILE");
+  // From the method registry: each option once, with the methods that read it.
+  for (const OptionInfo* o : build_options()) {
+    std::string help = joined(option_users(o->name), ", ") + ": " + o->help;
+    if (render && o->name == "seed") help = "seed of the photons and rays, and " + help;
+    if (render && o->name == "threads") help = "host threads of Embree and the photon tracer, and " + help;
+    switch (o->kind) {
+      case OptionInfo::Kind::Integer:
+        a.add_integer(o->name, help, o->lo, o->hi, o->def);
+        break;
+      case OptionInfo::Kind::Choice:
+        a.add_text(o->name, help + " (" + joined(o->choices, ", ") + ")", o->def, "NAME");
+        break;
+      case OptionInfo::Kind::File:
+        a.add_text(o->name, help, o->def, "FILE");
+        break;
+    }
+  }
   a.group("");
 }
 
@@ -217,26 +253,24 @@ void check_method_options(const Args& args, const std::vector<std::string>& meth
   const auto known = method_names();
   for (const auto& m : methods)
     if (std::find(known.begin(), known.end(), m) == known.end()) return;
-  // The options that only some methods read. --load-index / --save-index are left to make_index,
-  // which says which methods save.
-  static const std::map<std::string, std::set<std::string>> only = {
-      {"A", {"blockhash"}},      {"probes", {"blockhash"}}, {"preset", {"blockhash"}},
-      {"recall", {"blockhash"}},
-      {"L", {"blockhash"}},      {"P", {"blockhash"}},      {"B", {"blockhash"}},
-      {"X", {"blockhash"}},      {"seed", {"blockhash"}},   {"threads", {"flann"}},
-      {"local-size", {"bruteforce", "kdtree", "blockhash"}},
-      {"max-batch", {"bruteforce", "kdtree", "blockhash"}}};
-  for (const auto& [option, users] : only) {
+  std::vector<std::string> only = {"A", "recall", "probes", "local-size", "max-batch"};
+  for (const OptionInfo* o : build_options()) only.push_back(o->name);
+  for (const auto& option : only) {
     if (!args.has(option) || also.count(option)) continue;
+    const std::vector<std::string> users = option_users(option);
     bool used = false;
-    for (const auto& m : methods) used = used || users.count(m);
+    for (const auto& m : methods) used = used || std::find(users.begin(), users.end(), m) != users.end();
     if (used) continue;
-    std::string list;
-    for (const auto& u : users) list += (list.empty() ? "" : ", ") + u;
-    std::string ms;
-    for (const auto& m : methods) ms += (ms.empty() ? "" : " and ") + m;
-    throw UsageError("--" + option + " does not apply to method " + ms + " (only to " + list + ")");
+    throw UsageError("--" + option + " does not apply to method " + joined(methods, " and ") +
+                     " (only to " + joined(users, ", ") + ")");
   }
+}
+
+std::string method_list(const std::vector<std::string>& names) {
+  std::string s;
+  for (std::size_t i = 0; i < names.size(); ++i)
+    s += (i == 0 ? "" : i + 1 == names.size() ? " or " : ", ") + names[i];
+  return s;
 }
 
 void read_points_and_queries(const Args& args, std::vector<float>& points, std::vector<float>& queries) {
@@ -248,18 +282,16 @@ void read_points_and_queries(const Args& args, std::vector<float>& points, std::
 
 MethodOptions method_options(const Args& args) {
   MethodOptions m;
-  m.preset = args.str("preset", "");
-  if (!m.preset.empty() && m.preset != "auto" && m.preset != "paper")
-    throw UsageError("--preset must be auto or paper, got '" + m.preset + "'");
-  // The declared ranges fit an int: no narrowing.
-  m.L = static_cast<int>(args.integer("L", -1));
-  m.P = static_cast<int>(args.integer("P", -1));
-  m.B = static_cast<int>(args.integer("B", -1));
-  m.X = static_cast<int>(args.integer("X", -1));
-  m.threads = static_cast<int>(args.integer("threads", 0));
-  m.seed = static_cast<std::uint64_t>(args.integer("seed", 1));
-  m.load_index = args.str("load-index", "");
-  m.save_index = args.str("save-index", "");
+  for (const OptionInfo* o : build_options()) {
+    if (!args.has(o->name)) continue;
+    const std::string v = args.str(o->name);
+    long long x = 0;
+    if (o->kind == OptionInfo::Kind::Integer) x = args.integer(o->name);  // range-checked
+    if (o->kind == OptionInfo::Kind::Choice &&
+        std::find(o->choices.begin(), o->choices.end(), v) == o->choices.end())
+      throw UsageError("--" + o->name + " must be " + joined(o->choices, " or ") + ", got '" + v + "'");
+    o->set(m, v, x);
+  }
   return m;
 }
 

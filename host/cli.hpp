@@ -92,6 +92,8 @@ SearchParams search_params(const Args& args, int default_k = 10);
 // An unknown method skips the check: make_index names it.
 void check_method_options(const Args& args, const std::vector<std::string>& methods,
                           const std::set<std::string>& also = {});
+// "a, b or c" from the registry's names, for --method's help.
+std::string method_list(const std::vector<std::string>& names);
 // Reads --points and --queries; an empty file is an error naming it.
 void read_points_and_queries(const Args& args, std::vector<float>& points, std::vector<float>& queries);
 

@@ -41,7 +41,7 @@ void table(const std::shared_ptr<Runtime>& rt, std::size_t N, std::size_t n, int
     std::vector<float> qs = datasets::queries_by_name(name, n, 2);
     SearchParams p;
     p.k = k;
-    KnnResult truth = make_index("flann", rt, pts.data(), N)->query(qs, p);
+    KnnResult truth = make_index(default_truth_method(), rt, pts.data(), N)->query(qs, p);
     for (const auto& method : method_names()) {
       if (method == "bruteforce") continue;  // O(N) per query: see `bhcl eval` for small N
       auto index = make_index(method, rt, pts.data(), N);

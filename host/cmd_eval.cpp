@@ -31,12 +31,6 @@ Side run_side(const std::string& method, const std::shared_ptr<Runtime>& rt,
   return s;
 }
 
-bool has_flann() {
-  for (const auto& m : method_names())
-    if (m == "flann") return true;
-  return false;
-}
-
 std::string fmt(const char* f, double v) {
   char b[64];
   std::snprintf(b, sizeof b, f, v);
@@ -46,9 +40,9 @@ std::string fmt(const char* f, double v) {
 void declare_eval(Args& a) {
   a.add_required("points", "the point set: PLY, NPY (N x 3 float32/float64), text (x y z per line) or raw float32");
   a.add_required("queries", "the query points (same formats as --points)");
-  a.add_required("method", "the method evaluated: bruteforce, kdtree, flann or blockhash", "NAME");
-  a.add_text("truth", "the exact method giving the true neighbours: flann, bruteforce or kdtree",
-             has_flann() ? "flann" : "kdtree", "NAME");
+  a.add_required("method", "the method evaluated: " + method_list(method_names()), "NAME");
+  a.add_text("truth", "the exact method giving the true neighbours: " + method_list(exact_method_names()),
+             default_truth_method(), "NAME");
   a.add_text("stats", "write the metrics, timings and parameters here as JSON", "", "FILE");
   a.add_text("device", "OpenCL device: P:D, cpu, gpu or a name fragment (default: BHCL_DEVICE, then PoCL)",
              "", "SPEC");
@@ -57,8 +51,12 @@ void declare_eval(Args& a) {
 
 int run_eval(const Args& args) {
   const std::string method = args.str("method");
-  const std::string truth_method = args.str("truth", has_flann() ? "flann" : "kdtree");
+  const std::string truth_method = args.str("truth", default_truth_method());
   check_method_options(args, {method, truth_method});
+  // Before any work: the truth must be an exact method (the registry says which are).
+  if (!method_info(truth_method).exact)
+    throw UsageError("--truth " + truth_method + " is not an exact method (" +
+                     method_list(exact_method_names()) + ")");
   SearchParams params = search_params(args);
   MethodOptions mopt = method_options(args);
 
@@ -74,8 +72,6 @@ int run_eval(const Args& args) {
   topt.load_index.clear();
   topt.save_index.clear();
   Side truth = run_side(truth_method, rt, points, queries, params, topt);
-  if (!truth.index->exact())
-    throw Error("--truth " + truth_method + " is not an exact method (use flann, bruteforce or kdtree)");
   Side m = run_side(method, rt, points, queries, params, mopt);
   m.accuracy = evaluate_accuracy(m.result, truth.result);
   truth.accuracy = evaluate_accuracy(truth.result, truth.result);

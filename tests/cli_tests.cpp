@@ -121,7 +121,7 @@ TEST_CASE("cli: bad input exits non-zero with one clear line") {
       {"knn --points " + P + " --k 3" + common, "missing required option --queries", 2},
       {"knn --points " + P + " --queries " + P + " --k 3 --device no-such-dev" + common, "no OpenCL device matches", 1},
       {"knn --points " + P + " --queries " + P + " --k 3 --max-radius -2" + common, "--max-radius", 2},
-      {"knn --points " + P + " --queries " + P + " --k 3 --method kdtree --save-index " + I + ".idx --out-ids " + I + " --out-dist2 " + D, "only block-hash indexes are saved", 1},
+      {"knn --points " + P + " --queries " + P + " --k 3 --method kdtree --save-index " + I + ".idx --out-ids " + I + " --out-dist2 " + D, "--save-index does not apply to method kdtree (only to blockhash)", 2},
       {"frobnicate", "unknown command", 2},
   };
   for (const auto& c : cases) {
@@ -149,10 +149,14 @@ TEST_CASE("cli: every command's --help exits 0 and lists each option with its me
     std::string cmd;
     std::vector<std::string> shown;
   };
-  const std::vector<std::string> index_options = {
+  std::vector<std::string> index_options = {
       "--k INT=10", "--max-radius NUM=inf", "--A NUM=8", "--probes", "--local-size", "--max-batch",
-      "--preset NAME=auto", "--L ", "--P ", "--B ", "--X ", "--seed INT=1", "--threads INT=0",
-      "--load-index", "--save-index"};
+      "--preset NAME=auto", "--L ", "--P ", "--B ", "--X ", "--seed INT=1", "--load-index", "--save-index"};
+  // Every build option of every registered method, with its declared default.
+  for (const MethodInfo& m : methods())
+    for (const OptionInfo& o : m.build_options)
+      index_options.push_back("--" + o.name + (o.def.empty() ? std::string(" ") : "") +
+                              (o.kind == OptionInfo::Kind::Integer ? " INT=" + o.def : ""));
   std::vector<Expect> cases = {
       {"knn", {"--points FILE REQUIRED", "--queries FILE REQUIRED", "--method NAME REQUIRED",
                "--out-ids FILE REQUIRED", "--out-dist2 FILE REQUIRED", "--out-counts", "--stats", "--device"}},
