@@ -1,4 +1,5 @@
-// Helpers shared by the test files: the runtime, generated data, result checks, running bhcl.
+// The test helper module (test_util.cpp): the runtime, generated data, result checks, running bhcl.
+// Every test file includes it instead of declaring fixtures of its own.
 #pragma once
 
 #include <doctest/doctest.h>
@@ -25,6 +26,26 @@
 namespace bhcl::test {
 
 inline std::shared_ptr<Runtime> runtime() { return default_runtime(); }
+
+// A named point set with its queries.
+struct PointSet {
+  std::string name;
+  std::vector<float> points, queries;
+};
+// Queries for a point set: uniform over its box grown by 10 %, exact copies of points (distance
+// 0 ties, duplicates), and points moved by a tiny jitter (near-ties); `each` of every kind.
+std::vector<float> queries_for(const std::vector<float>& pts, std::uint64_t seed, std::size_t each = 100);
+// The point sets every exact method is checked on: uniform, clustered, duplicates, identical,
+// flat, collinear, offset (names as listed).
+std::vector<PointSet> exact_point_sets();
+// A radius that cuts many rows short: the median distance to the 8th neighbour.
+float cutting_radius(const PointSet& s);
+// Bit-exact equality of two results (ids, counts, distances including +inf), naming the first
+// differing entry.
+void require_identical(const KnnResult& r, const KnnResult& ref, const std::string& what);
+// An exact index on a point set equals the float reference for k in {1, 8, 10, 50, 100, 256},
+// with and without the cutting radius.
+void check_index_on_set(const Index& index, const PointSet& s);
 
 // Every row valid under the contract: ids in range and unique, distances sorted by (d2, id),
 // each distance equal to the kernel arithmetic's distance of its id, within max_radius, the

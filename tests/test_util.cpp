@@ -1,0 +1,128 @@
+// The test helper module's data sets and exact-result checks (declared in test_util.hpp).
+#include "test_util.hpp"
+
+#include <cstring>
+#include <random>
+
+namespace bhcl::test {
+
+// Queries for a point set: uniform over its box grown by 10 %, exact copies of points (distance
+// 0 ties, duplicates), and points moved by a tiny jitter (near-ties).
+std::vector<float> queries_for(const std::vector<float>& pts, std::uint64_t seed, std::size_t each) {
+  const std::size_t N = pts.size() / 3;
+  float lo[3], hi[3];
+  for (int d = 0; d < 3; ++d) lo[d] = hi[d] = pts[d];
+  for (std::size_t i = 0; i < N; ++i)
+    for (int d = 0; d < 3; ++d) {
+      lo[d] = std::min(lo[d], pts[3 * i + d]);
+      hi[d] = std::max(hi[d], pts[3 * i + d]);
+    }
+  std::mt19937_64 rng(seed);
+  std::vector<float> q;
+  for (std::size_t i = 0; i < each; ++i)
+    for (int d = 0; d < 3; ++d) {
+      double ext = double(hi[d]) - lo[d];
+      std::uniform_real_distribution<double> u(lo[d] - 0.1 * ext, hi[d] + 0.1 * ext);
+      q.push_back(static_cast<float>(u(rng)));
+    }
+  std::uniform_int_distribution<std::size_t> pick(0, N - 1);
+  for (std::size_t i = 0; i < each; ++i) {
+    std::size_t p = pick(rng);
+    q.insert(q.end(), pts.begin() + 3 * p, pts.begin() + 3 * p + 3);
+  }
+  std::normal_distribution<float> jitter(0.0f, 1.0f);
+  for (std::size_t i = 0; i < each; ++i) {
+    std::size_t p = pick(rng);
+    for (int d = 0; d < 3; ++d) {
+      float v = pts[3 * p + d];
+      float step = std::max(std::abs(v) * 1e-6f, 1e-4f * float(double(hi[d]) - lo[d]));
+      q.push_back(v + step * jitter(rng));
+    }
+  }
+  return q;
+}
+
+std::vector<PointSet> exact_point_sets() {
+  std::vector<PointSet> sets;
+  auto add = [&](const std::string& name, std::vector<float> pts, std::uint64_t seed) {
+    std::vector<float> q = queries_for(pts, seed);
+    sets.push_back({name, std::move(pts), std::move(q)});
+  };
+  add("uniform", datasets::uniform(3000, 101), 1);
+  add("clustered", datasets::clustered(4000, 102, 8, 0.002f), 2);
+  add("duplicates", datasets::with_duplicates(3000, 103, 0.5), 3);
+  add("identical", std::vector<float>(3 * 1000, 0.375f), 4);
+  {
+    auto pts = datasets::uniform(3000, 105);
+    for (std::size_t i = 0; i < pts.size(); i += 3) pts[i + 2] = 0.5f;  // flat: z = const
+    add("flat", std::move(pts), 5);
+  }
+  {
+    // Collinear: a diagonal line (x = y = z) and an axis-aligned one, with repeated positions.
+    std::mt19937_64 rng(106);
+    std::uniform_int_distribution<int> t(0, 1500);
+    std::vector<float> pts;
+    for (int i = 0; i < 2000; ++i) {
+      float v = static_cast<float>(t(rng)) / 1500.0f;
+      pts.insert(pts.end(), {v, v, v});
+    }
+    for (int i = 0; i < 1000; ++i) pts.insert(pts.end(), {static_cast<float>(t(rng)) / 1500.0f, 0.25f, 0.75f});
+    add("collinear", std::move(pts), 6);
+  }
+  {
+    // Offset far from the origin: at 1e6 a float step is 0.0625, so coordinates are coarsely
+    // quantised and distances tie often.
+    auto pts = datasets::uniform(3000, 107, -50.0f, 50.0f);
+    datasets::offset(pts, 1e4, -2e5, 1e6);
+    add("offset", std::move(pts), 7);
+  }
+  return sets;
+}
+
+// A radius that cuts many rows short: the median distance to the 8th neighbour.
+float cutting_radius(const PointSet& s) {
+  SearchParams p;
+  p.k = 8;
+  const std::size_t N = s.points.size() / 3, n = s.queries.size() / 3;
+  KnnResult r = reference::knn_float(s.points.data(), N, s.queries.data(), n, p);
+  std::vector<float> d;
+  for (std::size_t q = 0; q < n; ++q)
+    if (r.counts[q] == 8) d.push_back(r.d2(q, 7));
+  std::nth_element(d.begin(), d.begin() + d.size() / 2, d.end());
+  return std::sqrt(d[d.size() / 2]);
+}
+
+// Bit-exact equality of two results (ids, counts, distances including +inf), naming the first
+// differing entry.
+void require_identical(const KnnResult& r, const KnnResult& ref, const std::string& what) {
+  REQUIRE(r.n == ref.n);
+  REQUIRE(r.k == ref.k);
+  CHECK(r.counts == ref.counts);
+  for (std::size_t i = 0; i < r.ids.size(); ++i) {
+    if (r.ids[i] == ref.ids[i] && std::memcmp(&r.dist2[i], &ref.dist2[i], sizeof(float)) == 0) continue;
+    FAIL_CHECK(what << ": query " << i / r.k << " rank " << i % r.k << ": id " << r.ids[i] << " d2 "
+                    << r.dist2[i] << ", brute force id " << ref.ids[i] << " d2 " << ref.dist2[i]);
+    return;
+  }
+}
+
+// Runs an exact index on a point set for every k, with and without the cutting radius.
+void check_index_on_set(const Index& index, const PointSet& s) {
+  const std::size_t N = s.points.size() / 3, n = s.queries.size() / 3;
+  const float radius = cutting_radius(s);
+  for (float r : {INFINITY, radius}) {
+    for (int k : {1, 8, 10, 50, 100, 256}) {
+      SearchParams p;
+      p.k = k;
+      p.max_radius = r;
+      CAPTURE(k);
+      CAPTURE(r);
+      KnnResult got;
+      index.query(s.queries.data(), n, p, got);
+      KnnResult ref = reference::knn_float(s.points.data(), N, s.queries.data(), n, p);
+      require_identical(got, ref, index.method() + " on " + s.name);
+    }
+  }
+}
+
+}  // namespace bhcl::test
