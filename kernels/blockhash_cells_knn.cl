@@ -97,13 +97,7 @@ inline uint bh_cells_scan(float3 q, __global const bhcl_bh_block* blk, int cnt, 
     }
   }
 #else
-  for (int j = 0; j < cnt; ++j) {
-    float4 p = (float4)(blk->x[j], blk->y[j], blk->z[j], 0.0f);
-    float d = bhcl_dist2(q, p);
-    int id = blk->id[j];
-    if (d <= max_r2 && bhcl_topk_accepts(best_d, best_i, k, d, id))
-      *nfound = bhcl_topk_push(best_d, best_i, k, *nfound, d, id);
-  }
+  bh_scan_block(q, blk, cnt, max_r2, best_d, best_i, k, nfound);
 #endif
   return (uint)cnt;
 }
@@ -195,16 +189,9 @@ __kernel void blockhash_cells_knn(__global const bhcl_bh_block* blocks,
           int blk = (int)(rf + r);
           float bd = bh_box_dist2(q, boxes + blk);
           if (bd > bound0) continue;
-          if (no == keep && !(bd < od[no - 1] || (bd == od[no - 1] && blk < ob[no - 1]))) continue;
-          uint pos = no < keep ? no : keep - 1;
-          while (pos > 0 && (od[pos - 1] > bd || (od[pos - 1] == bd && ob[pos - 1] > blk))) {
-            od[pos] = od[pos - 1];
-            ob[pos] = ob[pos - 1];
-            --pos;
-          }
-          od[pos] = bd;
-          ob[pos] = blk;
-          if (no < keep) ++no;
+          /* The same ranking and insertion as the top-k list: (box distance, block). */
+          if (no == keep && !bhcl_topk_accepts(od, ob, keep, bd, blk)) continue;
+          no = bhcl_topk_push(od, ob, keep, no, bd, blk);
         }
       }
       /* Scan nearest first until the budget is spent or a box is farther than the k-th distance. */

@@ -12,4 +12,17 @@ inline float bh_box_dist2(float3 q, __global const bhcl_bh_box* b) {
   return bh_box_dist2_xyz(q.x, q.y, q.z, b);
 }
 
+/* Scans one block into the top-k list; returns its point count. */
+inline uint bh_scan_block(float3 q, __global const bhcl_bh_block* blk, int cnt, float max_r2,
+                          float* best_d, int* best_i, uint k, uint* nfound) {
+  for (int j = 0; j < cnt; ++j) {
+    float4 p = (float4)(blk->x[j], blk->y[j], blk->z[j], 0.0f);
+    float d = bhcl_dist2(q, p);
+    int id = blk->id[j];
+    if (d <= max_r2 && bhcl_topk_accepts(best_d, best_i, k, d, id))
+      *nfound = bhcl_topk_push(best_d, best_i, k, *nfound, d, id);
+  }
+  return (uint)cnt;
+}
+
 #endif /* BHCL_BLOCKHASH_COMMON_H */

@@ -39,38 +39,15 @@
 #endif
 #define BHCL_BH_MAXBUCKETS (4 * BHCL_BH_L)
 
-/* (d, b) before (d2, b2): the candidate order of the box-order scan. */
-inline int bh_cand_less(float d, int b, float d2, int b2) { return d < d2 || (d == d2 && b < b2); }
-
-/* Offers candidate block b at box distance d to the sorted list of the `keep` nearest distinct
- * blocks (n held); returns the new n. A block already held has the same d: skipped. */
+/* Offers candidate block b at box distance d to the list of the `keep` nearest distinct blocks
+ * (n held), ranked and inserted as the top-k list is: (box distance, block). Returns the new n. A
+ * block already held has the same d: skipped. */
 inline uint bh_keep(float* cd, int* cb, uint n, uint keep, float d, int b, float max_r2) {
   if (d > max_r2) return n;
-  if (n == keep && !bh_cand_less(d, b, cd[n - 1], cb[n - 1])) return n;
+  if (n == keep && !bhcl_topk_accepts(cd, cb, keep, d, b)) return n;
   for (uint i = 0; i < n; ++i)
     if (cb[i] == b) return n;
-  uint pos = n < keep ? n : keep - 1;
-  while (pos > 0 && bh_cand_less(d, b, cd[pos - 1], cb[pos - 1])) {
-    cd[pos] = cd[pos - 1];
-    cb[pos] = cb[pos - 1];
-    --pos;
-  }
-  cd[pos] = d;
-  cb[pos] = b;
-  return n < keep ? n + 1 : n;
-}
-
-/* Scans one block into the top-k list; returns its point count. */
-inline uint bh_scan_block(float3 q, __global const bhcl_bh_block* blk, int cnt, float max_r2,
-                          float* best_d, int* best_i, uint k, uint* nfound) {
-  for (int j = 0; j < cnt; ++j) {
-    float4 p = (float4)(blk->x[j], blk->y[j], blk->z[j], 0.0f);
-    float d = bhcl_dist2(q, p);
-    int id = blk->id[j];
-    if (d <= max_r2 && bhcl_topk_accepts(best_d, best_i, k, d, id))
-      *nfound = bhcl_topk_push(best_d, best_i, k, *nfound, d, id);
-  }
-  return (uint)cnt;
+  return bhcl_topk_push(cd, cb, keep, n, d, b);
 }
 
 /* The query's Hilbert key: quantised with the build's origin (xyz) and scale (w), in float. */
