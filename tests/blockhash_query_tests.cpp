@@ -99,6 +99,10 @@ TEST_CASE("blockhash_vs_reference: radius, k > N, probes on/off, box skip off, n
     kernel_equals_reference(a, pts, qs, p);
     p.max_radius = 0.01f;
     kernel_equals_reference(a, pts, qs, p);
+    // The scalar block scan (the GPU form; CPUs default to the float16 scan) answers the same.
+    SearchParams scalar = p;
+    scalar.kernel_defines = "-DBHCL_BH_VECSCAN=0";
+    kernel_equals_reference(a, pts, qs, scalar);
     p.max_radius = INFINITY;
   }
   BlockHashBuildParams nb = preset("auto");
