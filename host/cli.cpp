@@ -213,6 +213,17 @@ std::vector<const OptionInfo*> build_options() {
 
 }  // namespace
 
+void declare_device_option(Args& a) {
+  a.add_text("device", "OpenCL device: P:D, cpu, gpu or a name fragment (default: BHCL_DEVICE, then PoCL)",
+             "", "SPEC");
+}
+
+void declare_data_options(Args& a, const std::string& method_help) {
+  a.add_required("points", "the point set: PLY, NPY (N x 3 float32/float64), text (x y z per line) or raw float32");
+  a.add_required("queries", "the query points (same formats as --points)");
+  a.add_required("method", method_help, "NAME");
+}
+
 void declare_index_options(Args& a, int default_k, bool render) {
   a.group("Search options");
   a.add_integer("k", "neighbours per query", 1, kMaxK, std::to_string(default_k));

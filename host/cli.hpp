@@ -80,6 +80,11 @@ Json stats_header(const std::string& command, const Runtime& rt);
 Json build_json(const Index& index, const MethodOptions& options);
 Json search_json(const Index& index, const SearchParams& p);
 
+// --device, as every command that runs kernels reads it.
+void declare_device_option(Args& args);
+// --points, --queries (required, any point format) and the required --method of knn and eval.
+void declare_data_options(Args& args, const std::string& method_help);
+
 // Options shared by every command that builds and queries an index (knn, eval, render):
 // --k --max-radius --A --probes --local-size --max-batch and the build options
 // --preset --L --P --B --X --threads --seed --load-index --save-index.

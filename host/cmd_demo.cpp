@@ -68,8 +68,7 @@ void declare_demo(Args& a) {
   a.add_integer("N", "points of each benchmark set", 1, 1LL << 31, "200000");
   a.add_integer("n", "queries of each benchmark set", 1, 1LL << 31, "20000");
   a.add_integer("k", "neighbours per query in the benchmark", 1, kMaxK, "50");
-  a.add_text("device", "OpenCL device: P:D, cpu, gpu or a name fragment (default: BHCL_DEVICE, then PoCL)",
-             "", "SPEC");
+  declare_device_option(a);
   a.add_text("out-dir", "directory for the images", "bhcl-demo", "DIR");
   a.add_flag("no-render", "skip the Cornell Box render, print the benchmark table only");
 }

@@ -38,14 +38,11 @@ std::string fmt(const char* f, double v) {
 }
 
 void declare_eval(Args& a) {
-  a.add_required("points", "the point set: PLY, NPY (N x 3 float32/float64), text (x y z per line) or raw float32");
-  a.add_required("queries", "the query points (same formats as --points)");
-  a.add_required("method", "the method evaluated: " + method_list(method_names()), "NAME");
+  declare_data_options(a, "the method evaluated: " + method_list(method_names()));
   a.add_text("truth", "the exact method giving the true neighbours: " + method_list(exact_method_names()),
              default_truth_method(), "NAME");
   a.add_text("stats", "write the metrics, timings and parameters here as JSON", "", "FILE");
-  a.add_text("device", "OpenCL device: P:D, cpu, gpu or a name fragment (default: BHCL_DEVICE, then PoCL)",
-             "", "SPEC");
+  declare_device_option(a);
   declare_index_options(a);
 }
 

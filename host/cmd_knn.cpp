@@ -12,15 +12,12 @@ namespace bhcl::cli {
 namespace {
 
 void declare_knn(Args& a) {
-  a.add_required("points", "the point set: PLY, NPY (N x 3 float32/float64), text (x y z per line) or raw float32");
-  a.add_required("queries", "the query points (same formats as --points)");
-  a.add_required("method", method_list(method_names()), "NAME");
+  declare_data_options(a, method_list(method_names()));
   a.add_required("out-ids", "write the neighbour ids here (int32, n x k, row-major; NPY when named .npy)");
   a.add_required("out-dist2", "write the squared distances here (float32, n x k, row-major; NPY when named .npy)");
   a.add_text("out-counts", "write the neighbours found per query here (int32, n; NPY when named .npy)", "", "FILE");
   a.add_text("stats", "write timings and parameters here as JSON", "", "FILE");
-  a.add_text("device", "OpenCL device: P:D, cpu, gpu or a name fragment (default: BHCL_DEVICE, then PoCL)",
-             "", "SPEC");
+  declare_device_option(a);
   declare_index_options(a);
 }
 

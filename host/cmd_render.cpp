@@ -186,8 +186,7 @@ void declare_render(Args& a) {
   a.add_text("size", "image size WxH", "512x512", "WxH");
   a.add_text("png", "the tone-mapped PNG preview", "OUT with .png", "FILE");
   a.add_text("stats", "write timings and parameters here as JSON", "", "FILE");
-  a.add_text("device", "OpenCL device: P:D, cpu, gpu or a name fragment (default: BHCL_DEVICE, then PoCL)",
-             "", "SPEC");
+  declare_device_option(a);
   a.add_integer("shadow-rays", "shadow rays per shading point", 1, 4096, "4");
   a.add_integer("caustic-k", "photons per caustic estimate (0: --k)", 0, kMaxK, "0");
   a.add_number("caustic-radius", "caustic gather radius (0: automatic)", "0");

@@ -7,11 +7,7 @@ using namespace bhcl;
 
 namespace {
 
-std::string write_points(const std::string& name, const std::vector<float>& xyz) {
-  std::string path = test::tmp_path(name);
-  write_points_file(path, xyz);
-  return path;
-}
+using test::write_points;
 
 nlohmann::json read_json(const std::string& path) {
   std::ifstream in(path);

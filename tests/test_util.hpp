@@ -136,6 +136,13 @@ inline std::string tmp_path(const std::string& name) {
   return std::string(BHCL_TEST_TMP_DIR) + "/" + name;
 }
 
+// Writes xyz as a raw float32 point file in the test folder; returns its path.
+inline std::string write_points(const std::string& name, const std::vector<float>& xyz) {
+  std::string path = tmp_path(name);
+  write_points_file(path, xyz);
+  return path;
+}
+
 template <typename T>
 std::vector<T> read_raw(const std::string& path) {
   std::ifstream in(path, std::ios::binary | std::ios::ate);

@@ -283,16 +283,10 @@ cl::Event BlockHashIndex::enqueue_stats(const cl::CommandQueue& queue, const cl:
   // The arguments both block-hash kernels end with: the queries, k, radius, budget, the blocks a
   // query keeps, the results and the examined counts.
   auto add_query_args = [&](detail::KernelArgs& args) {
-    args.add(queries)
-        .add(cl_ulong(first))
-        .add(cl_uint(count))
-        .add(cl_uint(params.k))
-        .add(detail::squared_radius(params.max_radius))
+    args.add_queries(queries, first, count, params)
         .add(cl_uint(budget(params)))
         .add(cl_uint(blockhash::keep_blocks(budget(params), kmax, info_.X)))
-        .add(out.ids)
-        .add(out.dist2)
-        .add(out.counts)
+        .add_results(out)
         .add(examined ? *examined : dummy_)
         .add(cl_uint(examined ? 1 : 0));
   };

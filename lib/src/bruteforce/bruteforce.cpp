@@ -30,14 +30,8 @@ cl::Event BruteForceIndex::enqueue_batch(const cl::CommandQueue& queue, const cl
   detail::KernelArgs args(kernel, "bruteforce_knn");
   args.add(points_)
       .add(cl_uint(size()))
-      .add(queries)
-      .add(cl_ulong(first))
-      .add(cl_uint(count))
-      .add(cl_uint(params.k))
-      .add(detail::squared_radius(params.max_radius))
-      .add(out.ids)
-      .add(out.dist2)
-      .add(out.counts)
+      .add_queries(queries, first, count, params)
+      .add_results(out)
       .add_local(local_size * sizeof(cl_float4));
   return detail::launch_1d(queue, kernel, count, local_size, wait, "bruteforce_knn");
 }

@@ -53,6 +53,14 @@ class KernelArgs {
     ++i_;
     return *this;
   }
+  // What every kNN kernel takes, in this order: the query buffer, the first row, the count of
+  // rows, k and the squared radius.
+  KernelArgs& add_queries(const cl::Buffer& queries, std::size_t first, std::size_t count,
+                          const SearchParams& p) {
+    return add(queries).add(cl_ulong(first)).add(cl_uint(count)).add(cl_uint(p.k)).add(squared_radius(p.max_radius));
+  }
+  // The result buffers: ids, squared distances, counts.
+  KernelArgs& add_results(const ResultBuffers& out) { return add(out.ids).add(out.dist2).add(out.counts); }
   KernelArgs& add_local(std::size_t bytes) {
     check_cl(k_.setArg(i_, cl::Local(bytes)), "clSetKernelArg",
              name_ + " local argument " + std::to_string(i_));

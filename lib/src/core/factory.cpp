@@ -43,6 +43,13 @@ OptionInfo text(std::string name, std::string help, Kind kind, std::vector<std::
   return o;
 }
 
+// Setters for OptionInfo::set.
+template <int MethodOptions::*F>
+void set_int(MethodOptions& o, const std::string&, long long v) { o.*F = static_cast<int>(v); }
+template <std::string MethodOptions::*F>
+void set_text(MethodOptions& o, const std::string& v, long long) { o.*F = v; }
+void set_seed(MethodOptions& o, const std::string&, long long v) { o.seed = static_cast<std::uint64_t>(v); }
+
 const std::vector<std::string> kDeviceSearch = {"local-size", "max-batch"};
 
 std::unique_ptr<Index> make_blockhash(std::shared_ptr<Runtime> runtime, const float* points,
@@ -71,98 +78,70 @@ std::unique_ptr<Index> make_blockhash(std::shared_ptr<Runtime> runtime, const fl
   return bh;
 }
 
-MethodInfo blockhash_entry() {
+MethodInfo entry(std::string name, std::string summary, bool exact, bool on_device, bool saves,
+                 std::vector<std::string> search_options, decltype(MethodInfo::make) make,
+                 std::vector<OptionInfo> build_options = {}) {
   MethodInfo m;
-  m.name = "blockhash";
-  m.summary = "block hashing (Ma & McCool 2002): approximate, examines at most A*k points per query";
-  m.exact = false;
-  m.on_device = true;
-  m.saves = true;
-  m.build_options = {
-      text("preset", "parameter preset", Kind::Choice, {"auto", "paper"}, "auto",
-           [](MethodOptions& o, const std::string& v, long long) { o.preset = v; }),
-      integer("L", "hash tables (-1: the preset decides)", "-1", -1, 1 << 16,
-              [](MethodOptions& o, const std::string&, long long v) { o.L = int(v); }),
-      integer("P", "thresholds per dimension (-1: the preset decides)", "-1", -1, 1024,
-              [](MethodOptions& o, const std::string&, long long v) { o.P = int(v); }),
-      integer("B", "block references per bucket (-1: the preset decides)", "-1", -1, 1 << 16,
-              [](MethodOptions& o, const std::string&, long long v) { o.B = int(v); }),
-      integer("X", "points per block (-1: the preset decides)", "-1", -1, 16,
-              [](MethodOptions& o, const std::string&, long long v) { o.X = int(v); }),
-      integer("seed", "seed of the threshold jitter", "1", 0, std::numeric_limits<long long>::max(),
-              [](MethodOptions& o, const std::string&, long long v) { o.seed = std::uint64_t(v); }),
-      text("load-index", "load this saved index instead of building", Kind::File, {}, "",
-           [](MethodOptions& o, const std::string& v, long long) { o.load_index = v; }),
-      text("save-index", "save the built index to this file", Kind::File, {}, "",
-           [](MethodOptions& o, const std::string& v, long long) { o.save_index = v; }),
-  };
-  m.search_options = {"A", "recall", "probes", "local-size", "max-batch"};
-  m.make = make_blockhash;
+  m.name = std::move(name);
+  m.summary = std::move(summary);
+  m.exact = exact;
+  m.on_device = on_device;
+  m.saves = saves;
+  m.search_options = std::move(search_options);
+  m.make = make;
+  m.build_options = std::move(build_options);
   return m;
 }
 
-MethodInfo bruteforce_entry() {
-  MethodInfo m;
-  m.name = "bruteforce";
-  m.summary = "exact: every point against every query (a tiled kernel)";
-  m.exact = true;
-  m.search_options = kDeviceSearch;
-  m.make = [](std::shared_ptr<Runtime> rt, const float* p, std::size_t n,
-              const MethodOptions&) -> std::unique_ptr<Index> {
-    return std::make_unique<BruteForceIndex>(std::move(rt), p, n);
-  };
-  return m;
+std::unique_ptr<Index> make_bruteforce(std::shared_ptr<Runtime> rt, const float* p, std::size_t n,
+                                       const MethodOptions&) {
+  return std::make_unique<BruteForceIndex>(std::move(rt), p, n);
 }
 
-MethodInfo kdtree_entry() {
-  MethodInfo m;
-  m.name = "kdtree";
-  m.summary = "exact: a balanced kd-tree built on the host, searched by a stackful kernel";
-  m.exact = true;
-  m.build_options = {
-      integer("leaf-size", "most points per leaf (-1: 16)", "-1", -1, 1024,
-              [](MethodOptions& o, const std::string&, long long v) { o.leaf_size = int(v); }),
-  };
-  m.search_options = kDeviceSearch;
-  m.make = [](std::shared_ptr<Runtime> rt, const float* p, std::size_t n,
-              const MethodOptions& o) -> std::unique_ptr<Index> {
-    KdTreeParams kp;
-    if (o.leaf_size >= 0) kp.leaf_size = o.leaf_size;
-    return std::make_unique<KdTreeIndex>(std::move(rt), p, n, kp);
-  };
-  return m;
+std::unique_ptr<Index> make_kdtree(std::shared_ptr<Runtime> rt, const float* p, std::size_t n,
+                                   const MethodOptions& o) {
+  KdTreeParams kp;
+  if (o.leaf_size >= 0) kp.leaf_size = o.leaf_size;
+  return std::make_unique<KdTreeIndex>(std::move(rt), p, n, kp);
 }
 
 #if BHCL_HAVE_FLANN
-MethodInfo flann_entry() {
-  MethodInfo m;
-  m.name = "flann";
-  m.summary = "exact: FLANN's single kd-tree searched exactly on host threads";
-  m.exact = true;
-  m.on_device = false;
-  m.build_options = {
-      integer("threads", "host threads (0: all hardware threads)", "0", 0, 1 << 16,
-              [](MethodOptions& o, const std::string&, long long v) { o.threads = int(v); }),
-  };
-  m.make = [](std::shared_ptr<Runtime> rt, const float* p, std::size_t n,
-              const MethodOptions& o) -> std::unique_ptr<Index> {
-    FlannParams fp;
-    fp.threads = o.threads;
-    return std::make_unique<FlannIndex>(std::move(rt), p, n, fp);
-  };
-  return m;
+std::unique_ptr<Index> make_flann(std::shared_ptr<Runtime> rt, const float* p, std::size_t n,
+                                  const MethodOptions& o) {
+  FlannParams fp;
+  fp.threads = o.threads;
+  return std::make_unique<FlannIndex>(std::move(rt), p, n, fp);
 }
 #endif
 
 }  // namespace
 
 const std::vector<MethodInfo>& methods() {
+  // name, summary, exact, on a device, saves, search options, make, build options.
   static const std::vector<MethodInfo> all = {
-      bruteforce_entry(), kdtree_entry(),
+      entry("bruteforce", "exact: every point against every query (a tiled kernel)", true, true,
+            false, kDeviceSearch, make_bruteforce),
+      entry("kdtree", "exact: a balanced kd-tree built on the host, searched by a stackful kernel",
+            true, true, false, kDeviceSearch, make_kdtree,
+            {integer("leaf-size", "most points per leaf (-1: 16)", "-1", -1, 1024,
+                     set_int<&MethodOptions::leaf_size>)}),
 #if BHCL_HAVE_FLANN
-      flann_entry(),
+      entry("flann", "exact: FLANN's single kd-tree searched exactly on host threads", true, false,
+            false, {}, make_flann,
+            {integer("threads", "host threads (0: all hardware threads)", "0", 0, 1 << 16,
+                     set_int<&MethodOptions::threads>)}),
 #endif
-      blockhash_entry()};
+      entry("blockhash", "block hashing (Ma & McCool 2002): approximate, examines at most A*k points per query",
+            false, true, true, {"A", "recall", "probes", "local-size", "max-batch"}, make_blockhash,
+            {text("preset", "parameter preset", Kind::Choice, {"auto", "paper"}, "auto", set_text<&MethodOptions::preset>),
+             integer("L", "hash tables (-1: the preset decides)", "-1", -1, 1 << 16, set_int<&MethodOptions::L>),
+             integer("P", "thresholds per dimension (-1: the preset decides)", "-1", -1, 1024, set_int<&MethodOptions::P>),
+             integer("B", "block references per bucket (-1: the preset decides)", "-1", -1, 1 << 16, set_int<&MethodOptions::B>),
+             integer("X", "points per block (-1: the preset decides)", "-1", -1, 16, set_int<&MethodOptions::X>),
+             integer("seed", "seed of the threshold jitter", "1", 0, std::numeric_limits<long long>::max(), set_seed),
+             text("load-index", "load this saved index instead of building", Kind::File, {}, "", set_text<&MethodOptions::load_index>),
+             text("save-index", "save the built index to this file", Kind::File, {}, "", set_text<&MethodOptions::save_index>)}),
+  };
   return all;
 }
 

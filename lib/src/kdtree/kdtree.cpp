@@ -138,14 +138,8 @@ cl::Event KdTreeIndex::enqueue_batch(const cl::CommandQueue& queue, const cl::Bu
   detail::KernelArgs args(kernel, "kdtree_knn");
   args.add(nodes_)
       .add(points_)
-      .add(queries)
-      .add(cl_ulong(first))
-      .add(cl_uint(count))
-      .add(cl_uint(params.k))
-      .add(detail::squared_radius(params.max_radius))
-      .add(out.ids)
-      .add(out.dist2)
-      .add(out.counts);
+      .add_queries(queries, first, count, params)
+      .add_results(out);
   return detail::launch_1d(queue, kernel, count, local_size, wait, "kdtree_knn");
 }
 
