@@ -207,8 +207,10 @@ int main(int argc, char** argv) {
             Row row;
             row.compile_s = idx->warm_up(p);
             KnnResult r;
-            std::vector<std::int32_t> ex;
-            idx->query_examined(d.queries.data(), nq, p, r, ex);
+            SearchParams pe = p;
+            pe.count_examined = true;
+            idx->query(d.queries.data(), nq, pe, r);
+            const std::vector<std::int32_t>& ex = r.examined;
             std::vector<double> times;
             for (int rep = 0; rep < o.reps; ++rep) {
               KnnResult r2;

@@ -17,9 +17,10 @@ BlockHashBuildParams preset(const char* name) {
 void kernel_equals_reference(const BlockHashIndex& index, const std::vector<float>& pts,
                              const std::vector<float>& qs, const SearchParams& p) {
   const std::size_t n = qs.size() / 3;
-  KnnResult r;
-  std::vector<std::int32_t> ex;
-  index.query_examined(qs.data(), n, p, r, ex);
+  SearchParams pe = p;
+  pe.count_examined = true;
+  KnnResult r = index.query(qs, pe);
+  const std::vector<std::int32_t>& ex = r.examined;
   std::vector<std::int32_t> ex_ref;
   KnnResult ref = index.reference_query(qs.data(), n, p, &ex_ref);
   REQUIRE(r.counts == ref.counts);
@@ -341,4 +342,45 @@ TEST_CASE("blockhash: a recall target is met on held-out queries") {
   auto pts = datasets::uniform(1000, 65);
   BlockHashIndex index(test::runtime(), pts.data(), 1000);
   CHECK_THROWS_WITH_AS(index.query(pts, bad), doctest::Contains("recall_target"), Error);
+}
+
+TEST_CASE("blockhash: examined counts are an option of every query path (sorted, buffer-level)") {
+  auto rt = test::runtime();
+  auto pts = datasets::clustered(5000, 61, 6, 0.02f);
+  auto qs = datasets::clustered(300, 62, 6, 0.02f);
+  BlockHashIndex index(rt, pts.data(), 5000, preset("auto"));
+  SearchParams p;
+  p.k = 10;
+  p.count_examined = true;
+  p.sort_queries = 0;
+  KnnResult plain = index.query(qs, p);
+  REQUIRE(plain.examined.size() == 300);
+  std::vector<std::int32_t> ex_ref;
+  index.reference_query(qs.data(), 300, p, &ex_ref);
+  CHECK(plain.examined == ex_ref);
+  // Dispatched in Hilbert order: the counts come back in the caller's order with their rows.
+  p.sort_queries = 1;
+  KnnResult sorted = index.query(qs, p);
+  CHECK(sorted.ids == plain.ids);
+  CHECK(sorted.examined == plain.examined);
+  // The buffer-level call writes them to the caller's buffer.
+  cl::Buffer qb(rt->context(), CL_MEM_READ_ONLY | CL_MEM_COPY_HOST_PTR, qs.size() * 4, qs.data());
+  ResultBuffers out{cl::Buffer(rt->context(), CL_MEM_READ_WRITE, 300 * 10 * 4),
+                    cl::Buffer(rt->context(), CL_MEM_READ_WRITE, 300 * 10 * 4),
+                    cl::Buffer(rt->context(), CL_MEM_READ_WRITE, 300 * 4),
+                    cl::Buffer(rt->context(), CL_MEM_READ_WRITE, 300 * 4)};
+  cl::Event e = index.enqueue_query(rt->queue(), qb, 300, out, p);
+  std::vector<cl::Event> wait{e};
+  std::vector<std::int32_t> ex(300);
+  rt->queue().enqueueReadBuffer(out.examined, CL_TRUE, 0, 300 * 4, ex.data(), &wait);
+  CHECK(ex == plain.examined);
+  // Without the option nothing is counted; a missing buffer and an exact method are refused.
+  p.count_examined = false;
+  CHECK(index.query(qs, p).examined.empty());
+  p.count_examined = true;
+  ResultBuffers none = out;
+  none.examined = cl::Buffer();
+  CHECK_THROWS_AS(index.enqueue_query(rt->queue(), qb, 300, none, p), Error);
+  auto kd = make_index("kdtree", rt, pts.data(), 5000);
+  CHECK_THROWS_WITH_AS(kd->query(qs, p), doctest::Contains("does not count"), Error);
 }

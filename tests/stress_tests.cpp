@@ -109,10 +109,12 @@ TEST_SUITE("stress") {
           p.max_radius = c.max_radius;
           p.sort_queries = 0;
           KnnResult r = index.query(c.qs, p);
-          std::vector<std::int32_t> ex, ex_ref;
+          std::vector<std::int32_t> ex_ref;
           KnnResult ref = index.reference_query(c.qs.data(), n, p, &ex_ref);
-          KnnResult rex;
-          index.query_examined(c.qs.data(), n, p, rex, ex);
+          SearchParams pe = p;
+          pe.count_examined = true;
+          KnnResult rex = index.query(c.qs, pe);
+          const std::vector<std::int32_t>& ex = rex.examined;
           REQUIRE(ref.ids == r.ids);
           REQUIRE(rex.ids == r.ids);
           REQUIRE(ref.counts == r.counts);

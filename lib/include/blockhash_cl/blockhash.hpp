@@ -143,10 +143,6 @@ class BlockHashIndex : public Index {
                             std::vector<std::int32_t>* examined = nullptr,
                             unsigned threads = 0) const;
 
-  // The kernel with per-query statistics, on query()'s path: examined[i] = points examined by query i.
-  QueryStats query_examined(const float* queries, std::size_t n, const SearchParams& params,
-                            KnnResult& out, std::vector<std::int32_t>& examined) const;
-
   // A recall target instead of a budget. From `sample` of the indexed points (every N/sample-th,
   // each moved off its point by half the distance to its nearest other point, so that it is not
   // its own answer), their exact k nearest (the kd-tree kernel) and the block-hash answers for
@@ -169,6 +165,8 @@ class BlockHashIndex : public Index {
   static std::uint32_t budget(const SearchParams& params);
 
   const blockhash::Structure& structure() const { return *s_; }
+  // SearchParams::count_examined: every query's examined points come back with its row.
+  bool counts_examined() const override { return true; }
 
  protected:
   cl::Event enqueue_batch(const cl::CommandQueue& queue, const cl::Buffer& queries,
@@ -180,10 +178,6 @@ class BlockHashIndex : public Index {
  private:
   BlockHashIndex(std::shared_ptr<Runtime> runtime, std::unique_ptr<blockhash::Structure> s);
   void upload();
-  cl::Event enqueue_stats(const cl::CommandQueue& queue, const cl::Buffer& queries,
-                          std::size_t first, std::size_t count, const ResultBuffers& out,
-                          const SearchParams& params, std::size_t local_size,
-                          const std::vector<cl::Event>* wait, const cl::Buffer* examined) const;
   std::string kernel_options(int kmax) const;
   std::uint32_t cells_probes(const SearchParams& params) const;  // cell-aligned: 0, 1 or 2
 

@@ -71,6 +71,10 @@ struct SearchParams {
   // kernel's build options, e.g. "-DBHCL_VEC_SCAN=0". Only -D tokens are accepted. Results of an
   // exact method do not depend on them; the block-hash kernel's may (the defines are its knobs).
   std::string kernel_defines;
+  // Per query, the points examined (block hashing's cost measure) into KnnResult::examined (the
+  // host-array call) or ResultBuffers::examined (the buffer-level call). Only methods whose
+  // Index::counts_examined() is true accept it; the others throw.
+  bool count_examined = false;
 };
 
 // Host-side results. ids/dist2 are n*k, counts is n.
@@ -80,6 +84,8 @@ struct KnnResult {
   std::vector<std::int32_t> ids;
   std::vector<float> dist2;
   std::vector<std::int32_t> counts;
+  // n entries when SearchParams::count_examined was set: the points query i examined. Else empty.
+  std::vector<std::int32_t> examined;
 
   void resize(std::size_t n_queries, int k_);
   // The first k_ columns of every row (k_ <= k): the exact answer for k_ when this one is exact,
@@ -90,9 +96,10 @@ struct KnnResult {
 };
 
 // Caller-owned device buffers for the buffer-level call: ids (n*k int32), dist2 (n*k float),
-// counts (n int32).
+// counts (n int32), and examined (n int32) only with SearchParams::count_examined.
 struct ResultBuffers {
   cl::Buffer ids, dist2, counts;
+  cl::Buffer examined;
 };
 
 // What one query call cost. Times in seconds.
@@ -123,6 +130,8 @@ class Index {
   virtual std::string method() const = 0;      // "bruteforce", "kdtree", "blockhash", ...
   virtual bool exact() const = 0;              // true for exact methods
   virtual std::size_t memory_bytes() const = 0;  // device structure size, points included
+  // True when the method counts the points each query examines (SearchParams::count_examined).
+  virtual bool counts_examined() const { return false; }
   std::size_t size() const { return n_points_; }
   double build_seconds() const { return build_seconds_; }
   Runtime& runtime() const { return *runtime_; }

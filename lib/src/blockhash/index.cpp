@@ -264,17 +264,10 @@ std::string BlockHashIndex::kernel_options(int kmax) const {
 
 cl::Event BlockHashIndex::enqueue_batch(const cl::CommandQueue& queue, const cl::Buffer& queries,
                                         std::size_t first, std::size_t count,
-                                        const ResultBuffers& out, const SearchParams& params,
+                                        const ResultBuffers& out, const SearchParams& params_in,
                                         std::size_t local_size,
                                         const std::vector<cl::Event>* wait) const {
-  return enqueue_stats(queue, queries, first, count, out, params, local_size, wait, nullptr);
-}
-
-cl::Event BlockHashIndex::enqueue_stats(const cl::CommandQueue& queue, const cl::Buffer& queries,
-                                        std::size_t first, std::size_t count,
-                                        const ResultBuffers& out, const SearchParams& params_in,
-                                        std::size_t local_size, const std::vector<cl::Event>* wait,
-                                        const cl::Buffer* examined) const {
+  const cl::Buffer* examined = params_in.count_examined ? &out.examined : nullptr;
   SearchParams params = params_in;
   params.A = resolved_A(params_in);
   params.recall_target = 0;
@@ -356,55 +349,5 @@ KnnResult BlockHashIndex::reference_query(const float* queries, std::size_t n,
   return out;
 }
 
-QueryStats BlockHashIndex::query_examined(const float* queries, std::size_t n,
-                                          const SearchParams& params_in, KnnResult& out,
-                                          std::vector<std::int32_t>& examined) const {
-  auto t0 = std::chrono::steady_clock::now();
-  check_params(params_in);
-  QueryStats st;
-  st.n_queries = n;
-  out.resize(n, params_in.k);
-  examined.assign(n, 0);
-  if (n == 0) return st;
-  for (std::size_t i = 0; i < n; ++i) {
-    const float* qq = queries + 3 * i;
-    if (!std::isfinite(qq[0]) || !std::isfinite(qq[1]) || !std::isfinite(qq[2])) ++st.nonfinite_queries;
-  }
-  // The same scaling as query(): structure coordinates in, caller's distances out.
-  const SearchParams params = scaled(params_in);
-  std::vector<float> storage;
-  queries = to_structure(queries, n, storage);
-  st.compile_s = warm_up(params);
-  const Runtime& rt = runtime();
-  const cl::CommandQueue& queue = rt.queue();
-  const std::size_t k = static_cast<std::size_t>(params.k);
-  cl_int err = CL_SUCCESS;
-  auto make = [&](std::size_t bytes, const char* what) {
-    cl::Buffer b(rt.context(), CL_MEM_READ_WRITE, bytes, nullptr, &err);
-    check_cl(err, "clCreateBuffer", std::string("blockhash ") + what + ", " + std::to_string(bytes) + " bytes");
-    return b;
-  };
-  cl::Buffer qbuf = make(n * 3 * sizeof(float), "queries");
-  ResultBuffers rb{make(n * k * 4, "ids"), make(n * k * 4, "dist2"), make(n * 4, "counts")};
-  cl::Buffer ex = make(n * 4, "examined");
-  check_cl(queue.enqueueWriteBuffer(qbuf, CL_TRUE, 0, n * 3 * sizeof(float), queries),
-           "clEnqueueWriteBuffer", "blockhash queries");
-  std::size_t local = local_size_for(params);
-  std::size_t per = params.max_batch ? params.max_batch : max_dispatch_queries();
-  for (std::size_t f = 0; f < n; f += per) {
-    std::size_t c = std::min(per, n - f);
-    cl::Event e = enqueue_stats(queue, qbuf, f, c, rb, params, local, nullptr, &ex);
-    check_cl(e.wait(), "clWaitForEvents", "blockhash_knn");
-    st.query_s += event_seconds(e);
-    ++st.batches;
-  }
-  check_cl(queue.enqueueReadBuffer(rb.ids, CL_TRUE, 0, n * k * 4, out.ids.data()), "clEnqueueReadBuffer", "ids");
-  check_cl(queue.enqueueReadBuffer(rb.dist2, CL_TRUE, 0, n * k * 4, out.dist2.data()), "clEnqueueReadBuffer", "dist2");
-  check_cl(queue.enqueueReadBuffer(rb.counts, CL_TRUE, 0, n * 4, out.counts.data()), "clEnqueueReadBuffer", "counts");
-  check_cl(queue.enqueueReadBuffer(ex, CL_TRUE, 0, n * 4, examined.data()), "clEnqueueReadBuffer", "examined");
-  distances_to_caller(out.dist2.data(), out.dist2.size());
-  st.wall_s = seconds_since(t0);
-  return st;
-}
 
 }  // namespace bhcl

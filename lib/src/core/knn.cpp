@@ -28,6 +28,7 @@ void KnnResult::resize(std::size_t n_queries, int k_) {
   ids.assign(n * static_cast<std::size_t>(k), -1);
   dist2.assign(n * static_cast<std::size_t>(k), std::numeric_limits<float>::infinity());
   counts.assign(n, 0);
+  examined.clear();
 }
 
 KnnResult KnnResult::leading_columns(int k_) const {
@@ -120,6 +121,8 @@ double Index::host_search(const float*, std::size_t, const SearchParams&, KnnRes
 
 void Index::check_params(const SearchParams& p) const {
   kmax_variant(p.k);  // throws for k outside [1, kMaxK]
+  if (p.count_examined && !counts_examined())
+    throw Error("count_examined: method " + method() + " does not count the points it examines");
   if (std::isnan(p.max_radius) || p.max_radius < 0)
     throw Error("max_radius must be >= 0 (or +inf), got " + std::to_string(p.max_radius));
   {
@@ -163,6 +166,8 @@ double Index::warm_up(const SearchParams& params) const {
   rb.dist2 = cl::Buffer(runtime_->context(), CL_MEM_READ_WRITE, 16, nullptr, &err);
   check_cl(err, "clCreateBuffer", "warm-up");
   rb.counts = cl::Buffer(runtime_->context(), CL_MEM_READ_WRITE, 16, nullptr, &err);
+  check_cl(err, "clCreateBuffer", "warm-up");
+  rb.examined = cl::Buffer(runtime_->context(), CL_MEM_READ_WRITE, 16, nullptr, &err);
   check_cl(err, "clCreateBuffer", "warm-up");
   cl::Event e = enqueue_batch(runtime_->queue(), q, 0, 0, rb, params, local, nullptr);
   check_cl(e.wait(), "clWaitForEvents", method() + " warm-up");
@@ -218,6 +223,7 @@ cl::Event Index::enqueue_query(const cl::CommandQueue& queue, const cl::Buffer& 
   need(out.ids, nk * sizeof(std::int32_t), "ids");
   need(out.dist2, nk * sizeof(float), "dist2");
   need(out.counts, n * sizeof(std::int32_t), "counts");
+  if (params.count_examined) need(out.examined, n * sizeof(std::int32_t), "examined");
   const SearchParams sp = scaled(params);
   const cl::Context ctx = queue.getInfo<CL_QUEUE_CONTEXT>();
   cl_int err = CL_SUCCESS;
@@ -278,12 +284,17 @@ QueryStats Index::query(const float* queries, std::size_t n, const SearchParams&
       std::copy_n(&tmp.dist2[i * k], k, &out.dist2[order[i] * k]);
       out.counts[order[i]] = tmp.counts[i];
     }
+    if (params.count_examined) {
+      out.examined.resize(n);
+      for (std::size_t i = 0; i < n; ++i) out.examined[order[i]] = tmp.examined[i];
+    }
     st.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     return st;
   }
   QueryStats st;
   st.n_queries = n;
   out.resize(n, params.k);
+  if (params.count_examined) out.examined.assign(n, 0);
   if (n == 0) return st;
   for (std::size_t i = 0; i < n; ++i) {
     const float* q = queries + 3 * i;
@@ -324,6 +335,7 @@ QueryStats Index::query(const float* queries, std::size_t n, const SearchParams&
   cl::Buffer qbuf = make(chunk * 3 * sizeof(float), "queries");
   ResultBuffers rb{make(chunk * k * sizeof(std::int32_t), "ids"), make(chunk * k * sizeof(float), "dist2"),
                    make(chunk * sizeof(std::int32_t), "counts")};
+  if (params.count_examined) rb.examined = make(chunk * sizeof(std::int32_t), "examined");
   for (std::size_t first = 0; first < n; first += chunk) {
     std::size_t m = std::min(chunk, n - first);
     cl::Event up, d1, d2, d3;
@@ -341,6 +353,10 @@ QueryStats Index::query(const float* queries, std::size_t n, const SearchParams&
     check_cl(queue.enqueueReadBuffer(rb.counts, CL_FALSE, 0, m * sizeof(std::int32_t),
                                      out.counts.data() + first, nullptr, &d3),
              "clEnqueueReadBuffer", "counts");
+    if (params.count_examined)
+      check_cl(queue.enqueueReadBuffer(rb.examined, CL_FALSE, 0, m * sizeof(std::int32_t),
+                                       out.examined.data() + first),
+               "clEnqueueReadBuffer", "examined");
     check_cl(queue.finish(), "clFinish", method() + " query");
     st.upload_s += event_seconds(up);
     for (const auto& e : kernels) st.query_s += event_seconds(e);
