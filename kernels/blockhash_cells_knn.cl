@@ -110,20 +110,10 @@ __kernel void blockhash_cells_knn(__global const bhcl_bh_block* blocks,
                                   __global const uint2* direct, uint dir_dy, uint dir_dz,
                                   uint probes,
                                   __global const ulong* block_keys, uint n_blocks, uint cell_bits,
-                                  uint seeds, __global const float* queries, ulong first,
-                                  uint count, uint k, float max_r2, uint budget, uint keep,
-                                  __global int* out_ids, __global float* out_d2,
-                                  __global int* out_counts, __global int* out_examined,
+                                  uint seeds, BHCL_KNN_QUERY_PARAMS, uint budget, uint keep,
+                                  BHCL_KNN_RESULT_PARAMS, __global int* out_examined,
                                   uint want_examined) {
-  uint gid = get_global_id(0);
-  if (gid >= count) return; /* also the warm-up launch (count 0) */
-  ulong row = first + gid;
-  float3 q = bhcl_load_query(queries, row);
-
-  float best_d[BHCL_KMAX];
-  int best_i[BHCL_KMAX];
-  bhcl_topk_init(best_d, best_i, k);
-  uint nfound = 0;
+  BHCL_KNN_BEGIN;
   uint examined = 0;
 
   if (bhcl_query_is_finite(q)) {

@@ -2,10 +2,8 @@
  * tiles of the work-group size. */
 #include "knn_common.h"
 
-__kernel void bruteforce_knn(__global const float4* points, uint n_points,
-                             __global const float* queries, ulong first, uint count, uint k,
-                             float max_r2, __global int* out_ids, __global float* out_d2,
-                             __global int* out_counts, __local float4* tile) {
+__kernel void bruteforce_knn(__global const float4* points, uint n_points, BHCL_KNN_QUERY_PARAMS,
+                             BHCL_KNN_RESULT_PARAMS, __local float4* tile) {
   /* A warm-up launch (count 0) compiles the kernel and returns before any barrier. */
   if (count == 0) return;
   uint gid = get_global_id(0);

@@ -19,20 +19,8 @@
 #endif
 
 __kernel void kdtree_knn(__global const bhcl_kd_node* nodes, __global const float4* points,
-                         __global const float* queries, ulong first, uint count, uint k,
-                         float max_r2, __global int* out_ids, __global float* out_d2,
-                         __global int* out_counts) {
-  /* A warm-up launch (count 0) compiles the kernel and returns. */
-  if (count == 0) return;
-  uint gid = get_global_id(0);
-  if (gid >= count) return;  /* no barriers below: surplus work-items may leave */
-  ulong row = first + gid;
-  float3 q = bhcl_load_query(queries, row);
-
-  float best_d[BHCL_KMAX];
-  int best_i[BHCL_KMAX];
-  bhcl_topk_init(best_d, best_i, k);
-  uint nfound = 0;
+                         BHCL_KNN_QUERY_PARAMS, BHCL_KNN_RESULT_PARAMS) {
+  BHCL_KNN_BEGIN;
 
   if (bhcl_query_is_finite(q)) {
     /* Deferred far children: xyz = offsets to the cell, w = its lower bound. */

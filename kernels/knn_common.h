@@ -14,6 +14,25 @@
 /* sum((q-p)^2) on vector types (bhcl_arith.h holds the arithmetic). */
 inline float bhcl_dist2(float3 q, float4 p) { return bhcl_dist2_xyz(q.x, q.y, q.z, p.x, p.y, p.z); }
 
+/* The query parameters every kNN kernel takes, in the order the host's KernelArgs::add_queries
+ * sets them (lib/src/core/device_util.hpp), and the result buffers (add_results). */
+#define BHCL_KNN_QUERY_PARAMS \
+  __global const float *queries, ulong first, uint count, uint k, float max_r2
+#define BHCL_KNN_RESULT_PARAMS __global int *out_ids, __global float *out_d2, __global int *out_counts
+
+/* The opening of a kernel with one work-item per query and no barriers: the work-item's `row` and
+ * query `q`, and an empty top-k list (best_d, best_i, nfound). The warm-up launch (count 0) and the
+ * surplus work-items of the last group return at once. */
+#define BHCL_KNN_BEGIN                      \
+  uint gid = get_global_id(0);              \
+  if (gid >= count) return;                 \
+  ulong row = first + gid;                  \
+  float3 q = bhcl_load_query(queries, row); \
+  float best_d[BHCL_KMAX];                  \
+  int best_i[BHCL_KMAX];                    \
+  bhcl_topk_init(best_d, best_i, k);        \
+  uint nfound = 0
+
 /* Loads query row `row` of an n x 3 float array. */
 inline float3 bhcl_load_query(__global const float* queries, ulong row) {
   return vload3((size_t)row, queries);
