@@ -364,22 +364,15 @@ TEST_CASE("blockhash: examined counts are an option of every query path (sorted,
   CHECK(sorted.ids == plain.ids);
   CHECK(sorted.examined == plain.examined);
   // The buffer-level call writes them to the caller's buffer.
-  cl::Buffer qb(rt->context(), CL_MEM_READ_ONLY | CL_MEM_COPY_HOST_PTR, qs.size() * 4, qs.data());
-  ResultBuffers out{cl::Buffer(rt->context(), CL_MEM_READ_WRITE, 300 * 10 * 4),
-                    cl::Buffer(rt->context(), CL_MEM_READ_WRITE, 300 * 10 * 4),
-                    cl::Buffer(rt->context(), CL_MEM_READ_WRITE, 300 * 4),
-                    cl::Buffer(rt->context(), CL_MEM_READ_WRITE, 300 * 4)};
-  cl::Event e = index.enqueue_query(rt->queue(), qb, 300, out, p);
-  std::vector<cl::Event> wait{e};
-  std::vector<std::int32_t> ex(300);
-  rt->queue().enqueueReadBuffer(out.examined, CL_TRUE, 0, 300 * 4, ex.data(), &wait);
-  CHECK(ex == plain.examined);
+  CHECK(test::buffer_query(index, qs, p).examined == plain.examined);
   // Without the option nothing is counted; a missing buffer and an exact method are refused.
   p.count_examined = false;
   CHECK(index.query(qs, p).examined.empty());
   p.count_examined = true;
-  ResultBuffers none = out;
-  none.examined = cl::Buffer();
+  cl::Buffer qb(rt->context(), CL_MEM_READ_ONLY | CL_MEM_COPY_HOST_PTR, qs.size() * 4, qs.data());
+  ResultBuffers none{cl::Buffer(rt->context(), CL_MEM_READ_WRITE, 300 * 10 * 4),
+                     cl::Buffer(rt->context(), CL_MEM_READ_WRITE, 300 * 10 * 4),
+                     cl::Buffer(rt->context(), CL_MEM_READ_WRITE, 300 * 4)};
   CHECK_THROWS_AS(index.enqueue_query(rt->queue(), qb, 300, none, p), Error);
   auto kd = make_index("kdtree", rt, pts.data(), 5000);
   CHECK_THROWS_WITH_AS(kd->query(qs, p), doctest::Contains("does not count"), Error);

@@ -94,30 +94,23 @@ TEST_CASE("every method: the buffer-level call on caller-owned buffers equals th
     // Warm-up is separate from queries: the second warm-up and the query compile nothing.
     index->warm_up(p);
     CHECK(index->warm_up(p) == 0.0);
-    cl::Buffer qb(rt->context(), CL_MEM_READ_ONLY | CL_MEM_COPY_HOST_PTR, qs.size() * 4, qs.data());
-    ResultBuffers out{cl::Buffer(rt->context(), CL_MEM_READ_WRITE, 100 * 8 * 4),
-                      cl::Buffer(rt->context(), CL_MEM_READ_WRITE, 100 * 8 * 4),
-                      cl::Buffer(rt->context(), CL_MEM_READ_WRITE, 100 * 4)};
-    cl::Event e = index->enqueue_query(rt->queue(), qb, 100, out, p);
-    std::vector<cl::Event> wait{e};
-    std::vector<int> ids(800), counts(100);
-    std::vector<float> d2(800);
-    rt->queue().enqueueReadBuffer(out.ids, CL_TRUE, 0, 800 * 4, ids.data(), &wait);
-    rt->queue().enqueueReadBuffer(out.dist2, CL_TRUE, 0, 800 * 4, d2.data(), &wait);
-    rt->queue().enqueueReadBuffer(out.counts, CL_TRUE, 0, 100 * 4, counts.data(), &wait);
+    KnnResult buf = test::buffer_query(*index, qs, p);
     QueryStats st;
     KnnResult host = index->query(qs, p, &st);
     CHECK(st.compile_s == 0.0);
-    CHECK(ids == host.ids);
-    CHECK(d2 == host.dist2);
-    CHECK(counts == host.counts);
+    CHECK(buf.ids == host.ids);
+    CHECK(buf.dist2 == host.dist2);
+    CHECK(buf.counts == host.counts);
     if (index->exact()) {
       KnnResult ref = reference::knn_float(pts.data(), 1500, qs.data(), 100, p);
-      CHECK(ids == ref.ids);
-      CHECK(d2 == ref.dist2);
+      CHECK(buf.ids == ref.ids);
+      CHECK(buf.dist2 == ref.dist2);
     }
-    ResultBuffers small = out;
-    small.counts = cl::Buffer(rt->context(), CL_MEM_READ_WRITE, 10 * 4);
+    // Result buffers too small for n queries are refused before anything is enqueued.
+    cl::Buffer qb(rt->context(), CL_MEM_READ_ONLY | CL_MEM_COPY_HOST_PTR, qs.size() * 4, qs.data());
+    ResultBuffers small{cl::Buffer(rt->context(), CL_MEM_READ_WRITE, 100 * 8 * 4),
+                        cl::Buffer(rt->context(), CL_MEM_READ_WRITE, 100 * 8 * 4),
+                        cl::Buffer(rt->context(), CL_MEM_READ_WRITE, 10 * 4)};
     CHECK_THROWS_WITH_AS(index->enqueue_query(rt->queue(), qb, 100, small, p),
                          doctest::Contains("counts buffer holds 40 bytes"), Error);
   }

@@ -125,4 +125,27 @@ void check_index_on_set(const Index& index, const PointSet& s) {
   }
 }
 
+KnnResult buffer_query(const Index& index, const std::vector<float>& qs, const SearchParams& p) {
+  const auto& rt = index.runtime();
+  const std::size_t n = qs.size() / 3, nk = n * static_cast<std::size_t>(p.k);
+  cl::Buffer qb(rt.context(), CL_MEM_READ_ONLY | CL_MEM_COPY_HOST_PTR, qs.size() * 4,
+                const_cast<float*>(qs.data()));
+  ResultBuffers out{cl::Buffer(rt.context(), CL_MEM_READ_WRITE, nk * 4),
+                    cl::Buffer(rt.context(), CL_MEM_READ_WRITE, nk * 4),
+                    cl::Buffer(rt.context(), CL_MEM_READ_WRITE, n * 4),
+                    cl::Buffer(rt.context(), CL_MEM_READ_WRITE, n * 4)};
+  cl::Event e = index.enqueue_query(rt.queue(), qb, n, out, p);
+  std::vector<cl::Event> wait{e};
+  KnnResult r;
+  r.resize(n, p.k);
+  rt.queue().enqueueReadBuffer(out.ids, CL_TRUE, 0, nk * 4, r.ids.data(), &wait);
+  rt.queue().enqueueReadBuffer(out.dist2, CL_TRUE, 0, nk * 4, r.dist2.data(), &wait);
+  rt.queue().enqueueReadBuffer(out.counts, CL_TRUE, 0, n * 4, r.counts.data(), &wait);
+  if (p.count_examined) {
+    r.examined.resize(n);
+    rt.queue().enqueueReadBuffer(out.examined, CL_TRUE, 0, n * 4, r.examined.data(), &wait);
+  }
+  return r;
+}
+
 }  // namespace bhcl::test

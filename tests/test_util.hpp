@@ -43,6 +43,9 @@ float cutting_radius(const PointSet& s);
 // Bit-exact equality of two results (ids, counts, distances including +inf), naming the first
 // differing entry.
 void require_identical(const KnnResult& r, const KnnResult& ref, const std::string& what);
+// Answers `qs` through the buffer-level call (enqueue_query on the runtime's queue, caller-owned
+// buffers, examined too when p.count_examined) and reads every row back.
+KnnResult buffer_query(const Index& index, const std::vector<float>& qs, const SearchParams& p);
 // An exact index on a point set equals the float reference for k in {1, 8, 10, 50, 100, 256},
 // with and without the cutting radius.
 void check_index_on_set(const Index& index, const PointSet& s);
