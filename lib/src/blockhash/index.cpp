@@ -283,16 +283,14 @@ cl::Event BlockHashIndex::enqueue_batch(const cl::CommandQueue& queue, const cl:
         .add(examined ? *examined : dummy_)
         .add(cl_uint(examined ? 1 : 0));
   };
+  // The two layouts' kernels share their first and last arguments.
+  const char* name = info_.cell_aligned ? "blockhash_cells_knn" : "blockhash_knn";
+  cl::Kernel kernel = runtime().kernel(std::string(name) + ".cl", name,
+                                       detail::with_defines(kernel_options(kmax), params));
+  detail::KernelArgs args(kernel, name);
+  args.add(blocks_).add(boxes_).add(thresholds_).add(cl_uint(info_.P)).add(keys_);
   if (info_.cell_aligned) {
-    cl::Kernel kernel = runtime().kernel("blockhash_cells_knn.cl", "blockhash_cells_knn",
-                                         detail::with_defines(kernel_options(kmax), params));
-    detail::KernelArgs args(kernel, "blockhash_cells_knn");
-    args.add(blocks_)
-        .add(boxes_)
-        .add(thresholds_)
-        .add(cl_uint(info_.P))
-        .add(keys_)
-        .add(cl_uint(s_->keys.size()))
+    args.add(cl_uint(s_->keys.size()))
         .add(buckets_)
         .add(cell_table_)
         .add(cl_uint(cell_dy_))
@@ -302,28 +300,20 @@ cl::Event BlockHashIndex::enqueue_batch(const cl::CommandQueue& queue, const cl:
         .add(cl_uint(s_->blocks.size()))
         .add(cl_uint(s_->cell_bits()))
         .add(cl_uint(blockhash::cells_seed_side(info_.hilbert_seed, params.k)));
-    add_query_args(args);
-    return detail::launch_1d(queue, kernel, count, local_size, wait, "blockhash_cells_knn");
+  } else {
+    bool probes = params.neighbour_probes < 0 ? info_.neighbour_probes : params.neighbour_probes == 1;
+    args.add(table_starts_)
+        .add(buckets_)
+        .add(refs_)
+        .add(cl_uint(probes ? 1 : 0))
+        .add(block_keys_)
+        .add(cl_uint(s_->blocks.size()))
+        .add(cl_float4{{s_->q_origin[0], s_->q_origin[1], s_->q_origin[2], s_->q_scale}})
+        .add(cl_uint(s_->q_bits))
+        .add(cl_uint(blockhash::seed_side(info_.hilbert_seed, params.k, info_.X)));
   }
-  cl::Kernel kernel = runtime().kernel("blockhash_knn.cl", "blockhash_knn", detail::with_defines(kernel_options(kmax), params));
-  bool probes = params.neighbour_probes < 0 ? info_.neighbour_probes : params.neighbour_probes == 1;
-  detail::KernelArgs args(kernel, "blockhash_knn");
-  args.add(blocks_)
-      .add(boxes_)
-      .add(thresholds_)
-      .add(cl_uint(info_.P))
-      .add(keys_)
-      .add(table_starts_)
-      .add(buckets_)
-      .add(refs_)
-      .add(cl_uint(probes ? 1 : 0))
-      .add(block_keys_)
-      .add(cl_uint(s_->blocks.size()))
-      .add(cl_float4{{s_->q_origin[0], s_->q_origin[1], s_->q_origin[2], s_->q_scale}})
-      .add(cl_uint(s_->q_bits))
-      .add(cl_uint(blockhash::seed_side(info_.hilbert_seed, params.k, info_.X)));
   add_query_args(args);
-  return detail::launch_1d(queue, kernel, count, local_size, wait, "blockhash_knn");
+  return detail::launch_1d(queue, kernel, count, local_size, wait, name);
 }
 
 KnnResult BlockHashIndex::reference_query(const float* queries, std::size_t n,
