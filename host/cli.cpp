@@ -1,6 +1,7 @@
 #include "cli.hpp"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -13,6 +14,7 @@
 #include "blockhash_cl/flann_index.hpp"
 #endif
 #include "blockhash_cl/io.hpp"
+#include "progress.hpp"
 
 namespace bhcl::cli {
 
@@ -275,6 +277,58 @@ void check_method_options(const Args& args, const std::vector<std::string>& meth
     throw UsageError("--" + option + " does not apply to method " + joined(methods, " and ") +
                      " (only to " + joined(users, ", ") + ")");
   }
+}
+
+std::unique_ptr<Index> build_with_progress(const std::string& method, std::shared_ptr<Runtime> rt,
+                                           const std::vector<float>& points,
+                                           const MethodOptions& options, bool quiet) {
+  const std::size_t N = points.size() / 3;
+  render::Progress bar((options.load_index.empty() ? "build " : "load ") + method + " (" +
+                           std::to_string(N) + " points)",
+                       !quiet);
+  bar.update(0.0);
+  auto index = make_index(method, std::move(rt), points.data(), N, options);
+  bar.finish();
+  return index;
+}
+
+QueryStats query_with_progress(const Index& index, const std::vector<float>& queries,
+                               const SearchParams& params, KnnResult& out, bool quiet) {
+  const std::size_t n = queries.size() / 3;
+  render::Progress bar("query " + index.method() + " (" + std::to_string(n) + " queries)", !quiet);
+  // Without a bar one call; with one, about 100 slices of at least 2^15 queries (large enough for
+  // the Hilbert dispatch order and full devices).
+  const std::size_t slice = bar.enabled() ? std::max<std::size_t>(std::size_t(1) << 15, n / 100) : n;
+  if (slice >= n) {
+    QueryStats st = index.query(queries.data(), n, params, out);
+    bar.finish();
+    return st;
+  }
+  auto t0 = std::chrono::steady_clock::now();
+  out.resize(n, params.k);
+  if (params.count_examined) out.examined.assign(n, 0);
+  const std::size_t k = static_cast<std::size_t>(params.k);
+  QueryStats total;
+  KnnResult part;
+  for (std::size_t first = 0; first < n; first += slice) {
+    const std::size_t m = std::min(slice, n - first);
+    QueryStats st = index.query(queries.data() + 3 * first, m, params, part);
+    std::copy(part.ids.begin(), part.ids.end(), out.ids.begin() + first * k);
+    std::copy(part.dist2.begin(), part.dist2.end(), out.dist2.begin() + first * k);
+    std::copy(part.counts.begin(), part.counts.end(), out.counts.begin() + first);
+    if (params.count_examined) std::copy(part.examined.begin(), part.examined.end(), out.examined.begin() + first);
+    total.nonfinite_queries += st.nonfinite_queries;
+    total.batches += st.batches;
+    total.compile_s += st.compile_s;
+    total.upload_s += st.upload_s;
+    total.query_s += st.query_s;
+    total.download_s += st.download_s;
+    bar.update(double(first + m) / double(n));
+  }
+  bar.finish();
+  total.n_queries = n;
+  total.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return total;
 }
 
 std::string method_list(const std::vector<std::string>& names) {

@@ -97,6 +97,15 @@ SearchParams search_params(const Args& args, int default_k = 10);
 // An unknown method skips the check: make_index names it.
 void check_method_options(const Args& args, const std::vector<std::string>& methods,
                           const std::set<std::string>& also = {});
+// Builds the index (make_index) and answers the queries in slices, drawing a progress bar on a
+// terminal (unless `quiet`): the build, then the query batches. Results do not depend on the
+// slicing (the contract); the stats are the slices' sums (wall time: the whole call).
+std::unique_ptr<Index> build_with_progress(const std::string& method, std::shared_ptr<Runtime> rt,
+                                           const std::vector<float>& points,
+                                           const MethodOptions& options, bool quiet);
+QueryStats query_with_progress(const Index& index, const std::vector<float>& queries,
+                               const SearchParams& params, KnnResult& out, bool quiet);
+
 // "a, b or c" from the registry's names, for --method's help.
 std::string method_list(const std::vector<std::string>& names);
 // Reads --points and --queries; an empty file is an error naming it.

@@ -24,10 +24,10 @@ struct Side {
 
 Side run_side(const std::string& method, const std::shared_ptr<Runtime>& rt,
               const std::vector<float>& points, const std::vector<float>& queries,
-              const SearchParams& params, const MethodOptions& mopt) {
+              const SearchParams& params, const MethodOptions& mopt, bool quiet) {
   Side s;
-  s.index = make_index(method, rt, points.data(), points.size() / 3, mopt);
-  s.stats = s.index->query(queries.data(), queries.size() / 3, params, s.result);
+  s.index = build_with_progress(method, rt, points, mopt, quiet);
+  s.stats = query_with_progress(*s.index, queries, params, s.result, quiet);
   return s;
 }
 
@@ -43,6 +43,7 @@ void declare_eval(Args& a) {
              default_truth_method(), "NAME");
   a.add_text("stats", "write the metrics, timings and parameters here as JSON", "", "FILE");
   declare_device_option(a);
+  a.add_flag("quiet", "no progress bars");
   declare_index_options(a);
 }
 
@@ -68,8 +69,8 @@ int run_eval(const Args& args) {
   MethodOptions topt = mopt;
   topt.load_index.clear();
   topt.save_index.clear();
-  Side truth = run_side(truth_method, rt, points, queries, params, topt);
-  Side m = run_side(method, rt, points, queries, params, mopt);
+  Side truth = run_side(truth_method, rt, points, queries, params, topt, args.flag("quiet"));
+  Side m = run_side(method, rt, points, queries, params, mopt, args.flag("quiet"));
   m.accuracy = evaluate_accuracy(m.result, truth.result);
   truth.accuracy = evaluate_accuracy(truth.result, truth.result);
 

@@ -18,6 +18,7 @@ void declare_knn(Args& a) {
   a.add_text("out-counts", "write the neighbours found per query here (int32, n; NPY when named .npy)", "", "FILE");
   a.add_text("stats", "write timings and parameters here as JSON", "", "FILE");
   declare_device_option(a);
+  a.add_flag("quiet", "no progress bars");
   declare_index_options(a);
 }
 
@@ -34,9 +35,10 @@ int run_knn(const Args& args) {
   const std::size_t N = points.size() / 3, n = queries.size() / 3;
 
   auto rt = std::make_shared<Runtime>(args.str("device", ""));
-  auto index = make_index(method, rt, points.data(), N, mopt);
+  const bool quiet = args.flag("quiet");
+  auto index = build_with_progress(method, rt, points, mopt, quiet);
   KnnResult result;
-  QueryStats st = index->query(queries.data(), n, params, result);
+  QueryStats st = query_with_progress(*index, queries, params, result, quiet);
 
   write_array_file(out_ids, result.ids.data(), n, static_cast<std::size_t>(params.k));
   write_array_file(out_dist2, result.dist2.data(), n, static_cast<std::size_t>(params.k));
