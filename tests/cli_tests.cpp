@@ -283,7 +283,7 @@ TEST_CASE("cli: PoCL's kernel cache: the build tree's, the user's cache director
   std::system(("rm -rf \"" + dir + "\"").c_str());
 }
 
-TEST_CASE("cli: knn and eval draw progress on a terminal; the sliced query answers the same") {
+TEST_CASE("cli: knn and eval draw progress on a terminal, and the sliced query answers the same") {
   if (std::system("command -v script > /dev/null 2>&1") != 0) {
     MESSAGE("util-linux `script` not found: no pseudo-terminal to test the progress bar on");
     return;
