@@ -226,6 +226,13 @@ void declare_data_options(Args& a, const std::string& method_help) {
   a.add_required("method", method_help, "NAME");
 }
 
+void declare_run_options(Args& a, const std::string& stats_help) {
+  a.add_text("stats", stats_help, "", "FILE");
+  declare_device_option(a);
+  a.add_flag("quiet", "no progress bars");
+  declare_index_options(a);
+}
+
 void declare_index_options(Args& a, int default_k, bool render) {
   a.group("Search options");
   a.add_integer("k", "neighbours per query", 1, kMaxK, std::to_string(default_k));

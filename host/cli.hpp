@@ -85,6 +85,10 @@ void declare_device_option(Args& args);
 // --points, --queries (required, any point format) and the required --method of knn and eval.
 void declare_data_options(Args& args, const std::string& method_help);
 
+// The tail of knn's and eval's options: --stats (with `stats_help`), --device, --quiet and the
+// index options below.
+void declare_run_options(Args& args, const std::string& stats_help);
+
 // Options shared by every command that builds and queries an index (knn, eval, render):
 // --k --max-radius --A --probes --local-size --max-batch and the build options
 // --preset --L --P --B --X --threads --seed --load-index --save-index.

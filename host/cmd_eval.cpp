@@ -41,10 +41,7 @@ void declare_eval(Args& a) {
   declare_data_options(a, "the method evaluated: " + method_list(method_names()));
   a.add_text("truth", "the exact method giving the true neighbours: " + method_list(exact_method_names()),
              default_truth_method(), "NAME");
-  a.add_text("stats", "write the metrics, timings and parameters here as JSON", "", "FILE");
-  declare_device_option(a);
-  a.add_flag("quiet", "no progress bars");
-  declare_index_options(a);
+  declare_run_options(a, "write the metrics, timings and parameters here as JSON");
 }
 
 int run_eval(const Args& args) {

@@ -16,10 +16,7 @@ void declare_knn(Args& a) {
   a.add_required("out-ids", "write the neighbour ids here (int32, n x k, row-major; NPY when named .npy)");
   a.add_required("out-dist2", "write the squared distances here (float32, n x k, row-major; NPY when named .npy)");
   a.add_text("out-counts", "write the neighbours found per query here (int32, n; NPY when named .npy)", "", "FILE");
-  a.add_text("stats", "write timings and parameters here as JSON", "", "FILE");
-  declare_device_option(a);
-  a.add_flag("quiet", "no progress bars");
-  declare_index_options(a);
+  declare_run_options(a, "write timings and parameters here as JSON");
 }
 
 int run_knn(const Args& args) {

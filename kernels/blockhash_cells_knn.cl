@@ -200,14 +200,7 @@ __kernel void blockhash_cells_knn(__global const bhcl_bh_block* blocks,
       /* Fallback: the blocks around the home cell's position in the block order, except those of
        * the runs already entered. */
       ulong key = bh_hilbert_encode(cx[0], cy[0], cz[0], cell_bits);
-      uint lo = 0, hi = n_blocks;
-      while (lo < hi) {
-        uint mid = (lo + hi) >> 1;
-        if (block_keys[mid] <= key) lo = mid + 1;
-        else hi = mid;
-      }
-      long j = (long)lo - 1;
-      if (j < 0) j = 0;
+      long j = (long)bh_block_at_key(block_keys, n_blocks, key);
       long wa = j - (long)seeds, we = j + (long)seeds;
       if (wa < 0) {
         we -= wa;

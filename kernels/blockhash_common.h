@@ -25,4 +25,18 @@ inline uint bh_scan_block(float3 q, __global const bhcl_bh_block* blk, int cnt, 
   return (uint)cnt;
 }
 
+/* The block whose first Hilbert key is the last <= key (block 0 when none is): where a query's
+ * key falls in the block order (keys ascending, one per block). */
+inline uint bh_block_at_key(__global const ulong* block_keys, uint n_blocks, ulong key) {
+  /* Halving a window [base, base + len) that always ends where the keys pass `key`. */
+  uint base = 0, len = n_blocks;
+  while (len > 0) {
+    uint half = len >> 1;
+    int below = block_keys[base + half] <= key;
+    base = below ? base + half + 1 : base;
+    len = below ? len - half - 1 : half;
+  }
+  return base > 0 ? base - 1 : 0;
+}
+
 #endif /* BHCL_BLOCKHASH_COMMON_H */

@@ -141,14 +141,7 @@ __kernel void blockhash_knn(__global const bhcl_bh_block* blocks,
     if (seeds > 0) {
       /* The blocks around the query's own Hilbert position. */
       ulong key = bh_query_key(q, qquant, qbits);
-      uint lo = 0, hi = n_blocks;
-      while (lo < hi) {
-        uint mid = (lo + hi) >> 1;
-        if (block_keys[mid] <= key) lo = mid + 1;
-        else hi = mid;
-      }
-      int j = (int)lo - 1;
-      if (j < 0) j = 0;
+      int j = (int)bh_block_at_key(block_keys, n_blocks, key);
       int a = max(0, j - (int)seeds), e = min((int)n_blocks - 1, j + (int)seeds);
       for (int b = a; b <= e; ++b) nc = bh_keep(cd, cb, nc, keep, bh_box_dist2(q, boxes + b), b, max_r2);
     }

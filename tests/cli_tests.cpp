@@ -292,28 +292,27 @@ TEST_CASE("cli: knn and eval draw progress on a terminal, and the sliced query a
   const std::string Q = write_points("prog_q.f32", datasets::uniform(70000, 72));  // 3 slices
   const std::string O = test::tmp_path("prog_");
   const std::string args = "knn --points " + P + " --queries " + Q + " --method kdtree --k 5 --out-ids ";
-  // `script` gives bhcl a pseudo-terminal as stderr, as a user's shell would.
-  const std::string log = O + "tty.txt";
-  const std::string cmd = "script -qec '\"" + std::string(BHCL_TOOL_PATH) + "\" " + args + O +
-                          "ids_tty --out-dist2 " + O + "d2_tty' /dev/null > " + log + " 2>&1";
-  REQUIRE(std::system(cmd.c_str()) == 0);
-  std::ifstream in(log);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  CHECK(ss.str().find("build kdtree (40000 points)") != std::string::npos);
-  CHECK(ss.str().find("query kdtree (70000 queries)") != std::string::npos);
-  CHECK(ss.str().find("100.0%") != std::string::npos);
+  // `script` gives bhcl a pseudo-terminal as stderr, as a user's shell would; returns what it
+  // printed.
+  auto on_terminal = [&](const std::string& tail) {
+    const std::string log = O + "tty.txt";
+    const std::string cmd = "script -qec '\"" + std::string(BHCL_TOOL_PATH) + "\" " + args + tail +
+                            "' /dev/null > " + log + " 2>&1";
+    REQUIRE(std::system(cmd.c_str()) == 0);
+    std::ifstream in(log);
+    std::stringstream ss;
+    ss << in.rdbuf();
+    return ss.str();
+  };
+  const std::string tty = on_terminal(O + "ids_tty --out-dist2 " + O + "d2_tty");
+  CHECK(tty.find("build kdtree (40000 points)") != std::string::npos);
+  CHECK(tty.find("query kdtree (70000 queries)") != std::string::npos);
+  CHECK(tty.find("100.0%") != std::string::npos);
   std::string out;
   REQUIRE(test::run_bhcl(args + O + "ids --out-dist2 " + O + "d2", &out) == 0);
   CHECK(out.find("query kdtree (") == std::string::npos);  // no bar when stderr is not a terminal
   CHECK(test::read_raw<std::int32_t>(O + "ids_tty") == test::read_raw<std::int32_t>(O + "ids"));
   CHECK(test::read_raw<float>(O + "d2_tty") == test::read_raw<float>(O + "d2"));
   // --quiet silences the bars on a terminal too.
-  const std::string qcmd = "script -qec '\"" + std::string(BHCL_TOOL_PATH) + "\" " + args + O +
-                           "ids_q --out-dist2 " + O + "d2_q --quiet' /dev/null > " + log + " 2>&1";
-  REQUIRE(std::system(qcmd.c_str()) == 0);
-  std::ifstream in2(log);
-  std::stringstream s2;
-  s2 << in2.rdbuf();
-  CHECK(s2.str().find("query kdtree (") == std::string::npos);
+  CHECK(on_terminal(O + "ids_q --out-dist2 " + O + "d2_q --quiet").find("query kdtree (") == std::string::npos);
 }
