@@ -31,10 +31,10 @@ inline uint bh_block_at_key(__global const ulong* block_keys, uint n_blocks, ulo
   /* Halving a window [base, base + len) that always ends where the keys pass `key`. */
   uint base = 0, len = n_blocks;
   while (len > 0) {
-    uint half = len >> 1;
-    int below = block_keys[base + half] <= key;
-    base = below ? base + half + 1 : base;
-    len = below ? len - half - 1 : half;
+    uint mid = len >> 1;  /* not `half`: a type in OpenCL C */
+    int below = block_keys[base + mid] <= key;
+    base = below ? base + mid + 1 : base;
+    len = below ? len - mid - 1 : mid;
   }
   return base > 0 ? base - 1 : 0;
 }
