@@ -21,6 +21,7 @@
 #include <string>
 #include <vector>
 
+#include "bench_cli.hpp"
 #include "bench_util.hpp"
 #include "blockhash_cl/blockhash_cl.hpp"
 #include "blockhash_cl/datasets.hpp"
@@ -43,50 +44,23 @@ struct Options {
   std::string json;
 };
 
-[[noreturn]] void usage(const std::string& why) {
-  std::fprintf(stderr,
-               "baselines: %s\nusage: baselines [--data uniform|autzen|PATH] [--n-points N] "
-               "[--queries n] [--k 10,50] [--reps 3] [--threads T] [--leaf L] [--local-size S] "
-               "[--jitter J] [--json OUT]\n",
-               why.c_str());
-  std::exit(2);
-}
-
 Options parse(int argc, char** argv) {
   Options o;
-  for (int i = 1; i < argc; ++i) {
-    std::string a = argv[i];
-    if (i + 1 >= argc) usage("option " + a + " needs a value");
-    std::string v = argv[++i];
-    auto num = [&](long long lo) {
-      char* end = nullptr;
-      long long x = std::strtoll(v.c_str(), &end, 10);
-      if (!end || *end || x < lo) usage(a + " expects an integer >= " + std::to_string(lo) + ", got '" + v + "'");
-      return x;
-    };
-    if (a == "--data") o.data = v;
-    else if (a == "--n-points") o.n_points = static_cast<std::size_t>(num(1));
-    else if (a == "--queries") o.n_queries = static_cast<std::size_t>(num(1));
-    else if (a == "--reps") o.reps = static_cast<int>(num(1));
-    else if (a == "--threads") o.threads = static_cast<int>(num(1));
-    else if (a == "--leaf") o.leaf = static_cast<int>(num(1));
-    else if (a == "--local-size") o.local_size = static_cast<std::size_t>(num(0));
-    else if (a == "--jitter") o.jitter = std::atof(v.c_str());
-    else if (a == "--json") o.json = v;
-    else if (a == "--k") {
-      o.ks.clear();
-      std::stringstream ss(v);
-      std::string item;
-      while (std::getline(ss, item, ',')) {
-        int k = std::atoi(item.c_str());
-        if (k < 1 || k > kMaxK) usage("--k values must be in [1, 256], got '" + item + "'");
-        o.ks.push_back(k);
-      }
-    } else usage("unknown option " + a);
-  }
+  bench::BenchCli cli("baselines", "The exact baselines side by side: the kd-tree kernel against FLANN");
+  cli.text("data", o.data, "uniform, autzen (../shared/data) or a point file", "SET");
+  cli.integer("N", o.n_points, "points (file sets: the first N)", 1, 2147483646.0);
+  cli.queries(o.n_queries);
+  cli.ks(o.ks);
+  cli.reps(o.reps);
+  cli.integer("threads", o.threads, "flann: host threads", 1, 4096);
+  cli.integer("leaf-size", o.leaf, "kdtree: most points per leaf", 1, 1024);
+  cli.integer("local-size", o.local_size, "device methods: OpenCL work-group size (0: the device default)", 0, 1 << 20);
+  cli.number("jitter", o.jitter, "file sets: query jitter, in the data's units", 0.0, 1e30);
+  cli.text("json", o.json, "write the results here as JSON", "FILE");
+  cli.parse(argc, argv);
+  if (o.ks.empty()) cli.fail("--k: empty list");
   return o;
 }
-
 
 // Queries from the data set's own distribution. Uniform: more uniform points. Real data: data
 // points picked at random and jittered by a Gaussian of `jitter` (so they sit on the surfaces,

@@ -1,9 +1,10 @@
 // Block hashing accuracy and cost against exact kNN, both presets, the talk's A sweep.
 //
-//   blockhash_accuracy [--data uniform,cornell,dragon] [--n 1000000] [--queries 5000]
+//   blockhash_accuracy [--data uniform,cornell,dragon] [--N 1000000] [--queries 5000]
 //                      [--A 1,2,4,8,16,32] [--k 10,50] [--presets auto,paper] [--reps 3]
-//                      [--csv out.csv] [--data-dir DIR] [--seed 1] [--local WG] [--probes 0|1]
+//                      [--csv out.csv] [--data-dir DIR] [--seed 1] [--local-size WG] [--probes 0|1]
 //                      [--L L] [--X X] [--hilbert-seed S] [--box-order 0|1] [--target POINTS]  (auto only)
+// (blockhash_accuracy --help lists them with their meanings and defaults.)
 //
 // Data sets: uniform in [0,1]^3; the Cornell photon-like set (datasets::cornell_photons, queries
 // 0.5 mm off the surfaces); the dragon scans file (DIR/dragon_stand_scans.xyz.f32: 5000 points
@@ -31,19 +32,12 @@
 #include "blockhash_cl/blockhash_cl.hpp"
 #include "blockhash_cl/datasets.hpp"
 #include "blockhash_cl/cornell_box.hpp"
+#include "bench_cli.hpp"
 #include "bench_util.hpp"
 
 using namespace bhcl;
 
 namespace {
-
-std::vector<std::string> split(const std::string& s) {
-  std::vector<std::string> out;
-  std::stringstream ss(s);
-  std::string item;
-  while (std::getline(ss, item, ',')) if (!item.empty()) out.push_back(item);
-  return out;
-}
 
 struct Options {
   std::vector<std::string> data = {"uniform", "cornell", "dragon"};
@@ -57,8 +51,8 @@ struct Options {
   int L = -1, X = -1, seed_blocks = -1, box_order = -1;  // auto build overrides (-1: derive)
   double target = 100;    // auto: target points per median occupied cell
   std::string csv = "blockhash_accuracy.csv";
-  std::string data_dir = BHCL_DEFAULT_DATA_DIR;
-  std::uint64_t seed = 1;
+  std::string data_dir;
+  unsigned long long seed = 1;
 };
 
 struct DataSet {
@@ -116,31 +110,26 @@ struct Row {
 
 int main(int argc, char** argv) {
   Options o;
-  for (int i = 1; i < argc; ++i) {
-    std::string a = argv[i];
-    auto val = [&]() -> std::string {
-      if (i + 1 >= argc) { std::fprintf(stderr, "%s needs a value\n", a.c_str()); std::exit(2); }
-      return argv[++i];
-    };
-    if (a == "--data") o.data = split(val());
-    else if (a == "--n") o.n = std::stoull(val());
-    else if (a == "--queries") o.queries = std::stoull(val());
-    else if (a == "--A") { o.A.clear(); for (auto& s : split(val())) o.A.push_back(std::stof(s)); }
-    else if (a == "--k") { o.k.clear(); for (auto& s : split(val())) o.k.push_back(std::stoi(s)); }
-    else if (a == "--presets") o.presets = split(val());
-    else if (a == "--reps") o.reps = std::stoi(val());
-    else if (a == "--csv") o.csv = val();
-    else if (a == "--data-dir") o.data_dir = val();
-    else if (a == "--seed") o.seed = std::stoull(val());
-    else if (a == "--local") o.local = std::stoull(val());
-    else if (a == "--probes") o.probes = std::stoi(val());
-    else if (a == "--L") o.L = std::stoi(val());
-    else if (a == "--X") o.X = std::stoi(val());
-    else if (a == "--hilbert-seed") o.seed_blocks = std::stoi(val());
-    else if (a == "--box-order") o.box_order = std::stoi(val());
-    else if (a == "--target") o.target = std::stod(val());
-    else { std::fprintf(stderr, "unknown option %s (see the top of bench/blockhash_accuracy.cpp)\n", a.c_str()); return 2; }
-  }
+  bench::BenchCli cli("blockhash_accuracy", "Block hashing's accuracy and cost against exact kNN, both presets, the talk's A sweep");
+  cli.names("data", o.data, "data sets: uniform, cornell, dragon");
+  cli.integer("N", o.n, "points per data set", 1, 2147483646.0);
+  cli.queries(o.queries);
+  cli.As(o.A);
+  cli.ks(o.k);
+  cli.names("presets", o.presets, "blockhash presets (auto, paper)")->check(CLI::IsMember({"auto", "paper"}));
+  cli.reps(o.reps);
+  cli.csv(o.csv);
+  cli.data_dir(o.data_dir);
+  cli.seed(o.seed);
+  cli.integer("local-size", o.local, "OpenCL work-group size (0: the device default)", 0, 1 << 20);
+  cli.integer("probes", o.probes, "blockhash: neighbour probes (-1: the preset decides)", -1, 2);
+  cli.integer("L", o.L, "auto: hash tables (-1: derive)", -1, 1 << 16);
+  cli.integer("X", o.X, "auto: points per block (-1: derive)", -1, 16);
+  cli.integer("hilbert-seed", o.seed_blocks, "auto: blocks gathered around the query's key on each side (-1: derive)", -1, 1 << 20);
+  cli.integer("box-order", o.box_order, "auto: 1 scans blocks by box distance, 0 in bucket order (-1: derive)", -1, 1);
+  cli.number("target", o.target, "auto: target points per median occupied cell", 1.0, 1e9);
+  cli.parse(argc, argv);
+  if (o.data.empty() || o.A.empty() || o.k.empty() || o.presets.empty()) cli.fail("empty list");
   if (!std::getenv("POCL_CACHE_DIR")) setenv("POCL_CACHE_DIR", BHCL_BUILD_TREE_POCL_CACHE, 0);
   try {
     auto rt = std::make_shared<Runtime>();

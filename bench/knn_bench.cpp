@@ -22,6 +22,7 @@
 #include "blockhash_cl/blockhash_cl.hpp"
 #include "blockhash_cl/datasets.hpp"
 #include "blockhash_cl/cornell_box.hpp"
+#include "bench_cli.hpp"
 #include "bench_util.hpp"
 
 using namespace bhcl;
@@ -47,67 +48,36 @@ struct Options {
   int L = -1, P = -1, B = -1, X = -1, probes = -1;
 };
 
-[[noreturn]] void usage(const std::string& why) {
-  std::fprintf(stderr,
-               "knn_bench: %s\n"
-               "usage: knn_bench [--data uniform,cornell,clustered,bunny,dragon,autzen] [--N 1e5,1e6]\n"
-               "  [--queries n] [--k 10,50] [--A 1,2,4,...] [--methods a,b] [--presets auto,paper]\n"
-               "  [--reps R] [--sort off|on|both] [--csv out.csv] [--append] [--device SPEC]\n"
-               "  [--truth auto|flann|bruteforce] [--data-dir DIR] [--L L] [--P P] [--B B] [--X X]\n"
-               "  [--probes 0|1]\n",
-               why.c_str());
-  std::exit(2);
-}
-
-std::vector<std::string> split(const std::string& s) {
-  std::vector<std::string> out;
-  std::stringstream ss(s);
-  std::string item;
-  while (std::getline(ss, item, ','))
-    if (!item.empty()) out.push_back(item);
-  return out;
-}
-
-template <typename T>
-std::vector<T> split_num(const std::string& s) {
-  std::vector<T> out;
-  for (const auto& x : split(s)) out.push_back(static_cast<T>(std::stod(x)));
-  return out;
-}
-
 Options parse(int argc, char** argv) {
   Options o;
-  const char* env_dir = std::getenv("BHCL_DATA_DIR");
-  o.data_dir = env_dir ? env_dir : BHCL_DEFAULT_DATA_DIR;
-  for (int i = 1; i < argc; ++i) {
-    std::string a = argv[i];
-    auto next = [&]() -> std::string {
-      if (i + 1 >= argc) usage("option " + a + " needs a value");
-      return argv[++i];
-    };
-    if (a == "--data") o.data = split(next());
-    else if (a == "--N") o.sizes = split_num<std::size_t>(next());
-    else if (a == "--queries") o.queries = static_cast<std::size_t>(std::stod(next()));
-    else if (a == "--k") o.ks = split_num<int>(next());
-    else if (a == "--A") o.As = split_num<float>(next());
-    else if (a == "--methods") o.methods = split(next());
-    else if (a == "--presets") o.presets = split(next());
-    else if (a == "--reps") o.reps = std::max(1, std::stoi(next()));
-    else if (a == "--sort") o.sort = next();
-    else if (a == "--csv") o.csv = next();
-    else if (a == "--append") o.append = true;
-    else if (a == "--device") o.device = next();
-    else if (a == "--truth") o.truth = next();
-    else if (a == "--data-dir") o.data_dir = next();
-    else if (a == "--L") o.L = std::stoi(next());
-    else if (a == "--P") o.P = std::stoi(next());
-    else if (a == "--B") o.B = std::stoi(next());
-    else if (a == "--X") o.X = std::stoi(next());
-    else if (a == "--probes") o.probes = std::stoi(next());
-    else usage("unknown option " + a);
-  }
-  if (o.sort != "off" && o.sort != "on" && o.sort != "both") usage("--sort must be off, on or both");
+  bench::BenchCli cli("knn_bench", "Run time against error of every method, side by side in one process");
+  cli.data_dir(o.data_dir);
+  cli.names("data", o.data, "data sets: uniform, clustered, duplicates, cornell (generated) or bunny, dragon, autzen (files)");
+  cli.integers("N", o.sizes, "points per data set (file sets: the first N; 0: all)", 0, 2147483646.0);
+  cli.queries(o.queries);
+  cli.ks(o.ks);
+  cli.As(o.As);
+  cli.methods(o.methods);
+  cli.names("presets", o.presets, "blockhash presets (auto, paper)")->check(CLI::IsMember({"auto", "paper"}));
+  cli.reps(o.reps);
+  cli.text("sort", o.sort, "dispatch in Hilbert order: off, on or both", "WHEN")->check(CLI::IsMember({"off", "on", "both"}));
+  cli.csv(o.csv);
+  cli.app().add_flag("--append", o.append, "append to the CSV file instead of replacing it");
+  cli.device(o.device);
+  cli.text("truth", o.truth, "the exact method giving the true neighbours (auto: " + default_truth_method() + ")", "NAME")
+      ->check(CLI::IsMember([] {
+        auto v = exact_method_names();
+        v.push_back("auto");
+        return v;
+      }()));
+  cli.integer("L", o.L, "blockhash: hash tables (-1: the preset decides)", -1, 1 << 16);
+  cli.integer("P", o.P, "blockhash: thresholds per dimension (-1: the preset decides)", -1, 1024);
+  cli.integer("B", o.B, "blockhash: block references per bucket (-1: the preset decides)", -1, 1 << 16);
+  cli.integer("X", o.X, "blockhash: points per block (-1: the preset decides)", -1, 16);
+  cli.integer("probes", o.probes, "blockhash: neighbour probes (-1: the preset decides)", -1, 2);
+  cli.parse(argc, argv);
   if (o.methods.empty()) o.methods = method_names();
+  if (o.ks.empty() || o.As.empty() || o.data.empty() || o.sizes.empty()) cli.fail("empty list");
   return o;
 }
 
@@ -175,11 +145,7 @@ int main(int argc, char** argv) {
         // Exact truth, once, at the largest k.
         SearchParams tp;
         tp.k = kmax;
-        std::string truth_method = o.truth;
-        if (truth_method == "auto") {
-          auto names = method_names();
-          truth_method = std::find(names.begin(), names.end(), "flann") != names.end() ? "flann" : "bruteforce";
-        }
+        const std::string truth_method = o.truth == "auto" ? default_truth_method() : o.truth;
         auto t0 = std::chrono::steady_clock::now();
         MethodOptions topt;
         topt.threads = threads;

@@ -33,6 +33,7 @@
 #include <thread>
 #include <vector>
 
+#include "bench_cli.hpp"
 #include "bench_util.hpp"
 #include "blockhash_cl/blockhash_cl.hpp"
 #include "blockhash_cl/datasets.hpp"
@@ -62,19 +63,9 @@ struct Options {
   unsigned long long seed = 1;
 };
 
-const char* kUsage =
-    "usage: perf_harness [--data cornell,uniform,autzen] [--N 1e6] [--queries 100000] [--k 10,50]\n"
-    "  [--rounds 5] [--order random,sorted] [--A 1,1.5,2,3,4,6,8] [--recall 0.95,0.99] [--probes -1,0,1]\n"
-    "  [--bh-build \"name[:key=value,...];...\"] [--defines \"name:-DFOO=1 -DBAR;...\"]\n"
-    "  [--baseline-defines \"-DFOO=1\"] [--csv out.csv] [--device SPEC] [--threads T]\n"
-    "  [--recall-target 0.95] [--seed S] [--data-dir DIR]\n"
-    "--bh-build keys: preset L P B X target_cell_points cell_aligned hilbert_seed neighbour_probes\n"
-    "  box_order box_skip direct_addressing guard_thresholds keep_top_count b_percentile design_A\n"
-    "  design_k hist_bins hilbert_bits seed; a bare name is a preset (auto, paper).\n";
-
 // Bad options: one line, exit status 2.
 [[noreturn]] void bad(const std::string& why) {
-  std::fprintf(stderr, "perf_harness: %s (--help for usage)\n", why.c_str());
+  std::fprintf(stderr, "perf_harness: %s (see perf_harness --help)\n", why.c_str());
   std::exit(2);
 }
 
@@ -182,52 +173,35 @@ std::vector<DefineSpec> parse_defines(const std::string& s) {
 
 Options parse(int argc, char** argv) {
   Options o;
-  const char* env_dir = std::getenv("BHCL_DATA_DIR");
-  o.data_dir = env_dir ? env_dir : BHCL_DEFAULT_DATA_DIR;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    if (a == "--help" || a == "-h") { std::fputs(kUsage, stdout); std::exit(0); }
-    static const char* known[] = {"--data", "--N", "--queries", "--k", "--rounds", "--order", "--A", "--recall",
-                                  "--probes", "--bh-build", "--defines", "--baseline-defines", "--csv",
-                                  "--device", "--threads", "--recall-target", "--seed", "--data-dir"};
-    if (std::find(std::begin(known), std::end(known), a) == std::end(known)) bad("unknown option " + a);
-    if (i + 1 >= argc) bad("option " + a + " needs a value");
-    const std::string v = argv[++i];
-    auto list = [&](double lo, double hi) {
-      std::vector<long long> out;
-      for (const auto& x : split(v, ',')) out.push_back(integer(x, a, lo, hi));
-      if (out.empty()) bad(a + ": empty list");
-      return out;
-    };
-    if (a == "--data") o.data = split(v, ',');
-    else if (a == "--N") o.N = integer(v, a, 1, 2147483646.0);
-    else if (a == "--queries") o.queries = integer(v, a, 1, 1e9);
-    else if (a == "--k") { o.ks.clear(); for (long long k : list(1, kMaxK)) o.ks.push_back(int(k)); }
-    else if (a == "--rounds") o.rounds = int(integer(v, a, 1, 1000));
-    else if (a == "--order") o.orders = split(v, ',');
-    else if (a == "--recall") {
-      o.recalls.clear();
-      for (const auto& x : split(v, ',')) o.recalls.push_back(num(x, a));
-      for (double r : o.recalls)
-        if (!(r > 0 && r <= 1)) bad("--recall: targets must be in (0, 1]");
-    }
-    else if (a == "--A") {
-      o.As.clear();
-      for (const auto& x : split(v, ',')) o.As.push_back(float(num(x, a)));
-      if (o.As.empty() || *std::min_element(o.As.begin(), o.As.end()) <= 0) bad("--A: values must be > 0");
-    } else if (a == "--probes") { o.probes.clear(); for (long long p : list(-1, 2)) o.probes.push_back(int(p)); }
-    else if (a == "--bh-build") o.builds = parse_builds(v);
-    else if (a == "--defines") o.defines = parse_defines(v);
-    else if (a == "--baseline-defines") o.baseline_defines = check_defines(v, a);
-    else if (a == "--csv") o.csv = v;
-    else if (a == "--device") o.device = v;
-    else if (a == "--threads") o.threads = int(integer(v, a, 1, 4096));
-    else if (a == "--recall-target") {
-      o.recall_target = num(v, a);
-      if (o.recall_target <= 0 || o.recall_target > 1) bad("--recall-target must be in (0, 1]");
-    } else if (a == "--seed") o.seed = integer(v, a, 0, 9.0e18);
-    else if (a == "--data-dir") o.data_dir = v;
-  }
+  bench::BenchCli cli("perf_harness", "Block hashing against the kd-tree kernel and FLANN: interleaved "
+                                      "rounds, per-round ratios, accuracy beside speed");
+  std::string builds, defines;
+  cli.names("data", o.data, "data sets: cornell, uniform, clustered, duplicates (generated) or bunny, dragon, autzen (files)");
+  cli.integer("N", o.N, "points per data set (file sets: the first N)", 1, 2147483646.0);
+  cli.queries(o.queries);
+  cli.ks(o.ks);
+  cli.integer("rounds", o.rounds, "interleaved rounds (the median of per-round ratios is reported)", 1, 1000);
+  cli.names("order", o.orders, "query orders: random, sorted (Hilbert)")->check(CLI::IsMember({"random", "sorted"}));
+  cli.As(o.As);
+  cli.numbers("recall", o.recalls, "blockhash variants asking for these recall targets instead of an A", 1e-6, 1.0);
+  cli.probes(o.probes);
+  cli.text("bh-build", builds, "blockhash builds: \"name[:key=value,...];...\"; keys: preset L P B X "
+           "target_cell_points cell_aligned hilbert_seed neighbour_probes box_order box_skip "
+           "direct_addressing guard_thresholds keep_top_count b_percentile design_A design_k hist_bins "
+           "hilbert_bits seed; a bare name is a preset (auto, paper) [default: auto]", "SPECS");
+  cli.text("defines", defines, "kernel variants: \"name:-DFOO=1 -DBAR;...\" [default: base, none]", "SPECS");
+  cli.text("baseline-defines", o.baseline_defines, "-D switches for the kd-tree baseline's kernel", "DEFINES");
+  cli.csv(o.csv);
+  cli.device(o.device);
+  cli.integer("threads", o.threads, "flann: host threads (0: all hardware threads)", 0, 4096);
+  cli.number("recall-target", o.recall_target, "the recall the smallest-A summary asks for", 1e-6, 1.0);
+  cli.seed(o.seed);
+  cli.data_dir(o.data_dir);
+  cli.parse(argc, argv);
+  if (!builds.empty()) o.builds = parse_builds(builds);
+  if (!defines.empty()) o.defines = parse_defines(defines);
+  if (!o.baseline_defines.empty()) check_defines(o.baseline_defines, "--baseline-defines");
+  if (o.ks.empty() || o.As.empty()) bad("--k and --A need at least one value");
   if (o.data.empty()) bad("--data: no data set");
   for (const auto& d : o.data)  // file sets are bench::load_set's; the rest must be generated ones
     if (d != "bunny" && d != "dragon" && d != "autzen") try {
@@ -236,8 +210,6 @@ Options parse(int argc, char** argv) {
         bad("--data: " + std::string(e.what()) + "; file sets: bunny, dragon, autzen");
       }
   if (o.orders.empty()) bad("--order: no order");
-  for (const auto& ord : o.orders)
-    if (ord != "random" && ord != "sorted") bad("--order: '" + ord + "' is not random or sorted");
   return o;
 }
 

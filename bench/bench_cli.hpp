@@ -1,0 +1,128 @@
+// The bench programs' command lines, on CLI11 as bhcl's: one flag vocabulary across them and the
+// tool (the same name, meaning, type and default where they overlap), lists comma separated,
+// numbers range-checked (whole numbers may be written 1e6), `--help` listing every option with its
+// meaning and default. A mistake is one line on stderr and exit status 2.
+#pragma once
+
+#include <CLI/CLI.hpp>
+
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <string>
+#include <vector>
+
+#include "blockhash_cl/factory.hpp"
+#include "blockhash_cl/knn.hpp"
+
+namespace bhcl::bench {
+
+class BenchCli {
+ public:
+  BenchCli(const std::string& program, const std::string& description)
+      : app_(description, program), program_(program) {
+    app_.set_help_flag("--help,-h", "print this help and exit");
+    app_.option_defaults()->always_capture_default();
+  }
+  CLI::App& app() { return app_; }
+
+  // A whole number in [lo, hi] (1e6 accepted); for vectors, each comma-separated element.
+  template <typename T>
+  CLI::Option* integer(const std::string& name, T& v, const std::string& help, double lo, double hi) {
+    return app_.add_option("--" + name, v, help + range(lo, hi))->transform(whole(lo, hi))->type_name("INT");
+  }
+  template <typename T>
+  CLI::Option* integers(const std::string& name, std::vector<T>& v, const std::string& help, double lo,
+                        double hi) {
+    return app_.add_option("--" + name, v, help + range(lo, hi) + ", comma separated")
+        ->delimiter(',')
+        ->transform(whole(lo, hi))
+        ->type_name("LIST");
+  }
+  // A finite number in [lo, hi]; for vectors, each element.
+  template <typename T>
+  CLI::Option* number(const std::string& name, T& v, const std::string& help, double lo, double hi) {
+    return app_.add_option("--" + name, v, help)->check(CLI::Range(lo, hi))->type_name("NUM");
+  }
+  template <typename T>
+  CLI::Option* numbers(const std::string& name, std::vector<T>& v, const std::string& help, double lo,
+                       double hi) {
+    return app_.add_option("--" + name, v, help + ", comma separated")
+        ->delimiter(',')
+        ->check(CLI::Range(lo, hi))
+        ->type_name("LIST");
+  }
+  CLI::Option* text(const std::string& name, std::string& v, const std::string& help,
+                    const std::string& type = "TEXT") {
+    return app_.add_option("--" + name, v, help)->type_name(type);
+  }
+  CLI::Option* names(const std::string& name, std::vector<std::string>& v, const std::string& help) {
+    return app_.add_option("--" + name, v, help + ", comma separated")->delimiter(',')->type_name("LIST");
+  }
+
+  // The shared vocabulary. Each binds the caller's variable, whose value is the default shown.
+  CLI::Option* data_dir(std::string& v) {
+    const char* env = std::getenv("BHCL_DATA_DIR");
+    v = env ? env : BHCL_DEFAULT_DATA_DIR;
+    return text("data-dir", v, "folder of the file data sets (bunny, dragon, autzen); default: BHCL_DATA_DIR, then ../shared/data", "DIR");
+  }
+  CLI::Option* device(std::string& v) {
+    return text("device", v, "OpenCL device: P:D, cpu, gpu or a name fragment (default: BHCL_DEVICE, then PoCL)", "SPEC");
+  }
+  CLI::Option* queries(std::size_t& v) { return integer("queries", v, "queries per data set", 1, 1e9); }
+  CLI::Option* ks(std::vector<int>& v) { return integers("k", v, "neighbours per query", 1, kMaxK); }
+  CLI::Option* As(std::vector<float>& v) {
+    return numbers("A", v, "blockhash: examine at most A*k points per query", 1e-3, 1e6);
+  }
+  CLI::Option* probes(std::vector<int>& v) {
+    return integers("probes", v, "blockhash: neighbour probes (-1: the preset decides)", -1, 2);
+  }
+  CLI::Option* reps(int& v) { return integer("reps", v, "timed repetitions (the median is reported)", 1, 1000); }
+  CLI::Option* csv(std::string& v) { return text("csv", v, "write the rows here as CSV", "FILE"); }
+  CLI::Option* methods(std::vector<std::string>& v) {
+    return names("methods", v, "the methods to run (default: every method)")->check(CLI::IsMember(method_names()));
+  }
+  CLI::Option* seed(unsigned long long& v) { return integer("seed", v, "blockhash: seed of the threshold jitter", 0, 9.0e18); }
+
+  // Parses; on --help prints the help and exits 0, on a mistake prints one line and exits 2.
+  void parse(int argc, char** argv) {
+    try {
+      app_.parse(argc, argv);
+    } catch (const CLI::CallForHelp&) {
+      std::fputs(app_.help().c_str(), stdout);
+      std::exit(0);
+    } catch (const CLI::ParseError& e) {
+      fail(e.what());
+    }
+  }
+  // A mistake found after parsing (e.g. an unknown data set): one line, exit status 2.
+  [[noreturn]] void fail(const std::string& why) const {
+    std::fprintf(stderr, "%s: %s (see %s --help)\n", program_.c_str(), why.c_str(), program_.c_str());
+    std::exit(2);
+  }
+
+ private:
+  static std::string range(double lo, double hi) {
+    auto s = [](double x) { return x >= 9e18 ? std::string("max") : std::to_string(static_cast<long long>(x)); };
+    return " (" + s(lo) + " to " + s(hi) + ")";
+  }
+  // Rewrites "1e6" as "1000000" after checking it is a whole number in [lo, hi].
+  static CLI::Validator whole(double lo, double hi) {
+    return CLI::Validator(
+        [lo, hi](std::string& s) -> std::string {
+          char* end = nullptr;
+          const double x = std::strtod(s.c_str(), &end);
+          if (s.empty() || *end || !std::isfinite(x) || x != std::floor(x))
+            return "'" + s + "' is not a whole number";
+          if (x < lo || x > hi) return "'" + s + "' is outside" + range(lo, hi);
+          s = std::to_string(static_cast<long long>(x));
+          return {};
+        },
+        "");
+  }
+
+  CLI::App app_;
+  std::string program_;
+};
+
+}  // namespace bhcl::bench
