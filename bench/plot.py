@@ -32,6 +32,28 @@ def load(paths):
     return rows
 
 
+# One colour per method in every plot; the preset is the line style, Hilbert-sorted queries the
+# marker, so that a method reads the same across figures.
+METHOD_COLOURS = {"bruteforce": "#7f7f7f", "kdtree": "#1f77b4", "flann": "#2ca02c",
+                  "blockhash": "#d62728"}
+PRESET_STYLES = {"": "-", "auto": "-", "paper": "--"}
+
+
+def colour(method):
+    return METHOD_COLOURS.get(method, "#9467bd")
+
+
+def style(r, several):
+    line = PRESET_STYLES.get(r["preset"], ":") if several else ""
+    return ("^" if r["sort"] == "on" else "o") + line
+
+
+def outside_legend(ax, fig):
+    """The legend right of the axes, so that it never covers data."""
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)
+    fig.tight_layout()
+
+
 def label(r):
     m = r["method"]
     if r["preset"]:
@@ -54,7 +76,7 @@ def plots(rows, out):
     for r in rows:
         groups[(r["source"], r["data"], r["N"], r["k"])].append(r)
     for (source, data, N, k), rs in sorted(groups.items()):
-        fig, ax = plt.subplots(figsize=(6.4, 4.4))
+        fig, ax = plt.subplots(figsize=(8.4, 4.4))
         curves = defaultdict(list)
         for r in rs:
             curves[label(r)].append(r)
@@ -62,8 +84,8 @@ def plots(rows, out):
             cr.sort(key=lambda r: r["A"])
             xs = [r["recall"] for r in cr]
             ys = [r["queries_per_s"] for r in cr]
-            style = "o-" if len(cr) > 1 else "s"
-            ax.plot(xs, ys, style, label=name, markersize=5)
+            ax.plot(xs, ys, style(cr[0], len(cr) > 1), label=name, markersize=5,
+                    color=colour(cr[0]["method"]))
             if len(cr) > 1:
                 for r in cr:
                     ax.annotate(f"A={r['A']:g}", (r["recall"], r["queries_per_s"]), fontsize=6,
@@ -74,8 +96,7 @@ def plots(rows, out):
         ax.grid(True, which="both", alpha=0.3)
         dev = rs[0]["device"]
         ax.set_title(f"{data}, N={N:,}, k={k}, {rs[0]['n']:,} queries\n{dev}", fontsize=9)
-        ax.legend(fontsize=7)
-        fig.tight_layout()
+        outside_legend(ax, fig)
         path = os.path.join(out, f"{source}_qps_vs_recall_{data}_N{N}_k{k}.png")
         fig.savefig(path, dpi=110)
         plt.close(fig)
@@ -85,22 +106,25 @@ def plots(rows, out):
                                   ("bytes_per_point", "memory (bytes / point)", "memory_vs_N.png")):
         series = defaultdict(dict)
         for r in rows:
-            series[(r["data"], r["method"] + (f"-{r['preset']}" if r["preset"] else ""))][r["N"]] = r[metric]
+            series[(r["data"], r["method"], r["preset"])][r["N"]] = r[metric]
         series = {k: v for k, v in series.items() if len(v) > 1}
         if not series:
             continue
-        fig, ax = plt.subplots(figsize=(6.4, 4.4))
-        for (data, m), pts in sorted(series.items()):
+        fig, ax = plt.subplots(figsize=(8.4, 4.4))
+        markers = {d: m for d, m in zip(sorted({k[0] for k in series}), "osD^vP*X")}
+        for (data, m, preset), pts in sorted(series.items()):
             ns = sorted(pts)
-            ax.plot(ns, [pts[n] for n in ns], "o-", label=f"{m} ({data})", markersize=4)
+            name = m + (f"-{preset}" if preset else "")
+            ax.plot(ns, [pts[n] for n in ns], markers[data] + PRESET_STYLES.get(preset, ":"),
+                    label=f"{name} ({data})", markersize=4, color=colour(m))
         ax.set_xscale("log")
         if metric == "build_s":
             ax.set_yscale("log")
         ax.set_xlabel("N points")
         ax.set_ylabel(ylabel)
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7)
-        fig.tight_layout()
+        ax.set_title(f"{ylabel} against N (colour: method, marker: data set)", fontsize=9)
+        outside_legend(ax, fig)
         path = os.path.join(out, fname)
         fig.savefig(path, dpi=110)
         plt.close(fig)
