@@ -1,5 +1,5 @@
 // perf_harness: block hashing against the exact baselines, measured so that 10 % shows on a
-// noisy machine (issue 15, ../shared/PERF_STUDY.md "How it was measured").
+// noisy machine (docs/PERFORMANCE.md).
 //
 // On a shared machine absolute queries/s move up to 3x between runs, but load that lasts seconds
 // hits runs made back to back alike. So for each data set every structure is built once (the

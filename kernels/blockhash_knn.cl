@@ -13,7 +13,7 @@
  * BHCL_BH_BOXSKIP, BHCL_BH_SCANCAP (most blocks scanned per query; X needs no define: each box
  * holds its block's point count),
  * BHCL_BH_BOXORDER (1: scan the gathered blocks in order of box distance with an early stop, the
- * CPU form of DESIGN.md; 0: in bucket order, the talk's), BHCL_BH_MAXKEEP (box order: the most
+ * CPU form of docs/DESIGN.md; 0: in bucket order, the talk's), BHCL_BH_MAXKEEP (box order: the most
  * blocks a query keeps and scans; = BHCL_BH_SCANCAP). */
 #include "knn_common.h"
 #include "blockhash_layout.h"
@@ -130,7 +130,7 @@ __kernel void blockhash_knn(__global const bhcl_bh_block* blocks,
     }
 
 #if BHCL_BH_BOXORDER
-    /* 2. Box order (the CPU form of DESIGN.md): of the blocks of those buckets (and the Hilbert
+    /* 2. Box order (the CPU form of docs/DESIGN.md): of the blocks of those buckets (and the Hilbert
      * seeds), the `keep` nearest distinct by (box distance, block), kept sorted while gathering;
      * scanned in that order until the budget is spent or the next box is farther than the k-th
      * distance. keep = ceil(budget / X) + 1 blocks always spend the budget (every block but the

@@ -1,6 +1,6 @@
 // Block Hashing (Ma & McCool, Graphics Hardware 2002): approximate kNN through locality-sensitive
 // hash tables of 256-byte blocks of Hilbert-sorted points, answered by an OpenCL kernel, one
-// work-item per query. Two presets of one implementation (DESIGN.md "Block hashing, as we build it"):
+// work-item per query. Two presets of one implementation (docs/DESIGN.md, "Block hashing, as we build it"):
 //   paper  the talk's scheme and defaults: L = P = round(ln N), X = 10, B = ceil(A k / (X ln N)) + 1
 //          for the design A and k, direct addressing of all (P+1)^3 cells, a full bucket drops
 //          new blocks, no neighbour probes, no bounding-box skipping (kernels/blockhash_knn.cl).
@@ -67,7 +67,7 @@ struct BlockHashBuildParams {
   int direct_addressing = -1; // all (P+1)^3 cells (paper) vs occupied cells only (auto)
   int box_skip = -1;          // skip blocks whose bounding box is farther than the k-th distance
   // Scan order of the gathered blocks: 0 = bucket order (the talk's, GPU-friendly), 1 = ascending
-  // bounding-box distance with an early stop (DESIGN.md's CPU form; needs no box_skip).
+  // bounding-box distance with an early stop (docs/DESIGN.md, "The CPU form (box order)"; needs no box_skip).
   int box_order = -1;
   // Box order: also gather the blocks around the query's own Hilbert key (binary search over the
   // blocks' first keys), this many on each side (at least enough for k points); 0 = off. A query

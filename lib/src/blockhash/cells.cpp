@@ -1,7 +1,7 @@
 // The cell-aligned layout of the auto preset (the talk's future work on clustering): blocks that
 // never cross a cell of the primary table, so that a cell's bucket is a short run of blocks holding
 // exactly its points. Against Hilbert blocks that straddle the cells (a ~100-point cell touched by
-// ~46 blocks), a query tests 5-6x fewer boxes and reads no reference array (PERF_STUDY.md).
+// ~46 blocks), a query tests 5-6x fewer boxes and reads no reference array (docs/PERFORMANCE.md).
 #include <algorithm>
 #include <cmath>
 

@@ -1,6 +1,7 @@
 // The parameters of a block-hash build. paper: the talk's formulas (L = P = round(ln N),
-// B > A k / (X ln N)); auto: from the data, as RESEARCH.md section 4 measured (P so that the median
-// occupied cell holds ~100 points, B = 90th percentile of distinct blocks per cell, L = 4).
+// B > A k / (X ln N)); auto: from the data (docs/ACCURACY.md, "Choosing P": P so that the median
+// occupied cell holds ~24 points with cell-aligned blocks, ~100 in the L-table layout; B = 90th
+// percentile of distinct blocks per cell, L = 4 in the L-table layout).
 #include <algorithm>
 #include <cmath>
 #include <cstdio>

@@ -86,7 +86,7 @@ std::vector<float> make_thresholds(const Histogram& h, int P, std::uint64_t seed
     std::sort(out.begin(), out.end());
     return out;
   }
-  // Guards (RESEARCH.md section 3). A heavy bin holds more than one stratum (N / P points): a wall
+  // Guards (docs/ACCURACY.md, "Guards"). A heavy bin holds more than one stratum (N / P points): a wall
   // or floor of planar data. Thresholds crowd into such a bin and cut it into slabs a fraction of a
   // bin thick, so that queries just off the surface land in empty cells. Snap to bin edges, move a
   // threshold that borders a heavy bin one bin away (the heavy bin and its neighbour bin share a

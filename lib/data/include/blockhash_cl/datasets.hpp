@@ -23,8 +23,8 @@ std::vector<float> with_duplicates(std::size_t n, std::uint64_t seed, double fra
 // Adds (dx, dy, dz) to every point (offset data for numerical stress).
 void offset(std::vector<float>& xyz, double dx, double dy, double dz);
 
-// A photon-map-like set on the Cornell Box surfaces (cornell_box.hpp, mm), as RESEARCH.md's
-// study made it: half the points uniform by area over the 5 walls and the 2 blocks, half where
+// A photon-map-like set on the Cornell Box surfaces (cornell_box.hpp, mm; docs/ACCURACY.md,
+// "Photon-map-like data"): half the points uniform by area over the 5 walls and the 2 blocks, half where
 // rays from the light's centre, drawn from a cos^8 lobe around straight down, first hit the
 // scene; about 1 % exact duplicates. Not photon tracing (the renderer does that): a stand-in with
 // the same planar, uneven, coincident structure.
