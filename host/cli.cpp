@@ -114,11 +114,8 @@ double Args::number(const std::string& key, double fallback) const {
 }
 
 void write_json(const std::string& path, const Json& j) {
-  std::ofstream out(path);
-  if (!out) throw bhcl::Error(path + ": cannot open the stats file for writing");
   // Non-finite numbers (an unbounded radius) are written as null.
-  out << j.dump(2) << "\n";
-  if (!out) throw bhcl::Error(path + ": write failed");
+  write_file(path, {j.dump(2), "\n"}, "the stats");
 }
 
 Json stats_header(const std::string& command, const Runtime& rt) {

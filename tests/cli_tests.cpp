@@ -316,3 +316,39 @@ TEST_CASE("cli: knn and eval draw progress on a terminal, and the sliced query a
   // --quiet silences the bars on a terminal too.
   CHECK(on_terminal(O + "ids_q --out-dist2 " + O + "d2_q --quiet").find("query kdtree (") == std::string::npos);
 }
+
+TEST_CASE("cli: a failed write of any output is an error, never an empty file and status 0") {
+  if (!std::ifstream("/dev/full").good()) {
+    MESSAGE("/dev/full not present: the full-disk case cannot be tested here");
+    return;
+  }
+  // A full disk shows only when the file is flushed at close: /dev/full takes the open and the
+  // buffered write and fails the flush, as a full disk does for small outputs.
+  CHECK_THROWS_WITH_AS(write_file("/dev/full", {"a few bytes"}, "the test"), doctest::Contains("/dev/full: writing the test failed"), Error);
+  const std::string P = write_points("full_p.f32", datasets::uniform(3000, 81));
+  const std::string O = test::tmp_path("full_");
+  // Names that end like the formats they ask for, all pointing at /dev/full.
+  for (const char* name : {"full.npy", "full.exr", "full.png", "full.json", "full.idx", "full.raw"}) {
+    std::remove((O + name).c_str());
+    REQUIRE(symlink("/dev/full", (O + name).c_str()) == 0);
+  }
+  const std::string knn = "knn --points " + P + " --queries " + P + " --k 4 --quiet ";
+  const std::string ok = " --out-ids " + O + "i --out-dist2 " + O + "d";
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {knn + "--method kdtree --out-ids " + O + "full.raw --out-dist2 " + O + "d", "full.raw: writing"},
+      {knn + "--method kdtree --out-ids " + O + "i --out-dist2 " + O + "full.npy", "full.npy: writing"},
+      {knn + "--method kdtree" + ok + " --out-counts " + O + "full.raw", "full.raw: writing"},
+      {knn + "--method kdtree" + ok + " --stats " + O + "full.json", "full.json: writing the stats"},
+      {knn + "--method blockhash" + ok + " --save-index " + O + "full.idx", "full.idx: writing the block-hash index"},
+      {"eval --points " + P + " --queries " + P + " --method blockhash --quiet --stats " + O + "full.json", "full.json: writing the stats"},
+      {"render --out " + O + "full.exr --photons 2000 --size 16x16 --quiet", "full.exr: writing the OpenEXR image failed"},
+      {"render --out " + O + "r.exr --png " + O + "full.png --photons 2000 --size 16x16 --quiet", "full.png: writing the PNG failed"},
+  };
+  for (const auto& [args, expect] : cases) {
+    std::string out;
+    int rc = test::run_bhcl(args, &out);
+    INFO("bhcl " << args << "\n" << out);
+    CHECK(rc == 1);
+    CHECK(out.find(expect) != std::string::npos);
+  }
+}

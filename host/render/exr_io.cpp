@@ -5,6 +5,9 @@
 #include <OpenEXR/ImfHeader.h>
 #include <OpenEXR/ImfInputFile.h>
 #include <OpenEXR/ImfOutputFile.h>
+#include <OpenEXR/ImfStdIO.h>
+
+#include <fstream>
 #include <OpenEXR/ImfStringAttribute.h>
 #include <Imath/half.h>
 
@@ -30,9 +33,17 @@ void write_exr(const std::string& path, const Image& image) {
       fb.insert(names[c], Imf::Slice(Imf::HALF, reinterpret_cast<char*>(px.data() + c),
                                      3 * sizeof(Imath::half), 3 * sizeof(Imath::half) * w));
     }
-    Imf::OutputFile file(path.c_str(), header);
-    file.setFrameBuffer(fb);
-    file.writePixels(h);
+    // Our own stream, so that its close (where a full disk shows) is checked.
+    std::ofstream os(path, std::ios::binary | std::ios::trunc);
+    if (!os) throw Error(path + ": cannot open the OpenEXR image for writing");
+    {
+      Imf::StdOFStream stream(os, path.c_str());
+      Imf::OutputFile file(stream, header);
+      file.setFrameBuffer(fb);
+      file.writePixels(h);
+    }
+    os.close();
+    if (!os) throw Error(path + ": writing the OpenEXR image failed (disk full?)");
   } catch (const bhcl::Error&) {
     throw;
   } catch (const std::exception& e) {

@@ -5,6 +5,8 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
+#include <cerrno>
 #include <memory>
 
 #include "blockhash_cl/error.hpp"
@@ -82,7 +84,8 @@ void write_png(const std::string& path, const Rgb8& image) {
     png_write_row(png, const_cast<png_bytep>(image.px.data() + static_cast<std::size_t>(y) * image.width * 3));
   png_write_end(png, nullptr);
   png_destroy_write_struct(&png, &info);
-  if (std::fflush(f.get()) != 0) throw Error(path + ": write failed (disk full?)");
+  // Checked at close: a full disk shows at the final flush.
+  if (std::fclose(f.release()) != 0) throw Error(path + ": writing the PNG failed (" + std::strerror(errno) + ")");
 }
 
 Rgb8 read_png(const std::string& path) {

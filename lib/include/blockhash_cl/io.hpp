@@ -15,7 +15,9 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <initializer_list>
 #include <string>
+#include <string_view>
 #include <vector>
 
 namespace bhcl {
@@ -43,6 +45,13 @@ std::vector<float> parse_points(const void* data, std::size_t size, const std::s
 // The same in a given format (Auto: from `what`'s extension, else sniffed).
 std::vector<float> parse_points(const void* data, std::size_t size, const std::string& what,
                                 PointFormat format, bool require_finite);
+
+// Writes `parts` one after the other to `path`, replacing it. Every output of the library and of
+// bhcl goes through here: the write is checked after the file is closed (a full disk shows only
+// at the flush of close), so a failure is a bhcl::Error naming the file and `what` it held, never
+// a short file and success.
+void write_file(const std::string& path, std::initializer_list<std::string_view> parts,
+                const std::string& what);
 
 // Writes raw float32 x y z triples.
 void write_points_file(const std::string& path, const std::vector<float>& xyz);

@@ -19,6 +19,7 @@
 
 #include "blockhash/build.hpp"
 #include "blockhash_cl/error.hpp"
+#include "blockhash_cl/io.hpp"
 
 namespace bhcl::blockhash {
 namespace {
@@ -207,12 +208,7 @@ void save_structure(const Structure& s, const std::string& path) {
     h.put(v);
   for (double v : {in.median_cell_points, in.median_cell_blocks, in.p90_cell_blocks}) h.put(v);
   h.put(fnv1a(reinterpret_cast<const unsigned char*>(payload.buf.data()), payload.buf.size()));
-  std::ofstream out(path, std::ios::binary | std::ios::trunc);
-  if (!out) throw Error(path + ": cannot open for writing the block-hash index");
-  out.write(h.buf.data(), static_cast<std::streamsize>(h.buf.size()));
-  out.write(payload.buf.data(), static_cast<std::streamsize>(payload.buf.size()));
-  out.close();
-  if (!out) throw Error(path + ": write of the block-hash index failed");
+  write_file(path, {h.buf, payload.buf}, "the block-hash index");
 }
 
 std::unique_ptr<Structure> load_structure(const std::string& path) {

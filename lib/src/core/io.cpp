@@ -465,11 +465,8 @@ void write_npy(const std::string& path, const void* data, const char* descr, std
   out += static_cast<char>(header.size() & 0xff);
   out += static_cast<char>((header.size() >> 8) & 0xff);
   out += header;
-  std::ofstream f(path, std::ios::binary | std::ios::trunc);
-  if (!f) throw Error(path + ": cannot open for writing (" + std::strerror(errno) + ")");
-  f.write(out.data(), static_cast<std::streamsize>(out.size()));
-  f.write(static_cast<const char*>(data), static_cast<std::streamsize>(rows * (cols ? cols : 1) * item));
-  if (!f) throw Error(path + ": write failed");
+  write_file(path, {out, std::string_view(static_cast<const char*>(data), rows * (cols ? cols : 1) * item)},
+             "the NPY array");
 }
 
 }  // namespace
@@ -532,11 +529,21 @@ std::vector<float> read_points_file(const std::string& path, bool require_finite
   return parse_points(bytes.data(), bytes.size(), path, require_finite);
 }
 
-void write_raw_file(const std::string& path, const void* data, std::size_t bytes) {
+void write_file(const std::string& path, std::initializer_list<std::string_view> parts,
+                const std::string& what) {
+  errno = 0;
   std::ofstream out(path, std::ios::binary | std::ios::trunc);
-  if (!out) throw Error(path + ": cannot open for writing (" + std::strerror(errno) + ")");
-  out.write(static_cast<const char*>(data), static_cast<std::streamsize>(bytes));
-  if (!out) throw Error(path + ": write failed");
+  if (!out) throw Error(path + ": cannot open for writing " + what + " (" + std::strerror(errno) + ")");
+  for (std::string_view part : parts) out.write(part.data(), static_cast<std::streamsize>(part.size()));
+  errno = 0;
+  out.close();  // flushes: a full disk shows here
+  if (!out)
+    throw Error(path + ": writing " + what + " failed" +
+                (errno ? std::string(" (") + std::strerror(errno) + ")" : std::string()));
+}
+
+void write_raw_file(const std::string& path, const void* data, std::size_t bytes) {
+  write_file(path, {std::string_view(static_cast<const char*>(data), bytes)}, "the raw array");
 }
 
 void write_points_file(const std::string& path, const std::vector<float>& xyz) {
