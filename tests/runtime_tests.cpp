@@ -86,3 +86,106 @@ TEST_CASE("runtime: BHCL_KERNEL_DIR loads kernels from disk") {
   CHECK(src.find("#define EXTRA 42") != std::string::npos);
   CHECK_THROWS_AS(kernel_source("only_on_disk.cl"), Error);  // not embedded
 }
+
+TEST_CASE("runtime: a caller's queue: out of order refused, without profiling answered without timings") {
+  auto base = test::runtime();
+  const cl::Context& ctx = base->context();
+  const cl::Device& dev = base->device();
+  cl_int err = CL_SUCCESS;
+  cl::CommandQueue ooo(ctx, dev, CL_QUEUE_OUT_OF_ORDER_EXEC_MODE_ENABLE, &err);
+  if (err == CL_SUCCESS)
+    CHECK_THROWS_WITH_AS(Runtime(ctx, dev, ooo), doctest::Contains("out of order"), Error);
+  else
+    MESSAGE("this device has no out-of-order queues: the refusal is not reachable here");
+  cl::CommandQueue plain(ctx, dev, 0, &err);
+  REQUIRE(err == CL_SUCCESS);
+  auto rt = std::make_shared<Runtime>(ctx, dev, plain);
+  auto pts = datasets::uniform(2000, 91), qs = datasets::uniform(300, 92);
+  for (const auto& method : method_names()) {
+    CAPTURE(method);
+    auto index = make_index(method, rt, pts.data(), 2000);
+    SearchParams p;
+    p.k = 7;
+    QueryStats st;
+    KnnResult r;
+    REQUIRE_NOTHROW(r = index->query(qs, p, &st));
+    CHECK(r.ids == make_index(method, base, pts.data(), 2000)->query(qs, p).ids);
+    if (method_info(method).on_device) CHECK(st.query_s == 0.0);  // no profiling: no event times
+  }
+}
+
+TEST_CASE("runtime: enqueue_query behind a user event on the runtime's own queue never blocks a device method") {
+  // A single-threaded pipeline: the queries' upload waits for a user event on the runtime's queue,
+  // then the query is enqueued behind it, then the event is completed. A warm-up launch on that
+  // same queue would wait behind the gated upload forever.
+  auto pts = datasets::clustered(3000, 93, 5, 0.02f), qs = datasets::uniform(400, 94);
+  for (const auto& method : method_names()) {
+    if (!method_info(method).on_device) continue;  // host methods block on `wait` (knn.hpp)
+    CAPTURE(method);
+    auto rt = std::make_shared<Runtime>();  // its own queue, cold kernels
+    std::shared_ptr<Index> index = make_index(method, rt, pts.data(), 3000);
+    SearchParams p;
+    p.k = 6;
+    p.max_batch = 50;  // 8 batches: the returned event must cover them all
+    cl::UserEvent gate(rt->context());
+    std::vector<cl::Event> gated{gate};
+    cl::Buffer qb(rt->context(), CL_MEM_READ_ONLY, qs.size() * 4);
+    cl::Event up;
+    rt->queue().enqueueWriteBuffer(qb, CL_FALSE, 0, qs.size() * 4, qs.data(), &gated, &up);
+    std::vector<cl::Event> wait{up};
+    ResultBuffers out{cl::Buffer(rt->context(), CL_MEM_READ_WRITE, 400 * 6 * 4),
+                      cl::Buffer(rt->context(), CL_MEM_READ_WRITE, 400 * 6 * 4),
+                      cl::Buffer(rt->context(), CL_MEM_READ_WRITE, 400 * 4)};
+    // On a detached thread with a deadline: a blocked call fails the test instead of hanging it
+    // (the gate is opened either way, so the thread can finish).
+    auto result = std::make_shared<std::promise<cl::Event>>();
+    std::future<cl::Event> call = result->get_future();
+    std::thread([=] {  // copies only: the thread may outlive this scope if it is stuck
+      try { result->set_value(index->enqueue_query(rt->queue(), qb, 400, out, p, &wait)); }
+      catch (...) { result->set_exception(std::current_exception()); }
+    }).detach();
+    const bool returned = call.wait_for(std::chrono::seconds(60)) == std::future_status::ready;
+    gate.setStatus(CL_COMPLETE);
+    REQUIRE(returned);
+    std::vector<cl::Event> after{call.get()};
+    std::vector<int> ids(400 * 6);
+    rt->queue().enqueueReadBuffer(out.ids, CL_TRUE, 0, ids.size() * 4, ids.data(), &after);
+    CHECK(ids == index->query(qs, p).ids);
+  }
+}
+
+TEST_CASE("runtime: enqueue_query on an out-of-order queue: every batch after the wait list, one event for all") {
+  auto rt = test::runtime();
+  cl_int err = CL_SUCCESS;
+  cl::CommandQueue ooo(rt->context(), rt->device(), CL_QUEUE_OUT_OF_ORDER_EXEC_MODE_ENABLE, &err);
+  if (err != CL_SUCCESS) {
+    MESSAGE("this device has no out-of-order queues");
+    return;
+  }
+  auto pts = datasets::clustered(3000, 95, 5, 0.02f), qs = datasets::uniform(400, 96);
+  for (const auto& method : method_names()) {
+    if (!method_info(method).on_device) continue;
+    CAPTURE(method);
+    auto index = make_index(method, rt, pts.data(), 3000);
+    SearchParams p;
+    p.k = 6;
+    p.max_batch = 50;
+    index->warm_up(p);
+    // The queries arrive after a user event: batches not ordered after it would read garbage.
+    cl::UserEvent gate(rt->context());
+    std::vector<cl::Event> gated{gate};
+    cl::Buffer qb(rt->context(), CL_MEM_READ_ONLY, qs.size() * 4);
+    cl::Event up;
+    ooo.enqueueWriteBuffer(qb, CL_FALSE, 0, qs.size() * 4, qs.data(), &gated, &up);
+    std::vector<cl::Event> wait{up};
+    ResultBuffers out{cl::Buffer(rt->context(), CL_MEM_READ_WRITE, 400 * 6 * 4),
+                      cl::Buffer(rt->context(), CL_MEM_READ_WRITE, 400 * 6 * 4),
+                      cl::Buffer(rt->context(), CL_MEM_READ_WRITE, 400 * 4)};
+    cl::Event done = index->enqueue_query(ooo, qb, 400, out, p, &wait);
+    gate.setStatus(CL_COMPLETE);
+    std::vector<cl::Event> after{done};
+    std::vector<int> ids(400 * 6);
+    ooo.enqueueReadBuffer(out.ids, CL_TRUE, 0, ids.size() * 4, ids.data(), &after);
+    CHECK(ids == index->query(qs, p).ids);
+  }
+}

@@ -145,9 +145,15 @@ class Index {
                   QueryStats* stats = nullptr) const;
 
   // Buffer level: queries is a caller-owned buffer of at least n*3 floats, the results go to the
-  // caller's buffers. Enqueued on the caller's queue (same context as the index), waiting for
-  // `wait`; returns the event of the last kernel. Nothing is read back; no host sync except a
-  // one-off warm-up launch on devices that compile at first launch.
+  // caller's buffers. Enqueued on the caller's queue (same context as the index; in order or out
+  // of order), every command after `wait`; returns an event that completes when every row is
+  // written. Nothing is read back. When it blocks the calling thread:
+  //  - device methods never wait for `wait` or for the caller's queue. The first call per kernel
+  //    variant compiles it and runs a zero-size launch on the library's own queue
+  //    (Runtime::warm_queue), which blocks for the compile only; call warm_up() first to keep
+  //    that off the critical path.
+  //  - host methods (FLANN, answers on the host) block until `wait` completes, then answer: a
+  //    user event in `wait` must be completed by another thread.
   cl::Event enqueue_query(const cl::CommandQueue& queue, const cl::Buffer& queries, std::size_t n,
                           const ResultBuffers& out, const SearchParams& params,
                           const std::vector<cl::Event>* wait = nullptr) const;

@@ -57,12 +57,17 @@ class Runtime {
   // Opens the device picked by spec (empty: BHCL_DEVICE, then the default), with an in-order
   // queue that has profiling enabled.
   explicit Runtime(const std::string& spec = {});
-  // Uses the caller's objects. The queue must have CL_QUEUE_PROFILING_ENABLE for kernel timings.
+  // Uses the caller's objects. The queue must be in order (an out-of-order queue is refused: the
+  // host-array calls read results back after their kernels on it); without
+  // CL_QUEUE_PROFILING_ENABLE queries answer with zero timings (QueryStats' event times).
   Runtime(cl::Context context, cl::Device device, cl::CommandQueue queue);
 
   const cl::Context& context() const { return context_; }
   const cl::Device& device() const { return device_; }
   const cl::CommandQueue& queue() const { return queue_; }
+  // The library's own queue for one-off warm-up launches, so that a warm-up never waits behind
+  // the caller's commands on queue() (e.g. ones gated by a user event).
+  const cl::CommandQueue& warm_queue() const { return warm_queue_; }
   const DeviceInfo& info() const { return info_; }
   const Quirks& quirks() const { return quirks_; }
 
@@ -87,10 +92,11 @@ class Runtime {
 
  private:
   void init_from(const DeviceInfo& info);
+  void make_warm_queue();
 
   cl::Context context_;
   cl::Device device_;
-  cl::CommandQueue queue_;
+  cl::CommandQueue queue_, warm_queue_;
   DeviceInfo info_;
   Quirks quirks_;
   mutable std::mutex mutex_;
@@ -101,7 +107,7 @@ class Runtime {
 // from BHCL_DEVICE).
 std::shared_ptr<Runtime> default_runtime();
 
-// Seconds between a profiled event's START and END.
+// Seconds between a profiled event's START and END (0 when its queue has no profiling).
 double event_seconds(const cl::Event& e);
 
 }  // namespace bhcl

@@ -169,7 +169,8 @@ double Index::warm_up(const SearchParams& params) const {
   check_cl(err, "clCreateBuffer", "warm-up");
   rb.examined = cl::Buffer(runtime_->context(), CL_MEM_READ_WRITE, 16, nullptr, &err);
   check_cl(err, "clCreateBuffer", "warm-up");
-  cl::Event e = enqueue_batch(runtime_->queue(), q, 0, 0, rb, params, local, nullptr);
+  // On the library's own queue: the caller's queue may hold commands gated by a user event.
+  cl::Event e = enqueue_batch(runtime_->warm_queue(), q, 0, 0, rb, params, local, nullptr);
   check_cl(e.wait(), "clWaitForEvents", method() + " warm-up");
   warmed_.insert(key);
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -186,17 +187,19 @@ cl::Event Index::enqueue_impl(const cl::CommandQueue& queue, const cl::Buffer& q
   std::size_t per = params.max_batch ? params.max_batch : max_dispatch_queries();
   if (per > max_dispatch_queries()) per = max_dispatch_queries();
   per = std::max<std::size_t>(per, 1);
-  cl::Event last;
-  std::vector<cl::Event> prev;
-  const std::vector<cl::Event>* w = wait;
+  // Every batch waits for the caller's list (an out-of-order queue would not order them after the
+  // first), and more than one batch ends in a marker on all of them, so the event returned means
+  // "every row written" on any queue.
+  std::vector<cl::Event> batches;
   for (std::size_t first = 0; first < n; first += per) {
     std::size_t count = std::min(per, n - first);
-    last = enqueue_batch(queue, queries, first, count, out, params, local, w);
-    if (kernels) kernels->push_back(last);
-    // An in-order queue orders the batches; the caller's wait list applies to the first only.
-    w = nullptr;
+    batches.push_back(enqueue_batch(queue, queries, first, count, out, params, local, wait));
+    if (kernels) kernels->push_back(batches.back());
   }
-  return last;
+  if (batches.size() == 1) return batches.front();
+  cl::Event all;
+  check_cl(queue.enqueueMarkerWithWaitList(&batches, &all), "clEnqueueMarkerWithWaitList", method());
+  return all;
 }
 
 cl::Event Index::enqueue_query(const cl::CommandQueue& queue, const cl::Buffer& queries,

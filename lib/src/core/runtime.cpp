@@ -225,6 +225,20 @@ Runtime::Runtime(cl::Context context, cl::Device device, cl::CommandQueue queue)
     }
   }
   quirks_ = quirks_for(info_);
+  // Host-array queries read results back after the kernels on this queue: an out-of-order queue
+  // would let a read overtake its kernel. Refused rather than silently wrong.
+  cl_command_queue_properties props = 0;
+  check_cl(queue_.getInfo(CL_QUEUE_PROPERTIES, &props), "clGetCommandQueueInfo", "the caller's queue");
+  if (props & CL_QUEUE_OUT_OF_ORDER_EXEC_MODE_ENABLE)
+    throw Error("Runtime: the caller's queue is out of order (CL_QUEUE_OUT_OF_ORDER_EXEC_MODE_ENABLE); "
+                "pass an in-order queue (enqueue_query accepts out-of-order queues)");
+  make_warm_queue();
+}
+
+void Runtime::make_warm_queue() {
+  cl_int err = CL_SUCCESS;
+  warm_queue_ = cl::CommandQueue(context_, device_, 0, &err);
+  check_cl(err, "clCreateCommandQueue", "the warm-up queue of " + info_.summary());
 }
 
 void Runtime::init_from(const DeviceInfo& info) {
@@ -241,6 +255,7 @@ void Runtime::init_from(const DeviceInfo& info) {
   queue_ = cl::CommandQueue(context_, device_, CL_QUEUE_PROFILING_ENABLE, &err);
   check_cl(err, "clCreateCommandQueue", info.summary());
   quirks_ = quirks_for(info_);
+  make_warm_queue();
 }
 
 std::string Runtime::build_options(const std::string& extra) const {
@@ -306,7 +321,10 @@ std::shared_ptr<Runtime> default_runtime() {
 
 double event_seconds(const cl::Event& e) {
   cl_ulong start = 0, end = 0;
-  check_cl(e.getProfilingInfo(CL_PROFILING_COMMAND_START, &start), "clGetEventProfilingInfo");
+  // A queue without CL_QUEUE_PROFILING_ENABLE (a caller's) has no timings: 0, not an error.
+  cl_int err = e.getProfilingInfo(CL_PROFILING_COMMAND_START, &start);
+  if (err == CL_PROFILING_INFO_NOT_AVAILABLE) return 0.0;
+  check_cl(err, "clGetEventProfilingInfo");
   check_cl(e.getProfilingInfo(CL_PROFILING_COMMAND_END, &end), "clGetEventProfilingInfo");
   return end > start ? (end - start) * 1e-9 : 0.0;
 }
