@@ -6,6 +6,8 @@
 #include "blockhash/build.hpp"
 #include "test_util.hpp"
 
+#include <sys/stat.h>
+
 using namespace bhcl;
 
 namespace {
@@ -99,6 +101,43 @@ TEST_CASE("blockhash io: truncated, corrupt, foreign and missing files are error
     }
   }
   CHECK(errors > 250);
+}
+
+TEST_CASE("blockhash io: every header byte is covered: any change to it is refused") {
+  auto pts = datasets::clustered(1200, 5, 4, 0.02f);
+  BlockHashIndex a(test::runtime(), pts.data(), 1200);
+  const std::string path = test::tmp_path("bh_io_hdr.bhi"), bad = test::tmp_path("bh_io_hdr_bad.bhi");
+  a.save(path);
+  const std::string good = slurp(path);
+  // The header is the first 160 bytes (io.cpp): flags, B, the quantiser, the Hilbert seed, the
+  // medians, the high bits of L/P/B/X. Version 3 checked the payload only, and masked some fields.
+  for (std::size_t byte = 0; byte < 160; ++byte) {
+    for (unsigned char bit : {0x01, 0x80}) {
+      std::string d = good;
+      d[byte] = char(d[byte] ^ bit);
+      spit(bad, d);
+      INFO("byte " << byte << " bit " << int(bit));
+      CHECK_THROWS_AS(BlockHashIndex::load(test::runtime(), bad), Error);
+    }
+  }
+  // A version 3 file is refused naming both versions.
+  std::string v3 = good;
+  v3[8] = 3;
+  spit(bad, v3);
+  CHECK_THROWS_WITH_AS(BlockHashIndex::load(test::runtime(), bad),
+                       doctest::Contains("version 3, this library reads version 4"), Error);
+}
+
+TEST_CASE("blockhash io: a directory, a FIFO or a device is refused before it is read") {
+  CHECK_THROWS_WITH_AS(BlockHashIndex::load(test::runtime(), test::tmp_path("")), doctest::Contains("is a directory"), Error);
+  const std::string fifo = test::tmp_path("bh_io_fifo");
+  std::remove(fifo.c_str());
+  REQUIRE(mkfifo(fifo.c_str(), 0600) == 0);
+  CHECK_THROWS_WITH_AS(BlockHashIndex::load(test::runtime(), fifo), doctest::Contains("is a FIFO"), Error);
+  if (std::ifstream("/dev/zero").good())
+    CHECK_THROWS_WITH_AS(BlockHashIndex::load(test::runtime(), "/dev/zero"), doctest::Contains("character device"), Error);
+  for (const std::string& p : {test::tmp_path(""), fifo})
+    CHECK_THROWS_WITH_AS(read_points_file(p), doctest::Contains("not a point file"), Error);
 }
 
 TEST_CASE("blockhash io: a consistent file with broken invariants is refused by validation") {

@@ -46,6 +46,11 @@ std::vector<float> parse_points(const void* data, std::size_t size, const std::s
 std::vector<float> parse_points(const void* data, std::size_t size, const std::string& what,
                                 PointFormat format, bool require_finite);
 
+// The size of the input file `path`, after checking that it is a regular file: a directory, a
+// FIFO, a socket or a device (/dev/zero) is refused with a bhcl::Error naming the file and `what`
+// it should have held, before anything is opened (a FIFO's open would wait for a writer).
+std::uint64_t regular_file_size(const std::string& path, const std::string& what);
+
 // Writes `parts` one after the other to `path`, replacing it. Every output of the library and of
 // bhcl goes through here: the write is checked after the file is closed (a full disk shows only
 // at the flush of close), so a failure is a bhcl::Error naming the file and `what` it held, never

@@ -1,17 +1,21 @@
 // Save and load of a built block-hash index, and the structure's invariant check.
 //
-// File format (little-endian), version 3:
+// File format (little-endian), version 4:
 //   "BHCLIDX\0" magic, u32 version, u32 0x01020304 (byte-order check), u32 header bytes,
 //   u32 preset, L, P, B, X, flags (guard, top count, direct, box skip, probes, box order, cell-aligned: new in 3),
 //   u64 n_points, n_blocks, n_thresholds, n_table_starts, n_keys, n_buckets, n_refs,
 //   f64 median cell points, median cell blocks, p90 cell blocks,
-//   u64 FNV-1a 64 checksum of the payload,
+//   u64 FNV-1a 64 checksum of every other byte of the file (the header before it, then the
+//   payload; new in 4: version 3 covered the payload only, so a corrupt header passed),
 //   payload: order (i32 x N), blocks (256 B each), boxes (32 B each), thresholds (f32),
 //            table_starts (u32), keys (u32), buckets (16 B each), refs (i32), block keys (u64).
 //   (the header also holds the query quantiser: f32 origin xyz, f32 scale, u32 bits, u32 seed,
 //   and i32 the coordinate scale exponent of extreme-scale data, see knn.hpp; new in version 2.)
-// A load reads the whole file, checks the sizes against the header and the file size, the
-// checksum, and then every structural invariant (Structure::validate) before anything is used.
+// A load refuses anything but a regular file, reads the header first and the payload only when
+// the file's size is the one the header declares, then checks the checksum, every header field's
+// range (no bits masked away) and every structural invariant (Structure::validate) before
+// anything is used.
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <fstream>
@@ -25,7 +29,7 @@ namespace bhcl::blockhash {
 namespace {
 
 constexpr char kMagic[8] = {'B', 'H', 'C', 'L', 'I', 'D', 'X', '\0'};
-constexpr std::uint32_t kVersion = 3;
+constexpr std::uint32_t kVersion = 4;
 constexpr std::uint32_t kHeaderBytes = 8 + 4 * 3 + 4 * 6 + 4 * 7 + 8 * 7 + 8 * 3 + 8;
 
 std::uint64_t fnv1a(const unsigned char* p, std::size_t n, std::uint64_t h = 0xcbf29ce484222325ull) {
@@ -70,6 +74,33 @@ struct Reader {
     pos += n * sizeof(T);
   }
 };
+
+// The payload's size from the header's array counts, overflow-safe.
+std::uint64_t payload_bytes(const std::uint64_t n[7], const std::string& path) {
+  static const char* names[7] = {"n_points", "n_blocks", "n_thresholds", "n_table_starts", "n_keys", "n_buckets", "n_refs"};
+  const std::uint64_t elem[7] = {4, sizeof(bhcl_bh_block) + sizeof(bhcl_bh_box) + 8, 4, 4, 4, sizeof(bhcl_bh_bucket), 4};
+  std::uint64_t need = 0;
+  for (int i = 0; i < 7; ++i) {
+    if (i == 0 && n[0] > 0x7ffffffeull) throw Error(path + ": block-hash index field 'n_points' = " + std::to_string(n[0]) + " is out of range");
+    if (n[i] > (std::uint64_t(1) << 40)) throw Error(path + ": block-hash index field '" + names[i] + "' = " + std::to_string(n[i]) + " is out of range");
+    need += n[i] * elem[i];
+  }
+  return need;
+}
+
+// The payload size a complete header declares (magic and version checked first, so that a foreign
+// or old file gets the same message as from parse_structure).
+std::uint64_t header_payload_bytes(const std::string& header, const std::string& path) {
+  if (std::memcmp(header.data(), kMagic, 8) != 0) throw Error(path + ": not a block-hash index (bad magic)");
+  std::uint32_t version = 0;
+  std::memcpy(&version, header.data() + 8, 4);
+  if (version != kVersion)
+    throw Error(path + ": block-hash index version " + std::to_string(version) + ", this library reads version " +
+                std::to_string(kVersion) + " (rebuild the index)");
+  std::uint64_t n[7];
+  std::memcpy(n, header.data() + 72, sizeof n);  // after the 72 bytes of identity, parameters and quantiser
+  return payload_bytes(n, path);
+}
 
 }  // namespace
 
@@ -207,16 +238,29 @@ void save_structure(const Structure& s, const std::string& path) {
                           std::uint64_t(s.refs.size())})
     h.put(v);
   for (double v : {in.median_cell_points, in.median_cell_blocks, in.p90_cell_blocks}) h.put(v);
-  h.put(fnv1a(reinterpret_cast<const unsigned char*>(payload.buf.data()), payload.buf.size()));
+  const std::uint64_t head = fnv1a(reinterpret_cast<const unsigned char*>(h.buf.data()), h.buf.size());
+  h.put(fnv1a(reinterpret_cast<const unsigned char*>(payload.buf.data()), payload.buf.size(), head));
   write_file(path, {h.buf, payload.buf}, "the block-hash index");
 }
 
 std::unique_ptr<Structure> load_structure(const std::string& path) {
+  const std::uint64_t size = regular_file_size(path, "a block-hash index");
   std::ifstream in(path, std::ios::binary);
   if (!in) throw Error(path + ": cannot open the block-hash index");
-  std::ostringstream ss;
-  ss << in.rdbuf();
-  return parse_structure(ss.str(), path);
+  // The header first; the payload only when the file is as long as the header says (a large
+  // foreign file is never read whole).
+  std::string data(static_cast<std::size_t>(std::min<std::uint64_t>(size, kHeaderBytes)), '\0');
+  in.read(data.data(), static_cast<std::streamsize>(data.size()));
+  if (data.size() == kHeaderBytes) {
+    const std::uint64_t need = kHeaderBytes + header_payload_bytes(data, path);
+    if (size != need)
+      throw Error(path + ": block-hash index is " + std::to_string(size) + " bytes, its header says " +
+                  std::to_string(need) + (size < need ? " (truncated)" : " (trailing bytes)"));
+    data.resize(static_cast<std::size_t>(size));
+    in.read(data.data() + kHeaderBytes, static_cast<std::streamsize>(size - kHeaderBytes));
+  }
+  if (!in) throw Error(path + ": reading the block-hash index failed");
+  return parse_structure(data, path);
 }
 
 std::unique_ptr<Structure> parse_structure(const std::string& data, const std::string& path,
@@ -235,10 +279,19 @@ std::unique_ptr<Structure> parse_structure(const std::string& data, const std::s
   std::uint32_t preset = r.get<std::uint32_t>("preset");
   if (preset > 1) throw Error(path + ": block-hash index has an unknown preset " + std::to_string(preset));
   info.preset = preset ? BlockHashBuildParams::Preset::Paper : BlockHashBuildParams::Preset::Auto;
-  info.L = static_cast<int>(r.get<std::uint32_t>("L") & 0x7fffffff);
-  info.P = static_cast<int>(r.get<std::uint32_t>("P") & 0x7fffffff);
-  info.B = static_cast<int>(r.get<std::uint32_t>("B") & 0x7fffffff);
-  info.X = static_cast<int>(r.get<std::uint32_t>("X") & 0x7fffffff);
+  // Every field in its range, nothing masked away: a corrupt header is refused, never read as
+  // other parameters.
+  auto field = [&](const char* name, std::uint32_t lo, std::uint32_t hi) {
+    std::uint32_t v = r.get<std::uint32_t>(name);
+    if (v < lo || v > hi)
+      throw Error(path + ": block-hash index field '" + name + "' = " + std::to_string(v) + " is out of range [" +
+                  std::to_string(lo) + ", " + std::to_string(hi) + "]");
+    return static_cast<int>(v);
+  };
+  info.L = field("L", 1, 1u << 16);
+  info.P = field("P", 1, BHCL_BH_MAX_P);
+  info.B = field("B", 1, 1u << 24);
+  info.X = field("X", 1, BHCL_BH_BLOCK_SLOTS);
   std::uint32_t flags = r.get<std::uint32_t>("flags");
   info.guard_thresholds = flags & 1;
   info.keep_top_count = flags & 2;
@@ -250,8 +303,11 @@ std::unique_ptr<Structure> parse_structure(const std::string& data, const std::s
   if (flags > 127) throw Error(path + ": block-hash index has unknown flags " + std::to_string(flags));
   for (int d = 0; d < 3; ++d) s->q_origin[d] = r.get<float>("quantiser origin");
   s->q_scale = r.get<float>("quantiser scale");
-  s->q_bits = static_cast<int>(r.get<std::uint32_t>("hilbert bits") & 0xff);
-  info.hilbert_seed = static_cast<int>(r.get<std::uint32_t>("hilbert seed") & 0x7fffffff);
+  if (!std::isfinite(s->q_origin[0]) || !std::isfinite(s->q_origin[1]) || !std::isfinite(s->q_origin[2]) ||
+      !std::isfinite(s->q_scale) || s->q_scale < 0)
+    throw Error(path + ": block-hash index has a non-finite quantiser");
+  s->q_bits = field("hilbert bits", 1, 21);
+  info.hilbert_seed = field("hilbert seed", 0, 1u << 24);
   s->scale_exp = r.get<std::int32_t>("scale exponent");
   if (s->scale_exp < -300 || s->scale_exp > 300)
     throw Error(path + ": block-hash index has an impossible scale exponent " + std::to_string(s->scale_exp));
@@ -262,20 +318,14 @@ std::unique_ptr<Structure> parse_structure(const std::string& data, const std::s
   info.median_cell_blocks = r.get<double>("median_cell_blocks");
   info.p90_cell_blocks = r.get<double>("p90_cell_blocks");
   std::uint64_t checksum = r.get<std::uint64_t>("checksum");
-  // The payload size from the header, overflow-safe, against the file's size.
-  const std::uint64_t elem[7] = {4, sizeof(bhcl_bh_block) + sizeof(bhcl_bh_box) + 8, 4, 4, 4, sizeof(bhcl_bh_bucket), 4};
-  std::uint64_t need = 0;
-  for (int i = 0; i < 7; ++i) {
-    if (i == 0 && n[0] > 0x7ffffffeull) throw Error(path + ": block-hash index field 'n_points' = " + std::to_string(n[0]) + " is out of range");
-    if (n[i] > (std::uint64_t(1) << 40)) throw Error(path + ": block-hash index field '" + names[i] + "' = " + std::to_string(n[i]) + " is out of range");
-    need += n[i] * elem[i];
-  }
+  const std::uint64_t need = payload_bytes(n, path);
   const std::uint64_t have = data.size() - r.pos;
   if (have != need)
     throw Error(path + ": block-hash index payload is " + std::to_string(have) + " bytes, the header says " +
                 std::to_string(need) + (have < need ? " (truncated)" : " (trailing bytes)"));
+  const std::uint64_t head = fnv1a(reinterpret_cast<const unsigned char*>(data.data()), r.pos - 8);
   if (verify_checksum &&
-      fnv1a(reinterpret_cast<const unsigned char*>(data.data() + r.pos), have) != checksum)
+      fnv1a(reinterpret_cast<const unsigned char*>(data.data() + r.pos), have, head) != checksum)
     throw Error(path + ": block-hash index checksum mismatch (corrupt file)");
   s->n_points = static_cast<std::size_t>(n[0]);
   r.get_vec(s->order, n[0], "order");

@@ -9,6 +9,8 @@
 #include <fstream>
 #include <sstream>
 
+#include <sys/stat.h>
+
 #include "blockhash_cl/error.hpp"
 
 namespace bhcl {
@@ -517,14 +519,28 @@ std::vector<float> parse_points(const void* data, std::size_t size, const std::s
   return parse_points(data, size, what, PointFormat::Auto, require_finite);
 }
 
+std::uint64_t regular_file_size(const std::string& path, const std::string& what) {
+  struct stat st {};
+  if (::stat(path.c_str(), &st) != 0)
+    throw Error(path + ": cannot open " + what + " (" + std::strerror(errno) + ")");
+  if (!S_ISREG(st.st_mode)) {
+    const char* kind = S_ISDIR(st.st_mode)    ? "a directory"
+                       : S_ISFIFO(st.st_mode) ? "a FIFO"
+                       : S_ISCHR(st.st_mode)  ? "a character device"
+                       : S_ISBLK(st.st_mode)  ? "a block device"
+                       : S_ISSOCK(st.st_mode) ? "a socket"
+                                              : "not a regular file";
+    throw Error(path + ": is " + std::string(kind) + ", not " + what + " (a regular file)");
+  }
+  return static_cast<std::uint64_t>(st.st_size);
+}
+
 std::vector<float> read_points_file(const std::string& path, bool require_finite) {
-  std::ifstream in(path, std::ios::binary | std::ios::ate);
+  const std::uint64_t size = regular_file_size(path, "a point file");
+  std::ifstream in(path, std::ios::binary);
   if (!in) throw Error(path + ": cannot open point file (" + std::strerror(errno) + ")");
-  std::streamoff size = in.tellg();
-  if (size < 0) throw Error(path + ": cannot read the file size");
   std::vector<char> bytes(static_cast<std::size_t>(size));
-  in.seekg(0);
-  if (size > 0 && !in.read(bytes.data(), size))
+  if (size > 0 && !in.read(bytes.data(), static_cast<std::streamsize>(size)))
     throw Error(path + ": read failed after " + std::to_string(in.gcount()) + " bytes");
   return parse_points(bytes.data(), bytes.size(), path, require_finite);
 }
