@@ -5,7 +5,10 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <filesystem>
 #include <fstream>
+
+#include <sys/stat.h>
 
 #include "blockhash_cl/blockhash.hpp"
 #include "blockhash_cl/config.hpp"
@@ -335,6 +338,39 @@ QueryStats query_with_progress(const Index& index, const std::vector<float>& que
   return total;
 }
 
+namespace {
+
+// One file's identity: device and inode when it exists, else its resolved absolute path.
+std::string file_identity(const std::string& path) {
+  struct stat st {};
+  if (::stat(path.c_str(), &st) == 0)
+    return "inode " + std::to_string(st.st_dev) + ":" + std::to_string(st.st_ino);
+  std::error_code ec;
+  std::filesystem::path p = std::filesystem::weakly_canonical(std::filesystem::absolute(path, ec), ec);
+  return "path " + (ec ? path : p.string());
+}
+
+}  // namespace
+
+void check_distinct_files(const std::vector<FileArg>& inputs, const std::vector<FileArg>& outputs) {
+  std::vector<std::pair<std::string, const FileArg*>> seen;  // identity, and who named it
+  for (const FileArg& in : inputs)
+    if (!in.path.empty()) seen.emplace_back(file_identity(in.path), &in);
+  const std::size_t n_inputs = seen.size();
+  for (const FileArg& out : outputs) {
+    if (out.path.empty()) continue;
+    const std::string id = file_identity(out.path);
+    for (std::size_t i = 0; i < seen.size(); ++i) {
+      if (seen[i].first != id) continue;
+      if (i < n_inputs)
+        throw UsageError(out.option + " " + out.path + " is the input " + seen[i].second->option +
+                         ": writing it would destroy it");
+      throw UsageError(out.option + " and " + seen[i].second->option + " name the same file " + out.path);
+    }
+    seen.emplace_back(id, &out);
+  }
+}
+
 std::string method_list(const std::vector<std::string>& names) {
   std::string s;
   for (std::size_t i = 0; i < names.size(); ++i)
@@ -361,6 +397,13 @@ MethodOptions method_options(const Args& args) {
       throw UsageError("--" + o->name + " must be " + joined(o->choices, " or ") + ", got '" + v + "'");
     o->set(m, v, x);
   }
+  // A saved index carries its own build parameters: a build option beside --load-index would be
+  // silently ignored, so it is refused.
+  if (!m.load_index.empty())
+    for (const MethodInfo& method : methods())
+      for (const OptionInfo& o : method.build_options)
+        if (method.saves && o.name != "load-index" && o.name != "save-index" && args.has(o.name))
+          throw UsageError("--" + o.name + " does not apply with --load-index (the saved index carries its build parameters)");
   return m;
 }
 

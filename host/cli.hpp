@@ -110,6 +110,16 @@ std::unique_ptr<Index> build_with_progress(const std::string& method, std::share
 QueryStats query_with_progress(const Index& index, const std::vector<float>& queries,
                                const SearchParams& params, KnnResult& out, bool quiet);
 
+// A file a command reads or writes, by the option that names it.
+struct FileArg {
+  std::string option;  // e.g. "--points"; for derived outputs a description ("the PNG beside --out")
+  std::string path;
+};
+// Before any work: throws UsageError when an output names an input, or two outputs name one file
+// (the same path after resolving symlinks and "..", or the same existing file by device and
+// inode). Empty paths are skipped.
+void check_distinct_files(const std::vector<FileArg>& inputs, const std::vector<FileArg>& outputs);
+
 // "a, b or c" from the registry's names, for --method's help.
 std::string method_list(const std::vector<std::string>& names);
 // Reads --points and --queries; an empty file is an error naming it.

@@ -54,6 +54,9 @@ int run_eval(const Args& args) {
                      method_list(exact_method_names()) + ")");
   SearchParams params = search_params(args);
   MethodOptions mopt = method_options(args);
+  check_distinct_files({{"--points", args.str("points")}, {"--queries", args.str("queries")},
+                        {"--load-index", mopt.load_index}},
+                       {{"--stats", args.str("stats", "")}, {"--save-index", mopt.save_index}});
 
   std::vector<float> points, queries;
   read_points_and_queries(args, points, queries);

@@ -26,6 +26,11 @@ int run_knn(const Args& args) {
   const std::string out_dist2 = args.str("out-dist2");
   SearchParams params = search_params(args);
   MethodOptions mopt = method_options(args);
+  check_distinct_files({{"--points", args.str("points")}, {"--queries", args.str("queries")},
+                        {"--load-index", mopt.load_index}},
+                       {{"--out-ids", out_ids}, {"--out-dist2", out_dist2},
+                        {"--out-counts", args.str("out-counts", "")}, {"--stats", args.str("stats", "")},
+                        {"--save-index", mopt.save_index}});
 
   std::vector<float> points, queries;
   read_points_and_queries(args, points, queries);

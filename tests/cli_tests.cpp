@@ -352,3 +352,47 @@ TEST_CASE("cli: a failed write of any output is an error, never an empty file an
     CHECK(out.find(expect) != std::string::npos);
   }
 }
+
+TEST_CASE("cli: outputs never destroy inputs or each other, and misused options are refused before any work") {
+  const std::vector<float> pts = datasets::uniform(2000, 83);
+  const std::string P = write_points("guard_p.f32", pts);
+  const std::string Q = write_points("guard_q.f32", datasets::uniform(50, 84));
+  const std::string O = test::tmp_path("guard_");
+  const std::string idx = O + "saved.bhi";
+  REQUIRE(test::run_bhcl("knn --points " + P + " --queries " + Q + " --method blockhash --out-ids " + O +
+                         "i --out-dist2 " + O + "d --save-index " + idx + " --quiet") == 0);
+  // Another name for --points: a symlink, and a path through "..".
+  const std::string link = O + "link_to_points.f32";
+  std::remove(link.c_str());
+  REQUIRE(symlink(P.c_str(), link.c_str()) == 0);
+  const std::string dotted = test::tmp_path("../tmp/guard_p.f32");
+  const std::string knn = "knn --points " + P + " --queries " + Q + " --quiet ";
+  struct Case { std::string args, expect; };
+  const std::vector<Case> cases = {
+      {knn + "--method kdtree --out-ids " + P + " --out-dist2 " + O + "d", "--out-ids " + P + " is the input --points"},
+      {knn + "--method kdtree --out-ids " + link + " --out-dist2 " + O + "d", "is the input --points"},
+      {knn + "--method kdtree --out-ids " + O + "i --out-dist2 " + Q, "is the input --queries"},
+      {knn + "--method kdtree --out-ids " + O + "i --out-dist2 " + O + "d --stats " + dotted, "is the input --points"},
+      {knn + "--method kdtree --out-ids " + O + "same --out-dist2 " + O + "same", "--out-dist2 and --out-ids name the same file"},
+      {knn + "--method blockhash --out-ids " + O + "i --out-dist2 " + O + "d --load-index " + idx + " --save-index " + idx, "--save-index " + idx + " is the input --load-index"},
+      {knn + "--method blockhash --out-ids " + O + "i --out-dist2 " + O + "d --save-index " + P, "is the input --points"},
+      {"eval --points " + P + " --queries " + Q + " --method blockhash --stats " + Q, "--stats " + Q + " is the input --queries"},
+      // Build options beside --load-index would be ignored: refused.
+      {knn + "--method blockhash --out-ids " + O + "i --out-dist2 " + O + "d --load-index " + idx + " --L 3", "--L does not apply with --load-index"},
+      {knn + "--method blockhash --out-ids " + O + "i --out-dist2 " + O + "d --load-index " + idx + " --preset paper", "--preset does not apply with --load-index"},
+      // Integers are range-checked, never narrowed or wrapped.
+      {knn + "--method blockhash --out-ids " + O + "i --out-dist2 " + O + "d --L 4294967297", "--L must be in [-1, 65536], got 4294967297"},
+      {knn + "--method flann --out-ids " + O + "i --out-dist2 " + O + "d --threads 4294967296", "--threads must be in [0, 65536]"},
+      {knn + "--method blockhash --out-ids " + O + "i --out-dist2 " + O + "d --P -2", "--P must be in [-1, 1024], got -2"},
+      {"demo --N -1 --no-render", "--N must be in [1,"},
+  };
+  for (const auto& c : cases) {
+    std::string out;
+    const int rc = test::run_bhcl(c.args, &out);
+    INFO("bhcl " << c.args << "\n" << out);
+    CHECK(rc == 2);
+    CHECK(out.find(c.expect) != std::string::npos);
+  }
+  // The inputs are intact.
+  CHECK(read_points_file(P) == pts);
+}
