@@ -4,6 +4,8 @@
 
 #include "test_util.hpp"
 
+#include <sys/stat.h>
+
 #include <nlohmann/json.hpp>
 
 #include "compare.hpp"
@@ -227,6 +229,52 @@ TEST_CASE("render: a specular scene builds a caustic map and renders finite") {
   CHECK(sum > 0);
 }
 
+TEST_CASE("render: hostile scenes are refused naming the file and line: overflow, escaping mtllib, non-material files, FIFOs") {
+  const std::string head = "mtllib ok.mtl\nusemtl l\n";
+  write_text("ok.mtl", "newmtl w\nKd 0.5 0.5 0.5\nnewmtl l\nKe 1 1 1\nKd 0 0 0\n");
+  write_text("secret.txt", "password hunter2\n");
+  write_text("hot.mtl", "newmtl l\nKe 1e30 1e30 1e30\nKd 0 0 0\n");
+  struct Case {
+    std::string text, expect, never;  // `never`: text the message must not quote
+  };
+  const std::vector<Case> cases = {
+      // Finite coordinates whose cross product, area or normal overflow.
+      {head + "v 1e20 0 0\nv 0 1e20 0\nv 0 0 1e20\nf 1 2 3\n", "h1.obj:6: the face's area or normal overflows", ""},
+      {head + "v 3e38 0 0\nv -3e38 1 0\nv 0 3e38 0\nf 1 2 3\n", "h2.obj:6: the face's area or normal overflows", ""},
+      // Emission times area beyond the float range.
+      {"mtllib hot.mtl\nusemtl l\nv 0 0 0\nv 1e5 0 0\nv 0 1e5 0\nf 1 2 3\n", "h3.obj:6: the face's emitted power overflows", ""},
+      // A camera whose direction overflows.
+      {head + "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\ncamera -3e38 0 0 3e38 0 0 0 1 0 40\n", "h4.obj:7: the camera's direction overflows", ""},
+      // Material libraries outside the scene's folder, and a file that is not one.
+      {"mtllib /etc/passwd\n", "h5.obj:1: mtllib must name a file inside the scene's folder", ""},
+      {"mtllib ../ok.mtl\n", "h6.obj:1: mtllib must name a file inside the scene's folder", ""},
+      {"mtllib secret.txt\n", "secret.txt:1: not a material library", "hunter2"},
+      {"mtllib secret.txt\n", "not a material library", "password"},
+  };
+  int i = 0;
+  for (const auto& c : cases) {
+    const std::string path = write_text("h" + std::to_string(++i) + ".obj", c.text);
+    INFO(c.text);
+    try {
+      load_scene(path);
+      FAIL("loaded");
+    } catch (const Error& e) {
+      const std::string msg = e.what();
+      INFO(msg);
+      CHECK(msg.find(c.expect) != std::string::npos);
+      if (!c.never.empty()) CHECK(msg.find(c.never) == std::string::npos);
+      const bool names_file = msg.find(path) != std::string::npos || msg.find("secret.txt") != std::string::npos;
+      CHECK(names_file);
+    }
+  }
+  // A FIFO or a directory as the scene is refused before it is opened (an open would wait).
+  const std::string fifo = test::tmp_path("scene_fifo.obj");
+  std::remove(fifo.c_str());
+  REQUIRE(mkfifo(fifo.c_str(), 0600) == 0);
+  CHECK_THROWS_WITH_AS(load_scene(fifo), doctest::Contains("is a FIFO"), Error);
+  CHECK_THROWS_WITH_AS(load_obj_scene(test::tmp_path("")), doctest::Contains("is a directory"), Error);
+}
+
 TEST_CASE("render: bad scene files give errors naming the file and the line") {
   std::string mtl = write_text("ok.mtl", "newmtl w\nKd 0.5 0.5 0.5\nnewmtl l\nKe 1 1 1\nKd 0 0 0\n");
   const std::string head = "mtllib ok.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\n";
@@ -240,9 +288,9 @@ TEST_CASE("render: bad scene files give errors naming the file and the line") {
       {head + "frobnicate 1\n", "bad4.obj:5: unknown statement 'frobnicate'"},
       {head + "usemtl w\nf 1 2\n", "bad5.obj:6: a face needs at least 3 vertices"},
       {head + "usemtl w\nf 1 2 3\n", "no emitting surface"},
-      {"mtllib missing.mtl\n", "missing.mtl: cannot open the material file"},
+      {"mtllib missing.mtl\n", "missing.mtl: cannot open a material library"},
       {head + "usemtl l\nf 1 2 3\ncamera 0 0 0 0 0 0 0 1 0 40\n", "bad8.obj:7: camera target equals its position"},
-      {head + "usemtl l\nf 1 2 2\n", "bad9.obj: triangle 0 is degenerate"},
+      {head + "usemtl l\nf 1 2 2\n", "bad9.obj:6: the face is degenerate (zero area)"},
   };
   int i = 0;
   for (const auto& c : cases) {
@@ -287,7 +335,7 @@ TEST_CASE("render: bhcl render writes the EXR and the PNG and the stats") {
   CHECK(test::run_bhcl("render --out " + exr + " --size 12", &out) == 2);
   CHECK(out.find("--size expects WxH") != std::string::npos);
   CHECK(test::run_bhcl("render --out " + exr + " --scene /no/such.obj", &out) == 1);
-  CHECK(out.find("/no/such.obj: cannot open the scene file") != std::string::npos);
+  CHECK(out.find("/no/such.obj: cannot open a scene file") != std::string::npos);
 }
 
 #endif  // BHCL_HAVE_RENDER

@@ -5,12 +5,14 @@
 
 #include <cmath>
 #include <cstdlib>
+#include <filesystem>
 #include <fstream>
 #include <map>
 #include <sstream>
 
 #include "blockhash_cl/cornell_box.hpp"
 #include "blockhash_cl/error.hpp"
+#include "blockhash_cl/io.hpp"
 
 namespace bhcl::render {
 
@@ -96,6 +98,11 @@ void Scene::validate() const {
     if (m.type == MaterialType::Glass && !(m.ior > 0 && std::isfinite(m.ior)))
       throw Error(where + ": glass material '" + m.name + "' needs an index of refraction > 0");
   }
+  for (std::size_t i = 0; i < triangles.size(); ++i)
+    if (!std::isfinite(triangle_area(static_cast<std::uint32_t>(i))))
+      throw Error(where + ": triangle " + std::to_string(i) + " has an area that overflows");
+  if (!std::isfinite(diagonal()))
+    throw Error(where + ": the scene's extent overflows the float range");
   if (!has_light()) throw Error(where + ": no emitting surface (no material with Ke > 0)");
   if (!(vfov_ok(camera.vfov_deg)))
     throw Error(where + ": camera field of view must be in (0, 180) degrees");
@@ -183,6 +190,7 @@ struct LineReader {
 };
 
 std::map<std::string, Material> load_mtl(const std::string& path) {
+  regular_file_size(path, "a material library");
   std::ifstream f(path);
   if (!f) throw Error(path + ": cannot open the material file");
   std::map<std::string, Material> out;
@@ -210,7 +218,8 @@ std::map<std::string, Material> load_mtl(const std::string& path) {
       illum = -1;
       continue;
     }
-    if (!cur) r.fail("'" + key + "' before any newmtl");
+    // Nothing of a file that is not a material library is quoted back.
+    if (!cur) r.fail("not a material library (the first statement is not newmtl)");
     if (key == "Kd") cur->kd = r.vec3(in, "Kd");
     else if (key == "Ks") cur->ks = r.vec3(in, "Ks");
     else if (key == "Ke") cur->emission = r.vec3(in, "Ke");
@@ -219,7 +228,7 @@ std::map<std::string, Material> load_mtl(const std::string& path) {
     else if (key == "Ka" || key == "Ns" || key == "d" || key == "Tr" || key == "Tf" ||
              key.rfind("map_", 0) == 0)
       continue;
-    else r.fail("unknown material statement '" + key + "'");
+    else r.fail("unknown material statement");
     r.no_more(in);
     for (int c = 0; c < 3; ++c)
       if (cur->kd[c] < 0 || cur->kd[c] > 1 || cur->ks[c] < 0 || cur->ks[c] > 1)
@@ -248,6 +257,7 @@ std::uint32_t face_index(const LineReader& r, const std::string& tok, std::size_
 }  // namespace
 
 Scene load_obj_scene(const std::string& path) {
+  regular_file_size(path, "a scene file");  // a FIFO or /dev/zero would never end
   std::ifstream f(path);
   if (!f) throw Error(path + ": cannot open the scene file");
   Scene s;
@@ -287,12 +297,31 @@ Scene load_obj_scene(const std::string& path) {
       for (std::size_t i = 1; i + 1 < poly.size(); ++i) {  // fan: planar convex polygons
         s.triangles.push_back({poly[0], poly[i], poly[i + 1]});
         s.triangle_material.push_back(m);
+        // What the renderer derives from the triangle must be finite: finite coordinates near the
+        // float maximum overflow the edge cross product, the area, the normal or the power.
+        const auto t = static_cast<std::uint32_t>(s.triangles.size() - 1);
+        const float area = s.triangle_area(t);
+        const Vec3 nrm = s.geometric_normal(t);
+        if (!std::isfinite(area) || !std::isfinite(nrm.x) || !std::isfinite(nrm.y) || !std::isfinite(nrm.z))
+          r.fail(area > 0 || !std::isfinite(area) ? "the face's area or normal overflows (coordinates too large)"
+                                                  : "the face is degenerate (zero area)");
+        const Vec3 ke = s.materials[m].emission;
+        if (!std::isfinite(float(M_PI) * area * std::fmax(ke.x, std::fmax(ke.y, ke.z))))
+          r.fail("the face's emitted power overflows (emission times area)");
       }
     } else if (key == "mtllib") {
       std::string name;
       if (!(in >> name)) r.fail("mtllib needs a file name");
-      std::string mpath = name[0] == '/' ? name : dir_of(path) + "/" + name;
-      for (auto& kv : load_mtl(mpath)) library[kv.first] = kv.second;
+      // Inside the scene's folder only: an absolute path or one climbing out with ".." (symlinks
+      // resolved) could name any readable file.
+      namespace fs = std::filesystem;
+      std::error_code ec;
+      const fs::path folder = fs::weakly_canonical(fs::absolute(dir_of(path)), ec);
+      const fs::path mpath = fs::weakly_canonical(folder / name, ec);
+      const auto rel = mpath.lexically_relative(folder);
+      if (fs::path(name).is_absolute() || ec || rel.empty() || *rel.begin() == "..")
+        r.fail("mtllib must name a file inside the scene's folder (no absolute path, no '..')");
+      for (auto& kv : load_mtl(mpath.string())) library[kv.first] = kv.second;
     } else if (key == "usemtl") {
       std::string name;
       if (!(in >> name)) r.fail("usemtl needs a material name");
@@ -310,6 +339,8 @@ Scene load_obj_scene(const std::string& path) {
       float fov = r.number(in, "camera vfov_deg");
       r.no_more(in);
       Vec3 dir = target - pos;
+      if (!std::isfinite(length(dir)) || !std::isfinite(length(cross(dir, up))))
+        r.fail("the camera's direction overflows (target and position too far apart)");
       if (length(dir) <= 0) r.fail("camera target equals its position");
       if (length(cross(dir, up)) <= 0) r.fail("camera up is parallel to the view direction");
       if (!vfov_ok(fov)) r.fail("camera vfov_deg must be in (0, 180)");
