@@ -234,6 +234,16 @@ int run_render(const Args& args) {
   if (!(ropt.caustic_radius >= 0)) throw UsageError("--caustic-radius must be >= 0");
   ropt.batch_queries = static_cast<std::size_t>(batch);
   MethodOptions mopt = method_options(args);
+  {
+    // Before any work: no output may overwrite the scene, a saved index or another output (the
+    // PNG preview lands beside --out unless --png names it).
+    std::vector<FileArg> outputs = {{"--out", out},
+                                    {args.has("png") ? "--png" : "the PNG beside --out", args.str("png", base + ".png")},
+                                    {"--stats", args.str("stats", "")},
+                                    {"--save-index", mopt.save_index}};
+    if (compare) outputs.push_back({"the comparison sheet beside --out", base + "_compare.png"});
+    check_distinct_files({{"--scene", args.str("scene", "")}, {"--load-index", mopt.load_index}}, outputs);
+  }
   ropt.seed = mopt.seed;
   ropt.threads = mopt.threads;
   long long photons = args.integer("photons", 200000);

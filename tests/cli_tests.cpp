@@ -385,7 +385,16 @@ TEST_CASE("cli: outputs never destroy inputs or each other, and misused options 
       {knn + "--method flann --out-ids " + O + "i --out-dist2 " + O + "d --threads 4294967296", "--threads must be in [0, 65536]"},
       {knn + "--method blockhash --out-ids " + O + "i --out-dist2 " + O + "d --P -2", "--P must be in [-1, 1024], got -2"},
       {"demo --N -1 --no-render", "--N must be in [1,"},
+      // The renderer's outputs, the derived PNG included.
+      {"render --scene " + O + "scene.obj --out " + O + "scene.obj --photons 100 --size 8x8", "--out " + O + "scene.obj is the input --scene"},
+      {"render --out " + O + "r.png --photons 100 --size 8x8", "the PNG beside --out and --out name the same file"},
+      {"render --out " + O + "r.exr --png " + O + "r.json --stats " + O + "r.json --photons 100 --size 8x8", "--stats and --png name the same file"},
   };
+  {
+    std::ifstream src(std::string(BHCL_SCENES_DIR) + "/cornell-specular.obj");
+    std::ofstream dst(O + "scene.obj");
+    dst << src.rdbuf();
+  }
   for (const auto& c : cases) {
     std::string out;
     const int rc = test::run_bhcl(c.args, &out);
