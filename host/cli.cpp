@@ -130,6 +130,17 @@ Json stats_header(const std::string& command, const Runtime& rt) {
   return j;
 }
 
+Json inputs_json(const Args& args, std::size_t N, std::size_t n, const SearchParams& p) {
+  Json j;
+  j["points"] = args.str("points");
+  j["queries"] = args.str("queries");
+  j["N"] = N;
+  j["n"] = n;
+  j["k"] = p.k;
+  j["max_radius"] = p.max_radius;  // null: unbounded
+  return j;
+}
+
 Json build_json(const Index& index, const MethodOptions& options) {
   Json b;
   if (const auto* bh = dynamic_cast<const BlockHashIndex*>(&index)) {

@@ -74,6 +74,8 @@ using Json = nlohmann::ordered_json;
 void write_json(const std::string& path, const Json& j);
 // What every stats file starts with: the tool and library version, the command and the device.
 Json stats_header(const std::string& command, const Runtime& rt);
+// The inputs of a knn or eval run: the point and query files, N, n, k and the radius.
+Json inputs_json(const Args& args, std::size_t N, std::size_t n, const SearchParams& p);
 // The build parameters an index actually used (derived ones filled in: block hashing's L, P, B, X
 // and switches; FLANN's threads) and the search parameters of a query with `p` (defaults
 // resolved: the work-group size, block hashing's probes), so that a run can be reproduced.

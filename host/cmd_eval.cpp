@@ -116,12 +116,7 @@ int run_eval(const Args& args) {
       j[p + "queries_per_s"] = s.stats.queries_per_s();
       j[p + "memory_bytes"] = s.index->memory_bytes();
     };
-    j["points"] = args.str("points");
-    j["queries"] = args.str("queries");
-    j["N"] = N;
-    j["n"] = n;
-    j["k"] = params.k;
-    j["max_radius"] = params.max_radius;  // null: unbounded
+    j.update(inputs_json(args, N, n, params));
     side("", m, mopt);
     side("truth_", truth, topt);
     j["recall"] = m.accuracy.recall;

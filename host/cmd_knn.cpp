@@ -57,12 +57,7 @@ int run_knn(const Args& args) {
     Json j = stats_header("knn", *rt);
     j["method"] = index->method();
     j["exact"] = index->exact();
-    j["points"] = args.str("points");
-    j["queries"] = args.str("queries");
-    j["N"] = N;
-    j["n"] = n;
-    j["k"] = params.k;
-    j["max_radius"] = params.max_radius;  // null: unbounded
+    j.update(inputs_json(args, N, n, params));
     j["build"] = build_json(*index, mopt);
     j["search"] = search_json(*index, params);
     j["build_s"] = index->build_seconds();

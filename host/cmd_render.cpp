@@ -301,24 +301,12 @@ int run_render(const Args& args) {
                  png.c_str(), exposure, total, device.c_str());
     if (args.has("stats")) {
       Json j = render_header(*rt, args, scene.name, ropt, maps, popt.photons);
-      j["method"] = method;
-      j["A"] = ropt.search.A;
-      j["build"] = r.build;
-      j["search"] = r.search;
+      j.update(run_json(r, nullptr));  // method, A, build, search, the time split, query counts
       j["exposure"] = exposure;
-      j["queries"] = r.stats.queries;
-      j["caustic_queries"] = r.stats.caustic_queries;
-      j["index_calls"] = r.stats.index_calls;
       j["gather_rays"] = r.stats.gather_rays;
       j["gather_escaped"] = r.stats.gather_escaped;
       j["visible_points"] = r.stats.visible_points;
       j["photon_s"] = photon_s;
-      j["index_build_s"] = r.build_s;
-      j["kernel_compile_s"] = r.warm_s + r.stats.compile_s;
-      j["trace_s"] = r.stats.trace_s;
-      j["query_s"] = r.stats.query_s;
-      j["query_kernel_s"] = r.stats.query_kernel_s;
-      j["shade_s"] = r.stats.shade_s;
       j["total_s"] = total;
       write_json(args.str("stats"), j);
     }

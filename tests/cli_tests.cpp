@@ -341,7 +341,7 @@ TEST_CASE("cli: a failed write of any output is an error, never an empty file an
       {knn + "--method kdtree" + ok + " --stats " + O + "full.json", "full.json: writing the stats"},
       {knn + "--method blockhash" + ok + " --save-index " + O + "full.idx", "full.idx: writing the block-hash index"},
       {"eval --points " + P + " --queries " + P + " --method blockhash --quiet --stats " + O + "full.json", "full.json: writing the stats"},
-      {"render --out " + O + "full.exr --photons 2000 --size 16x16 --quiet", "full.exr: writing the OpenEXR image failed"},
+      {"render --out " + O + "full.exr --png " + O + "r.png --photons 2000 --size 16x16 --quiet", "full.exr: writing the OpenEXR image failed"},
       {"render --out " + O + "r.exr --png " + O + "full.png --photons 2000 --size 16x16 --quiet", "full.png: writing the PNG failed"},
   };
   for (const auto& [args, expect] : cases) {
