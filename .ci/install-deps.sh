@@ -11,6 +11,7 @@ packages=(
   libflann-dev liblz4-dev libnanoflann-dev
   doctest-dev libcli11-dev nlohmann-json3-dev
   python3 python3-numpy python3-matplotlib
+  python3-venv python3-dev pybind11-dev python3-scipy python3-pytest
 )
 if [ "${1:-}" = "--ci" ]; then
   packages+=(clang libclang-rt-14-dev)

@@ -1,0 +1,277 @@
+// blockhash_cl._core: the thin C++ layer under the Python package (python/blockhash_cl/).
+//
+// Split of work: the Python layer (__init__.py) checks names, keyword arguments and array shapes
+// and hands this layer C-contiguous float32 (N, 3) arrays; this layer calls the library with the
+// GIL released, and returns results as numpy arrays that own the library's vectors (no copy).
+// Every bhcl::Error reaches Python as blockhash_cl.Error (a ValueError) with the library's
+// message; bhcl::ClError (a failed OpenCL call) as blockhash_cl.OpenCLError (also a
+// RuntimeError). Nothing the library throws ends the interpreter.
+//
+// Adding a search (e.g. radius search) is one more function here taking (Index, queries,
+// SearchParams) like knn_query below, returning its arrays through to_numpy(), bound in the
+// Index class at the bottom, plus a method in __init__.py's Index that reuses _queries_array() and
+// _search_params().
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "blockhash_cl/blockhash.hpp"
+#include "blockhash_cl/config.hpp"
+#include "blockhash_cl/error.hpp"
+#include "blockhash_cl/factory.hpp"
+#include "blockhash_cl/knn.hpp"
+#include "blockhash_cl/runtime.hpp"
+#if BHCL_HAVE_FLANN
+#include "blockhash_cl/flann_index.hpp"
+#endif
+
+namespace py = pybind11;
+
+namespace {
+
+PyObject* g_error = nullptr;     // blockhash_cl.Error(ValueError)
+PyObject* g_cl_error = nullptr;  // blockhash_cl.OpenCLError(Error, RuntimeError)
+
+// A numpy array that owns `v` (moved to the heap, freed with the array): the results leave the
+// library without a copy.
+template <typename T>
+py::array_t<T> to_numpy(std::vector<T>&& v, std::vector<py::ssize_t> shape) {
+  auto* heap = new std::vector<T>(std::move(v));
+  py::capsule owner(heap, [](void* p) { delete static_cast<std::vector<T>*>(p); });
+  return py::array_t<T>(std::move(shape), heap->data(), owner);
+}
+
+// The (n, 3) float32 C-contiguous array the Python layer prepared; checked again here because
+// _core is importable on its own.
+std::size_t rows_of(const py::array_t<float, py::array::c_style>& a, const char* what) {
+  if (a.ndim() != 2 || a.shape(1) != 3)
+    throw py::value_error(std::string(what) + " must have shape (n, 3)");
+  return static_cast<std::size_t>(a.shape(0));
+}
+
+py::dict device_dict(const bhcl::DeviceInfo& d) {
+  py::dict o;
+  o["spec"] = std::to_string(d.platform_index) + ":" + std::to_string(d.device_index);
+  o["platform_index"] = d.platform_index;
+  o["device_index"] = d.device_index;
+  o["platform"] = d.platform_name;
+  o["platform_vendor"] = d.platform_vendor;
+  o["platform_version"] = d.platform_version;
+  o["device"] = d.device_name;
+  o["vendor"] = d.device_vendor;
+  o["version"] = d.device_version;
+  o["driver_version"] = d.driver_version;
+  o["type"] = d.type_name();
+  o["compute_units"] = d.compute_units;
+  o["global_mem_bytes"] = d.global_mem_bytes;
+  o["max_alloc_bytes"] = d.max_alloc_bytes;
+  o["max_work_group_size"] = d.max_work_group_size;
+  o["is_pocl"] = d.is_pocl;
+  o["is_nvidia"] = d.is_nvidia;
+  o["summary"] = d.summary();
+  o["quirks"] = bhcl::quirks_for(d).description;
+  return o;
+}
+
+py::dict stats_dict(const bhcl::QueryStats& s) {
+  py::dict o;
+  o["n_queries"] = s.n_queries;
+  o["nonfinite_queries"] = s.nonfinite_queries;
+  o["batches"] = s.batches;
+  o["compile_s"] = s.compile_s;
+  o["upload_s"] = s.upload_s;
+  o["query_s"] = s.query_s;
+  o["download_s"] = s.download_s;
+  o["wall_s"] = s.wall_s;
+  o["queries_per_s"] = s.queries_per_s();
+  return o;
+}
+
+// What the search actually used beyond the caller's parameters (as `bhcl knn --stats` writes it):
+// block hashing's A (tuned when a recall target was given) and probes.
+void add_resolved(py::dict& o, const bhcl::Index& index, const bhcl::SearchParams& p) {
+  const auto* bh = dynamic_cast<const bhcl::BlockHashIndex*>(&index);
+  if (!bh) return;
+  if (p.recall_target > 0) {
+    bhcl::BlockHashIndex::RecallTuning t;
+    {
+      py::gil_scoped_release nogil;
+      t = bh->recall_tuning(p);  // cached by the query that just ran
+    }
+    o["recall_target"] = p.recall_target;
+    o["A"] = t.A;
+    o["tuned_sample_recall"] = t.recall;
+    o["tuned_reached"] = t.reached;
+  } else {
+    o["A"] = p.A;
+  }
+  const auto& i = bh->info();
+  o["neighbour_probes"] =
+      p.neighbour_probes >= 0 ? p.neighbour_probes : (i.neighbour_probes ? (i.cell_aligned ? 2 : 1) : 0);
+}
+
+// kNN: (dist2 (n, k) float32, ids (n, k) int32, counts (n,) int32, stats dict).
+py::tuple knn_query(const bhcl::Index& index, const py::array_t<float, py::array::c_style>& queries,
+                    const bhcl::SearchParams& params) {
+  const std::size_t n = rows_of(queries, "queries");
+  bhcl::KnnResult r;
+  bhcl::QueryStats st;
+  {
+    py::gil_scoped_release nogil;
+    st = index.query(queries.data(), n, params, r);
+  }
+  const auto rows = static_cast<py::ssize_t>(n), k = static_cast<py::ssize_t>(params.k);
+  py::dict stats = stats_dict(st);
+  add_resolved(stats, index, params);
+  return py::make_tuple(to_numpy(std::move(r.dist2), {rows, k}), to_numpy(std::move(r.ids), {rows, k}),
+                        to_numpy(std::move(r.counts), {rows}), stats);
+}
+
+std::unique_ptr<bhcl::Index> make_index(const std::string& method,
+                                        const std::shared_ptr<bhcl::Runtime>& runtime,
+                                        const py::array_t<float, py::array::c_style>& points,
+                                        const bhcl::MethodOptions& options) {
+  if (!runtime) throw py::value_error("make_index: runtime is None");
+  const std::size_t n = rows_of(points, "points");
+  py::gil_scoped_release nogil;
+  return bhcl::make_index(method, runtime, points.data(), n, options);
+}
+
+py::dict build_info(const bhcl::Index& index) {
+  py::dict o;
+  if (const auto* bh = dynamic_cast<const bhcl::BlockHashIndex*>(&index)) {
+    const bhcl::BlockHashBuildInfo& i = bh->info();
+    o["preset"] = bhcl::BlockHashBuildParams::preset_name(i.preset);
+    o["L"] = i.L;
+    o["P"] = i.P;
+    o["B"] = i.B;
+    o["X"] = i.X;
+    o["cell_aligned"] = i.cell_aligned;
+    o["axis_P"] = py::make_tuple(i.axis_P[0], i.axis_P[1], i.axis_P[2]);
+    o["guard_thresholds"] = i.guard_thresholds;
+    o["keep_top_count"] = i.keep_top_count;
+    o["direct_addressing"] = i.direct_addressing;
+    o["box_skip"] = i.box_skip;
+    o["neighbour_probes"] = i.neighbour_probes;
+    o["box_order"] = i.box_order;
+    o["hilbert_seed"] = i.hilbert_seed;
+    o["n_blocks"] = i.n_blocks;
+    o["occupied_cells"] = i.occupied_cells;
+    o["overflowed_buckets"] = i.overflowed_buckets;
+    o["block_refs"] = i.block_refs;
+    o["median_cell_points"] = i.median_cell_points;
+    o["summary"] = i.summary();
+  }
+#if BHCL_HAVE_FLANN
+  if (const auto* fl = dynamic_cast<const bhcl::FlannIndex*>(&index)) o["threads"] = fl->threads();
+#endif
+  return o;
+}
+
+void save(const bhcl::Index& index, const std::string& path) {
+  const auto* bh = dynamic_cast<const bhcl::BlockHashIndex*>(&index);
+  if (!bh)
+    throw bhcl::Error("save: only block-hash indexes are saved (method '" + index.method() + "')");
+  py::gil_scoped_release nogil;
+  bh->save(path);
+}
+
+}  // namespace
+
+PYBIND11_MODULE(_core, m) {
+  m.doc() = "blockhash_cl's C++ layer; use the package blockhash_cl, not this module.";
+  m.attr("__version__") = BHCL_VERSION_STRING;
+  m.attr("HAVE_FLANN") = bool(BHCL_HAVE_FLANN);
+  m.attr("MAX_K") = bhcl::kMaxK;
+
+  g_error = PyErr_NewExceptionWithDoc(
+      "blockhash_cl.Error",
+      "An error of the blockhash_cl library: bad input or parameters, an unreadable file. A ValueError.",
+      PyExc_ValueError, nullptr);
+  py::object bases = py::make_tuple(py::handle(g_error), py::handle(PyExc_RuntimeError));
+  g_cl_error = PyErr_NewExceptionWithDoc(
+      "blockhash_cl.OpenCLError",
+      "An OpenCL call failed (or a kernel did not build): a blockhash_cl.Error and a RuntimeError.",
+      bases.ptr(), nullptr);
+  if (!g_error || !g_cl_error) throw py::error_already_set();
+  m.add_object("Error", py::handle(g_error));
+  m.add_object("OpenCLError", py::handle(g_cl_error));
+  py::register_exception_translator([](std::exception_ptr p) {
+    try {
+      if (p) std::rethrow_exception(p);
+    } catch (const bhcl::ClError& e) {
+      PyErr_SetString(g_cl_error, e.what());
+    } catch (const bhcl::Error& e) {
+      PyErr_SetString(g_error, e.what());
+    }
+  });
+
+  m.def("method_names", &bhcl::method_names, "Names make_index accepts, in display order.");
+  m.def("list_devices", [] {
+    std::vector<py::dict> out;
+    for (const auto& d : bhcl::list_devices()) out.push_back(device_dict(d));
+    return out;
+  }, "Every OpenCL device of every platform (empty when there is none).");
+  m.def("select_device", [](const std::string& spec) { return device_dict(bhcl::select_device(spec)); },
+        py::arg("spec"), "The device a spec picks (empty: BHCL_DEVICE, then the default).");
+
+  py::class_<bhcl::Runtime, std::shared_ptr<bhcl::Runtime>>(m, "Runtime")
+      .def(py::init([](const std::string& spec) {
+             py::gil_scoped_release nogil;
+             return std::make_shared<bhcl::Runtime>(spec);
+           }),
+           py::arg("spec") = "")
+      .def_property_readonly("device", [](const bhcl::Runtime& r) { return device_dict(r.info()); })
+      .def_property_readonly("build_seconds", &bhcl::Runtime::build_seconds);
+  m.def("default_runtime", [] {
+    py::gil_scoped_release nogil;
+    return bhcl::default_runtime();
+  }, "The process-wide runtime (BHCL_DEVICE, read once, else PoCL, else the first device).");
+
+  py::class_<bhcl::SearchParams>(m, "SearchParams")
+      .def(py::init<>())
+      .def_readwrite("k", &bhcl::SearchParams::k)
+      .def_readwrite("max_radius", &bhcl::SearchParams::max_radius)
+      .def_readwrite("A", &bhcl::SearchParams::A)
+      .def_readwrite("recall_target", &bhcl::SearchParams::recall_target)
+      .def_readwrite("neighbour_probes", &bhcl::SearchParams::neighbour_probes)
+      .def_readwrite("local_size", &bhcl::SearchParams::local_size)
+      .def_readwrite("max_batch", &bhcl::SearchParams::max_batch)
+      .def_readwrite("sort_queries", &bhcl::SearchParams::sort_queries);
+
+  py::class_<bhcl::MethodOptions>(m, "MethodOptions")
+      .def(py::init<>())
+      .def_readwrite("preset", &bhcl::MethodOptions::preset)
+      .def_readwrite("L", &bhcl::MethodOptions::L)
+      .def_readwrite("P", &bhcl::MethodOptions::P)
+      .def_readwrite("B", &bhcl::MethodOptions::B)
+      .def_readwrite("X", &bhcl::MethodOptions::X)
+      .def_readwrite("threads", &bhcl::MethodOptions::threads)
+      .def_readwrite("seed", &bhcl::MethodOptions::seed)
+      .def_readwrite("load_index", &bhcl::MethodOptions::load_index)
+      .def_readwrite("save_index", &bhcl::MethodOptions::save_index);
+
+  py::class_<bhcl::Index, std::unique_ptr<bhcl::Index>>(m, "Index")
+      .def_property_readonly("method", &bhcl::Index::method)
+      .def_property_readonly("exact", &bhcl::Index::exact)
+      .def_property_readonly("size", &bhcl::Index::size)
+      .def_property_readonly("memory_bytes", &bhcl::Index::memory_bytes)
+      .def_property_readonly("build_seconds", &bhcl::Index::build_seconds)
+      .def_property_readonly("runtime", &bhcl::Index::runtime_ptr)
+      .def_property_readonly("build_info", &build_info)
+      .def("query", &knn_query, py::arg("queries").noconvert(), py::arg("params"))
+      .def("save", &save, py::arg("path"))
+      .def("warm_up", [](const bhcl::Index& i, const bhcl::SearchParams& p) {
+        py::gil_scoped_release nogil;
+        return i.warm_up(p);
+      }, py::arg("params"));
+
+  m.def("make_index", &make_index, py::arg("method"), py::arg("runtime"),
+        py::arg("points").noconvert(), py::arg("options"));
+}

@@ -1,0 +1,336 @@
+"""blockhash_cl from Python: batched k-nearest-neighbour queries on 3D points with OpenCL kernels.
+
+    import numpy as np, blockhash_cl as bh
+    index = bh.make_index("blockhash", points)          # (N, 3) float32 or float64
+    dist2, ids = index.query(queries, k=10, A=8)        # (n, k) float32 and int32, FAISS order
+    index.save("a.bhi"); index = bh.load("a.bhi", points)
+    bh.devices()                                        # what `bhcl devices` lists
+
+The result contract is the C++ library's: each row sorted by (squared distance, index), ties to
+the lower index; missing neighbours (k > N, or fewer points within max_radius) are id -1 and
+distance +inf; a query with a NaN/Inf coordinate gets an empty row. Distances are SQUARED.
+
+Errors: every error of the library is raised as blockhash_cl.Error, a ValueError, with the
+library's message (a failed OpenCL call as OpenCLError, also a RuntimeError); an array of the
+wrong kind raises TypeError, one of the wrong shape ValueError, an option the method does not read
+TypeError (as an unexpected keyword argument would).
+
+Threads: queries and builds release the GIL, so several threads can query one index (or several)
+at once; the library serialises what must be serialised.
+"""
+from __future__ import annotations
+
+import operator
+import os
+import threading
+from typing import Any, Dict, List, Optional, Tuple, Union
+
+import numpy as np
+
+from . import _core
+from ._core import Error, OpenCLError, Runtime
+
+__all__ = [
+    "Error", "OpenCLError", "Runtime", "Index", "make_index", "load", "devices", "select_device",
+    "get_runtime", "method_names", "MAX_K", "HAVE_FLANN", "__version__",
+]
+
+__version__: str = _core.__version__
+MAX_K: int = _core.MAX_K  # the largest k any method answers
+HAVE_FLANN: bool = _core.HAVE_FLANN  # whether the "flann" method was built in
+
+_DEVICE_METHODS = ("bruteforce", "kdtree", "blockhash")
+
+# The keyword arguments each method reads; anything else is refused, as bhcl refuses an option the
+# chosen method does not read (host/cli.cpp, check_method_options). A method the library gains
+# later takes the common search parameters until it is listed here.
+_BUILD_OPTIONS: Dict[str, Tuple[str, ...]] = {
+    "blockhash": ("preset", "L", "P", "B", "X", "seed"),
+    "kdtree": (),
+    "bruteforce": (),
+    "flann": ("threads",),
+}
+_SEARCH_COMMON = ("max_radius", "sort_queries")
+_SEARCH_DEVICE = ("local_size", "max_batch")
+_SEARCH_APPROX = ("A", "recall_target", "probes")
+
+_INT32_MAX = 2**31 - 1
+
+
+def method_names() -> List[str]:
+    """The methods make_index accepts, in display order (flann only when it was built in)."""
+    return list(_core.method_names())
+
+
+def _search_options(method: str) -> Tuple[str, ...]:
+    names = _SEARCH_COMMON
+    if method in _DEVICE_METHODS:
+        names += _SEARCH_DEVICE
+    if method == "blockhash":
+        names += _SEARCH_APPROX
+    return names
+
+
+def _refuse_unknown(method: str, given: Dict[str, Any], accepted: Tuple[str, ...], kind: str) -> None:
+    for name, value in given.items():
+        if value is None or name in accepted:
+            continue
+        users = [m for m, opts in _BUILD_OPTIONS.items() if name in opts]
+        users += [m for m in _BUILD_OPTIONS if name in _search_options(m) and m not in users]
+        where = f" (only to {', '.join(users)})" if users else ""
+        raise TypeError(f"{kind} '{name}' does not apply to method {method}{where}")
+
+
+def _int(name: str, value: Any, lo: int = -_INT32_MAX - 1, hi: int = _INT32_MAX) -> int:
+    if isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name} must be an integer, got a bool")
+    try:
+        v = operator.index(value)
+    except TypeError:
+        raise TypeError(f"{name} must be an integer, got {type(value).__name__}") from None
+    if not lo <= v <= hi:
+        raise ValueError(f"{name} = {v} is out of range: must be in [{lo}, {hi}]")
+    return v
+
+
+def _float(name: str, value: Any) -> float:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a real number, got {type(value).__name__}")
+    return float(value)
+
+
+def _xyz(array: Any, what: str) -> np.ndarray:
+    """An (n, 3) array as C-contiguous float32: the array itself when it already is one (no copy),
+    else one converted copy. Integer input is converted; other kinds are refused."""
+    a = np.asarray(array)
+    if a.dtype.kind not in "fiu":
+        raise TypeError(f"{what} must be a float32 or float64 array, got dtype {a.dtype}")
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise ValueError(f"{what} must have shape (n, 3), got {a.shape}")
+    return np.ascontiguousarray(a, dtype=np.float32)
+
+
+# One runtime (OpenCL context, queue, compiled kernels) per device spec, shared by every index
+# built for it, so that kernels compile once per process.
+_runtimes: Dict[str, Runtime] = {}
+_runtimes_lock = threading.Lock()
+
+
+def get_runtime(device: Union[None, str, Runtime] = None) -> Runtime:
+    """The runtime for a device spec: "P:D", "cpu", "gpu" or a name fragment ("pocl",
+    "nvidia:1"), as `bhcl devices` lists them; None (or "") reads BHCL_DEVICE now, else PoCL,
+    else the first device. One runtime per spec is kept and shared. A Runtime passes through."""
+    if isinstance(device, Runtime):
+        return device
+    if device is None:
+        device = os.environ.get("BHCL_DEVICE", "")
+    if not isinstance(device, str):
+        raise TypeError(f"device must be a str, a Runtime or None, got {type(device).__name__}")
+    key = device.strip().lower() or "default"
+    with _runtimes_lock:
+        rt = _runtimes.get(key)
+        if rt is None:
+            rt = _runtimes[key] = Runtime(key)
+        return rt
+
+
+def devices() -> List[Dict[str, Any]]:
+    """Every OpenCL device, as `bhcl devices` lists them: dicts with "spec" ("P:D"), "platform",
+    "device", "type", "compute_units", "global_mem_bytes", "version", "summary", "quirks", ...
+    and "selected", True for the one device=None picks now (BHCL_DEVICE, else the default)."""
+    devs = [dict(d) for d in _core.list_devices()]
+    try:
+        picked = _core.select_device(os.environ.get("BHCL_DEVICE", ""))["spec"]
+    except Error:
+        picked = None  # a BHCL_DEVICE that matches nothing: make_index will say so
+    for d in devs:
+        d["selected"] = d["spec"] == picked
+    return devs
+
+
+def select_device(spec: Optional[str] = None) -> Dict[str, Any]:
+    """The device a spec picks (None: BHCL_DEVICE, else the default). Raises Error naming the
+    spec and listing the devices when none matches."""
+    return dict(_core.select_device("" if spec is None else spec))
+
+
+class Index:
+    """A built index of one method over (N, 3) points. Made by make_index() or load().
+
+    Attributes: method, exact, size (also len()), memory_bytes, build_seconds, device (a dict as
+    devices() gives), build_info (the parameters a block-hash build used), last_stats (the last
+    query's stats dict, whichever thread ran it).
+    """
+
+    __slots__ = ("_impl", "last_stats")
+
+    def __init__(self, impl: "_core.Index") -> None:
+        self._impl = impl
+        self.last_stats: Optional[Dict[str, Any]] = None
+
+    @property
+    def method(self) -> str:
+        return self._impl.method
+
+    @property
+    def exact(self) -> bool:
+        return self._impl.exact
+
+    @property
+    def size(self) -> int:
+        return self._impl.size
+
+    def __len__(self) -> int:
+        return self._impl.size
+
+    @property
+    def memory_bytes(self) -> int:
+        """Bytes of the structure (device memory, points included; host memory for flann)."""
+        return self._impl.memory_bytes
+
+    @property
+    def build_seconds(self) -> float:
+        return self._impl.build_seconds
+
+    @property
+    def device(self) -> Dict[str, Any]:
+        return dict(self._impl.runtime.device)
+
+    @property
+    def build_info(self) -> Dict[str, Any]:
+        """blockhash: the build parameters used (derived ones filled in) and the structure's
+        figures; flann: the thread count; other methods: {}."""
+        return dict(self._impl.build_info)
+
+    def __repr__(self) -> str:
+        return f"<blockhash_cl.Index {self.method} of {self.size} points on {self.device['summary']}>"
+
+    def _search_params(self, k: int, options: Dict[str, Any]) -> "_core.SearchParams":
+        """SearchParams from keyword arguments, refusing those this method does not read.
+        Shared by every search (kNN now; radius search to come)."""
+        _refuse_unknown(self.method, options, _search_options(self.method), "search parameter")
+        p = _core.SearchParams()
+        p.k = _int("k", k)
+        if options.get("A") is not None and options.get("recall_target") is not None:
+            raise ValueError("A and recall_target both given: give one (recall_target picks A)")
+        if options.get("max_radius") is not None:
+            p.max_radius = _float("max_radius", options["max_radius"])
+        if options.get("A") is not None:
+            p.A = _float("A", options["A"])
+        if options.get("recall_target") is not None:
+            p.recall_target = _float("recall_target", options["recall_target"])
+        if options.get("probes") is not None:
+            p.neighbour_probes = _int("probes", options["probes"])
+        if options.get("local_size") is not None:
+            p.local_size = _int("local_size", options["local_size"], 0, 1 << 20)
+        if options.get("max_batch") is not None:
+            p.max_batch = _int("max_batch", options["max_batch"], 0, 2**62)
+        if options.get("sort_queries") is not None:
+            s = options["sort_queries"]
+            p.sort_queries = int(s) if isinstance(s, bool) else _int("sort_queries", s, -1, 1)
+        return p
+
+    def query(
+        self,
+        queries: Any,
+        k: int = 10,
+        *,
+        A: Optional[float] = None,
+        max_radius: Optional[float] = None,
+        recall_target: Optional[float] = None,
+        probes: Optional[int] = None,
+        local_size: Optional[int] = None,
+        max_batch: Optional[int] = None,
+        sort_queries: Optional[Union[bool, int]] = None,
+        return_counts: bool = False,
+        return_stats: bool = False,
+    ) -> Tuple[np.ndarray, ...]:
+        """The k nearest indexed points of each query.
+
+        queries: (n, 3) array; C-contiguous float32 is used in place, anything else is converted
+        to float32 once. k: 1..MAX_K. max_radius: only neighbours within this Euclidean (not
+        squared) distance. blockhash only: A (examine at most A*k points per query, default 8),
+        or recall_target (a recall@k such as 0.95; the index tunes A for this k once, on a sample
+        of its points), probes (-1 the preset's, 0 the query's cell, 1 and its near-side
+        neighbours, 2 and the 4x4x4 block when needed). Device methods: local_size (work-group
+        size, 0 = device default), max_batch (queries per dispatch, 0 = automatic).
+        sort_queries: dispatch in Hilbert order (True/1, False/0, None: for large batches).
+
+        Returns (dist2, ids): (n, k) float32 squared distances and (n, k) int32 indices into the
+        points, each row ascending (FAISS's order); then counts ((n,) int32, neighbours found per
+        query) if return_counts, then the stats dict if return_stats (also in last_stats): n_queries,
+        nonfinite_queries, batches, compile_s, upload_s, query_s, download_s, wall_s,
+        queries_per_s, and for blockhash the A and probes used (with recall_target: the A tuned
+        and the recall it reached on the tuning sample). The GIL is released while it runs.
+        """
+        p = self._search_params(k, dict(A=A, max_radius=max_radius, recall_target=recall_target,
+                                         probes=probes, local_size=local_size, max_batch=max_batch,
+                                         sort_queries=sort_queries))
+        q = _xyz(queries, "queries")
+        dist2, ids, counts, stats = self._impl.query(q, p)
+        self.last_stats = stats
+        out: Tuple[np.ndarray, ...] = (dist2, ids)
+        if return_counts:
+            out += (counts,)
+        if return_stats:
+            out += (stats,)
+        return out
+
+    # radius_search(queries, r, ...) goes here: _search_params(), _xyz(), one call into _core.
+
+    def warm_up(self, k: int = 10, **search: Any) -> float:
+        """Compiles the kernel variant the search parameters need and launches it once, so that
+        later query timings exclude compilation. Returns the seconds it took (0 if done before)."""
+        return self._impl.warm_up(self._search_params(k, search))
+
+    def save(self, path: Union[str, "os.PathLike[str]"]) -> None:
+        """Writes a block-hash index to a file (versioned, checksummed); load() reads it back.
+        Other methods raise Error (they rebuild quickly)."""
+        self._impl.save(os.fspath(path))
+
+
+def make_index(method: str, points: Any, *, device: Union[None, str, Runtime] = None,
+               **options: Any) -> Index:
+    """Builds an index of `method` ("blockhash", "kdtree", "bruteforce", "flann"; see
+    method_names()) over points, an (N, 3) array (float32 or float64; converted to float32 once
+    when it is not C-contiguous float32; the index keeps its own copy, not the array).
+
+    Build options (keyword arguments; one the method does not read raises TypeError):
+      blockhash: preset ("auto" default, or "paper"), L (tables), P (thresholds per dimension),
+                 B (block references per bucket), X (points per block, 1..16), seed (threshold
+                 jitter); -1 or absent: the preset decides.
+      flann:     threads (query threads, 0 = all hardware threads).
+    device: a spec ("P:D", "cpu", "gpu", "pocl", "nvidia:1"), a Runtime, or None for
+    BHCL_DEVICE, else PoCL, else the first device. The GIL is released during the build.
+    """
+    if not isinstance(method, str):
+        raise TypeError(f"method must be a str, got {type(method).__name__}")
+    accepted = _BUILD_OPTIONS.get(method, ())
+    _refuse_unknown(method, options, accepted, "build option")
+    opts = _core.MethodOptions()
+    for name, value in options.items():
+        if value is None:
+            continue
+        if name == "preset":
+            if not isinstance(value, str):
+                raise TypeError(f"preset must be a str, got {type(value).__name__}")
+            opts.preset = value
+        elif name == "seed":
+            opts.seed = _int("seed", value, 0, 2**64 - 1)
+        elif name == "threads":
+            opts.threads = _int("threads", value, 0, 1 << 16)
+        else:
+            setattr(opts, name, _int(name, value))
+    pts = _xyz(points, "points")
+    return Index(_core.make_index(method, get_runtime(device), pts, opts))
+
+
+def load(path: Union[str, "os.PathLike[str]"], points: Any, *,
+         device: Union[None, str, Runtime] = None) -> Index:
+    """Reads a block-hash index saved by Index.save(). points must be the (N, 3) points it was
+    built from (the index refers to them by index); a file that does not match them, or is
+    missing, truncated or corrupt, raises Error naming the file and what differs."""
+    opts = _core.MethodOptions()
+    opts.load_index = os.fspath(path)
+    pts = _xyz(points, "points")
+    return Index(_core.make_index("blockhash", get_runtime(device), pts, opts))
