@@ -1,4 +1,4 @@
-/* Block hashing: the device layouts shared by the host build and kernels/blockhash_knn.cl.
+/* Block hashing: the device layouts shared by the host build and both block-hash kernels.
  * Valid OpenCL C and C++ (the host checks sizes and offsets with static_assert in
  * lib/src/blockhash/index.cpp).
  *
