@@ -23,9 +23,10 @@ from __future__ import annotations
 import operator
 import os
 import threading
-from typing import Any, Dict, List, Optional, Tuple, Union
+from typing import Any, Dict, List, Literal, Optional, Tuple, Union, overload
 
 import numpy as np
+import numpy.typing as npt
 
 from . import _core
 from ._core import Error, OpenCLError, Runtime
@@ -50,11 +51,13 @@ _BUILD_OPTIONS: Dict[str, Tuple[str, ...]] = {
     "bruteforce": (),
     "flann": ("threads",),
 }
-_SEARCH_COMMON = ("max_radius", "sort_queries")
-_SEARCH_DEVICE = ("local_size", "max_batch")
-_SEARCH_APPROX = ("A", "recall_target", "probes")
+_SEARCH_COMMON: Tuple[str, ...] = ("max_radius", "sort_queries")
+_SEARCH_DEVICE: Tuple[str, ...] = ("local_size", "max_batch")
+_SEARCH_APPROX: Tuple[str, ...] = ("A", "recall_target", "probes")
 
 _INT32_MAX = 2**31 - 1
+_F32 = npt.NDArray[np.float32]
+_I32 = npt.NDArray[np.int32]
 
 
 def method_names() -> List[str]:
@@ -99,7 +102,7 @@ def _float(name: str, value: Any) -> float:
     return float(value)
 
 
-def _xyz(array: Any, what: str) -> np.ndarray:
+def _xyz(array: Any, what: str) -> "npt.NDArray[np.float32]":
     """An (n, 3) array as C-contiguous float32: the array itself when it already is one (no copy),
     else one converted copy. Integer input is converted; other kinds are refused."""
     a = np.asarray(array)
@@ -230,6 +233,74 @@ class Index:
             p.sort_queries = int(s) if isinstance(s, bool) else _int("sort_queries", s, -1, 1)
         return p
 
+    @overload
+    def query(
+        self,
+        queries: Any,
+        k: int = 10,
+        *,
+        A: Optional[float] = None,
+        max_radius: Optional[float] = None,
+        recall_target: Optional[float] = None,
+        probes: Optional[int] = None,
+        local_size: Optional[int] = None,
+        max_batch: Optional[int] = None,
+        sort_queries: Optional[Union[bool, int]] = None,
+        return_counts: Literal[False] = ...,
+        return_stats: Literal[False] = ...,
+    ) -> Tuple[_F32, _I32]: ...
+
+    @overload
+    def query(
+        self,
+        queries: Any,
+        k: int = 10,
+        *,
+        A: Optional[float] = None,
+        max_radius: Optional[float] = None,
+        recall_target: Optional[float] = None,
+        probes: Optional[int] = None,
+        local_size: Optional[int] = None,
+        max_batch: Optional[int] = None,
+        sort_queries: Optional[Union[bool, int]] = None,
+        return_counts: Literal[True] = ...,
+        return_stats: Literal[False] = ...,
+    ) -> Tuple[_F32, _I32, _I32]: ...
+
+    @overload
+    def query(
+        self,
+        queries: Any,
+        k: int = 10,
+        *,
+        A: Optional[float] = None,
+        max_radius: Optional[float] = None,
+        recall_target: Optional[float] = None,
+        probes: Optional[int] = None,
+        local_size: Optional[int] = None,
+        max_batch: Optional[int] = None,
+        sort_queries: Optional[Union[bool, int]] = None,
+        return_counts: Literal[False] = ...,
+        return_stats: Literal[True] = ...,
+    ) -> Tuple[_F32, _I32, Dict[str, Any]]: ...
+
+    @overload
+    def query(
+        self,
+        queries: Any,
+        k: int = 10,
+        *,
+        A: Optional[float] = None,
+        max_radius: Optional[float] = None,
+        recall_target: Optional[float] = None,
+        probes: Optional[int] = None,
+        local_size: Optional[int] = None,
+        max_batch: Optional[int] = None,
+        sort_queries: Optional[Union[bool, int]] = None,
+        return_counts: Literal[True] = ...,
+        return_stats: Literal[True] = ...,
+    ) -> Tuple[_F32, _I32, _I32, Dict[str, Any]]: ...
+
     def query(
         self,
         queries: Any,
@@ -244,7 +315,7 @@ class Index:
         sort_queries: Optional[Union[bool, int]] = None,
         return_counts: bool = False,
         return_stats: bool = False,
-    ) -> Tuple[np.ndarray, ...]:
+    ) -> Tuple[Any, ...]:
         """The k nearest indexed points of each query.
 
         queries: (n, 3) array; C-contiguous float32 is used in place, anything else is converted
@@ -269,7 +340,7 @@ class Index:
         q = _xyz(queries, "queries")
         dist2, ids, counts, stats = self._impl.query(q, p)
         self.last_stats = stats
-        out: Tuple[np.ndarray, ...] = (dist2, ids)
+        out: Tuple[Any, ...] = (dist2, ids)
         if return_counts:
             out += (counts,)
         if return_stats:
