@@ -98,6 +98,12 @@ struct KnnResult {
 // Caller-owned device buffers for the buffer-level call: ids (n*k int32), dist2 (n*k float),
 // counts (n int32), and examined (n int32) only with SearchParams::count_examined.
 struct ResultBuffers {
+  ResultBuffers() = default;
+  // The three result buffers, and examined only where SearchParams::count_examined asks for it
+  // (a constructor, so that {ids, dist2, counts} stays complete without it).
+  ResultBuffers(cl::Buffer ids_, cl::Buffer dist2_, cl::Buffer counts_, cl::Buffer examined_ = {})
+      : ids(std::move(ids_)), dist2(std::move(dist2_)), counts(std::move(counts_)),
+        examined(std::move(examined_)) {}
   cl::Buffer ids, dist2, counts;
   cl::Buffer examined;
 };
