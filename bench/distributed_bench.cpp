@@ -74,6 +74,7 @@ struct Options {
   int k = 10;
   std::vector<std::string> methods = {"kdtree", "blockhash"};
   float A = 8;
+  std::vector<float> border = {2};
   int boxes = 16;
   std::string input = "root";
   int reps = 3;
@@ -97,6 +98,7 @@ int main(int argc, char** argv) {
   cli.integer("k", o.k, "neighbours per query", 1, bhcl::kMaxK);
   cli.methods(o.methods);
   cli.number("A", o.A, "blockhash: examine at most A*k points per query", 1e-3, 1e6);
+  cli.numbers("border", o.border, "blockhash: border queries' second answer at this many times A (1: none)", 1, 1024);
   cli.integer("boxes", o.boxes, "boxes each rank shares", 1, 1024);
   cli.text("input", o.input, "root: rank 0 passes every point and query; split: each rank a slice", "MODE")
       ->check(CLI::IsMember({"root", "split"}));
@@ -132,8 +134,14 @@ int main(int argc, char** argv) {
     }
     if (rank == 0)
       std::printf("# distributed_bench: %d rank(s), input %s, k %d, %zu queries, boxes %d, device %s\n"
-                  "# moved = received from other ranks, per rank (max / mean); MB = queries, rows and points in+out\n",
-                  R, o.input.c_str(), o.k, o.queries, o.boxes, rt->info().summary().c_str());
+                  "# moved = received from other ranks, per rank (max / mean); MB = points, queries and rows in + out;\n"
+                  "# times: medians over %d round(s), the slowest rank; ratios: median of per-round distributed / one process\n",
+                  R, o.input.c_str(), o.k, o.queries, o.boxes, rt->info().summary().c_str(), o.reps);
+    if (rank == 0)
+      std::printf("| data | method | ranks | shard max/mean | points moved/rank max / mean | queries moved/rank "
+                  "max / mean | multi-rank %% | ranks/query | query load max/mean | MB/rank max | shard s | "
+                  "build s | query s | end-to-end s | one process s | e2e ratio | query ratio | check |\n"
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
     for (const std::string& set : o.data) {
       std::vector<float> pts, qs;
       std::size_t N = o.N ? o.N : (set == "autzen" ? 0 : 1000000);
@@ -154,13 +162,16 @@ int main(int argc, char** argv) {
         const std::size_t qf = nall * rank / R, qe = nall * (rank + 1) / R;
         my_pts += 3 * pf, my_n = pe - pf, my_qs += 3 * qf, my_q = qe - qf;
       }
-      for (const std::string& method : o.methods) {
+      for (const std::string& method : o.methods)
+      for (float border : o.border) {
+        if (bhcl::method_info(method).exact && border != o.border.front()) continue;
         bhcl::SearchParams p;
         p.k = o.k;
         p.A = o.A;
         bhcl::DistributedBuildParams bp;
         bp.method = method;
         bp.boxes_per_rank = o.boxes;
+        bp.border_factor = border;
         std::vector<double> e2e_ratio, query_ratio, shard_s, build_s, query_s, e2e_s, single_s;
         bhcl::DistributedBuildStats bs;
         bhcl::DistributedQueryStats ds;
@@ -230,10 +241,27 @@ int main(int argc, char** argv) {
           } else {
             bhcl::KnnResult truth;
             bhcl::make_index("kdtree", rt, pts.data(), Nall)->query(qs.data(), nall, p, truth);
-            char buf[96];
-            std::snprintf(buf, sizeof buf, "recall %.4f (one process %.4f)",
+            // Also on the queries that visited more than one rank, where sharding could cost.
+            std::vector<std::size_t> multi_q;
+            for (std::size_t i = 0; i < nall; ++i)
+              if (ds.ranks_visited[i] > 1) multi_q.push_back(i);
+            auto rows = [&](const bhcl::KnnResult& r) {
+              bhcl::KnnResult s;
+              s.resize(multi_q.size(), r.k);
+              for (std::size_t j = 0; j < multi_q.size(); ++j) {
+                const std::size_t kk = std::size_t(r.k);
+                std::copy_n(&r.ids[multi_q[j] * kk], kk, &s.ids[j * kk]);
+                std::copy_n(&r.dist2[multi_q[j] * kk], kk, &s.dist2[j * kk]);
+                s.counts[j] = r.counts[multi_q[j]];
+              }
+              return s;
+            };
+            char buf[200];
+            std::snprintf(buf, sizeof buf, "recall %.4f (one process %.4f; multi-rank queries %.4f vs %.4f)",
                           bhcl::evaluate_accuracy(dist_rows, truth).recall,
-                          bhcl::evaluate_accuracy(single_rows, truth).recall);
+                          bhcl::evaluate_accuracy(single_rows, truth).recall,
+                          multi_q.empty() ? 0.0 : bhcl::evaluate_accuracy(rows(dist_rows), rows(truth)).recall,
+                          multi_q.empty() ? 0.0 : bhcl::evaluate_accuracy(rows(single_rows), rows(truth)).recall);
             check = buf;
           }
         }
@@ -241,23 +269,28 @@ int main(int argc, char** argv) {
         if (rank == 0) {
           using bhcl::bench::median;
           const double e2e = median(e2e_s), single = median(single_s);
-          std::printf("%-8s %-9s R=%d  N=%zu n=%zu  shards max/mean %.4f  points moved/rank max %.0f mean %.0f"
-                      "  queries moved/rank max %.0f mean %.0f  multi-rank %.2f%%  visits/query %.3f"
-                      "  query load max/mean %.3f  MB/rank max %.1f\n"
-                      "         time: shard %.3f s  build %.3f s  query %.3f s  end-to-end %.3f s"
-                      "  one process %s  ratio e2e %s  query %s  [%s]\n",
-                      set.c_str(), method.c_str(), R, Nall, nall, bs.balance, pm.first, pm.second,
-                      qm.first, qm.second, 100.0 * multi / double(nall), visits / double(nall),
-                      load.first / std::max(load.second, 1e-9), mb.first, median(shard_s), median(build_s),
-                      median(query_s), e2e,
-                      single_s.empty() ? "-" : (std::to_string(single) + " s").c_str(),
-                      e2e_ratio.empty() ? "-" : std::to_string(median(e2e_ratio)).c_str(),
-                      query_ratio.empty() ? "-" : std::to_string(median(query_ratio)).c_str(), check.c_str());
+          auto num = [](bool have, double v, const char* fmt) {
+            char b[32];
+            if (!have) return std::string("-");
+            std::snprintf(b, sizeof b, fmt, v);
+            return std::string(b);
+          };
+          const std::string label = bhcl::method_info(method).exact
+                                        ? method
+                                        : method + " A" + num(true, o.A, "%g") + " b" + num(true, border, "%g");
+          std::printf("| %s | %s | %d | %.4f | %.0f / %.0f | %.0f / %.0f | %.2f | %.3f | %.3f | %.1f | %.3f | %.3f "
+                      "| %.3f | %.3f | %s | %s | %s | %s |\n",
+                      set.c_str(), label.c_str(), R, bs.balance, pm.first, pm.second, qm.first, qm.second,
+                      100.0 * multi / double(nall), visits / double(nall),
+                      load.first / std::max(load.second, 1e-9), mb.first, median(shard_s),
+                      median(build_s), median(query_s), e2e, num(!single_s.empty(), single, "%.3f").c_str(),
+                      num(!e2e_ratio.empty(), median(e2e_ratio), "%.2f").c_str(),
+                      num(!query_ratio.empty(), median(query_ratio), "%.2f").c_str(), check.c_str());
           std::fflush(stdout);
           if (csv)
             std::fprintf(csv, "%s,%s,%d,%s,%zu,%zu,%d,%.5f,%.0f,%.1f,%.4f,%.0f,%.1f,%.5f,%.4f,%.2f,%.4f,%.4f,"
                               "%.4f,%.4f,%.4f,%.4f,%.4f,%s\n",
-                         set.c_str(), method.c_str(), R, o.input.c_str(), Nall, nall, o.k, bs.balance,
+                         set.c_str(), label.c_str(), R, o.input.c_str(), Nall, nall, o.k, bs.balance,
                          pm.first, pm.second, load.first / std::max(load.second, 1e-9), qm.first,
                          qm.second, multi / double(nall), visits / double(nall), mb.first,
                          median(shard_s), median(build_s), median(query_s), e2e, single,

@@ -251,7 +251,8 @@ void nonfinite_queries_and_stats() {
          "moved queries %llu/%llu, %llu/%llu, bytes %llu/%llu", call[0], call[1], call[2], call[3],
          call[4], call[5]);
   if (g_ranks == 1) EXPECT(call[0] + call[2] + call[4] == 0, "one rank moves nothing");
-  // The queries each rank answered add up to the visits.
+  // The queries each rank answered add up to the visits (an exact method answers no query twice).
+  EXPECT(ds.reanswered == 0, "reanswered %zu", ds.reanswered);
   unsigned long long visits = 0, answered = ds.answered, all_answered = 0, all_visits = 0;
   for (auto v : ds.ranks_visited) visits += static_cast<unsigned long long>(v);
   MPI_Allreduce(&visits, &all_visits, 1, MPI_UNSIGNED_LONG_LONG, MPI_SUM, MPI_COMM_WORLD);
@@ -285,6 +286,8 @@ void blockhash_recall_as_one_process() {
                 "%zu of %zu queries visited more than one rank\n",
                 g_ranks, r_dist, r_single, ds.multi_rank_queries, n);
   EXPECT(r_dist >= r_single - 0.02, "recall %.4f vs one process %.4f", r_dist, r_single);
+  // Every border query got its owner's second answer (border_factor 2 by default).
+  EXPECT(ds.reanswered == ds.multi_rank_queries, "reanswered %zu of %zu", ds.reanswered, ds.multi_rank_queries);
   EXPECT(r_single > 0.8, "one-process recall %.4f", r_single);
 }
 

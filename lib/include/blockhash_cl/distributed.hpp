@@ -18,8 +18,10 @@
 //    (distance, index) with local indices increasing with global ones (a shard is stored in global
 //    order), every point of the global k best lies in its shard's k best, and the ball test is
 //    conservative (it admits every box whose float distance could round to the k-th distance).
-//  - Approximate methods (block hashing): each shard answers with its own approximate row; the
-//    merged row's recall is that of one process within noise (measured in docs/DISTRIBUTED.md).
+//  - Approximate methods (block hashing): each shard answers with its own approximate row, and a
+//    query whose ball meets other ranks is answered a second time by its owner with a larger
+//    budget (DistributedBuildParams::border_factor). The merged rows' recall@k is that of one
+//    process within about half a point at 4 ranks (measured in docs/DISTRIBUTED.md).
 //
 // Input and output: every rank passes ITS part of the points (any split, including all on rank 0
 // and none elsewhere); the global index of a point is its position in the concatenation of the
@@ -58,6 +60,13 @@ struct DistributedBuildParams {
   // Boxes per rank shared with every rank: the bounding boxes of this many consecutive runs of the
   // shard in Hilbert order, [1, 1024]. More boxes prune better and cost 24 bytes each per rank.
   int boxes_per_rank = 16;
+  // Approximate methods: a query whose ball meets other ranks (a border query) is answered a
+  // second time by its owner with this many times the budget A (the A tuned for
+  // SearchParams::recall_target, when one is set), in phase 2, and the rows are merged. Why: at a
+  // shard's edge block hashing sees half a neighbourhood, and the owner's row alone loses recall
+  // on exactly these queries (docs/DISTRIBUTED.md measures it); 1 turns the second answer off.
+  // Exact methods ignore it. [1, 1024].
+  float border_factor = 2;
 };
 
 // What the sharding did, as seen from one rank (the *_all vectors are the same on every rank).
@@ -86,7 +95,8 @@ struct DistributedQueryStats {
   std::size_t multi_rank_queries = 0;  // of this rank's queries, those answered by more than one rank
   // Queries moved between ranks (a query answered by its own rank is not moved).
   std::size_t owner_sent = 0, owner_received = 0;  // phase 1: to / from the owners
-  std::size_t extra_sent = 0, extra_received = 0;  // phase 2: to / from the other ranks met
+  std::size_t extra_sent = 0, extra_received = 0;  // phase 2: to / from the ranks met (and owners)
+  std::size_t reanswered = 0;  // of this rank's queries, those its owner answered twice (border_factor)
   std::size_t answered = 0;  // queries this rank's local index answered (both phases, any origin)
   std::size_t bytes_sent = 0, bytes_received = 0;  // queries and rows, to / from other ranks
   double phase1_s = 0, phase2_s = 0;  // wall time of each phase on this rank (routing included)
@@ -137,6 +147,7 @@ class DistributedIndex {
   int rank_ = 0, ranks_ = 1;
   std::string method_;
   bool exact_ = false;
+  float border_factor_ = 2;
   std::size_t n_global_ = 0;
   // The global quantiser (block hashing's: origin, one scale for all axes, 21 bits).
   double origin_[3] = {0, 0, 0};

@@ -7,6 +7,7 @@
 #include <numeric>
 #include <sstream>
 
+#include "blockhash_cl/blockhash.hpp"
 #include "blockhash_cl/distributed.hpp"
 #include "blockhash_cl/error.hpp"
 #include "distributed/mpi_util.hpp"
@@ -29,10 +30,12 @@ struct PointRecord {
 };
 static_assert(sizeof(PointRecord) == 16, "PointRecord is sent as 16 raw bytes");
 
+// A query on its way to a rank; budget_class 1 asks for the border budget (approximate methods).
 struct QueryRecord {
   float xyz[3];
+  std::int32_t budget_class;
 };
-static_assert(sizeof(QueryRecord) == 12, "QueryRecord is sent as 12 raw bytes");
+static_assert(sizeof(QueryRecord) == 16, "QueryRecord is sent as 16 raw bytes");
 
 std::string what_of(const std::exception& e) { return e.what()[0] ? e.what() : "unknown error"; }
 
@@ -47,9 +50,10 @@ void pack_row(unsigned char* dst, const KnnResult& r, std::size_t q, int k) {
   std::memcpy(dst + kk * 8, tail, 8);
 }
 
-// Merges the row `src` (on the wire) into row q of `out` (both sorted by (distance, id), ids
-// distinct between them): the k best of both. The order of merging does not matter: (distance,
-// id) is a total order on distinct ids.
+// Merges the row `src` (on the wire) into row q of `out` (both sorted by (distance, id)): the k
+// best of both. An id in both (the owner's second answer repeats points of its first) is the same
+// point with the same distance and is taken once. The order of merging does not matter: (distance,
+// id) is a total order.
 void merge_row(KnnResult& out, std::size_t q, const unsigned char* src, int k,
                std::vector<std::int32_t>& ids_tmp, std::vector<float>& d2_tmp) {
   const std::size_t kk = static_cast<std::size_t>(k);
@@ -69,6 +73,7 @@ void merge_row(KnnResult& out, std::size_t q, const unsigned char* src, int k,
   std::vector<float> md(kk, std::numeric_limits<float>::infinity());
   int a = 0, b = 0, m = 0;
   while (m < k && (a < ca || b < cb)) {
+    if (a < ca && b < cb && ia[a] == ids_tmp[b]) ++b;  // the same point: keep a's copy
     const bool take_a =
         b >= cb || (a < ca && (da[a] < d2_tmp[b] || (da[a] == d2_tmp[b] && ia[a] < ids_tmp[b])));
     if (take_a) mi[m] = ia[a], md[m] = da[a], ++a;
@@ -106,6 +111,8 @@ DistributedIndex::DistributedIndex(MPI_Comm comm, std::shared_ptr<Runtime> runti
       info = &method_info(params.method);
       if (!params.options.load_index.empty() || !params.options.save_index.empty())
         throw Error("load_index / save_index are not supported: each rank builds its shard's index");
+      if (!(params.border_factor >= 1 && params.border_factor <= 1024))
+        throw Error("border_factor must be in [1, 1024], got " + std::to_string(params.border_factor));
       if (params.boxes_per_rank < 1 || params.boxes_per_rank > 1024)
         throw Error("boxes_per_rank must be in [1, 1024], got " + std::to_string(params.boxes_per_rank));
       if (n > 0 && points == nullptr) throw Error("points is null with n = " + std::to_string(n));
@@ -116,6 +123,7 @@ DistributedIndex::DistributedIndex(MPI_Comm comm, std::shared_ptr<Runtime> runti
     mpi_agree(comm_, err, kWhat);
     method_ = info->name;
     exact_ = info->exact;
+    border_factor_ = params.border_factor;
 
     // Global indices: this rank's part follows the parts of lower ranks.
     std::uint64_t n_local = n, offset = 0, total = 0;
@@ -312,8 +320,10 @@ QueryStats DistributedIndex::query(const float* queries, std::size_t n, const Se
   st.n_queries = n;
   DistributedQueryStats ds;
   const std::size_t R = static_cast<std::size_t>(ranks_);
+  const std::size_t me = static_cast<std::size_t>(rank_);
 
   std::string err;
+  float border_A = 0;  // approximate methods: the budget of a border query's second answer
   try {
     kmax_variant(params.k);
     if (std::isnan(params.max_radius) || params.max_radius < 0)
@@ -321,6 +331,13 @@ QueryStats DistributedIndex::query(const float* queries, std::size_t n, const Se
     if (n > 0 && queries == nullptr) throw Error("queries is null with n = " + std::to_string(n));
     if (params.count_examined && local_ && !local_->counts_examined())
       throw Error("count_examined: method " + method_ + " does not count the points it examines");
+    if (!exact_ && border_factor_ > 1 && local_) {
+      // The A this rank's index answers with (the tuned one under a recall target), scaled.
+      float A = params.A;
+      if (params.recall_target > 0)
+        if (auto* bh = dynamic_cast<const BlockHashIndex*>(local_.get())) A = bh->recall_tuning(params).A;
+      border_A = A * border_factor_;
+    }
   } catch (const std::exception& e) {
     err = what_of(e);
   }
@@ -345,34 +362,53 @@ QueryStats DistributedIndex::query(const float* queries, std::size_t n, const Se
   ds.ranks_visited.assign(n, 0);
   ds.owner.assign(n, -1);
 
-  // Answers the queries that came in (grouped by source) with the local index and packs their
-  // rows in the same order. Local failures are agreed by the caller.
-  std::vector<unsigned char> rows;
-  auto answer = [&](const std::vector<unsigned char>& in, const char* phase) {
+  // Sends the records (grouped by destination rank, send_counts each), answers the ones that came
+  // in with the local index (a record's budget class 1: with A = border_A) and sends the rows
+  // back. Returns the rows in the order the records were sent. Local failures fail every rank.
+  auto round_trip = [&](const std::vector<QueryRecord>& records, const std::vector<std::size_t>& send_counts,
+                        const char* phase) {
+    std::vector<std::size_t> recv_counts, back_counts;
+    const std::vector<unsigned char> in =
+        exchange(comm_, records.data(), send_counts, sizeof(QueryRecord), recv_counts, phase);
     const std::size_t m = in.size() / sizeof(QueryRecord);
+    std::vector<QueryRecord> got(m);
+    if (m) std::memcpy(got.data(), in.data(), in.size());
+    std::vector<unsigned char> rows(m * rb, 0);
     std::string e;
-    rows.assign(m * rb, 0);
     try {
-      if (m > 0) {
-        if (!local_) throw Error("queries reached a rank with an empty shard");
-        std::vector<float> xyz(3 * m);
-        std::memcpy(xyz.data(), in.data(), in.size());
+      if (m > 0 && !local_) throw Error("queries reached a rank with an empty shard");
+      for (std::int32_t cls : {0, 1}) {
+        std::vector<std::size_t> which;
+        for (std::size_t i = 0; i < m; ++i)
+          if (got[i].budget_class == cls) which.push_back(i);
+        if (which.empty()) continue;
+        std::vector<float> xyz(3 * which.size());
+        for (std::size_t j = 0; j < which.size(); ++j) std::memcpy(&xyz[3 * j], got[which[j]].xyz, 12);
+        SearchParams p = params;
+        if (cls == 1) p.A = border_A, p.recall_target = 0;
         KnnResult r;
-        add_stats(st, local_->query(xyz.data(), m, params, r));
+        add_stats(st, local_->query(xyz.data(), which.size(), p, r));
         for (auto& id : r.ids)
           if (id >= 0) id = shard_ids_[static_cast<std::size_t>(id)];
-        for (std::size_t i = 0; i < m; ++i) pack_row(&rows[i * rb], r, i, k);
+        for (std::size_t j = 0; j < which.size(); ++j) pack_row(&rows[which[j] * rb], r, j, k);
       }
     } catch (const std::exception& ex) {
       e = std::string(phase) + ": " + what_of(ex);
     }
-    ds.answered += m;
     mpi_agree(comm_, e, std::string(kWhat) + "::query");
+    ds.answered += m;
+    const std::size_t from_others = m - recv_counts[me];
+    std::size_t to_others = 0;
+    for (std::size_t r = 0; r < R; ++r) to_others += r == me ? 0 : send_counts[r];
+    std::vector<unsigned char> back = exchange(comm_, rows.data(), recv_counts, rb, back_counts, phase);
+    ds.bytes_sent += to_others * sizeof(QueryRecord) + from_others * rb;
+    ds.bytes_received += from_others * sizeof(QueryRecord) + to_others * rb;
+    return std::make_pair(std::move(back), std::make_pair(to_others, from_others));
   };
 
   // Phase 1: every finite query to the rank owning its key.
   Stopwatch p1;
-  std::vector<std::size_t> send_counts(R, 0), recv_counts;
+  std::vector<std::size_t> send_counts(R, 0);
   for (std::size_t i = 0; i < n; ++i) {
     const float* q = queries + 3 * i;
     if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2])) {
@@ -387,83 +423,80 @@ QueryStats DistributedIndex::query(const float* queries, std::size_t n, const Se
   std::vector<std::size_t> start(R + 1, 0);
   for (std::size_t r = 0; r < R; ++r) start[r + 1] = start[r] + send_counts[r];
   std::vector<std::size_t> sent(start[R]);
-  std::vector<QueryRecord> send_q(start[R]);
+  std::vector<QueryRecord> records(start[R]);
   {
     std::vector<std::size_t> pos(start.begin(), start.end() - 1);
     for (std::size_t i = 0; i < n; ++i) {
       if (ds.owner[i] < 0) continue;
       const std::size_t j = pos[static_cast<std::size_t>(ds.owner[i])]++;
       sent[j] = i;
-      std::memcpy(send_q[j].xyz, queries + 3 * i, 12);
+      std::memcpy(records[j].xyz, queries + 3 * i, 12);
+      records[j].budget_class = 0;
     }
   }
-  std::vector<unsigned char> in =
-      exchange(comm_, send_q.data(), send_counts, sizeof(QueryRecord), recv_counts, "phase 1 queries");
-  const std::size_t me = static_cast<std::size_t>(rank_);
-  ds.owner_sent = start[R] - send_counts[me];
-  ds.owner_received = in.size() / sizeof(QueryRecord) - recv_counts[me];
-  ds.bytes_sent += ds.owner_sent * sizeof(QueryRecord);
-  ds.bytes_received += ds.owner_received * sizeof(QueryRecord);
-  answer(in, "phase 1 (owner)");
-  std::vector<std::size_t> back_counts;
-  std::vector<unsigned char> back = exchange(comm_, rows.data(), recv_counts, rb, back_counts, "phase 1 rows");
-  ds.bytes_sent += (in.size() / sizeof(QueryRecord) - recv_counts[me]) * rb;
-  ds.bytes_received += (sent.size() - back_counts[me]) * rb;
-  // back holds the rows in the order they were sent: the owner's row is each query's first.
-  for (std::size_t j = 0; j < sent.size(); ++j) {
-    const std::size_t i = sent[j];
-    const unsigned char* src = &back[j * rb];
-    std::memcpy(&out.ids[i * kk], src, kk * 4);
-    std::memcpy(&out.dist2[i * kk], src + kk * 4, kk * 4);
-    std::int32_t tail[2];
-    std::memcpy(tail, src + kk * 8, 8);
-    out.counts[i] = tail[0];
-    if (params.count_examined) out.examined[i] = tail[1];
+  {
+    auto [back, moved] = round_trip(records, send_counts, "phase 1 (owner)");
+    ds.owner_sent = moved.first;
+    ds.owner_received = moved.second;
+    // The owner's row is each query's first.
+    for (std::size_t j = 0; j < sent.size(); ++j) {
+      const std::size_t i = sent[j];
+      const unsigned char* src = &back[j * rb];
+      std::memcpy(&out.ids[i * kk], src, kk * 4);
+      std::memcpy(&out.dist2[i * kk], src + kk * 4, kk * 4);
+      std::int32_t tail[2];
+      std::memcpy(tail, src + kk * 8, 8);
+      out.counts[i] = tail[0];
+      if (params.count_examined) out.examined[i] = tail[1];
+    }
   }
   ds.phase1_s = p1.seconds();
 
   // Phase 2: the ball of the owner's k-th distance (or of the radius, when the owner found fewer
-  // than k) to every other rank whose boxes it meets.
+  // than k) to every other rank whose boxes it meets. Approximate methods: such a border query
+  // also goes back to its owner for a second answer with border_A (see distributed.hpp).
   Stopwatch p2;
   const double radius2 = std::isinf(params.max_radius)
                              ? std::numeric_limits<double>::infinity()
                              : double(params.max_radius) * double(params.max_radius);
-  std::vector<std::pair<int, std::size_t>> extra;  // (rank, caller's index)
+  struct Extra {
+    int rank;
+    std::int32_t budget_class;
+    std::size_t query;
+  };
+  std::vector<Extra> extra;
   {
     std::vector<int> met;
     for (std::size_t i = 0; i < n; ++i) {
       if (ds.owner[i] < 0) continue;
       const double bound = out.counts[i] >= k ? double(out.dist2[i * kk + kk - 1]) : radius2;
       ranks_meeting(queries + 3 * i, bound, ds.owner[i], met);
-      for (int r : met) extra.push_back({r, i});
+      if (met.empty()) continue;
+      for (int r : met) extra.push_back({r, 0, i});
+      if (border_A > 0) {
+        extra.push_back({ds.owner[i], 1, i});
+        ++ds.reanswered;
+      }
       ds.ranks_visited[i] += static_cast<std::int32_t>(met.size());
-      if (!met.empty()) ++ds.multi_rank_queries;
+      ++ds.multi_rank_queries;
     }
   }
-  std::stable_sort(extra.begin(), extra.end(),
-                   [](const auto& a, const auto& b) { return a.first < b.first; });
+  std::stable_sort(extra.begin(), extra.end(), [](const Extra& a, const Extra& b) { return a.rank < b.rank; });
   std::fill(send_counts.begin(), send_counts.end(), 0);
-  send_q.resize(extra.size());
+  records.resize(extra.size());
   for (std::size_t j = 0; j < extra.size(); ++j) {
-    ++send_counts[static_cast<std::size_t>(extra[j].first)];
-    std::memcpy(send_q[j].xyz, queries + 3 * extra[j].second, 12);
+    ++send_counts[static_cast<std::size_t>(extra[j].rank)];
+    std::memcpy(records[j].xyz, queries + 3 * extra[j].query, 12);
+    records[j].budget_class = extra[j].budget_class;
   }
-  in = exchange(comm_, send_q.data(), send_counts, sizeof(QueryRecord), recv_counts, "phase 2 queries");
-  ds.extra_sent = extra.size();  // never to the rank itself: the owner is skipped, so it is this
-                                 // rank only when it owns the query, and then it is skipped
-  ds.extra_sent -= send_counts[me];
-  ds.extra_received = in.size() / sizeof(QueryRecord) - recv_counts[me];
-  ds.bytes_sent += ds.extra_sent * sizeof(QueryRecord);
-  ds.bytes_received += ds.extra_received * sizeof(QueryRecord);
-  answer(in, "phase 2 (ball)");
-  back = exchange(comm_, rows.data(), recv_counts, rb, back_counts, "phase 2 rows");
-  ds.bytes_sent += (in.size() / sizeof(QueryRecord) - recv_counts[me]) * rb;
-  ds.bytes_received += (extra.size() - back_counts[me]) * rb;
   {
+    auto [back, moved] = round_trip(records, send_counts, "phase 2 (ball)");
+    ds.extra_sent = moved.first;
+    ds.extra_received = moved.second;
     std::vector<std::int32_t> ids_tmp;
     std::vector<float> d2_tmp;
     for (std::size_t j = 0; j < extra.size(); ++j)
-      merge_row(out, extra[j].second, &back[j * rb], k, ids_tmp, d2_tmp);
+      merge_row(out, extra[j].query, &back[j * rb], k, ids_tmp, d2_tmp);
   }
   ds.phase2_s = p2.seconds();
   st.wall_s = wall.seconds();
