@@ -10,6 +10,7 @@ packages=(
   libembree-dev libopenexr-dev libpng-dev
   libflann-dev liblz4-dev libnanoflann-dev
   doctest-dev libcli11-dev nlohmann-json3-dev
+  libopenmpi-dev openmpi-bin
   python3 python3-numpy python3-matplotlib
   python3-venv python3-dev pybind11-dev python3-scipy python3-pytest
 )

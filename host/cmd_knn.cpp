@@ -9,6 +9,8 @@
 #include "commands.hpp"
 
 namespace bhcl::cli {
+void declare_knn_distributed(Args& a);      // cmd_knn_distributed.cpp: --distributed and its options
+int run_knn_distributed(const Args& args);  // -1 unless --distributed, else the MPI run's status
 namespace {
 
 void declare_knn(Args& a) {
@@ -17,9 +19,11 @@ void declare_knn(Args& a) {
   a.add_required("out-dist2", "write the squared distances here (float32, n x k, row-major; NPY when named .npy)");
   a.add_text("out-counts", "write the neighbours found per query here (int32, n; NPY when named .npy)", "", "FILE");
   declare_run_options(a, "write timings and parameters here as JSON");
+  declare_knn_distributed(a);
 }
 
 int run_knn(const Args& args) {
+  if (const int rc = run_knn_distributed(args); rc >= 0) return rc;
   const std::string method = args.str("method");
   check_method_options(args, {method});
   const std::string out_ids = args.str("out-ids");

@@ -1,0 +1,208 @@
+// bhcl knn --distributed: the knn command over an MPI job (mpirun -np R bhcl knn ... --distributed),
+// answered by bhcl::DistributedIndex. Rank 0 reads --points and --queries and passes them all to
+// the index, which shards the points by Hilbert-key range and routes the queries; rank 0 gets
+// every row back and writes the outputs. MPI is initialised here, only in this mode.
+#include <cstdio>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "blockhash_cl/error.hpp"
+#include "blockhash_cl/factory.hpp"
+#include "blockhash_cl/io.hpp"
+#include "blockhash_cl/runtime.hpp"
+#include "cli.hpp"
+#include "commands.hpp"
+
+#if BHCL_HAVE_MPI
+#include "blockhash_cl/distributed.hpp"
+#endif
+
+namespace bhcl::cli {
+
+void declare_knn_distributed(Args& a) {
+  a.group("Distributed (MPI)");
+  a.add_flag("distributed", "answer over an MPI job (mpirun -np R bhcl knn ... --distributed): rank 0 "
+                            "reads the files and writes the results, the points are sharded over the "
+                            "ranks by Hilbert-key range; exact methods give the single-process result");
+  a.add_integer("boxes-per-rank", "with --distributed: the boxes each rank shares to route queries", 1,
+                1024, "16");
+  a.add_number("border-factor", "with --distributed, blockhash: a query meeting other ranks is answered "
+                                "again by its owner with this times A (1: not again)", "2");
+  a.group("");
+}
+
+#if !BHCL_HAVE_MPI
+
+int run_knn_distributed(const Args& args) {
+  for (const char* o : {"boxes-per-rank", "border-factor"})
+    if (args.has(o)) throw UsageError(std::string("--") + o + " needs --distributed");
+  if (!args.flag("distributed")) return -1;
+  throw Error("--distributed: this bhcl was built without MPI (install libopenmpi-dev and configure "
+              "with BHCL_WITH_MPI=ON)");
+}
+
+#else
+
+namespace {
+
+// MPI_Init on entry (unless the program did it already), MPI_Finalize on exit, so that the
+// other commands never start MPI.
+class MpiSession {
+ public:
+  MpiSession() {
+    int done = 0;
+    MPI_Initialized(&done);
+    if (!done) {
+      int provided = 0;
+      MPI_Init_thread(nullptr, nullptr, MPI_THREAD_FUNNELED, &provided);
+      owned_ = true;
+    }
+  }
+  ~MpiSession() {
+    int done = 0;
+    MPI_Finalized(&done);
+    if (owned_ && !done) MPI_Finalize();
+  }
+  MpiSession(const MpiSession&) = delete;
+  MpiSession& operator=(const MpiSession&) = delete;
+
+ private:
+  bool owned_ = false;
+};
+
+// Per-rank figures gathered on rank 0 (a JSON array in rank order there; empty elsewhere).
+Json gathered(double v, int rank, int ranks) {
+  std::vector<double> all(static_cast<std::size_t>(ranks));
+  MPI_Gather(&v, 1, MPI_DOUBLE, all.data(), 1, MPI_DOUBLE, 0, MPI_COMM_WORLD);
+  Json j = Json::array();
+  if (rank == 0)
+    for (double x : all) j.push_back(x);
+  return j;
+}
+
+}  // namespace
+
+int run_knn_distributed(const Args& args) {
+  for (const char* o : {"boxes-per-rank", "border-factor"})
+    if (args.has(o) && !args.flag("distributed")) throw UsageError(std::string("--") + o + " needs --distributed");
+  if (!args.flag("distributed")) return -1;
+
+  // Usage checks before MPI: every rank sees the same command line and fails alike.
+  const std::string method = args.str("method");
+  check_method_options(args, {method});
+  const std::string out_ids = args.str("out-ids");
+  const std::string out_dist2 = args.str("out-dist2");
+  SearchParams params = search_params(args);
+  MethodOptions mopt = method_options(args);
+  if (!mopt.load_index.empty() || !mopt.save_index.empty())
+    throw UsageError("--load-index and --save-index do not apply with --distributed (each rank builds its shard)");
+  check_distinct_files({{"--points", args.str("points")}, {"--queries", args.str("queries")}},
+                       {{"--out-ids", out_ids}, {"--out-dist2", out_dist2},
+                        {"--out-counts", args.str("out-counts", "")}, {"--stats", args.str("stats", "")}});
+  DistributedBuildParams bp;
+  bp.method = method;
+  bp.options = mopt;
+  bp.boxes_per_rank = static_cast<int>(args.integer("boxes-per-rank", 16));
+  bp.border_factor = static_cast<float>(args.number("border-factor", 2.0));
+  if (args.has("border-factor") && method_info(method).exact)
+    throw UsageError("--border-factor does not apply to method " + method + " (only to approximate methods)");
+  if (!(bp.border_factor >= 1 && bp.border_factor <= 1024))
+    throw UsageError("--border-factor must be in [1, 1024], got " + args.str("border-factor"));
+
+  MpiSession mpi;
+  int rank = 0, ranks = 1;
+  MPI_Comm_rank(MPI_COMM_WORLD, &rank);
+  MPI_Comm_size(MPI_COMM_WORLD, &ranks);
+  const std::string what = "bhcl knn --distributed";
+
+  // Rank 0 reads; every rank learns whether it could.
+  std::vector<float> points, queries;
+  std::string err;
+  if (rank == 0) try {
+      read_points_and_queries(args, points, queries);
+    } catch (const std::exception& e) {
+      err = e.what();
+    }
+  mpi_agree(MPI_COMM_WORLD, err, what);
+  std::shared_ptr<Runtime> rt;
+  try {
+    rt = std::make_shared<Runtime>(args.str("device", ""));
+  } catch (const std::exception& e) {
+    err = e.what();
+  }
+  mpi_agree(MPI_COMM_WORLD, err, what);
+
+  DistributedIndex index(MPI_COMM_WORLD, rt, points.data(), points.size() / 3, bp);
+  const std::size_t N = index.size(), n = queries.size() / 3;
+  std::vector<float>().swap(points);
+  KnnResult result;
+  DistributedQueryStats ds;
+  const QueryStats st = index.query(queries.data(), n, params, result, &ds);
+
+  // Per-rank figures gathered on rank 0 (every rank takes part in the gathers).
+  const DistributedBuildStats& bs = index.build_stats();
+  Json shard_points = gathered(double(bs.shard_points), rank, ranks);
+  Json points_received = gathered(double(bs.points_received), rank, ranks);
+  Json queries_received = gathered(double(ds.owner_received + ds.extra_received), rank, ranks);
+  Json answered = gathered(double(ds.answered), rank, ranks);
+  Json build_s = gathered(bs.build_s, rank, ranks);
+  Json query_s = gathered(st.query_s, rank, ranks);
+  Json compile_s = gathered(st.compile_s, rank, ranks);
+
+  // Rank 0 writes; a failure there fails every rank.
+  if (rank == 0) try {
+      write_array_file(out_ids, result.ids.data(), n, static_cast<std::size_t>(params.k));
+      write_array_file(out_dist2, result.dist2.data(), n, static_cast<std::size_t>(params.k));
+      if (args.has("out-counts")) write_array_file(args.str("out-counts"), result.counts.data(), n, 0);
+      std::size_t found = 0, visits = 0;
+      for (auto c : result.counts) found += static_cast<std::size_t>(c);
+      for (auto v : ds.ranks_visited) visits += static_cast<std::size_t>(v);
+      std::fprintf(stderr,
+                   "bhcl knn --distributed: %s on %d rank(s) (%s on rank 0): N=%zu n=%zu k=%d  build %.3f s  "
+                   "query %.3f s  queries on more than one rank %zu (%.1f %%)  neighbours found %zu\n",
+                   index.method().c_str(), ranks, rt->info().device_name.c_str(), N, n, params.k,
+                   bs.wall_s, st.wall_s, ds.multi_rank_queries,
+                   n ? 100.0 * double(ds.multi_rank_queries) / double(n) : 0.0, found);
+      if (args.has("stats")) {
+        Json j = stats_header("knn", *rt);
+        j["method"] = index.method();
+        j["exact"] = index.exact();
+        j.update(inputs_json(args, N, n, params));
+        if (index.local_index()) {
+          // Rank 0's local index: parameters every rank derives the same way from its own shard.
+          j["build"] = build_json(*index.local_index(), mopt);
+          j["search"] = search_json(*index.local_index(), params);
+        }
+        j["build_s"] = bs.wall_s;
+        j["wall_s"] = st.wall_s;
+        j["nonfinite_queries"] = st.nonfinite_queries;
+        j["neighbours_found"] = found;
+        Json d;
+        d["ranks"] = ranks;
+        d["input"] = "rank 0 reads the files and passes every point and query";
+        d["boxes_per_rank"] = bp.boxes_per_rank;
+        d["border_factor"] = bp.border_factor;
+        d["balance"] = bs.balance;
+        d["multi_rank_queries"] = ds.multi_rank_queries;
+        d["mean_ranks_visited"] = n ? double(visits) / double(n) : 0.0;
+        d["reanswered_queries"] = ds.reanswered;
+        d["phase1_s"] = ds.phase1_s;
+        d["phase2_s"] = ds.phase2_s;
+        d["per_rank"] = {{"shard_points", shard_points},   {"points_received", points_received},
+                         {"queries_received", queries_received}, {"queries_answered", answered},
+                         {"build_s", build_s},             {"query_s", query_s},
+                         {"compile_s", compile_s}};
+        j["distributed"] = d;
+        write_json(args.str("stats"), j);
+      }
+    } catch (const std::exception& e) {
+      err = e.what();
+    }
+  mpi_agree(MPI_COMM_WORLD, err, what);
+  return 0;
+}
+
+#endif
+
+}  // namespace bhcl::cli

@@ -1,0 +1,171 @@
+// An index distributed over the ranks of an MPI communicator (an optional component: the target
+// blockhash_cl::distributed, built when CMake finds MPI and BHCL_WITH_MPI is on).
+//
+// Design (docs/DISTRIBUTED.md has the measurements):
+//  - The points are sharded by Hilbert-key range, balanced by count: keys of 21 bits per axis over
+//    the bounding box of ALL points (the block-hash build's quantiser), ranks cut the global order
+//    by (key, global index) into R runs whose sizes differ by at most one. Each rank builds a local
+//    index of any registered method (make_index) over its run, and every rank knows every rank's
+//    first key and the bounding boxes of `boxes_per_rank` consecutive sub-runs of its shard (so a
+//    flat or L-shaped shard prunes better than its one bounding box would).
+//  - A query goes to the rank owning its key (phase 1); the k-th distance found there (or the
+//    maximum radius, when fewer than k were found) bounds a ball, and the query then goes to every
+//    other rank with a box meeting the ball (phase 2). The rows are merged by (distance, global
+//    index) on the rank that asked.
+//  - Exact methods: the result equals the single-process result of the same method bit for bit
+//    (same ids, same float distances, same counts), whatever the number of ranks and however the
+//    points and queries were spread over them. Why: a local row holds the k best of its shard by
+//    (distance, index) with local indices increasing with global ones (a shard is stored in global
+//    order), every point of the global k best lies in its shard's k best, and the ball test is
+//    conservative (it admits every box whose float distance could round to the k-th distance).
+//  - Approximate methods (block hashing): each shard answers with its own approximate row, and a
+//    query whose ball meets other ranks is answered a second time by its owner with a larger
+//    budget (DistributedBuildParams::border_factor). The merged rows' recall@k is that of one
+//    process within about half a point at 4 ranks (measured in docs/DISTRIBUTED.md).
+//
+// Input and output: every rank passes ITS part of the points (any split, including all on rank 0
+// and none elsewhere); the global index of a point is its position in the concatenation of the
+// ranks' parts in rank order. Queries are likewise per rank: each rank passes its own (possibly
+// none) and gets their rows, and per-query statistics, back in its order. The `bhcl knn
+// --distributed` tool reads both files on rank 0 and writes the results there.
+//
+// Collective calls: the constructor and query() must be called by every rank of the communicator
+// (with the same k, maximum radius and count_examined). A failure on any rank (bad points, an
+// index that cannot be built, a query that throws) makes the call throw bhcl::Error on EVERY rank,
+// with the first failing rank's message; no rank is left waiting in a collective. The index works
+// on its own duplicate of the communicator, so its messages never meet the caller's.
+#pragma once
+
+#include <mpi.h>
+
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "blockhash_cl/factory.hpp"
+#include "blockhash_cl/knn.hpp"
+
+namespace bhcl {
+
+// An axis-aligned box a rank shares: the bounds of a run of its shard.
+struct ShardBox {
+  float lo[3], hi[3];
+};
+
+struct DistributedBuildParams {
+  std::string method = "kdtree";  // any name of method_names()
+  MethodOptions options;          // the method's build options (load_index / save_index refused)
+  // Boxes per rank shared with every rank: the bounding boxes of this many consecutive runs of the
+  // shard in Hilbert order, [1, 1024]. More boxes prune better and cost 24 bytes each per rank.
+  int boxes_per_rank = 16;
+  // Approximate methods: a query whose ball meets other ranks (a border query) is answered a
+  // second time by its owner with this many times the budget A (the A tuned for
+  // SearchParams::recall_target, when one is set), in phase 2, and the rows are merged. Why: at a
+  // shard's edge block hashing sees half a neighbourhood, and the owner's row alone loses recall
+  // on exactly these queries (docs/DISTRIBUTED.md measures it); 1 turns the second answer off.
+  // Exact methods ignore it. [1, 1024].
+  float border_factor = 2;
+};
+
+// What the sharding did, as seen from one rank (the *_all vectors are the same on every rank).
+struct DistributedBuildStats {
+  std::size_t n_global = 0;         // points over all ranks
+  std::size_t n_input = 0;          // points this rank passed in
+  std::size_t shard_points = 0;     // points in this rank's shard
+  std::size_t points_sent = 0;      // of this rank's input, those sent to another rank's shard
+  std::size_t points_received = 0;  // of this rank's shard, those that came from another rank
+  std::vector<std::size_t> shard_points_all;  // shard sizes of every rank, in rank order
+  double balance = 0;   // largest shard / mean shard (1 = perfect)
+  double shard_s = 0;   // keys, splitters and the exchange of points (wall, this rank)
+  double build_s = 0;   // the local index build (this rank)
+  double wall_s = 0;    // the whole constructor (this rank)
+};
+
+// What one query call did, as seen from one rank. The library's QueryStats (returned by query())
+// holds this rank's own queries (n_queries, nonfinite_queries, wall_s of the whole call) and the
+// local index's work for every rank's queries it answered (batches, compile_s, upload_s, query_s,
+// download_s: sums over both phases).
+struct DistributedQueryStats {
+  // Per query of this rank, in the caller's order: the ranks that answered it (the owner plus the
+  // ranks whose boxes met its ball; 0 for a query with a NaN/Inf coordinate) and the owner (-1).
+  std::vector<std::int32_t> ranks_visited;
+  std::vector<std::int32_t> owner;
+  std::size_t multi_rank_queries = 0;  // of this rank's queries, those answered by more than one rank
+  // Queries moved between ranks (a query answered by its own rank is not moved).
+  std::size_t owner_sent = 0, owner_received = 0;  // phase 1: to / from the owners
+  std::size_t extra_sent = 0, extra_received = 0;  // phase 2: to / from the ranks met (and owners)
+  std::size_t reanswered = 0;  // of this rank's queries, those its owner answered twice (border_factor)
+  std::size_t answered = 0;  // queries this rank's local index answered (both phases, any origin)
+  std::size_t bytes_sent = 0, bytes_received = 0;  // queries and rows, to / from other ranks
+  double phase1_s = 0, phase2_s = 0;  // wall time of each phase on this rank (routing included)
+};
+
+class DistributedIndex {
+ public:
+  // Collective over `comm`. `points`: this rank's part, n x 3 floats (n may be 0 on some ranks,
+  // not on all). `runtime`: this rank's OpenCL device (each rank opens its own). Throws
+  // bhcl::Error on every rank when any rank fails: a NaN/Inf point (named by its global index and
+  // rank), more than 2^31 - 2 points in all, an unknown method, bad build options.
+  DistributedIndex(MPI_Comm comm, std::shared_ptr<Runtime> runtime, const float* points,
+                   std::size_t n, const DistributedBuildParams& params = {});
+  ~DistributedIndex();
+  DistributedIndex(const DistributedIndex&) = delete;
+  DistributedIndex& operator=(const DistributedIndex&) = delete;
+
+  // Collective. `queries`: this rank's queries, n x 3 floats (n may be 0). Fills `out` with n rows
+  // under the library's contract (knn.hpp): global ids, squared distances, counts, and per query
+  // the points examined summed over the ranks visited when params.count_examined is set. Returns
+  // this rank's QueryStats (see DistributedQueryStats); `stats`, when given, gets the rest.
+  QueryStats query(const float* queries, std::size_t n, const SearchParams& params, KnnResult& out,
+                   DistributedQueryStats* stats = nullptr) const;
+
+  std::string method() const { return method_; }
+  bool exact() const { return exact_; }
+  std::size_t size() const { return n_global_; }  // points over all ranks
+  int rank() const { return rank_; }
+  int ranks() const { return ranks_; }
+  std::size_t shard_size() const { return shard_ids_.size(); }
+  // The global indices of this rank's shard, ascending: local index i is global shard_ids()[i].
+  const std::vector<std::int32_t>& shard_ids() const { return shard_ids_; }
+  // This rank's local index (nullptr when its shard is empty: fewer points than ranks).
+  const Index* local_index() const { return local_.get(); }
+  const DistributedBuildStats& build_stats() const { return build_stats_; }
+  // The rank that owns a query position (phase 1's destination). Same answer on every rank.
+  int owner_of(const float xyz[3]) const;
+
+ // The boxes rank r shares (min(boxes_per_rank, its shard size) of them; the same on every rank).
+  const std::vector<ShardBox>& boxes(int r) const { return boxes_.at(static_cast<std::size_t>(r)); }
+
+ private:
+  std::uint64_t key_of(const float xyz[3]) const;
+  // The ranks other than `skip` with a box within squared distance `bound` of q (conservative).
+  void ranks_meeting(const float q[3], double bound, int skip, std::vector<int>& out) const;
+
+  MPI_Comm comm_ = MPI_COMM_NULL;
+  int rank_ = 0, ranks_ = 1;
+  std::string method_;
+  bool exact_ = false;
+  float border_factor_ = 2;
+  std::size_t n_global_ = 0;
+  // The global quantiser (block hashing's: origin, one scale for all axes, 21 bits).
+  double origin_[3] = {0, 0, 0};
+  double scale_ = 0;
+  std::vector<std::int32_t> shard_ids_;
+  std::unique_ptr<Index> local_;
+  // Per rank: shard size, first key, the union box and the boxes of its sub-runs.
+  std::vector<std::uint64_t> shard_sizes_, first_keys_;
+  std::vector<ShardBox> rank_box_;
+  std::vector<std::vector<ShardBox>> boxes_;
+  std::vector<int> nonempty_;  // ranks with a non-empty shard, ascending
+  DistributedBuildStats build_stats_;
+};
+
+// Collective over `comm`: returns when no rank passed an error; otherwise throws bhcl::Error on
+// every rank, "<what>: rank R: <message>" with the first failing rank's message (and how many
+// others failed). For callers that do their own per-rank work between collective steps (the bhcl
+// tool reads the files on rank 0 and shares the outcome with it).
+void mpi_agree(MPI_Comm comm, const std::string& local_error, const std::string& what);
+
+}  // namespace bhcl

@@ -1,0 +1,507 @@
+// DistributedIndex: the build (keys, splitters, the exchange of points, the local index and the
+// shared boxes) and the two-phase query (owner, then the ranks the ball meets, then the merge).
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <numeric>
+#include <sstream>
+
+#include "blockhash_cl/blockhash.hpp"
+#include "blockhash_cl/distributed.hpp"
+#include "blockhash_cl/error.hpp"
+#include "distributed/mpi_util.hpp"
+#include "distributed/shard.hpp"
+
+namespace bhcl {
+
+using distributed::Composite;
+using distributed::exchange;
+using distributed::Stopwatch;
+
+namespace {
+
+constexpr const char* kWhat = "DistributedIndex";
+
+// A point on its way to its shard.
+struct PointRecord {
+  float xyz[3];
+  std::int32_t global;
+};
+static_assert(sizeof(PointRecord) == 16, "PointRecord is sent as 16 raw bytes");
+
+// A query on its way to a rank; budget_class 1 asks for the border budget (approximate methods).
+struct QueryRecord {
+  float xyz[3];
+  std::int32_t budget_class;
+};
+static_assert(sizeof(QueryRecord) == 16, "QueryRecord is sent as 16 raw bytes");
+
+std::string what_of(const std::exception& e) { return e.what()[0] ? e.what() : "unknown error"; }
+
+// A result row on the wire: k ids, k squared distances, the count and the points examined.
+std::size_t row_bytes(int k) { return static_cast<std::size_t>(k) * 8 + 8; }
+
+void pack_row(unsigned char* dst, const KnnResult& r, std::size_t q, int k) {
+  const std::size_t kk = static_cast<std::size_t>(k);
+  std::memcpy(dst, &r.ids[q * kk], kk * 4);
+  std::memcpy(dst + kk * 4, &r.dist2[q * kk], kk * 4);
+  const std::int32_t tail[2] = {r.counts[q], r.examined.empty() ? 0 : r.examined[q]};
+  std::memcpy(dst + kk * 8, tail, 8);
+}
+
+// Merges the row `src` (on the wire) into row q of `out` (both sorted by (distance, id)): the k
+// best of both. An id in both (the owner's second answer repeats points of its first) is the same
+// point with the same distance and is taken once. The order of merging does not matter: (distance,
+// id) is a total order.
+void merge_row(KnnResult& out, std::size_t q, const unsigned char* src, int k,
+               std::vector<std::int32_t>& ids_tmp, std::vector<float>& d2_tmp) {
+  const std::size_t kk = static_cast<std::size_t>(k);
+  std::int32_t tail[2];
+  std::memcpy(tail, src + kk * 8, 8);
+  const int cb = tail[0];
+  if (!out.examined.empty()) out.examined[q] += tail[1];
+  if (cb <= 0) return;
+  std::int32_t* ia = &out.ids[q * kk];
+  float* da = &out.dist2[q * kk];
+  const int ca = out.counts[q];
+  ids_tmp.resize(kk);
+  d2_tmp.resize(kk);
+  std::memcpy(ids_tmp.data(), src, kk * 4);
+  std::memcpy(d2_tmp.data(), src + kk * 4, kk * 4);
+  std::vector<std::int32_t> mi(kk, -1);
+  std::vector<float> md(kk, std::numeric_limits<float>::infinity());
+  int a = 0, b = 0, m = 0;
+  while (m < k && (a < ca || b < cb)) {
+    if (a < ca && b < cb && ia[a] == ids_tmp[b]) ++b;  // the same point: keep a's copy
+    const bool take_a =
+        b >= cb || (a < ca && (da[a] < d2_tmp[b] || (da[a] == d2_tmp[b] && ia[a] < ids_tmp[b])));
+    if (take_a) mi[m] = ia[a], md[m] = da[a], ++a;
+    else mi[m] = ids_tmp[b], md[m] = d2_tmp[b], ++b;
+    ++m;
+  }
+  std::copy(mi.begin(), mi.end(), ia);
+  std::copy(md.begin(), md.end(), da);
+  out.counts[q] = m;
+}
+
+void add_stats(QueryStats& into, const QueryStats& s) {
+  into.batches += s.batches;
+  into.compile_s += s.compile_s;
+  into.upload_s += s.upload_s;
+  into.query_s += s.query_s;
+  into.download_s += s.download_s;
+}
+
+}  // namespace
+
+DistributedIndex::DistributedIndex(MPI_Comm comm, std::shared_ptr<Runtime> runtime, const float* points,
+                                   std::size_t n, const DistributedBuildParams& params) {
+  Stopwatch wall;
+  MPI_Comm_dup(comm, &comm_);
+  try {
+    MPI_Comm_rank(comm_, &rank_);
+    MPI_Comm_size(comm_, &ranks_);
+    const std::size_t R = static_cast<std::size_t>(ranks_);
+
+    // Parameters: checked on every rank, agreed, so that a rank with other parameters fails all.
+    std::string err;
+    const MethodInfo* info = nullptr;
+    try {
+      info = &method_info(params.method);
+      if (!params.options.load_index.empty() || !params.options.save_index.empty())
+        throw Error("load_index / save_index are not supported: each rank builds its shard's index");
+      if (!(params.border_factor >= 1 && params.border_factor <= 1024))
+        throw Error("border_factor must be in [1, 1024], got " + std::to_string(params.border_factor));
+      if (params.boxes_per_rank < 1 || params.boxes_per_rank > 1024)
+        throw Error("boxes_per_rank must be in [1, 1024], got " + std::to_string(params.boxes_per_rank));
+      if (n > 0 && points == nullptr) throw Error("points is null with n = " + std::to_string(n));
+      if (!runtime) throw Error("runtime is null");
+    } catch (const std::exception& e) {
+      err = what_of(e);
+    }
+    mpi_agree(comm_, err, kWhat);
+    method_ = info->name;
+    exact_ = info->exact;
+    border_factor_ = params.border_factor;
+
+    // Global indices: this rank's part follows the parts of lower ranks.
+    std::uint64_t n_local = n, offset = 0, total = 0;
+    MPI_Exscan(&n_local, &offset, 1, MPI_UINT64_T, MPI_SUM, comm_);
+    if (rank_ == 0) offset = 0;  // MPI leaves rank 0's result undefined
+    MPI_Allreduce(&n_local, &total, 1, MPI_UINT64_T, MPI_SUM, comm_);
+    // The same totals on every rank, so every rank throws here or none does.
+    if (total == 0) throw Error(std::string(kWhat) + ": no points on any rank");
+    if (total > 2147483646u)
+      throw Error(std::string(kWhat) + ": " + std::to_string(total) +
+                  " points in all: result ids are int32, at most 2^31 - 2 points");
+    n_global_ = static_cast<std::size_t>(total);
+
+    for (std::size_t i = 0; i < n && err.empty(); ++i) {
+      const float* p = points + 3 * i;
+      if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) {
+        std::ostringstream os;
+        os << "points: point " << offset + i << " (this rank's point " << i
+           << ") has a non-finite coordinate (" << p[0] << ", " << p[1] << ", " << p[2] << ")";
+        err = os.str();
+      }
+    }
+    mpi_agree(comm_, err, kWhat);
+
+    // Keys over the global box; the global order is by (key, global index).
+    Stopwatch shard_clock;
+    const blockhash::Quantiser q = distributed::global_quantiser(comm_, points, n);
+    for (int d = 0; d < 3; ++d) origin_[d] = q.origin[d];
+    scale_ = q.scale;
+    std::vector<Composite> sorted(n);
+    for (std::size_t i = 0; i < n; ++i)
+      sorted[i] = distributed::composite(distributed::hilbert_key(q, points + 3 * i),
+                                         static_cast<std::uint32_t>(offset + i));
+    std::sort(sorted.begin(), sorted.end());
+    const std::vector<Composite> split = distributed::find_splitters(comm_, sorted, total);
+
+    // Every rank derives every shard's size and first key from the splitters alone.
+    shard_sizes_.resize(R);
+    first_keys_.resize(R);
+    for (std::size_t r = 0; r < R; ++r) {
+      shard_sizes_[r] = (total * (r + 1)) / R - (total * r) / R;
+      first_keys_[r] = distributed::key_of(split[r]);
+      if (shard_sizes_[r] > 0) nonempty_.push_back(static_cast<int>(r));
+    }
+
+    // Send each point to the shard holding its composite: runs of the sorted local array.
+    std::vector<std::size_t> send_counts(R, 0), recv_counts;
+    std::vector<PointRecord> out_points(n);
+    {
+      std::size_t pos = 0;
+      for (std::size_t r = 0; r < R; ++r) {
+        const std::size_t end =
+            r + 1 < R ? static_cast<std::size_t>(
+                            std::lower_bound(sorted.begin(), sorted.end(), split[r + 1]) - sorted.begin())
+                      : n;
+        send_counts[r] = end - pos;
+        for (; pos < end; ++pos) {
+          const std::uint32_t g = distributed::index_of(sorted[pos]);
+          const float* p = points + 3 * (g - offset);
+          out_points[pos] = {{p[0], p[1], p[2]}, static_cast<std::int32_t>(g)};
+        }
+      }
+    }
+    std::vector<Composite>().swap(sorted);
+    std::vector<unsigned char> raw = exchange(comm_, out_points.data(), send_counts,
+                                              sizeof(PointRecord), recv_counts, "sharding the points");
+    std::vector<PointRecord>().swap(out_points);
+    const std::size_t m = raw.size() / sizeof(PointRecord);
+    std::vector<PointRecord> shard(m);
+    if (m) std::memcpy(shard.data(), raw.data(), raw.size());
+    std::vector<unsigned char>().swap(raw);
+    // The splitters promised this size; a mismatch is a bug here, reported rather than hung on.
+    if (m != shard_sizes_[static_cast<std::size_t>(rank_)])
+      err = "internal error: the shard holds " + std::to_string(m) + " points, the splitters promised " +
+            std::to_string(shard_sizes_[static_cast<std::size_t>(rank_)]);
+    mpi_agree(comm_, err, kWhat);
+    build_stats_.n_global = n_global_;
+    build_stats_.n_input = n;
+    build_stats_.shard_points = m;
+    build_stats_.points_sent = n - send_counts[static_cast<std::size_t>(rank_)];
+    build_stats_.points_received = m - recv_counts[static_cast<std::size_t>(rank_)];
+    build_stats_.shard_points_all.assign(shard_sizes_.begin(), shard_sizes_.end());
+    const double mean = double(total) / double(R);
+    build_stats_.balance =
+        double(*std::max_element(shard_sizes_.begin(), shard_sizes_.end())) / mean;
+
+    // The shared boxes: consecutive runs of the shard in Hilbert order (the key order the ranks
+    // cut by, so the runs are compact pieces of the curve).
+    std::vector<float> xyz(3 * m);
+    {
+      std::vector<std::pair<Composite, std::size_t>> order(m);
+      for (std::size_t i = 0; i < m; ++i)
+        order[i] = {distributed::composite(distributed::hilbert_key(q, shard[i].xyz),
+                                           static_cast<std::uint32_t>(shard[i].global)),
+                    i};
+      std::sort(order.begin(), order.end());
+      for (std::size_t i = 0; i < m; ++i)
+        std::memcpy(&xyz[3 * i], shard[order[i].second].xyz, 12);
+    }
+    const std::size_t B = static_cast<std::size_t>(params.boxes_per_rank);
+    std::vector<distributed::Box> mine = distributed::run_boxes(xyz.data(), m, B);
+    {
+      // Fixed B slots per rank; a rank with fewer points than B fills the rest with NaN boxes.
+      std::vector<float> slots(B * 6, std::numeric_limits<float>::quiet_NaN()), all(R * B * 6);
+      for (std::size_t j = 0; j < mine.size(); ++j) {
+        std::memcpy(&slots[6 * j], mine[j].lo, 12);
+        std::memcpy(&slots[6 * j + 3], mine[j].hi, 12);
+      }
+      MPI_Allgather(slots.data(), static_cast<int>(B * 6), MPI_FLOAT, all.data(),
+                    static_cast<int>(B * 6), MPI_FLOAT, comm_);
+      boxes_.assign(R, {});
+      rank_box_.resize(R);
+      for (std::size_t r = 0; r < R; ++r) {
+        for (std::size_t j = 0; j < std::min<std::size_t>(B, shard_sizes_[r]); ++j) {
+          ShardBox b;
+          std::memcpy(b.lo, &all[(r * B + j) * 6], 12);
+          std::memcpy(b.hi, &all[(r * B + j) * 6 + 3], 12);
+          boxes_[r].push_back(b);
+        }
+        rank_box_[r] = distributed::union_box(boxes_[r]);
+      }
+    }
+    build_stats_.shard_s = shard_clock.seconds();
+
+    // The local index over the shard in global-index order: a row's ties then go to the lower
+    // local index, which is the lower global index, as in one process.
+    std::sort(shard.begin(), shard.end(),
+              [](const PointRecord& a, const PointRecord& b) { return a.global < b.global; });
+    shard_ids_.resize(m);
+    for (std::size_t i = 0; i < m; ++i) {
+      shard_ids_[i] = shard[i].global;
+      std::memcpy(&xyz[3 * i], shard[i].xyz, 12);
+    }
+    std::vector<PointRecord>().swap(shard);
+    Stopwatch build_clock;
+    err.clear();
+    try {
+      if (m > 0) local_ = make_index(method_, std::move(runtime), xyz.data(), m, params.options);
+    } catch (const std::exception& e) {
+      err = "building the local " + method_ + " index of " + std::to_string(m) + " points: " + what_of(e);
+    }
+    mpi_agree(comm_, err, kWhat);
+    build_stats_.build_s = build_clock.seconds();
+    build_stats_.wall_s = wall.seconds();
+  } catch (...) {
+    local_.reset();
+    MPI_Comm_free(&comm_);
+    throw;
+  }
+}
+
+DistributedIndex::~DistributedIndex() {
+  int finalized = 0;
+  MPI_Finalized(&finalized);
+  if (!finalized && comm_ != MPI_COMM_NULL) MPI_Comm_free(&comm_);
+}
+
+std::uint64_t DistributedIndex::key_of(const float xyz[3]) const {
+  blockhash::Quantiser q;
+  q.bits = distributed::kKeyBits;
+  for (int d = 0; d < 3; ++d) q.origin[d] = origin_[d];
+  q.scale = scale_;
+  return distributed::hilbert_key(q, xyz);
+}
+
+int DistributedIndex::owner_of(const float xyz[3]) const {
+  // The last non-empty shard starting at or before the key (a key shared by two shards goes to
+  // the later one, which holds points of that key); keys before every shard go to the first.
+  const std::uint64_t key = key_of(xyz);
+  int owner = nonempty_.front();
+  for (int r : nonempty_)
+    if (first_keys_[static_cast<std::size_t>(r)] <= key) owner = r;
+  return owner;
+}
+
+void DistributedIndex::ranks_meeting(const float q[3], double bound, int skip, std::vector<int>& out) const {
+  out.clear();
+  for (int r : nonempty_) {
+    if (r == skip) continue;
+    const std::size_t rr = static_cast<std::size_t>(r);
+    if (!distributed::box_may_hold(rank_box_[rr], q, bound)) continue;
+    for (const ShardBox& b : boxes_[rr])
+      if (distributed::box_may_hold(b, q, bound)) {
+        out.push_back(r);
+        break;
+      }
+  }
+}
+
+QueryStats DistributedIndex::query(const float* queries, std::size_t n, const SearchParams& params,
+                                   KnnResult& out, DistributedQueryStats* stats) const {
+  Stopwatch wall;
+  QueryStats st;
+  st.n_queries = n;
+  DistributedQueryStats ds;
+  const std::size_t R = static_cast<std::size_t>(ranks_);
+  const std::size_t me = static_cast<std::size_t>(rank_);
+
+  std::string err;
+  float border_A = 0;  // approximate methods: the budget of a border query's second answer
+  try {
+    kmax_variant(params.k);
+    if (std::isnan(params.max_radius) || params.max_radius < 0)
+      throw Error("max_radius must be >= 0 (or +inf), got " + std::to_string(params.max_radius));
+    if (n > 0 && queries == nullptr) throw Error("queries is null with n = " + std::to_string(n));
+    if (params.count_examined && local_ && !local_->counts_examined())
+      throw Error("count_examined: method " + method_ + " does not count the points it examines");
+    if (!exact_ && border_factor_ > 1 && local_) {
+      // The A this rank's index answers with (the tuned one under a recall target), scaled.
+      float A = params.A;
+      if (params.recall_target > 0)
+        if (auto* bh = dynamic_cast<const BlockHashIndex*>(local_.get())) A = bh->recall_tuning(params).A;
+      border_A = A * border_factor_;
+    }
+  } catch (const std::exception& e) {
+    err = what_of(e);
+  }
+  mpi_agree(comm_, err, std::string(kWhat) + "::query");
+  {
+    // k, the radius and count_examined shape the rows every rank sends: they must agree.
+    std::uint32_t rbits;
+    std::memcpy(&rbits, &params.max_radius, 4);
+    long long v[6] = {params.k, rbits, params.count_examined, -params.k, -(long long)rbits,
+                      -(long long)params.count_examined};
+    long long g[6];
+    MPI_Allreduce(v, g, 6, MPI_LONG_LONG, MPI_MIN, comm_);
+    if (g[0] != -g[3] || g[1] != -g[4] || g[2] != -g[5])
+      throw Error(std::string(kWhat) +
+                  "::query: the ranks passed different k, max_radius or count_examined");
+  }
+  const int k = params.k;
+  const std::size_t kk = static_cast<std::size_t>(k);
+  const std::size_t rb = row_bytes(k);
+  out.resize(n, k);
+  if (params.count_examined) out.examined.assign(n, 0);
+  ds.ranks_visited.assign(n, 0);
+  ds.owner.assign(n, -1);
+
+  // Sends the records (grouped by destination rank, send_counts each), answers the ones that came
+  // in with the local index (a record's budget class 1: with A = border_A) and sends the rows
+  // back. Returns the rows in the order the records were sent. Local failures fail every rank.
+  auto round_trip = [&](const std::vector<QueryRecord>& records, const std::vector<std::size_t>& send_counts,
+                        const char* phase) {
+    std::vector<std::size_t> recv_counts, back_counts;
+    const std::vector<unsigned char> in =
+        exchange(comm_, records.data(), send_counts, sizeof(QueryRecord), recv_counts, phase);
+    const std::size_t m = in.size() / sizeof(QueryRecord);
+    std::vector<QueryRecord> got(m);
+    if (m) std::memcpy(got.data(), in.data(), in.size());
+    std::vector<unsigned char> rows(m * rb, 0);
+    std::string e;
+    try {
+      if (m > 0 && !local_) throw Error("queries reached a rank with an empty shard");
+      for (std::int32_t cls : {0, 1}) {
+        std::vector<std::size_t> which;
+        for (std::size_t i = 0; i < m; ++i)
+          if (got[i].budget_class == cls) which.push_back(i);
+        if (which.empty()) continue;
+        std::vector<float> xyz(3 * which.size());
+        for (std::size_t j = 0; j < which.size(); ++j) std::memcpy(&xyz[3 * j], got[which[j]].xyz, 12);
+        SearchParams p = params;
+        if (cls == 1) p.A = border_A, p.recall_target = 0;
+        KnnResult r;
+        add_stats(st, local_->query(xyz.data(), which.size(), p, r));
+        for (auto& id : r.ids)
+          if (id >= 0) id = shard_ids_[static_cast<std::size_t>(id)];
+        for (std::size_t j = 0; j < which.size(); ++j) pack_row(&rows[which[j] * rb], r, j, k);
+      }
+    } catch (const std::exception& ex) {
+      e = std::string(phase) + ": " + what_of(ex);
+    }
+    mpi_agree(comm_, e, std::string(kWhat) + "::query");
+    ds.answered += m;
+    const std::size_t from_others = m - recv_counts[me];
+    std::size_t to_others = 0;
+    for (std::size_t r = 0; r < R; ++r) to_others += r == me ? 0 : send_counts[r];
+    std::vector<unsigned char> back = exchange(comm_, rows.data(), recv_counts, rb, back_counts, phase);
+    ds.bytes_sent += to_others * sizeof(QueryRecord) + from_others * rb;
+    ds.bytes_received += from_others * sizeof(QueryRecord) + to_others * rb;
+    return std::make_pair(std::move(back), std::make_pair(to_others, from_others));
+  };
+
+  // Phase 1: every finite query to the rank owning its key.
+  Stopwatch p1;
+  std::vector<std::size_t> send_counts(R, 0);
+  for (std::size_t i = 0; i < n; ++i) {
+    const float* q = queries + 3 * i;
+    if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2])) {
+      ++st.nonfinite_queries;
+      continue;
+    }
+    ds.owner[i] = owner_of(q);
+    ds.ranks_visited[i] = 1;
+    ++send_counts[static_cast<std::size_t>(ds.owner[i])];
+  }
+  // Counting sort by destination; sent[j] = the caller's index of the j-th record sent.
+  std::vector<std::size_t> start(R + 1, 0);
+  for (std::size_t r = 0; r < R; ++r) start[r + 1] = start[r] + send_counts[r];
+  std::vector<std::size_t> sent(start[R]);
+  std::vector<QueryRecord> records(start[R]);
+  {
+    std::vector<std::size_t> pos(start.begin(), start.end() - 1);
+    for (std::size_t i = 0; i < n; ++i) {
+      if (ds.owner[i] < 0) continue;
+      const std::size_t j = pos[static_cast<std::size_t>(ds.owner[i])]++;
+      sent[j] = i;
+      std::memcpy(records[j].xyz, queries + 3 * i, 12);
+      records[j].budget_class = 0;
+    }
+  }
+  {
+    auto [back, moved] = round_trip(records, send_counts, "phase 1 (owner)");
+    ds.owner_sent = moved.first;
+    ds.owner_received = moved.second;
+    // The owner's row is each query's first.
+    for (std::size_t j = 0; j < sent.size(); ++j) {
+      const std::size_t i = sent[j];
+      const unsigned char* src = &back[j * rb];
+      std::memcpy(&out.ids[i * kk], src, kk * 4);
+      std::memcpy(&out.dist2[i * kk], src + kk * 4, kk * 4);
+      std::int32_t tail[2];
+      std::memcpy(tail, src + kk * 8, 8);
+      out.counts[i] = tail[0];
+      if (params.count_examined) out.examined[i] = tail[1];
+    }
+  }
+  ds.phase1_s = p1.seconds();
+
+  // Phase 2: the ball of the owner's k-th distance (or of the radius, when the owner found fewer
+  // than k) to every other rank whose boxes it meets. Approximate methods: such a border query
+  // also goes back to its owner for a second answer with border_A (see distributed.hpp).
+  Stopwatch p2;
+  const double radius2 = std::isinf(params.max_radius)
+                             ? std::numeric_limits<double>::infinity()
+                             : double(params.max_radius) * double(params.max_radius);
+  struct Extra {
+    int rank;
+    std::int32_t budget_class;
+    std::size_t query;
+  };
+  std::vector<Extra> extra;
+  {
+    std::vector<int> met;
+    for (std::size_t i = 0; i < n; ++i) {
+      if (ds.owner[i] < 0) continue;
+      const double bound = out.counts[i] >= k ? double(out.dist2[i * kk + kk - 1]) : radius2;
+      ranks_meeting(queries + 3 * i, bound, ds.owner[i], met);
+      if (met.empty()) continue;
+      for (int r : met) extra.push_back({r, 0, i});
+      if (border_A > 0) {
+        extra.push_back({ds.owner[i], 1, i});
+        ++ds.reanswered;
+      }
+      ds.ranks_visited[i] += static_cast<std::int32_t>(met.size());
+      ++ds.multi_rank_queries;
+    }
+  }
+  std::stable_sort(extra.begin(), extra.end(), [](const Extra& a, const Extra& b) { return a.rank < b.rank; });
+  std::fill(send_counts.begin(), send_counts.end(), 0);
+  records.resize(extra.size());
+  for (std::size_t j = 0; j < extra.size(); ++j) {
+    ++send_counts[static_cast<std::size_t>(extra[j].rank)];
+    std::memcpy(records[j].xyz, queries + 3 * extra[j].query, 12);
+    records[j].budget_class = extra[j].budget_class;
+  }
+  {
+    auto [back, moved] = round_trip(records, send_counts, "phase 2 (ball)");
+    ds.extra_sent = moved.first;
+    ds.extra_received = moved.second;
+    std::vector<std::int32_t> ids_tmp;
+    std::vector<float> d2_tmp;
+    for (std::size_t j = 0; j < extra.size(); ++j)
+      merge_row(out, extra[j].query, &back[j * rb], k, ids_tmp, d2_tmp);
+  }
+  ds.phase2_s = p2.seconds();
+  st.wall_s = wall.seconds();
+  if (stats) *stats = std::move(ds);
+  return st;
+}
+
+}  // namespace bhcl

@@ -1,0 +1,28 @@
+#!/bin/sh
+# bhcl knn --distributed under mpirun writes the same files as bhcl knn in one process, byte for
+# byte, for the exact methods (a flat point set, k 20, a radius that cuts rows short); a missing
+# input file fails every rank with one message naming it.
+# Usage: distributed_cli.sh BHCL MPIEXEC NP WORKDIR [mpiexec options...]
+set -eu
+bhcl=$1 mpiexec=$2 np=$3 dir=$4
+shift 4
+mkdir -p "$dir"
+cd "$dir"
+awk 'BEGIN { srand(7); for (i = 0; i < 20000; i++) printf "%.6f %.6f %.6f\n", rand(), rand(), 0.01 * rand() }' > p.txt
+awk 'BEGIN { srand(8); for (i = 0; i < 3000; i++) printf "%.6f %.6f %.6f\n", rand(), rand(), 0.01 * rand() }' > q.txt
+for m in kdtree bruteforce; do
+  args="--points p.txt --queries q.txt --method $m --k 20 --max-radius 0.01 --quiet"
+  "$bhcl" knn $args --out-ids i1 --out-dist2 d1 --out-counts c1
+  "$mpiexec" -np "$np" "$@" "$bhcl" knn $args --out-ids iN --out-dist2 dN --out-counts cN --distributed
+  cmp i1 iN && cmp d1 dN && cmp c1 cN
+  echo "$m: $np rank(s) wrote the one-process files"
+done
+if "$mpiexec" -np "$np" "$@" "$bhcl" knn --points missing.txt --queries q.txt --method kdtree \
+    --out-ids iN --out-dist2 dN --distributed --quiet 2> err.txt; then
+  echo "a missing point file did not fail"; exit 1
+fi
+lines=$(grep -c "rank 0: missing.txt" err.txt || true)
+if [ "$lines" -ne "$np" ]; then
+  echo "expected the error on each of $np ranks, got $lines:"; cat err.txt; exit 1
+fi
+echo "a missing file failed all $np ranks"

@@ -1,0 +1,396 @@
+// Tests of bhcl::DistributedIndex, run by CTest under mpirun at 1, 2 and 4 ranks (its own program:
+// the doctest binary runs without MPI). Every rank runs every case; a failed check is counted on
+// its rank and printed with the rank, and the program fails when any rank counted one. A check
+// never throws, so the ranks always reach the same collective calls.
+//
+// What it checks:
+//  - every exact method gives, through the distributed index, the single-process answer bit for
+//    bit (ids, float distances, counts), for point sets that stress the sharding (uniform,
+//    clustered, long runs of duplicates that straddle shard borders, flat), k = 1, 10, 64, with
+//    and without a maximum radius, with points and queries spread unevenly over the ranks (one
+//    rank passing none), and with fewer points than ranks;
+//  - block hashing's recall through the distributed index is that of one process (within 0.02);
+//  - NaN queries get empty rows; the statistics add up across ranks;
+//  - a rank given a NaN point, an unknown method on one rank, or ranks passing different k make
+//    the call throw on every rank with a message naming the failing rank.
+#include <mpi.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <limits>
+#include <memory>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "blockhash_cl/blockhash_cl.hpp"
+#include "blockhash_cl/datasets.hpp"
+#include "blockhash_cl/distributed.hpp"
+
+namespace {
+
+int g_rank = 0, g_ranks = 1;
+int g_failures = 0;
+
+#define EXPECT(cond, ...)                                                   \
+  do {                                                                      \
+    if (!(cond)) {                                                          \
+      ++g_failures;                                                         \
+      std::fprintf(stderr, "rank %d: %s:%d: FAILED: %s: ", g_rank, __FILE__, \
+                   __LINE__, #cond);                                        \
+      std::fprintf(stderr, __VA_ARGS__);                                    \
+      std::fputc('\n', stderr);                                             \
+    }                                                                       \
+  } while (0)
+
+std::shared_ptr<bhcl::Runtime> runtime() {
+  static std::shared_ptr<bhcl::Runtime> rt = std::make_shared<bhcl::Runtime>();
+  return rt;
+}
+
+// Rank r's slice of `count` items: unequal parts (rank r gets a share growing with r), and rank 1
+// gets none when there are 3 ranks or more, so that the API's "any split" is exercised.
+std::pair<std::size_t, std::size_t> slice(std::size_t count, int rank, int ranks, int skew) {
+  std::vector<std::size_t> weight(static_cast<std::size_t>(ranks));
+  for (int r = 0; r < ranks; ++r) weight[static_cast<std::size_t>(r)] = static_cast<std::size_t>((r + skew) % ranks + 1);
+  if (ranks >= 3) weight[1] = 0;
+  std::size_t total = 0;
+  for (auto w : weight) total += w;
+  std::size_t first = 0;
+  for (int r = 0; r < rank; ++r) first += count * weight[static_cast<std::size_t>(r)] / total;
+  std::size_t len = rank + 1 == ranks ? count - first : count * weight[static_cast<std::size_t>(rank)] / total;
+  return {first, len};
+}
+
+struct Set {
+  std::string name;
+  std::vector<float> points, queries;
+};
+
+// Queries: uniform over the box grown by 10 %, exact copies of points (distance-0 ties) and
+// points moved by a tiny jitter (near-ties).
+std::vector<float> queries_for(const std::vector<float>& pts, std::uint64_t seed, std::size_t each) {
+  float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+  const std::size_t n = pts.size() / 3;
+  for (std::size_t i = 0; i < n; ++i)
+    for (int d = 0; d < 3; ++d) lo[d] = std::min(lo[d], pts[3 * i + d]), hi[d] = std::max(hi[d], pts[3 * i + d]);
+  std::mt19937_64 rng(seed);
+  std::vector<float> q;
+  for (std::size_t i = 0; i < each; ++i)
+    for (int d = 0; d < 3; ++d) {
+      const float pad = 0.1f * (hi[d] - lo[d]);
+      q.push_back(std::uniform_real_distribution<float>(lo[d] - pad, hi[d] + pad)(rng));
+    }
+  std::uniform_int_distribution<std::size_t> pick(0, n - 1);
+  for (std::size_t i = 0; i < each; ++i) {
+    const std::size_t j = pick(rng);
+    q.insert(q.end(), {pts[3 * j], pts[3 * j + 1], pts[3 * j + 2]});
+  }
+  std::normal_distribution<float> jitter(0.0f, 1e-6f);
+  for (std::size_t i = 0; i < each; ++i) {
+    const std::size_t j = pick(rng);
+    for (int d = 0; d < 3; ++d) q.push_back(pts[3 * j + d] + jitter(rng));
+  }
+  return q;
+}
+
+std::vector<Set> exact_sets() {
+  std::vector<Set> sets;
+  auto add = [&](const std::string& name, std::vector<float> pts, std::uint64_t seed) {
+    std::vector<float> q = queries_for(pts, seed, 60);
+    sets.push_back({name, std::move(pts), std::move(q)});
+  };
+  add("uniform", bhcl::datasets::uniform(2500, 101), 1);
+  add("clustered", bhcl::datasets::clustered(2500, 102, 8, 0.002f), 2);
+  {
+    // Long runs of one position: 40 % of the points on 3 positions, so runs of equal keys
+    // straddle every shard border at 2 and 4 ranks; ties are broken by global index only.
+    auto pts = bhcl::datasets::uniform(2500, 103);
+    for (std::size_t i = 0; i < 1000; ++i) {
+      const float v = i % 3 == 0 ? 0.25f : i % 3 == 1 ? 0.5f : 0.75f;
+      std::size_t j = (i * 7919) % 2500;
+      pts[3 * j] = pts[3 * j + 1] = pts[3 * j + 2] = v;
+    }
+    add("duplicates", std::move(pts), 3);
+  }
+  {
+    auto pts = bhcl::datasets::uniform(2500, 105);
+    for (std::size_t i = 0; i < pts.size(); i += 3) pts[i + 2] = 0.5f;  // flat: z = const
+    add("flat", std::move(pts), 5);
+  }
+  return sets;
+}
+
+// Bit-exact equality of the rows of `got` with rows [first, first + got.n) of `ref`.
+bool identical_rows(const bhcl::KnnResult& got, const bhcl::KnnResult& ref, std::size_t first,
+                    std::string& why) {
+  const std::size_t k = static_cast<std::size_t>(ref.k);
+  if (got.k != ref.k) {
+    why = "k " + std::to_string(got.k) + " vs " + std::to_string(ref.k);
+    return false;
+  }
+  for (std::size_t i = 0; i < got.n; ++i) {
+    if (got.counts[i] != ref.counts[first + i]) {
+      why = "query " + std::to_string(first + i) + ": count " + std::to_string(got.counts[i]) + " vs " +
+            std::to_string(ref.counts[first + i]);
+      return false;
+    }
+    for (std::size_t j = 0; j < k; ++j) {
+      const float a = got.dist2[i * k + j], b = ref.dist2[(first + i) * k + j];
+      if (got.ids[i * k + j] != ref.ids[(first + i) * k + j] || std::memcmp(&a, &b, 4) != 0) {
+        char buf[200];
+        std::snprintf(buf, sizeof buf, "query %zu column %zu: (%d, %.9g) vs single process (%d, %.9g)",
+                      first + i, j, got.ids[i * k + j], a, ref.ids[(first + i) * k + j], b);
+        why = buf;
+        return false;
+      }
+    }
+  }
+  return true;
+}
+
+// Every exact method, every set, k 1 / 10 / 64, with and without a radius, against one process.
+void exact_methods_match_single_process() {
+  for (const Set& s : exact_sets()) {
+    const std::size_t N = s.points.size() / 3, n = s.queries.size() / 3;
+    auto [pf, pl] = slice(N, g_rank, g_ranks, 0);
+    auto [qf, ql] = slice(n, g_rank, g_ranks, 1);
+    for (const std::string& method : bhcl::exact_method_names()) {
+      bhcl::DistributedBuildParams bp;
+      bp.method = method;
+      bp.boxes_per_rank = 8;
+      bhcl::DistributedIndex dist(MPI_COMM_WORLD, runtime(), s.points.data() + 3 * pf, pl, bp);
+      EXPECT(dist.size() == N, "%s: size %zu", s.name.c_str(), dist.size());
+      std::unique_ptr<bhcl::Index> single = bhcl::make_index(method, runtime(), s.points.data(), N);
+      for (int k : {1, 10, 64})
+        for (bool radius : {false, true}) {
+          bhcl::SearchParams p;
+          p.k = k;
+          // A radius that cuts many rows short: about the typical 8th-neighbour distance.
+          if (radius) p.max_radius = s.name == "clustered" ? 0.0005f : 0.04f;
+          bhcl::KnnResult ref, got;
+          single->query(s.queries.data(), n, p, ref);
+          bhcl::DistributedQueryStats ds;
+          bhcl::QueryStats st = dist.query(s.queries.data() + 3 * qf, ql, p, got, &ds);
+          std::string why;
+          EXPECT(identical_rows(got, ref, qf, why), "%s %s k=%d radius=%d: %s", method.c_str(),
+                 s.name.c_str(), k, int(radius), why.c_str());
+          EXPECT(st.n_queries == ql && ds.ranks_visited.size() == ql, "%s: stats sizes", method.c_str());
+          for (std::size_t i = 0; i < ql; ++i)
+            EXPECT(ds.ranks_visited[i] >= 1 && ds.ranks_visited[i] <= g_ranks && ds.owner[i] >= 0,
+                   "query %zu visited %d ranks, owner %d", qf + i, ds.ranks_visited[i], ds.owner[i]);
+        }
+    }
+  }
+}
+
+// Fewer points than ranks: some shards are empty; rows are still the single-process rows.
+void fewer_points_than_ranks() {
+  const std::vector<float> pts = {0, 0, 0, 1, 0, 0, 0.5f, 0.5f, 0.5f};
+  const std::vector<float> qs = {0.1f, 0, 0, 0.9f, 0.1f, 0, 2, 2, 2};
+  // All points on the last rank, all queries on rank 0.
+  const bool last = g_rank == g_ranks - 1, first = g_rank == 0;
+  bhcl::DistributedIndex dist(MPI_COMM_WORLD, runtime(), last ? pts.data() : nullptr, last ? 3 : 0);
+  std::size_t nonempty = 0;
+  for (auto c : dist.build_stats().shard_points_all) nonempty += c > 0;
+  EXPECT(nonempty == std::min<std::size_t>(3, std::size_t(g_ranks)), "%zu non-empty shards", nonempty);
+  auto single = bhcl::make_index("kdtree", runtime(), pts.data(), 3);
+  bhcl::SearchParams p;
+  p.k = 5;
+  bhcl::KnnResult ref, got;
+  single->query(qs.data(), 3, p, ref);
+  dist.query(first ? qs.data() : nullptr, first ? 3 : 0, p, got);
+  std::string why;
+  if (first) EXPECT(identical_rows(got, ref, 0, why), "%s", why.c_str());
+  EXPECT(got.n == (first ? 3u : 0u), "rows %zu", got.n);
+}
+
+// NaN queries get empty rows and are counted; the exchange counts balance over the ranks.
+void nonfinite_queries_and_stats() {
+  const std::vector<float> pts = bhcl::datasets::clustered(4000, 7, 4, 0.05f);
+  std::vector<float> qs = bhcl::datasets::clustered(300, 8, 4, 0.05f);
+  qs[3 * 5 + 1] = std::numeric_limits<float>::quiet_NaN();
+  qs[3 * 17] = std::numeric_limits<float>::infinity();
+  auto [pf, pl] = slice(4000, g_rank, g_ranks, 2);
+  bhcl::DistributedIndex dist(MPI_COMM_WORLD, runtime(), pts.data() + 3 * pf, pl);
+  const auto& bs = dist.build_stats();
+  std::size_t sum = 0, largest = 0;
+  for (auto c : bs.shard_points_all) sum += c, largest = std::max(largest, c);
+  EXPECT(sum == 4000 && bs.shard_points == bs.shard_points_all[std::size_t(g_rank)], "shards sum to %zu", sum);
+  EXPECT(largest <= 4000 / std::size_t(g_ranks) + 1, "largest shard %zu", largest);
+  EXPECT(dist.shard_ids().size() == bs.shard_points &&
+             std::is_sorted(dist.shard_ids().begin(), dist.shard_ids().end()),
+         "shard ids");
+  unsigned long long moved[2] = {bs.points_sent, bs.points_received}, moved_all[2];
+  MPI_Allreduce(moved, moved_all, 2, MPI_UNSIGNED_LONG_LONG, MPI_SUM, MPI_COMM_WORLD);
+  EXPECT(moved_all[0] == moved_all[1], "points sent %llu, received %llu", moved_all[0], moved_all[1]);
+
+  // Every rank asks the same queries (a valid use: rows come back to each asker).
+  bhcl::SearchParams p;
+  p.k = 8;
+  bhcl::KnnResult got, ref;
+  bhcl::DistributedQueryStats ds;
+  bhcl::QueryStats st = dist.query(qs.data(), 300, p, got, &ds);
+  auto single = bhcl::make_index("kdtree", runtime(), pts.data(), 4000);
+  single->query(qs.data(), 300, p, ref);
+  std::string why;
+  EXPECT(identical_rows(got, ref, 0, why), "%s", why.c_str());
+  EXPECT(st.nonfinite_queries == 2, "nonfinite %zu", st.nonfinite_queries);
+  EXPECT(got.counts[5] == 0 && got.counts[17] == 0 && ds.ranks_visited[5] == 0 && ds.owner[17] == -1,
+         "non-finite rows");
+  std::size_t multi = 0;
+  for (auto v : ds.ranks_visited) multi += v > 1;
+  EXPECT(multi == ds.multi_rank_queries, "multi %zu vs %zu", multi, ds.multi_rank_queries);
+  unsigned long long c[6] = {ds.owner_sent, ds.owner_received, ds.extra_sent, ds.extra_received,
+                             ds.bytes_sent, ds.bytes_received},
+                     call[6];
+  MPI_Allreduce(c, call, 6, MPI_UNSIGNED_LONG_LONG, MPI_SUM, MPI_COMM_WORLD);
+  EXPECT(call[0] == call[1] && call[2] == call[3] && call[4] == call[5],
+         "moved queries %llu/%llu, %llu/%llu, bytes %llu/%llu", call[0], call[1], call[2], call[3],
+         call[4], call[5]);
+  if (g_ranks == 1) EXPECT(call[0] + call[2] + call[4] == 0, "one rank moves nothing");
+  // The queries each rank answered add up to the visits (an exact method answers no query twice).
+  EXPECT(ds.reanswered == 0, "reanswered %zu", ds.reanswered);
+  unsigned long long visits = 0, answered = ds.answered, all_answered = 0, all_visits = 0;
+  for (auto v : ds.ranks_visited) visits += static_cast<unsigned long long>(v);
+  MPI_Allreduce(&visits, &all_visits, 1, MPI_UNSIGNED_LONG_LONG, MPI_SUM, MPI_COMM_WORLD);
+  MPI_Allreduce(&answered, &all_answered, 1, MPI_UNSIGNED_LONG_LONG, MPI_SUM, MPI_COMM_WORLD);
+  EXPECT(all_visits == all_answered, "visits %llu, answered %llu", all_visits, all_answered);
+}
+
+// Block hashing: recall@10 of the distributed index against that of one process (both against
+// the exact answer), on a photon-map-like set.
+void blockhash_recall_as_one_process() {
+  const std::size_t N = 30000, n = 3000;
+  const std::vector<float> pts = bhcl::datasets::cornell_photons(N, 11);
+  const std::vector<float> qs = bhcl::datasets::cornell_queries(n, 12);
+  auto [pf, pl] = slice(N, g_rank, g_ranks, 0);
+  bhcl::DistributedBuildParams bp;
+  bp.method = "blockhash";
+  bhcl::DistributedIndex dist(MPI_COMM_WORLD, runtime(), pts.data() + 3 * pf, pl, bp);
+  EXPECT(!dist.exact() && dist.method() == "blockhash", "method %s", dist.method().c_str());
+  bhcl::SearchParams p;
+  p.k = 10;
+  p.A = 4;
+  bhcl::KnnResult got, approx, truth;
+  bhcl::DistributedQueryStats ds;
+  dist.query(qs.data(), n, p, got, &ds);  // every rank asks all: each checks the whole answer
+  bhcl::make_index("blockhash", runtime(), pts.data(), N)->query(qs.data(), n, p, approx);
+  bhcl::make_index("kdtree", runtime(), pts.data(), N)->query(qs.data(), n, p, truth);
+  const double r_dist = bhcl::evaluate_accuracy(got, truth).recall;
+  const double r_single = bhcl::evaluate_accuracy(approx, truth).recall;
+  if (g_rank == 0)
+    std::printf("blockhash recall@10 (A 4, Cornell-like 30k): %d rank(s) %.4f, one process %.4f, "
+                "%zu of %zu queries visited more than one rank\n",
+                g_ranks, r_dist, r_single, ds.multi_rank_queries, n);
+  EXPECT(r_dist >= r_single - 0.02, "recall %.4f vs one process %.4f", r_dist, r_single);
+  // Every border query got its owner's second answer (border_factor 2 by default).
+  EXPECT(ds.reanswered == ds.multi_rank_queries, "reanswered %zu of %zu", ds.reanswered, ds.multi_rank_queries);
+  EXPECT(r_single > 0.8, "one-process recall %.4f", r_single);
+}
+
+// Runs `f`, which must throw bhcl::Error on every rank with a message containing each of
+// `needles`.
+template <typename F>
+void expect_collective_error(const char* what, F f, std::vector<std::string> needles) {
+  std::string msg;
+  bool threw = false;
+  try {
+    f();
+  } catch (const bhcl::Error& e) {
+    threw = true;
+    msg = e.what();
+  }
+  EXPECT(threw, "%s: no error", what);
+  for (const auto& needle : needles)
+    EXPECT(msg.find(needle) != std::string::npos, "%s: message '%s' lacks '%s'", what, msg.c_str(),
+           needle.c_str());
+  if (g_rank == 0 && threw) std::printf("%s -> %s\n", what, msg.c_str());
+}
+
+void failures_reach_every_rank() {
+  const std::vector<float> pts = bhcl::datasets::uniform(1000, 21);
+  const int bad = g_ranks - 1;
+  {
+    // The last rank's part holds a NaN point: every rank's constructor throws, naming it.
+    std::vector<float> mine = pts;
+    if (g_rank == bad) mine[3 * 10 + 2] = std::numeric_limits<float>::quiet_NaN();
+    expect_collective_error(
+        "a NaN point on one rank",
+        [&] { bhcl::DistributedIndex d(MPI_COMM_WORLD, runtime(), mine.data(), 1000); },
+        {"rank " + std::to_string(bad), "non-finite", "point " + std::to_string(1000 * bad + 10)});
+  }
+  {
+    bhcl::DistributedBuildParams bp;
+    bp.method = g_rank == bad ? "no-such-method" : "kdtree";
+    expect_collective_error(
+        "an unknown method on one rank",
+        [&] { bhcl::DistributedIndex d(MPI_COMM_WORLD, runtime(), pts.data(), 1000, bp); },
+        {"rank " + std::to_string(bad), "no-such-method"});
+  }
+  bhcl::DistributedIndex dist(MPI_COMM_WORLD, runtime(), pts.data(), g_rank == 0 ? 1000 : 0);
+  {
+    bhcl::SearchParams p;
+    p.k = g_rank == bad ? 0 : 5;
+    bhcl::KnnResult r;
+    expect_collective_error("k = 0 on one rank", [&] { dist.query(pts.data(), 10, p, r); },
+                            {"rank " + std::to_string(bad), "k = 0"});
+    p.k = g_rank == bad ? 6 : 5;
+    if (g_ranks > 1)
+      expect_collective_error("different k per rank", [&] { dist.query(pts.data(), 10, p, r); },
+                              {"different k"});
+  }
+  {
+    // A failure inside the local query (count_examined on a method that does not count) on
+    // whichever rank answers: every rank gets it.
+    bhcl::SearchParams p;
+    p.count_examined = true;
+    bhcl::KnnResult r;
+    expect_collective_error("count_examined on kdtree", [&] { dist.query(pts.data(), 10, p, r); },
+                            {"count_examined"});
+  }
+  // After the failures the index still answers.
+  bhcl::SearchParams p;
+  p.k = 3;
+  bhcl::KnnResult r;
+  dist.query(pts.data(), 4, p, r);
+  EXPECT(r.counts[0] == 3 && r.ids[0] == 0 && r.dist2[0] == 0.0f, "row 0: %d %d %g", r.counts[0], r.ids[0], r.dist2[0]);
+}
+
+template <typename F>
+void run(const char* name, F f) {
+  const int before = g_failures;
+  std::string err;
+  try {
+    f();
+  } catch (const std::exception& e) {
+    // Only the library's collective errors reach here, thrown on every rank alike.
+    err = e.what();
+    ++g_failures;
+  }
+  int mine = g_failures - before, all = 0;
+  MPI_Allreduce(&mine, &all, 1, MPI_INT, MPI_SUM, MPI_COMM_WORLD);
+  if (!err.empty()) std::fprintf(stderr, "rank %d: %s: unexpected error: %s\n", g_rank, name, err.c_str());
+  if (g_rank == 0) std::printf("[%s] %s (%d ranks)\n", all ? "FAIL" : " ok ", name, g_ranks);
+  std::fflush(stdout);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  MPI_Init(&argc, &argv);
+  MPI_Comm_rank(MPI_COMM_WORLD, &g_rank);
+  MPI_Comm_size(MPI_COMM_WORLD, &g_ranks);
+  run("exact methods equal one process bit for bit", exact_methods_match_single_process);
+  run("fewer points than ranks", fewer_points_than_ranks);
+  run("non-finite queries and statistics", nonfinite_queries_and_stats);
+  run("block hashing recall as one process", blockhash_recall_as_one_process);
+  run("a failing rank fails the call on every rank", failures_reach_every_rank);
+  int all = 0;
+  MPI_Allreduce(&g_failures, &all, 1, MPI_INT, MPI_SUM, MPI_COMM_WORLD);
+  if (g_rank == 0) std::printf("%s: %d failed check(s) over %d rank(s)\n", all ? "FAILED" : "passed", all, g_ranks);
+  MPI_Finalize();
+  return all ? 1 : 0;
+}
