@@ -4,7 +4,9 @@
 // every row back and writes the outputs. MPI is initialised here, only in this mode.
 #include <cstdio>
 #include <memory>
+#include <chrono>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "blockhash_cl/error.hpp"
@@ -111,6 +113,7 @@ int run_knn_distributed(const Args& args) {
     throw UsageError("--border-factor must be in [1, 1024], got " + args.str("border-factor"));
 
   MpiSession mpi;
+  try {
   int rank = 0, ranks = 1;
   MPI_Comm_rank(MPI_COMM_WORLD, &rank);
   MPI_Comm_size(MPI_COMM_WORLD, &ranks);
@@ -201,6 +204,24 @@ int run_knn_distributed(const Args& args) {
     }
   mpi_agree(MPI_COMM_WORLD, err, what);
   return 0;
+  } catch (const std::exception& e) {
+    // mpirun kills every rank at the first non-zero exit: each rank prints its message first and
+    // waits (a bounded while, never a hang when a rank failed alone) until all have printed.
+    std::fprintf(stderr, "bhcl knn: error: %s\n", e.what());
+    std::fflush(stderr);
+    MPI_Request req;
+    if (MPI_Ibarrier(MPI_COMM_WORLD, &req) == MPI_SUCCESS) {
+      int done = 0;
+      const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+      while (!done && std::chrono::steady_clock::now() < until) {
+        MPI_Test(&req, &done, MPI_STATUS_IGNORE);
+        if (!done) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+      }
+      // A rank that failed alone: the others will not come; end the job rather than hang.
+      if (!done) MPI_Abort(MPI_COMM_WORLD, 1);
+    }
+    return 1;
+  }
 }
 
 #endif

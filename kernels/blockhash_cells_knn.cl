@@ -39,31 +39,6 @@
 #define BHCL_BH_MAXCELLS (BHCL_BH_AXIS_CELLS * BHCL_BH_AXIS_CELLS * BHCL_BH_AXIS_CELLS)
 
 
-/* The run of a table-0 cell: from the direct table when there is one (one load: cells are
- * numbered densely over the thresholds each axis actually has), else by binary search in the sorted
- * directory. Returns 0 and sets *first, *n, or -1 for an empty cell. */
-inline int bh_cell_run(__global const uint2* direct, uint dy, uint dz, __global const uint* keys,
-                       uint n_keys, __global const bhcl_bh_bucket* buckets, uint side, uint cx,
-                       uint cy, uint cz, uint* first, uint* n) {
-  if (dz) {
-    uint2 e = direct[(cx * dy + cy) * dz + cz];
-    *first = e.x;
-    *n = e.y;
-    return e.y ? 0 : -1;
-  }
-  uint key = (cx * side + cy) * side + cz;
-  uint lo = 0, hi = n_keys;
-  while (lo < hi) {
-    uint mid = (lo + hi) >> 1;
-    if (keys[mid] < key) lo = mid + 1;
-    else hi = mid;
-  }
-  if (lo >= n_keys || keys[lo] != key) return -1;
-  *first = buckets[lo].first_ref;
-  *n = buckets[lo].n_refs;
-  return 0;
-}
-
 /* Scans one block into the top-k list (n entries held); returns its point count. */
 inline uint bh_cells_scan(float3 q, __global const bhcl_bh_block* blk, int cnt, float max_r2,
                           float* best_d, int* best_i, uint k, uint* nfound) {

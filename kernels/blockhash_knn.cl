@@ -63,23 +63,6 @@ inline ulong bh_query_key(float3 q, float4 qq, uint bits) {
   return bh_hilbert_encode((uint)v0, (uint)v1, (uint)v2, bits);
 }
 
-/* The bucket of a cell in a table, or -1. */
-inline long bh_find_bucket(__global const uint* keys, __global const uint* table_starts, uint P,
-                           int table, uint key) {
-#if BHCL_BH_DIRECT
-  ulong side = (ulong)P + 1;
-  return (long)((ulong)table * side * side * side + key);
-#else
-  uint lo = table_starts[table], hi = table_starts[table + 1];
-  while (lo < hi) {
-    uint mid = (lo + hi) >> 1;
-    if (keys[mid] < key) lo = mid + 1;
-    else hi = mid;
-  }
-  return (lo < table_starts[table + 1] && keys[lo] == key) ? (long)lo : -1;
-#endif
-}
-
 __kernel void blockhash_knn(__global const bhcl_bh_block* blocks,
                             __global const bhcl_bh_box* boxes,
                             __global const float* thresholds, uint P,

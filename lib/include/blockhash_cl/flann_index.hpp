@@ -46,6 +46,8 @@ class FlannIndex : public Index {
   // Answers on the host (Index::query and enqueue_query call host_search). QueryStats: query_s =
   // wall time of the search itself (all threads), no compile, upload or download; batches = 0.
   bool answers_on_host() const override { return true; }
+  double host_radius_search(const float* queries, std::size_t n, float r2,
+                            const RadiusParams& params, RadiusResult& out) const override;
   double host_search(const float* queries, std::size_t n, const SearchParams& params,
                      KnnResult& out) const override;
 

@@ -37,6 +37,11 @@ class KdTreeIndex : public Index {
   int leaf_size() const { return leaf_size_; }
 
  protected:
+  cl::Event enqueue_radius_batch(const cl::CommandQueue& queue, const cl::Buffer& queries,
+                                 std::size_t first, std::size_t count, float r2, int pass,
+                                 const RadiusBuffers& out, const RadiusParams& params,
+                                 std::size_t local_size,
+                                 const std::vector<cl::Event>* wait) const override;
   cl::Event enqueue_batch(const cl::CommandQueue& queue, const cl::Buffer& queries,
                           std::size_t first, std::size_t count, const ResultBuffers& out,
                           const SearchParams& params, std::size_t local_size,

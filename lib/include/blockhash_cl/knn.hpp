@@ -108,6 +108,57 @@ struct ResultBuffers {
   cl::Buffer examined;
 };
 
+// Radius search (Index::radius_search): every point within a radius of each query, a variable
+// count per query, as nanoflann's radiusSearch, FLANN's radiusSearch, Open3D's
+// fixed_radius_search, scipy's query_ball_point and FAISS's range_search give.
+struct RadiusParams {
+  // Approximate methods (block hashing): examine at most this many points per query, the blocks
+  // of the cells nearest the query first; 0 = no budget (every block within r in the cells the
+  // probes reach). Exact methods ignore it.
+  std::uint32_t budget = 0;
+  // Block hashing: as SearchParams::neighbour_probes (-1: the index preset decides).
+  int neighbour_probes = -1;
+  // At most this many results per query, the nearest by (distance, index); 0 = no cap. A query
+  // with more points within r is truncated: RadiusResult::found keeps its full count. The cap
+  // bounds the output, not the work: the device still counts and writes every point within r.
+  std::size_t max_results = 0;
+  // As in SearchParams.
+  std::size_t local_size = 0;
+  std::size_t max_batch = 0;  // queries per dispatch (0: automatic)
+  int sort_queries = -1;
+  std::string kernel_defines;
+  bool count_examined = false;
+  // Device memory: results (8 bytes each) written by one fill dispatch; a batch of queries is
+  // split so that its results fit (0: automatic, 2^24 results or less where the device's largest
+  // buffer is smaller). A single query with more results than this gets a dispatch of its own.
+  std::size_t max_batch_results = 0;
+};
+
+// Radius search results in the compressed layout of FAISS's range_search: query i's results are
+// ids[offsets[i] .. offsets[i+1]) and the same slice of dist2 (SQUARED distances), sorted by
+// (distance, index). offsets has n + 1 entries, offsets[0] = 0.
+struct RadiusResult {
+  std::size_t n = 0;
+  std::vector<std::int64_t> offsets;
+  std::vector<std::int32_t> ids;
+  std::vector<float> dist2;
+  // n entries: the points found within r per query before RadiusParams::max_results applied
+  // (equal to the slice's length unless truncated).
+  std::vector<std::int64_t> found;
+  std::size_t truncated_queries = 0;  // queries whose slice the cap shortened
+  // n entries with RadiusParams::count_examined: the points query i examined. Else empty.
+  std::vector<std::int32_t> examined;
+
+  std::size_t count(std::size_t q) const { return static_cast<std::size_t>(offsets[q + 1] - offsets[q]); }
+  std::size_t total() const { return offsets.empty() ? 0 : static_cast<std::size_t>(offsets.back()); }
+};
+
+// The device buffers of one radius dispatch (Index::enqueue_radius_batch): counts and examined
+// per query row, offsets (ulong) per query of the dispatch, ids/dist2 the fill pass's slices.
+struct RadiusBuffers {
+  cl::Buffer counts, offsets, ids, dist2, examined;
+};
+
 // What one query call cost. Times in seconds.
 struct QueryStats {
   std::size_t n_queries = 0;
@@ -164,6 +215,20 @@ class Index {
                           const ResultBuffers& out, const SearchParams& params,
                           const std::vector<cl::Event>* wait = nullptr) const;
 
+  // Radius search on host arrays: every point p with sum((q - p)^2) <= r*r (r Euclidean, in
+  // float, the kNN contract's distance), per query in the caller's order, into `out` (see
+  // RadiusResult: offsets, ids, squared distances, each slice sorted by (distance, index)). Exact
+  // methods return exactly those points; block hashing those among the points it examines (its
+  // budget and probes), a subset. A query with a NaN/Inf coordinate gets an empty slice. r must be
+  // finite and >= 0 (bhcl::Error otherwise). Sizes are found by a count pass, then a fill pass
+  // writes them; batches are split to bound device memory (RadiusParams::max_batch_results).
+  QueryStats radius_search(const float* queries, std::size_t n, float radius,
+                           const RadiusParams& params, RadiusResult& out) const;
+  // The same with the squared radius r2 (nanoflann's and FLANN's convention): p is within when
+  // its squared distance <= r2.
+  QueryStats radius_search_squared(const float* queries, std::size_t n, float r2,
+                                   const RadiusParams& params, RadiusResult& out) const;
+
   // Compiles the kernel variant for params (k, local size) and does the first launch, so that
   // later query timings exclude compilation. Returns the seconds it took (0 if already done).
   double warm_up(const SearchParams& params) const;
@@ -199,6 +264,24 @@ class Index {
                                   const SearchParams& params, std::size_t local_size,
                                   const std::vector<cl::Event>* wait) const;
 
+  // Radius search, device methods: one dispatch for queries [first, first + count) of the query
+  // buffer, kernel arguments as kernels/radius_common.h's BHCL_RADIUS_PARAMS. pass 0 writes
+  // counts[row] (and examined[row] when asked); pass 1 writes query `row`'s points, unsorted, at
+  // ids/dist2[offsets[row - first] ...] (at most counts[row] of them). Both passes must visit the
+  // same points. r2 is in the structure's coordinates. The default throws (no radius kernel).
+  virtual cl::Event enqueue_radius_batch(const cl::CommandQueue& queue, const cl::Buffer& queries,
+                                         std::size_t first, std::size_t count, float r2, int pass,
+                                         const RadiusBuffers& out, const RadiusParams& params,
+                                         std::size_t local_size,
+                                         const std::vector<cl::Event>* wait) const;
+  // Radius search, host methods: fills out.offsets/ids/dist2 (slices in any order; the base sorts
+  // them) for queries and r2 in the structure's coordinates. Returns the search's own seconds.
+  virtual double host_radius_search(const float* queries, std::size_t n, float r2,
+                                    const RadiusParams& params, RadiusResult& out) const;
+  // Throws bhcl::Error for radius parameters this method cannot serve. The base checks the
+  // common ones.
+  virtual void check_radius_params(const RadiusParams& params) const;
+
   // Throws bhcl::Error for parameters this method cannot serve. The base checks k and radius.
   virtual void check_params(const SearchParams& params) const;
 
@@ -221,6 +304,11 @@ class Index {
   mutable std::mutex dispatch_mutex_;
 
  private:
+  // Radius search: r Euclidean (squared = false) or squared. radius.cpp.
+  QueryStats radius_impl(const float* queries, std::size_t n, float r, bool squared,
+                         const RadiusParams& params, RadiusResult& out) const;
+  void radius_on_device(const float* queries, std::size_t n, float r2, const RadiusParams& params,
+                        RadiusResult& out, QueryStats& st) const;
   cl::Event enqueue_impl(const cl::CommandQueue& queue, const cl::Buffer& queries, std::size_t n,
                          const ResultBuffers& out, const SearchParams& params,
                          const std::vector<cl::Event>* wait, std::vector<cl::Event>* kernels,

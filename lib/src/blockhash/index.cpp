@@ -316,6 +316,39 @@ cl::Event BlockHashIndex::enqueue_batch(const cl::CommandQueue& queue, const cl:
   return detail::launch_1d(queue, kernel, count, local_size, wait, name);
 }
 
+cl::Event BlockHashIndex::enqueue_radius_batch(const cl::CommandQueue& queue,
+                                               const cl::Buffer& queries, std::size_t first,
+                                               std::size_t count, float r2, int pass,
+                                               const RadiusBuffers& out, const RadiusParams& params,
+                                               std::size_t local_size,
+                                               const std::vector<cl::Event>* wait) const {
+  std::lock_guard<std::mutex> lock(dispatch_mutex_);
+  SearchParams sp;
+  sp.neighbour_probes = params.neighbour_probes;
+  const char* name = info_.cell_aligned ? "blockhash_cells_radius" : "blockhash_radius";
+  std::ostringstream options;
+  if (!info_.cell_aligned)
+    options << "-DBHCL_BH_L=" << info_.L << " -DBHCL_BH_DIRECT=" << (info_.direct_addressing ? 1 : 0)
+            << " -DBHCL_BH_SCANCAP=" << blockhash::scan_cap(kMaxK, info_.X);
+  if (!params.kernel_defines.empty()) options << " " << params.kernel_defines;
+  cl::Kernel kernel = runtime().kernel(std::string(name) + ".cl", name, options.str());
+  detail::KernelArgs args(kernel, name);
+  args.add(blocks_).add(boxes_).add(thresholds_).add(cl_uint(info_.P)).add(keys_);
+  if (info_.cell_aligned) {
+    args.add(cl_uint(s_->keys.size()))
+        .add(buckets_)
+        .add(cell_table_)
+        .add(cl_uint(cell_dy_))
+        .add(cl_uint(cell_dz_))
+        .add(cl_uint(cells_probes(sp)));
+  } else {
+    bool probes = params.neighbour_probes < 0 ? info_.neighbour_probes : params.neighbour_probes == 1;
+    args.add(table_starts_).add(buckets_).add(refs_).add(cl_uint(probes ? 1 : 0));
+  }
+  args.add(cl_uint(params.budget)).add_radius(queries, first, count, r2, pass, out, params.count_examined);
+  return detail::launch_1d(queue, kernel, count, local_size, wait, name);
+}
+
 KnnResult BlockHashIndex::reference_query(const float* queries, std::size_t n,
                                           const SearchParams& params_in,
                                           std::vector<std::int32_t>* examined,

@@ -36,4 +36,17 @@ cl::Event BruteForceIndex::enqueue_batch(const cl::CommandQueue& queue, const cl
   return detail::launch_1d(queue, kernel, count, local_size, wait, "bruteforce_knn");
 }
 
+cl::Event BruteForceIndex::enqueue_radius_batch(const cl::CommandQueue& queue,
+                                                const cl::Buffer& queries, std::size_t first,
+                                                std::size_t count, float r2, int pass,
+                                                const RadiusBuffers& out, const RadiusParams& params,
+                                                std::size_t local_size,
+                                                const std::vector<cl::Event>* wait) const {
+  std::lock_guard<std::mutex> lock(dispatch_mutex_);
+  cl::Kernel kernel = runtime().kernel("bruteforce_radius.cl", "bruteforce_radius", params.kernel_defines);
+  detail::KernelArgs args(kernel, "bruteforce_radius");
+  args.add(points_).add(cl_uint(size())).add_radius(queries, first, count, r2, pass, out, params.count_examined);
+  return detail::launch_1d(queue, kernel, count, local_size, wait, "bruteforce_radius");
+}
+
 }  // namespace bhcl

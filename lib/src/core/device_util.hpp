@@ -61,6 +61,14 @@ class KernelArgs {
   }
   // The result buffers: ids, squared distances, counts.
   KernelArgs& add_results(const ResultBuffers& out) { return add(out.ids).add(out.dist2).add(out.counts); }
+  // What every radius kernel ends with (kernels/radius_common.h, BHCL_RADIUS_PARAMS). The
+  // examined buffer is set even when not wanted (a valid argument; the kernel does not write it).
+  KernelArgs& add_radius(const cl::Buffer& queries, std::size_t first, std::size_t count, float r2,
+                         int pass, const RadiusBuffers& out, bool want_examined) {
+    return add(queries).add(cl_ulong(first)).add(cl_uint(count)).add(r2).add(cl_uint(pass))
+        .add(out.offsets).add(out.counts).add(out.ids).add(out.dist2)
+        .add(want_examined ? out.examined : out.counts).add(cl_uint(want_examined ? 1 : 0));
+  }
   KernelArgs& add_local(std::size_t bytes) {
     check_cl(k_.setArg(i_, cl::Local(bytes)), "clSetKernelArg",
              name_ + " local argument " + std::to_string(i_));

@@ -90,6 +90,32 @@ class ExactResultSet : public flann::ResultSet<float> {
   std::vector<std::int32_t> id_;
 };
 
+// Every point within r2 under the contract's distance, fed by FLANN's traversal (radius search).
+class RadiusCollectSet : public flann::ResultSet<float> {
+ public:
+  RadiusCollectSet(const float* points, float r2, bool recompute)
+      : points_(points), r2_(r2), worst_(r2 + r2 * (1.0f / 1024.0f) + 1e-30f), recompute_(recompute) {}
+  void reset(const float* query) {
+    q_ = query;
+    found_.clear();
+  }
+  bool full() const override { return true; }
+  void addPoint(float dist, std::size_t index) override {
+    const float d = recompute_ ? reference::dist2_float(points_ + 3 * index, q_) : dist;
+    if (d <= r2_) found_.emplace_back(d, static_cast<std::int32_t>(index));
+  }
+  // The same slack as ExactResultSet: FLANN's rounded cell bounds never prune a point within r2.
+  float worstDist() const override { return worst_; }
+  const std::vector<std::pair<float, std::int32_t>>& found() const { return found_; }
+
+ private:
+  const float* points_;
+  const float* q_ = nullptr;
+  float r2_, worst_;
+  bool recompute_;
+  std::vector<std::pair<float, std::int32_t>> found_;
+};
+
 }  // namespace
 
 struct FlannIndex::Impl {
@@ -216,6 +242,76 @@ std::size_t FlannIndex::search(const float* queries, std::size_t n, const Search
     if (failure) std::rethrow_exception(failure);
   }
   return nonfinite.load();
+}
+
+double FlannIndex::host_radius_search(const float* queries, std::size_t n, float r2,
+                                      const RadiusParams&, RadiusResult& out) const {
+  auto t0 = std::chrono::steady_clock::now();
+  const float* pts = impl_->points.data();
+  const std::size_t N = size();
+  const flann::SearchParams fp(flann::FLANN_CHECKS_UNLIMITED, 0.0f);
+  std::vector<std::vector<std::pair<float, std::int32_t>>> rows(n);
+  std::atomic<std::size_t> next{0};
+  constexpr std::size_t kChunk = 256;
+  auto work = [&]() {
+    RadiusCollectSet set(pts, r2, impl_->recompute);
+    for (;;) {
+      const std::size_t begin = next.fetch_add(kChunk);
+      if (begin >= n) break;
+      for (std::size_t qi = begin; qi < std::min(n, begin + kChunk); ++qi) {
+        const float* q = queries + 3 * qi;
+        if (!(std::isfinite(q[0]) && std::isfinite(q[1]) && std::isfinite(q[2]))) continue;
+        set.reset(q);
+        if (std::isinf(r2)) {
+          // FLANN takes a point only when its distance is below the bound, never at +inf.
+          for (std::size_t i = 0; i < N; ++i) set.addPoint(reference::dist2_float(pts + 3 * i, q), i);
+        } else {
+          impl_->tree->findNeighbors(set, q, fp);
+        }
+        rows[qi] = set.found();
+      }
+    }
+  };
+  const std::size_t nthreads =
+      std::min<std::size_t>(static_cast<std::size_t>(threads_), (n + kChunk - 1) / kChunk);
+  std::vector<std::thread> pool;
+  std::exception_ptr failure;
+  std::mutex failure_mutex;
+  for (std::size_t t = 1; t < nthreads; ++t)
+    pool.emplace_back([&]() {
+      try {
+        work();
+      } catch (...) {
+        std::lock_guard<std::mutex> lock(failure_mutex);
+        if (!failure) failure = std::current_exception();
+        next = n;
+      }
+    });
+  try {
+    work();
+  } catch (...) {
+    std::lock_guard<std::mutex> lock(failure_mutex);
+    if (!failure) failure = std::current_exception();
+    next = n;
+  }
+  for (auto& th : pool) th.join();
+  if (failure) std::rethrow_exception(failure);
+  std::size_t total = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    out.offsets[i] = static_cast<std::int64_t>(total);
+    total += rows[i].size();
+  }
+  out.offsets[n] = static_cast<std::int64_t>(total);
+  out.ids.resize(total);
+  out.dist2.resize(total);
+  for (std::size_t i = 0; i < n; ++i) {
+    std::size_t at = static_cast<std::size_t>(out.offsets[i]);
+    for (const auto& [d, id] : rows[i]) {
+      out.dist2[at] = d;
+      out.ids[at++] = id;
+    }
+  }
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
 double FlannIndex::host_search(const float* queries, std::size_t n, const SearchParams& params,

@@ -143,4 +143,19 @@ cl::Event KdTreeIndex::enqueue_batch(const cl::CommandQueue& queue, const cl::Bu
   return detail::launch_1d(queue, kernel, count, local_size, wait, "kdtree_knn");
 }
 
+cl::Event KdTreeIndex::enqueue_radius_batch(const cl::CommandQueue& queue, const cl::Buffer& queries,
+                                            std::size_t first, std::size_t count, float r2, int pass,
+                                            const RadiusBuffers& out, const RadiusParams& params,
+                                            std::size_t local_size,
+                                            const std::vector<cl::Event>* wait) const {
+  std::lock_guard<std::mutex> lock(dispatch_mutex_);
+  const int stack = std::max(8, (depth_ + 7) / 8 * 8);  // as enqueue_batch
+  std::string options = "-DBHCL_KD_STACK=" + std::to_string(stack);
+  if (!params.kernel_defines.empty()) options += " " + params.kernel_defines;
+  cl::Kernel kernel = runtime().kernel("kdtree_radius.cl", "kdtree_radius", options);
+  detail::KernelArgs args(kernel, "kdtree_radius");
+  args.add(nodes_).add(points_).add_radius(queries, first, count, r2, pass, out, params.count_examined);
+  return detail::launch_1d(queue, kernel, count, local_size, wait, "kdtree_radius");
+}
+
 }  // namespace bhcl

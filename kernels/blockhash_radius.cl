@@ -1,0 +1,93 @@
+/* Block hashing, L-table layout (blockhash_knn.cl's structure: the `paper` preset and
+ * cell_aligned=0): approximate radius search, one work-item per query.
+ *
+ * The buckets of the query's cell in each of the L tables (and, with probes, of the near-side
+ * neighbour along each axis), ordered by |Q| as the kNN kernel orders them; their blocks in that
+ * order, each at most once (the tables share blocks), those whose box is within r scanned until
+ * `budget` points are examined (0: no budget) or BHCL_BH_SCANCAP blocks are scanned. Every point
+ * found is within r: the answer is a subset of the exact one.
+ *
+ * Defines: BHCL_BH_L (tables), BHCL_BH_DIRECT, BHCL_BH_SCANCAP (most blocks scanned per query). */
+#include "radius_common.h"
+#include "blockhash_layout.h"
+#include "blockhash_common.h"
+
+#ifndef BHCL_BH_L
+#define BHCL_BH_L 4
+#endif
+#ifndef BHCL_BH_SCANCAP
+#define BHCL_BH_SCANCAP 128
+#endif
+#define BHCL_BH_MAXBUCKETS (4 * BHCL_BH_L)
+
+__kernel void blockhash_radius(__global const bhcl_bh_block* blocks,
+                               __global const bhcl_bh_box* boxes,
+                               __global const float* thresholds, uint P,
+                               __global const uint* keys, __global const uint* table_starts,
+                               __global const bhcl_bh_bucket* buckets, __global const int* refs,
+                               uint probes, uint budget, BHCL_RADIUS_PARAMS) {
+  BHCL_RADIUS_BEGIN;
+  uint examined = 0;
+  if (bhcl_query_is_finite(q)) {
+    uint cand_q[BHCL_BH_MAXBUCKETS];
+    uint cand_b[BHCL_BH_MAXBUCKETS];
+    uint ncand = 0;
+    const uint side = P + 1;
+    for (int t = 0; t < BHCL_BH_L; ++t) {
+      __global const float* thr = thresholds + (size_t)t * 3 * P;
+      uint h0 = bh_hash(thr, P, q.x), h1 = bh_hash(thr + P, P, q.y), h2 = bh_hash(thr + 2 * P, P, q.z);
+      int n0 = -1, n1 = -1, n2 = -1;
+      if (probes) {
+        n0 = bh_near_side(thr, P, h0, q.x);
+        n1 = bh_near_side(thr + P, P, h1, q.y);
+        n2 = bh_near_side(thr + 2 * P, P, h2, q.z);
+      }
+      for (int pr = 0; pr < (probes ? 4 : 1); ++pr) {
+        uint c0 = h0, c1 = h1, c2 = h2;
+        if (pr == 1) { if (n0 < 0) continue; c0 = (uint)n0; }
+        if (pr == 2) { if (n1 < 0) continue; c1 = (uint)n1; }
+        if (pr == 3) { if (n2 < 0) continue; c2 = (uint)n2; }
+        long b = bh_find_bucket(keys, table_starts, P, t, (c0 * side + c1) * side + c2);
+        if (b < 0) continue;
+        bhcl_bh_bucket bk = buckets[b];
+        if (bk.n_refs == 0) continue;
+        uint aq = (uint)abs(bk.q);
+        uint pos = ncand++;
+        while (pos > 0 && cand_q[pos - 1] > aq) {
+          cand_q[pos] = cand_q[pos - 1];
+          cand_b[pos] = cand_b[pos - 1];
+          --pos;
+        }
+        cand_q[pos] = aq;
+        cand_b[pos] = (uint)b;
+      }
+    }
+    int scanned[BHCL_BH_SCANCAP];
+    uint nscanned = 0;
+    int stop = 0;
+    for (uint s = 0; s < ncand && !stop; ++s) {
+      bhcl_bh_bucket bk = buckets[cand_b[s]];
+      for (uint r = 0; r < bk.n_refs; ++r) {
+        if ((budget && examined >= budget) || nscanned >= BHCL_BH_SCANCAP) {
+          stop = 1;
+          break;
+        }
+        int b = refs[bk.first_ref + r];
+        __global const bhcl_bh_box* box = boxes + b;
+        if (bh_box_dist2(q, box) > r2) continue;
+        int dup = 0;
+        for (uint u = 0; u < nscanned; ++u) dup |= scanned[u] == b;
+        if (dup) continue;
+        scanned[nscanned++] = b;
+        __global const bhcl_bh_block* blk = blocks + b;
+        int cnt = box->count;
+        examined += (uint)cnt;
+        for (int j = 0; j < cnt; ++j) {
+          float d = bhcl_dist2_xyz(q.x, q.y, q.z, blk->x[j], blk->y[j], blk->z[j]);
+          if (d <= r2) bhcl_radius_emit(fill, out_ids, out_d2, base, limit, &found, d, blk->id[j]);
+        }
+      }
+    }
+  }
+  BHCL_RADIUS_END(examined);
+}
