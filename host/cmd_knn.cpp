@@ -1,4 +1,7 @@
-// bhcl knn: k nearest neighbours of every query of a point file, written as raw arrays.
+// bhcl knn: k nearest neighbours (or, with --radius, every point within a radius) of every query
+// of a point file, written as raw arrays.
+#include <chrono>
+#include <cmath>
 #include <cstdio>
 
 #include "blockhash_cl/error.hpp"
@@ -7,6 +10,7 @@
 #include "blockhash_cl/runtime.hpp"
 #include "cli.hpp"
 #include "commands.hpp"
+#include "progress.hpp"
 
 namespace bhcl::cli {
 void declare_knn_distributed(Args& a);      // cmd_knn_distributed.cpp: --distributed and its options
@@ -15,15 +19,138 @@ namespace {
 
 void declare_knn(Args& a) {
   declare_data_options(a, method_list(method_names()));
-  a.add_required("out-ids", "write the neighbour ids here (int32, n x k, row-major; NPY when named .npy)");
-  a.add_required("out-dist2", "write the squared distances here (float32, n x k, row-major; NPY when named .npy)");
+  a.add_required("out-ids", "write the neighbour ids here (int32, n x k, row-major; with --radius "
+                            "all slices one after the other; NPY when named .npy)");
+  a.add_required("out-dist2", "write the squared distances here (float32, laid out as --out-ids; NPY "
+                              "when named .npy)");
   a.add_text("out-counts", "write the neighbours found per query here (int32, n; NPY when named .npy)", "", "FILE");
   declare_run_options(a, "write timings and parameters here as JSON");
+  a.group("Radius search");
+  a.add_number("radius", "every point within this Euclidean distance of each query instead of the k "
+                         "nearest (FAISS range_search layout: --out-offsets, --out-ids, --out-dist2, "
+                         "each query's slice sorted by distance, then index)", "");
+  a.add_text("out-offsets", "with --radius: query i's results are entries offsets[i] .. offsets[i+1] "
+                            "of --out-ids and --out-dist2 (int64, n + 1; NPY when named .npy)", "", "FILE");
+  a.add_integer("max-results", "with --radius: at most this many results per query, the nearest "
+                               "(0: no cap; truncated queries are counted)", 0, Args::kNoLimit, "0");
+  a.add_integer("budget", "with --radius, blockhash: examine at most this many points per query "
+                          "(0: every block within the radius that the probes reach)", 0, 4294967295LL, "0");
+  a.group("");
   declare_knn_distributed(a);
+}
+
+// bhcl knn --radius: Index::radius_search in slices (a progress bar on a terminal), the slices
+// concatenated (results do not depend on the slicing).
+int run_radius(const Args& args) {
+  const std::string method = args.str("method");
+  for (const char* o : {"k", "max-radius", "A", "recall"})
+    if (args.has(o)) throw UsageError(std::string("--") + o + " does not apply with --radius");
+  if (!args.has("out-offsets")) throw UsageError("--radius needs --out-offsets (where each query's results start)");
+  if (args.has("budget") && method != "blockhash")
+    throw UsageError("--budget does not apply to method " + method + " (only to blockhash)");
+  check_method_options(args, {method}, {"budget"});
+  const double radius = args.number("radius", 0.0);
+  if (!std::isfinite(radius) || radius < 0) throw UsageError("--radius must be a finite number >= 0");
+  RadiusParams rp;
+  rp.budget = static_cast<std::uint32_t>(args.integer("budget", 0));
+  rp.max_results = static_cast<std::size_t>(args.integer("max-results", 0));
+  rp.neighbour_probes = static_cast<int>(args.integer("probes", -1));
+  rp.local_size = static_cast<std::size_t>(args.integer("local-size", 0));
+  rp.max_batch = static_cast<std::size_t>(args.integer("max-batch", 0));
+  MethodOptions mopt = method_options(args);
+  const std::string out_offsets = args.str("out-offsets"), out_ids = args.str("out-ids"),
+                    out_dist2 = args.str("out-dist2");
+  check_distinct_files({{"--points", args.str("points")}, {"--queries", args.str("queries")},
+                        {"--load-index", mopt.load_index}},
+                       {{"--out-offsets", out_offsets}, {"--out-ids", out_ids}, {"--out-dist2", out_dist2},
+                        {"--out-counts", args.str("out-counts", "")}, {"--stats", args.str("stats", "")},
+                        {"--save-index", mopt.save_index}});
+  std::vector<float> points, queries;
+  read_points_and_queries(args, points, queries);
+  const std::size_t N = points.size() / 3, n = queries.size() / 3;
+  auto rt = std::make_shared<Runtime>(args.str("device", ""));
+  const bool quiet = args.flag("quiet");
+  auto index = build_with_progress(method, rt, points, mopt, quiet);
+
+  render::Progress bar("radius " + index->method() + " (" + std::to_string(n) + " queries)", !quiet);
+  const std::size_t slice = bar.enabled() ? std::max<std::size_t>(std::size_t(1) << 15, n / 100) : std::max<std::size_t>(n, 1);
+  auto t0 = std::chrono::steady_clock::now();
+  RadiusResult all, part;
+  all.offsets.assign(1, 0);
+  QueryStats st;
+  for (std::size_t first = 0; first < n || first == 0; first += slice) {
+    const std::size_t m = std::min(slice, n - first);
+    QueryStats s = index->radius_search(queries.data() + 3 * first, m, static_cast<float>(radius), rp, part);
+    const std::int64_t base = all.offsets.back();
+    for (std::size_t i = 1; i <= m; ++i) all.offsets.push_back(base + part.offsets[i]);
+    all.ids.insert(all.ids.end(), part.ids.begin(), part.ids.end());
+    all.dist2.insert(all.dist2.end(), part.dist2.begin(), part.dist2.end());
+    all.found.insert(all.found.end(), part.found.begin(), part.found.end());
+    all.truncated_queries += part.truncated_queries;
+    st.nonfinite_queries += s.nonfinite_queries;
+    st.batches += s.batches;
+    st.compile_s += s.compile_s;
+    st.upload_s += s.upload_s;
+    st.query_s += s.query_s;
+    st.download_s += s.download_s;
+    bar.update(double(first + m) / double(std::max<std::size_t>(n, 1)));
+    if (n == 0) break;
+  }
+  bar.finish();
+  all.n = n;
+  st.n_queries = n;
+  st.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+
+  const std::size_t total = all.total();
+  write_array_file(out_offsets, all.offsets.data(), n + 1, 0);
+  write_array_file(out_ids, all.ids.data(), total, 0);
+  write_array_file(out_dist2, all.dist2.data(), total, 0);
+  if (args.has("out-counts")) {
+    std::vector<std::int32_t> counts(n);
+    for (std::size_t i = 0; i < n; ++i) counts[i] = static_cast<std::int32_t>(all.count(i));
+    write_array_file(args.str("out-counts"), counts.data(), n, 0);
+  }
+  std::fprintf(stderr,
+               "bhcl knn --radius: %s on %s: N=%zu n=%zu r=%g  build %.3f s  compile %.3f s  query %.4f s "
+               "(%.0f q/s)  results %zu (%.2f per query)  truncated queries %zu\n",
+               index->method().c_str(), rt->info().device_name.c_str(), N, n, radius,
+               index->build_seconds(), st.compile_s, st.query_s, st.queries_per_s(), total,
+               n ? double(total) / double(n) : 0.0, all.truncated_queries);
+  if (args.has("stats")) {
+    Json j = stats_header("knn", *rt);
+    j["method"] = index->method();
+    j["exact"] = index->exact();
+    j["points"] = args.str("points");
+    j["queries"] = args.str("queries");
+    j["N"] = N;
+    j["n"] = n;
+    j["build"] = build_json(*index, mopt);
+    j["radius"] = {{"radius", radius}, {"max_results", rp.max_results}, {"budget", rp.budget},
+                   {"probes", rp.neighbour_probes}, {"results", total},
+                   {"truncated_queries", all.truncated_queries}};
+    j["build_s"] = index->build_seconds();
+    j["compile_s"] = st.compile_s;
+    j["query_s"] = st.query_s;
+    j["upload_s"] = st.upload_s;
+    j["download_s"] = st.download_s;
+    j["wall_s"] = st.wall_s;
+    j["queries_per_s"] = st.queries_per_s();
+    j["batches"] = st.batches;
+    j["nonfinite_queries"] = st.nonfinite_queries;
+    j["memory_bytes"] = index->memory_bytes();
+    write_json(args.str("stats"), j);
+  }
+  return 0;
 }
 
 int run_knn(const Args& args) {
   if (const int rc = run_knn_distributed(args); rc >= 0) return rc;
+  if (args.has("radius")) {
+    if (args.flag("distributed")) throw UsageError("--radius with --distributed is not supported yet");
+    return run_radius(args);
+  }
+  for (const char* o : {"out-offsets", "max-results", "budget"})
+    if (args.has(o)) throw UsageError(std::string("--") + o + " applies only with --radius");
   const std::string method = args.str("method");
   check_method_options(args, {method});
   const std::string out_ids = args.str("out-ids");

@@ -2,6 +2,8 @@
 // float reference (the contract's distance and boundary rule) checked in double precision, block
 // hashing as a subset with its recall, the layout (offsets, sorted slices), the cap, batch
 // splitting, sorted dispatch, extreme scales and bad input.
+#include <nlohmann/json.hpp>
+
 #include "test_util.hpp"
 
 namespace bhcl::test {
@@ -282,6 +284,55 @@ TEST_CASE("radius: extreme scales give the unscaled answer") {
       REQUIRE(rb.ids == ra.ids);
       for (std::size_t i = 0; i < ra.dist2.size(); ++i) REQUIRE(rb.dist2[i] == ra.dist2[i] * scale * scale);
     }
+  }
+}
+
+}  // namespace bhcl::test
+
+namespace bhcl::test {
+
+TEST_CASE("radius: bhcl knn --radius writes the library's three arrays, and refuses misuse") {
+  auto pts = datasets::uniform(3000, 71);
+  auto qs = datasets::uniform(80, 72);
+  std::string P = write_points("rad_p.f32", pts), Q = write_points("rad_q.f32", qs);
+  std::string O = tmp_path("rad_o.i64"), I = tmp_path("rad_i.i32"), D = tmp_path("rad_d.f32"),
+              C = tmp_path("rad_c.i32"), S = tmp_path("rad_s.json");
+  const float r = 0.08f;
+  for (const std::string m : {"kdtree", "blockhash"}) {
+    std::string out;
+    int rc = run_bhcl("knn --points " + P + " --queries " + Q + " --method " + m + " --radius 0.08 --max-results 12" +
+                          " --out-offsets " + O + " --out-ids " + I + " --out-dist2 " + D + " --out-counts " + C +
+                          " --stats " + S + " --quiet",
+                      &out);
+    INFO(m << ": " << out);
+    REQUIRE(rc == 0);
+    auto index = make_index(m, runtime(), pts.data(), pts.size() / 3);
+    RadiusParams p;
+    p.max_results = 12;
+    RadiusResult ref;
+    index->radius_search(qs.data(), qs.size() / 3, r, p, ref);
+    REQUIRE(read_raw<std::int64_t>(O) == ref.offsets);
+    REQUIRE(read_raw<std::int32_t>(I) == ref.ids);
+    REQUIRE(read_raw<float>(D) == ref.dist2);
+    auto counts = read_raw<std::int32_t>(C);
+    REQUIRE(counts.size() == ref.n);
+    for (std::size_t i = 0; i < ref.n; ++i) REQUIRE(std::size_t(counts[i]) == ref.count(i));
+    std::ifstream s(S);
+    const nlohmann::json j = nlohmann::json::parse(s);
+    CHECK(j.at("radius").at("results") == ref.total());
+    CHECK(j.at("radius").at("truncated_queries") == ref.truncated_queries);
+  }
+  const std::string base = "knn --points " + P + " --queries " + Q + " --out-ids " + I + " --out-dist2 " + D;
+  for (const std::string bad : {std::string(" --method kdtree --radius 0.1"),           // no --out-offsets
+                                " --method kdtree --radius 0.1 --k 3 --out-offsets " + O,  // --k is kNN's
+                                " --method kdtree --radius -1 --out-offsets " + O,
+                                " --method kdtree --radius nan --out-offsets " + O,
+                                " --method kdtree --radius 0.1 --budget 9 --out-offsets " + O,
+                                std::string(" --method kdtree --max-results 3")}) {
+    std::string out;
+    INFO(bad);
+    CHECK(run_bhcl(base + bad, &out) == 2);
+    CHECK(out.find("usage error") != std::string::npos);
   }
 }
 

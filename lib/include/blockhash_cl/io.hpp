@@ -64,14 +64,18 @@ void write_points_file(const std::string& path, const std::vector<float>& xyz);
 // Writes raw bytes; throws bhcl::Error naming the path on failure.
 void write_raw_file(const std::string& path, const void* data, std::size_t bytes);
 
-// Writes a rows x cols array (C order) as NPY version 1.0 ('<f4', '<i4').
+// Writes a rows x cols array (C order) as NPY version 1.0 ('<f4', '<i4', '<i8').
 void write_npy_file(const std::string& path, const float* data, std::size_t rows, std::size_t cols);
 void write_npy_file(const std::string& path, const std::int32_t* data, std::size_t rows,
+                    std::size_t cols);
+void write_npy_file(const std::string& path, const std::int64_t* data, std::size_t rows,
                     std::size_t cols);
 // A result array: NPY (rows x cols; cols == 0 for a 1-D array of rows) when the path ends in
 // .npy, raw bytes otherwise.
 void write_array_file(const std::string& path, const float* data, std::size_t rows, std::size_t cols);
 void write_array_file(const std::string& path, const std::int32_t* data, std::size_t rows,
+                      std::size_t cols);
+void write_array_file(const std::string& path, const std::int64_t* data, std::size_t rows,
                       std::size_t cols);
 
 }  // namespace bhcl

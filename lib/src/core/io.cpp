@@ -574,6 +574,16 @@ void write_npy_file(const std::string& path, const std::int32_t* data, std::size
   write_npy(path, data, "<i4", 4, rows, cols);
 }
 
+void write_npy_file(const std::string& path, const std::int64_t* data, std::size_t rows, std::size_t cols) {
+  write_npy(path, data, "<i8", 8, rows, cols);
+}
+
+void write_array_file(const std::string& path, const std::int64_t* data, std::size_t rows,
+                      std::size_t cols) {
+  if (lower_extension(path) == "npy") write_npy_file(path, data, rows, cols);
+  else write_raw_file(path, data, rows * (cols ? cols : 1) * sizeof(std::int64_t));
+}
+
 void write_array_file(const std::string& path, const float* data, std::size_t rows, std::size_t cols) {
   if (lower_extension(path) == "npy") write_npy_file(path, data, rows, cols);
   else write_raw_file(path, data, rows * (cols ? cols : 1) * sizeof(float));
