@@ -7,14 +7,14 @@
 // message; bhcl::ClError (a failed OpenCL call) as blockhash_cl.OpenCLError (also a
 // RuntimeError). Nothing the library throws ends the interpreter.
 //
-// Adding a search (e.g. radius search) is one more function here taking (Index, queries,
-// SearchParams) like knn_query below, returning its arrays through to_numpy(), bound in the
-// Index class at the bottom, plus a method in __init__.py's Index that reuses _queries_array() and
-// _search_params().
+// A search is one function here taking (Index, queries, its parameters) like knn_query and
+// radius_query below, returning its arrays through to_numpy(), bound in the Index class at the
+// bottom, plus a method in __init__.py's Index that reuses _queries_array().
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <algorithm>
 #include <cstdint>
 #include <memory>
 #include <string>
@@ -133,6 +133,29 @@ py::tuple knn_query(const bhcl::Index& index, const py::array_t<float, py::array
                         to_numpy(std::move(r.counts), {rows}), stats);
 }
 
+// Radius search: (offsets (n + 1,) int64, dist2 (total,) float32, ids (total,) int32,
+// found (n,) int64, stats dict with truncated_queries).
+py::tuple radius_query(const bhcl::Index& index, const py::array_t<float, py::array::c_style>& queries,
+                       float r, bool squared, const bhcl::RadiusParams& params) {
+  const std::size_t n = rows_of(queries, "queries");
+  bhcl::RadiusResult r_out;
+  bhcl::QueryStats st;
+  {
+    py::gil_scoped_release nogil;
+    st = squared ? index.radius_search_squared(queries.data(), n, r, params, r_out)
+                 : index.radius_search(queries.data(), n, r, params, r_out);
+  }
+  const auto total = static_cast<py::ssize_t>(r_out.total()), rows = static_cast<py::ssize_t>(n);
+  py::dict stats = stats_dict(st);
+  stats["truncated_queries"] = r_out.truncated_queries;
+  stats["results"] = r_out.total();
+  py::object examined = py::none();
+  if (params.count_examined) examined = to_numpy(std::move(r_out.examined), {rows});
+  stats["examined"] = examined;
+  return py::make_tuple(to_numpy(std::move(r_out.offsets), {rows + 1}), to_numpy(std::move(r_out.dist2), {total}),
+                        to_numpy(std::move(r_out.ids), {total}), to_numpy(std::move(r_out.found), {rows}), stats);
+}
+
 std::unique_ptr<bhcl::Index> make_index(const std::string& method,
                                         const std::shared_ptr<bhcl::Runtime>& runtime,
                                         const py::array_t<float, py::array::c_style>& points,
@@ -174,6 +197,58 @@ py::dict build_info(const bhcl::Index& index) {
   return o;
 }
 
+// The method registry (factory.hpp) as Python data, so that the package's keyword arguments come
+// from the same entries as bhcl's options: per method its flags, build options (name as the
+// command line spells it, kind, range or choices, default, help) and search options.
+py::list method_table() {
+  py::list out;
+  for (const bhcl::MethodInfo& m : bhcl::methods()) {
+    py::dict d;
+    d["name"] = m.name;
+    d["summary"] = m.summary;
+    d["exact"] = m.exact;
+    d["on_device"] = m.on_device;
+    d["saves"] = m.saves;
+    py::list opts;
+    for (const bhcl::OptionInfo& o : m.build_options) {
+      py::dict od;
+      od["name"] = o.name;
+      od["help"] = o.help;
+      od["default"] = o.def;
+      od["kind"] = o.kind == bhcl::OptionInfo::Kind::Integer ? "integer"
+                   : o.kind == bhcl::OptionInfo::Kind::Choice ? "choice" : "file";
+      od["lo"] = o.lo;
+      od["hi"] = o.hi;
+      od["choices"] = o.choices;
+      opts.append(od);
+    }
+    d["build_options"] = opts;
+    d["search_options"] = m.search_options;
+    out.append(d);
+  }
+  return out;
+}
+
+// Stores one build option through its registry setter, range or choice checked as bhcl checks it.
+void set_build_option(bhcl::MethodOptions& opts, const std::string& method, const std::string& name,
+                      const std::string& text, long long value) {
+  for (const bhcl::OptionInfo& o : bhcl::method_info(method).build_options) {
+    if (o.name != name) continue;
+    if (o.kind == bhcl::OptionInfo::Kind::Integer && (value < o.lo || value > o.hi))
+      throw bhcl::Error(name + " = " + std::to_string(value) + " is out of range: must be in [" +
+                        std::to_string(o.lo) + ", " + std::to_string(o.hi) + "]");
+    if (o.kind == bhcl::OptionInfo::Kind::Choice &&
+        std::find(o.choices.begin(), o.choices.end(), text) == o.choices.end()) {
+      std::string all;
+      for (const auto& c : o.choices) all += (all.empty() ? "" : ", ") + c;
+      throw bhcl::Error(name + " = '" + text + "' is not one of " + all);
+    }
+    o.set(opts, text, value);
+    return;
+  }
+  throw bhcl::Error("build option '" + name + "' does not apply to method " + method);
+}
+
 void save(const bhcl::Index& index, const std::string& path) {
   const auto* bh = dynamic_cast<const bhcl::BlockHashIndex*>(&index);
   if (!bh)
@@ -213,6 +288,9 @@ PYBIND11_MODULE(_core, m) {
   });
 
   m.def("method_names", &bhcl::method_names, "Names make_index accepts, in display order.");
+  m.def("method_table", &method_table, "The method registry: flags, build and search options.");
+  m.def("set_build_option", &set_build_option, py::arg("options"), py::arg("method"),
+        py::arg("name"), py::arg("text"), py::arg("value"));
   m.def("list_devices", [] {
     std::vector<py::dict> out;
     for (const auto& d : bhcl::list_devices()) out.push_back(device_dict(d));
@@ -245,6 +323,17 @@ PYBIND11_MODULE(_core, m) {
       .def_readwrite("max_batch", &bhcl::SearchParams::max_batch)
       .def_readwrite("sort_queries", &bhcl::SearchParams::sort_queries);
 
+  py::class_<bhcl::RadiusParams>(m, "RadiusParams")
+      .def(py::init<>())
+      .def_readwrite("budget", &bhcl::RadiusParams::budget)
+      .def_readwrite("neighbour_probes", &bhcl::RadiusParams::neighbour_probes)
+      .def_readwrite("max_results", &bhcl::RadiusParams::max_results)
+      .def_readwrite("local_size", &bhcl::RadiusParams::local_size)
+      .def_readwrite("max_batch", &bhcl::RadiusParams::max_batch)
+      .def_readwrite("sort_queries", &bhcl::RadiusParams::sort_queries)
+      .def_readwrite("count_examined", &bhcl::RadiusParams::count_examined)
+      .def_readwrite("max_batch_results", &bhcl::RadiusParams::max_batch_results);
+
   py::class_<bhcl::MethodOptions>(m, "MethodOptions")
       .def(py::init<>())
       .def_readwrite("preset", &bhcl::MethodOptions::preset)
@@ -253,6 +342,7 @@ PYBIND11_MODULE(_core, m) {
       .def_readwrite("B", &bhcl::MethodOptions::B)
       .def_readwrite("X", &bhcl::MethodOptions::X)
       .def_readwrite("threads", &bhcl::MethodOptions::threads)
+      .def_readwrite("leaf_size", &bhcl::MethodOptions::leaf_size)
       .def_readwrite("seed", &bhcl::MethodOptions::seed)
       .def_readwrite("load_index", &bhcl::MethodOptions::load_index)
       .def_readwrite("save_index", &bhcl::MethodOptions::save_index);
@@ -266,6 +356,8 @@ PYBIND11_MODULE(_core, m) {
       .def_property_readonly("runtime", &bhcl::Index::runtime_ptr)
       .def_property_readonly("build_info", &build_info)
       .def("query", &knn_query, py::arg("queries").noconvert(), py::arg("params"))
+      .def("radius_search", &radius_query, py::arg("queries").noconvert(), py::arg("r"),
+           py::arg("squared"), py::arg("params"))
       .def("save", &save, py::arg("path"))
       .def("warm_up", [](const bhcl::Index& i, const bhcl::SearchParams& p) {
         py::gil_scoped_release nogil;

@@ -33,27 +33,27 @@ from ._core import Error, OpenCLError, Runtime
 
 __all__ = [
     "Error", "OpenCLError", "Runtime", "Index", "make_index", "load", "devices", "select_device",
-    "get_runtime", "method_names", "MAX_K", "HAVE_FLANN", "__version__",
+    "get_runtime", "method_names", "build_options", "MAX_K", "HAVE_FLANN", "__version__",
 ]
 
 __version__: str = _core.__version__
 MAX_K: int = _core.MAX_K  # the largest k any method answers
 HAVE_FLANN: bool = _core.HAVE_FLANN  # whether the "flann" method was built in
 
-_DEVICE_METHODS = ("bruteforce", "kdtree", "blockhash")
-
-# The keyword arguments each method reads; anything else is refused, as bhcl refuses an option the
-# chosen method does not read (host/cli.cpp, check_method_options). A method the library gains
-# later takes the common search parameters until it is listed here.
-_BUILD_OPTIONS: Dict[str, Tuple[str, ...]] = {
-    "blockhash": ("preset", "L", "P", "B", "X", "seed"),
-    "kdtree": (),
-    "bruteforce": (),
-    "flann": ("threads",),
+# The method registry of the C++ library (factory.hpp): the keyword arguments each method reads
+# come from the same entries as bhcl's options (a command-line name "leaf-size" is the keyword
+# leaf_size), so a method or option the library gains appears here without a change. Anything
+# else is refused, as bhcl refuses an option the chosen method does not read.
+_TABLE: Dict[str, Dict[str, Any]] = {m["name"]: m for m in _core.method_table()}
+# File options are load() and save()'s business, not keyword arguments.
+_BUILD_OPTIONS: Dict[str, Dict[str, Dict[str, Any]]] = {
+    name: {o["name"].replace("-", "_"): o for o in m["build_options"] if o["kind"] != "file"}
+    for name, m in _TABLE.items()
 }
+# Search options by the registry's command-line names -> keyword arguments.
+_SEARCH_KEYWORD = {"A": "A", "recall": "recall_target", "probes": "probes",
+                   "local-size": "local_size", "max-batch": "max_batch"}
 _SEARCH_COMMON: Tuple[str, ...] = ("max_radius", "sort_queries")
-_SEARCH_DEVICE: Tuple[str, ...] = ("local_size", "max_batch")
-_SEARCH_APPROX: Tuple[str, ...] = ("A", "recall_target", "probes")
 
 _INT32_MAX = 2**31 - 1
 _F32 = npt.NDArray[np.float32]
@@ -65,13 +65,17 @@ def method_names() -> List[str]:
     return list(_core.method_names())
 
 
+def build_options(method: str) -> Dict[str, Dict[str, Any]]:
+    """The build options `method` reads, by keyword: kind ("integer" or "choice"), lo and hi or
+    choices, default (as text), help. From the library's method registry."""
+    if method not in _BUILD_OPTIONS:
+        raise Error(f"unknown method '{method}' (known: {', '.join(_BUILD_OPTIONS)})")
+    return {k: dict(v) for k, v in _BUILD_OPTIONS[method].items()}
+
+
 def _search_options(method: str) -> Tuple[str, ...]:
-    names = _SEARCH_COMMON
-    if method in _DEVICE_METHODS:
-        names += _SEARCH_DEVICE
-    if method == "blockhash":
-        names += _SEARCH_APPROX
-    return names
+    extra = _TABLE[method]["search_options"] if method in _TABLE else []
+    return _SEARCH_COMMON + tuple(_SEARCH_KEYWORD.get(o, o.replace("-", "_")) for o in extra)
 
 
 def _refuse_unknown(method: str, given: Dict[str, Any], accepted: Tuple[str, ...], kind: str) -> None:
@@ -210,7 +214,7 @@ class Index:
 
     def _search_params(self, k: int, options: Dict[str, Any]) -> "_core.SearchParams":
         """SearchParams from keyword arguments, refusing those this method does not read.
-        Shared by every search (kNN now; radius search to come)."""
+        kNN's; radius_search reads its own RadiusParams."""
         _refuse_unknown(self.method, options, _search_options(self.method), "search parameter")
         p = _core.SearchParams()
         p.k = _int("k", k)
@@ -347,7 +351,67 @@ class Index:
             out += (stats,)
         return out
 
-    # radius_search(queries, r, ...) goes here: _search_params(), _xyz(), one call into _core.
+    def radius_search(
+        self,
+        queries: Any,
+        r: float,
+        *,
+        squared: bool = False,
+        max_results: Optional[int] = None,
+        budget: Optional[int] = None,
+        probes: Optional[int] = None,
+        local_size: Optional[int] = None,
+        max_batch: Optional[int] = None,
+        sort_queries: Optional[Union[bool, int]] = None,
+        return_stats: bool = False,
+    ) -> Tuple[Any, ...]:
+        """Every indexed point within radius r of each query (scipy's query_ball_point, Open3D's
+        fixed_radius_search, FAISS's range_search).
+
+        r: the Euclidean radius (finite, >= 0); squared=True takes r as the squared radius
+        (nanoflann's and FLANN's convention). A point is within when its squared distance <= r*r.
+        max_results: at most this many per query, the nearest (None/0: no cap; stats count the
+        truncated queries). blockhash only: budget (examine at most this many points per query;
+        None/0: every block within r that the probes reach) and probes. Exact methods return
+        exactly the points within r; block hashing a subset (its recall is measured in
+        docs/ACCURACY.md). A query with a NaN/Inf coordinate gets an empty slice.
+
+        Returns (offsets, dist2, ids) in FAISS's layout: query i's results are
+        dist2[offsets[i]:offsets[i+1]] (float32, SQUARED) and the same slice of ids (int32), each
+        sorted by (distance, index); offsets is (n + 1,) int64. With return_stats, a stats dict
+        too (as query's, plus results, truncated_queries and found, the (n,) counts before the
+        cap). The GIL is released while it runs.
+        """
+        method = self.method
+        accepted = ("max_results", "sort_queries") + tuple(
+            o for o in ("budget", "probes", "local_size", "max_batch") if o in _search_options(method) or
+            (o == "budget" and "A" in _search_options(method)))
+        _refuse_unknown(method, dict(max_results=max_results, budget=budget, probes=probes,
+                                     local_size=local_size, max_batch=max_batch,
+                                     sort_queries=sort_queries), accepted, "search parameter")
+        p = _core.RadiusParams()
+        if max_results is not None:
+            p.max_results = _int("max_results", max_results, 0, 2**62)
+        if budget is not None:
+            p.budget = _int("budget", budget, 0, 2**32 - 1)
+        if probes is not None:
+            p.neighbour_probes = _int("probes", probes)
+        if local_size is not None:
+            p.local_size = _int("local_size", local_size, 0, 1 << 20)
+        if max_batch is not None:
+            p.max_batch = _int("max_batch", max_batch, 0, 2**62)
+        if sort_queries is not None:
+            p.sort_queries = int(sort_queries) if isinstance(sort_queries, bool) else _int(
+                "sort_queries", sort_queries, -1, 1)
+        radius = _float("r", r)
+        q = _xyz(queries, "queries")
+        offsets, dist2, ids, found, stats = self._impl.radius_search(q, radius, bool(squared), p)
+        stats["found"] = found
+        self.last_stats = stats
+        out: Tuple[Any, ...] = (offsets, dist2, ids)
+        if return_stats:
+            out += (stats,)
+        return out
 
     def warm_up(self, k: int = 10, **search: Any) -> float:
         """Compiles the kernel variant the search parameters need and launches it once, so that
@@ -366,32 +430,32 @@ def make_index(method: str, points: Any, *, device: Union[None, str, Runtime] = 
     method_names()) over points, an (N, 3) array (float32 or float64; converted to float32 once
     when it is not C-contiguous float32; the index keeps its own copy, not the array).
 
-    Build options (keyword arguments; one the method does not read raises TypeError):
+    Build options (keyword arguments; one the method does not read raises TypeError), from the
+    library's method registry (build_options() lists them with ranges and defaults):
       blockhash: preset ("auto" default, or "paper"), L (tables), P (thresholds per dimension),
                  B (block references per bucket), X (points per block, 1..16), seed (threshold
                  jitter); -1 or absent: the preset decides.
+      kdtree:    leaf_size (most points per leaf, -1: 16).
       flann:     threads (query threads, 0 = all hardware threads).
     device: a spec ("P:D", "cpu", "gpu", "pocl", "nvidia:1"), a Runtime, or None for
     BHCL_DEVICE, else PoCL, else the first device. The GIL is released during the build.
     """
     if not isinstance(method, str):
         raise TypeError(f"method must be a str, got {type(method).__name__}")
-    accepted = _BUILD_OPTIONS.get(method, ())
-    _refuse_unknown(method, options, accepted, "build option")
+    table = _BUILD_OPTIONS.get(method, {})
+    _refuse_unknown(method, options, tuple(table), "build option")
     opts = _core.MethodOptions()
     for name, value in options.items():
         if value is None:
             continue
-        if name == "preset":
+        entry = table[name]
+        if entry["kind"] == "choice":
             if not isinstance(value, str):
-                raise TypeError(f"preset must be a str, got {type(value).__name__}")
-            opts.preset = value
-        elif name == "seed":
-            opts.seed = _int("seed", value, 0, 2**64 - 1)
-        elif name == "threads":
-            opts.threads = _int("threads", value, 0, 1 << 16)
+                raise TypeError(f"{name} must be a str, got {type(value).__name__}")
+            _core.set_build_option(opts, method, entry["name"], value, 0)
         else:
-            setattr(opts, name, _int(name, value))
+            v = _int(name, value, entry["lo"], entry["hi"])
+            _core.set_build_option(opts, method, entry["name"], str(v), v)
     pts = _xyz(points, "points")
     return Index(_core.make_index(method, get_runtime(device), pts, opts))
 

@@ -248,9 +248,9 @@ def test_bad_methods_and_options(data):
         bh.make_index("blockhash", pts, threads=2)
     with pytest.raises(TypeError, match="'colour' does not apply"):
         bh.make_index("blockhash", pts, colour=2)
-    with pytest.raises(ValueError, match="unknown preset 'fast'"):
+    with pytest.raises(ValueError, match="preset = 'fast' is not one of auto, paper"):
         bh.make_index("blockhash", pts, preset="fast")
-    with pytest.raises(ValueError, match="X must be in"):
+    with pytest.raises(ValueError, match=r"X = 99 is out of range: must be in \[-1, 16\]"):
         bh.make_index("blockhash", pts, X=99)
     with pytest.raises(ValueError, match="out of range"):
         bh.make_index("blockhash", pts, L=2**40)
@@ -341,3 +341,86 @@ def test_library_error_does_not_kill_the_interpreter(tmp_path):
     with pytest.raises(bh.Error):
         bh.load(p, np.zeros((10, 3), np.float32))
     assert issubclass(bh.OpenCLError, bh.Error) and issubclass(bh.OpenCLError, RuntimeError)
+
+
+# ---- radius search -------------------------------------------------------------------------
+
+def _slices(offsets, ids):
+    return [ids[offsets[i]:offsets[i + 1]] for i in range(len(offsets) - 1)]
+
+
+@pytest.mark.parametrize("method", EXACT)
+def test_radius_search_exact_matches_ckdtree(data, indexes, method):
+    pts, q = data
+    r = 0.03
+    offsets, dist2, ids = indexes[method].radius_search(q, r)
+    assert offsets.dtype == np.int64 and offsets.shape == (len(q) + 1,) and offsets[0] == 0
+    assert ids.dtype == np.int32 and dist2.dtype == np.float32
+    assert offsets[-1] == len(ids) == len(dist2)
+    tree = cKDTree(pts.astype(np.float64))
+    truth = tree.query_ball_point(q.astype(np.float64), r)
+    differ = 0
+    for i, (got, want) in enumerate(zip(_slices(offsets, ids), truth)):
+        d = dist2[offsets[i]:offsets[i + 1]]
+        assert np.all(np.diff(d) >= 0), "each slice sorted by distance"
+        # The contract's float distance decides at the boundary; double may differ there only.
+        if set(got.tolist()) != set(want):
+            diff = set(got.tolist()) ^ set(want)
+            dd = ((pts[list(diff)].astype(np.float64) - q[i].astype(np.float64)) ** 2).sum(1)
+            assert np.all(np.abs(dd - r * r) <= 1e-6 * r * r), (i, diff)
+            differ += 1
+    assert differ <= 2
+    # The squared form with r*r gives the same answer; a cap keeps the nearest.
+    o2, d2, i2 = indexes[method].radius_search(q, np.float32(r) * np.float32(r), squared=True)
+    assert np.array_equal(o2, offsets) and np.array_equal(i2, ids)
+    oc, dc, ic, st = indexes[method].radius_search(q, r, max_results=3, return_stats=True)
+    counts = np.diff(offsets)
+    assert np.array_equal(np.diff(oc), np.minimum(counts, 3))
+    assert st["truncated_queries"] == int(np.sum(counts > 3))
+    assert np.array_equal(st["found"], counts)
+    for a, b in zip(_slices(oc, ic), _slices(offsets, ids)):
+        assert np.array_equal(a, b[:3])
+
+
+def test_radius_search_blockhash_recall(data, indexes):
+    pts, q = data
+    r = 0.03
+    offsets, dist2, ids = indexes["blockhash"].radius_search(q, r)
+    truth = cKDTree(pts.astype(np.float64)).query_ball_point(q.astype(np.float64), r)
+    total = sum(len(t) for t in truth)
+    hit = sum(len(set(g.tolist()) & set(t)) for g, t in zip(_slices(offsets, ids), truth))
+    assert hit / total >= 0.9
+    # Every result is within r (a subset, never a wrong point).
+    assert np.all(dist2 <= np.float32(r) * np.float32(r))
+    o_b, _, _ = indexes["blockhash"].radius_search(q, r, budget=50)
+    assert o_b[-1] <= offsets[-1]
+
+
+def test_radius_search_bad_input(indexes, data):
+    _, q = data
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(bh.Error, match="radius must be finite"):
+            indexes["kdtree"].radius_search(q, bad)
+    with pytest.raises(TypeError, match="budget"):
+        indexes["kdtree"].radius_search(q, 0.1, budget=10)
+    with pytest.raises(TypeError):
+        indexes["kdtree"].radius_search(q, "0.1")
+    with pytest.raises(ValueError, match="shape"):
+        indexes["kdtree"].radius_search(q[:, :2], 0.1)
+    qn = q[:3].copy()
+    qn[1] = np.nan
+    offsets, _, _ = indexes["kdtree"].radius_search(qn, 0.1)
+    assert offsets[2] == offsets[1]
+
+
+def test_build_options_come_from_the_registry(data):
+    pts, _ = data
+    assert "leaf_size" in bh.build_options("kdtree")
+    assert bh.build_options("blockhash")["preset"]["choices"] == ["auto", "paper"]
+    idx = bh.make_index("kdtree", pts[:2000], leaf_size=4)
+    d, i = idx.query(pts[:10], k=1)
+    assert np.array_equal(i[:, 0], np.arange(10))
+    with pytest.raises(ValueError, match="out of range"):
+        bh.make_index("kdtree", pts[:100], leaf_size=5000)
+    with pytest.raises(TypeError, match="leaf_size"):
+        bh.make_index("blockhash", pts[:100], leaf_size=4)
