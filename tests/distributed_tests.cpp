@@ -11,6 +11,8 @@
 //    rank passing none), and with fewer points than ranks;
 //  - block hashing's recall through the distributed index is that of one process (within 0.02);
 //  - NaN queries get empty rows; the statistics add up across ranks;
+//  - radius search: exact methods equal one process bit for bit (with and without a cap), block
+//    hashing a subset within r with one process's recall;
 //  - a rank given a NaN point, an unknown method on one rank, or ranks passing different k make
 //    the call throw on every rank with a message naming the failing rank.
 #include <mpi.h>
@@ -207,6 +209,100 @@ void fewer_points_than_ranks() {
   EXPECT(got.n == (first ? 3u : 0u), "rows %zu", got.n);
 }
 
+// Radius search: every exact method, every set, with and without a cap, equals one process bit
+// for bit; block hashing's answer is a subset within r whose recall is one process's (within
+// 0.02); a NaN query gets an empty slice; ranks passing different radii fail on every rank.
+bool identical_slices(const bhcl::RadiusResult& got, const bhcl::RadiusResult& ref, std::size_t first,
+                      std::string& why) {
+  for (std::size_t i = 0; i < got.n; ++i) {
+    const std::size_t a = static_cast<std::size_t>(got.offsets[i]), b = static_cast<std::size_t>(ref.offsets[first + i]);
+    if (got.count(i) != ref.count(first + i) || got.found[i] != ref.found[first + i]) {
+      why = "query " + std::to_string(first + i) + ": " + std::to_string(got.count(i)) + " results (" +
+            std::to_string(got.found[i]) + " found) vs " + std::to_string(ref.count(first + i)) + " (" +
+            std::to_string(ref.found[first + i]) + ")";
+      return false;
+    }
+    for (std::size_t j = 0; j < got.count(i); ++j)
+      if (got.ids[a + j] != ref.ids[b + j] || std::memcmp(&got.dist2[a + j], &ref.dist2[b + j], 4) != 0) {
+        why = "query " + std::to_string(first + i) + " entry " + std::to_string(j) + ": id " +
+              std::to_string(got.ids[a + j]) + " vs " + std::to_string(ref.ids[b + j]);
+        return false;
+      }
+  }
+  return true;
+}
+
+void radius_search_as_one_process() {
+  for (const Set& s : exact_sets()) {
+    const std::size_t N = s.points.size() / 3, n = s.queries.size() / 3;
+    auto [pf, pl] = slice(N, g_rank, g_ranks, 0);
+    auto [qf, ql] = slice(n, g_rank, g_ranks, 1);
+    const float r = s.name == "clustered" ? 0.0008f : 0.05f;
+    for (const std::string& method : bhcl::method_names()) {
+      bhcl::DistributedBuildParams bp;
+      bp.method = method;
+      bp.boxes_per_rank = 8;
+      bhcl::DistributedIndex dist(MPI_COMM_WORLD, runtime(), s.points.data() + 3 * pf, pl, bp);
+      std::unique_ptr<bhcl::Index> single = bhcl::make_index(method, runtime(), s.points.data(), N);
+      for (std::size_t cap : {std::size_t(0), std::size_t(4)}) {
+        bhcl::RadiusParams p;
+        p.max_results = cap;
+        bhcl::RadiusResult ref, got;
+        single->radius_search(s.queries.data(), n, r, p, ref);
+        bhcl::DistributedQueryStats ds;
+        dist.radius_search(s.queries.data() + 3 * qf, ql, r, p, got, &ds);
+        EXPECT(got.n == ql && got.offsets.size() == ql + 1, "%s: %zu slices", method.c_str(), got.n);
+        if (single->exact()) {
+          std::string why;
+          EXPECT(identical_slices(got, ref, qf, why), "radius %s %s cap %zu: %s", method.c_str(), s.name.c_str(),
+                 cap, why.c_str());
+          continue;
+        }
+        // Block hashing: every result within r and in the exact answer; recall near one process's.
+        auto exact = bhcl::make_index("bruteforce", runtime(), s.points.data(), N);
+        bhcl::RadiusResult truth;
+        exact->radius_search(s.queries.data(), n, r, {}, truth);
+        std::size_t hit = 0, total = 0, hit1 = 0;
+        for (std::size_t i = 0; i < ql; ++i) {
+          const auto* t0 = truth.ids.data() + truth.offsets[qf + i];
+          std::vector<std::int32_t> t(t0, t0 + truth.count(qf + i));
+          std::sort(t.begin(), t.end());
+          total += t.size();
+          for (auto j = got.offsets[i]; j < got.offsets[i + 1]; ++j) {
+            const bool in = std::binary_search(t.begin(), t.end(), got.ids[j]);
+            EXPECT(in, "blockhash radius: id %d is not within r of query %zu", got.ids[j], qf + i);
+            hit += in;
+          }
+          for (auto j = ref.offsets[qf + i]; j < ref.offsets[qf + i + 1]; ++j)
+            hit1 += std::binary_search(t.begin(), t.end(), ref.ids[j]);
+        }
+        long long v[3] = {(long long)hit, (long long)total, (long long)hit1}, g[3];
+        MPI_Allreduce(v, g, 3, MPI_LONG_LONG, MPI_SUM, MPI_COMM_WORLD);
+        if (cap == 0 && g[1] > 0) {
+          const double rec = double(g[0]) / double(g[1]), rec1 = double(g[2]) / double(g[1]);
+          EXPECT(rec >= rec1 - 0.02, "blockhash radius recall %.4f vs one process %.4f on %s", rec, rec1,
+                 s.name.c_str());
+        }
+      }
+    }
+  }
+  // A NaN query: an empty slice. Different radii on the ranks: an error on every rank.
+  const auto pts = bhcl::datasets::uniform(500, 9);
+  bhcl::DistributedIndex dist(MPI_COMM_WORLD, runtime(), g_rank == 0 ? pts.data() : nullptr, g_rank == 0 ? 500 : 0);
+  const float qs[6] = {std::numeric_limits<float>::quiet_NaN(), 0, 0, 0.5f, 0.5f, 0.5f};
+  bhcl::RadiusResult got;
+  bhcl::QueryStats st = dist.radius_search(qs, 2, 0.2f, {}, got);
+  EXPECT(got.count(0) == 0 && got.count(1) > 0 && st.nonfinite_queries == 1, "NaN query: %zu, %zu",
+         got.count(0), got.count(1));
+  std::string msg;
+  try {
+    dist.radius_search(qs, 2, g_rank == 0 ? 0.2f : 0.3f, {}, got);
+  } catch (const std::exception& e) {
+    msg = e.what();
+  }
+  if (g_ranks > 1) EXPECT(msg.find("different radius") != std::string::npos, "message: '%s'", msg.c_str());
+}
+
 // NaN queries get empty rows and are counted; the exchange counts balance over the ranks.
 void nonfinite_queries_and_stats() {
   const std::vector<float> pts = bhcl::datasets::clustered(4000, 7, 4, 0.05f);
@@ -386,6 +482,7 @@ int main(int argc, char** argv) {
   run("exact methods equal one process bit for bit", exact_methods_match_single_process);
   run("fewer points than ranks", fewer_points_than_ranks);
   run("non-finite queries and statistics", nonfinite_queries_and_stats);
+  run("radius search as one process", radius_search_as_one_process);
   run("block hashing recall as one process", blockhash_recall_as_one_process);
   run("a failing rank fails the call on every rank", failures_reach_every_rank);
   int all = 0;

@@ -121,6 +121,16 @@ class DistributedIndex {
   QueryStats query(const float* queries, std::size_t n, const SearchParams& params, KnnResult& out,
                    DistributedQueryStats* stats = nullptr) const;
 
+  // Collective radius search (knn.hpp's Index::radius_search, same contract and layout): each
+  // finite query goes to its owner and to every rank whose boxes meet the ball of radius r (the
+  // ball is known up front: one round trip), each answers over its shard, and the slices are
+  // merged by (distance, global index) and capped at params.max_results. Exact methods give the
+  // single-process answer bit for bit; block hashing the union of its shards' subsets. Every rank
+  // must pass the same r and max_results. `stats` gets ranks_visited, owner, the moved counts
+  // (in owner_sent/received) and bytes.
+  QueryStats radius_search(const float* queries, std::size_t n, float r, const RadiusParams& params,
+                           RadiusResult& out, DistributedQueryStats* stats = nullptr) const;
+
   std::string method() const { return method_; }
   bool exact() const { return exact_; }
   std::size_t size() const { return n_global_; }  // points over all ranks
