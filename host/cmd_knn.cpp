@@ -15,6 +15,7 @@
 namespace bhcl::cli {
 void declare_knn_distributed(Args& a);      // cmd_knn_distributed.cpp: --distributed and its options
 int run_knn_distributed(const Args& args);  // -1 unless --distributed, else the MPI run's status
+RadiusParams radius_options(const Args& args, float& radius);  // --radius's options, checked
 namespace {
 
 void declare_knn(Args& a) {
@@ -39,9 +40,10 @@ void declare_knn(Args& a) {
   declare_knn_distributed(a);
 }
 
-// bhcl knn --radius: Index::radius_search in slices (a progress bar on a terminal), the slices
-// concatenated (results do not depend on the slicing).
-int run_radius(const Args& args) {
+}  // namespace
+
+// The radius-search options of bhcl knn, checked (also for --distributed: cmd_knn_distributed.cpp).
+RadiusParams radius_options(const Args& args, float& radius) {
   const std::string method = args.str("method");
   for (const char* o : {"k", "max-radius", "A", "recall"})
     if (args.has(o)) throw UsageError(std::string("--") + o + " does not apply with --radius");
@@ -49,14 +51,27 @@ int run_radius(const Args& args) {
   if (args.has("budget") && method != "blockhash")
     throw UsageError("--budget does not apply to method " + method + " (only to blockhash)");
   check_method_options(args, {method}, {"budget"});
-  const double radius = args.number("radius", 0.0);
-  if (!std::isfinite(radius) || radius < 0) throw UsageError("--radius must be a finite number >= 0");
+  const double r = args.number("radius", 0.0);
+  if (!std::isfinite(r) || r < 0 || !std::isfinite(static_cast<float>(r)))
+    throw UsageError("--radius must be a finite number >= 0");
+  radius = static_cast<float>(r);
   RadiusParams rp;
   rp.budget = static_cast<std::uint32_t>(args.integer("budget", 0));
   rp.max_results = static_cast<std::size_t>(args.integer("max-results", 0));
   rp.neighbour_probes = static_cast<int>(args.integer("probes", -1));
   rp.local_size = static_cast<std::size_t>(args.integer("local-size", 0));
   rp.max_batch = static_cast<std::size_t>(args.integer("max-batch", 0));
+  return rp;
+}
+
+namespace {
+
+// bhcl knn --radius: Index::radius_search in slices (a progress bar on a terminal), the slices
+// concatenated (results do not depend on the slicing).
+int run_radius(const Args& args) {
+  const std::string method = args.str("method");
+  float radius = 0;
+  const RadiusParams rp = radius_options(args, radius);
   MethodOptions mopt = method_options(args);
   const std::string out_offsets = args.str("out-offsets"), out_ids = args.str("out-ids"),
                     out_dist2 = args.str("out-dist2");
@@ -80,7 +95,7 @@ int run_radius(const Args& args) {
   QueryStats st;
   for (std::size_t first = 0; first < n || first == 0; first += slice) {
     const std::size_t m = std::min(slice, n - first);
-    QueryStats s = index->radius_search(queries.data() + 3 * first, m, static_cast<float>(radius), rp, part);
+    QueryStats s = index->radius_search(queries.data() + 3 * first, m, radius, rp, part);
     const std::int64_t base = all.offsets.back();
     for (std::size_t i = 1; i <= m; ++i) all.offsets.push_back(base + part.offsets[i]);
     all.ids.insert(all.ids.end(), part.ids.begin(), part.ids.end());
@@ -144,15 +159,8 @@ int run_radius(const Args& args) {
 }
 
 int run_knn(const Args& args) {
-  if (args.has("radius")) {
-    // The library's DistributedIndex::radius_search exists; the tool's distributed path writes
-    // kNN rows only (a usage error rather than kNN rows where slices were asked for).
-    if (args.flag("distributed"))
-      throw UsageError("--radius with --distributed: not in the tool yet (the C++ API has "
-                       "DistributedIndex::radius_search)");
-    return run_radius(args);
-  }
-  if (const int rc = run_knn_distributed(args); rc >= 0) return rc;
+  if (const int rc = run_knn_distributed(args); rc >= 0) return rc;  // kNN or radius
+  if (args.has("radius")) return run_radius(args);
   for (const char* o : {"out-offsets", "max-results", "budget"})
     if (args.has(o)) throw UsageError(std::string("--") + o + " applies only with --radius");
   const std::string method = args.str("method");

@@ -34,6 +34,8 @@ void declare_knn_distributed(Args& a) {
   a.group("");
 }
 
+RadiusParams radius_options(const Args& args, float& radius);  // cmd_knn.cpp: --radius's options
+
 #if !BHCL_HAVE_MPI
 
 int run_knn_distributed(const Args& args) {
@@ -92,7 +94,11 @@ int run_knn_distributed(const Args& args) {
 
   // Usage checks before MPI: every rank sees the same command line and fails alike.
   const std::string method = args.str("method");
-  check_method_options(args, {method});
+  const bool radius_mode = args.has("radius");
+  float radius = 0;
+  RadiusParams rparams;
+  if (radius_mode) rparams = radius_options(args, radius);  // checks the method options too
+  else check_method_options(args, {method});
   const std::string out_ids = args.str("out-ids");
   const std::string out_dist2 = args.str("out-dist2");
   SearchParams params = search_params(args);
@@ -101,7 +107,8 @@ int run_knn_distributed(const Args& args) {
     throw UsageError("--load-index and --save-index do not apply with --distributed (each rank builds its shard)");
   check_distinct_files({{"--points", args.str("points")}, {"--queries", args.str("queries")}},
                        {{"--out-ids", out_ids}, {"--out-dist2", out_dist2},
-                        {"--out-counts", args.str("out-counts", "")}, {"--stats", args.str("stats", "")}});
+                        {"--out-counts", args.str("out-counts", "")}, {"--stats", args.str("stats", "")},
+                        {"--out-offsets", args.str("out-offsets", "")}});
   DistributedBuildParams bp;
   bp.method = method;
   bp.options = mopt;
@@ -139,6 +146,46 @@ int run_knn_distributed(const Args& args) {
   DistributedIndex index(MPI_COMM_WORLD, rt, points.data(), points.size() / 3, bp);
   const std::size_t N = index.size(), n = queries.size() / 3;
   std::vector<float>().swap(points);
+  if (radius_mode) {
+    // Radius search: rank 0's queries, the slices written there (FAISS layout, as bhcl knn --radius).
+    RadiusResult rr;
+    DistributedQueryStats rds;
+    const QueryStats rst = index.radius_search(queries.data(), n, radius, rparams, rr, &rds);
+    if (rank == 0) try {
+        write_array_file(args.str("out-offsets"), rr.offsets.data(), n + 1, 0);
+        write_array_file(out_ids, rr.ids.data(), rr.total(), 0);
+        write_array_file(out_dist2, rr.dist2.data(), rr.total(), 0);
+        if (args.has("out-counts")) {
+          std::vector<std::int32_t> counts(n);
+          for (std::size_t i = 0; i < n; ++i) counts[i] = static_cast<std::int32_t>(rr.count(i));
+          write_array_file(args.str("out-counts"), counts.data(), n, 0);
+        }
+        std::fprintf(stderr,
+                     "bhcl knn --distributed --radius: %s on %d rank(s): N=%zu n=%zu r=%g  build %.3f s  "
+                     "query %.3f s  queries on more than one rank %zu (%.1f %%)  results %zu  truncated %zu\n",
+                     index.method().c_str(), ranks, N, n, double(radius), index.build_stats().wall_s, rst.wall_s,
+                     rds.multi_rank_queries, n ? 100.0 * double(rds.multi_rank_queries) / double(n) : 0.0,
+                     rr.total(), rr.truncated_queries);
+        if (args.has("stats")) {
+          Json j = stats_header("knn", *rt);
+          j["method"] = index.method();
+          j["exact"] = index.exact();
+          j["N"] = N;
+          j["n"] = n;
+          j["radius"] = {{"radius", radius}, {"max_results", rparams.max_results}, {"budget", rparams.budget},
+                         {"results", rr.total()}, {"truncated_queries", rr.truncated_queries}};
+          j["build_s"] = index.build_stats().wall_s;
+          j["wall_s"] = rst.wall_s;
+          j["nonfinite_queries"] = rst.nonfinite_queries;
+          j["distributed"] = {{"ranks", ranks}, {"multi_rank_queries", rds.multi_rank_queries}};
+          write_json(args.str("stats"), j);
+        }
+      } catch (const std::exception& e) {
+        err = e.what();
+      }
+    mpi_agree(MPI_COMM_WORLD, err, what);
+    return 0;
+  }
   KnnResult result;
   DistributedQueryStats ds;
   const QueryStats st = index.query(queries.data(), n, params, result, &ds);

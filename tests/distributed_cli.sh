@@ -1,6 +1,7 @@
 #!/bin/sh
 # bhcl knn --distributed under mpirun writes the same files as bhcl knn in one process, byte for
-# byte, for the exact methods (a flat point set, k 20, a radius that cuts rows short); a missing
+# byte, for the exact methods (a flat point set, k 20, a radius that cuts rows short), and for
+# radius search (--radius, capped); a missing
 # input file fails every rank with one message naming it.
 # Usage: distributed_cli.sh BHCL MPIEXEC NP WORKDIR [mpiexec options...]
 set -eu
@@ -17,6 +18,12 @@ for m in kdtree bruteforce; do
   cmp i1 iN && cmp d1 dN && cmp c1 cN
   echo "$m: $np rank(s) wrote the one-process files"
 done
+# Radius search: the same three arrays as one process (an exact method, a cap).
+rargs="--points p.txt --queries q.txt --method kdtree --radius 0.02 --max-results 30 --quiet"
+"$bhcl" knn $rargs --out-offsets o1 --out-ids ri1 --out-dist2 rd1
+"$mpiexec" -np "$np" "$@" "$bhcl" knn $rargs --out-offsets oN --out-ids riN --out-dist2 rdN --distributed
+cmp o1 oN && cmp ri1 riN && cmp rd1 rdN
+echo "radius: $np rank(s) wrote the one-process files"
 if "$mpiexec" -np "$np" "$@" "$bhcl" knn --points missing.txt --queries q.txt --method kdtree \
     --out-ids iN --out-dist2 dN --distributed --quiet 2> err.txt; then
   echo "a missing point file did not fail"; exit 1
