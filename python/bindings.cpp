@@ -328,6 +328,7 @@ PYBIND11_MODULE(_core, m) {
       .def_readwrite("budget", &bhcl::RadiusParams::budget)
       .def_readwrite("neighbour_probes", &bhcl::RadiusParams::neighbour_probes)
       .def_readwrite("max_results", &bhcl::RadiusParams::max_results)
+      .def_readwrite("sorted", &bhcl::RadiusParams::sorted)
       .def_readwrite("local_size", &bhcl::RadiusParams::local_size)
       .def_readwrite("max_batch", &bhcl::RadiusParams::max_batch)
       .def_readwrite("sort_queries", &bhcl::RadiusParams::sort_queries)

@@ -218,6 +218,25 @@ TEST_CASE("radius: every method, results do not depend on batching, sorting or t
     require_same(c, a, m + ": Hilbert-sorted dispatch");
     index->radius_search_squared(qs.data(), qs.size() / 3, r * r, p, d);
     require_same(d, a, m + ": squared form");
+    // Unsorted slices: the same points per query; with a cap, the same nearest ones.
+    for (std::size_t cap : {std::size_t(0), std::size_t(3)}) {
+      RadiusParams u = p, s = p;
+      u.sorted = false;
+      u.max_results = s.max_results = cap;
+      RadiusResult ru, rs;
+      index->radius_search(qs.data(), qs.size() / 3, r, u, ru);
+      index->radius_search(qs.data(), qs.size() / 3, r, s, rs);
+      REQUIRE(ru.offsets == rs.offsets);
+      REQUIRE(ru.found == rs.found);
+      for (std::size_t q = 0; q < ru.n; ++q) {
+        std::vector<std::pair<float, std::int32_t>> x, y;
+        for (auto j = ru.offsets[q]; j < ru.offsets[q + 1]; ++j) x.emplace_back(ru.dist2[j], ru.ids[j]);
+        for (auto j = rs.offsets[q]; j < rs.offsets[q + 1]; ++j) y.emplace_back(rs.dist2[j], rs.ids[j]);
+        std::sort(x.begin(), x.end());
+        INFO(m << " unsorted, cap " << cap << ", query " << q);
+        REQUIRE(x == y);
+      }
+    }
     check_layout(a, pts, qs, r * r);
   }
 }

@@ -358,6 +358,7 @@ class Index:
         *,
         squared: bool = False,
         max_results: Optional[int] = None,
+        return_sorted: bool = True,
         budget: Optional[int] = None,
         probes: Optional[int] = None,
         local_size: Optional[int] = None,
@@ -371,14 +372,16 @@ class Index:
         r: the Euclidean radius (finite, >= 0); squared=True takes r as the squared radius
         (nanoflann's and FLANN's convention). A point is within when its squared distance <= r*r.
         max_results: at most this many per query, the nearest (None/0: no cap; stats count the
-        truncated queries). blockhash only: budget (examine at most this many points per query;
+        truncated queries). return_sorted=False leaves each slice in the order the method found
+        its points (scipy's return_sorted, Open3D's sort), sparing the sort; a capped slice still
+        holds the nearest max_results. blockhash only: budget (examine at most this many points per query;
         None/0: every block within r that the probes reach) and probes. Exact methods return
         exactly the points within r; block hashing a subset (its recall is measured in
         docs/ACCURACY.md). A query with a NaN/Inf coordinate gets an empty slice.
 
         Returns (offsets, dist2, ids) in FAISS's layout: query i's results are
         dist2[offsets[i]:offsets[i+1]] (float32, SQUARED) and the same slice of ids (int32), each
-        sorted by (distance, index); offsets is (n + 1,) int64. With return_stats, a stats dict
+        sorted by (distance, index) unless return_sorted=False; offsets is (n + 1,) int64. With return_stats, a stats dict
         too (as query's, plus results, truncated_queries and found, the (n,) counts before the
         cap). The GIL is released while it runs.
         """
@@ -390,6 +393,7 @@ class Index:
                                      local_size=local_size, max_batch=max_batch,
                                      sort_queries=sort_queries), accepted, "search parameter")
         p = _core.RadiusParams()
+        p.sorted = bool(return_sorted)
         if max_results is not None:
             p.max_results = _int("max_results", max_results, 0, 2**62)
         if budget is not None:

@@ -41,6 +41,7 @@ class RadiusParams:
     budget: int
     neighbour_probes: int
     max_results: int
+    sorted: bool
     local_size: int
     max_batch: int
     sort_queries: int

@@ -424,3 +424,12 @@ def test_build_options_come_from_the_registry(data):
         bh.make_index("kdtree", pts[:100], leaf_size=5000)
     with pytest.raises(TypeError, match="leaf_size"):
         bh.make_index("blockhash", pts[:100], leaf_size=4)
+
+
+def test_radius_search_unsorted_slices(data, indexes):
+    _, q = data
+    o, d, i = indexes["kdtree"].radius_search(q, 0.03)
+    ou, du, iu = indexes["kdtree"].radius_search(q, 0.03, return_sorted=False)
+    assert np.array_equal(o, ou)
+    for a, b in zip(_slices(o, i), _slices(ou, iu)):
+        assert np.array_equal(np.sort(a), np.sort(b))

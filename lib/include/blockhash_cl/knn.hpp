@@ -122,6 +122,10 @@ struct RadiusParams {
   // with more points within r is truncated: RadiusResult::found keeps its full count. The cap
   // bounds the output, not the work: the device still counts and writes every point within r.
   std::size_t max_results = 0;
+  // Each slice sorted by (distance, index) (the default). false: slices in the order the method
+  // found the points (scipy's return_sorted=False, Open3D's sort=False), which spares the host's
+  // sort of every slice; with a cap, a truncated slice still holds the nearest max_results.
+  bool sorted = true;
   // As in SearchParams.
   std::size_t local_size = 0;
   std::size_t max_batch = 0;  // queries per dispatch (0: automatic)
@@ -136,7 +140,7 @@ struct RadiusParams {
 
 // Radius search results in the compressed layout of FAISS's range_search: query i's results are
 // ids[offsets[i] .. offsets[i+1]) and the same slice of dist2 (SQUARED distances), sorted by
-// (distance, index). offsets has n + 1 entries, offsets[0] = 0.
+// (distance, index) unless RadiusParams::sorted is false. offsets has n + 1 entries, offsets[0] = 0.
 struct RadiusResult {
   std::size_t n = 0;
   std::vector<std::int64_t> offsets;

@@ -25,29 +25,30 @@ std::string num(double v) {
   return os.str();
 }
 
-// Sorts every raw slice by (distance, index), drops repeats of a point (the L-table layout's
-// tables share blocks; the kernels filter most repeats, this catches the rest), applies the cap
-// and compacts the slices. Fills found and truncated_queries.
-void finish_slices(RadiusResult& r, std::size_t cap) {
+// Sorts every raw slice by (distance, index) (or, unsorted, only selects the nearest `cap` of a
+// slice longer than the cap), applies the cap and compacts the slices. Fills found and
+// truncated_queries. The kernels never return a point twice (the L-table kernel filters the
+// blocks its tables share), so no repeats are dropped.
+void finish_slices(RadiusResult& r, std::size_t cap, bool sorted) {
   const std::size_t n = r.n;
   std::vector<std::int64_t> keep(n, 0);
   detail::parallel_for(n, [&](std::size_t b, std::size_t e) {
     std::vector<std::pair<float, std::int32_t>> tmp;
     for (std::size_t i = b; i < e; ++i) {
       const std::size_t lo = static_cast<std::size_t>(r.offsets[i]), hi = static_cast<std::size_t>(r.offsets[i + 1]);
+      const std::size_t count = hi - lo;
+      r.found[i] = static_cast<std::int64_t>(count);
+      const std::size_t m = cap ? std::min(cap, count) : count;
+      keep[i] = static_cast<std::int64_t>(m);
+      if (!sorted && m == count) continue;  // nothing to order or cut
       tmp.clear();
       for (std::size_t j = lo; j < hi; ++j) tmp.emplace_back(r.dist2[j], r.ids[j]);
-      std::sort(tmp.begin(), tmp.end());
-      tmp.erase(std::unique(tmp.begin(), tmp.end(),
-                            [](const auto& x, const auto& y) { return x.second == y.second; }),
-                tmp.end());
-      r.found[i] = static_cast<std::int64_t>(tmp.size());
-      const std::size_t m = cap ? std::min(cap, tmp.size()) : tmp.size();
+      if (sorted) std::sort(tmp.begin(), tmp.end());
+      else std::nth_element(tmp.begin(), tmp.begin() + static_cast<std::ptrdiff_t>(m), tmp.end());
       for (std::size_t j = 0; j < m; ++j) {
         r.dist2[lo + j] = tmp[j].first;
         r.ids[lo + j] = tmp[j].second;
       }
-      keep[i] = static_cast<std::int64_t>(m);
     }
   }, 0, 1024);
   // Compact in place: slices only move left.
@@ -66,8 +67,6 @@ void finish_slices(RadiusResult& r, std::size_t cap) {
   r.offsets[n] = w;
   r.ids.resize(static_cast<std::size_t>(w));
   r.dist2.resize(static_cast<std::size_t>(w));
-  r.ids.shrink_to_fit();
-  r.dist2.shrink_to_fit();
 }
 
 }  // namespace
@@ -180,7 +179,7 @@ QueryStats Index::radius_impl(const float* queries, std::size_t n, float r, bool
   } else {
     radius_on_device(q, n, r2, params, out, st);
   }
-  finish_slices(out, params.max_results);
+  finish_slices(out, params.max_results, params.sorted);
   distances_to_caller(out.dist2.data(), out.dist2.size());
   st.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return st;
