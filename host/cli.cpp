@@ -227,7 +227,7 @@ std::vector<const OptionInfo*> build_options() {
 }  // namespace
 
 void declare_device_option(Args& a) {
-  a.add_text("device", "OpenCL device: P:D, cpu, gpu or a name fragment (default: BHCL_DEVICE, then PoCL)",
+  a.add_text("device", "OpenCL device: P:D, cpu, gpu or a name fragment (default: BHCL_DEVICE, then PoCL); knn takes a comma list for several devices",
              "", "SPEC");
 }
 

@@ -7,6 +7,7 @@
 #include "blockhash_cl/error.hpp"
 #include "blockhash_cl/factory.hpp"
 #include "blockhash_cl/io.hpp"
+#include "blockhash_cl/multi_device.hpp"
 #include "blockhash_cl/runtime.hpp"
 #include "cli.hpp"
 #include "commands.hpp"
@@ -158,8 +159,93 @@ int run_radius(const Args& args) {
   return 0;
 }
 
+// bhcl knn --device a,b: one copy of the index per device (MultiDeviceIndex), the batch split by
+// measured throughput, rows in the caller's order (kNN or --radius).
+int run_knn_multi(const Args& args, const std::vector<std::string>& devices) {
+  const std::string method = args.str("method");
+  const bool radius_mode = args.has("radius");
+  float radius = 0;
+  RadiusParams rp;
+  SearchParams params;
+  if (radius_mode) {
+    rp = radius_options(args, radius);
+  } else {
+    for (const char* o : {"out-offsets", "max-results", "budget"})
+      if (args.has(o)) throw UsageError(std::string("--") + o + " applies only with --radius");
+    check_method_options(args, {method});
+    params = search_params(args);
+  }
+  MethodOptions mopt = method_options(args);
+  if (!mopt.save_index.empty()) throw UsageError("--save-index does not apply with several devices");
+  const std::string out_ids = args.str("out-ids"), out_dist2 = args.str("out-dist2");
+  check_distinct_files({{"--points", args.str("points")}, {"--queries", args.str("queries")},
+                        {"--load-index", mopt.load_index}},
+                       {{"--out-ids", out_ids}, {"--out-dist2", out_dist2},
+                        {"--out-offsets", args.str("out-offsets", "")},
+                        {"--out-counts", args.str("out-counts", "")}, {"--stats", args.str("stats", "")}});
+  std::vector<float> points, queries;
+  read_points_and_queries(args, points, queries);
+  const std::size_t N = points.size() / 3, n = queries.size() / 3;
+  std::vector<std::shared_ptr<Runtime>> rts;
+  for (const auto& spec : devices) rts.push_back(std::make_shared<Runtime>(spec));
+  const bool quiet = args.flag("quiet");
+  render::Progress build_bar("build " + method + " on " + std::to_string(devices.size()) + " devices", !quiet);
+  MultiDeviceIndex index(rts, method, points.data(), N, mopt);
+  build_bar.finish();
+  std::vector<DeviceShare> shares;
+  QueryStats st;
+  std::size_t found = 0;
+  std::vector<std::int32_t> counts(n);
+  if (radius_mode) {
+    RadiusResult rr;
+    st = index.radius_search(queries.data(), n, radius, rp, rr, &shares);
+    write_array_file(args.str("out-offsets"), rr.offsets.data(), n + 1, 0);
+    write_array_file(out_ids, rr.ids.data(), rr.total(), 0);
+    write_array_file(out_dist2, rr.dist2.data(), rr.total(), 0);
+    for (std::size_t i = 0; i < n; ++i) counts[i] = static_cast<std::int32_t>(rr.count(i));
+    found = rr.total();
+  } else {
+    KnnResult r;
+    st = index.query(queries.data(), n, params, r, &shares);
+    write_array_file(out_ids, r.ids.data(), n, static_cast<std::size_t>(params.k));
+    write_array_file(out_dist2, r.dist2.data(), n, static_cast<std::size_t>(params.k));
+    counts = r.counts;
+    for (auto c : r.counts) found += static_cast<std::size_t>(c);
+  }
+  if (args.has("out-counts")) write_array_file(args.str("out-counts"), counts.data(), n, 0);
+  std::fprintf(stderr, "bhcl knn%s: %s on %zu devices: N=%zu n=%zu  query %.4f s (slowest part)  %s %zu\n",
+               radius_mode ? " --radius" : "", method.c_str(), devices.size(), N, n, st.query_s,
+               radius_mode ? "results" : "neighbours found", found);
+  for (const DeviceShare& d : shares)
+    std::fprintf(stderr, "  %s: %zu queries (weight %.3f), query %.4f s\n", d.device.c_str(), d.queries,
+                 d.weight, d.stats.query_s);
+  if (args.has("stats")) {
+    Json j = stats_header("knn", *rts.front());
+    j["method"] = method;
+    j["exact"] = index.exact();
+    j["N"] = N;
+    j["n"] = n;
+    if (radius_mode)
+      j["radius"] = {{"radius", radius}, {"max_results", rp.max_results}, {"budget", rp.budget}, {"results", found}};
+    else
+      j["k"] = params.k;
+    Json devs = Json::array();
+    for (const DeviceShare& d : shares)
+      devs.push_back({{"device", d.device}, {"queries", d.queries}, {"weight", d.weight},
+                      {"query_s", d.stats.query_s}, {"wall_s", d.stats.wall_s}, {"compile_s", d.stats.compile_s}});
+    j["devices"] = devs;
+    j["query_s"] = st.query_s;
+    j["wall_s"] = st.wall_s;
+    j["nonfinite_queries"] = st.nonfinite_queries;
+    write_json(args.str("stats"), j);
+  }
+  return 0;
+}
+
 int run_knn(const Args& args) {
   if (const int rc = run_knn_distributed(args); rc >= 0) return rc;  // kNN or radius
+  if (const std::string dev = args.str("device", ""); dev.find(',') != std::string::npos)
+    return run_knn_multi(args, split_device_list(dev));
   if (args.has("radius")) return run_radius(args);
   for (const char* o : {"out-offsets", "max-results", "budget"})
     if (args.has(o)) throw UsageError(std::string("--") + o + " applies only with --radius");

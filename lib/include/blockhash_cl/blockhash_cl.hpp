@@ -13,6 +13,7 @@
 #include "blockhash_cl/kdtree.hpp"
 #include "blockhash_cl/knn.hpp"
 #include "blockhash_cl/metrics.hpp"
+#include "blockhash_cl/multi_device.hpp"
 #include "blockhash_cl/quirks.hpp"
 #include "blockhash_cl/reference.hpp"
 #include "blockhash_cl/runtime.hpp"

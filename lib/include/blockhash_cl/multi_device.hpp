@@ -1,0 +1,75 @@
+// An index spanning several OpenCL devices in one process (e.g. the CPU through PoCL and a GPU,
+// or several GPUs): each device holds its own copy of the structure, a host-array batch is split
+// among them in proportion to their measured throughput, the parts run concurrently (one host
+// thread per device, each on its device's own queue), and the rows come back in the caller's
+// order. Results equal the single-device results bit for bit: every copy is built by the same
+// method from the same points with the same options, and the contract makes a row independent of
+// the batch it was answered in (knn.hpp).
+#pragma once
+
+#include <cstddef>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "blockhash_cl/factory.hpp"
+#include "blockhash_cl/knn.hpp"
+#include "blockhash_cl/runtime.hpp"
+
+namespace bhcl {
+
+// Per device, what one call did.
+struct DeviceShare {
+  std::string device;      // DeviceInfo::summary()
+  std::size_t queries = 0;  // queries this device answered
+  double weight = 0;        // the share of the batch it was given, in [0, 1]
+  QueryStats stats;         // its own call's stats (query_s: its kernels)
+};
+
+class MultiDeviceIndex {
+ public:
+  // Builds `method` over the points on every runtime (one copy each, built concurrently: block
+  // hashing builds its structure on the host once per device). Throws bhcl::Error for an empty
+  // list, a null runtime, or whatever a single build throws (naming the device).
+  MultiDeviceIndex(std::vector<std::shared_ptr<Runtime>> runtimes, const std::string& method,
+                   const float* points, std::size_t n_points, const MethodOptions& options = {});
+
+  // Host arrays, under the library's contract (knn.hpp). The batch is cut into one contiguous
+  // part per device, sized by the current weights (equal at first, then each device's queries
+  // per second measured on the previous calls: kernel time where the device reports it, else wall
+  // time). Parts run concurrently; out gets every row in the caller's order. The returned stats
+  // sum the parts (query_s: the slowest part, the batch's critical path); `shares` gets each
+  // device's part. A device that fails makes the call throw, naming it.
+  QueryStats query(const float* queries, std::size_t n, const SearchParams& params, KnnResult& out,
+                   std::vector<DeviceShare>* shares = nullptr) const;
+  // Radius search, split and merged the same way (RadiusResult's slices in the caller's order).
+  QueryStats radius_search(const float* queries, std::size_t n, float r, const RadiusParams& params,
+                           RadiusResult& out, std::vector<DeviceShare>* shares = nullptr) const;
+
+  std::size_t devices() const { return indexes_.size(); }
+  const Index& index(std::size_t device) const { return *indexes_.at(device); }
+  std::string method() const { return indexes_.front()->method(); }
+  bool exact() const { return indexes_.front()->exact(); }
+  std::size_t size() const { return indexes_.front()->size(); }
+  // The current split: one weight per device, summing to 1.
+  std::vector<double> weights() const;
+  // Fixes the split (e.g. from a known device ratio); the weights are normalised. Later calls
+  // keep adapting from there. Throws for a wrong count or a negative/zero-sum list.
+  void set_weights(const std::vector<double>& w);
+
+ private:
+  // Parts of n by the current weights: first[d] .. first[d + 1].
+  std::vector<std::size_t> split(std::size_t n) const;
+  void learn(const std::vector<std::size_t>& counts, const std::vector<double>& seconds) const;
+
+  std::vector<std::unique_ptr<Index>> indexes_;
+  mutable std::mutex weights_mutex_;
+  mutable std::vector<double> weights_;
+};
+
+// Parses a --device list ("pocl,nvidia", "0:0,1:0"): comma-separated specs, each as Runtime
+// takes it. Throws bhcl::Error for an empty entry.
+std::vector<std::string> split_device_list(const std::string& list);
+
+}  // namespace bhcl

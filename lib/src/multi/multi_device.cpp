@@ -1,0 +1,206 @@
+// MultiDeviceIndex: one index per device, batches split by measured throughput, parts run on
+// their own host threads, rows merged in the caller's order.
+#include "blockhash_cl/multi_device.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <exception>
+#include <numeric>
+#include <thread>
+
+#include "blockhash_cl/error.hpp"
+
+namespace bhcl {
+
+namespace {
+
+// Runs fn(d) for every device on its own thread; rethrows the first failure, naming the device.
+template <typename Fn>
+void on_each_device(std::size_t devices, const std::vector<std::string>& names, Fn&& fn) {
+  std::vector<std::exception_ptr> errors(devices);
+  std::vector<std::thread> pool;
+  for (std::size_t d = 0; d < devices; ++d)
+    pool.emplace_back([&, d] {
+      try {
+        fn(d);
+      } catch (...) {
+        errors[d] = std::current_exception();
+      }
+    });
+  for (auto& t : pool) t.join();
+  for (std::size_t d = 0; d < devices; ++d) {
+    if (!errors[d]) continue;
+    try {
+      std::rethrow_exception(errors[d]);
+    } catch (const std::exception& e) {
+      throw Error("device " + std::to_string(d) + " (" + names[d] + "): " + e.what());
+    }
+  }
+}
+
+}  // namespace
+
+std::vector<std::string> split_device_list(const std::string& list) {
+  std::vector<std::string> out;
+  std::size_t start = 0;
+  for (;;) {
+    const std::size_t comma = list.find(',', start);
+    std::string item = list.substr(start, comma == std::string::npos ? std::string::npos : comma - start);
+    if (item.empty()) throw Error("device list '" + list + "': an empty entry (specs are comma separated)");
+    out.push_back(item);
+    if (comma == std::string::npos) break;
+    start = comma + 1;
+  }
+  return out;
+}
+
+MultiDeviceIndex::MultiDeviceIndex(std::vector<std::shared_ptr<Runtime>> runtimes,
+                                   const std::string& method, const float* points,
+                                   std::size_t n_points, const MethodOptions& options) {
+  if (runtimes.empty()) throw Error("MultiDeviceIndex: no devices (an empty runtime list)");
+  std::vector<std::string> names;
+  for (std::size_t d = 0; d < runtimes.size(); ++d) {
+    if (!runtimes[d]) throw Error("MultiDeviceIndex: runtime " + std::to_string(d) + " is null");
+    names.push_back(runtimes[d]->info().summary());
+  }
+  if (!options.save_index.empty())
+    throw Error("MultiDeviceIndex: save_index does not apply (save a single-device index)");
+  indexes_.resize(runtimes.size());
+  on_each_device(runtimes.size(), names, [&](std::size_t d) {
+    indexes_[d] = make_index(method, runtimes[d], points, n_points, options);
+  });
+  weights_.assign(runtimes.size(), 1.0 / double(runtimes.size()));
+}
+
+std::vector<double> MultiDeviceIndex::weights() const {
+  std::lock_guard<std::mutex> lock(weights_mutex_);
+  return weights_;
+}
+
+void MultiDeviceIndex::set_weights(const std::vector<double>& w) {
+  if (w.size() != indexes_.size())
+    throw Error("set_weights: " + std::to_string(w.size()) + " weights for " + std::to_string(indexes_.size()) + " devices");
+  double sum = 0;
+  for (double x : w) {
+    if (!(x >= 0) || !std::isfinite(x)) throw Error("set_weights: weights must be finite and >= 0");
+    sum += x;
+  }
+  if (!(sum > 0)) throw Error("set_weights: the weights sum to 0");
+  std::lock_guard<std::mutex> lock(weights_mutex_);
+  for (std::size_t d = 0; d < w.size(); ++d) weights_[d] = w[d] / sum;
+}
+
+std::vector<std::size_t> MultiDeviceIndex::split(std::size_t n) const {
+  const std::vector<double> w = weights();
+  std::vector<std::size_t> first(w.size() + 1, 0);
+  double acc = 0;
+  for (std::size_t d = 0; d < w.size(); ++d) {
+    acc += w[d];
+    first[d + 1] = d + 1 == w.size() ? n : std::min(n, static_cast<std::size_t>(std::llround(acc * double(n))));
+    first[d + 1] = std::max(first[d + 1], first[d]);
+  }
+  return first;
+}
+
+void MultiDeviceIndex::learn(const std::vector<std::size_t>& counts, const std::vector<double>& seconds) const {
+  // Throughput of the devices measured on this call (parts too small to time are left out); the
+  // new weights mix half of the old ones with half of the measured shares, so that one noisy call
+  // does not swing the split.
+  std::vector<double> qps(counts.size(), 0);
+  double sum = 0;
+  for (std::size_t d = 0; d < counts.size(); ++d)
+    if (counts[d] >= 256 && seconds[d] > 0) sum += qps[d] = double(counts[d]) / seconds[d];
+  std::lock_guard<std::mutex> lock(weights_mutex_);
+  double known = 0;
+  for (std::size_t d = 0; d < counts.size(); ++d) known += qps[d] > 0 ? weights_[d] : 0;
+  if (sum <= 0 || known <= 0) return;
+  for (std::size_t d = 0; d < counts.size(); ++d)
+    if (qps[d] > 0) weights_[d] = 0.5 * weights_[d] + 0.5 * known * qps[d] / sum;
+}
+
+QueryStats MultiDeviceIndex::query(const float* queries, std::size_t n, const SearchParams& params,
+                                   KnnResult& out, std::vector<DeviceShare>* shares) const {
+  const std::size_t D = indexes_.size();
+  const std::vector<double> w = weights();
+  const std::vector<std::size_t> first = split(n);
+  std::vector<KnnResult> parts(D);
+  std::vector<QueryStats> st(D);
+  std::vector<std::string> names;
+  for (const auto& ix : indexes_) names.push_back(ix->runtime().info().summary());
+  on_each_device(D, names, [&](std::size_t d) {
+    st[d] = indexes_[d]->query(queries + 3 * first[d], first[d + 1] - first[d], params, parts[d]);
+  });
+  out.resize(n, params.k);
+  if (params.count_examined) out.examined.assign(n, 0);
+  const std::size_t k = static_cast<std::size_t>(params.k);
+  QueryStats total;
+  total.n_queries = n;
+  std::vector<std::size_t> counts(D);
+  std::vector<double> seconds(D);
+  for (std::size_t d = 0; d < D; ++d) {
+    const std::size_t m = first[d + 1] - first[d];
+    std::copy(parts[d].ids.begin(), parts[d].ids.end(), out.ids.begin() + first[d] * k);
+    std::copy(parts[d].dist2.begin(), parts[d].dist2.end(), out.dist2.begin() + first[d] * k);
+    std::copy(parts[d].counts.begin(), parts[d].counts.end(), out.counts.begin() + first[d]);
+    if (params.count_examined)
+      std::copy(parts[d].examined.begin(), parts[d].examined.end(), out.examined.begin() + first[d]);
+    total.nonfinite_queries += st[d].nonfinite_queries;
+    total.batches += st[d].batches;
+    total.compile_s += st[d].compile_s;
+    total.upload_s += st[d].upload_s;
+    total.download_s += st[d].download_s;
+    total.query_s = std::max(total.query_s, st[d].query_s);
+    total.wall_s = std::max(total.wall_s, st[d].wall_s);
+    counts[d] = m;
+    seconds[d] = st[d].query_s > 0 ? st[d].query_s : st[d].wall_s;
+    if (shares) shares->push_back({names[d], m, w[d], st[d]});
+  }
+  learn(counts, seconds);
+  return total;
+}
+
+QueryStats MultiDeviceIndex::radius_search(const float* queries, std::size_t n, float r,
+                                           const RadiusParams& params, RadiusResult& out,
+                                           std::vector<DeviceShare>* shares) const {
+  const std::size_t D = indexes_.size();
+  const std::vector<double> w = weights();
+  const std::vector<std::size_t> first = split(n);
+  std::vector<RadiusResult> parts(D);
+  std::vector<QueryStats> st(D);
+  std::vector<std::string> names;
+  for (const auto& ix : indexes_) names.push_back(ix->runtime().info().summary());
+  on_each_device(D, names, [&](std::size_t d) {
+    st[d] = indexes_[d]->radius_search(queries + 3 * first[d], first[d + 1] - first[d], r, params, parts[d]);
+  });
+  out = RadiusResult{};
+  out.n = n;
+  out.offsets.assign(1, 0);
+  QueryStats total;
+  total.n_queries = n;
+  std::vector<std::size_t> counts(D);
+  std::vector<double> seconds(D);
+  for (std::size_t d = 0; d < D; ++d) {
+    const RadiusResult& p = parts[d];
+    const std::int64_t base = out.offsets.back();
+    for (std::size_t i = 1; i < p.offsets.size(); ++i) out.offsets.push_back(base + p.offsets[i]);
+    out.ids.insert(out.ids.end(), p.ids.begin(), p.ids.end());
+    out.dist2.insert(out.dist2.end(), p.dist2.begin(), p.dist2.end());
+    out.found.insert(out.found.end(), p.found.begin(), p.found.end());
+    out.examined.insert(out.examined.end(), p.examined.begin(), p.examined.end());
+    out.truncated_queries += p.truncated_queries;
+    total.nonfinite_queries += st[d].nonfinite_queries;
+    total.batches += st[d].batches;
+    total.compile_s += st[d].compile_s;
+    total.upload_s += st[d].upload_s;
+    total.download_s += st[d].download_s;
+    total.query_s = std::max(total.query_s, st[d].query_s);
+    total.wall_s = std::max(total.wall_s, st[d].wall_s);
+    counts[d] = first[d + 1] - first[d];
+    seconds[d] = st[d].query_s > 0 ? st[d].query_s : st[d].wall_s;
+    if (shares) shares->push_back({names[d], counts[d], w[d], st[d]});
+  }
+  learn(counts, seconds);
+  return total;
+}
+
+}  // namespace bhcl
