@@ -175,6 +175,101 @@ TEST_CASE("render: energy is conserved in a white furnace where radiance is Le o
   CHECK(worst < 0.5);
 }
 
+// A box of 100 split at y = 50 by one glass interface (ior 1.5) spanning it: below, every wall
+// emits Le and reflects a little (rho, so photons are stored); above, black walls. The camera looks
+// straight down from above through the interface. A camera ray refracts into the glass with
+// probability 1 - R (Fresnel, about 0.04 near normal incidence) and sees the radiance below,
+// which crosses the interface scaled by (n_air / n_glass)^2; a reflected ray sees the black
+// ceiling. So the image is (1 - R) Le' / 1.5^2, Le' the radiance below (Le plus what the low
+// albedo adds: Le / (1 - rho) in that closed glass-bounded half, up to the light lost upwards).
+Scene single_interface_scene(float Le, float rho) {
+  Scene s;
+  s.name = "single interface";
+  Material glow;
+  glow.name = "glowing";
+  glow.kd = {rho, rho, rho};
+  glow.emission = {Le, Le, Le};
+  Material black;
+  black.name = "black";
+  black.kd = {0, 0, 0};
+  Material glass;
+  glass.name = "glass";
+  glass.type = MaterialType::Glass;
+  glass.ks = {1, 1, 1};
+  glass.ior = 1.5f;
+  const auto g = s.add_material(glow), b = s.add_material(black), gl = s.add_material(glass);
+  const float L = 100.0f, h = 50.0f;
+  const Vec3 centre_low{L / 2, h / 2, L / 2}, centre_high{L / 2, (h + L) / 2, L / 2};
+  auto quad = [&](Vec3 a, Vec3 bb, Vec3 c, Vec3 d, std::uint32_t m, Vec3 towards) {
+    if (dot(cross(bb - a, c - a), towards - a) < 0) std::swap(bb, d);
+    s.add_quad(a, bb, c, d, m);
+  };
+  // Floor and lower side walls emit, front towards the lower half; ceiling and upper walls black.
+  quad({0, 0, 0}, {L, 0, 0}, {L, 0, L}, {0, 0, L}, g, centre_low);
+  quad({0, L, 0}, {L, L, 0}, {L, L, L}, {0, L, L}, b, centre_high);
+  for (float y0 : {0.0f, h}) {
+    const float y1 = y0 + h;
+    const auto m = y0 == 0 ? g : b;
+    const Vec3 c = y0 == 0 ? centre_low : centre_high;
+    quad({0, y0, 0}, {L, y0, 0}, {L, y1, 0}, {0, y1, 0}, m, c);
+    quad({0, y0, L}, {L, y0, L}, {L, y1, L}, {0, y1, L}, m, c);
+    quad({0, y0, 0}, {0, y0, L}, {0, y1, L}, {0, y1, 0}, m, c);
+    quad({L, y0, 0}, {L, y0, L}, {L, y1, L}, {L, y1, 0}, m, c);
+  }
+  // The interface, its front (the outside of the glass) facing up.
+  quad({0, h, 0}, {L, h, 0}, {L, h, L}, {0, h, L}, gl, Vec3{L / 2, L, L / 2});
+  s.camera.position = {L / 2, 95, L / 2};
+  s.camera.direction = {0, -1, 0};
+  s.camera.up = {0, 0, 1};
+  s.camera.vfov_deg = 20;
+  return s;
+}
+
+TEST_CASE("render: radiance through a single refracting interface is scaled by (n_air / n_glass)^2") {
+  const float Le = 1.0f, rho = 0.05f;
+  Scene scene = single_interface_scene(Le, rho);
+  // Near-normal incidence: R = ((1.5 - 1) / (1.5 + 1))^2 = 0.04 (0.0402 at the image's corners).
+  const double R = 0.04;
+  SmallRender r = small_render(scene, "kdtree", 20000, 12, 16, 2, 5, 16, 8, 64);
+  double sum = 0;
+  for (std::size_t i = 0; i < r.image.pixels(); ++i) sum += luminance(r.image.at(i));
+  const double mean = sum / r.image.pixels();
+  // Below the interface the radiance is Le plus at most rho / (1 - rho) of it from reflections.
+  const double lo = (1 - R) * Le / 2.25, hi = (1 - R) * Le / (1 - rho) / 2.25;
+  MESSAGE("single interface: mean radiance " << mean << ", expected in [" << lo << ", " << hi
+                                             << "] (without the (n1/n2)^2 factor: " << (1 - R) * Le << ")");
+  CHECK(mean >= lo * 0.97);
+  CHECK(mean <= hi * 1.03);
+}
+
+TEST_CASE("render: a closed glass block in a white furnace changes nothing (the factors cancel)") {
+  const float Le = 1.0f, rho = 0.5f, expect = Le / (1.0f - rho);
+  Scene scene = furnace_scene(Le, rho);
+  Material glass;
+  glass.name = "glass";
+  glass.type = MaterialType::Glass;
+  glass.ks = {1, 1, 1};
+  glass.ior = 1.5f;
+  const auto gl = scene.add_material(glass);
+  // A closed cube of glass in the middle of the furnace, in view of the camera.
+  const float a = 40, b = 70;
+  Vec3 p[8];
+  for (int i = 0; i < 8; ++i) p[i] = {(i & 1) ? b : a, (i & 2) ? b : a, (i & 4) ? b : a};
+  const int faces[6][4] = {{0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4}, {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}};
+  const Vec3 centre{(a + b) / 2, (a + b) / 2, (a + b) / 2};
+  for (const auto& f : faces) {
+    Vec3 A = p[f[0]], B = p[f[1]], C = p[f[2]], D = p[f[3]];
+    if (dot(cross(B - A, C - A), centre - A) > 0) std::swap(B, D);  // front: outside
+    scene.add_quad(A, B, C, D, gl);
+  }
+  SmallRender r = small_render(scene, "kdtree", 20000, 16, 24, 2, 11, 32, 48, 2);
+  double sum = 0;
+  for (std::size_t i = 0; i < r.image.pixels(); ++i) sum += luminance(r.image.at(i));
+  const double mean = sum / r.image.pixels();
+  MESSAGE("furnace with a glass block: mean radiance " << mean << " (expected " << expect << ")");
+  CHECK(mean == doctest::Approx(expect).epsilon(0.04));
+}
+
 TEST_CASE("render: the OpenEXR image round-trips and the PNG preview is written") {
   Image img(37, 23);
   Rng rng(1, 2, 3);

@@ -69,7 +69,8 @@ void trace_one(const EmbreeScene& es, const LightSampler& lights, const PhotonTr
       float p = std::fmin(1.0f, max_component(m.ks));
       if (!(p > 0) || rng.uniform() >= p) return;
       power = power * m.ks / p;
-      glass_scatter(dir, org, x, n, front, m.ior, rng.uniform(), eps);
+      // Flux: no (n_from / n_to)^2 factor (glass_scatter's radiance factor is not applied).
+      (void)glass_scatter(dir, org, x, n, front, m.ior, rng.uniform(), eps);
       had_specular = true;
     } else {
       return;  // black diffuse (e.g. a light without reflectance): absorbed
