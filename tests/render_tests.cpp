@@ -270,6 +270,23 @@ TEST_CASE("render: a closed glass block in a white furnace changes nothing (the 
   CHECK(mean == doctest::Approx(expect).epsilon(0.04));
 }
 
+TEST_CASE("render: automatic exposure is not set by a few bright emitter pixels") {
+  Image im;
+  im.width = 100;
+  im.height = 100;
+  im.rgb.assign(3 * 100 * 100, 0.0f);
+  for (std::size_t i = 0; i < im.pixels(); ++i) {
+    const float v = 0.2f + 0.8f * float(i % 100) / 99.0f;  // walls: 0.2 .. 1.0
+    const float l = i < 300 ? 40.0f : v;                    // 3 % of the pixels see the light
+    im.rgb[3 * i] = im.rgb[3 * i + 1] = im.rgb[3 * i + 2] = l;
+  }
+  const float e = auto_exposure(im);
+  CHECK(e == doctest::Approx(1.0f).epsilon(0.02));  // the walls' 99th percentile, not the light
+  Image black = im;
+  std::fill(black.rgb.begin(), black.rgb.end(), 0.0f);
+  CHECK(auto_exposure(black) == 1.0f);
+}
+
 TEST_CASE("render: the OpenEXR image round-trips and the PNG preview is written") {
   Image img(37, 23);
   Rng rng(1, 2, 3);
