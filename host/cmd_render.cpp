@@ -192,6 +192,8 @@ void declare_render(Args& a) {
   a.add_number("caustic-radius", "caustic gather radius (0: automatic)", "0");
   a.add_integer("batch", "gather queries per kNN call", 1, Args::kNoLimit, "262144");
   a.add_number("exposure", "tone-mapping exposure (0: automatic)", "0");
+  a.add_integer("photon-seed", "seed of the photons (-1: --seed); --seed then drives the camera, "
+                               "shadow and gather rays only", -1, Args::kNoLimit, "-1");
   a.add_flag("quiet", "no progress bars");
   a.group("Comparison");
   a.add_flag("compare", "render with an exact method and with block hashing at several A, side by side");
@@ -199,13 +201,16 @@ void declare_render(Args& a) {
   a.add_text("approx", "--compare: the approximate method", "blockhash", "NAME");
   a.add_text("compare-A", "--compare: the values of A, comma separated", "4,8,16", "LIST");
   a.add_number("diff-scale", "--compare: relative error shown as full scale in the difference images", "0.1");
+  a.add_flag("noise-floor", "--compare: also render the exact method with another photon seed and "
+                            "with another ray seed, and print their error: the Monte Carlo noise "
+                            "block hashing's error is to be read against");
   declare_index_options(a, 50, true);
 }
 
 int run_render(const Args& args) {
   {
     const bool cmp = args.flag("compare");
-    for (const char* o : {"exact", "approx", "compare-A", "diff-scale"})
+    for (const char* o : {"exact", "approx", "compare-A", "diff-scale", "noise-floor"})
       if (!cmp && args.has(o)) throw UsageError("--" + std::string(o) + " applies only with --compare");
     if (cmp && args.has("method")) throw UsageError("--method does not apply with --compare (see --exact, --approx)");
     const std::string dflt = has_method("kdtree") ? "kdtree" : "bruteforce";
@@ -264,7 +269,8 @@ int run_render(const Args& args) {
   // Photons.
   PhotonTraceOptions popt;
   popt.photons = static_cast<std::size_t>(photons);
-  popt.seed = mopt.seed;
+  const long long photon_seed = args.integer("photon-seed", -1);
+  popt.seed = photon_seed >= 0 ? static_cast<std::uint64_t>(photon_seed) : mopt.seed;
   popt.threads = mopt.threads;
   PhotonMaps maps;
   {
@@ -307,6 +313,7 @@ int run_render(const Args& args) {
       j["gather_escaped"] = r.stats.gather_escaped;
       j["visible_points"] = r.stats.visible_points;
       j["photon_s"] = photon_s;
+      j["photon_seed"] = popt.seed;
       j["total_s"] = total;
       write_json(args.str("stats"), j);
     }
@@ -319,10 +326,35 @@ int run_render(const Args& args) {
   const std::vector<float> As = parse_list(args.str("compare-A", "4,8,16"));
   std::vector<RenderRun> runs;
   runs.push_back(render_with(exact, exact, ropt.search.A, maps, rt, mopt, es, lights, ropt, quiet));
+  std::string stopped;
   for (float A : As) {
     char label[64];
     std::snprintf(label, sizeof label, "%s A=%g", approx.c_str(), A);
     runs.push_back(render_with(label, approx, A, maps, rt, mopt, es, lights, ropt, quiet));
+    // A larger A examines more points; once the image no longer changes (bit for bit), the rest
+    // of the list would render the same picture again.
+    if (runs.size() >= 3 && runs.back().image.rgb == runs[runs.size() - 2].image.rgb && A != As.back()) {
+      char b[160];
+      std::snprintf(b, sizeof b, "A = %g gave the image of A = %g bit for bit: larger A not rendered", A,
+                    runs[runs.size() - 2].A);
+      stopped = b;
+      break;
+    }
+  }
+  // The noise floor: the exact render again with another photon seed (a new photon map), and with
+  // another ray seed (the same map). Their difference from the exact render is the Monte Carlo
+  // noise of the render itself, the scale against which block hashing's error is small or not.
+  std::vector<std::pair<std::string, ImageDiff>> noise;
+  if (args.flag("noise-floor")) {
+    PhotonTraceOptions p2 = popt;
+    p2.seed = popt.seed + 1;
+    PhotonMaps maps2 = build_photon_maps(es, lights, p2);
+    RenderRun a = render_with(exact + " photon seed+1", exact, ropt.search.A, maps2, rt, mopt, es, lights, ropt, quiet);
+    RenderOptions r2 = ropt;
+    r2.seed = ropt.seed + 1;
+    RenderRun b = render_with(exact + " ray seed+1", exact, ropt.search.A, maps, rt, mopt, es, lights, r2, quiet);
+    noise.emplace_back(a.label, image_diff(a.image, runs[0].image));
+    noise.emplace_back(b.label, image_diff(b.image, runs[0].image));
   }
   const Image& ref = runs[0].image;
   const float exposure = exposure_opt > 0 ? static_cast<float>(exposure_opt) : auto_exposure(ref);
@@ -365,6 +397,10 @@ int run_render(const Args& args) {
     std::fprintf(stderr, "  %-18s %12.5g %12.5g %14.5g %12.3f %12.3f %10.3f\n", runs[i].label.c_str(),
                  diffs[i].rmse, diffs[i].relative_rmse, diffs[i].mean_rel_error, runs[i].stats.query_s,
                  runs[i].stats.query_kernel_s, runs[i].build_s);
+  for (const auto& [label, d] : noise)
+    std::fprintf(stderr, "  %-18s %12.5g %12.5g %14.5g   (noise floor: the exact render's own Monte Carlo noise)\n",
+                 label.c_str(), d.rmse, d.relative_rmse, d.mean_rel_error);
+  if (!stopped.empty()) std::fprintf(stderr, "  %s\n", stopped.c_str());
   std::fprintf(stderr,
                "  sheet %s: top row the renders (%s first, then A = %s), bottom row the colour scale and the "
                "false-colour |relative luminance error| of each against the exact render (0 to %.0f%%)\n",
@@ -379,6 +415,14 @@ int run_render(const Args& args) {
     j["total_s"] = since(t_start);
     j["runs"] = Json::array();
     for (std::size_t i = 0; i < runs.size(); ++i) j["runs"].push_back(run_json(runs[i], &diffs[i]));
+    if (!stopped.empty()) j["stopped"] = stopped;
+    j["photon_seed"] = popt.seed;
+    if (!noise.empty()) {
+      j["noise_floor"] = Json::array();
+      for (const auto& [label, d] : noise)
+        j["noise_floor"].push_back({{"label", label}, {"rmse", d.rmse}, {"relative_rmse", d.relative_rmse},
+                                    {"mean_rel_error", d.mean_rel_error}});
+    }
     write_json(args.str("stats"), j);
   }
   return 0;
