@@ -115,6 +115,19 @@ RenderRun render_with(const std::string& label, const std::string& method, float
   return run;
 }
 
+// What the render did not do, because the scene did not need it (item by item).
+void print_skipped(const RenderRun& r, const PhotonMaps& maps) {
+  const RenderStats& s = r.stats;
+  const std::size_t samples = s.camera_rays;
+  std::fprintf(stderr,
+               "bhcl render: skipped [%s]: %zu of %zu camera samples saw no diffuse surface (the light, or "
+               "nothing: no gather); %zu of %zu gather rays escaped and %zu ended on an emitter or a black "
+               "surface (no query); caustic lookups: %s\n",
+               r.label.c_str(), samples > s.visible_points ? samples - s.visible_points : 0, samples,
+               s.gather_escaped, s.gather_rays, s.gather_no_query,
+               maps.caustic ? "made" : "none (no specular surface, or no caustic photon stored)");
+}
+
 void print_split(const char* title, const RenderRun& r, double photon_s) {
   const RenderStats& s = r.stats;
   std::fprintf(stderr,
@@ -303,6 +316,7 @@ int run_render(const Args& args) {
     write_png(png, tonemap(r.image, exposure));
     const double total = since(t_start);
     print_split("bhcl render: time split", r, photon_s);
+    print_skipped(r, maps);
     std::fprintf(stderr, "bhcl render: wrote %s and %s (exposure %.4g); total %.2f s on %s\n", out.c_str(),
                  png.c_str(), exposure, total, device.c_str());
     if (args.has("stats")) {
@@ -311,6 +325,9 @@ int run_render(const Args& args) {
       j["exposure"] = exposure;
       j["gather_rays"] = r.stats.gather_rays;
       j["gather_escaped"] = r.stats.gather_escaped;
+      j["gather_no_query"] = r.stats.gather_no_query;
+      j["camera_samples"] = r.stats.camera_rays;
+      j["caustic_map"] = maps.caustic != nullptr;
       j["visible_points"] = r.stats.visible_points;
       j["photon_s"] = photon_s;
       j["photon_seed"] = popt.seed;
