@@ -338,4 +338,147 @@ TEST_CASE("render: bhcl render writes the EXR and the PNG and the stats") {
   CHECK(out.find("/no/such.obj: cannot open a scene file") != std::string::npos);
 }
 
+// ---- Radiance through refracting surfaces -------------------------------------------------------
+// Radiance divided by n^2 is what is conserved along a ray (and, without absorption, across a
+// smooth interface up to the Fresnel factor), so a surface inside glass seen from the air looks
+// (1 / ior)^2 as bright as it is inside. A closed glass object cancels the two crossings; these
+// scenes have a single interface, where a missing factor shows as a 2.25x error.
+namespace {
+
+Image glass_render(const Scene& scene, std::size_t photons, int size, int gather, int shadow_rays,
+                   int spp, int k, float caustic_radius, std::uint64_t seed = 5) {
+  EmbreeScene es(scene, 2);
+  LightSampler lights(scene);
+  PhotonTraceOptions po;
+  po.photons = photons;
+  po.seed = seed;
+  po.threads = 2;
+  PhotonMaps maps = build_photon_maps(es, lights, po);
+  maps.global->build_index("bruteforce", test::runtime());
+  if (maps.caustic) maps.caustic->build_index("bruteforce", test::runtime());
+  RenderOptions ro;
+  ro.width = ro.height = size;
+  ro.gather = gather;
+  ro.shadow_rays = shadow_rays;
+  ro.spp = spp;
+  ro.search.k = k;
+  ro.caustic_k = k;
+  ro.caustic_radius = caustic_radius;
+  ro.seed = seed;
+  ro.threads = 2;
+  RenderStats stats;
+  FinalGatherRenderer r(es, lights, *maps.global, maps.caustic.get(), ro);
+  return r.render(stats);
+}
+
+double mean_luminance(const Image& img) {
+  double sum = 0;
+  for (std::size_t i = 0; i < img.pixels(); ++i) sum += luminance(img.at(i));
+  return sum / img.pixels();
+}
+
+}  // namespace
+
+TEST_CASE("render: an emitter inside glass seen through one interface has radiance T Le / ior^2") {
+  // A black emitter 10 mm under the flat top of a glass slab (no other face), seen from above
+  // at near-normal incidence (10 degree field of view): a refracted camera ray carries
+  // (1 - F) Le / ior^2; a Fresnel-reflected one goes up and escapes (the only diffuse panel, there
+  // so that photons have somewhere to land, is off to the side, out of the reflected cone).
+  const float Le = 1.0f, ior = 1.5f;
+  Scene s;
+  s.name = "slab";
+  Material glass;
+  glass.name = "glass";
+  glass.type = MaterialType::Glass;
+  glass.ks = {1, 1, 1};
+  glass.ior = ior;
+  Material light;
+  light.name = "light";
+  light.kd = {0, 0, 0};
+  light.emission = {Le, Le, Le};
+  Material white;
+  white.name = "white";
+  white.kd = {0.5f, 0.5f, 0.5f};
+  auto g = s.add_material(glass), l = s.add_material(light), w = s.add_material(white);
+  // Counter-clockwise seen from +y: front faces up (the glass's outside is the air above).
+  s.add_quad({-50, 0, -50}, {-50, 0, 50}, {50, 0, 50}, {50, 0, -50}, g);
+  s.add_quad({-50, -10, -50}, {-50, -10, 50}, {50, -10, 50}, {50, -10, -50}, l);
+  s.add_quad({30, 100, -50}, {80, 100, -50}, {80, 100, 50}, {30, 100, 50}, w);  // faces down
+  s.camera.position = {0, 20, 0};
+  s.camera.direction = {0, -1, 0};
+  s.camera.up = {0, 0, 1};
+  s.camera.vfov_deg = 10;
+  Image img = glass_render(s, 2000, 16, 0, 1, 8, 8, 5.0f);
+  const double T = 1.0 - fresnel_dielectric(1.0f, 1.0f / ior);  // 0.96 at normal incidence
+  const double expect = T * Le / (ior * ior);
+  const double mean = mean_luminance(img);
+  MESSAGE("emitter under one interface: mean radiance " << mean << ", expected " << expect);
+  // 2048 camera samples, each T-likely to carry Le / ior^2: about 0.5 % noise on the mean.
+  CHECK(mean == doctest::Approx(expect).epsilon(0.03));
+}
+
+TEST_CASE("render: a white furnace half filled with glass keeps radiance / n^2 uniform") {
+  // A closed cube whose faces reflect diffusely (albedo rho) and emit; a horizontal glass
+  // interface at half height fills the lower half with glass (ior n). Walls in the glass emit
+  // n^2 Le, walls in the air Le: the equilibrium is radiance Le / (1 - rho) everywhere in the air
+  // and n^2 Le / (1 - rho) everywhere in the glass (radiance / n^2 uniform, as in thermal
+  // equilibrium). The camera, in the air, looks down through the interface at the glass half:
+  // every pixel should read Le / (1 - rho). Without the n^2 factors the glass half comes out
+  // brighter by up to n^2.
+  const float Le = 1.0f, rho = 0.5f, n = 1.5f, expect = Le / (1.0f - rho), L = 100.0f, H = 50.0f;
+  Scene s;
+  s.name = "glass furnace";
+  Material air_wall, glass_wall, glass;
+  air_wall.name = "air wall";
+  air_wall.kd = {rho, rho, rho};
+  air_wall.emission = {Le, Le, Le};
+  glass_wall = air_wall;
+  glass_wall.name = "glass wall";
+  glass_wall.emission = air_wall.emission * (n * n);
+  glass.name = "glass";
+  glass.type = MaterialType::Glass;
+  glass.ks = {1, 1, 1};
+  glass.ior = n;
+  auto ma = s.add_material(air_wall), mg = s.add_material(glass_wall), mi = s.add_material(glass);
+  const Vec3 centre{L / 2, L / 2, L / 2};
+  // A quad facing the cube's centre (the emitting side is the front).
+  auto inward = [&](Vec3 a, Vec3 b, Vec3 c, Vec3 d, std::uint32_t m) {
+    Vec3 mid = (a + b + c + d) * 0.25f;
+    Vec3 to_centre{0, 0, 0};
+    // Side walls: towards the vertical axis; floor and ceiling: towards the centre.
+    to_centre = (std::fabs(mid.y) < 1e-3f || std::fabs(mid.y - L) < 1e-3f) ? centre - mid
+                                                                             : Vec3{L / 2 - mid.x, 0, L / 2 - mid.z};
+    if (dot(cross(b - a, c - a), to_centre) < 0) std::swap(b, d);
+    s.add_quad(a, b, c, d, m);
+  };
+  inward({0, 0, 0}, {L, 0, 0}, {L, 0, L}, {0, 0, L}, mg);  // floor, in the glass
+  inward({0, L, 0}, {L, L, 0}, {L, L, L}, {0, L, L}, ma);  // ceiling, in the air
+  for (int half = 0; half < 2; ++half) {
+    const float y0 = half ? H : 0, y1 = half ? L : H;
+    const auto m = half ? ma : mg;
+    inward({0, y0, 0}, {L, y0, 0}, {L, y1, 0}, {0, y1, 0}, m);
+    inward({0, y0, L}, {L, y0, L}, {L, y1, L}, {0, y1, L}, m);
+    inward({0, y0, 0}, {0, y0, L}, {0, y1, L}, {0, y1, 0}, m);
+    inward({L, y0, 0}, {L, y0, L}, {L, y1, L}, {L, y1, 0}, m);
+  }
+  // The interface: front (the glass's outside) up, towards the air.
+  s.add_quad({0, H, 0}, {0, H, L}, {L, H, L}, {L, H, 0}, mi);
+  s.camera.position = {L / 2, 95, L / 2};
+  s.camera.direction = {0, -1, 0};
+  s.camera.up = {0, 0, 1};
+  s.camera.vfov_deg = 90;
+  Image img = glass_render(s, 20000, 16, 24, 48, 2, 32, 12.0f, 11);
+  const double mean = mean_luminance(img);
+  // The centre quarter of the image sees only the glass half's floor, through the interface.
+  double centre_sum = 0;
+  int centre_n = 0;
+  for (int y = 4; y < 12; ++y)
+    for (int x = 4; x < 12; ++x, ++centre_n) centre_sum += luminance(img.at(static_cast<std::size_t>(y) * 16 + x));
+  const double centre_mean = centre_sum / centre_n;
+  MESSAGE("glass furnace: mean radiance " << mean << ", floor through the interface " << centre_mean
+                                          << " (expected " << expect << " everywhere)");
+  CHECK(mean == doctest::Approx(expect).epsilon(0.05));
+  CHECK(centre_mean == doctest::Approx(expect).epsilon(0.06));
+}
+
 #endif  // BHCL_HAVE_RENDER
