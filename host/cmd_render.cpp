@@ -167,6 +167,8 @@ Json render_header(const Runtime& rt, const Args& args, const std::string& scene
   j["caustic_radius"] = ropt.caustic_radius;
   j["batch"] = ropt.batch_queries;
   j["seed"] = ropt.seed;
+  const long long photon_seed = args.integer("photon-seed", -1);
+  j["photon_seed"] = photon_seed >= 0 ? photon_seed : static_cast<long long>(ropt.seed);
   j["threads"] = ropt.threads;
   j["photons_requested"] = photons_requested;
   j["photons"] = maps.global->size();
@@ -192,6 +194,8 @@ void declare_render(Args& a) {
   a.add_number("caustic-radius", "caustic gather radius (0: automatic)", "0");
   a.add_integer("batch", "gather queries per kNN call", 1, Args::kNoLimit, "262144");
   a.add_number("exposure", "tone-mapping exposure (0: automatic)", "0");
+  a.add_integer("photon-seed", "seed of the photons (-1: --seed); --seed then seeds the camera, shadow and gather rays",
+                -1, Args::kNoLimit, "-1");
   a.add_flag("quiet", "no progress bars");
   a.group("Comparison");
   a.add_flag("compare", "render with an exact method and with block hashing at several A, side by side");
@@ -199,13 +203,15 @@ void declare_render(Args& a) {
   a.add_text("approx", "--compare: the approximate method", "blockhash", "NAME");
   a.add_text("compare-A", "--compare: the values of A, comma separated", "4,8,16", "LIST");
   a.add_number("diff-scale", "--compare: relative error shown as full scale in the difference images", "0.1");
+  a.add_flag("noise-floor", "--compare: also render the exact method with another photon seed and with another "
+                            "render seed, and print their differences (the render's own Monte Carlo noise)");
   declare_index_options(a, 50, true);
 }
 
 int run_render(const Args& args) {
   {
     const bool cmp = args.flag("compare");
-    for (const char* o : {"exact", "approx", "compare-A", "diff-scale"})
+    for (const char* o : {"exact", "approx", "compare-A", "diff-scale", "noise-floor"})
       if (!cmp && args.has(o)) throw UsageError("--" + std::string(o) + " applies only with --compare");
     if (cmp && args.has("method")) throw UsageError("--method does not apply with --compare (see --exact, --approx)");
     const std::string dflt = has_method("kdtree") ? "kdtree" : "bruteforce";
@@ -264,7 +270,8 @@ int run_render(const Args& args) {
   // Photons.
   PhotonTraceOptions popt;
   popt.photons = static_cast<std::size_t>(photons);
-  popt.seed = mopt.seed;
+  const long long photon_seed = args.integer("photon-seed", -1);
+  popt.seed = photon_seed >= 0 ? static_cast<std::uint64_t>(photon_seed) : mopt.seed;
   popt.threads = mopt.threads;
   PhotonMaps maps;
   {
@@ -323,6 +330,28 @@ int run_render(const Args& args) {
     char label[64];
     std::snprintf(label, sizeof label, "%s A=%g", approx.c_str(), A);
     runs.push_back(render_with(label, approx, A, maps, rt, mopt, es, lights, ropt, quiet));
+    // A larger A examines more candidates; once the image is bit-identical to the previous A's,
+    // the neighbour lists that matter have stopped changing and larger A would only cost time.
+    if (runs.size() > 2 && runs.back().image.rgb == runs[runs.size() - 2].image.rgb) {
+      std::fprintf(stderr, "bhcl render --compare: %s gives an image bit-identical to %s: larger A skipped\n",
+                   runs.back().label.c_str(), runs[runs.size() - 2].label.c_str());
+      break;
+    }
+  }
+  // The noise floor: the exact render's own Monte Carlo error, as the difference between two
+  // exact renders that differ only in the photon seed (a new photon map) or only in the render
+  // seed (new camera, shadow and gather rays). Block hashing's error matters only against these.
+  std::vector<std::pair<std::string, ImageDiff>> noise;
+  if (args.flag("noise-floor")) {
+    PhotonTraceOptions popt2 = popt;
+    popt2.seed = popt.seed + 1000003;
+    PhotonMaps maps2 = build_photon_maps(es, lights, popt2);
+    RenderRun p2 = render_with(exact + " photon seed+", exact, ropt.search.A, maps2, rt, mopt, es, lights, ropt, quiet);
+    noise.emplace_back("exact, photon seed " + std::to_string(popt2.seed), image_diff(p2.image, runs[0].image));
+    RenderOptions ropt2 = ropt;
+    ropt2.seed = ropt.seed + 1000003;
+    RenderRun r2 = render_with(exact + " render seed+", exact, ropt.search.A, maps, rt, mopt, es, lights, ropt2, quiet);
+    noise.emplace_back("exact, render seed " + std::to_string(ropt2.seed), image_diff(r2.image, runs[0].image));
   }
   const Image& ref = runs[0].image;
   const float exposure = exposure_opt > 0 ? static_cast<float>(exposure_opt) : auto_exposure(ref);
@@ -355,6 +384,12 @@ int run_render(const Args& args) {
   const std::string sheet = base + "_compare.png";
   write_png(sheet, contact_sheet({top, bottom}, 8));
 
+  std::string rendered_As;  // those rendered: larger ones are skipped once the image stops changing
+  for (std::size_t i = 1; i < runs.size(); ++i) {
+    char b[32];
+    std::snprintf(b, sizeof b, "%s%g", i > 1 ? "," : "", runs[i].A);
+    rendered_As += b;
+  }
   print_split("bhcl render: time split", runs[0], photon_s);
   std::fprintf(stderr, "\nbhcl render --compare: scene '%s', %dx%d, %zu photons, k=%d, M=%d, device %s\n",
                scene.name.c_str(), ropt.width, ropt.height, maps.global->size(), ropt.search.k, ropt.gather,
@@ -365,10 +400,13 @@ int run_render(const Args& args) {
     std::fprintf(stderr, "  %-18s %12.5g %12.5g %14.5g %12.3f %12.3f %10.3f\n", runs[i].label.c_str(),
                  diffs[i].rmse, diffs[i].relative_rmse, diffs[i].mean_rel_error, runs[i].stats.query_s,
                  runs[i].stats.query_kernel_s, runs[i].build_s);
+  for (const auto& [name, d] : noise)
+    std::fprintf(stderr, "  %-18s %12.5g %12.5g %14.5g   (noise floor: %s)\n", "exact, other seed", d.rmse,
+                 d.relative_rmse, d.mean_rel_error, name.c_str());
   std::fprintf(stderr,
                "  sheet %s: top row the renders (%s first, then A = %s), bottom row the colour scale and the "
                "false-colour |relative luminance error| of each against the exact render (0 to %.0f%%)\n",
-               sheet.c_str(), exact.c_str(), args.str("compare-A", "4,8,16").c_str(), 100.0 * max_rel);
+               sheet.c_str(), exact.c_str(), rendered_As.c_str(), 100.0 * max_rel);
   if (args.has("stats")) {
     Json j = render_header(*rt, args, scene.name, ropt, maps, popt.photons);
     j["exact"] = exact;
@@ -378,6 +416,10 @@ int run_render(const Args& args) {
     j["photon_s"] = photon_s;
     j["total_s"] = since(t_start);
     j["runs"] = Json::array();
+    j["noise_floor"] = Json::array();
+    for (const auto& [name, d] : noise)
+      j["noise_floor"].push_back({{"what", name}, {"rmse", d.rmse}, {"relative_rmse", d.relative_rmse},
+                                  {"mean_rel_error", d.mean_rel_error}});
     for (std::size_t i = 0; i < runs.size(); ++i) j["runs"].push_back(run_json(runs[i], &diffs[i]));
     write_json(args.str("stats"), j);
   }

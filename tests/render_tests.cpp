@@ -338,6 +338,41 @@ TEST_CASE("render: bhcl render writes the EXR and the PNG and the stats") {
   CHECK(out.find("/no/such.obj: cannot open a scene file") != std::string::npos);
 }
 
+TEST_CASE("render: --compare stops at an A whose image repeats, and --noise-floor and --photon-seed work") {
+  const std::string base = test::tmp_path("cli_cmp"), exr = base + ".exr", json = base + ".json";
+  std::string out;
+  // A = 64 and 128 examine far more than all 2000 photons' worth of candidates at k = 8: their
+  // images are bit-identical, so 256 must be skipped.
+  const std::string common = "render --scene cornell --photons 2000 --gather 4 --k 8 --size 16x16 --quiet ";
+  int rc = test::run_bhcl(common + "--compare --exact bruteforce --compare-A 64,128,256 --noise-floor --out " + exr +
+                              " --stats " + json, &out);
+  INFO(out);
+  REQUIRE(rc == 0);
+  std::ifstream s(json);
+  const nlohmann::json j = nlohmann::json::parse(s);
+  REQUIRE(j.at("runs").size() >= 3);
+  if (j.at("runs").size() == 3) {  // skipped 256: 64 and 128 must then be identical
+    CHECK(out.find("larger A skipped") != std::string::npos);
+    CHECK(read_exr(base + "_A64.exr").rgb == read_exr(base + "_A128.exr").rgb);
+  } else {
+    CHECK(read_exr(base + "_A64.exr").rgb != read_exr(base + "_A128.exr").rgb);
+  }
+  REQUIRE(j.at("noise_floor").size() == 2);
+  for (const auto& n : j.at("noise_floor")) CHECK(n.at("rmse").get<double>() > 0);  // other seeds differ
+  CHECK(out.find("noise floor: exact, photon seed") != std::string::npos);
+  // --photon-seed changes the photons only; the same pair of seeds gives the same image.
+  auto render = [&](const std::string& seeds, const std::string& name) {
+    std::string o;
+    REQUIRE(test::run_bhcl(common + "--method bruteforce " + seeds + " --out " + test::tmp_path(name), &o) == 0);
+    return read_exr(test::tmp_path(name)).rgb;
+  };
+  auto a = render("--seed 3 --photon-seed 4", "seeds_a.exr");
+  CHECK(a == render("--seed 3 --photon-seed 4", "seeds_b.exr"));
+  CHECK(a != render("--seed 3 --photon-seed 5", "seeds_c.exr"));
+  CHECK(a != render("--seed 2 --photon-seed 4", "seeds_d.exr"));
+  CHECK(test::run_bhcl(common + "--noise-floor --out " + exr, &out) == 2);  // only with --compare
+}
+
 // ---- Radiance through refracting surfaces -------------------------------------------------------
 // Radiance divided by n^2 is what is conserved along a ray (and, without absorption, across a
 // smooth interface up to the Fresnel factor), so a surface inside glass seen from the air looks
