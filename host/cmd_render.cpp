@@ -357,9 +357,20 @@ int run_render(const Args& args) {
   const float exposure = exposure_opt > 0 ? static_cast<float>(exposure_opt) : auto_exposure(ref);
   const float max_rel = static_cast<float>(args.number("diff-scale", 0.1));
   if (!(max_rel > 0)) throw UsageError("--diff-scale must be > 0");
-  std::vector<Rgb8> top, bottom;
+  std::vector<Panel> top, fixed_row, auto_row;
   std::vector<ImageDiff> diffs;
   std::vector<std::string> files;
+  std::vector<const Image*> approx_images;
+  for (std::size_t i = 1; i < runs.size(); ++i) approx_images.push_back(&runs[i].image);
+  // The automatic scale: the 99th percentile of every approximate image's per-pixel error, so
+  // that errors far below the fixed scale still show (0 when all are exact: then the fixed one).
+  float auto_rel = relative_error_percentile(approx_images, ref, 0.99f);
+  const bool auto_ok = auto_rel > 0;
+  if (!auto_ok) auto_rel = max_rel;
+  const int tile_w = ref.width;
+  TextPainter text(std::clamp(tile_w / 22, 9, 16));
+  if (!text.ok()) std::fprintf(stderr, "bhcl render: the comparison sheet is unlabelled: %s\n", text.why().c_str());
+  char buf[128];
   for (std::size_t i = 0; i < runs.size(); ++i) {
     const std::string tag = i == 0 ? "exact" : "A" + [&] {
       char b[32];
@@ -371,18 +382,31 @@ int run_render(const Args& args) {
     Rgb8 tm = tonemap(runs[i].image, exposure);
     write_png(strip_ext(exr) + ".png", tm);
     files.push_back(exr);
-    top.push_back(tm);
     diffs.push_back(image_diff(runs[i].image, ref));
+    Panel p{tm, {}};
+    p.lines.push_back(i == 0 ? runs[i].label + " (exact)" : runs[i].label);
+    std::snprintf(buf, sizeof buf, "query %.3f s", runs[i].stats.query_s);
+    p.lines.push_back(buf);
+    std::snprintf(buf, sizeof buf, "RMSE %.3g (%.3g%%)", diffs[i].rmse, 100.0 * diffs[i].relative_rmse);
+    p.lines.push_back(i == 0 ? "the reference" : buf);
+    top.push_back(std::move(p));
     if (i > 0) {
       Rgb8 fc = false_colour_difference(runs[i].image, ref, max_rel);
       write_png(base + "_diff_" + tag + ".png", fc);
-      bottom.push_back(fc);
+      std::snprintf(buf, sizeof buf, "fixed scale 0-%.3g%%", 100.0 * max_rel);
+      fixed_row.push_back({fc, {"|rel. error| " + tag, buf}});
+      std::snprintf(buf, sizeof buf, "auto scale 0-%.3g%% (p99)", 100.0 * auto_rel);
+      auto_row.push_back({false_colour_difference(runs[i].image, ref, auto_rel), {"|rel. error| " + tag, buf}});
     }
   }
-  // Bottom-left cell: the colour scale of the difference images (0 at the bottom, max_rel at top).
-  bottom.insert(bottom.begin(), colour_scale(std::max(8, ref.width / 8), ref.height));
+  // First column of the difference rows: the colour scale with its numbers.
+  const int scale_w = tile_w;  // the sheet's columns are as wide as a render anyway
+  fixed_row.insert(fixed_row.begin(), Panel{labelled_colour_scale(scale_w, ref.height, max_rel, text),
+                                            {"colour scale", "fixed (--diff-scale)"}});
+  auto_row.insert(auto_row.begin(), Panel{labelled_colour_scale(scale_w, ref.height, auto_rel, text),
+                                          {"colour scale", auto_ok ? "auto: 99th pct." : "auto: all exact"}});
   const std::string sheet = base + "_compare.png";
-  write_png(sheet, contact_sheet({top, bottom}, 8));
+  write_png(sheet, labelled_sheet({top, fixed_row, auto_row}, 8, text));
 
   std::string rendered_As;  // those rendered: larger ones are skipped once the image stops changing
   for (std::size_t i = 1; i < runs.size(); ++i) {
@@ -404,15 +428,17 @@ int run_render(const Args& args) {
     std::fprintf(stderr, "  %-18s %12.5g %12.5g %14.5g   (noise floor: %s)\n", "exact, other seed", d.rmse,
                  d.relative_rmse, d.mean_rel_error, name.c_str());
   std::fprintf(stderr,
-               "  sheet %s: top row the renders (%s first, then A = %s), bottom row the colour scale and the "
-               "false-colour |relative luminance error| of each against the exact render (0 to %.0f%%)\n",
-               sheet.c_str(), exact.c_str(), rendered_As.c_str(), 100.0 * max_rel);
+               "  sheet %s: top row the renders (%s first, then A = %s), second row the colour scale and the "
+               "false-colour |relative luminance error| of each against the exact render (0 to %.3g%%, fixed), "
+               "third row the same on the automatic scale (0 to %.3g%%, the 99th percentile); black: exactly 0\n",
+               sheet.c_str(), exact.c_str(), rendered_As.c_str(), 100.0 * max_rel, 100.0 * auto_rel);
   if (args.has("stats")) {
     Json j = render_header(*rt, args, scene.name, ropt, maps, popt.photons);
     j["exact"] = exact;
     j["approx"] = approx;
     j["exposure"] = exposure;
     j["diff_scale"] = max_rel;
+    j["diff_scale_auto"] = auto_rel;
     j["photon_s"] = photon_s;
     j["total_s"] = since(t_start);
     j["runs"] = Json::array();

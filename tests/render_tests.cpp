@@ -373,6 +373,39 @@ TEST_CASE("render: --compare stops at an A whose image repeats, and --noise-floo
   CHECK(test::run_bhcl(common + "--noise-floor --out " + exr, &out) == 2);  // only with --compare
 }
 
+TEST_CASE("render: the comparison sheet: exact zero is black, the automatic scale is a percentile, labels are drawn") {
+  Image ref(10, 10), a(10, 10);
+  for (std::size_t i = 0; i < ref.pixels(); ++i) {
+    ref.set(i, Vec3{1, 1, 1});
+    // Pixel i off by i per cent (pixel 0 exact).
+    a.set(i, Vec3{1, 1, 1} * (1.0f + 0.01f * static_cast<float>(i)));
+  }
+  Rgb8 fc = false_colour_difference(a, ref, 0.5f);
+  CHECK(fc.px[0] == 0);
+  CHECK(fc.px[1] == 0);
+  CHECK(fc.px[2] == 0);
+  CHECK(fc.px[3] + fc.px[4] + fc.px[5] > 0);  // 1 %: small but not black
+  CHECK(relative_error_percentile({&a}, ref, 0.99f) == doctest::Approx(0.99f).epsilon(1e-4));
+  CHECK(relative_error_percentile({&a}, ref, 0.5f) == doctest::Approx(0.50f).epsilon(1e-4));
+  CHECK(relative_error_percentile({}, ref, 0.99f) == 0.0f);
+  TextPainter text(12);
+  MESSAGE("text painter: " << (text.ok() ? "ok" : text.why()));
+  Rgb8 tile(120, 40, 0);
+  Rgb8 sheet = labelled_sheet({{Panel{tile, {"blockhash A=4", "RMSE 0.001"}}}}, 4, text);
+  CHECK(sheet.width == 128);
+  if (text.ok()) {
+    CHECK(sheet.height == 40 + 2 * text.line_height() + 2 + 8);
+    // The band above the tile carries white-ish glyph pixels; the grey background alone is 40.
+    int bright = 0;
+    for (int y = 4; y < 4 + 2 * text.line_height(); ++y)
+      for (int x = 4; x < 124; ++x) bright += sheet.px[(static_cast<std::size_t>(y) * sheet.width + x) * 3] > 200;
+    CHECK(bright > 30);
+    CHECK(text.width("RMSE") > 0);
+  } else {
+    CHECK(sheet.height == 48);
+  }
+}
+
 // ---- Radiance through refracting surfaces -------------------------------------------------------
 // Radiance divided by n^2 is what is conserved along a ray (and, without absorption, across a
 // smooth interface up to the Fresnel factor), so a surface inside glass seen from the air looks
