@@ -406,6 +406,16 @@ TEST_CASE("render: the comparison sheet: exact zero is black, the automatic scal
   }
 }
 
+TEST_CASE("render: the automatic exposure is not pulled down by pixels that see the light") {
+  Image img(20, 10);
+  for (std::size_t i = 0; i < img.pixels(); ++i) img.set(i, Vec3{0.5f, 0.5f, 0.5f} * (0.5f + 0.005f * (i % 100)));
+  const float walls = auto_exposure(img);
+  for (std::size_t i = 0; i < 10; ++i) img.set(i, Vec3{40, 40, 40});  // 5 % of the pixels: the light
+  CHECK(auto_exposure(img) == doctest::Approx(walls).epsilon(0.05));
+  CHECK(walls == doctest::Approx(1.0f / (0.5f * (0.5f + 0.005f * 98))).epsilon(0.03));
+  CHECK(auto_exposure(Image(4, 4)) == 1.0f);  // black
+}
+
 // ---- Radiance through refracting surfaces -------------------------------------------------------
 // Radiance divided by n^2 is what is conserved along a ray (and, without absorption, across a
 // smooth interface up to the Fresnel factor), so a surface inside glass seen from the air looks

@@ -56,6 +56,13 @@ float auto_exposure(const Image& image) {
     if (std::isfinite(l)) lum.push_back(l);
   }
   if (lum.empty()) return 1.0f;
+  // Pixels that see an emitter (the Cornell light is 40x the walls) would set the 99th
+  // percentile whenever they cover more than 1 % of the image and leave the rest dark: the
+  // percentile is taken over the pixels at most 8x the median (the lit scene, noise included).
+  std::size_t mid = lum.size() / 2;
+  std::nth_element(lum.begin(), lum.begin() + static_cast<std::ptrdiff_t>(mid), lum.end());
+  const float median = lum[mid];
+  if (median > 0) lum.erase(std::remove_if(lum.begin(), lum.end(), [&](float l) { return l > 8 * median; }), lum.end());
   std::size_t k = std::min(lum.size() - 1, static_cast<std::size_t>(0.99 * lum.size()));
   std::nth_element(lum.begin(), lum.begin() + static_cast<std::ptrdiff_t>(k), lum.end());
   return lum[k] > 0 ? 1.0f / lum[k] : 1.0f;
