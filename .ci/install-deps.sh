@@ -7,7 +7,7 @@ set -euo pipefail
 packages=(
   build-essential cmake ninja-build pkg-config
   ocl-icd-opencl-dev opencl-c-headers opencl-clhpp-headers pocl-opencl-icd clinfo
-  libembree-dev libopenexr-dev libpng-dev
+  libembree-dev libopenexr-dev libpng-dev libfreetype-dev fonts-dejavu-core
   libflann-dev liblz4-dev libnanoflann-dev
   doctest-dev libcli11-dev nlohmann-json3-dev
   libopenmpi-dev openmpi-bin

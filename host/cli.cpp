@@ -262,7 +262,7 @@ void declare_index_options(Args& a, int default_k, bool render) {
   // From the method registry: each option once, with the methods that read it.
   for (const OptionInfo* o : build_options()) {
     std::string help = joined(option_users(o->name), ", ") + ": " + o->help;
-    if (render && o->name == "seed") help = "seed of the photons and rays, and " + help;
+    if (render && o->name == "seed") help = "seed of the rays (and of the photons unless --photon-seed), and " + help;
     if (render && o->name == "threads") help = "host threads of Embree and the photon tracer, and " + help;
     switch (o->kind) {
       case OptionInfo::Kind::Integer:

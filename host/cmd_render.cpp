@@ -180,6 +180,8 @@ Json render_header(const Runtime& rt, const Args& args, const std::string& scene
   j["caustic_radius"] = ropt.caustic_radius;
   j["batch"] = ropt.batch_queries;
   j["seed"] = ropt.seed;
+  const long long photon_seed = args.integer("photon-seed", -1);
+  j["photon_seed"] = photon_seed >= 0 ? photon_seed : static_cast<long long>(ropt.seed);
   j["threads"] = ropt.threads;
   j["photons_requested"] = photons_requested;
   j["photons"] = maps.global->size();
@@ -205,8 +207,8 @@ void declare_render(Args& a) {
   a.add_number("caustic-radius", "caustic gather radius (0: automatic)", "0");
   a.add_integer("batch", "gather queries per kNN call", 1, Args::kNoLimit, "262144");
   a.add_number("exposure", "tone-mapping exposure (0: automatic)", "0");
-  a.add_integer("photon-seed", "seed of the photons (-1: --seed); --seed then drives the camera, "
-                               "shadow and gather rays only", -1, Args::kNoLimit, "-1");
+  a.add_integer("photon-seed", "seed of the photons (-1: --seed); --seed then seeds the camera, shadow and gather rays",
+                -1, Args::kNoLimit, "-1");
   a.add_flag("quiet", "no progress bars");
   a.group("Comparison");
   a.add_flag("compare", "render with an exact method and with block hashing at several A, side by side");
@@ -214,9 +216,8 @@ void declare_render(Args& a) {
   a.add_text("approx", "--compare: the approximate method", "blockhash", "NAME");
   a.add_text("compare-A", "--compare: the values of A, comma separated", "4,8,16", "LIST");
   a.add_number("diff-scale", "--compare: relative error shown as full scale in the difference images", "0.1");
-  a.add_flag("noise-floor", "--compare: also render the exact method with another photon seed and "
-                            "with another ray seed, and print their error: the Monte Carlo noise "
-                            "block hashing's error is to be read against");
+  a.add_flag("noise-floor", "--compare: also render the exact method with another photon seed and with another "
+                            "render seed, and print their differences (the render's own Monte Carlo noise)");
   declare_index_options(a, 50, true);
 }
 
@@ -330,7 +331,6 @@ int run_render(const Args& args) {
       j["caustic_map"] = maps.caustic != nullptr;
       j["visible_points"] = r.stats.visible_points;
       j["photon_s"] = photon_s;
-      j["photon_seed"] = popt.seed;
       j["total_s"] = total;
       write_json(args.str("stats"), j);
     }
@@ -343,43 +343,51 @@ int run_render(const Args& args) {
   const std::vector<float> As = parse_list(args.str("compare-A", "4,8,16"));
   std::vector<RenderRun> runs;
   runs.push_back(render_with(exact, exact, ropt.search.A, maps, rt, mopt, es, lights, ropt, quiet));
-  std::string stopped;
   for (float A : As) {
     char label[64];
     std::snprintf(label, sizeof label, "%s A=%g", approx.c_str(), A);
     runs.push_back(render_with(label, approx, A, maps, rt, mopt, es, lights, ropt, quiet));
-    // A larger A examines more points; once the image no longer changes (bit for bit), the rest
-    // of the list would render the same picture again.
-    if (runs.size() >= 3 && runs.back().image.rgb == runs[runs.size() - 2].image.rgb && A != As.back()) {
-      char b[160];
-      std::snprintf(b, sizeof b, "A = %g gave the image of A = %g bit for bit: larger A not rendered", A,
-                    runs[runs.size() - 2].A);
-      stopped = b;
+    // A larger A examines more candidates; once the image is bit-identical to the previous A's,
+    // the neighbour lists that matter have stopped changing and larger A would only cost time.
+    if (runs.size() > 2 && runs.back().image.rgb == runs[runs.size() - 2].image.rgb) {
+      std::fprintf(stderr, "bhcl render --compare: %s gives an image bit-identical to %s: larger A skipped\n",
+                   runs.back().label.c_str(), runs[runs.size() - 2].label.c_str());
       break;
     }
   }
-  // The noise floor: the exact render again with another photon seed (a new photon map), and with
-  // another ray seed (the same map). Their difference from the exact render is the Monte Carlo
-  // noise of the render itself, the scale against which block hashing's error is small or not.
+  // The noise floor: the exact render's own Monte Carlo error, as the difference between two
+  // exact renders that differ only in the photon seed (a new photon map) or only in the render
+  // seed (new camera, shadow and gather rays). Block hashing's error matters only against these.
   std::vector<std::pair<std::string, ImageDiff>> noise;
   if (args.flag("noise-floor")) {
-    PhotonTraceOptions p2 = popt;
-    p2.seed = popt.seed + 1;
-    PhotonMaps maps2 = build_photon_maps(es, lights, p2);
-    RenderRun a = render_with(exact + " photon seed+1", exact, ropt.search.A, maps2, rt, mopt, es, lights, ropt, quiet);
-    RenderOptions r2 = ropt;
-    r2.seed = ropt.seed + 1;
-    RenderRun b = render_with(exact + " ray seed+1", exact, ropt.search.A, maps, rt, mopt, es, lights, r2, quiet);
-    noise.emplace_back(a.label, image_diff(a.image, runs[0].image));
-    noise.emplace_back(b.label, image_diff(b.image, runs[0].image));
+    PhotonTraceOptions popt2 = popt;
+    popt2.seed = popt.seed + 1000003;
+    PhotonMaps maps2 = build_photon_maps(es, lights, popt2);
+    RenderRun p2 = render_with(exact + " photon seed+", exact, ropt.search.A, maps2, rt, mopt, es, lights, ropt, quiet);
+    noise.emplace_back("exact, photon seed " + std::to_string(popt2.seed), image_diff(p2.image, runs[0].image));
+    RenderOptions ropt2 = ropt;
+    ropt2.seed = ropt.seed + 1000003;
+    RenderRun r2 = render_with(exact + " render seed+", exact, ropt.search.A, maps, rt, mopt, es, lights, ropt2, quiet);
+    noise.emplace_back("exact, render seed " + std::to_string(ropt2.seed), image_diff(r2.image, runs[0].image));
   }
   const Image& ref = runs[0].image;
   const float exposure = exposure_opt > 0 ? static_cast<float>(exposure_opt) : auto_exposure(ref);
   const float max_rel = static_cast<float>(args.number("diff-scale", 0.1));
   if (!(max_rel > 0)) throw UsageError("--diff-scale must be > 0");
-  std::vector<Rgb8> top, bottom;
+  std::vector<Panel> top, fixed_row, auto_row;
   std::vector<ImageDiff> diffs;
   std::vector<std::string> files;
+  std::vector<const Image*> approx_images;
+  for (std::size_t i = 1; i < runs.size(); ++i) approx_images.push_back(&runs[i].image);
+  // The automatic scale: the 99th percentile of every approximate image's per-pixel error, so
+  // that errors far below the fixed scale still show (0 when all are exact: then the fixed one).
+  float auto_rel = relative_error_percentile(approx_images, ref, 0.99f);
+  const bool auto_ok = auto_rel > 0;
+  if (!auto_ok) auto_rel = max_rel;
+  const int tile_w = ref.width;
+  TextPainter text(std::clamp(tile_w / 22, 9, 16));
+  if (!text.ok()) std::fprintf(stderr, "bhcl render: the comparison sheet is unlabelled: %s\n", text.why().c_str());
+  char buf[128];
   for (std::size_t i = 0; i < runs.size(); ++i) {
     const std::string tag = i == 0 ? "exact" : "A" + [&] {
       char b[32];
@@ -391,19 +399,38 @@ int run_render(const Args& args) {
     Rgb8 tm = tonemap(runs[i].image, exposure);
     write_png(strip_ext(exr) + ".png", tm);
     files.push_back(exr);
-    top.push_back(tm);
     diffs.push_back(image_diff(runs[i].image, ref));
+    Panel p{tm, {}};
+    p.lines.push_back(i == 0 ? runs[i].label + " (exact)" : runs[i].label);
+    std::snprintf(buf, sizeof buf, "query %.3f s", runs[i].stats.query_s);
+    p.lines.push_back(buf);
+    std::snprintf(buf, sizeof buf, "RMSE %.3g (%.3g%%)", diffs[i].rmse, 100.0 * diffs[i].relative_rmse);
+    p.lines.push_back(i == 0 ? "the reference" : buf);
+    top.push_back(std::move(p));
     if (i > 0) {
       Rgb8 fc = false_colour_difference(runs[i].image, ref, max_rel);
       write_png(base + "_diff_" + tag + ".png", fc);
-      bottom.push_back(fc);
+      std::snprintf(buf, sizeof buf, "fixed scale 0-%.3g%%", 100.0 * max_rel);
+      fixed_row.push_back({fc, {"|rel. error| " + tag, buf}});
+      std::snprintf(buf, sizeof buf, "auto scale 0-%.3g%% (p99)", 100.0 * auto_rel);
+      auto_row.push_back({false_colour_difference(runs[i].image, ref, auto_rel), {"|rel. error| " + tag, buf}});
     }
   }
-  // Bottom-left cell: the colour scale of the difference images (0 at the bottom, max_rel at top).
-  bottom.insert(bottom.begin(), colour_scale(std::max(8, ref.width / 8), ref.height));
+  // First column of the difference rows: the colour scale with its numbers.
+  const int scale_w = tile_w;  // the sheet's columns are as wide as a render anyway
+  fixed_row.insert(fixed_row.begin(), Panel{labelled_colour_scale(scale_w, ref.height, max_rel, text),
+                                            {"colour scale", "fixed (--diff-scale)"}});
+  auto_row.insert(auto_row.begin(), Panel{labelled_colour_scale(scale_w, ref.height, auto_rel, text),
+                                          {"colour scale", auto_ok ? "auto: 99th pct." : "auto: all exact"}});
   const std::string sheet = base + "_compare.png";
-  write_png(sheet, contact_sheet({top, bottom}, 8));
+  write_png(sheet, labelled_sheet({top, fixed_row, auto_row}, 8, text));
 
+  std::string rendered_As;  // those rendered: larger ones are skipped once the image stops changing
+  for (std::size_t i = 1; i < runs.size(); ++i) {
+    char b[32];
+    std::snprintf(b, sizeof b, "%s%g", i > 1 ? "," : "", runs[i].A);
+    rendered_As += b;
+  }
   print_split("bhcl render: time split", runs[0], photon_s);
   std::fprintf(stderr, "\nbhcl render --compare: scene '%s', %dx%d, %zu photons, k=%d, M=%d, device %s\n",
                scene.name.c_str(), ropt.width, ropt.height, maps.global->size(), ropt.search.k, ropt.gather,
@@ -414,32 +441,29 @@ int run_render(const Args& args) {
     std::fprintf(stderr, "  %-18s %12.5g %12.5g %14.5g %12.3f %12.3f %10.3f\n", runs[i].label.c_str(),
                  diffs[i].rmse, diffs[i].relative_rmse, diffs[i].mean_rel_error, runs[i].stats.query_s,
                  runs[i].stats.query_kernel_s, runs[i].build_s);
-  for (const auto& [label, d] : noise)
-    std::fprintf(stderr, "  %-18s %12.5g %12.5g %14.5g   (noise floor: the exact render's own Monte Carlo noise)\n",
-                 label.c_str(), d.rmse, d.relative_rmse, d.mean_rel_error);
-  if (!stopped.empty()) std::fprintf(stderr, "  %s\n", stopped.c_str());
+  for (const auto& [name, d] : noise)
+    std::fprintf(stderr, "  %-18s %12.5g %12.5g %14.5g   (noise floor: %s)\n", "exact, other seed", d.rmse,
+                 d.relative_rmse, d.mean_rel_error, name.c_str());
   std::fprintf(stderr,
-               "  sheet %s: top row the renders (%s first, then A = %s), bottom row the colour scale and the "
-               "false-colour |relative luminance error| of each against the exact render (0 to %.0f%%)\n",
-               sheet.c_str(), exact.c_str(), args.str("compare-A", "4,8,16").c_str(), 100.0 * max_rel);
+               "  sheet %s: top row the renders (%s first, then A = %s), second row the colour scale and the "
+               "false-colour |relative luminance error| of each against the exact render (0 to %.3g%%, fixed), "
+               "third row the same on the automatic scale (0 to %.3g%%, the 99th percentile); black: exactly 0\n",
+               sheet.c_str(), exact.c_str(), rendered_As.c_str(), 100.0 * max_rel, 100.0 * auto_rel);
   if (args.has("stats")) {
     Json j = render_header(*rt, args, scene.name, ropt, maps, popt.photons);
     j["exact"] = exact;
     j["approx"] = approx;
     j["exposure"] = exposure;
     j["diff_scale"] = max_rel;
+    j["diff_scale_auto"] = auto_rel;
     j["photon_s"] = photon_s;
     j["total_s"] = since(t_start);
     j["runs"] = Json::array();
+    j["noise_floor"] = Json::array();
+    for (const auto& [name, d] : noise)
+      j["noise_floor"].push_back({{"what", name}, {"rmse", d.rmse}, {"relative_rmse", d.relative_rmse},
+                                  {"mean_rel_error", d.mean_rel_error}});
     for (std::size_t i = 0; i < runs.size(); ++i) j["runs"].push_back(run_json(runs[i], &diffs[i]));
-    if (!stopped.empty()) j["stopped"] = stopped;
-    j["photon_seed"] = popt.seed;
-    if (!noise.empty()) {
-      j["noise_floor"] = Json::array();
-      for (const auto& [label, d] : noise)
-        j["noise_floor"].push_back({{"label", label}, {"rmse", d.rmse}, {"relative_rmse", d.relative_rmse},
-                                    {"mean_rel_error", d.mean_rel_error}});
-    }
     write_json(args.str("stats"), j);
   }
   return 0;

@@ -175,118 +175,6 @@ TEST_CASE("render: energy is conserved in a white furnace where radiance is Le o
   CHECK(worst < 0.5);
 }
 
-// A box of 100 split at y = 50 by one glass interface (ior 1.5) spanning it: below, every wall
-// emits Le and reflects a little (rho, so photons are stored); above, black walls. The camera looks
-// straight down from above through the interface. A camera ray refracts into the glass with
-// probability 1 - R (Fresnel, about 0.04 near normal incidence) and sees the radiance below,
-// which crosses the interface scaled by (n_air / n_glass)^2; a reflected ray sees the black
-// ceiling. So the image is (1 - R) Le' / 1.5^2, Le' the radiance below (Le plus what the low
-// albedo adds: Le / (1 - rho) in that closed glass-bounded half, up to the light lost upwards).
-Scene single_interface_scene(float Le, float rho) {
-  Scene s;
-  s.name = "single interface";
-  Material glow;
-  glow.name = "glowing";
-  glow.kd = {rho, rho, rho};
-  glow.emission = {Le, Le, Le};
-  Material black;
-  black.name = "black";
-  black.kd = {0, 0, 0};
-  Material glass;
-  glass.name = "glass";
-  glass.type = MaterialType::Glass;
-  glass.ks = {1, 1, 1};
-  glass.ior = 1.5f;
-  const auto g = s.add_material(glow), b = s.add_material(black), gl = s.add_material(glass);
-  const float L = 100.0f, h = 50.0f;
-  const Vec3 centre_low{L / 2, h / 2, L / 2}, centre_high{L / 2, (h + L) / 2, L / 2};
-  auto quad = [&](Vec3 a, Vec3 bb, Vec3 c, Vec3 d, std::uint32_t m, Vec3 towards) {
-    if (dot(cross(bb - a, c - a), towards - a) < 0) std::swap(bb, d);
-    s.add_quad(a, bb, c, d, m);
-  };
-  // Floor and lower side walls emit, front towards the lower half; ceiling and upper walls black.
-  quad({0, 0, 0}, {L, 0, 0}, {L, 0, L}, {0, 0, L}, g, centre_low);
-  quad({0, L, 0}, {L, L, 0}, {L, L, L}, {0, L, L}, b, centre_high);
-  for (float y0 : {0.0f, h}) {
-    const float y1 = y0 + h;
-    const auto m = y0 == 0 ? g : b;
-    const Vec3 c = y0 == 0 ? centre_low : centre_high;
-    quad({0, y0, 0}, {L, y0, 0}, {L, y1, 0}, {0, y1, 0}, m, c);
-    quad({0, y0, L}, {L, y0, L}, {L, y1, L}, {0, y1, L}, m, c);
-    quad({0, y0, 0}, {0, y0, L}, {0, y1, L}, {0, y1, 0}, m, c);
-    quad({L, y0, 0}, {L, y0, L}, {L, y1, L}, {L, y1, 0}, m, c);
-  }
-  // The interface, its front (the outside of the glass) facing up.
-  quad({0, h, 0}, {L, h, 0}, {L, h, L}, {0, h, L}, gl, Vec3{L / 2, L, L / 2});
-  s.camera.position = {L / 2, 95, L / 2};
-  s.camera.direction = {0, -1, 0};
-  s.camera.up = {0, 0, 1};
-  s.camera.vfov_deg = 20;
-  return s;
-}
-
-TEST_CASE("render: radiance through a single refracting interface is scaled by (n_air / n_glass)^2") {
-  const float Le = 1.0f, rho = 0.05f;
-  Scene scene = single_interface_scene(Le, rho);
-  // Near-normal incidence: R = ((1.5 - 1) / (1.5 + 1))^2 = 0.04 (0.0402 at the image's corners).
-  const double R = 0.04;
-  SmallRender r = small_render(scene, "kdtree", 20000, 12, 16, 2, 5, 16, 8, 64);
-  double sum = 0;
-  for (std::size_t i = 0; i < r.image.pixels(); ++i) sum += luminance(r.image.at(i));
-  const double mean = sum / r.image.pixels();
-  // Below the interface the radiance is Le plus at most rho / (1 - rho) of it from reflections.
-  const double lo = (1 - R) * Le / 2.25, hi = (1 - R) * Le / (1 - rho) / 2.25;
-  MESSAGE("single interface: mean radiance " << mean << ", expected in [" << lo << ", " << hi
-                                             << "] (without the (n1/n2)^2 factor: " << (1 - R) * Le << ")");
-  CHECK(mean >= lo * 0.97);
-  CHECK(mean <= hi * 1.03);
-}
-
-TEST_CASE("render: a closed glass block in a white furnace changes nothing (the factors cancel)") {
-  const float Le = 1.0f, rho = 0.5f, expect = Le / (1.0f - rho);
-  Scene scene = furnace_scene(Le, rho);
-  Material glass;
-  glass.name = "glass";
-  glass.type = MaterialType::Glass;
-  glass.ks = {1, 1, 1};
-  glass.ior = 1.5f;
-  const auto gl = scene.add_material(glass);
-  // A closed cube of glass in the middle of the furnace, in view of the camera.
-  const float a = 40, b = 70;
-  Vec3 p[8];
-  for (int i = 0; i < 8; ++i) p[i] = {(i & 1) ? b : a, (i & 2) ? b : a, (i & 4) ? b : a};
-  const int faces[6][4] = {{0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4}, {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}};
-  const Vec3 centre{(a + b) / 2, (a + b) / 2, (a + b) / 2};
-  for (const auto& f : faces) {
-    Vec3 A = p[f[0]], B = p[f[1]], C = p[f[2]], D = p[f[3]];
-    if (dot(cross(B - A, C - A), centre - A) > 0) std::swap(B, D);  // front: outside
-    scene.add_quad(A, B, C, D, gl);
-  }
-  SmallRender r = small_render(scene, "kdtree", 20000, 16, 24, 2, 11, 32, 48, 2);
-  double sum = 0;
-  for (std::size_t i = 0; i < r.image.pixels(); ++i) sum += luminance(r.image.at(i));
-  const double mean = sum / r.image.pixels();
-  MESSAGE("furnace with a glass block: mean radiance " << mean << " (expected " << expect << ")");
-  CHECK(mean == doctest::Approx(expect).epsilon(0.04));
-}
-
-TEST_CASE("render: automatic exposure is not set by a few bright emitter pixels") {
-  Image im;
-  im.width = 100;
-  im.height = 100;
-  im.rgb.assign(3 * 100 * 100, 0.0f);
-  for (std::size_t i = 0; i < im.pixels(); ++i) {
-    const float v = 0.2f + 0.8f * float(i % 100) / 99.0f;  // walls: 0.2 .. 1.0
-    const float l = i < 300 ? 40.0f : v;                    // 3 % of the pixels see the light
-    im.rgb[3 * i] = im.rgb[3 * i + 1] = im.rgb[3 * i + 2] = l;
-  }
-  const float e = auto_exposure(im);
-  CHECK(e == doctest::Approx(1.0f).epsilon(0.02));  // the walls' 99th percentile, not the light
-  Image black = im;
-  std::fill(black.rgb.begin(), black.rgb.end(), 0.0f);
-  CHECK(auto_exposure(black) == 1.0f);
-}
-
 TEST_CASE("render: the OpenEXR image round-trips and the PNG preview is written") {
   Image img(37, 23);
   Rng rng(1, 2, 3);
@@ -448,6 +336,227 @@ TEST_CASE("render: bhcl render writes the EXR and the PNG and the stats") {
   CHECK(out.find("--size expects WxH") != std::string::npos);
   CHECK(test::run_bhcl("render --out " + exr + " --scene /no/such.obj", &out) == 1);
   CHECK(out.find("/no/such.obj: cannot open a scene file") != std::string::npos);
+}
+
+TEST_CASE("render: --compare stops at an A whose image repeats, and --noise-floor and --photon-seed work") {
+  const std::string base = test::tmp_path("cli_cmp"), exr = base + ".exr", json = base + ".json";
+  std::string out;
+  // A = 64 and 128 examine far more than all 2000 photons' worth of candidates at k = 8: their
+  // images are bit-identical, so 256 must be skipped.
+  const std::string common = "render --scene cornell --photons 2000 --gather 4 --k 8 --size 16x16 --quiet ";
+  int rc = test::run_bhcl(common + "--compare --exact bruteforce --compare-A 64,128,256 --noise-floor --out " + exr +
+                              " --stats " + json, &out);
+  INFO(out);
+  REQUIRE(rc == 0);
+  std::ifstream s(json);
+  const nlohmann::json j = nlohmann::json::parse(s);
+  REQUIRE(j.at("runs").size() >= 3);
+  if (j.at("runs").size() == 3) {  // skipped 256: 64 and 128 must then be identical
+    CHECK(out.find("larger A skipped") != std::string::npos);
+    CHECK(read_exr(base + "_A64.exr").rgb == read_exr(base + "_A128.exr").rgb);
+  } else {
+    CHECK(read_exr(base + "_A64.exr").rgb != read_exr(base + "_A128.exr").rgb);
+  }
+  REQUIRE(j.at("noise_floor").size() == 2);
+  for (const auto& n : j.at("noise_floor")) CHECK(n.at("rmse").get<double>() > 0);  // other seeds differ
+  CHECK(out.find("noise floor: exact, photon seed") != std::string::npos);
+  // --photon-seed changes the photons only; the same pair of seeds gives the same image.
+  auto render = [&](const std::string& seeds, const std::string& name) {
+    std::string o;
+    REQUIRE(test::run_bhcl(common + "--method bruteforce " + seeds + " --out " + test::tmp_path(name), &o) == 0);
+    return read_exr(test::tmp_path(name)).rgb;
+  };
+  auto a = render("--seed 3 --photon-seed 4", "seeds_a.exr");
+  CHECK(a == render("--seed 3 --photon-seed 4", "seeds_b.exr"));
+  CHECK(a != render("--seed 3 --photon-seed 5", "seeds_c.exr"));
+  CHECK(a != render("--seed 2 --photon-seed 4", "seeds_d.exr"));
+  CHECK(test::run_bhcl(common + "--noise-floor --out " + exr, &out) == 2);  // only with --compare
+}
+
+TEST_CASE("render: the comparison sheet: exact zero is black, the automatic scale is a percentile, labels are drawn") {
+  Image ref(10, 10), a(10, 10);
+  for (std::size_t i = 0; i < ref.pixels(); ++i) {
+    ref.set(i, Vec3{1, 1, 1});
+    // Pixel i off by i per cent (pixel 0 exact).
+    a.set(i, Vec3{1, 1, 1} * (1.0f + 0.01f * static_cast<float>(i)));
+  }
+  Rgb8 fc = false_colour_difference(a, ref, 0.5f);
+  CHECK(fc.px[0] == 0);
+  CHECK(fc.px[1] == 0);
+  CHECK(fc.px[2] == 0);
+  CHECK(fc.px[3] + fc.px[4] + fc.px[5] > 0);  // 1 %: small but not black
+  CHECK(relative_error_percentile({&a}, ref, 0.99f) == doctest::Approx(0.99f).epsilon(1e-4));
+  CHECK(relative_error_percentile({&a}, ref, 0.5f) == doctest::Approx(0.50f).epsilon(1e-4));
+  CHECK(relative_error_percentile({}, ref, 0.99f) == 0.0f);
+  TextPainter text(12);
+  MESSAGE("text painter: " << (text.ok() ? "ok" : text.why()));
+  Rgb8 tile(120, 40, 0);
+  Rgb8 sheet = labelled_sheet({{Panel{tile, {"blockhash A=4", "RMSE 0.001"}}}}, 4, text);
+  CHECK(sheet.width == 128);
+  if (text.ok()) {
+    CHECK(sheet.height == 40 + 2 * text.line_height() + 2 + 8);
+    // The band above the tile carries white-ish glyph pixels; the grey background alone is 40.
+    int bright = 0;
+    for (int y = 4; y < 4 + 2 * text.line_height(); ++y)
+      for (int x = 4; x < 124; ++x) bright += sheet.px[(static_cast<std::size_t>(y) * sheet.width + x) * 3] > 200;
+    CHECK(bright > 30);
+    CHECK(text.width("RMSE") > 0);
+  } else {
+    CHECK(sheet.height == 48);
+  }
+}
+
+TEST_CASE("render: the automatic exposure is not pulled down by pixels that see the light") {
+  Image img(20, 10);
+  for (std::size_t i = 0; i < img.pixels(); ++i) img.set(i, Vec3{0.5f, 0.5f, 0.5f} * (0.5f + 0.005f * (i % 100)));
+  const float walls = auto_exposure(img);
+  for (std::size_t i = 0; i < 10; ++i) img.set(i, Vec3{40, 40, 40});  // 5 % of the pixels: the light
+  CHECK(auto_exposure(img) == doctest::Approx(walls).epsilon(0.05));
+  CHECK(walls == doctest::Approx(1.0f / (0.5f * (0.5f + 0.005f * 98))).epsilon(0.03));
+  CHECK(auto_exposure(Image(4, 4)) == 1.0f);  // black
+}
+
+// ---- Radiance through refracting surfaces -------------------------------------------------------
+// Radiance divided by n^2 is what is conserved along a ray (and, without absorption, across a
+// smooth interface up to the Fresnel factor), so a surface inside glass seen from the air looks
+// (1 / ior)^2 as bright as it is inside. A closed glass object cancels the two crossings; these
+// scenes have a single interface, where a missing factor shows as a 2.25x error.
+namespace {
+
+Image glass_render(const Scene& scene, std::size_t photons, int size, int gather, int shadow_rays,
+                   int spp, int k, float caustic_radius, std::uint64_t seed = 5) {
+  EmbreeScene es(scene, 2);
+  LightSampler lights(scene);
+  PhotonTraceOptions po;
+  po.photons = photons;
+  po.seed = seed;
+  po.threads = 2;
+  PhotonMaps maps = build_photon_maps(es, lights, po);
+  maps.global->build_index("bruteforce", test::runtime());
+  if (maps.caustic) maps.caustic->build_index("bruteforce", test::runtime());
+  RenderOptions ro;
+  ro.width = ro.height = size;
+  ro.gather = gather;
+  ro.shadow_rays = shadow_rays;
+  ro.spp = spp;
+  ro.search.k = k;
+  ro.caustic_k = k;
+  ro.caustic_radius = caustic_radius;
+  ro.seed = seed;
+  ro.threads = 2;
+  RenderStats stats;
+  FinalGatherRenderer r(es, lights, *maps.global, maps.caustic.get(), ro);
+  return r.render(stats);
+}
+
+double mean_luminance(const Image& img) {
+  double sum = 0;
+  for (std::size_t i = 0; i < img.pixels(); ++i) sum += luminance(img.at(i));
+  return sum / img.pixels();
+}
+
+}  // namespace
+
+TEST_CASE("render: an emitter inside glass seen through one interface has radiance T Le / ior^2") {
+  // A black emitter 10 mm under the flat top of a glass slab (no other face), seen from above
+  // at near-normal incidence (10 degree field of view): a refracted camera ray carries
+  // (1 - F) Le / ior^2; a Fresnel-reflected one goes up and escapes (the only diffuse panel, there
+  // so that photons have somewhere to land, is off to the side, out of the reflected cone).
+  const float Le = 1.0f, ior = 1.5f;
+  Scene s;
+  s.name = "slab";
+  Material glass;
+  glass.name = "glass";
+  glass.type = MaterialType::Glass;
+  glass.ks = {1, 1, 1};
+  glass.ior = ior;
+  Material light;
+  light.name = "light";
+  light.kd = {0, 0, 0};
+  light.emission = {Le, Le, Le};
+  Material white;
+  white.name = "white";
+  white.kd = {0.5f, 0.5f, 0.5f};
+  auto g = s.add_material(glass), l = s.add_material(light), w = s.add_material(white);
+  // Counter-clockwise seen from +y: front faces up (the glass's outside is the air above).
+  s.add_quad({-50, 0, -50}, {-50, 0, 50}, {50, 0, 50}, {50, 0, -50}, g);
+  s.add_quad({-50, -10, -50}, {-50, -10, 50}, {50, -10, 50}, {50, -10, -50}, l);
+  s.add_quad({30, 100, -50}, {80, 100, -50}, {80, 100, 50}, {30, 100, 50}, w);  // faces down
+  s.camera.position = {0, 20, 0};
+  s.camera.direction = {0, -1, 0};
+  s.camera.up = {0, 0, 1};
+  s.camera.vfov_deg = 10;
+  Image img = glass_render(s, 2000, 16, 0, 1, 8, 8, 5.0f);
+  const double T = 1.0 - fresnel_dielectric(1.0f, 1.0f / ior);  // 0.96 at normal incidence
+  const double expect = T * Le / (ior * ior);
+  const double mean = mean_luminance(img);
+  MESSAGE("emitter under one interface: mean radiance " << mean << ", expected " << expect);
+  // 2048 camera samples, each T-likely to carry Le / ior^2: about 0.5 % noise on the mean.
+  CHECK(mean == doctest::Approx(expect).epsilon(0.03));
+}
+
+TEST_CASE("render: a white furnace half filled with glass keeps radiance / n^2 uniform") {
+  // A closed cube whose faces reflect diffusely (albedo rho) and emit; a horizontal glass
+  // interface at half height fills the lower half with glass (ior n). Walls in the glass emit
+  // n^2 Le, walls in the air Le: the equilibrium is radiance Le / (1 - rho) everywhere in the air
+  // and n^2 Le / (1 - rho) everywhere in the glass (radiance / n^2 uniform, as in thermal
+  // equilibrium). The camera, in the air, looks down through the interface at the glass half:
+  // every pixel should read Le / (1 - rho). Without the n^2 factors the glass half comes out
+  // brighter by up to n^2.
+  const float Le = 1.0f, rho = 0.5f, n = 1.5f, expect = Le / (1.0f - rho), L = 100.0f, H = 50.0f;
+  Scene s;
+  s.name = "glass furnace";
+  Material air_wall, glass_wall, glass;
+  air_wall.name = "air wall";
+  air_wall.kd = {rho, rho, rho};
+  air_wall.emission = {Le, Le, Le};
+  glass_wall = air_wall;
+  glass_wall.name = "glass wall";
+  glass_wall.emission = air_wall.emission * (n * n);
+  glass.name = "glass";
+  glass.type = MaterialType::Glass;
+  glass.ks = {1, 1, 1};
+  glass.ior = n;
+  auto ma = s.add_material(air_wall), mg = s.add_material(glass_wall), mi = s.add_material(glass);
+  const Vec3 centre{L / 2, L / 2, L / 2};
+  // A quad facing the cube's centre (the emitting side is the front).
+  auto inward = [&](Vec3 a, Vec3 b, Vec3 c, Vec3 d, std::uint32_t m) {
+    Vec3 mid = (a + b + c + d) * 0.25f;
+    Vec3 to_centre{0, 0, 0};
+    // Side walls: towards the vertical axis; floor and ceiling: towards the centre.
+    to_centre = (std::fabs(mid.y) < 1e-3f || std::fabs(mid.y - L) < 1e-3f) ? centre - mid
+                                                                             : Vec3{L / 2 - mid.x, 0, L / 2 - mid.z};
+    if (dot(cross(b - a, c - a), to_centre) < 0) std::swap(b, d);
+    s.add_quad(a, b, c, d, m);
+  };
+  inward({0, 0, 0}, {L, 0, 0}, {L, 0, L}, {0, 0, L}, mg);  // floor, in the glass
+  inward({0, L, 0}, {L, L, 0}, {L, L, L}, {0, L, L}, ma);  // ceiling, in the air
+  for (int half = 0; half < 2; ++half) {
+    const float y0 = half ? H : 0, y1 = half ? L : H;
+    const auto m = half ? ma : mg;
+    inward({0, y0, 0}, {L, y0, 0}, {L, y1, 0}, {0, y1, 0}, m);
+    inward({0, y0, L}, {L, y0, L}, {L, y1, L}, {0, y1, L}, m);
+    inward({0, y0, 0}, {0, y0, L}, {0, y1, L}, {0, y1, 0}, m);
+    inward({L, y0, 0}, {L, y0, L}, {L, y1, L}, {L, y1, 0}, m);
+  }
+  // The interface: front (the glass's outside) up, towards the air.
+  s.add_quad({0, H, 0}, {0, H, L}, {L, H, L}, {L, H, 0}, mi);
+  s.camera.position = {L / 2, 95, L / 2};
+  s.camera.direction = {0, -1, 0};
+  s.camera.up = {0, 0, 1};
+  s.camera.vfov_deg = 90;
+  Image img = glass_render(s, 20000, 16, 24, 48, 2, 32, 12.0f, 11);
+  const double mean = mean_luminance(img);
+  // The centre quarter of the image sees only the glass half's floor, through the interface.
+  double centre_sum = 0;
+  int centre_n = 0;
+  for (int y = 4; y < 12; ++y)
+    for (int x = 4; x < 12; ++x, ++centre_n) centre_sum += luminance(img.at(static_cast<std::size_t>(y) * 16 + x));
+  const double centre_mean = centre_sum / centre_n;
+  MESSAGE("glass furnace: mean radiance " << mean << ", floor through the interface " << centre_mean
+                                          << " (expected " << expect << " everywhere)");
+  CHECK(mean == doctest::Approx(expect).epsilon(0.05));
+  CHECK(centre_mean == doctest::Approx(expect).epsilon(0.06));
 }
 
 #endif  // BHCL_HAVE_RENDER

@@ -1,6 +1,7 @@
 #include "compare.hpp"
 
 #include <algorithm>
+#include <cstdio>
 #include <cmath>
 
 #include "blockhash_cl/error.hpp"
@@ -63,7 +64,7 @@ Rgb8 false_colour_difference(const Image& a, const Image& ref, float max_rel) {
   for (std::size_t i = 0; i < a.pixels(); ++i) {
     float lr = luminance(ref.at(i));
     float e = std::fabs(luminance(a.at(i)) - lr) / std::max(lr, std::max(floor, 1e-30f));
-    Vec3 c = turbo(max_rel > 0 ? e / max_rel : 0.0f);
+    Vec3 c = e == 0 ? Vec3{0, 0, 0} : turbo(max_rel > 0 ? e / max_rel : 0.0f);
     for (int k = 0; k < 3; ++k) out.px[3 * i + k] = static_cast<std::uint8_t>(std::lround(c[k] * 255.0f));
   }
   return out;
@@ -97,6 +98,65 @@ Rgb8 contact_sheet(const std::vector<std::vector<Rgb8>>& rows, int gap) {
     for (std::size_t c = 0; c < rows[r].size(); ++c)
       sheet.blit(rows[r][c], gap + static_cast<int>(c) * (tw + gap), gap + static_cast<int>(r) * (th + gap));
   return sheet;
+}
+
+float relative_error_percentile(const std::vector<const Image*>& images, const Image& ref, float q) {
+  std::vector<float> e;
+  const float floor = static_cast<float>(0.01 * mean_luminance(ref));
+  for (const Image* a : images) {
+    check_sizes(*a, ref);
+    for (std::size_t i = 0; i < a->pixels(); ++i) {
+      float lr = luminance(ref.at(i));
+      float v = std::fabs(luminance(a->at(i)) - lr) / std::max(lr, std::max(floor, 1e-30f));
+      if (std::isfinite(v)) e.push_back(v);
+    }
+  }
+  if (e.empty()) return 0.0f;
+  std::size_t k = std::min(e.size() - 1, static_cast<std::size_t>(std::clamp(q, 0.0f, 1.0f) * e.size()));
+  std::nth_element(e.begin(), e.begin() + static_cast<std::ptrdiff_t>(k), e.end());
+  return e[k];
+}
+
+Rgb8 labelled_sheet(const std::vector<std::vector<Panel>>& rows, int gap, const TextPainter& text) {
+  std::size_t lines = 0;
+  for (const auto& r : rows)
+    for (const auto& p : r) lines = std::max(lines, p.lines.size());
+  const int band = text.ok() ? static_cast<int>(lines) * text.line_height() + 2 : 0;
+  std::vector<std::vector<Rgb8>> tiles;
+  for (const auto& r : rows) {
+    tiles.emplace_back();
+    for (const auto& p : r) {
+      Rgb8 t(p.image.width, p.image.height + band, 40);
+      t.blit(p.image, 0, band);
+      for (std::size_t l = 0; l < p.lines.size(); ++l)
+        text.draw(t, 1, static_cast<int>(l) * text.line_height(), p.lines[l], Vec3{1, 1, 1});
+      tiles.back().push_back(std::move(t));
+    }
+  }
+  return contact_sheet(tiles, gap);
+}
+
+Rgb8 labelled_colour_scale(int width, int height, float max_rel, const TextPainter& text) {
+  const int swatch = std::max(std::max(4, height / 16), text.line_height());  // black: "exactly 0"
+  const int bar_w = std::max(6, width / 4);
+  const int bar_h = std::max(2, height - swatch - 2);
+  Rgb8 out(width, height, 40);
+  Rgb8 bar = colour_scale(bar_w, bar_h);
+  out.blit(bar, 0, 0);
+  out.blit(Rgb8(bar_w, swatch, 0), 0, height - swatch);
+  const int lh = text.line_height();
+  for (int t = 0; t <= 4; ++t) {
+    const int y = (bar_h - 1) - t * (bar_h - 1) / 4;  // the tick's row
+    for (int x = bar_w; x < std::min(width, bar_w + 3); ++x)
+      for (int k = 0; k < 3; ++k) out.px[(static_cast<std::size_t>(y) * width + x) * 3 + k] = 255;
+    char b[32];
+    std::snprintf(b, sizeof b, "%.3g%%", 100.0 * max_rel * t / 4);
+    // The 0 tick's label sits above its tick, clear of the swatch's label below it.
+    text.draw(out, bar_w + 4, std::clamp(t == 0 ? y - lh : y - lh / 2, 0, std::max(0, height - lh)), b,
+              Vec3{1, 1, 1});
+  }
+  text.draw(out, bar_w + 4, height - swatch, "black: exactly 0", Vec3{0.8f, 0.8f, 0.8f});
+  return out;
 }
 
 }  // namespace bhcl::render

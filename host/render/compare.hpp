@@ -7,6 +7,7 @@
 
 #include "film.hpp"
 #include "png_io.hpp"
+#include "text.hpp"
 
 namespace bhcl::render {
 
@@ -24,11 +25,28 @@ ImageDiff image_diff(const Image& a, const Image& reference);
 
 // Per-pixel relative luminance error |lum(a) - lum(ref)| / max(lum(ref), floor) shown with the
 // Turbo colour map, 0 (dark blue) to `max_rel` (dark red); floor = 1% of the mean luminance.
+// A pixel whose error is exactly 0 is black, so that "identical" stands apart from "small".
 Rgb8 false_colour_difference(const Image& a, const Image& reference, float max_rel);
 // A vertical colour-scale strip (bottom 0, top max) of the same map.
 Rgb8 colour_scale(int width, int height);
 
 // Rows of equally sized tiles, `gap` pixels apart on a dark grey background.
 Rgb8 contact_sheet(const std::vector<std::vector<Rgb8>>& rows, int gap);
+
+// The given percentile (0 to 1) of the per-pixel relative errors of false_colour_difference,
+// over all the images given (0 when there are none): an automatic full scale.
+float relative_error_percentile(const std::vector<const Image*>& images, const Image& reference, float q);
+
+// A tile with its lines of text in a band above it.
+struct Panel {
+  Rgb8 image;
+  std::vector<std::string> lines;
+};
+// Rows of panels (the text band as tall as the most lines any panel has); unlabelled when the
+// painter is not ok().
+Rgb8 labelled_sheet(const std::vector<std::vector<Panel>>& rows, int gap, const TextPainter& text);
+// The colour scale with numbers: ticks at 0, 25, 50, 75 and 100 % of max_rel (in per cent), and
+// a black swatch at the bottom for "exactly 0".
+Rgb8 labelled_colour_scale(int width, int height, float max_rel, const TextPainter& text);
 
 }  // namespace bhcl::render

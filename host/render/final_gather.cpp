@@ -21,8 +21,8 @@ struct GatherQuery {
 };
 
 // One bounce off the specular surface `hit` (mirror, or glass with the Fresnel probabilities so
-// that the weight stays ks, times (n_from / n_to)^2 on a refraction: these paths carry radiance).
-// Updates org, dir and beta; false when beta became black.
+// that the weight stays ks, times (n_from / n_to)^2 on refraction: see glass_scatter). Updates
+// org, dir and beta; false when beta became black.
 bool specular_bounce(const EmbreeScene& es, Rng& rng, Vec3& org, Vec3& dir,
                      const EmbreeScene::Hit& hit, Vec3& beta) {
   const Scene& scene = es.scene();
@@ -37,7 +37,7 @@ bool specular_bounce(const EmbreeScene& es, Rng& rng, Vec3& org, Vec3& dir,
     dir = reflect(dir, n);
     org = x + n * eps;
   } else {
-    // Radiance crossing the interface: (n_from / n_to)^2 (see glass_scatter).
+    // Camera and gather paths carry radiance: scaled by (n_from / n_to)^2 when refracted.
     beta *= glass_scatter(dir, org, x, n, front, m.ior, rng.uniform(), eps);
   }
   return !is_black(beta);

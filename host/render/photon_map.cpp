@@ -10,8 +10,13 @@ namespace bhcl::render {
 PhotonMap::PhotonMap(std::string name, std::vector<PhotonRecord> records, float power_scale)
     : name_(std::move(name)), records_(std::move(records)), power_scale_(power_scale) {
   positions_.resize(records_.size() * 3);
-  for (std::size_t i = 0; i < records_.size(); ++i)
+  power_.resize(records_.size());
+  direction_.resize(records_.size());
+  for (std::size_t i = 0; i < records_.size(); ++i) {
     for (int d = 0; d < 3; ++d) positions_[3 * i + d] = records_[i].position[d];
+    power_[i] = records_[i].get_power();
+    direction_[i] = records_[i].get_direction_unnormalized();
+  }
 }
 
 void PhotonMap::build_index(const std::string& method, std::shared_ptr<Runtime> runtime,
@@ -40,10 +45,10 @@ Vec3 PhotonMap::radiance(const KnnResult& r, std::size_t row, Vec3 n, Vec3 kd, f
   const float radius = std::sqrt(r2);
   Vec3 sum{0, 0, 0};
   for (int j = 0; j < count; ++j) {
-    const PhotonRecord& p = records_[static_cast<std::size_t>(r.id(row, j))];
-    if (dot(p.get_direction_unnormalized(), n) <= 0) continue;  // arrived from behind the surface
+    const std::size_t id = static_cast<std::size_t>(r.id(row, j));
+    if (dot(direction_[id], n) <= 0) continue;  // arrived from behind the surface
     float w = 1.0f - std::sqrt(r.d2(row, j)) / (kConeFilter * radius);
-    sum += p.get_power() * w;
+    sum += power_[id] * w;
   }
   const float norm = (1.0f - 2.0f / (3.0f * kConeFilter)) * kPi * r2;
   return kd * sum * (power_scale_ / (kPi * norm));

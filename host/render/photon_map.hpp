@@ -49,6 +49,9 @@ class PhotonMap {
   std::string name_;
   std::vector<PhotonRecord> records_;
   std::vector<float> positions_;
+  // Decoded once per map (each photon is read by about k x queries / photons estimates, ~100s of
+  // times per render): the half-float power and the unpacked (not normalised) incoming direction.
+  std::vector<Vec3> power_, direction_;
   float power_scale_;
   std::unique_ptr<Index> index_;
   double build_seconds_ = 0;

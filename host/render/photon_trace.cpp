@@ -69,7 +69,10 @@ void trace_one(const EmbreeScene& es, const LightSampler& lights, const PhotonTr
       float p = std::fmin(1.0f, max_component(m.ks));
       if (!(p > 0) || rng.uniform() >= p) return;
       power = power * m.ks / p;
-      // Flux: no (n_from / n_to)^2 factor (glass_scatter's radiance factor is not applied).
+      // A photon carries flux, which crossing the interface conserves (apart from the Fresnel
+      // split, sampled here): the (n_from / n_to)^2 that glass_scatter returns is the change of
+      // radiance, i.e. of flux per solid angle, as Snell's law narrows or widens the solid angle;
+      // it does not apply to a photon's power.
       (void)glass_scatter(dir, org, x, n, front, m.ior, rng.uniform(), eps);
       had_specular = true;
     } else {

@@ -53,17 +53,16 @@ float auto_exposure(const Image& image) {
   lum.reserve(image.pixels());
   for (std::size_t i = 0; i < image.pixels(); ++i) {
     float l = luminance(image.at(i));
-    if (std::isfinite(l) && l > 0) lum.push_back(l);
+    if (std::isfinite(l)) lum.push_back(l);
   }
   if (lum.empty()) return 1.0f;
-  // Emitters seen directly (the Cornell light is 40 times its brightest wall) would set the scale
-  // if they reached the top percent of the pixels: the percentile is taken over the pixels within
-  // kEmitterRatio of the median, so a few bright pixels cannot darken the whole picture.
-  constexpr float kEmitterRatio = 8.0f;
-  std::vector<float> sorted = lum;
-  std::nth_element(sorted.begin(), sorted.begin() + static_cast<std::ptrdiff_t>(sorted.size() / 2), sorted.end());
-  const float median = sorted[sorted.size() / 2];
-  lum.erase(std::remove_if(lum.begin(), lum.end(), [&](float l) { return l > kEmitterRatio * median; }), lum.end());
+  // Pixels that see an emitter (the Cornell light is 40x the walls) would set the 99th
+  // percentile whenever they cover more than 1 % of the image and leave the rest dark: the
+  // percentile is taken over the pixels at most 8x the median (the lit scene, noise included).
+  std::size_t mid = lum.size() / 2;
+  std::nth_element(lum.begin(), lum.begin() + static_cast<std::ptrdiff_t>(mid), lum.end());
+  const float median = lum[mid];
+  if (median > 0) lum.erase(std::remove_if(lum.begin(), lum.end(), [&](float l) { return l > 8 * median; }), lum.end());
   std::size_t k = std::min(lum.size() - 1, static_cast<std::size_t>(0.99 * lum.size()));
   std::nth_element(lum.begin(), lum.begin() + static_cast<std::ptrdiff_t>(k), lum.end());
   return lum[k] > 0 ? 1.0f / lum[k] : 1.0f;

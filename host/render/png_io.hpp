@@ -21,8 +21,9 @@ struct Rgb8 {
 
 // Tone mapping (documented choice): scale by `exposure`, clamp to [0, 1], sRGB transfer curve.
 Rgb8 tonemap(const Image& image, float exposure);
-// The exposure that maps the 99th percentile of pixel luminance to 1, over the pixels within 8x
-// the median (emitters seen directly do not set it); 1 for a black image.
+// The exposure that maps the 99th percentile of pixel luminance to 1 (1 for a black image), the
+// percentile taken over the pixels at most 8x the median luminance, so that a light seen
+// directly (however many pixels it covers) does not darken the rest.
 float auto_exposure(const Image& image);
 
 void write_png(const std::string& path, const Rgb8& image);  // throws bhcl::Error naming path

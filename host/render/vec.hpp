@@ -108,15 +108,15 @@ inline float fresnel_dielectric(float cos_i, float eta) {
 // A ray meets a glass surface at x: reflected with the Fresnel probability (u uniform in [0, 1)),
 // else refracted by Snell's law. n faces the incoming ray; front: it arrives from outside (ior is
 // the glass's). org moves eps off the surface on the side the ray leaves to.
-// Returns the factor RADIANCE carried back along the ray picks up: 1 for a reflection, and
-// (n_from / n_to)^2 = eta^2 for a refraction, "from" being the side the ray arrives from. Why:
-// L / n^2 is what is conserved across a refracting interface (the same flux through a solid angle
-// compressed by n^2), so a camera or gather path that enters glass sees the radiance inside
-// divided by (n_glass / n_air)^2 and multiplied back on the way out; for a closed object the two
-// cancel. Photons carry flux, which the interface does not compress: they ignore the factor.
+// Returns the factor by which RADIANCE carried back along the ray changes: (n_from / n_to)^2 on
+// refraction (n_from: the index on the side the ray comes from), 1 on reflection. Radiance / n^2
+// is what is conserved across a smooth interface (the same flux through a solid angle that Snell's
+// law compresses by n_to^2 / n_from^2), so a camera or gather ray entering glass sees (1 / ior)^2
+// of the radiance inside, and one leaving glass sees ior^2 times the radiance outside. Flux
+// (photon power) is conserved and takes no such factor; callers carrying flux ignore the value.
 inline float glass_scatter(Vec3& dir, Vec3& org, Vec3 x, Vec3 n, bool front, float ior, float u,
                            float eps) {
-  float eta = front ? 1.0f / ior : ior;
+  float eta = front ? 1.0f / ior : ior;  // n_from / n_to
   float cos_i = -dot(dir, n);
   if (u < fresnel_dielectric(cos_i, eta)) {
     dir = reflect(dir, n);
