@@ -37,10 +37,10 @@ class MultiDeviceIndex {
 
   // Host arrays, under the library's contract (knn.hpp). The batch is cut into one contiguous
   // part per device, sized by the current weights (equal at first, then each device's queries
-  // per second measured on the previous calls: kernel time where the device reports it, else wall
-  // time). Parts run concurrently; out gets every row in the caller's order. The returned stats
-  // sum the parts (query_s: the slowest part, the batch's critical path); `shares` gets each
-  // device's part. A device that fails makes the call throw, naming it.
+  // per second measured on the previous calls, from its part's wall time without compiles).
+  // Parts run concurrently; out gets every row in the caller's order. The returned stats sum the
+  // parts, except query_s: the slowest part's wall time (compiles excluded), the batch's critical
+  // path; `shares` gets each device's part with its own stats. A device that fails makes the call throw, naming it.
   QueryStats query(const float* queries, std::size_t n, const SearchParams& params, KnnResult& out,
                    std::vector<DeviceShare>* shares = nullptr) const;
   // Radius search, split and merged the same way (RadiusResult's slices in the caller's order).
