@@ -90,6 +90,31 @@ class ExactResultSet : public flann::ResultSet<float> {
   std::vector<std::int32_t> id_;
 };
 
+// Runs `work` (which grabs chunks of queries from `next` until it passes n) on `threads` host
+// threads, inline for one; the first exception stops the others and is rethrown here.
+template <typename Work>
+void run_workers(std::size_t threads, std::atomic<std::size_t>& next, std::size_t n, Work& work) {
+  if (threads <= 1) {
+    work();
+    return;
+  }
+  std::vector<std::thread> pool;
+  std::exception_ptr failure;
+  std::mutex failure_mutex;
+  for (std::size_t t = 0; t < threads; ++t)
+    pool.emplace_back([&]() {
+      try {
+        work();
+      } catch (...) {
+        std::lock_guard<std::mutex> lock(failure_mutex);
+        if (!failure) failure = std::current_exception();
+        next = n;  // stop the others
+      }
+    });
+  for (auto& th : pool) th.join();
+  if (failure) std::rethrow_exception(failure);
+}
+
 // Every point within r2 under the contract's distance, fed by FLANN's traversal (radius search).
 class RadiusCollectSet : public flann::ResultSet<float> {
  public:
@@ -220,27 +245,8 @@ std::size_t FlannIndex::search(const float* queries, std::size_t n, const Search
     }
     nonfinite += bad;
   };
-  const std::size_t nthreads =
-      std::min<std::size_t>(static_cast<std::size_t>(threads_), (n + kChunk - 1) / kChunk);
-  if (nthreads <= 1) {
-    work();
-  } else {
-    std::vector<std::thread> pool;
-    std::exception_ptr failure;
-    std::mutex failure_mutex;
-    for (std::size_t t = 0; t < nthreads; ++t)
-      pool.emplace_back([&]() {
-        try {
-          work();
-        } catch (...) {
-          std::lock_guard<std::mutex> lock(failure_mutex);
-          if (!failure) failure = std::current_exception();
-          next = n;  // stop the others
-        }
-      });
-    for (auto& th : pool) th.join();
-    if (failure) std::rethrow_exception(failure);
-  }
+  run_workers(std::min<std::size_t>(static_cast<std::size_t>(threads_), (n + kChunk - 1) / kChunk),
+              next, n, work);
   return nonfinite.load();
 }
 
@@ -272,30 +278,8 @@ double FlannIndex::host_radius_search(const float* queries, std::size_t n, float
       }
     }
   };
-  const std::size_t nthreads =
-      std::min<std::size_t>(static_cast<std::size_t>(threads_), (n + kChunk - 1) / kChunk);
-  std::vector<std::thread> pool;
-  std::exception_ptr failure;
-  std::mutex failure_mutex;
-  for (std::size_t t = 1; t < nthreads; ++t)
-    pool.emplace_back([&]() {
-      try {
-        work();
-      } catch (...) {
-        std::lock_guard<std::mutex> lock(failure_mutex);
-        if (!failure) failure = std::current_exception();
-        next = n;
-      }
-    });
-  try {
-    work();
-  } catch (...) {
-    std::lock_guard<std::mutex> lock(failure_mutex);
-    if (!failure) failure = std::current_exception();
-    next = n;
-  }
-  for (auto& th : pool) th.join();
-  if (failure) std::rethrow_exception(failure);
+  run_workers(std::min<std::size_t>(static_cast<std::size_t>(threads_), (n + kChunk - 1) / kChunk),
+              next, n, work);
   std::size_t total = 0;
   for (std::size_t i = 0; i < n; ++i) {
     out.offsets[i] = static_cast<std::int64_t>(total);

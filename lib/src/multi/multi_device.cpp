@@ -38,6 +38,23 @@ void on_each_device(std::size_t devices, const std::vector<std::string>& names, 
   }
 }
 
+// A part's time: its wall time without compiles, not its kernel event time. Devices that share
+// hardware (two PoCL contexts on one CPU) each report kernel time while the other waits, which
+// would show a speed-up that is not there.
+double part_seconds(const QueryStats& s) { return std::max(0.0, s.wall_s - s.compile_s); }
+
+// Adds one device's part to a call's stats: counts and transfer times sum; query_s and wall_s are
+// the slowest part's (the batch's critical path).
+void add_part(QueryStats& total, const QueryStats& part) {
+  total.nonfinite_queries += part.nonfinite_queries;
+  total.batches += part.batches;
+  total.compile_s += part.compile_s;
+  total.upload_s += part.upload_s;
+  total.download_s += part.download_s;
+  total.query_s = std::max(total.query_s, part_seconds(part));
+  total.wall_s = std::max(total.wall_s, part.wall_s);
+}
+
 }  // namespace
 
 std::vector<std::string> split_device_list(const std::string& list) {
@@ -144,18 +161,9 @@ QueryStats MultiDeviceIndex::query(const float* queries, std::size_t n, const Se
     std::copy(parts[d].counts.begin(), parts[d].counts.end(), out.counts.begin() + first[d]);
     if (params.count_examined)
       std::copy(parts[d].examined.begin(), parts[d].examined.end(), out.examined.begin() + first[d]);
-    total.nonfinite_queries += st[d].nonfinite_queries;
-    total.batches += st[d].batches;
-    total.compile_s += st[d].compile_s;
-    total.upload_s += st[d].upload_s;
-    total.download_s += st[d].download_s;
-    // The slowest part's wall time (compiles excluded), not its kernel event time: devices that
-    // share hardware (two PoCL contexts on one CPU) each report kernel time while the other waits,
-    // which would show a speed-up that is not there.
-    total.query_s = std::max(total.query_s, std::max(0.0, st[d].wall_s - st[d].compile_s));
-    total.wall_s = std::max(total.wall_s, st[d].wall_s);
+    add_part(total, st[d]);
     counts[d] = m;
-    seconds[d] = std::max(0.0, st[d].wall_s - st[d].compile_s);
+    seconds[d] = part_seconds(st[d]);
     if (shares) shares->push_back({names[d], m, w[d], st[d]});
   }
   learn(counts, seconds);
@@ -191,18 +199,9 @@ QueryStats MultiDeviceIndex::radius_search(const float* queries, std::size_t n, 
     out.found.insert(out.found.end(), p.found.begin(), p.found.end());
     out.examined.insert(out.examined.end(), p.examined.begin(), p.examined.end());
     out.truncated_queries += p.truncated_queries;
-    total.nonfinite_queries += st[d].nonfinite_queries;
-    total.batches += st[d].batches;
-    total.compile_s += st[d].compile_s;
-    total.upload_s += st[d].upload_s;
-    total.download_s += st[d].download_s;
-    // The slowest part's wall time (compiles excluded), not its kernel event time: devices that
-    // share hardware (two PoCL contexts on one CPU) each report kernel time while the other waits,
-    // which would show a speed-up that is not there.
-    total.query_s = std::max(total.query_s, std::max(0.0, st[d].wall_s - st[d].compile_s));
-    total.wall_s = std::max(total.wall_s, st[d].wall_s);
+    add_part(total, st[d]);
     counts[d] = first[d + 1] - first[d];
-    seconds[d] = std::max(0.0, st[d].wall_s - st[d].compile_s);
+    seconds[d] = part_seconds(st[d]);
     if (shares) shares->push_back({names[d], counts[d], w[d], st[d]});
   }
   learn(counts, seconds);
