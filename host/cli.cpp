@@ -435,4 +435,25 @@ SearchParams search_params(const Args& args, int default_k) {
   return p;
 }
 
+void parse_image_size(const std::string& s, int& w, int& h) {
+  auto x = s.find('x');
+  try {
+    if (x == std::string::npos) throw 0;
+    std::size_t p1 = 0, p2 = 0;
+    w = std::stoi(s.substr(0, x), &p1);
+    h = std::stoi(s.substr(x + 1), &p2);
+    if (p1 != x || p2 != s.size() - x - 1) throw 0;
+  } catch (...) {
+    throw UsageError("--size expects WxH (e.g. 512x512), got '" + s + "'");
+  }
+  if (w < 1 || h < 1 || w > 16384 || h > 16384) throw UsageError("--size must be between 1x1 and 16384x16384");
+}
+
+std::string strip_extension(const std::string& path) {
+  auto slash = path.find_last_of('/');
+  auto dot = path.find_last_of('.');
+  if (dot == std::string::npos || (slash != std::string::npos && dot < slash)) return path;
+  return path.substr(0, dot);
+}
+
 }  // namespace bhcl::cli

@@ -127,4 +127,9 @@ std::string method_list(const std::vector<std::string>& names);
 // Reads --points and --queries; an empty file is an error naming it.
 void read_points_and_queries(const Args& args, std::vector<float>& points, std::vector<float>& queries);
 
+// --size WxH (each 1 to 16384); UsageError otherwise.
+void parse_image_size(const std::string& s, int& w, int& h);
+// The path without its last extension ("a/b.exr" -> "a/b"; "a.d/b" stays).
+std::string strip_extension(const std::string& path);
+
 }  // namespace bhcl::cli

@@ -14,6 +14,7 @@
 #include "cli.hpp"
 #include "commands.hpp"
 #include "compare.hpp"
+#include "density.hpp"
 #include "embree_scene.hpp"
 #include "exr_io.hpp"
 #include "final_gather.hpp"
@@ -27,27 +28,6 @@ namespace {
 using namespace bhcl::render;
 using Clock = std::chrono::steady_clock;
 double since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
-
-void parse_size(const std::string& s, int& w, int& h) {
-  auto x = s.find('x');
-  try {
-    if (x == std::string::npos) throw 0;
-    std::size_t p1 = 0, p2 = 0;
-    w = std::stoi(s.substr(0, x), &p1);
-    h = std::stoi(s.substr(x + 1), &p2);
-    if (p1 != x || p2 != s.size() - x - 1) throw 0;
-  } catch (...) {
-    throw UsageError("--size expects WxH (e.g. 512x512), got '" + s + "'");
-  }
-  if (w < 1 || h < 1 || w > 16384 || h > 16384) throw UsageError("--size must be between 1x1 and 16384x16384");
-}
-
-std::string strip_ext(const std::string& path) {
-  auto slash = path.find_last_of('/');
-  auto dot = path.find_last_of('.');
-  if (dot == std::string::npos || (slash != std::string::npos && dot < slash)) return path;
-  return path.substr(0, dot);
-}
 
 std::vector<float> parse_list(const std::string& s) {
   std::vector<float> v;
@@ -76,27 +56,62 @@ bool has_method(const std::string& m) {
 struct RenderRun {
   std::string label, method;
   float A = 0;
-  Image image;
+  std::vector<Image> images;  // one per density estimator
   RenderStats stats;
   double build_s = 0, warm_s = 0, total_s = 0;
   Json build, search;  // the parameters the global map's index used, for the stats
 };
 
-// Builds the index of `method` on the (shared) photon maps and renders.
-RenderRun render_with(const std::string& label, const std::string& method, float A, PhotonMaps& maps,
-                      const std::shared_ptr<Runtime>& rt, const MethodOptions& mopt,
-                      const EmbreeScene& es, const LightSampler& lights, RenderOptions ropt,
-                      bool quiet) {
+std::string format_g(double v) {
+  char b[32];
+  std::snprintf(b, sizeof b, "%g", v);
+  return b;
+}
+
+// "kth-cone": the estimator in file names.
+std::string estimator_tag(const DensityEstimator& e) {
+  return std::string(radius_estimator_name(e.radius)) + "-" + density_filter_name(e.filter);
+}
+
+// --estimator and --filter: one each, or (with --compare) comma lists whose every pair is shaded.
+std::vector<DensityEstimator> parse_estimators(const Args& args, bool lists) {
+  auto split = [&](const std::string& opt, const std::string& dflt) {
+    std::vector<std::string> v;
+    std::stringstream ss(args.str(opt, dflt));
+    std::string item;
+    while (std::getline(ss, item, ',')) v.push_back(item);
+    if (v.empty()) throw UsageError("--" + opt + " is empty");
+    if (v.size() > 1 && !lists) throw UsageError("--" + opt + " takes a list only with --compare");
+    return v;
+  };
+  std::vector<DensityEstimator> out;
+  for (const std::string& r : split("estimator", "kth"))
+    for (const std::string& f : split("filter", "cone")) {
+      DensityEstimator e;
+      if (!parse_radius_estimator(r, e.radius))
+        throw UsageError("--estimator: unknown radius estimator '" + r + "' (kth, mean, var)");
+      if (!parse_density_filter(f, e.filter))
+        throw UsageError("--filter: unknown filter '" + f + "' (box, cone, epanechnikov)");
+      for (const auto& o : out)
+        if (o == e) throw UsageError("--estimator/--filter: " + estimator_name(e) + " is listed twice");
+      out.push_back(e);
+    }
+  return out;
+}
+
+// Builds the index of `method` on the (shared) photon maps and compiles its kernels, so that the
+// query time excludes first-launch compiles.
+RenderRun start_run(const std::string& label, const std::string& method, float A, PhotonMaps& maps,
+                    const std::shared_ptr<Runtime>& rt, const MethodOptions& mopt, RenderOptions ropt) {
   RenderRun run;
   run.label = label;
   run.method = method;
   run.A = A;
   ropt.search.A = A;
-  auto t0 = Clock::now();
+  const auto t0 = Clock::now();
   maps.global->build_index(method, rt, mopt);
   if (maps.caustic) maps.caustic->build_index(method, rt, mopt);
   run.build_s = maps.global->build_seconds() + (maps.caustic ? maps.caustic->build_seconds() : 0.0);
-  // Compile the kernel variants now, so that the query time excludes first-launch compiles.
   if (maps.global->index()) {
     run.warm_s += maps.global->index()->warm_up(ropt.search);
     run.build = build_json(*maps.global->index(), mopt);
@@ -107,12 +122,70 @@ RenderRun render_with(const std::string& label, const std::string& method, float
     cp.k = ropt.caustic_k > 0 ? ropt.caustic_k : ropt.search.k;
     run.warm_s += maps.caustic->index()->warm_up(cp);
   }
-  FinalGatherRenderer renderer(es, lights, *maps.global, maps.caustic.get(), ropt);
-  Progress bar("render " + label, !quiet);
-  run.image = renderer.render(run.stats, &bar);
-  bar.finish();
   run.total_s = since(t0);
   return run;
+}
+
+// Shades a traced frame with the maps' current indices (start_run), once per estimator.
+void shade_run(RenderRun& run, const TracedFrame& frame, const std::vector<DensityEstimator>& ests,
+               const PhotonMaps& maps, const EmbreeScene& es, const LightSampler& lights, RenderOptions ropt,
+               bool quiet) {
+  ropt.search.A = run.A;
+  const auto t0 = Clock::now();
+  FinalGatherRenderer renderer(es, lights, *maps.global, maps.caustic.get(), ropt);
+  Progress bar("shade " + run.label, !quiet);
+  run.images = renderer.shade(frame, ests, run.stats, &bar);
+  bar.finish();
+  run.total_s += since(t0);
+}
+
+// Traces and shades pass by pass (one pass in memory): the plain render.
+RenderRun render_with(const std::string& label, const std::string& method, float A, PhotonMaps& maps,
+                      const std::shared_ptr<Runtime>& rt, const MethodOptions& mopt,
+                      const EmbreeScene& es, const LightSampler& lights, RenderOptions ropt,
+                      bool quiet) {
+  RenderRun run = start_run(label, method, A, maps, rt, mopt, ropt);
+  ropt.search.A = A;
+  const auto t0 = Clock::now();
+  FinalGatherRenderer renderer(es, lights, *maps.global, maps.caustic.get(), ropt);
+  Progress bar("render " + label, !quiet);
+  run.images.push_back(renderer.render(run.stats, &bar));
+  bar.finish();
+  run.total_s += since(t0);
+  return run;
+}
+
+// The ray counts of a frame traced once, for the skip report of every run that shaded it.
+void add_trace_counts(RenderStats& s, const RenderStats& t) {
+  s.camera_rays += t.camera_rays;
+  s.visible_points += t.visible_points;
+  s.shadow_rays += t.shadow_rays;
+  s.gather_rays += t.gather_rays;
+  s.gather_escaped += t.gather_escaped;
+  s.gather_no_query += t.gather_no_query;
+  s.passes = t.passes;
+}
+
+double mean_luminance(const Image& img) {
+  double sum = 0;
+  for (std::size_t i = 0; i < img.pixels(); ++i) sum += luminance(img.at(i));
+  return img.pixels() ? sum / img.pixels() : 0.0;
+}
+
+// The image averaged over blocks of b x b pixels (the last row and column of blocks may be
+// smaller).
+Image block_average(const Image& img, int b) {
+  Image out((img.width + b - 1) / b, (img.height + b - 1) / b);
+  for (int by = 0; by < out.height; ++by)
+    for (int bx = 0; bx < out.width; ++bx) {
+      Vec3 sum{0, 0, 0};
+      int n = 0;
+      for (int y = by * b; y < std::min(img.height, (by + 1) * b); ++y)
+        for (int x = bx * b; x < std::min(img.width, (bx + 1) * b); ++x, ++n)
+          sum += img.at(static_cast<std::size_t>(y) * img.width + x);
+      out.set(static_cast<std::size_t>(by) * out.width + bx, sum * (1.0f / n));
+    }
+  return out;
 }
 
 // What the render did not do, because the scene did not need it (item by item).
@@ -176,6 +249,7 @@ Json render_header(const Runtime& rt, const Args& args, const std::string& scene
   j["gather"] = ropt.gather;
   j["shadow_rays"] = ropt.shadow_rays;
   j["k"] = ropt.search.k;
+  j["estimator"] = estimator_name(ropt.estimator);
   j["caustic_k"] = ropt.caustic_k;
   j["caustic_radius"] = ropt.caustic_radius;
   j["batch"] = ropt.batch_queries;
@@ -209,6 +283,11 @@ void declare_render(Args& a) {
   a.add_number("exposure", "tone-mapping exposure (0: automatic)", "0");
   a.add_integer("photon-seed", "seed of the photons (-1: --seed); --seed then seeds the camera, shadow and gather rays",
                 -1, Args::kNoLimit, "-1");
+  a.add_text("estimator", "photon density: the disc's radius from the k-th distance (kth), the mean distance "
+                          "(mean) or the variance of the distances (var); with --compare a comma list",
+             "kth", "NAME");
+  a.add_text("filter", "photon weights in the disc: box, cone or epanechnikov; with --compare a comma list", "cone",
+             "NAME");
   a.add_flag("quiet", "no progress bars");
   a.group("Comparison");
   a.add_flag("compare", "render with an exact method and with block hashing at several A, side by side");
@@ -218,13 +297,17 @@ void declare_render(Args& a) {
   a.add_number("diff-scale", "--compare: relative error shown as full scale in the difference images", "0.1");
   a.add_flag("noise-floor", "--compare: also render the exact method with another photon seed and with another "
                             "render seed, and print their differences (the render's own Monte Carlo noise)");
+  a.add_text("reference", "--compare: an independent render of the same scene and camera (EXR, e.g. bhcl "
+                          "pathtrace): each estimator's exact render is compared with it", "", "IMAGE.exr");
+  a.add_integer("reference-block", "--compare: block size (pixels) of the block-averaged error against --reference",
+                1, 4096, "8");
   declare_index_options(a, 50, true);
 }
 
 int run_render(const Args& args) {
   {
     const bool cmp = args.flag("compare");
-    for (const char* o : {"exact", "approx", "compare-A", "diff-scale", "noise-floor"})
+    for (const char* o : {"exact", "approx", "compare-A", "diff-scale", "noise-floor", "reference", "reference-block"})
       if (!cmp && args.has(o)) throw UsageError("--" + std::string(o) + " applies only with --compare");
     if (cmp && args.has("method")) throw UsageError("--method does not apply with --compare (see --exact, --approx)");
     const std::string dflt = has_method("kdtree") ? "kdtree" : "bruteforce";
@@ -238,10 +321,10 @@ int run_render(const Args& args) {
   const bool quiet = args.flag("quiet");
   const bool compare = args.flag("compare");
   const std::string out = args.str("out");
-  const std::string base = strip_ext(out);
+  const std::string base = strip_extension(out);
 
   RenderOptions ropt;
-  parse_size(args.str("size", "512x512"), ropt.width, ropt.height);
+  parse_image_size(args.str("size", "512x512"), ropt.width, ropt.height);
   ropt.search = search_params(args, 50);
   ropt.spp = static_cast<int>(args.integer("spp", 1));
   ropt.gather = static_cast<int>(args.integer("gather", 32));
@@ -252,6 +335,8 @@ int run_render(const Args& args) {
   long long batch = args.integer("batch", 262144);
   if (!(ropt.caustic_radius >= 0)) throw UsageError("--caustic-radius must be >= 0");
   ropt.batch_queries = static_cast<std::size_t>(batch);
+  const std::vector<DensityEstimator> ests = parse_estimators(args, compare);
+  ropt.estimator = ests[0];
   MethodOptions mopt = method_options(args);
   {
     // Before any work: no output may overwrite the scene, a saved index or another output (the
@@ -261,7 +346,10 @@ int run_render(const Args& args) {
                                     {"--stats", args.str("stats", "")},
                                     {"--save-index", mopt.save_index}};
     if (compare) outputs.push_back({"the comparison sheet beside --out", base + "_compare.png"});
-    check_distinct_files({{"--scene", args.str("scene", "")}, {"--load-index", mopt.load_index}}, outputs);
+    check_distinct_files({{"--scene", args.str("scene", "")},
+                          {"--load-index", mopt.load_index},
+                          {"--reference", args.str("reference", "")}},
+                         outputs);
   }
   ropt.seed = mopt.seed;
   ropt.threads = mopt.threads;
@@ -311,10 +399,10 @@ int run_render(const Args& args) {
   if (!compare) {
     const std::string method = args.str("method", has_method("kdtree") ? "kdtree" : "bruteforce");
     RenderRun r = render_with(method, method, ropt.search.A, maps, rt, mopt, es, lights, ropt, quiet);
-    write_exr(out, r.image);
-    const float exposure = exposure_opt > 0 ? static_cast<float>(exposure_opt) : auto_exposure(r.image);
+    write_exr(out, r.images[0]);
+    const float exposure = exposure_opt > 0 ? static_cast<float>(exposure_opt) : auto_exposure(r.images[0]);
     const std::string png = args.str("png", base + ".png");
-    write_png(png, tonemap(r.image, exposure));
+    write_png(png, tonemap(r.images[0], exposure));
     const double total = since(t_start);
     print_split("bhcl render: time split", r, photon_s);
     print_skipped(r, maps);
@@ -337,133 +425,244 @@ int run_render(const Args& args) {
     return 0;
   }
 
-  // --compare: the same photon map (and the same rays: same seed) with each method.
+  // --compare: the same photon map and the same rays, traced once, shaded by each method, A and
+  // estimator.
   const std::string exact = args.str("exact", has_method("kdtree") ? "kdtree" : "bruteforce");
   const std::string approx = args.str("approx", "blockhash");
   const std::vector<float> As = parse_list(args.str("compare-A", "4,8,16"));
+  const std::size_t E = ests.size();
+  const float max_rel = static_cast<float>(args.number("diff-scale", 0.1));
+  if (!(max_rel > 0)) throw UsageError("--diff-scale must be > 0");
   std::vector<RenderRun> runs;
-  runs.push_back(render_with(exact, exact, ropt.search.A, maps, rt, mopt, es, lights, ropt, quiet));
+  runs.push_back(start_run(exact, exact, ropt.search.A, maps, rt, mopt, ropt));
+  RenderStats trace_stats;
+  TracedFrame frame;
+  {
+    FinalGatherRenderer tracer(es, lights, *maps.global, maps.caustic.get(), ropt);
+    Progress bar("trace rays", !quiet);
+    frame = tracer.trace(trace_stats, &bar);
+    bar.finish();
+  }
+  std::fprintf(stderr,
+               "bhcl render --compare: camera, shadow and gather rays traced once in %.2f s (%zu gather queries "
+               "kept, %.1f MiB), shaded by every run\n",
+               trace_stats.trace_s, trace_stats.gather_rays - trace_stats.gather_escaped - trace_stats.gather_no_query,
+               frame.bytes() / 1048576.0);
+  const std::size_t frame_bytes = frame.bytes();
+  shade_run(runs.back(), frame, ests, maps, es, lights, ropt, quiet);
   for (float A : As) {
     char label[64];
     std::snprintf(label, sizeof label, "%s A=%g", approx.c_str(), A);
-    runs.push_back(render_with(label, approx, A, maps, rt, mopt, es, lights, ropt, quiet));
-    // A larger A examines more candidates; once the image is bit-identical to the previous A's,
+    runs.push_back(start_run(label, approx, A, maps, rt, mopt, ropt));
+    shade_run(runs.back(), frame, ests, maps, es, lights, ropt, quiet);
+    // A larger A examines more candidates; once the images are bit-identical to the previous A's,
     // the neighbour lists that matter have stopped changing and larger A would only cost time.
-    if (runs.size() > 2 && runs.back().image.rgb == runs[runs.size() - 2].image.rgb) {
-      std::fprintf(stderr, "bhcl render --compare: %s gives an image bit-identical to %s: larger A skipped\n",
-                   runs.back().label.c_str(), runs[runs.size() - 2].label.c_str());
-      break;
+    if (runs.size() > 2) {
+      bool same = true;
+      for (std::size_t e = 0; e < E; ++e) same = same && runs.back().images[e].rgb == runs[runs.size() - 2].images[e].rgb;
+      if (same) {
+        std::fprintf(stderr, "bhcl render --compare: %s gives an image bit-identical to %s: larger A skipped\n",
+                     runs.back().label.c_str(), runs[runs.size() - 2].label.c_str());
+        break;
+      }
     }
   }
+  for (RenderRun& r : runs) add_trace_counts(r.stats, trace_stats);
+  runs[0].stats.trace_s = trace_stats.trace_s;
   // The noise floor: the exact render's own Monte Carlo error, as the difference between two
-  // exact renders that differ only in the photon seed (a new photon map) or only in the render
-  // seed (new camera, shadow and gather rays). Block hashing's error matters only against these.
-  std::vector<std::pair<std::string, ImageDiff>> noise;
+  // exact renders that differ only in the photon seed (a new photon map, the same rays) or only
+  // in the render seed (new camera, shadow and gather rays). Block hashing's error matters only
+  // against these.
+  std::vector<std::vector<std::pair<std::string, ImageDiff>>> noise(E);  // per estimator
+  std::vector<Image> photon_seed_images, render_seed_images;
   if (args.flag("noise-floor")) {
     PhotonTraceOptions popt2 = popt;
     popt2.seed = popt.seed + 1000003;
     PhotonMaps maps2 = build_photon_maps(es, lights, popt2);
-    RenderRun p2 = render_with(exact + " photon seed+", exact, ropt.search.A, maps2, rt, mopt, es, lights, ropt, quiet);
-    noise.emplace_back("exact, photon seed " + std::to_string(popt2.seed), image_diff(p2.image, runs[0].image));
+    RenderRun p2 = start_run(exact + " photon seed+", exact, ropt.search.A, maps2, rt, mopt, ropt);
+    shade_run(p2, frame, ests, maps2, es, lights, ropt, quiet);
+    frame = TracedFrame{};  // its memory: the render-seed run traces its own
     RenderOptions ropt2 = ropt;
     ropt2.seed = ropt.seed + 1000003;
-    RenderRun r2 = render_with(exact + " render seed+", exact, ropt.search.A, maps, rt, mopt, es, lights, ropt2, quiet);
-    noise.emplace_back("exact, render seed " + std::to_string(ropt2.seed), image_diff(r2.image, runs[0].image));
-  }
-  const Image& ref = runs[0].image;
-  const float exposure = exposure_opt > 0 ? static_cast<float>(exposure_opt) : auto_exposure(ref);
-  const float max_rel = static_cast<float>(args.number("diff-scale", 0.1));
-  if (!(max_rel > 0)) throw UsageError("--diff-scale must be > 0");
-  std::vector<Panel> top, fixed_row, auto_row;
-  std::vector<ImageDiff> diffs;
-  std::vector<std::string> files;
-  std::vector<const Image*> approx_images;
-  for (std::size_t i = 1; i < runs.size(); ++i) approx_images.push_back(&runs[i].image);
-  // The automatic scale: the 99th percentile of every approximate image's per-pixel error, so
-  // that errors far below the fixed scale still show (0 when all are exact: then the fixed one).
-  float auto_rel = relative_error_percentile(approx_images, ref, 0.99f);
-  const bool auto_ok = auto_rel > 0;
-  if (!auto_ok) auto_rel = max_rel;
-  const int tile_w = ref.width;
-  TextPainter text(std::clamp(tile_w / 22, 9, 16));
-  if (!text.ok()) std::fprintf(stderr, "bhcl render: the comparison sheet is unlabelled: %s\n", text.why().c_str());
-  char buf[128];
-  for (std::size_t i = 0; i < runs.size(); ++i) {
-    const std::string tag = i == 0 ? "exact" : "A" + [&] {
-      char b[32];
-      std::snprintf(b, sizeof b, "%g", runs[i].A);
-      return std::string(b);
-    }();
-    const std::string exr = i == 0 ? out : base + "_" + tag + ".exr";
-    write_exr(exr, runs[i].image);
-    Rgb8 tm = tonemap(runs[i].image, exposure);
-    write_png(strip_ext(exr) + ".png", tm);
-    files.push_back(exr);
-    diffs.push_back(image_diff(runs[i].image, ref));
-    Panel p{tm, {}};
-    p.lines.push_back(i == 0 ? runs[i].label + " (exact)" : runs[i].label);
-    std::snprintf(buf, sizeof buf, "query %.3f s", runs[i].stats.query_s);
-    p.lines.push_back(buf);
-    std::snprintf(buf, sizeof buf, "RMSE %.3g (%.3g%%)", diffs[i].rmse, 100.0 * diffs[i].relative_rmse);
-    p.lines.push_back(i == 0 ? "the reference" : buf);
-    top.push_back(std::move(p));
-    if (i > 0) {
-      Rgb8 fc = false_colour_difference(runs[i].image, ref, max_rel);
-      write_png(base + "_diff_" + tag + ".png", fc);
-      std::snprintf(buf, sizeof buf, "fixed scale 0-%.3g%%", 100.0 * max_rel);
-      fixed_row.push_back({fc, {"|rel. error| " + tag, buf}});
-      std::snprintf(buf, sizeof buf, "auto scale 0-%.3g%% (p99)", 100.0 * auto_rel);
-      auto_row.push_back({false_colour_difference(runs[i].image, ref, auto_rel), {"|rel. error| " + tag, buf}});
+    RenderRun r2 = start_run(exact + " render seed+", exact, ropt.search.A, maps, rt, mopt, ropt2);
+    {
+      FinalGatherRenderer renderer(es, lights, *maps.global, maps.caustic.get(), ropt2);
+      RenderStats ts;
+      Progress bar("render " + r2.label, !quiet);
+      TracedFrame f2 = renderer.trace(ts, &bar);
+      r2.images = renderer.shade(f2, ests, r2.stats, nullptr);
+      bar.finish();
     }
+    for (std::size_t e = 0; e < E; ++e) {
+      noise[e].emplace_back("exact, photon seed " + std::to_string(popt2.seed), image_diff(p2.images[e], runs[0].images[e]));
+      noise[e].emplace_back("exact, render seed " + std::to_string(ropt2.seed), image_diff(r2.images[e], runs[0].images[e]));
+    }
+    photon_seed_images = std::move(p2.images);
+    render_seed_images = std::move(r2.images);
   }
-  // First column of the difference rows: the colour scale with its numbers.
-  const int scale_w = tile_w;  // the sheet's columns are as wide as a render anyway
-  fixed_row.insert(fixed_row.begin(), Panel{labelled_colour_scale(scale_w, ref.height, max_rel, text),
-                                            {"colour scale", "fixed (--diff-scale)"}});
-  auto_row.insert(auto_row.begin(), Panel{labelled_colour_scale(scale_w, ref.height, auto_rel, text),
-                                          {"colour scale", auto_ok ? "auto: 99th pct." : "auto: all exact"}});
-  const std::string sheet = base + "_compare.png";
-  write_png(sheet, labelled_sheet({top, fixed_row, auto_row}, 8, text));
+  frame = TracedFrame{};
+
+  // The independent reference, when given: each estimator's exact render against it, per pixel
+  // and on blocks of pixels (which average away most of the render's per-pixel noise and keep
+  // the estimator's bias: blur at corners and edges, darkening near walls).
+  Image reference;
+  const int block = static_cast<int>(args.integer("reference-block", 8));
+  if (args.has("reference")) {
+    reference = read_exr(args.str("reference"));
+    if (reference.width != ropt.width || reference.height != ropt.height)
+      throw UsageError("--reference " + args.str("reference") + " is " + std::to_string(reference.width) + "x" +
+                       std::to_string(reference.height) + ", the render " + std::to_string(ropt.width) + "x" +
+                       std::to_string(ropt.height));
+  }
+
+  const float exposure = exposure_opt > 0 ? static_cast<float>(exposure_opt) : auto_exposure(runs[0].images[0]);
+  TextPainter text(std::clamp(ropt.width / 22, 9, 16));
+  if (!text.ok()) std::fprintf(stderr, "bhcl render: the comparison sheet is unlabelled: %s\n", text.why().c_str());
+  // diffs[e][i]: run i against the exact run, both with estimator e.
+  std::vector<std::vector<ImageDiff>> diffs(E);
+  std::vector<float> auto_rels(E);
+  std::vector<std::string> sheets(E);
+  for (std::size_t e = 0; e < E; ++e) {
+    const Image& ref = runs[0].images[e];
+    // With several estimators every output name carries the estimator ("_kth-cone").
+    const std::string etag = E == 1 ? "" : "_" + estimator_tag(ests[e]);
+    std::vector<Panel> top, fixed_row, auto_row;
+    std::vector<const Image*> approx_images;
+    for (std::size_t i = 1; i < runs.size(); ++i) approx_images.push_back(&runs[i].images[e]);
+    // The automatic scale: the 99th percentile of every approximate image's per-pixel error, so
+    // that errors far below the fixed scale still show (0 when all are exact: then the fixed one).
+    float auto_rel = relative_error_percentile(approx_images, ref, 0.99f);
+    const bool auto_ok = auto_rel > 0;
+    if (!auto_ok) auto_rel = max_rel;
+    auto_rels[e] = auto_rel;
+    char buf[128];
+    for (std::size_t i = 0; i < runs.size(); ++i) {
+      const Image& img = runs[i].images[e];
+      const std::string tag = i == 0 ? "exact" : "A" + format_g(runs[i].A);
+      // --out is the first estimator's exact render.
+      const std::string exr = i == 0 ? (e == 0 ? out : base + etag + ".exr") : base + etag + "_" + tag + ".exr";
+      write_exr(exr, img);
+      Rgb8 tm = tonemap(img, exposure);
+      write_png(strip_extension(exr) + ".png", tm);
+      diffs[e].push_back(image_diff(img, ref));
+      const ImageDiff& d = diffs[e].back();
+      Panel p{tm, {}};
+      p.lines.push_back((i == 0 ? runs[i].label + " (exact)" : runs[i].label) + (E == 1 ? "" : ", " + estimator_name(ests[e])));
+      std::snprintf(buf, sizeof buf, "query %.3f s", runs[i].stats.query_s);
+      p.lines.push_back(buf);
+      std::snprintf(buf, sizeof buf, "RMSE %.3g (%.3g%%)", d.rmse, 100.0 * d.relative_rmse);
+      p.lines.push_back(i == 0 ? "the reference" : buf);
+      top.push_back(std::move(p));
+      if (i > 0) {
+        Rgb8 fc = false_colour_difference(img, ref, max_rel);
+        write_png(base + etag + "_diff_" + tag + ".png", fc);
+        std::snprintf(buf, sizeof buf, "fixed scale 0-%.3g%%", 100.0 * max_rel);
+        fixed_row.push_back({fc, {"|rel. error| " + tag, buf}});
+        std::snprintf(buf, sizeof buf, "auto scale 0-%.3g%% (p99)", 100.0 * auto_rel);
+        auto_row.push_back({false_colour_difference(img, ref, auto_rel), {"|rel. error| " + tag, buf}});
+      }
+    }
+    // First column of the difference rows: the colour scale with its numbers.
+    fixed_row.insert(fixed_row.begin(), Panel{labelled_colour_scale(ref.width, ref.height, max_rel, text),
+                                              {"colour scale", "fixed (--diff-scale)"}});
+    auto_row.insert(auto_row.begin(), Panel{labelled_colour_scale(ref.width, ref.height, auto_rel, text),
+                                            {"colour scale", auto_ok ? "auto: 99th pct." : "auto: all exact"}});
+    sheets[e] = base + etag + "_compare.png";
+    write_png(sheets[e], labelled_sheet({top, fixed_row, auto_row}, 8, text));
+  }
 
   std::string rendered_As;  // those rendered: larger ones are skipped once the image stops changing
-  for (std::size_t i = 1; i < runs.size(); ++i) {
-    char b[32];
-    std::snprintf(b, sizeof b, "%s%g", i > 1 ? "," : "", runs[i].A);
-    rendered_As += b;
-  }
+  for (std::size_t i = 1; i < runs.size(); ++i) rendered_As += (i > 1 ? "," : "") + format_g(runs[i].A);
   print_split("bhcl render: time split", runs[0], photon_s);
   std::fprintf(stderr, "\nbhcl render --compare: scene '%s', %dx%d, %zu photons, k=%d, M=%d, device %s\n",
                scene.name.c_str(), ropt.width, ropt.height, maps.global->size(), ropt.search.k, ropt.gather,
                device.c_str());
-  std::fprintf(stderr, "  %-18s %12s %12s %14s %12s %12s %10s\n", "method", "RMSE", "rel. RMSE", "mean rel err",
-               "query s", "kernel s", "build s");
-  for (std::size_t i = 0; i < runs.size(); ++i)
-    std::fprintf(stderr, "  %-18s %12.5g %12.5g %14.5g %12.3f %12.3f %10.3f\n", runs[i].label.c_str(),
-                 diffs[i].rmse, diffs[i].relative_rmse, diffs[i].mean_rel_error, runs[i].stats.query_s,
-                 runs[i].stats.query_kernel_s, runs[i].build_s);
-  for (const auto& [name, d] : noise)
-    std::fprintf(stderr, "  %-18s %12.5g %12.5g %14.5g   (noise floor: %s)\n", "exact, other seed", d.rmse,
-                 d.relative_rmse, d.mean_rel_error, name.c_str());
+  for (std::size_t e = 0; e < E; ++e) {
+    std::fprintf(stderr, "  estimator %s: errors against the exact render with the same estimator\n",
+                 estimator_name(ests[e]).c_str());
+    std::fprintf(stderr, "  %-18s %12s %12s %14s %12s %12s %10s\n", "method", "RMSE", "rel. RMSE", "mean rel err",
+                 "query s", "kernel s", "build s");
+    for (std::size_t i = 0; i < runs.size(); ++i)
+      std::fprintf(stderr, "  %-18s %12.5g %12.5g %14.5g %12.3f %12.3f %10.3f\n", runs[i].label.c_str(),
+                   diffs[e][i].rmse, diffs[e][i].relative_rmse, diffs[e][i].mean_rel_error, runs[i].stats.query_s,
+                   runs[i].stats.query_kernel_s, runs[i].build_s);
+    for (const auto& [name, d] : noise[e])
+      std::fprintf(stderr, "  %-18s %12.5g %12.5g %14.5g   (noise floor: %s)\n", "exact, other seed", d.rmse,
+                   d.relative_rmse, d.mean_rel_error, name.c_str());
+  }
+  // Against the reference: per pixel, and on blocks; with the noise floor's other-seed renders
+  // against the same reference, so that the estimator's bias can be told from the noise.
+  std::vector<ImageDiff> ref_diffs, ref_block_diffs;
+  if (!reference.rgb.empty()) {
+    const Image ref_blocks = block_average(reference, block);
+    std::fprintf(stderr, "\n  against the reference %s (blocks of %dx%d pixels averaged for 'block'):\n",
+                 args.str("reference").c_str(), block, block);
+    std::fprintf(stderr, "  %-22s %12s %12s %16s %16s\n", "estimator", "RMSE", "rel. RMSE", "block rel. RMSE",
+                 "mean luminance");
+    for (std::size_t e = 0; e < E; ++e) {
+      ref_diffs.push_back(image_diff(runs[0].images[e], reference));
+      ref_block_diffs.push_back(image_diff(block_average(runs[0].images[e], block), ref_blocks));
+      std::fprintf(stderr, "  %-22s %12.5g %12.5g %16.5g %16.5g\n", estimator_name(ests[e]).c_str(), ref_diffs[e].rmse,
+                   ref_diffs[e].relative_rmse, ref_block_diffs[e].relative_rmse, mean_luminance(runs[0].images[e]));
+      if (!render_seed_images.empty())
+        std::fprintf(stderr, "  %-22s %12s %12s %16.5g   (other render seed: block noise)\n", "", "", "",
+                     image_diff(block_average(render_seed_images[e], block), ref_blocks).relative_rmse);
+    }
+    std::fprintf(stderr, "  %-22s %12s %12s %16s %16.5g\n", "reference", "", "", "", mean_luminance(reference));
+  }
   std::fprintf(stderr,
-               "  sheet %s: top row the renders (%s first, then A = %s), second row the colour scale and the "
+               "  sheet%s %s: top row the renders (%s first, then A = %s), second row the colour scale and the "
                "false-colour |relative luminance error| of each against the exact render (0 to %.3g%%, fixed), "
-               "third row the same on the automatic scale (0 to %.3g%%, the 99th percentile); black: exactly 0\n",
-               sheet.c_str(), exact.c_str(), rendered_As.c_str(), 100.0 * max_rel, 100.0 * auto_rel);
+               "third row the same on the automatic scale (the 99th percentile); black: exactly 0\n",
+               E == 1 ? "" : "s (one per estimator)", E == 1 ? sheets[0].c_str() : (base + "_<estimator>_compare.png").c_str(),
+               exact.c_str(), rendered_As.c_str(), 100.0 * max_rel);
   if (args.has("stats")) {
     Json j = render_header(*rt, args, scene.name, ropt, maps, popt.photons);
     j["exact"] = exact;
     j["approx"] = approx;
     j["exposure"] = exposure;
     j["diff_scale"] = max_rel;
-    j["diff_scale_auto"] = auto_rel;
+    j["diff_scale_auto"] = auto_rels[0];
     j["photon_s"] = photon_s;
+    j["trace_once_s"] = trace_stats.trace_s;
+    j["traced_frame_bytes"] = frame_bytes;
     j["total_s"] = since(t_start);
+    // The first estimator's figures at the top level (as before estimators were a list); every
+    // estimator's in "estimators".
     j["runs"] = Json::array();
     j["noise_floor"] = Json::array();
-    for (const auto& [name, d] : noise)
+    for (const auto& [name, d] : noise[0])
       j["noise_floor"].push_back({{"what", name}, {"rmse", d.rmse}, {"relative_rmse", d.relative_rmse},
                                   {"mean_rel_error", d.mean_rel_error}});
-    for (std::size_t i = 0; i < runs.size(); ++i) j["runs"].push_back(run_json(runs[i], &diffs[i]));
+    for (std::size_t i = 0; i < runs.size(); ++i) j["runs"].push_back(run_json(runs[i], &diffs[0][i]));
+    j["estimators"] = Json::array();
+    for (std::size_t e = 0; e < E; ++e) {
+      Json je;
+      je["estimator"] = estimator_name(ests[e]);
+      je["radius"] = radius_estimator_name(ests[e].radius);
+      je["filter"] = density_filter_name(ests[e].filter);
+      je["sheet"] = sheets[e];
+      je["diff_scale_auto"] = auto_rels[e];
+      je["runs"] = Json::array();
+      for (std::size_t i = 0; i < runs.size(); ++i) je["runs"].push_back(run_json(runs[i], &diffs[e][i]));
+      je["noise_floor"] = Json::array();
+      for (const auto& [name, d] : noise[e])
+        je["noise_floor"].push_back({{"what", name}, {"rmse", d.rmse}, {"relative_rmse", d.relative_rmse},
+                                     {"mean_rel_error", d.mean_rel_error}});
+      if (!ref_diffs.empty()) {
+        je["vs_reference"] = {{"rmse", ref_diffs[e].rmse}, {"relative_rmse", ref_diffs[e].relative_rmse},
+                              {"block", block}, {"block_relative_rmse", ref_block_diffs[e].relative_rmse},
+                              {"mean_luminance", mean_luminance(runs[0].images[e])}};
+        if (!render_seed_images.empty())
+          je["vs_reference"]["render_seed_block_relative_rmse"] =
+              image_diff(block_average(render_seed_images[e], block), block_average(reference, block)).relative_rmse;
+      }
+      j["estimators"].push_back(je);
+    }
+    if (!reference.rgb.empty()) {
+      j["reference"] = args.str("reference");
+      j["reference_mean_luminance"] = mean_luminance(reference);
+    }
     write_json(args.str("stats"), j);
   }
   return 0;

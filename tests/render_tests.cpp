@@ -12,6 +12,7 @@
 #include "embree_scene.hpp"
 #include "exr_io.hpp"
 #include "final_gather.hpp"
+#include "path_trace.hpp"
 #include "photon_trace.hpp"
 #include "png_io.hpp"
 #include "scene.hpp"
@@ -557,6 +558,214 @@ TEST_CASE("render: a white furnace half filled with glass keeps radiance / n^2 u
                                           << " (expected " << expect << " everywhere)");
   CHECK(mean == doctest::Approx(expect).epsilon(0.05));
   CHECK(centre_mean == doctest::Approx(expect).epsilon(0.06));
+}
+
+// ---- Density estimators (the talk's future work) and the traced-once comparison ----------------
+
+TEST_CASE("render: density estimators: filter integrals, and each estimator recovers r_k of a uniform disc") {
+  // Each filter's weights integrate to filter_norm() over the unit disc (midpoint rule in r).
+  for (DensityFilter f : {DensityFilter::Box, DensityFilter::Cone, DensityFilter::Epanechnikov}) {
+    double integral = 0;
+    const int steps = 20000;
+    for (int i = 0; i < steps; ++i) {
+      const double r = (i + 0.5) / steps;
+      integral += filter_weight(f, static_cast<float>(r * r), 1.0f, 1.0f) * 2 * r / steps;  // 2 pi r dr / pi
+    }
+    CHECK_MESSAGE(integral == doctest::Approx(filter_norm(f)).epsilon(1e-4), density_filter_name(f));
+  }
+  // k photons of a uniform density in the plane, the k nearest of a point: every estimator's
+  // radius averages to r_k (kth exactly; mean and var within a few per cent over many draws).
+  const int k = 50;
+  Rng rng(5, 6, 7);
+  double sum[3] = {0, 0, 0};
+  const int trials = 400;
+  for (int t = 0; t < trials; ++t) {
+    std::vector<float> d2(4 * k);
+    for (auto& v : d2) v = rng.uniform() * 4.0f;  // squared radii uniform: uniform density in a disc of r = 2
+    std::sort(d2.begin(), d2.end());
+    const float rk2 = d2[k - 1];
+    for (int e = 0; e < 3; ++e)
+      sum[e] += std::sqrt(disc_radius2(static_cast<RadiusEstimator>(e), d2.data(), k, k, INFINITY) / rk2);
+  }
+  CHECK(sum[0] / trials == doctest::Approx(1.0));
+  CHECK(sum[1] / trials == doctest::Approx(1.0).epsilon(0.02));
+  CHECK(sum[2] / trials == doctest::Approx(1.0).epsilon(0.05));
+  // Fewer than k inside the maximum radius: the disc is the maximum radius, whatever the estimator.
+  const float few[3] = {0.01f, 0.04f, 0.09f};
+  for (int e = 0; e < 3; ++e) CHECK(disc_radius2(static_cast<RadiusEstimator>(e), few, 3, 8, 2.0f) == 4.0f);
+  CHECK(disc_radius2(RadiusEstimator::Mean, few, 0, 8, INFINITY) == 0.0f);
+  const float same[3] = {0, 0, 0};  // all on the query point: no disc
+  for (int e = 0; e < 3; ++e) CHECK(disc_radius2(static_cast<RadiusEstimator>(e), same, 3, 3, INFINITY) == 0.0f);
+  RadiusEstimator re;
+  DensityFilter df;
+  CHECK(parse_radius_estimator("var", re));
+  CHECK(re == RadiusEstimator::Variance);
+  CHECK_FALSE(parse_radius_estimator("median", re));
+  CHECK(parse_density_filter("epanechnikov", df));
+  CHECK_FALSE(parse_density_filter("gauss", df));
+}
+
+TEST_CASE("render: every density estimator gives the analytic radiance of a uniformly lit plane") {
+  // Photons of equal power spread uniformly on a plane, arriving from above: irradiance
+  // E = density x power, radiance kd E / pi, for every estimator and filter alike.
+  const std::size_t N = 40000;
+  const float side = 100.0f, power = 1.0f;
+  Rng rng(9, 9, 9);
+  std::vector<PhotonRecord> recs(N);
+  for (auto& r : recs) {
+    r.position[0] = rng.uniform() * side;
+    r.position[1] = 0;
+    r.position[2] = rng.uniform() * side;
+    r.set_power({power, power, power});
+    r.set_direction({0, 1, 0});
+    r.flags = 0;
+  }
+  PhotonMap map("plane", recs, 1.0f);
+  map.build_index("bruteforce", test::runtime());
+  std::vector<float> q;
+  for (int i = 0; i < 64; ++i) q.insert(q.end(), {25 + rng.uniform() * 50, 0, 25 + rng.uniform() * 50});
+  SearchParams sp;
+  sp.k = 100;
+  KnnResult res;
+  map.query(q.data(), 64, sp, res);
+  const Vec3 kd{0.5f, 0.5f, 0.5f};
+  const double expect = 0.5 / kPi * (N / (side * side)) * power;
+  for (RadiusEstimator e : {RadiusEstimator::Kth, RadiusEstimator::Mean, RadiusEstimator::Variance})
+    for (DensityFilter f : {DensityFilter::Box, DensityFilter::Cone, DensityFilter::Epanechnikov}) {
+      double sum = 0;
+      for (std::size_t i = 0; i < 64; ++i) sum += map.radiance(res, i, {0, 1, 0}, kd, INFINITY, {e, f}).x;
+      CHECK_MESSAGE(sum / 64 == doctest::Approx(expect).epsilon(0.06), estimator_name({e, f}));
+      // Photons from behind the surface add nothing.
+      CHECK(map.radiance(res, 0, {0, -1, 0}, kd, INFINITY, {e, f}).x == 0.0f);
+    }
+}
+
+TEST_CASE("render: rays traced once and shaded per estimator equal a render per estimator, bit for bit") {
+  for (const char* scene_name : {"cornell", "cornell-specular"}) {
+    Scene scene = load_scene(scene_name);
+    EmbreeScene es(scene, 2);
+    LightSampler lights(scene);
+    PhotonTraceOptions po;
+    po.photons = 4000;
+    po.threads = 2;
+    PhotonMaps maps = build_photon_maps(es, lights, po);
+    maps.global->build_index("bruteforce", test::runtime());
+    if (maps.caustic) maps.caustic->build_index("bruteforce", test::runtime());
+    RenderOptions ro;
+    ro.width = 24;
+    ro.height = 20;
+    ro.gather = 4;
+    ro.search.k = 12;
+    ro.threads = 2;
+    ro.batch_queries = 700;  // several passes
+    const std::vector<DensityEstimator> ests = {{RadiusEstimator::Kth, DensityFilter::Cone},
+                                                {RadiusEstimator::Mean, DensityFilter::Box},
+                                                {RadiusEstimator::Variance, DensityFilter::Epanechnikov}};
+    FinalGatherRenderer tracer(es, lights, *maps.global, maps.caustic.get(), ro);
+    RenderStats ts;
+    TracedFrame frame = tracer.trace(ts);
+    CHECK(frame.passes.size() > 1);
+    CHECK(frame.bytes() > 0);
+    CHECK(ts.queries == 0);  // tracing asks the index nothing
+    RenderStats ss;
+    std::vector<Image> shaded = tracer.shade(frame, ests, ss);
+    REQUIRE(shaded.size() == 3);
+    CHECK(ss.index_calls == frame.passes.size() * (maps.caustic ? 2 : 1));  // once per pass, not per estimator
+    for (std::size_t e = 0; e < ests.size(); ++e) {
+      RenderOptions r1 = ro;
+      r1.estimator = ests[e];
+      RenderStats rs;
+      Image img = FinalGatherRenderer(es, lights, *maps.global, maps.caustic.get(), r1).render(rs);
+      CHECK_MESSAGE(img.rgb == shaded[e].rgb, scene_name << " " << estimator_name(ests[e]));
+    }
+    CHECK(shaded[0].rgb != shaded[1].rgb);  // the estimators do differ
+    // A frame traced with other settings is refused.
+    RenderOptions other = ro;
+    other.seed = 99;
+    CHECK_THROWS_WITH_AS(FinalGatherRenderer(es, lights, *maps.global, maps.caustic.get(), other).shade(frame, ests, ss),
+                         doctest::Contains("traced frame was made with another scene"), Error);
+  }
+}
+
+TEST_CASE("render: bhcl render --compare with several estimators, and their misuse") {
+  const std::string base = test::tmp_path("cli_est"), exr = base + ".exr", json = base + ".json";
+  const std::string common = "render --scene cornell --photons 2000 --gather 4 --k 8 --size 16x16 --quiet ";
+  std::string out;
+  // A reference image of the same size (a path-traced one), for the estimators' own errors.
+  const std::string ref = test::tmp_path("cli_est_ref.exr");
+  REQUIRE(test::run_bhcl("pathtrace --scene cornell --size 16x16 --spp 16 --quiet --out " + ref, &out) == 0);
+  int rc = test::run_bhcl(common + "--compare --exact bruteforce --compare-A 1,2 --estimator kth,mean --filter "
+                                   "cone,box --reference " + ref + " --reference-block 4 --out " + exr +
+                              " --stats " + json, &out);
+  INFO(out);
+  REQUIRE(rc == 0);
+  CHECK(out.find("traced once") != std::string::npos);
+  CHECK(out.find("estimator mean/box") != std::string::npos);
+  CHECK(out.find("against the reference") != std::string::npos);
+  std::ifstream s(json);
+  const nlohmann::json j = nlohmann::json::parse(s);
+  REQUIRE(j.at("estimators").size() == 4);
+  for (const auto& e : j.at("estimators")) {
+    CHECK(e.at("runs").size() == 3);
+    CHECK(e.at("vs_reference").at("block") == 4);
+    CHECK(e.at("vs_reference").at("relative_rmse").get<double>() > 0);
+  }
+  CHECK(read_exr(exr).width == 16);                          // --out: the first estimator's exact render
+  CHECK(read_exr(base + "_mean-box_A2.exr").width == 16);    // the others carry the estimator
+  CHECK(read_png(base + "_kth-box_compare.png").width > 16);
+  // Misuse.
+  CHECK(test::run_bhcl(common + "--method bruteforce --estimator kth,mean --out " + exr, &out) == 2);
+  CHECK(out.find("--estimator takes a list only with --compare") != std::string::npos);
+  CHECK(test::run_bhcl(common + "--method bruteforce --estimator median --out " + exr, &out) == 2);
+  CHECK(out.find("unknown radius estimator 'median'") != std::string::npos);
+  CHECK(test::run_bhcl(common + "--method bruteforce --filter gauss --out " + exr, &out) == 2);
+  CHECK(test::run_bhcl(common + "--compare --estimator kth,kth --out " + exr, &out) == 2);
+  CHECK(out.find("listed twice") != std::string::npos);
+  CHECK(test::run_bhcl(common + "--method bruteforce --reference " + ref + " --out " + exr, &out) == 2);
+  const std::string small = test::tmp_path("cli_est_small.exr");
+  REQUIRE(test::run_bhcl("pathtrace --scene cornell --size 8x8 --spp 1 --quiet --out " + small, &out) == 0);
+  CHECK(test::run_bhcl(common + "--compare --exact bruteforce --compare-A 1 --reference " + small + " --out " + exr,
+                       &out) == 2);
+  CHECK(out.find("is 8x8, the render 16x16") != std::string::npos);
+  CHECK(test::run_bhcl(common + "--compare --compare-A 1 --reference " + exr + " --out " + exr, &out) == 2);
+}
+
+TEST_CASE("render: the path tracer: a white furnace converges to Le over 1 - rho, and Cornell agrees with photon mapping") {
+  {
+    const float Le = 1.0f, rho = 0.5f;
+    Scene scene = furnace_scene(Le, rho);
+    EmbreeScene es(scene, 2);
+    LightSampler lights(scene);
+    PathTraceOptions po;
+    po.width = po.height = 16;
+    po.spp = 256;
+    po.threads = 2;
+    PathTraceStats st;
+    Image a = path_trace(es, lights, po, st);
+    MESSAGE("path-traced furnace: mean " << mean_luminance(a) << " (expected 2)");
+    CHECK(mean_luminance(a) == doctest::Approx(Le / (1 - rho)).epsilon(0.02));
+    CHECK(st.paths == 16u * 16u * 256u);
+    po.threads = 1;
+    CHECK(path_trace(es, lights, po, st).rgb == a.rgb);  // independent of threads
+  }
+  // The diffuse Cornell Box: the photon map's render (exact kNN) and the path tracer agree on the
+  // mean radiance within a few per cent (both noisy at this size).
+  Scene scene = cornell_scene();
+  SmallRender pm = small_render(scene, has_method("kdtree") ? "kdtree" : "bruteforce", 30000, 32, 32, 2, 3, 50, 4, 4);
+  EmbreeScene es(scene, 2);
+  LightSampler lights(scene);
+  PathTraceOptions po;
+  po.width = po.height = 32;
+  po.spp = 512;
+  po.threads = 2;
+  PathTraceStats st;
+  Image pt = path_trace(es, lights, po, st);
+  MESSAGE("Cornell 32x32: path tracer mean " << mean_luminance(pt) << ", photon map " << mean_luminance(pm.image));
+  CHECK(mean_luminance(pm.image) == doctest::Approx(mean_luminance(pt)).epsilon(0.03));
+  std::string out;
+  CHECK(test::run_bhcl("pathtrace --out " + test::tmp_path("pt.exr") + " --size 0x4", &out) == 2);
+  CHECK(test::run_bhcl("pathtrace --out " + test::tmp_path("pt.exr") + " --spp 0", &out) == 2);
+  CHECK(test::run_bhcl("pathtrace --out " + test::tmp_path("pt.exr") + " --scene /no/such.obj", &out) == 1);
 }
 
 #endif  // BHCL_HAVE_RENDER

@@ -1,5 +1,6 @@
 #include "final_gather.hpp"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 
@@ -15,14 +16,28 @@ constexpr std::uint64_t kGatherStream = 0x474154;  // "GAT"
 using Clock = std::chrono::steady_clock;
 double since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
-// One gather query: where, the surface there, and what its radiance is worth to the pixel.
-struct GatherQuery {
-  Vec3 n, kd, weight;
-};
+constexpr std::uint32_t kBackSide = 0x80000000u;  // GatherQuery::prim_side: arrived on the back
 
-// One bounce off the specular surface `hit` (mirror, or glass with the Fresnel probabilities so
-// that the weight stays ks, times (n_from / n_to)^2 on refraction: see glass_scatter). Updates
-// org, dir and beta; false when beta became black.
+template <typename T>
+std::size_t vec_bytes(const std::vector<T>& v) {
+  return v.capacity() * sizeof(T);
+}
+
+// Follows a ray through mirrors and glass to the first non-specular surface. Returns false when
+// the ray leaves the scene or the depth runs out; else `hit` is that surface, `beta` the
+// specular throughput, org/dir the last ray.
+bool follow_specular(const EmbreeScene& es, Rng& rng, Vec3& org, Vec3& dir, EmbreeScene::Hit& hit,
+                     Vec3& beta, int max_depth) {
+  for (int depth = 0;; ++depth) {
+    if (!es.scene().material_of(hit.prim).is_specular()) return true;
+    if (depth >= max_depth) return false;
+    if (!specular_bounce(es, rng, org, dir, hit, beta)) return false;
+    if (!es.intersect(org, dir, 0.0f, INFINITY, hit)) return false;
+  }
+}
+
+}  // namespace
+
 bool specular_bounce(const EmbreeScene& es, Rng& rng, Vec3& org, Vec3& dir,
                      const EmbreeScene::Hit& hit, Vec3& beta) {
   const Scene& scene = es.scene();
@@ -42,21 +57,6 @@ bool specular_bounce(const EmbreeScene& es, Rng& rng, Vec3& org, Vec3& dir,
   }
   return !is_black(beta);
 }
-
-// Follows a ray through mirrors and glass to the first non-specular surface. Returns false when
-// the ray leaves the scene or the depth runs out; else `hit` is that surface, `beta` the
-// specular throughput, org/dir the last ray.
-bool follow_specular(const EmbreeScene& es, Rng& rng, Vec3& org, Vec3& dir, EmbreeScene::Hit& hit,
-                     Vec3& beta, int max_depth) {
-  for (int depth = 0;; ++depth) {
-    if (!es.scene().material_of(hit.prim).is_specular()) return true;
-    if (depth >= max_depth) return false;
-    if (!specular_bounce(es, rng, org, dir, hit, beta)) return false;
-    if (!es.intersect(org, dir, 0.0f, INFINITY, hit)) return false;
-  }
-}
-
-}  // namespace
 
 void RenderStats::add_query(const QueryStats& q) {
   query_kernel_s += q.query_s;
@@ -80,22 +80,54 @@ FinalGatherRenderer::FinalGatherRenderer(const EmbreeScene& scene, const LightSa
   if (opt_.batch_queries == 0) opt_.batch_queries = 262144;
 }
 
-std::vector<Vec3> FinalGatherRenderer::shade(const std::vector<SurfacePoint>& points,
-                                             RenderStats& stats) const {
-  return shade_batch(points, stats);
+std::size_t TracedPass::bytes() const {
+  return vec_bytes(emitted) + vec_bytes(vis_slot) + vec_bytes(direct) + vec_bytes(vis_xyz) + vec_bytes(vis_n) +
+         vec_bytes(vis_kd) + vec_bytes(vis_weight) + vec_bytes(q_begin) + vec_bytes(gather_xyz) + vec_bytes(gather);
 }
 
-std::vector<Vec3> FinalGatherRenderer::shade_batch(const std::vector<SurfacePoint>& pts,
-                                                   RenderStats& stats) const {
+std::size_t TracedFrame::bytes() const {
+  std::size_t b = 0;
+  for (const auto& p : passes) b += p.bytes();
+  return b;
+}
+
+std::vector<Vec3> FinalGatherRenderer::shade(const std::vector<SurfacePoint>& points,
+                                             RenderStats& stats) const {
+  TracedPass pass;
+  pass.emitted.assign(points.size(), Vec3{0, 0, 0});
+  std::vector<std::uint32_t> slots(points.size());
+  for (std::size_t i = 0; i < points.size(); ++i) slots[i] = static_cast<std::uint32_t>(i);
+  trace_points(points, slots, pass, stats);
+  std::vector<std::vector<Vec3>> out;
+  shade_pass(pass, points.size(), {opt_.estimator}, out, stats);
+  return std::move(out[0]);
+}
+
+void FinalGatherRenderer::trace_points(const std::vector<SurfacePoint>& pts, const std::vector<std::uint32_t>& slots,
+                                       TracedPass& pass, RenderStats& stats) const {
   const Scene& scene = es_.scene();
   const float eps = es_.ray_epsilon();
   const int M = opt_.gather, S = opt_.shadow_rays;
   const std::size_t n = pts.size();
-  std::vector<Vec3> out(n, Vec3{0, 0, 0});
-  if (n == 0) return out;
+  pass.vis_slot = slots;
+  pass.direct.assign(n, Vec3{0, 0, 0});
+  pass.vis_xyz.resize(3 * n);
+  pass.vis_n.resize(n);
+  pass.vis_kd.resize(n);
+  pass.vis_weight.resize(n);
+  pass.q_begin.assign(n + 1, 0);
+  for (std::size_t i = 0; i < n; ++i) {
+    pass.vis_xyz[3 * i] = pts[i].x.x;
+    pass.vis_xyz[3 * i + 1] = pts[i].x.y;
+    pass.vis_xyz[3 * i + 2] = pts[i].x.z;
+    pass.vis_n[i] = pts[i].n;
+    pass.vis_kd[i] = pts[i].kd;
+    pass.vis_weight[i] = pts[i].weight;
+  }
+  if (n == 0) return;
 
-  // Stage A: direct light and gather rays, per fixed chunk of points (outputs concatenated in
-  // chunk order, so the query order and the image do not depend on threads).
+  // Direct light and gather rays, per fixed chunk of points (outputs concatenated in chunk order,
+  // so the query order and the image do not depend on threads).
   auto t0 = Clock::now();
   constexpr std::size_t kChunk = 64;
   const std::size_t chunks = (n + kChunk - 1) / kChunk;
@@ -136,7 +168,7 @@ std::vector<Vec3> FinalGatherRenderer::shade_batch(const std::vector<SurfacePoin
       Vec3 direct{0, 0, 0};
       for (int s = 0; s < S; ++s)
         if (shadow[s].tfar >= 0) direct += contrib[s];  // Embree sets tfar = -inf when occluded
-      out[i] = p.weight * p.kd * direct * (1.0f / (kPi * S));
+      pass.direct[i] = p.weight * p.kd * direct * (1.0f / (kPi * S));
 
       // Final gather: M cosine-distributed rays, one incoherent stream.
       if (M == 0) continue;
@@ -166,190 +198,247 @@ std::vector<Vec3> FinalGatherRenderer::shade_batch(const std::vector<SurfacePoin
           continue;
         }
         Vec3 y = ro + rd * hit.t;
-        Vec3 ng = scene.geometric_normal(hit.prim);
+        const bool back = dot(scene.geometric_normal(hit.prim), rd) >= 0;
         o.xyz.insert(o.xyz.end(), {y.x, y.y, y.z});
-        o.q.push_back({dot(ng, rd) < 0 ? ng : -ng, m.kd, w0 * beta});
+        o.q.push_back({hit.prim | (back ? kBackSide : 0u), w0 * beta});
         ++q_count[i];
       }
     }
   });
   es_.check("final gather");
-  std::vector<float> xyz;
-  std::vector<GatherQuery> queries;
-  {
-    std::size_t total = 0;
-    for (const auto& o : co) total += o.q.size();
-    xyz.reserve(3 * total);
-    queries.reserve(total);
-    for (auto& o : co) {
-      xyz.insert(xyz.end(), o.xyz.begin(), o.xyz.end());
-      queries.insert(queries.end(), o.q.begin(), o.q.end());
-      stats.shadow_rays += o.shadow;
-      stats.gather_rays += o.gather;
-      stats.gather_escaped += o.escaped;
-      stats.gather_no_query += o.no_query;
-      o = ChunkOut{};
-    }
+  std::size_t total = 0;
+  for (const auto& o : co) total += o.q.size();
+  pass.gather_xyz.reserve(3 * total);
+  pass.gather.reserve(total);
+  for (auto& o : co) {
+    pass.gather_xyz.insert(pass.gather_xyz.end(), o.xyz.begin(), o.xyz.end());
+    pass.gather.insert(pass.gather.end(), o.q.begin(), o.q.end());
+    stats.shadow_rays += o.shadow;
+    stats.gather_rays += o.gather;
+    stats.gather_escaped += o.escaped;
+    stats.gather_no_query += o.no_query;
+    o = ChunkOut{};
   }
-  std::vector<std::size_t> q_begin(n + 1, 0);
-  for (std::size_t i = 0; i < n; ++i) q_begin[i + 1] = q_begin[i] + q_count[i];
+  for (std::size_t i = 0; i < n; ++i) pass.q_begin[i + 1] = pass.q_begin[i] + q_count[i];
   stats.trace_s += since(t0);
+}
 
-  // The batched kNN calls: all gather points of the batch in one call; the caustic map is looked
+void FinalGatherRenderer::shade_pass(const TracedPass& pass, std::size_t slots,
+                                     const std::vector<DensityEstimator>& estimators,
+                                     std::vector<std::vector<Vec3>>& out, RenderStats& stats) const {
+  const Scene& scene = es_.scene();
+  const std::size_t n = pass.vis_slot.size(), nq = pass.gather.size(), E = estimators.size();
+  out.assign(E, pass.emitted);
+  if (slots != pass.emitted.size()) throw Error("render: a traced pass does not match its image rows");
+  if (n == 0 || E == 0) return;
+
+  // The batched kNN calls: all gather points of the pass in one call; the caustic map is looked
   // up directly at the visible points, also in one call.
-  t0 = Clock::now();
+  auto t0 = Clock::now();
   KnnResult gres, cres;
-  if (!queries.empty() && !global_.empty()) {
-    stats.add_query(global_.query(xyz.data(), queries.size(), opt_.search, gres));
-    stats.queries += queries.size();
+  const bool have_global = nq > 0 && !global_.empty();
+  if (have_global) {
+    stats.add_query(global_.query(pass.gather_xyz.data(), nq, opt_.search, gres));
+    stats.queries += nq;
   }
   SearchParams cparams = opt_.search;
   cparams.k = opt_.caustic_k;
   cparams.max_radius = opt_.caustic_radius;
   if (caustic_) {
-    std::vector<float> cxyz(3 * n);
-    for (std::size_t i = 0; i < n; ++i) {
-      cxyz[3 * i] = pts[i].x.x;
-      cxyz[3 * i + 1] = pts[i].x.y;
-      cxyz[3 * i + 2] = pts[i].x.z;
-    }
-    stats.add_query(caustic_->query(cxyz.data(), n, cparams, cres));
+    stats.add_query(caustic_->query(pass.vis_xyz.data(), n, cparams, cres));
     stats.caustic_queries += n;
   }
   stats.query_s += since(t0);
 
-  // Stage B: radiance estimates, summed per point in a fixed order.
+  // Radiance estimates, summed per point in a fixed order, once per estimator.
   t0 = Clock::now();
-  const bool have_global = !queries.empty() && !global_.empty();
   parallel_chunks(n, 256, opt_.threads, [&](std::size_t, std::size_t b, std::size_t e) {
     for (std::size_t i = b; i < e; ++i) {
-      Vec3 indirect{0, 0, 0};
-      if (have_global)
-        for (std::size_t q = q_begin[i]; q < q_begin[i + 1]; ++q)
-          indirect += queries[q].weight *
-                      global_.radiance(gres, q, queries[q].n, queries[q].kd, opt_.search.max_radius);
-      Vec3 caustic{0, 0, 0};
-      if (caustic_) caustic = pts[i].weight * caustic_->radiance(cres, i, pts[i].n, pts[i].kd, cparams.max_radius);
-      out[i] += indirect + caustic;
+      for (std::size_t k = 0; k < E; ++k) {
+        const DensityEstimator& est = estimators[k];
+        Vec3 indirect{0, 0, 0};
+        if (have_global)
+          for (std::size_t q = pass.q_begin[i]; q < pass.q_begin[i + 1]; ++q) {
+            const GatherQuery& g = pass.gather[q];
+            const std::uint32_t prim = g.prim_side & ~kBackSide;
+            const Vec3 ng = scene.geometric_normal(prim);
+            indirect += g.weight * global_.radiance(gres, q, (g.prim_side & kBackSide) ? -ng : ng,
+                                                    scene.material_of(prim).kd, opt_.search.max_radius, est);
+          }
+        Vec3 caustic{0, 0, 0};
+        if (caustic_)
+          caustic = pass.vis_weight[i] *
+                    caustic_->radiance(cres, i, pass.vis_n[i], pass.vis_kd[i], cparams.max_radius, est);
+        out[k][pass.vis_slot[i]] += pass.direct[i] + (indirect + caustic);
+      }
     }
   });
   stats.shade_s += since(t0);
-  return out;
+}
+
+int FinalGatherRenderer::rows_per_pass() const {
+  const std::size_t per_row = static_cast<std::size_t>(opt_.width) * opt_.spp * std::max(1, opt_.gather);
+  return static_cast<int>(std::clamp<std::size_t>(opt_.batch_queries / per_row, 1, opt_.height));
+}
+
+TracedPass FinalGatherRenderer::trace_pass(int y0, int y1, RenderStats& stats) const {
+  const Scene& scene = es_.scene();
+  const int W = opt_.width, spp = opt_.spp;
+  const PinholeCamera cam(scene.camera, W, opt_.height);
+  TracedPass pass;
+  pass.y0 = y0;
+  pass.y1 = y1;
+  const std::size_t slot0 = static_cast<std::size_t>(y0) * W * spp;
+  const std::size_t nslots = static_cast<std::size_t>(y1 - y0) * W * spp;
+  pass.emitted.assign(nslots, Vec3{0, 0, 0});
+
+  // Camera rays in packets of 16 consecutive samples; specular chains followed one by one.
+  auto t0 = Clock::now();
+  constexpr std::size_t kChunk = 64;
+  const std::size_t chunks = (nslots + kChunk - 1) / kChunk;
+  std::vector<std::vector<SurfacePoint>> vis_chunks(chunks);
+  std::vector<std::vector<std::uint32_t>> vis_slot_chunks(chunks);
+  parallel_chunks(nslots, kChunk, opt_.threads, [&](std::size_t c, std::size_t b, std::size_t e) {
+    for (std::size_t p0 = b; p0 < e; p0 += 16) {
+      alignas(64) RTCRayHit16 packet;
+      alignas(64) int valid[16];
+      std::vector<Rng> rngs;
+      rngs.reserve(16);
+      const Vec3 o = cam.origin();
+      for (int l = 0; l < 16; ++l) {
+        std::size_t s = p0 + l;
+        valid[l] = s < e ? -1 : 0;
+        std::size_t gs = slot0 + std::min(s, e - 1);  // global sample index: pixel * spp + sample
+        rngs.emplace_back(opt_.seed, kCameraStream, gs);
+        std::size_t pixel = gs / spp;
+        float px = static_cast<float>(pixel % W) + rngs[l].uniform();
+        float py = static_cast<float>(pixel / W) + rngs[l].uniform();
+        Vec3 d = cam.direction(px, py);
+        packet.ray.org_x[l] = o.x;
+        packet.ray.org_y[l] = o.y;
+        packet.ray.org_z[l] = o.z;
+        packet.ray.dir_x[l] = d.x;
+        packet.ray.dir_y[l] = d.y;
+        packet.ray.dir_z[l] = d.z;
+        packet.ray.tnear[l] = 0.0f;
+        packet.ray.tfar[l] = INFINITY;
+        packet.ray.time[l] = 0.0f;
+        packet.ray.mask[l] = 0xFFFFFFFFu;
+        packet.ray.id[l] = static_cast<unsigned>(l);
+        packet.ray.flags[l] = 0;
+        packet.hit.geomID[l] = RTC_INVALID_GEOMETRY_ID;
+        packet.hit.instID[0][l] = RTC_INVALID_GEOMETRY_ID;
+      }
+      es_.intersect16(valid, packet);
+      for (int l = 0; l < 16 && p0 + l < e; ++l) {
+        if (packet.hit.geomID[l] == RTC_INVALID_GEOMETRY_ID) continue;  // sees nothing
+        const std::size_t s = p0 + l;
+        Vec3 org = o, dir{packet.ray.dir_x[l], packet.ray.dir_y[l], packet.ray.dir_z[l]};
+        EmbreeScene::Hit hit{packet.ray.tfar[l], packet.hit.primID[l]};
+        Vec3 beta{1, 1, 1};
+        Rng& rng = rngs[l];
+        // Emitters seen directly or through mirrors/glass; the chain stops at a diffuse surface.
+        for (int depth = 0;; ++depth) {
+          const Material& m = scene.material_of(hit.prim);
+          Vec3 ng = scene.geometric_normal(hit.prim);
+          bool front = dot(ng, dir) < 0;
+          if (m.is_light() && front) pass.emitted[s] += beta * m.emission;
+          if (!m.is_specular()) {
+            if (m.is_diffuse()) {
+              SurfacePoint sp;
+              sp.x = org + dir * hit.t;
+              sp.n = front ? ng : -ng;
+              sp.kd = m.kd;
+              sp.weight = beta;
+              sp.rng_index = slot0 + s;
+              vis_chunks[c].push_back(sp);
+              vis_slot_chunks[c].push_back(static_cast<std::uint32_t>(s));
+            }
+            break;
+          }
+          if (depth >= opt_.max_specular_depth) break;
+          if (!specular_bounce(es_, rng, org, dir, hit, beta)) break;
+          if (!es_.intersect(org, dir, 0.0f, INFINITY, hit)) break;
+        }
+      }
+    }
+  });
+  es_.check("camera rays");
+  std::vector<SurfacePoint> vis;
+  std::vector<std::uint32_t> vis_slot;
+  for (std::size_t c = 0; c < chunks; ++c) {
+    vis.insert(vis.end(), vis_chunks[c].begin(), vis_chunks[c].end());
+    vis_slot.insert(vis_slot.end(), vis_slot_chunks[c].begin(), vis_slot_chunks[c].end());
+  }
+  stats.camera_rays += nslots;
+  stats.visible_points += vis.size();
+  stats.trace_s += since(t0);
+  trace_points(vis, vis_slot, pass, stats);
+  ++stats.passes;
+  return pass;
+}
+
+void FinalGatherRenderer::film(const TracedPass& pass, const std::vector<Vec3>& radiance, Image& img,
+                               RenderStats& stats) const {
+  auto t0 = Clock::now();
+  const int W = opt_.width, spp = opt_.spp;
+  for (int y = pass.y0; y < pass.y1; ++y)
+    for (int x = 0; x < W; ++x) {
+      Vec3 sum{0, 0, 0};
+      std::size_t base = (static_cast<std::size_t>(y - pass.y0) * W + x) * spp;
+      for (int s = 0; s < spp; ++s) sum += radiance[base + s];
+      img.set(static_cast<std::size_t>(y) * W + x, sum * (1.0f / spp));
+    }
+  stats.shade_s += since(t0);
 }
 
 Image FinalGatherRenderer::render(RenderStats& stats, Progress* progress) const {
-  const Scene& scene = es_.scene();
-  const int W = opt_.width, H = opt_.height, spp = opt_.spp;
-  const PinholeCamera cam(scene.camera, W, H);
-  Image img(W, H);
+  const int H = opt_.height, rows = rows_per_pass();
+  Image img(opt_.width, H);
   stats.pixels += img.pixels();
-  const std::size_t per_row = static_cast<std::size_t>(W) * spp * std::max(1, opt_.gather);
-  const int rows_per_pass = static_cast<int>(std::clamp<std::size_t>(opt_.batch_queries / per_row, 1, H));
-
-  for (int y0 = 0; y0 < H; y0 += rows_per_pass) {
-    const int y1 = std::min(H, y0 + rows_per_pass);
-    const std::size_t slot0 = static_cast<std::size_t>(y0) * W * spp;
-    const std::size_t nslots = static_cast<std::size_t>(y1 - y0) * W * spp;
-    std::vector<Vec3> radiance(nslots, Vec3{0, 0, 0});
-
-    // Camera rays in packets of 16 consecutive samples; specular chains followed one by one.
-    auto t0 = Clock::now();
-    constexpr std::size_t kChunk = 64;
-    const std::size_t chunks = (nslots + kChunk - 1) / kChunk;
-    std::vector<std::vector<SurfacePoint>> vis_chunks(chunks);
-    std::vector<std::vector<std::uint32_t>> vis_slot_chunks(chunks);
-    parallel_chunks(nslots, kChunk, opt_.threads, [&](std::size_t c, std::size_t b, std::size_t e) {
-      for (std::size_t p0 = b; p0 < e; p0 += 16) {
-        alignas(64) RTCRayHit16 packet;
-        alignas(64) int valid[16];
-        std::vector<Rng> rngs;
-        rngs.reserve(16);
-        const Vec3 o = cam.origin();
-        for (int l = 0; l < 16; ++l) {
-          std::size_t s = p0 + l;
-          valid[l] = s < e ? -1 : 0;
-          std::size_t gs = slot0 + std::min(s, e - 1);  // global sample index: pixel * spp + sample
-          rngs.emplace_back(opt_.seed, kCameraStream, gs);
-          std::size_t pixel = gs / spp;
-          float px = static_cast<float>(pixel % W) + rngs[l].uniform();
-          float py = static_cast<float>(pixel / W) + rngs[l].uniform();
-          Vec3 d = cam.direction(px, py);
-          packet.ray.org_x[l] = o.x;
-          packet.ray.org_y[l] = o.y;
-          packet.ray.org_z[l] = o.z;
-          packet.ray.dir_x[l] = d.x;
-          packet.ray.dir_y[l] = d.y;
-          packet.ray.dir_z[l] = d.z;
-          packet.ray.tnear[l] = 0.0f;
-          packet.ray.tfar[l] = INFINITY;
-          packet.ray.time[l] = 0.0f;
-          packet.ray.mask[l] = 0xFFFFFFFFu;
-          packet.ray.id[l] = static_cast<unsigned>(l);
-          packet.ray.flags[l] = 0;
-          packet.hit.geomID[l] = RTC_INVALID_GEOMETRY_ID;
-          packet.hit.instID[0][l] = RTC_INVALID_GEOMETRY_ID;
-        }
-        es_.intersect16(valid, packet);
-        for (int l = 0; l < 16 && p0 + l < e; ++l) {
-          if (packet.hit.geomID[l] == RTC_INVALID_GEOMETRY_ID) continue;  // sees nothing
-          const std::size_t s = p0 + l;
-          Vec3 org = o, dir{packet.ray.dir_x[l], packet.ray.dir_y[l], packet.ray.dir_z[l]};
-          EmbreeScene::Hit hit{packet.ray.tfar[l], packet.hit.primID[l]};
-          Vec3 beta{1, 1, 1};
-          Rng& rng = rngs[l];
-          // Emitters seen directly or through mirrors/glass; the chain stops at a diffuse surface.
-          for (int depth = 0;; ++depth) {
-            const Material& m = scene.material_of(hit.prim);
-            Vec3 ng = scene.geometric_normal(hit.prim);
-            bool front = dot(ng, dir) < 0;
-            if (m.is_light() && front) radiance[s] += beta * m.emission;
-            if (!m.is_specular()) {
-              if (m.is_diffuse()) {
-                SurfacePoint sp;
-                sp.x = org + dir * hit.t;
-                sp.n = front ? ng : -ng;
-                sp.kd = m.kd;
-                sp.weight = beta;
-                sp.rng_index = slot0 + s;
-                vis_chunks[c].push_back(sp);
-                vis_slot_chunks[c].push_back(static_cast<std::uint32_t>(s));
-              }
-              break;
-            }
-            if (depth >= opt_.max_specular_depth) break;
-            if (!specular_bounce(es_, rng, org, dir, hit, beta)) break;
-            if (!es_.intersect(org, dir, 0.0f, INFINITY, hit)) break;
-          }
-        }
-      }
-    });
-    es_.check("camera rays");
-    std::vector<SurfacePoint> vis;
-    std::vector<std::uint32_t> vis_slot;
-    for (std::size_t c = 0; c < chunks; ++c) {
-      vis.insert(vis.end(), vis_chunks[c].begin(), vis_chunks[c].end());
-      vis_slot.insert(vis_slot.end(), vis_slot_chunks[c].begin(), vis_slot_chunks[c].end());
-    }
-    stats.camera_rays += nslots;
-    stats.visible_points += vis.size();
-    stats.trace_s += since(t0);
-
-    std::vector<Vec3> shaded = shade_batch(vis, stats);
-
-    t0 = Clock::now();
-    for (std::size_t i = 0; i < vis.size(); ++i) radiance[vis_slot[i]] += shaded[i];
-    for (int y = y0; y < y1; ++y)
-      for (int x = 0; x < W; ++x) {
-        Vec3 sum{0, 0, 0};
-        std::size_t base = (static_cast<std::size_t>(y - y0) * W + x) * spp;
-        for (int s = 0; s < spp; ++s) sum += radiance[base + s];
-        img.set(static_cast<std::size_t>(y) * W + x, sum * (1.0f / spp));
-      }
-    stats.shade_s += since(t0);
-    ++stats.passes;
-    if (progress) progress->update(static_cast<double>(y1) / H);
+  std::vector<std::vector<Vec3>> radiance;
+  for (int y0 = 0; y0 < H; y0 += rows) {
+    const TracedPass pass = trace_pass(y0, std::min(H, y0 + rows), stats);
+    shade_pass(pass, pass.emitted.size(), {opt_.estimator}, radiance, stats);
+    film(pass, radiance[0], img, stats);
+    if (progress) progress->update(static_cast<double>(pass.y1) / H);
   }
   return img;
+}
+
+TracedFrame FinalGatherRenderer::trace(RenderStats& stats, Progress* progress) const {
+  TracedFrame f;
+  f.width = opt_.width;
+  f.height = opt_.height;
+  f.spp = opt_.spp;
+  f.gather = opt_.gather;
+  f.shadow_rays = opt_.shadow_rays;
+  f.max_specular_depth = opt_.max_specular_depth;
+  f.seed = opt_.seed;
+  f.scene = &es_;
+  const int H = opt_.height, rows = rows_per_pass();
+  for (int y0 = 0; y0 < H; y0 += rows) {
+    f.passes.push_back(trace_pass(y0, std::min(H, y0 + rows), stats));
+    if (progress) progress->update(static_cast<double>(f.passes.back().y1) / H);
+  }
+  return f;
+}
+
+std::vector<Image> FinalGatherRenderer::shade(const TracedFrame& f, const std::vector<DensityEstimator>& estimators,
+                                              RenderStats& stats, Progress* progress) const {
+  if (f.scene != &es_ || f.width != opt_.width || f.height != opt_.height || f.spp != opt_.spp ||
+      f.gather != opt_.gather || f.shadow_rays != opt_.shadow_rays ||
+      f.max_specular_depth != opt_.max_specular_depth || f.seed != opt_.seed)
+    throw Error("render: the traced frame was made with another scene or other image, sampling or seed settings");
+  std::vector<Image> images(estimators.size(), Image(opt_.width, opt_.height));
+  stats.pixels += images.empty() ? 0 : images[0].pixels();
+  std::vector<std::vector<Vec3>> radiance;
+  for (const TracedPass& pass : f.passes) {
+    shade_pass(pass, pass.emitted.size(), estimators, radiance, stats);
+    for (std::size_t e = 0; e < estimators.size(); ++e) film(pass, radiance[e], images[e], stats);
+    if (progress) progress->update(static_cast<double>(pass.y1) / opt_.height);
+  }
+  return images;
 }
 
 }  // namespace bhcl::render

@@ -11,6 +11,12 @@
 // black surface, issue no query: emitters are direct light, already counted by the shadow rays;
 // paths emitter -> specular -> x are caustics, counted by the caustic map. Pixels that see
 // nothing, or only an emitter, get no gather at all.
+//
+// Tracing and shading are apart: trace() follows the camera, shadow and gather rays of every pass
+// once (a TracedFrame: nothing in it depends on the photon maps' index), and shade() answers its
+// queries with whatever index the maps hold now and shades the frame once per density estimator.
+// So a comparison of methods, A values and estimators traces the rays once; render() does both
+// pass by pass and keeps only one pass in memory.
 #pragma once
 
 #include <cstdint>
@@ -30,6 +36,7 @@ struct RenderOptions {
   int gather = 32;           // M: final-gather rays per visible point
   int shadow_rays = 4;       // light samples per visible point
   SearchParams search;       // global map: k, A (block hashing), max_radius
+  DensityEstimator estimator;  // render() and shade(points): the disc and filter of the estimates
   int caustic_k = 0;         // caustic map: k (0: search.k)
   float caustic_radius = 0;  // caustic map: maximum radius in scene units (0: 2% of the diagonal)
   int max_specular_depth = 8;
@@ -50,6 +57,39 @@ struct RenderStats {
   void add_query(const QueryStats& q);
 };
 
+// One gather query of a traced pass: the diffuse surface it ended on (triangle, and in the top bit
+// whether the ray arrived on its back side) and the throughput to the pixel.
+struct GatherQuery {
+  std::uint32_t prim_side = 0;
+  Vec3 weight;
+};
+
+// The rays of one pass (image rows [y0, y1)), traced: every sample slot's emitted radiance seen
+// through mirrors and glass; every visible diffuse point's slot, direct light, surface and gather
+// queries (rows q_begin[i] .. q_begin[i + 1] of the gather arrays).
+struct TracedPass {
+  int y0 = 0, y1 = 0;
+  std::vector<Vec3> emitted;                // per sample slot
+  std::vector<std::uint32_t> vis_slot;      // per visible point
+  std::vector<Vec3> direct;                 // per visible point, weighted
+  std::vector<float> vis_xyz;               // 3 per visible point: the caustic queries
+  std::vector<Vec3> vis_n, vis_kd, vis_weight;
+  std::vector<std::size_t> q_begin;         // visible points + 1
+  std::vector<float> gather_xyz;            // 3 per gather query
+  std::vector<GatherQuery> gather;
+  std::size_t bytes() const;
+};
+
+// Every pass of an image, with the settings that made it (shade() refuses a frame traced with
+// other image, sampling or seed settings).
+struct TracedFrame {
+  int width = 0, height = 0, spp = 0, gather = 0, shadow_rays = 0, max_specular_depth = 0;
+  std::uint64_t seed = 0;
+  const void* scene = nullptr;
+  std::vector<TracedPass> passes;
+  std::size_t bytes() const;
+};
+
 struct SurfacePoint {
   Vec3 x, n;                  // position; unit normal on the side the light is gathered from
   Vec3 kd;                    // albedo
@@ -57,20 +97,45 @@ struct SurfacePoint {
   std::uint64_t rng_index = 0;
 };
 
+// One bounce off the specular surface `hit` of the ray (org, dir): a mirror reflects; glass reflects
+// or refracts with the Fresnel probabilities, so that the weight stays ks, times (n_from / n_to)^2
+// on refraction (radiance, see glass_scatter). Updates org, dir and beta; false when beta became
+// black. Camera, gather and path-traced rays all bounce through it.
+bool specular_bounce(const EmbreeScene& es, Rng& rng, Vec3& org, Vec3& dir, const EmbreeScene::Hit& hit,
+                     Vec3& beta);
+
 class FinalGatherRenderer {
  public:
   // caustic may be null or empty: then no caustic lookup is made.
   FinalGatherRenderer(const EmbreeScene& scene, const LightSampler& lights, const PhotonMap& global,
                       const PhotonMap* caustic, const RenderOptions& options);
 
+  // Trace and shade pass by pass with options.estimator.
   Image render(RenderStats& stats, Progress* progress = nullptr) const;
+
+  // The rays of every pass (stats: trace_s and the ray counts).
+  TracedFrame trace(RenderStats& stats, Progress* progress = nullptr) const;
+  // One image per estimator, in order, from a frame this renderer's settings traced (else throws):
+  // the queries answered by the maps' current indices (stats: query and shade times). Equal to
+  // render() for each estimator, bit for bit.
+  std::vector<Image> shade(const TracedFrame& frame, const std::vector<DensityEstimator>& estimators,
+                           RenderStats& stats, Progress* progress = nullptr) const;
 
   // Outgoing radiance of surface points by the same direct + caustic + final-gather path as the
   // render, in one batch (tests: energy conservation on a furnace scene).
   std::vector<Vec3> shade(const std::vector<SurfacePoint>& points, RenderStats& stats) const;
 
  private:
-  std::vector<Vec3> shade_batch(const std::vector<SurfacePoint>& points, RenderStats& stats) const;
+  int rows_per_pass() const;
+  TracedPass trace_pass(int y0, int y1, RenderStats& stats) const;
+  // Stage A for visible points: direct light and gather rays, appended to `pass` (slot i of the
+  // points is slots[i]).
+  void trace_points(const std::vector<SurfacePoint>& points, const std::vector<std::uint32_t>& slots,
+                    TracedPass& pass, RenderStats& stats) const;
+  // The queries of a pass and its radiance per slot, once per estimator: out[e][slot].
+  void shade_pass(const TracedPass& pass, std::size_t slots, const std::vector<DensityEstimator>& estimators,
+                  std::vector<std::vector<Vec3>>& out, RenderStats& stats) const;
+  void film(const TracedPass& pass, const std::vector<Vec3>& radiance, Image& img, RenderStats& stats) const;
 
   const EmbreeScene& es_;
   const LightSampler& lights_;

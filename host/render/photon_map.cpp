@@ -35,22 +35,21 @@ QueryStats PhotonMap::query(const float* xyz, std::size_t n, const SearchParams&
   return index_->query(xyz, n, params, out);
 }
 
-Vec3 PhotonMap::radiance(const KnnResult& r, std::size_t row, Vec3 n, Vec3 kd, float max_radius) const {
+Vec3 PhotonMap::radiance(const KnnResult& r, std::size_t row, Vec3 n, Vec3 kd, float max_radius,
+                         const DensityEstimator& est) const {
   const int count = r.counts[row];
   if (count <= 0) return {0, 0, 0};
-  float r2 = r.d2(row, count - 1);
-  // Fewer than k photons inside the maximum radius: the disc is the maximum radius.
-  if (count < r.k && std::isfinite(max_radius)) r2 = max_radius * max_radius;
-  if (!(r2 > 0)) return {0, 0, 0};  // all photons on the query point: no disc to divide by
+  const float* d2 = r.dist2.data() + row * static_cast<std::size_t>(r.k);
+  const float r2 = disc_radius2(est.radius, d2, count, r.k, max_radius);
+  if (!(r2 > 0) || !std::isfinite(r2)) return {0, 0, 0};  // all photons on the query point: no disc
   const float radius = std::sqrt(r2);
   Vec3 sum{0, 0, 0};
   for (int j = 0; j < count; ++j) {
     const std::size_t id = static_cast<std::size_t>(r.id(row, j));
     if (dot(direction_[id], n) <= 0) continue;  // arrived from behind the surface
-    float w = 1.0f - std::sqrt(r.d2(row, j)) / (kConeFilter * radius);
-    sum += power_[id] * w;
+    sum += power_[id] * filter_weight(est.filter, d2[j], r2, radius);
   }
-  const float norm = (1.0f - 2.0f / (3.0f * kConeFilter)) * kPi * r2;
+  const float norm = filter_norm(est.filter) * kPi * r2;
   return kd * sum * (power_scale_ / (kPi * norm));
 }
 

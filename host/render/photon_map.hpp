@@ -1,12 +1,13 @@
 // A photon map: the records, their positions in a kNN index of any method (make_index), and the
 // radiance estimate from the k nearest photons.
 //
-// Density estimate (Jensen's, with a cone filter): at a diffuse point x with albedo kd and normal
-// n (on the viewer's side), from the k nearest photons p within distance r (the k-th distance, or
+// Density estimate: at a diffuse point x with albedo kd and normal n (on the viewer's side), from
+// the k nearest photons p and a disc of radius r (density.hpp: the k-th distance by default, or
 // the maximum radius when fewer are found):
-//     L(x) = (kd / pi) * sum_p w_p Phi_p / ((1 - 2 / (3 c)) pi r^2),   w_p = 1 - d_p / (c r)
-// with c = kConeFilter; photons arriving from behind the surface (dot(dir_p, n) <= 0) are
-// skipped. Units: Phi is radiance x mm^2 (photon_trace.hpp) and r is in mm, so L is radiance.
+//     L(x) = (kd / pi) * sum_p w(d_p / r) Phi_p / (norm_w pi r^2)
+// with the filter w (Jensen's cone filter by default); photons arriving from behind the surface
+// (dot(dir_p, n) <= 0) are skipped. Units: Phi is radiance x mm^2 (photon_trace.hpp) and r is in
+// mm, so L is radiance.
 #pragma once
 
 #include <memory>
@@ -15,11 +16,10 @@
 
 #include "blockhash_cl/factory.hpp"
 #include "blockhash_cl/knn.hpp"
+#include "density.hpp"
 #include "photon.hpp"
 
 namespace bhcl::render {
-
-inline constexpr float kConeFilter = 1.1f;
 
 class PhotonMap {
  public:
@@ -43,7 +43,8 @@ class PhotonMap {
   QueryStats query(const float* xyz, std::size_t n, const SearchParams& params, KnnResult& out) const;
 
   // The radiance estimate (see top of file) from row `row` of a query result.
-  Vec3 radiance(const KnnResult& r, std::size_t row, Vec3 n, Vec3 kd, float max_radius) const;
+  Vec3 radiance(const KnnResult& r, std::size_t row, Vec3 n, Vec3 kd, float max_radius,
+               const DensityEstimator& estimator = {}) const;
 
  private:
   std::string name_;

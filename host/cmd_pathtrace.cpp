@@ -1,0 +1,101 @@
+// bhcl pathtrace: the independent reference for the renderer. The same scene and camera as
+// `bhcl render`, rendered by path tracing without any photon map or kNN (host/render/path_trace.hpp),
+// so that `bhcl render --compare --reference` can measure each density estimator's own error.
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+
+#include "cli.hpp"
+#include "commands.hpp"
+#include "embree_scene.hpp"
+#include "exr_io.hpp"
+#include "path_trace.hpp"
+#include "png_io.hpp"
+#include "progress.hpp"
+#include "scene.hpp"
+
+namespace bhcl::cli {
+namespace {
+
+using namespace bhcl::render;
+
+void declare_pathtrace(Args& a) {
+  a.add_required("out", "the image (half-float OpenEXR); a PNG preview goes beside it", "IMAGE.exr");
+  a.add_text("scene", "cornell, a scene name from the scenes folder, or an OBJ file", "cornell", "SCENE");
+  a.add_text("size", "image size WxH", "512x512", "WxH");
+  a.add_integer("spp", "paths per pixel", 1, 1 << 24, "64");
+  a.add_integer("max-depth", "path vertices at most (Russian roulette ends most paths before)", 1, 4096, "64");
+  a.add_integer("seed", "random seed", 0, Args::kNoLimit, "1");
+  a.add_integer("threads", "host threads (0: all); the image does not depend on it", 0, 4096, "0");
+  a.add_text("png", "the tone-mapped PNG preview", "OUT with .png", "FILE");
+  a.add_number("exposure", "tone-mapping exposure (0: automatic)", "0");
+  a.add_text("stats", "write timings and parameters here as JSON", "", "FILE");
+  a.add_flag("quiet", "no progress bar");
+}
+
+int run_pathtrace(const Args& args) {
+  const auto t0 = std::chrono::steady_clock::now();
+  PathTraceOptions opt;
+  parse_image_size(args.str("size", "512x512"), opt.width, opt.height);
+  opt.spp = static_cast<int>(args.integer("spp", 64));
+  opt.max_depth = static_cast<int>(args.integer("max-depth", 64));
+  opt.seed = static_cast<std::uint64_t>(args.integer("seed", 1));
+  opt.threads = static_cast<int>(args.integer("threads", 0));
+  const double exposure_opt = args.number("exposure", 0.0);
+  if (exposure_opt < 0 || !std::isfinite(exposure_opt)) throw UsageError("--exposure must be >= 0 (0: automatic)");
+  const std::string out = args.str("out");
+  const std::string png = args.str("png", strip_extension(out) + ".png");
+  check_distinct_files({{"--scene", args.str("scene", "")}},
+                       {{"--out", out}, {args.has("png") ? "--png" : "the PNG beside --out", png},
+                        {"--stats", args.str("stats", "")}});
+
+  Scene scene = load_scene(args.str("scene", "cornell"));
+  if (!scene.has_light()) throw UsageError("scene '" + scene.name + "' has no emitter: the image would be black");
+  EmbreeScene es(scene, opt.threads);
+  LightSampler lights(scene);
+  PathTraceStats stats;
+  Image img;
+  {
+    Progress bar("path trace", !args.flag("quiet"));
+    img = path_trace(es, lights, opt, stats, &bar);
+    bar.finish();
+  }
+  write_exr(out, img);
+  const float exposure = exposure_opt > 0 ? static_cast<float>(exposure_opt) : auto_exposure(img);
+  write_png(png, tonemap(img, exposure));
+  double sum = 0;
+  for (std::size_t i = 0; i < img.pixels(); ++i) sum += luminance(img.at(i));
+  const double mean = img.pixels() ? sum / img.pixels() : 0.0;
+  std::fprintf(stderr,
+               "bhcl pathtrace: scene '%s', %dx%d, %d spp: %zu paths, %.2f vertices per path, %zu shadow rays in "
+               "%.2f s; mean luminance %.6g; wrote %s and %s\n",
+               scene.name.c_str(), opt.width, opt.height, opt.spp, stats.paths,
+               stats.paths ? static_cast<double>(stats.vertices) / stats.paths : 0.0, stats.shadow_rays,
+               stats.seconds, mean, out.c_str(), png.c_str());
+  if (args.has("stats")) {
+    Json j;
+    j["command"] = "pathtrace";
+    j["scene"] = scene.name;
+    j["scene_arg"] = args.str("scene", "cornell");
+    j["width"] = opt.width;
+    j["height"] = opt.height;
+    j["spp"] = opt.spp;
+    j["max_depth"] = opt.max_depth;
+    j["seed"] = opt.seed;
+    j["paths"] = stats.paths;
+    j["vertices"] = stats.vertices;
+    j["shadow_rays"] = stats.shadow_rays;
+    j["trace_s"] = stats.seconds;
+    j["mean_luminance"] = mean;
+    j["exposure"] = exposure;
+    j["total_s"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    write_json(args.str("stats"), j);
+  }
+  return 0;
+}
+
+RegisterCommand reg("pathtrace", "a path-traced reference image of a render scene (no photon map)",
+                    declare_pathtrace, run_pathtrace);
+
+}  // namespace
+}  // namespace bhcl::cli
