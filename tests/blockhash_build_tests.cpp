@@ -5,6 +5,8 @@
 #include "blockhash/build.hpp"
 #include "test_util.hpp"
 
+#include "blockhash_cl/spatial_order.hpp"
+
 using namespace bhcl;
 using namespace bhcl::blockhash;
 
@@ -98,6 +100,32 @@ TEST_CASE("blockhash hilbert: quantisation behaves for flat, tiny, huge and offs
   CHECK(spread(off, 21) > 1900);  // float spacing at 1e6 is 0.06: some points coincide
   std::vector<float> same(300, 7.0f);
   CHECK(spread(same, 21) == 1);
+}
+
+TEST_CASE("spatial order: bhcl::hilbert_order is a permutation, local, non-finite points last") {
+  CHECK(bhcl::hilbert_order(nullptr, 0).empty());
+  auto pts = datasets::uniform(4000, 3);
+  const float nan = std::numeric_limits<float>::quiet_NaN(), inf = std::numeric_limits<float>::infinity();
+  pts[3 * 10 + 1] = nan;
+  pts[3 * 20 + 2] = -inf;
+  const std::vector<std::size_t> order = bhcl::hilbert_order(pts.data(), 4000);
+  REQUIRE(order.size() == 4000);
+  std::vector<int> seen(4000, 0);
+  for (std::size_t i : order) ++seen[i];
+  for (int v : seen) REQUIRE(v == 1);
+  CHECK(order[3998] == 10);  // the non-finite ones last, in their own order
+  CHECK(order[3999] == 20);
+  // Locality: consecutive points along the order are far closer than random pairs (mean distance
+  // of random pairs in the unit cube is about 0.66).
+  double step = 0;
+  for (std::size_t i = 1; i < 3998; ++i) {
+    double d2 = 0;
+    for (int d = 0; d < 3; ++d) d2 += std::pow(pts[3 * order[i] + d] - pts[3 * order[i - 1] + d], 2);
+    step += std::sqrt(d2);
+  }
+  CHECK(step / 3997 < 0.1);
+  std::vector<float> one{1, 2, 3};
+  CHECK(bhcl::hilbert_order(one.data(), 1) == std::vector<std::size_t>{0});
 }
 
 TEST_CASE("blockhash hilbert: the order is a stable permutation and blocks are local") {

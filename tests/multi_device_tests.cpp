@@ -95,7 +95,7 @@ TEST_CASE("multi-device: bhcl knn --device pocl,pocl writes the one-device files
   auto pts = datasets::uniform(3000, 41);
   auto qs = datasets::uniform(500, 42);
   std::string P = write_points("md_p.f32", pts), Q = write_points("md_q.f32", qs);
-  for (const std::string extra : {std::string(" --k 9"), std::string(" --radius 0.07 --out-offsets ")}) {
+  for (const std::string& extra : {std::string(" --k 9"), std::string(" --radius 0.07 --out-offsets ")}) {
     const bool radius = extra.find("radius") != std::string::npos;
     std::string base = "knn --points " + P + " --queries " + Q + " --method kdtree --quiet" + extra;
     std::string one = base + (radius ? tmp_path("md_o1") : "") + " --out-ids " + tmp_path("md_i1") +

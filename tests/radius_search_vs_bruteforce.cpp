@@ -342,7 +342,7 @@ TEST_CASE("radius: bhcl knn --radius writes the library's three arrays, and refu
     CHECK(j.at("radius").at("truncated_queries") == ref.truncated_queries);
   }
   const std::string base = "knn --points " + P + " --queries " + Q + " --out-ids " + I + " --out-dist2 " + D;
-  for (const std::string bad : {std::string(" --method kdtree --radius 0.1"),           // no --out-offsets
+  for (const std::string& bad : {std::string(" --method kdtree --radius 0.1"),           // no --out-offsets
                                 " --method kdtree --radius 0.1 --k 3 --out-offsets " + O,  // --k is kNN's
                                 " --method kdtree --radius -1 --out-offsets " + O,
                                 " --method kdtree --radius nan --out-offsets " + O,

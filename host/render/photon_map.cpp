@@ -4,11 +4,23 @@
 #include <cmath>
 
 #include "blockhash_cl/error.hpp"
+#include "blockhash_cl/spatial_order.hpp"
 
 namespace bhcl::render {
 
 PhotonMap::PhotonMap(std::string name, std::vector<PhotonRecord> records, float power_scale)
-    : name_(std::move(name)), records_(std::move(records)), power_scale_(power_scale) {
+    : name_(std::move(name)), power_scale_(power_scale) {
+  // Records in Hilbert order of their positions: the k photons of one estimate, and those of
+  // neighbouring gather points, then lie close together in memory. In emission order they are
+  // scattered over the whole map, and shading (k reads per estimate) waits on cache misses.
+  {
+    std::vector<float> xyz(records.size() * 3);
+    for (std::size_t i = 0; i < records.size(); ++i)
+      for (int d = 0; d < 3; ++d) xyz[3 * i + d] = records[i].position[d];
+    const std::vector<std::size_t> order = hilbert_order(xyz.data(), records.size());
+    records_.reserve(records.size());
+    for (std::size_t i : order) records_.push_back(records[i]);
+  }
   positions_.resize(records_.size() * 3);
   power_.resize(records_.size());
   direction_.resize(records_.size());

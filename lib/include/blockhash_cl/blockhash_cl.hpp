@@ -17,3 +17,4 @@
 #include "blockhash_cl/quirks.hpp"
 #include "blockhash_cl/reference.hpp"
 #include "blockhash_cl/runtime.hpp"
+#include "blockhash_cl/spatial_order.hpp"

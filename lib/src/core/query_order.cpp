@@ -1,5 +1,7 @@
 #include "core/query_order.hpp"
 
+#include "blockhash_cl/spatial_order.hpp"
+
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -15,6 +17,7 @@ std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n) {
     const float* q = xyz + 3 * i;
     (std::isfinite(q[0]) && std::isfinite(q[1]) && std::isfinite(q[2]) ? finite : rest).push_back(i);
   }
+  if (finite.empty()) return rest;
   std::vector<float> compact(3 * finite.size());
   for (std::size_t j = 0; j < finite.size(); ++j)
     for (int d = 0; d < 3; ++d) compact[3 * j + d] = xyz[3 * finite[j] + d];
@@ -32,3 +35,9 @@ std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n) {
 }
 
 }  // namespace bhcl::detail
+
+namespace bhcl {
+
+std::vector<std::size_t> hilbert_order(const float* xyz, std::size_t n) { return detail::hilbert_query_order(xyz, n); }
+
+}  // namespace bhcl
