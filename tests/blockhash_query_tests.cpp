@@ -344,6 +344,37 @@ TEST_CASE("blockhash: a recall target is met on held-out queries") {
   CHECK_THROWS_WITH_AS(index.query(pts, bad), doctest::Contains("recall_target"), Error);
 }
 
+TEST_CASE("blockhash: sorted dispatch equals the caller's order, both presets, extreme scales, several dispatches") {
+  auto rt = test::runtime();
+  for (double scale : {1.0, 0x1p-70, 0x1p70}) {
+    auto pts = datasets::clustered(6000, 71, 6, 0.02f);
+    auto qs = datasets::clustered(900, 72, 6, 0.02f);
+    for (auto& v : pts) v = static_cast<float>(v * scale);
+    for (auto& v : qs) v = static_cast<float>(v * scale);
+    qs[3 * 7 + 2] = INFINITY;  // a non-finite query keeps its row
+    for (const char* name : {"auto", "paper"}) {
+      CAPTURE(scale);
+      CAPTURE(name);
+      BlockHashIndex index(rt, pts.data(), 6000, preset(name));
+      SearchParams p;
+      p.k = 9;
+      p.count_examined = true;
+      p.sort_queries = 0;
+      KnnResult plain = index.query(qs, p);
+      p.sort_queries = 1;
+      for (std::size_t batch : {std::size_t(0), std::size_t(128)}) {
+        p.max_batch = batch;
+        KnnResult sorted = index.query(qs, p);
+        CHECK(sorted.ids == plain.ids);
+        CHECK(sorted.dist2 == plain.dist2);
+        CHECK(sorted.counts == plain.counts);
+        CHECK(sorted.examined == plain.examined);
+      }
+      CHECK(plain.counts[7] == 0);
+    }
+  }
+}
+
 TEST_CASE("blockhash: examined counts are an option of every query path (sorted, buffer-level)") {
   auto rt = test::runtime();
   auto pts = datasets::clustered(5000, 61, 6, 0.02f);
