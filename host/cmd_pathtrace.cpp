@@ -7,6 +7,7 @@
 
 #include "cli.hpp"
 #include "commands.hpp"
+#include "compare.hpp"
 #include "embree_scene.hpp"
 #include "exr_io.hpp"
 #include "path_trace.hpp"
@@ -63,9 +64,7 @@ int run_pathtrace(const Args& args) {
   write_exr(out, img);
   const float exposure = exposure_opt > 0 ? static_cast<float>(exposure_opt) : auto_exposure(img);
   write_png(png, tonemap(img, exposure));
-  double sum = 0;
-  for (std::size_t i = 0; i < img.pixels(); ++i) sum += luminance(img.at(i));
-  const double mean = img.pixels() ? sum / img.pixels() : 0.0;
+  const double mean = mean_luminance(img);
   std::fprintf(stderr,
                "bhcl pathtrace: scene '%s', %dx%d, %d spp: %zu paths, %.2f vertices per path, %zu shadow rays in "
                "%.2f s; mean luminance %.6g; wrote %s and %s\n",

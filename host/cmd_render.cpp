@@ -166,58 +166,6 @@ void add_trace_counts(RenderStats& s, const RenderStats& t) {
   s.passes = t.passes;
 }
 
-double mean_luminance(const Image& img) {
-  double sum = 0;
-  for (std::size_t i = 0; i < img.pixels(); ++i) sum += luminance(img.at(i));
-  return img.pixels() ? sum / img.pixels() : 0.0;
-}
-
-// An image against a reference on blocks of b x b pixels, leaving out every block in which the
-// reference sees an emitter (a pixel brighter than 8x the median luminance). Averaging over a block
-// removes most of a render's per-pixel noise and keeps what a density estimator gets wrong (blur
-// at corners and edges, dark bands by walls); the emitter's edge, sampled once per pixel against
-// the reference's thousands, would swamp both.
-struct BlockError {
-  double relative_rmse = 0;  // of block luminance, over the mean reference block luminance
-  double mean_bias = 0;      // (sum of luminance - the reference's) / the reference's, kept blocks
-  std::size_t blocks = 0, blocks_left_out = 0;
-};
-BlockError block_error(const Image& img, const Image& ref, int b) {
-  std::vector<float> lum(ref.pixels());
-  for (std::size_t i = 0; i < ref.pixels(); ++i) lum[i] = luminance(ref.at(i));
-  std::vector<float> sorted = lum;
-  std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
-  const float bright = 8.0f * sorted[sorted.size() / 2];
-  BlockError out;
-  double se = 0, sum_ref = 0, sum_img = 0, kept_pixels = 0;
-  for (int by = 0; by < ref.height; by += b)
-    for (int bx = 0; bx < ref.width; bx += b) {
-      double a = 0, r = 0;
-      bool emitter = false;
-      int n = 0;
-      for (int y = by; y < std::min(ref.height, by + b); ++y)
-        for (int x = bx; x < std::min(ref.width, bx + b); ++x, ++n) {
-          const std::size_t i = static_cast<std::size_t>(y) * ref.width + x;
-          emitter = emitter || lum[i] > bright;
-          a += luminance(img.at(i));
-          r += lum[i];
-        }
-      if (emitter) {
-        ++out.blocks_left_out;
-        continue;
-      }
-      ++out.blocks;
-      kept_pixels += n;
-      se += (a - r) * (a - r) / (static_cast<double>(n) * n);
-      sum_ref += r;
-      sum_img += a;
-    }
-  if (out.blocks > 0 && sum_ref > 0) {
-    out.relative_rmse = std::sqrt(se / out.blocks) / (sum_ref / kept_pixels);
-    out.mean_bias = (sum_img - sum_ref) / sum_ref;
-  }
-  return out;
-}
 
 // What the render did not do, because the scene did not need it (item by item).
 void print_skipped(const RenderRun& r, const PhotonMaps& maps) {

@@ -407,6 +407,26 @@ TEST_CASE("render: the comparison sheet: exact zero is black, the automatic scal
   }
 }
 
+TEST_CASE("render: block errors against a reference leave out the emitter's blocks and give the bias") {
+  Image ref(8, 8), a(8, 8);
+  for (std::size_t i = 0; i < ref.pixels(); ++i) {
+    ref.set(i, Vec3{1, 1, 1});
+    // Per pixel +-20 % noise that cancels within each 2x2 block, and a uniform +1 % bias.
+    const float noise = ((i % 8) + (i / 8)) % 2 ? 0.2f : -0.2f;
+    a.set(i, Vec3{1, 1, 1} * (1.01f + noise));
+  }
+  ref.set(0, Vec3{50, 50, 50});  // the emitter, seen in the top-left block only
+  a.set(0, Vec3{10, 10, 10});
+  BlockError e = block_error(a, ref, 2);
+  CHECK(e.blocks == 15);
+  CHECK(e.blocks_left_out == 1);
+  CHECK(e.mean_bias == doctest::Approx(0.01).epsilon(1e-3));
+  CHECK(e.relative_rmse == doctest::Approx(0.01).epsilon(1e-3));  // the noise averaged away
+  CHECK(image_diff(a, ref).relative_rmse > 0.1);                   // per pixel it is not
+  CHECK_THROWS_AS(block_error(a, Image(4, 4), 2), Error);
+  CHECK_THROWS_AS(block_error(a, ref, 0), Error);
+}
+
 TEST_CASE("render: the automatic exposure is not pulled down by pixels that see the light") {
   Image img(20, 10);
   for (std::size_t i = 0; i < img.pixels(); ++i) img.set(i, Vec3{0.5f, 0.5f, 0.5f} * (0.5f + 0.005f * (i % 100)));
@@ -450,10 +470,14 @@ Image glass_render(const Scene& scene, std::size_t photons, int size, int gather
   return r.render(stats);
 }
 
-double mean_luminance(const Image& img) {
-  double sum = 0;
-  for (std::size_t i = 0; i < img.pixels(); ++i) sum += luminance(img.at(i));
-  return sum / img.pixels();
+Image path_traced(const Scene& scene, int size, int spp, int threads, PathTraceStats& st) {
+  EmbreeScene es(scene, threads);
+  LightSampler lights(scene);
+  PathTraceOptions po;
+  po.width = po.height = size;
+  po.spp = spp;
+  po.threads = threads;
+  return path_trace(es, lights, po, st);
 }
 
 }  // namespace
@@ -734,32 +758,19 @@ TEST_CASE("render: the path tracer: a white furnace converges to Le over 1 - rho
   {
     const float Le = 1.0f, rho = 0.5f;
     Scene scene = furnace_scene(Le, rho);
-    EmbreeScene es(scene, 2);
-    LightSampler lights(scene);
-    PathTraceOptions po;
-    po.width = po.height = 16;
-    po.spp = 256;
-    po.threads = 2;
     PathTraceStats st;
-    Image a = path_trace(es, lights, po, st);
+    Image a = path_traced(scene, 16, 256, 2, st);
     MESSAGE("path-traced furnace: mean " << mean_luminance(a) << " (expected 2)");
     CHECK(mean_luminance(a) == doctest::Approx(Le / (1 - rho)).epsilon(0.02));
     CHECK(st.paths == 16u * 16u * 256u);
-    po.threads = 1;
-    CHECK(path_trace(es, lights, po, st).rgb == a.rgb);  // independent of threads
+    CHECK(path_traced(scene, 16, 256, 1, st).rgb == a.rgb);  // independent of threads
   }
   // The diffuse Cornell Box: the photon map's render (exact kNN) and the path tracer agree on the
   // mean radiance within a few per cent (both noisy at this size).
   Scene scene = cornell_scene();
   SmallRender pm = small_render(scene, has_method("kdtree") ? "kdtree" : "bruteforce", 30000, 32, 32, 2, 3, 50, 4, 4);
-  EmbreeScene es(scene, 2);
-  LightSampler lights(scene);
-  PathTraceOptions po;
-  po.width = po.height = 32;
-  po.spp = 512;
-  po.threads = 2;
   PathTraceStats st;
-  Image pt = path_trace(es, lights, po, st);
+  Image pt = path_traced(scene, 32, 512, 2, st);
   MESSAGE("Cornell 32x32: path tracer mean " << mean_luminance(pt) << ", photon map " << mean_luminance(pm.image));
   CHECK(mean_luminance(pm.image) == doctest::Approx(mean_luminance(pt)).epsilon(0.03));
   std::string out;

@@ -18,12 +18,6 @@ Vec3 turbo(float t) {
   return {std::clamp(r, 0.0f, 1.0f), std::clamp(g, 0.0f, 1.0f), std::clamp(b, 0.0f, 1.0f)};
 }
 
-double mean_luminance(const Image& img) {
-  double s = 0;
-  for (std::size_t i = 0; i < img.pixels(); ++i) s += luminance(img.at(i));
-  return img.pixels() ? s / img.pixels() : 0.0;
-}
-
 void check_sizes(const Image& a, const Image& b) {
   if (a.width != b.width || a.height != b.height)
     throw Error("image comparison: sizes differ (" + std::to_string(a.width) + "x" + std::to_string(a.height) +
@@ -31,6 +25,13 @@ void check_sizes(const Image& a, const Image& b) {
 }
 
 }  // namespace
+
+double mean_luminance(const Image& img) {
+  double s = 0;
+  for (std::size_t i = 0; i < img.pixels(); ++i) s += luminance(img.at(i));
+  return img.pixels() ? s / img.pixels() : 0.0;
+}
+
 
 ImageDiff image_diff(const Image& a, const Image& ref) {
   check_sizes(a, ref);
@@ -156,6 +157,45 @@ Rgb8 labelled_colour_scale(int width, int height, float max_rel, const TextPaint
               Vec3{1, 1, 1});
   }
   text.draw(out, bar_w + 4, height - swatch, "black: exactly 0", Vec3{0.8f, 0.8f, 0.8f});
+  return out;
+}
+
+BlockError block_error(const Image& img, const Image& ref, int b) {
+  check_sizes(img, ref);
+  if (b < 1) throw Error("block_error: the block size must be >= 1");
+  std::vector<float> lum(ref.pixels());
+  for (std::size_t i = 0; i < ref.pixels(); ++i) lum[i] = luminance(ref.at(i));
+  std::vector<float> sorted = lum;
+  std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
+  const float bright = 8.0f * sorted[sorted.size() / 2];
+  BlockError out;
+  double se = 0, sum_ref = 0, sum_img = 0, kept_pixels = 0;
+  for (int by = 0; by < ref.height; by += b)
+    for (int bx = 0; bx < ref.width; bx += b) {
+      double a = 0, r = 0;
+      bool emitter = false;
+      int n = 0;
+      for (int y = by; y < std::min(ref.height, by + b); ++y)
+        for (int x = bx; x < std::min(ref.width, bx + b); ++x, ++n) {
+          const std::size_t i = static_cast<std::size_t>(y) * ref.width + x;
+          emitter = emitter || lum[i] > bright;
+          a += luminance(img.at(i));
+          r += lum[i];
+        }
+      if (emitter) {
+        ++out.blocks_left_out;
+        continue;
+      }
+      ++out.blocks;
+      kept_pixels += n;
+      se += (a - r) * (a - r) / (static_cast<double>(n) * n);
+      sum_ref += r;
+      sum_img += a;
+    }
+  if (out.blocks > 0 && sum_ref > 0) {
+    out.relative_rmse = std::sqrt(se / out.blocks) / (sum_ref / kept_pixels);
+    out.mean_bias = (sum_img - sum_ref) / sum_ref;
+  }
   return out;
 }
 

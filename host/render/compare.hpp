@@ -23,6 +23,21 @@ struct ImageDiff {
 // Throws bhcl::Error when the sizes differ.
 ImageDiff image_diff(const Image& a, const Image& reference);
 
+double mean_luminance(const Image& img);  // 0 for an empty image
+
+// An image against a reference on blocks of b x b pixels, leaving out every block in which the
+// reference sees an emitter (a pixel brighter than 8x the median luminance). Averaging over a block
+// removes most of a render's per-pixel noise and keeps what a density estimator gets wrong (blur
+// at corners and edges, dark bands by walls); the emitter's edge, sampled once per pixel against
+// the reference's thousands, would swamp both.
+struct BlockError {
+  double relative_rmse = 0;  // of block luminance, over the mean reference block luminance
+  double mean_bias = 0;      // (sum of luminance - the reference's) / the reference's, kept blocks
+  std::size_t blocks = 0, blocks_left_out = 0;
+};
+// Throws bhcl::Error when the sizes differ or b < 1.
+BlockError block_error(const Image& img, const Image& reference, int b);
+
 // Per-pixel relative luminance error |lum(a) - lum(ref)| / max(lum(ref), floor) shown with the
 // Turbo colour map, 0 (dark blue) to `max_rel` (dark red); floor = 1% of the mean luminance.
 // A pixel whose error is exactly 0 is black, so that "identical" stands apart from "small".
