@@ -297,6 +297,61 @@ void check_method_options(const Args& args, const std::vector<std::string>& meth
   }
 }
 
+RadiusParams radius_search_options(const Args& args, const std::vector<std::string>& methods, float& radius) {
+  for (const char* o : {"k", "max-radius", "A", "recall"})
+    if (args.has(o)) throw UsageError(std::string("--") + o + " does not apply with --radius");
+  if (args.has("budget") && std::find(methods.begin(), methods.end(), "blockhash") == methods.end())
+    throw UsageError("--budget does not apply to method " + joined(methods, " and ") + " (only to blockhash)");
+  check_method_options(args, methods, {"budget"});
+  const double r = args.number("radius", 0.0);
+  if (!std::isfinite(r) || r < 0 || !std::isfinite(static_cast<float>(r)))
+    throw UsageError("--radius must be a finite number >= 0");
+  radius = static_cast<float>(r);
+  RadiusParams rp;
+  rp.budget = static_cast<std::uint32_t>(args.integer("budget", 0));
+  rp.neighbour_probes = static_cast<int>(args.integer("probes", -1));
+  rp.local_size = static_cast<std::size_t>(args.integer("local-size", 0));
+  rp.max_batch = static_cast<std::size_t>(args.integer("max-batch", 0));
+  return rp;
+}
+
+QueryStats radius_with_progress(const Index& index, const std::vector<float>& queries, float radius,
+                                const RadiusParams& params, RadiusResult& all, bool quiet) {
+  const std::size_t n = queries.size() / 3;
+  render::Progress bar("radius " + index.method() + " (" + std::to_string(n) + " queries)", !quiet);
+  const std::size_t slice =
+      bar.enabled() ? std::max<std::size_t>(std::size_t(1) << 15, n / 100) : std::max<std::size_t>(n, 1);
+  auto t0 = std::chrono::steady_clock::now();
+  RadiusResult part;
+  all = RadiusResult{};
+  all.offsets.assign(1, 0);
+  QueryStats st;
+  for (std::size_t first = 0; first < n || first == 0; first += slice) {
+    const std::size_t m = std::min(slice, n - first);
+    QueryStats s = index.radius_search(queries.data() + 3 * first, m, radius, params, part);
+    const std::int64_t base = all.offsets.back();
+    for (std::size_t i = 1; i <= m; ++i) all.offsets.push_back(base + part.offsets[i]);
+    all.ids.insert(all.ids.end(), part.ids.begin(), part.ids.end());
+    all.dist2.insert(all.dist2.end(), part.dist2.begin(), part.dist2.end());
+    all.found.insert(all.found.end(), part.found.begin(), part.found.end());
+    all.examined.insert(all.examined.end(), part.examined.begin(), part.examined.end());
+    all.truncated_queries += part.truncated_queries;
+    st.nonfinite_queries += s.nonfinite_queries;
+    st.batches += s.batches;
+    st.compile_s += s.compile_s;
+    st.upload_s += s.upload_s;
+    st.query_s += s.query_s;
+    st.download_s += s.download_s;
+    bar.update(double(first + m) / double(std::max<std::size_t>(n, 1)));
+    if (n == 0) break;
+  }
+  bar.finish();
+  all.n = n;
+  st.n_queries = n;
+  st.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return st;
+}
+
 std::unique_ptr<Index> build_with_progress(const std::string& method, std::shared_ptr<Runtime> rt,
                                            const std::vector<float>& points,
                                            const MethodOptions& options, bool quiet) {

@@ -111,6 +111,13 @@ std::unique_ptr<Index> build_with_progress(const std::string& method, std::share
                                            const MethodOptions& options, bool quiet);
 QueryStats query_with_progress(const Index& index, const std::vector<float>& queries,
                                const SearchParams& params, KnnResult& out, bool quiet);
+// The same for a radius search (Index::radius_search; the slices concatenated).
+QueryStats radius_with_progress(const Index& index, const std::vector<float>& queries, float radius,
+                                const RadiusParams& params, RadiusResult& out, bool quiet);
+// --radius and --budget, checked for `methods`: --k, --max-radius, --A and --recall are refused
+// with it, --budget only for blockhash, r must be finite and >= 0 (the caller adds its own, e.g.
+// knn's --max-results).
+RadiusParams radius_search_options(const Args& args, const std::vector<std::string>& methods, float& radius);
 
 // A file a command reads or writes, by the option that names it.
 struct FileArg {

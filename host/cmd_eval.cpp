@@ -42,6 +42,92 @@ void declare_eval(Args& a) {
   a.add_text("truth", "the exact method giving the true neighbours: " + method_list(exact_method_names()),
              default_truth_method(), "NAME");
   declare_run_options(a, "write the metrics, timings and parameters here as JSON");
+  a.group("Radius search");
+  a.add_number("radius", "evaluate the radius search instead of kNN: every point within this Euclidean "
+                         "distance of each query, against the truth's", "");
+  a.add_integer("budget", "with --radius, blockhash: examine at most this many points per query "
+                          "(0: every block within the radius that the probes reach)", 0, 4294967295LL, "0");
+  a.group("");
+}
+
+// bhcl eval --radius: both sides' radius searches, the points of each ball found.
+int run_eval_radius(const Args& args, const std::string& method, const std::string& truth_method) {
+  float radius = 0;
+  const RadiusParams rp = radius_search_options(args, {method, truth_method}, radius);
+  RadiusParams tp = rp;
+  tp.budget = 0;  // the truth finds every point
+  MethodOptions mopt = method_options(args);
+  check_distinct_files({{"--points", args.str("points")}, {"--queries", args.str("queries")},
+                        {"--load-index", mopt.load_index}},
+                       {{"--stats", args.str("stats", "")}, {"--save-index", mopt.save_index}});
+  std::vector<float> points, queries;
+  read_points_and_queries(args, points, queries);
+  const std::size_t N = points.size() / 3, n = queries.size() / 3;
+  auto rt = std::make_shared<Runtime>(args.str("device", ""));
+  const bool quiet = args.flag("quiet");
+  MethodOptions topt = mopt;
+  topt.load_index.clear();
+  topt.save_index.clear();
+  auto truth = build_with_progress(truth_method, rt, points, topt, quiet);
+  RadiusResult truth_r, m_r;
+  const QueryStats truth_st = radius_with_progress(*truth, queries, radius, tp, truth_r, quiet);
+  auto index = build_with_progress(method, rt, points, mopt, quiet);
+  const QueryStats m_st = radius_with_progress(*index, queries, radius, rp, m_r, quiet);
+  const RadiusAccuracy acc = evaluate_radius_accuracy(m_r, truth_r);
+  const RadiusAccuracy self = evaluate_radius_accuracy(truth_r, truth_r);
+
+  std::printf("bhcl eval --radius on %s: N=%zu n=%zu r=%g budget=%u\n", rt->info().summary().c_str(), N, n,
+              static_cast<double>(radius), rp.budget);
+  const std::string truth_head = truth->method() + " (truth)";
+  std::printf("%-22s %16s %16s\n", "", index->method().c_str(), truth_head.c_str());
+  auto both = [&](const char* name, const char* f, double a, double b) {
+    std::printf("%-22s %16s %16s\n", name, fmt(f, a).c_str(), fmt(f, b).c_str());
+  };
+  std::printf("%-22s %16s %16s\n", "exact", index->exact() ? "yes" : "no", "yes");
+  both("build s", "%.4f", index->build_seconds(), truth->build_seconds());
+  both("compile s", "%.4f", m_st.compile_s, truth_st.compile_s);
+  both("query s", "%.4f", m_st.query_s, truth_st.query_s);
+  both("wall s", "%.4f", m_st.wall_s, truth_st.wall_s);
+  both("queries/s", "%.0f", m_st.queries_per_s(), truth_st.queries_per_s());
+  both("points per query", "%.3f", acc.mean_found, self.mean_true);
+  both("recall", "%.4f", acc.recall, self.recall);
+  both("found of true points", "%.4f", acc.found_fraction, self.found_fraction);
+  both("missing points", "%.0f", double(acc.missing), double(self.missing));
+  both("false positives", "%.0f", double(acc.false_positives), double(self.false_positives));
+  both("incomplete queries", "%.0f", double(acc.incomplete_queries), double(self.incomplete_queries));
+  both("identical slices", "%.0f", double(acc.identical_slices), double(self.identical_slices));
+  std::printf("query s: both passes' kernel time for device methods (compile, transfers and the host's sort "
+              "of the slices apart), search wall time for host methods (flann); wall s: whole calls\n");
+  if (args.has("stats")) {
+    Json j = stats_header("eval", *rt);
+    j["points"] = args.str("points");
+    j["queries"] = args.str("queries");
+    j["N"] = N;
+    j["n"] = n;
+    j["radius"] = radius;
+    j["budget"] = rp.budget;
+    j["method"] = index->method();
+    j["exact"] = index->exact();
+    j["build"] = build_json(*index, mopt);
+    j["truth_method"] = truth->method();
+    j["build_s"] = index->build_seconds();
+    j["compile_s"] = m_st.compile_s;
+    j["query_s"] = m_st.query_s;
+    j["wall_s"] = m_st.wall_s;
+    j["truth_query_s"] = truth_st.query_s;
+    j["truth_wall_s"] = truth_st.wall_s;
+    j["recall"] = acc.recall;
+    j["found_fraction"] = acc.found_fraction;
+    j["missing"] = acc.missing;
+    j["false_positives"] = acc.false_positives;
+    j["incomplete_queries"] = acc.incomplete_queries;
+    j["identical_slices"] = acc.identical_slices;
+    j["mean_found"] = acc.mean_found;
+    j["mean_true"] = acc.mean_true;
+    j["compared_queries"] = acc.queries;
+    write_json(args.str("stats"), j);
+  }
+  return 0;
 }
 
 int run_eval(const Args& args) {
@@ -52,6 +138,8 @@ int run_eval(const Args& args) {
   if (!method_info(truth_method).exact)
     throw UsageError("--truth " + truth_method + " is not an exact method (" +
                      method_list(exact_method_names()) + ")");
+  if (args.has("radius")) return run_eval_radius(args, method, truth_method);
+  if (args.has("budget")) throw UsageError("--budget applies only with --radius");
   SearchParams params = search_params(args);
   MethodOptions mopt = method_options(args);
   check_distinct_files({{"--points", args.str("points")}, {"--queries", args.str("queries")},

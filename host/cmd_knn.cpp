@@ -45,23 +45,9 @@ void declare_knn(Args& a) {
 
 // The radius-search options of bhcl knn, checked (also for --distributed: cmd_knn_distributed.cpp).
 RadiusParams radius_options(const Args& args, float& radius) {
-  const std::string method = args.str("method");
-  for (const char* o : {"k", "max-radius", "A", "recall"})
-    if (args.has(o)) throw UsageError(std::string("--") + o + " does not apply with --radius");
   if (!args.has("out-offsets")) throw UsageError("--radius needs --out-offsets (where each query's results start)");
-  if (args.has("budget") && method != "blockhash")
-    throw UsageError("--budget does not apply to method " + method + " (only to blockhash)");
-  check_method_options(args, {method}, {"budget"});
-  const double r = args.number("radius", 0.0);
-  if (!std::isfinite(r) || r < 0 || !std::isfinite(static_cast<float>(r)))
-    throw UsageError("--radius must be a finite number >= 0");
-  radius = static_cast<float>(r);
-  RadiusParams rp;
-  rp.budget = static_cast<std::uint32_t>(args.integer("budget", 0));
+  RadiusParams rp = radius_search_options(args, {args.str("method")}, radius);
   rp.max_results = static_cast<std::size_t>(args.integer("max-results", 0));
-  rp.neighbour_probes = static_cast<int>(args.integer("probes", -1));
-  rp.local_size = static_cast<std::size_t>(args.integer("local-size", 0));
-  rp.max_batch = static_cast<std::size_t>(args.integer("max-batch", 0));
   return rp;
 }
 
@@ -88,34 +74,8 @@ int run_radius(const Args& args) {
   const bool quiet = args.flag("quiet");
   auto index = build_with_progress(method, rt, points, mopt, quiet);
 
-  render::Progress bar("radius " + index->method() + " (" + std::to_string(n) + " queries)", !quiet);
-  const std::size_t slice = bar.enabled() ? std::max<std::size_t>(std::size_t(1) << 15, n / 100) : std::max<std::size_t>(n, 1);
-  auto t0 = std::chrono::steady_clock::now();
-  RadiusResult all, part;
-  all.offsets.assign(1, 0);
-  QueryStats st;
-  for (std::size_t first = 0; first < n || first == 0; first += slice) {
-    const std::size_t m = std::min(slice, n - first);
-    QueryStats s = index->radius_search(queries.data() + 3 * first, m, radius, rp, part);
-    const std::int64_t base = all.offsets.back();
-    for (std::size_t i = 1; i <= m; ++i) all.offsets.push_back(base + part.offsets[i]);
-    all.ids.insert(all.ids.end(), part.ids.begin(), part.ids.end());
-    all.dist2.insert(all.dist2.end(), part.dist2.begin(), part.dist2.end());
-    all.found.insert(all.found.end(), part.found.begin(), part.found.end());
-    all.truncated_queries += part.truncated_queries;
-    st.nonfinite_queries += s.nonfinite_queries;
-    st.batches += s.batches;
-    st.compile_s += s.compile_s;
-    st.upload_s += s.upload_s;
-    st.query_s += s.query_s;
-    st.download_s += s.download_s;
-    bar.update(double(first + m) / double(std::max<std::size_t>(n, 1)));
-    if (n == 0) break;
-  }
-  bar.finish();
-  all.n = n;
-  st.n_queries = n;
-  st.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  RadiusResult all;
+  QueryStats st = radius_with_progress(*index, queries, radius, rp, all, quiet);
 
   const std::size_t total = all.total();
   write_array_file(out_offsets, all.offsets.data(), n + 1, 0);

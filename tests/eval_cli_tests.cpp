@@ -85,6 +85,46 @@ TEST_CASE("eval_cli: flann against the brute-force truth with a radius: rows cut
   CHECK(json_number(json, "max_radius") == doctest::Approx(0.08));
 }
 
+TEST_CASE("eval_cli: --radius: exact methods find every ball, block hashing most of them, misuse refused") {
+  auto pts = datasets::clustered(4000, 431, 6, 0.02f);
+  auto qs = datasets::clustered(300, 432, 6, 0.02f);
+  std::string P = write_points("eval_r_p.f32", pts), Q = write_points("eval_r_q.f32", qs);
+  std::string S = test::tmp_path("eval_r.json");
+  std::string out;
+  REQUIRE(test::run_bhcl("eval --points " + P + " --queries " + Q + " --radius 0.02 --method kdtree --truth bruteforce "
+                         "--quiet --stats " + S, &out) == 0);
+  INFO(out);
+  for (const char* row : {"points per query", "recall", "found of true points", "missing points", "false positives",
+                          "identical slices", "r=0.02"})
+    CHECK_MESSAGE(out.find(row) != std::string::npos, row);
+  nlohmann::json j = read_json(S);
+  CHECK(json_number(j, "recall") == 1.0);
+  CHECK(json_number(j, "identical_slices") == 300);
+  CHECK(json_number(j, "mean_true") > 2);  // the balls are not empty
+  REQUIRE(test::run_bhcl("eval --points " + P + " --queries " + Q + " --radius 0.02 --method blockhash --truth kdtree "
+                         "--budget 0 --quiet --stats " + S, &out) == 0);
+  j = read_json(S);
+  CHECK(json_number(j, "recall") >= 0.9);
+  CHECK(json_number(j, "recall") <= 1.0);
+  CHECK(json_number(j, "false_positives") == 0);  // a subset of each ball, always
+  CHECK(json_number(j, "mean_found") <= json_number(j, "mean_true"));
+  // A small budget loses points, never adds any.
+  REQUIRE(test::run_bhcl("eval --points " + P + " --queries " + Q + " --radius 0.02 --method blockhash --truth kdtree "
+                         "--budget 8 --quiet --stats " + S, &out) == 0);
+  const nlohmann::json tight = read_json(S);
+  CHECK(json_number(tight, "recall") < json_number(j, "recall"));
+  CHECK(json_number(tight, "false_positives") == 0);
+  const std::string base = "eval --points " + P + " --queries " + Q + " --method kdtree ";
+  CHECK(test::run_bhcl(base + "--radius 0.02 --k 5", &out) == 2);
+  CHECK(out.find("--k does not apply with --radius") != std::string::npos);
+  CHECK(test::run_bhcl(base + "--radius 0.02 --budget 5", &out) == 2);
+  CHECK(out.find("--budget does not apply to method kdtree") != std::string::npos);
+  CHECK(test::run_bhcl(base + "--budget 5", &out) == 2);
+  CHECK(out.find("--budget applies only with --radius") != std::string::npos);
+  CHECK(test::run_bhcl(base + "--radius -1", &out) == 2);
+  CHECK(out.find("--radius must be a finite number >= 0") != std::string::npos);
+}
+
 TEST_CASE("eval_cli: bad input exits non-zero with one clear line") {
   auto pts = datasets::uniform(100, 421);
   std::string P = write_points("eval_bad_p.f32", pts);

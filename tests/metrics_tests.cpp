@@ -170,3 +170,47 @@ TEST_CASE("metrics: mismatched or malformed results are refused") {
   bad_count.counts[0] = -1;
   CHECK_THROWS_WITH_AS(evaluate_accuracy(truth4(), bad_count), doctest::Contains("count"), Error);
 }
+
+namespace {
+RadiusResult slices(const std::vector<std::vector<std::int32_t>>& rows) {
+  RadiusResult r;
+  r.n = rows.size();
+  r.offsets.assign(1, 0);
+  for (const auto& row : rows) {
+    for (std::int32_t id : row) {
+      r.ids.push_back(id);
+      r.dist2.push_back(static_cast<float>(id));
+    }
+    r.offsets.push_back(static_cast<std::int64_t>(r.ids.size()));
+    r.found.push_back(static_cast<std::int64_t>(row.size()));
+  }
+  return r;
+}
+}  // namespace
+
+TEST_CASE("metrics: radius accuracy by hand: recall, missing, false positives, identical slices") {
+  const RadiusResult truth = slices({{0, 1, 2}, {}, {5}});
+  const RadiusAccuracy a = evaluate_radius_accuracy(slices({{1, 0}, {}, {5, 9}}), truth);
+  CHECK(a.queries == 3);
+  CHECK(a.recall == doctest::Approx((2.0 / 3.0 + 1.0) / 2.0));  // the empty ball is left out
+  CHECK(a.found_fraction == doctest::Approx(3.0 / 4.0));
+  CHECK(a.missing == 1);
+  CHECK(a.false_positives == 1);      // 9 is not in the ball
+  CHECK(a.incomplete_queries == 1);
+  CHECK(a.identical_slices == 1);     // the empty one; {5, 9} is not {5}
+  CHECK(a.mean_true == doctest::Approx(4.0 / 3.0));
+  CHECK(a.mean_found == doctest::Approx(4.0 / 3.0));
+  const RadiusAccuracy self = evaluate_radius_accuracy(slices({{2, 1, 0}, {}, {5}}), truth);  // order free
+  CHECK(self.recall == 1.0);
+  CHECK(self.identical_slices == 3);
+  CHECK(self.missing == 0);
+  CHECK(evaluate_radius_accuracy(slices({}), slices({})).recall == 1.0);  // no queries
+  CHECK(a.summary().find("recall 0.8333") != std::string::npos);
+  CHECK_THROWS_WITH_AS(evaluate_radius_accuracy(slices({{0}}), truth), doctest::Contains("query counts differ"), Error);
+  RadiusResult bad = truth;
+  bad.offsets[1] = 99;  // past the ids
+  CHECK_THROWS_WITH_AS(evaluate_radius_accuracy(bad, truth), doctest::Contains("offsets"), Error);
+  bad = truth;
+  bad.offsets.pop_back();
+  CHECK_THROWS_WITH_AS(evaluate_radius_accuracy(truth, bad), doctest::Contains("truth's offsets"), Error);
+}

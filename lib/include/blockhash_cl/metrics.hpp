@@ -34,4 +34,24 @@ struct Accuracy {
 // Throws bhcl::Error when the shapes differ (n or k).
 Accuracy evaluate_accuracy(const KnnResult& approx, const KnnResult& truth);
 
+// Accuracy of a radius search against the exact one (both Index::radius_search with the same r
+// and no cap): the points of each query's ball that were found. Points are compared by index, as
+// sets (the slices' order does not matter).
+struct RadiusAccuracy {
+  std::size_t queries = 0;             // queries compared (all of them)
+  // Mean over queries with a non-empty true ball of |found and true| / |true| (1 when none has one).
+  double recall = 1.0;
+  double found_fraction = 1.0;         // total points found in the balls / total true (pooled)
+  std::size_t missing = 0;             // true points not returned, over all queries
+  std::size_t false_positives = 0;    // returned points not in the true ball (should be 0 always)
+  std::size_t incomplete_queries = 0;  // queries missing at least one true point
+  std::size_t identical_slices = 0;    // queries returning exactly the true set
+  double mean_true = 0, mean_found = 0;  // points per query
+
+  std::string summary() const;  // one line
+};
+
+// Throws bhcl::Error when the query counts differ or a result's offsets are inconsistent.
+RadiusAccuracy evaluate_radius_accuracy(const RadiusResult& approx, const RadiusResult& truth);
+
 }  // namespace bhcl

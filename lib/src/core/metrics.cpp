@@ -94,4 +94,62 @@ Accuracy evaluate_accuracy(const KnnResult& approx, const KnnResult& truth) {
   return a;
 }
 
+std::string RadiusAccuracy::summary() const {
+  char buf[256];
+  std::snprintf(buf, sizeof buf,
+                "recall %.4f  found %.4f of the true points  missing %zu  false positives %zu  incomplete %zu/%zu",
+                recall, found_fraction, missing, false_positives, incomplete_queries, queries);
+  return buf;
+}
+
+RadiusAccuracy evaluate_radius_accuracy(const RadiusResult& approx, const RadiusResult& truth) {
+  if (approx.n != truth.n)
+    throw Error("evaluate_radius_accuracy: query counts differ (" + std::to_string(approx.n) + " vs truth " +
+                std::to_string(truth.n) + ")");
+  // Offsets that are not a non-decreasing walk over the ids would be read out of bounds.
+  auto check = [](const RadiusResult& r, const char* which) {
+    bool ok = r.offsets.size() == r.n + 1 && !r.offsets.empty() && r.offsets[0] == 0 &&
+              static_cast<std::size_t>(r.offsets[r.n]) == r.ids.size();
+    for (std::size_t i = 0; ok && i < r.n; ++i) ok = r.offsets[i] <= r.offsets[i + 1];
+    if (!ok) throw Error(std::string("evaluate_radius_accuracy: the ") + which + "'s offsets do not index its ids");
+  };
+  check(approx, "result");
+  check(truth, "truth");
+  RadiusAccuracy a;
+  a.queries = truth.n;
+  std::size_t total_true = 0, total_found_true = 0, total_found = 0, with_ball = 0;
+  double recall_sum = 0;
+  std::unordered_set<std::int32_t> ball;
+  for (std::size_t i = 0; i < truth.n; ++i) {
+    ball.clear();
+    for (std::int64_t j = truth.offsets[i]; j < truth.offsets[i + 1]; ++j) ball.insert(truth.ids[static_cast<std::size_t>(j)]);
+    std::size_t hit = 0, found = 0;
+    std::unordered_set<std::int32_t> seen;
+    for (std::int64_t j = approx.offsets[i]; j < approx.offsets[i + 1]; ++j) {
+      const std::int32_t id = approx.ids[static_cast<std::size_t>(j)];
+      if (!seen.insert(id).second) continue;  // a repeat counts once
+      ++found;
+      if (ball.count(id)) ++hit;
+      else ++a.false_positives;
+    }
+    total_true += ball.size();
+    total_found_true += hit;
+    total_found += found;
+    if (!ball.empty()) {
+      ++with_ball;
+      recall_sum += static_cast<double>(hit) / static_cast<double>(ball.size());
+    }
+    if (hit < ball.size()) ++a.incomplete_queries;
+    if (hit == ball.size() && found == hit) ++a.identical_slices;
+  }
+  a.missing = total_true - total_found_true;
+  if (with_ball) a.recall = recall_sum / static_cast<double>(with_ball);
+  if (total_true) a.found_fraction = static_cast<double>(total_found_true) / static_cast<double>(total_true);
+  if (truth.n) {
+    a.mean_true = static_cast<double>(total_true) / static_cast<double>(truth.n);
+    a.mean_found = static_cast<double>(total_found) / static_cast<double>(truth.n);
+  }
+  return a;
+}
+
 }  // namespace bhcl
