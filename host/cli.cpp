@@ -297,6 +297,18 @@ void check_method_options(const Args& args, const std::vector<std::string>& meth
   }
 }
 
+namespace {
+// The stats of one slice of a sliced call added to the call's (wall time is the caller's).
+void add_slice_stats(QueryStats& total, const QueryStats& s) {
+  total.nonfinite_queries += s.nonfinite_queries;
+  total.batches += s.batches;
+  total.compile_s += s.compile_s;
+  total.upload_s += s.upload_s;
+  total.query_s += s.query_s;
+  total.download_s += s.download_s;
+}
+}  // namespace
+
 RadiusParams radius_search_options(const Args& args, const std::vector<std::string>& methods, float& radius) {
   for (const char* o : {"k", "max-radius", "A", "recall"})
     if (args.has(o)) throw UsageError(std::string("--") + o + " does not apply with --radius");
@@ -336,12 +348,7 @@ QueryStats radius_with_progress(const Index& index, const std::vector<float>& qu
     all.found.insert(all.found.end(), part.found.begin(), part.found.end());
     all.examined.insert(all.examined.end(), part.examined.begin(), part.examined.end());
     all.truncated_queries += part.truncated_queries;
-    st.nonfinite_queries += s.nonfinite_queries;
-    st.batches += s.batches;
-    st.compile_s += s.compile_s;
-    st.upload_s += s.upload_s;
-    st.query_s += s.query_s;
-    st.download_s += s.download_s;
+    add_slice_stats(st, s);
     bar.update(double(first + m) / double(std::max<std::size_t>(n, 1)));
     if (n == 0) break;
   }
@@ -390,12 +397,7 @@ QueryStats query_with_progress(const Index& index, const std::vector<float>& que
     std::copy(part.dist2.begin(), part.dist2.end(), out.dist2.begin() + first * k);
     std::copy(part.counts.begin(), part.counts.end(), out.counts.begin() + first);
     if (params.count_examined) std::copy(part.examined.begin(), part.examined.end(), out.examined.begin() + first);
-    total.nonfinite_queries += st.nonfinite_queries;
-    total.batches += st.batches;
-    total.compile_s += st.compile_s;
-    total.upload_s += st.upload_s;
-    total.query_s += st.query_s;
-    total.download_s += st.download_s;
+    add_slice_stats(total, st);
     bar.update(double(first + m) / double(n));
   }
   bar.finish();

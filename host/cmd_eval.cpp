@@ -50,24 +50,40 @@ void declare_eval(Args& a) {
   a.group("");
 }
 
+// What both of eval's modes read: the method options (the truth's without saving or loading an
+// index: those belong to the method under test; it shares the rest, e.g. --threads for flann),
+// the files (checked before any work), the points and queries, the device.
+struct EvalInputs {
+  MethodOptions mopt, topt;
+  std::vector<float> points, queries;
+  std::size_t N = 0, n = 0;
+  std::shared_ptr<Runtime> rt;
+};
+EvalInputs read_eval_inputs(const Args& args) {
+  EvalInputs in;
+  in.mopt = method_options(args);
+  check_distinct_files({{"--points", args.str("points")}, {"--queries", args.str("queries")},
+                        {"--load-index", in.mopt.load_index}},
+                       {{"--stats", args.str("stats", "")}, {"--save-index", in.mopt.save_index}});
+  in.topt = in.mopt;
+  in.topt.load_index.clear();
+  in.topt.save_index.clear();
+  read_points_and_queries(args, in.points, in.queries);
+  in.N = in.points.size() / 3;
+  in.n = in.queries.size() / 3;
+  in.rt = std::make_shared<Runtime>(args.str("device", ""));
+  return in;
+}
+
 // bhcl eval --radius: both sides' radius searches, the points of each ball found.
 int run_eval_radius(const Args& args, const std::string& method, const std::string& truth_method) {
   float radius = 0;
   const RadiusParams rp = radius_search_options(args, {method, truth_method}, radius);
   RadiusParams tp = rp;
   tp.budget = 0;  // the truth finds every point
-  MethodOptions mopt = method_options(args);
-  check_distinct_files({{"--points", args.str("points")}, {"--queries", args.str("queries")},
-                        {"--load-index", mopt.load_index}},
-                       {{"--stats", args.str("stats", "")}, {"--save-index", mopt.save_index}});
-  std::vector<float> points, queries;
-  read_points_and_queries(args, points, queries);
-  const std::size_t N = points.size() / 3, n = queries.size() / 3;
-  auto rt = std::make_shared<Runtime>(args.str("device", ""));
+  EvalInputs in = read_eval_inputs(args);
+  const auto& [mopt, topt, points, queries, N, n, rt] = in;
   const bool quiet = args.flag("quiet");
-  MethodOptions topt = mopt;
-  topt.load_index.clear();
-  topt.save_index.clear();
   auto truth = build_with_progress(truth_method, rt, points, topt, quiet);
   RadiusResult truth_r, m_r;
   const QueryStats truth_st = radius_with_progress(*truth, queries, radius, tp, truth_r, quiet);
@@ -141,22 +157,9 @@ int run_eval(const Args& args) {
   if (args.has("radius")) return run_eval_radius(args, method, truth_method);
   if (args.has("budget")) throw UsageError("--budget applies only with --radius");
   SearchParams params = search_params(args);
-  MethodOptions mopt = method_options(args);
-  check_distinct_files({{"--points", args.str("points")}, {"--queries", args.str("queries")},
-                        {"--load-index", mopt.load_index}},
-                       {{"--stats", args.str("stats", "")}, {"--save-index", mopt.save_index}});
-
-  std::vector<float> points, queries;
-  read_points_and_queries(args, points, queries);
-  const std::size_t N = points.size() / 3, n = queries.size() / 3;
-
-  auto rt = std::make_shared<Runtime>(args.str("device", ""));
+  EvalInputs in = read_eval_inputs(args);
+  const auto& [mopt, topt, points, queries, N, n, rt] = in;
   // The truth first: a bad --truth fails before the (possibly long) method run.
-  // Saving and loading an index belong to the method under test; the truth shares the rest
-  // (e.g. --threads for flann).
-  MethodOptions topt = mopt;
-  topt.load_index.clear();
-  topt.save_index.clear();
   Side truth = run_side(truth_method, rt, points, queries, params, topt, args.flag("quiet"));
   Side m = run_side(method, rt, points, queries, params, mopt, args.flag("quiet"));
   m.accuracy = evaluate_accuracy(m.result, truth.result);
