@@ -80,37 +80,8 @@ __kernel void blockhash_knn(__global const bhcl_bh_block* blocks,
     /* 1. Buckets, sorted by |Q| with a stable insertion. */
     uint cand_q[BHCL_BH_MAXBUCKETS];
     uint cand_b[BHCL_BH_MAXBUCKETS];
-    uint ncand = 0;
-    const uint side = P + 1;
-    for (int t = 0; t < BHCL_BH_L; ++t) {
-      __global const float* thr = thresholds + (size_t)t * 3 * P;
-      uint h0 = bh_hash(thr, P, q.x), h1 = bh_hash(thr + P, P, q.y), h2 = bh_hash(thr + 2 * P, P, q.z);
-      int n0 = -1, n1 = -1, n2 = -1;
-      if (probes) {
-        n0 = bh_near_side(thr, P, h0, q.x);
-        n1 = bh_near_side(thr + P, P, h1, q.y);
-        n2 = bh_near_side(thr + 2 * P, P, h2, q.z);
-      }
-      for (int pr = 0; pr < (probes ? 4 : 1); ++pr) {
-        uint c0 = h0, c1 = h1, c2 = h2;
-        if (pr == 1) { if (n0 < 0) continue; c0 = (uint)n0; }
-        if (pr == 2) { if (n1 < 0) continue; c1 = (uint)n1; }
-        if (pr == 3) { if (n2 < 0) continue; c2 = (uint)n2; }
-        long b = bh_find_bucket(keys, table_starts, P, t, (c0 * side + c1) * side + c2);
-        if (b < 0) continue;
-        bhcl_bh_bucket bk = buckets[b];
-        if (bk.n_refs == 0) continue;
-        uint aq = (uint)abs(bk.q);
-        uint pos = ncand++;
-        while (pos > 0 && cand_q[pos - 1] > aq) {
-          cand_q[pos] = cand_q[pos - 1];
-          cand_b[pos] = cand_b[pos - 1];
-          --pos;
-        }
-        cand_q[pos] = aq;
-        cand_b[pos] = (uint)b;
-      }
-    }
+    const uint ncand =
+        bh_gather_buckets(q, BHCL_BH_L, thresholds, P, keys, table_starts, buckets, probes, cand_q, cand_b);
 
 #if BHCL_BH_BOXORDER
     /* 2. Box order (the CPU form of docs/DESIGN.md): of the blocks of those buckets (and the Hilbert

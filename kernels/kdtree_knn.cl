@@ -11,8 +11,7 @@
  *  - Candidates are ranked by (distance, caller's index) with the shared top-k list.
  *
  * BHCL_KMAX: top-k capacity. BHCL_KD_STACK: stack entries, at least the tree's inner depth. */
-#include "knn_common.h"
-#include "kdtree_layout.h"
+#include "kdtree_common.h"
 
 #ifndef BHCL_KD_STACK
 #define BHCL_KD_STACK 32
@@ -32,20 +31,11 @@ __kernel void kdtree_knn(__global const bhcl_kd_node* nodes, __global const floa
     for (;;) {
       bhcl_kd_node nd = nodes[node];
       if (nd.dim != BHCL_KD_LEAF) {
-        float qd = nd.dim == 0u ? q.x : (nd.dim == 1u ? q.y : q.z);
-        float diff = qd - nd.split;
-        int go_left = diff < 0.0f;
-        uint near_child = go_left ? node + 1u : nd.a;
-        uint far_child = go_left ? nd.a : node + 1u;
-        float4 far_off = off;
-        if (nd.dim == 0u) far_off.x = diff;
-        else if (nd.dim == 1u) far_off.y = diff;
-        else far_off.z = diff;
-        /* Offsets squared and summed x, y, z: the same rounding steps as bhcl_dist2. */
-        float far_min = bhcl_dist2((float3)(0.0f), far_off);
+        uint far_child;
+        float4 far_off;
+        uint near_child = bhcl_kd_descend(nd, node, q, off, &far_child, &far_off);
         float bound = min(max_r2, bhcl_topk_bound(best_d, k));
-        if (far_min <= bound) {
-          far_off.w = far_min;
+        if (far_off.w <= bound) {
           st_off[sp] = far_off;
           st_node[sp] = far_child;
           ++sp;

@@ -4,7 +4,7 @@
  *
  * BHCL_KD_STACK: stack entries, at least the tree's inner depth. */
 #include "radius_common.h"
-#include "kdtree_layout.h"
+#include "kdtree_common.h"
 
 #ifndef BHCL_KD_STACK
 #define BHCL_KD_STACK 32
@@ -23,16 +23,10 @@ __kernel void kdtree_radius(__global const bhcl_kd_node* nodes, __global const f
     for (;;) {
       bhcl_kd_node nd = nodes[node];
       if (nd.dim != BHCL_KD_LEAF) {
-        float qd = nd.dim == 0u ? q.x : (nd.dim == 1u ? q.y : q.z);
-        float diff = qd - nd.split;
-        int go_left = diff < 0.0f;
-        uint near_child = go_left ? node + 1u : nd.a;
-        uint far_child = go_left ? nd.a : node + 1u;
-        float4 far_off = off;
-        if (nd.dim == 0u) far_off.x = diff;
-        else if (nd.dim == 1u) far_off.y = diff;
-        else far_off.z = diff;
-        if (bhcl_dist2((float3)(0.0f), far_off) <= r2) {
+        uint far_child;
+        float4 far_off;
+        uint near_child = bhcl_kd_descend(nd, node, q, off, &far_child, &far_off);
+        if (far_off.w <= r2) {
           st_off[sp] = far_off;
           st_node[sp] = far_child;
           ++sp;
