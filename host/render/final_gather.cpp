@@ -99,7 +99,8 @@ std::vector<Vec3> FinalGatherRenderer::shade(const std::vector<SurfacePoint>& po
   for (std::size_t i = 0; i < points.size(); ++i) slots[i] = static_cast<std::uint32_t>(i);
   trace_points(points, slots, pass, stats);
   std::vector<std::vector<Vec3>> out;
-  shade_pass(pass, points.size(), {opt_.estimator}, out, stats);
+  QueryScratch scratch;
+  shade_pass(pass, points.size(), {opt_.estimator}, out, stats, scratch);
   return std::move(out[0]);
 }
 
@@ -225,7 +226,8 @@ void FinalGatherRenderer::trace_points(const std::vector<SurfacePoint>& pts, con
 
 void FinalGatherRenderer::shade_pass(const TracedPass& pass, std::size_t slots,
                                      const std::vector<DensityEstimator>& estimators,
-                                     std::vector<std::vector<Vec3>>& out, RenderStats& stats) const {
+                                     std::vector<std::vector<Vec3>>& out, RenderStats& stats,
+                                     QueryScratch& scratch) const {
   const Scene& scene = es_.scene();
   const std::size_t n = pass.vis_slot.size(), nq = pass.gather.size(), E = estimators.size();
   out.assign(E, pass.emitted);
@@ -235,7 +237,8 @@ void FinalGatherRenderer::shade_pass(const TracedPass& pass, std::size_t slots,
   // The batched kNN calls: all gather points of the pass in one call; the caustic map is looked
   // up directly at the visible points, also in one call.
   auto t0 = Clock::now();
-  KnnResult gres, cres;
+  KnnResult& gres = scratch.global;
+  KnnResult& cres = scratch.caustic;
   const bool have_global = nq > 0 && !global_.empty();
   if (have_global) {
     stats.add_query(global_.query(pass.gather_xyz.data(), nq, opt_.search, gres));
@@ -397,9 +400,10 @@ Image FinalGatherRenderer::render(RenderStats& stats, Progress* progress) const 
   Image img(opt_.width, H);
   stats.pixels += img.pixels();
   std::vector<std::vector<Vec3>> radiance;
+  QueryScratch scratch;
   for (int y0 = 0; y0 < H; y0 += rows) {
     const TracedPass pass = trace_pass(y0, std::min(H, y0 + rows), stats);
-    shade_pass(pass, pass.emitted.size(), {opt_.estimator}, radiance, stats);
+    shade_pass(pass, pass.emitted.size(), {opt_.estimator}, radiance, stats, scratch);
     film(pass, radiance[0], img, stats);
     if (progress) progress->update(static_cast<double>(pass.y1) / H);
   }
@@ -433,8 +437,9 @@ std::vector<Image> FinalGatherRenderer::shade(const TracedFrame& f, const std::v
   std::vector<Image> images(estimators.size(), Image(opt_.width, opt_.height));
   stats.pixels += images.empty() ? 0 : images[0].pixels();
   std::vector<std::vector<Vec3>> radiance;
+  QueryScratch scratch;
   for (const TracedPass& pass : f.passes) {
-    shade_pass(pass, pass.emitted.size(), estimators, radiance, stats);
+    shade_pass(pass, pass.emitted.size(), estimators, radiance, stats, scratch);
     for (std::size_t e = 0; e < estimators.size(); ++e) film(pass, radiance[e], images[e], stats);
     if (progress) progress->update(static_cast<double>(pass.y1) / opt_.height);
   }

@@ -132,9 +132,14 @@ class FinalGatherRenderer {
   // points is slots[i]).
   void trace_points(const std::vector<SurfacePoint>& points, const std::vector<std::uint32_t>& slots,
                     TracedPass& pass, RenderStats& stats) const;
-  // The queries of a pass and its radiance per slot, once per estimator: out[e][slot].
+  // The queries of a pass and its radiance per slot, once per estimator: out[e][slot]. The kNN
+  // results land in `scratch`, kept by the caller from pass to pass: their arrays (8 k bytes per
+  // query) are then allocated once per image, not once per pass.
+  struct QueryScratch {
+    KnnResult global, caustic;
+  };
   void shade_pass(const TracedPass& pass, std::size_t slots, const std::vector<DensityEstimator>& estimators,
-                  std::vector<std::vector<Vec3>>& out, RenderStats& stats) const;
+                  std::vector<std::vector<Vec3>>& out, RenderStats& stats, QueryScratch& scratch) const;
   void film(const TracedPass& pass, const std::vector<Vec3>& radiance, Image& img, RenderStats& stats) const;
 
   const EmbreeScene& es_;

@@ -42,6 +42,10 @@ inline constexpr int kMaxK = 256;
 inline constexpr int kKmaxVariants[] = {8, 16, 32, 64, 128, 256};
 // Batches at least this large are dispatched in Hilbert order by default (SearchParams::sort_queries).
 inline constexpr std::size_t kAutoSortQueries = 8192;
+// A sorted host-array query keeps the rows of its last batch (8 k bytes per query) for the calling
+// thread's next one, up to this size: allocating them afresh costs a page fault per 4 KiB on
+// every call (13 % of the renderer's gather-query time). Larger batches free theirs at once.
+inline constexpr std::size_t kSortScratchBytes = std::size_t(256) << 20;
 int kmax_variant(int k);  // smallest variant >= k; throws for k outside [1, kMaxK]
 
 // Search parameters: everything that can change from one query batch to the next. Build

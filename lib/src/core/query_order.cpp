@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <utility>
 
 #include "blockhash/build.hpp"
@@ -24,12 +25,17 @@ std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n) {
   // The block-hash build's quantiser and Hilbert keys, over the queries' own box.
   blockhash::Quantiser q = blockhash::make_quantiser(compact.data(), finite.size(), 16);
   std::vector<std::uint64_t> keys = blockhash::hilbert_keys(compact.data(), finite.size(), q);
-  std::vector<std::pair<std::uint64_t, std::size_t>> by_key(finite.size());
-  for (std::size_t j = 0; j < finite.size(); ++j) by_key[j] = {keys[j], finite[j]};
-  std::sort(by_key.begin(), by_key.end());
   std::vector<std::size_t> order;
   order.reserve(n);
-  for (const auto& kv : by_key) order.push_back(kv.second);
+  if (finite.size() <= static_cast<std::size_t>(std::numeric_limits<std::int32_t>::max())) {
+    // The build's sort (two halves on two threads, then merged; equal keys keep their order).
+    for (std::int32_t j : blockhash::hilbert_order(keys)) order.push_back(finite[static_cast<std::size_t>(j)]);
+  } else {
+    std::vector<std::pair<std::uint64_t, std::size_t>> by_key(finite.size());
+    for (std::size_t j = 0; j < finite.size(); ++j) by_key[j] = {keys[j], finite[j]};
+    std::sort(by_key.begin(), by_key.end());
+    for (const auto& kv : by_key) order.push_back(kv.second);
+  }
   order.insert(order.end(), rest.begin(), rest.end());
   return order;
 }
