@@ -124,14 +124,8 @@ __kernel void blockhash_cells_knn(__global const bhcl_bh_block* blocks,
             if (phase == 2 && a < 2 && b < 2 && c < 2) continue;
             float cd = (dx[a] + dy[b]) + dz[c];
             if (!(cd < INFINITY) || cd > bound0) continue;
-            uint pos = ncell++;
-            while (pos > 0 && ccd[pos - 1] > cd) {
-              ccd[pos] = ccd[pos - 1];
-              cid[pos] = cid[pos - 1];
-              --pos;
-            }
-            ccd[pos] = cd;
-            cid[pos] = (a << 4) | (b << 2) | c; /* axis slots, not the key: no divisions later */
+            /* axis slots, not the key: no divisions later */
+            ncell = bh_insert_by_distance(ccd, cid, ncell, cd, (a << 4) | (b << 2) | c);
           }
       /* Gather: the blocks of those cells whose boxes are within the bound, the `keep` nearest by
        * (box distance, block) kept sorted (at most 4 keep box tests per cell: a cell of a heap of

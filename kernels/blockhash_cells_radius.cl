@@ -38,14 +38,7 @@ __kernel void blockhash_cells_radius(__global const bhcl_bh_block* blocks,
         for (uint c = 0; c < span; ++c) {
           float cd = (dx[a] + dy[b]) + dz[c];
           if (!(cd <= r2)) continue;
-          uint pos = ncell++;
-          while (pos > 0 && ccd[pos - 1] > cd) {
-            ccd[pos] = ccd[pos - 1];
-            cid[pos] = cid[pos - 1];
-            --pos;
-          }
-          ccd[pos] = cd;
-          cid[pos] = (a << 4) | (b << 2) | c;
+          ncell = bh_insert_by_distance(ccd, cid, ncell, cd, (a << 4) | (b << 2) | c);
         }
     int stop = 0;
     for (uint i = 0; i < ncell && !stop; ++i) {
@@ -60,13 +53,8 @@ __kernel void blockhash_cells_radius(__global const bhcl_bh_block* blocks,
         }
         __global const bhcl_bh_box* box = boxes + rf + r;
         if (bh_box_dist2(q, box) > r2) continue;
-        __global const bhcl_bh_block* blk = blocks + rf + r;
-        int cnt = box->count;
-        examined += (uint)cnt;
-        for (int j = 0; j < cnt; ++j) {
-          float d = bhcl_dist2_xyz(q.x, q.y, q.z, blk->x[j], blk->y[j], blk->z[j]);
-          if (d <= r2) bhcl_radius_emit(fill, out_ids, out_d2, base, limit, &found, d, blk->id[j]);
-        }
+        examined += bh_radius_scan_block(q, blocks + rf + r, box->count, r2, fill, out_ids, out_d2, base, limit,
+                                         &found);
       }
     }
   }

@@ -128,4 +128,32 @@ inline uint bh_gather_buckets(float3 q, int L, __global const float* thresholds,
   return ncand;
 }
 
+/* Inserts (cd, id) into the list ccd/cid of n entries kept ascending by cd; equal distances keep
+ * their insertion order. Returns the new length. */
+inline uint bh_insert_by_distance(float* ccd, uint* cid, uint n, float cd, uint id) {
+  uint pos = n;
+  while (pos > 0 && ccd[pos - 1] > cd) {
+    ccd[pos] = ccd[pos - 1];
+    cid[pos] = cid[pos - 1];
+    --pos;
+  }
+  ccd[pos] = cd;
+  cid[pos] = id;
+  return n + 1;
+}
+
+#ifdef BHCL_RADIUS_COMMON_H
+/* Radius kernels: every point of one block within r2 emitted (bhcl_radius_emit); returns the
+ * block's point count (the examined measure). */
+inline uint bh_radius_scan_block(float3 q, __global const bhcl_bh_block* blk, int cnt, float r2, uint fill,
+                                 __global int* out_ids, __global float* out_d2, ulong base, uint limit,
+                                 uint* found) {
+  for (int j = 0; j < cnt; ++j) {
+    float d = bhcl_dist2_xyz(q.x, q.y, q.z, blk->x[j], blk->y[j], blk->z[j]);
+    if (d <= r2) bhcl_radius_emit(fill, out_ids, out_d2, base, limit, found, d, blk->id[j]);
+  }
+  return (uint)cnt;
+}
+#endif
+
 #endif /* BHCL_BLOCKHASH_COMMON_H */

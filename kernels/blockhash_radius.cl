@@ -50,13 +50,7 @@ __kernel void blockhash_radius(__global const bhcl_bh_block* blocks,
         for (uint u = 0; u < nscanned; ++u) dup |= scanned[u] == b;
         if (dup) continue;
         scanned[nscanned++] = b;
-        __global const bhcl_bh_block* blk = blocks + b;
-        int cnt = box->count;
-        examined += (uint)cnt;
-        for (int j = 0; j < cnt; ++j) {
-          float d = bhcl_dist2_xyz(q.x, q.y, q.z, blk->x[j], blk->y[j], blk->z[j]);
-          if (d <= r2) bhcl_radius_emit(fill, out_ids, out_d2, base, limit, &found, d, blk->id[j]);
-        }
+        examined += bh_radius_scan_block(q, blocks + b, box->count, r2, fill, out_ids, out_d2, base, limit, &found);
       }
     }
   }
