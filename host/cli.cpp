@@ -446,6 +446,21 @@ std::string method_list(const std::vector<std::string>& names) {
   return s;
 }
 
+CommandInputs read_command_inputs(const Args& args, std::vector<FileArg> outputs) {
+  CommandInputs in;
+  in.mopt = method_options(args);
+  outputs.push_back({"--stats", args.str("stats", "")});
+  outputs.push_back({"--save-index", in.mopt.save_index});
+  check_distinct_files({{"--points", args.str("points")}, {"--queries", args.str("queries")},
+                        {"--load-index", in.mopt.load_index}},
+                       outputs);
+  read_points_and_queries(args, in.points, in.queries);
+  in.N = in.points.size() / 3;
+  in.n = in.queries.size() / 3;
+  in.rt = std::make_shared<Runtime>(args.str("device", ""));
+  return in;
+}
+
 void read_points_and_queries(const Args& args, std::vector<float>& points, std::vector<float>& queries) {
   points = read_points_file(args.str("points"));
   if (points.empty()) throw Error(args.str("points") + ": the point file is empty (0 points)");

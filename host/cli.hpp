@@ -133,6 +133,16 @@ void check_distinct_files(const std::vector<FileArg>& inputs, const std::vector<
 std::string method_list(const std::vector<std::string>& names);
 // Reads --points and --queries; an empty file is an error naming it.
 void read_points_and_queries(const Args& args, std::vector<float>& points, std::vector<float>& queries);
+// What knn and eval read before they search, in this order: the method options; the files,
+// checked against each other before any work (inputs --points, --queries, --load-index; the
+// command's `outputs` and --stats, --save-index); the points and queries; the device (--device).
+struct CommandInputs {
+  MethodOptions mopt;
+  std::vector<float> points, queries;
+  std::size_t N = 0, n = 0;  // points and queries
+  std::shared_ptr<Runtime> rt;
+};
+CommandInputs read_command_inputs(const Args& args, std::vector<FileArg> outputs);
 
 // --size WxH (each 1 to 16384); UsageError otherwise.
 void parse_image_size(const std::string& s, int& w, int& h);

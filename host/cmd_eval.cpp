@@ -50,29 +50,19 @@ void declare_eval(Args& a) {
   a.group("");
 }
 
-// What both of eval's modes read: the method options (the truth's without saving or loading an
-// index: those belong to the method under test; it shares the rest, e.g. --threads for flann),
-// the files (checked before any work), the points and queries, the device.
+// What both of eval's modes read (read_command_inputs), and the truth's method options: those
+// of the method under test without saving or loading an index (they belong to the method under
+// test; the truth shares the rest, e.g. --threads for flann).
 struct EvalInputs {
-  MethodOptions mopt, topt;
-  std::vector<float> points, queries;
-  std::size_t N = 0, n = 0;
-  std::shared_ptr<Runtime> rt;
+  CommandInputs in;
+  MethodOptions topt;
 };
 EvalInputs read_eval_inputs(const Args& args) {
-  EvalInputs in;
-  in.mopt = method_options(args);
-  check_distinct_files({{"--points", args.str("points")}, {"--queries", args.str("queries")},
-                        {"--load-index", in.mopt.load_index}},
-                       {{"--stats", args.str("stats", "")}, {"--save-index", in.mopt.save_index}});
-  in.topt = in.mopt;
-  in.topt.load_index.clear();
-  in.topt.save_index.clear();
-  read_points_and_queries(args, in.points, in.queries);
-  in.N = in.points.size() / 3;
-  in.n = in.queries.size() / 3;
-  in.rt = std::make_shared<Runtime>(args.str("device", ""));
-  return in;
+  EvalInputs e{read_command_inputs(args, {}), {}};
+  e.topt = e.in.mopt;
+  e.topt.load_index.clear();
+  e.topt.save_index.clear();
+  return e;
 }
 
 // bhcl eval --radius: both sides' radius searches, the points of each ball found.
@@ -81,8 +71,9 @@ int run_eval_radius(const Args& args, const std::string& method, const std::stri
   const RadiusParams rp = radius_search_options(args, {method, truth_method}, radius);
   RadiusParams tp = rp;
   tp.budget = 0;  // the truth finds every point
-  EvalInputs in = read_eval_inputs(args);
-  const auto& [mopt, topt, points, queries, N, n, rt] = in;
+  const EvalInputs e = read_eval_inputs(args);
+  const auto& [mopt, points, queries, N, n, rt] = e.in;
+  const MethodOptions& topt = e.topt;
   const bool quiet = args.flag("quiet");
   auto truth = build_with_progress(truth_method, rt, points, topt, quiet);
   RadiusResult truth_r, m_r;
@@ -157,8 +148,9 @@ int run_eval(const Args& args) {
   if (args.has("radius")) return run_eval_radius(args, method, truth_method);
   if (args.has("budget")) throw UsageError("--budget applies only with --radius");
   SearchParams params = search_params(args);
-  EvalInputs in = read_eval_inputs(args);
-  const auto& [mopt, topt, points, queries, N, n, rt] = in;
+  const EvalInputs e = read_eval_inputs(args);
+  const auto& [mopt, points, queries, N, n, rt] = e.in;
+  const MethodOptions& topt = e.topt;
   // The truth first: a bad --truth fails before the (possibly long) method run.
   Side truth = run_side(truth_method, rt, points, queries, params, topt, args.flag("quiet"));
   Side m = run_side(method, rt, points, queries, params, mopt, args.flag("quiet"));

@@ -59,18 +59,12 @@ int run_radius(const Args& args) {
   const std::string method = args.str("method");
   float radius = 0;
   const RadiusParams rp = radius_options(args, radius);
-  MethodOptions mopt = method_options(args);
   const std::string out_offsets = args.str("out-offsets"), out_ids = args.str("out-ids"),
                     out_dist2 = args.str("out-dist2");
-  check_distinct_files({{"--points", args.str("points")}, {"--queries", args.str("queries")},
-                        {"--load-index", mopt.load_index}},
-                       {{"--out-offsets", out_offsets}, {"--out-ids", out_ids}, {"--out-dist2", out_dist2},
-                        {"--out-counts", args.str("out-counts", "")}, {"--stats", args.str("stats", "")},
-                        {"--save-index", mopt.save_index}});
-  std::vector<float> points, queries;
-  read_points_and_queries(args, points, queries);
-  const std::size_t N = points.size() / 3, n = queries.size() / 3;
-  auto rt = std::make_shared<Runtime>(args.str("device", ""));
+  const CommandInputs in = read_command_inputs(
+      args, {{"--out-offsets", out_offsets}, {"--out-ids", out_ids}, {"--out-dist2", out_dist2},
+             {"--out-counts", args.str("out-counts", "")}});
+  const auto& [mopt, points, queries, N, n, rt] = in;
   const bool quiet = args.flag("quiet");
   auto index = build_with_progress(method, rt, points, mopt, quiet);
 
@@ -214,18 +208,9 @@ int run_knn(const Args& args) {
   const std::string out_ids = args.str("out-ids");
   const std::string out_dist2 = args.str("out-dist2");
   SearchParams params = search_params(args);
-  MethodOptions mopt = method_options(args);
-  check_distinct_files({{"--points", args.str("points")}, {"--queries", args.str("queries")},
-                        {"--load-index", mopt.load_index}},
-                       {{"--out-ids", out_ids}, {"--out-dist2", out_dist2},
-                        {"--out-counts", args.str("out-counts", "")}, {"--stats", args.str("stats", "")},
-                        {"--save-index", mopt.save_index}});
-
-  std::vector<float> points, queries;
-  read_points_and_queries(args, points, queries);
-  const std::size_t N = points.size() / 3, n = queries.size() / 3;
-
-  auto rt = std::make_shared<Runtime>(args.str("device", ""));
+  const CommandInputs in = read_command_inputs(
+      args, {{"--out-ids", out_ids}, {"--out-dist2", out_dist2}, {"--out-counts", args.str("out-counts", "")}});
+  const auto& [mopt, points, queries, N, n, rt] = in;
   const bool quiet = args.flag("quiet");
   auto index = build_with_progress(method, rt, points, mopt, quiet);
   KnnResult result;

@@ -274,9 +274,7 @@ QueryStats Index::query(const float* queries, std::size_t n, const SearchParams&
   if (sort && n > 1) {
     // Dispatch in Hilbert order, return rows in the caller's order.
     std::vector<std::size_t> order = detail::hilbert_query_order(queries, n);
-    std::vector<float> sorted(3 * n);
-    for (std::size_t i = 0; i < n; ++i)
-      for (int d = 0; d < 3; ++d) sorted[3 * i + d] = queries[3 * order[i] + d];
+    const std::vector<float> sorted = detail::queries_in_order(queries, order);
     SearchParams p = params;
     p.sort_queries = 0;
     // The rows in dispatch order, in arrays this thread keeps from call to call: fresh ones cost

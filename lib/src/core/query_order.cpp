@@ -40,6 +40,13 @@ std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n) {
   return order;
 }
 
+std::vector<float> queries_in_order(const float* xyz, const std::vector<std::size_t>& order) {
+  std::vector<float> sorted(3 * order.size());
+  for (std::size_t i = 0; i < order.size(); ++i)
+    for (int d = 0; d < 3; ++d) sorted[3 * i + d] = xyz[3 * order[i] + d];
+  return sorted;
+}
+
 }  // namespace bhcl::detail
 
 namespace bhcl {

@@ -13,4 +13,7 @@ namespace bhcl::detail {
 // order[i] = the caller's index of the i-th query to dispatch.
 std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n);
 
+// The queries in that order: row i of the result is row order[i] of xyz (n x 3).
+std::vector<float> queries_in_order(const float* xyz, const std::vector<std::size_t>& order);
+
 }  // namespace bhcl::detail

@@ -119,9 +119,7 @@ QueryStats Index::radius_impl(const float* queries, std::size_t n, float r, bool
   if (sort && n > 1) {
     // Dispatch in Hilbert order, return the slices in the caller's order.
     std::vector<std::size_t> order = detail::hilbert_query_order(queries, n);
-    std::vector<float> sorted(3 * n);
-    for (std::size_t i = 0; i < n; ++i)
-      for (int d = 0; d < 3; ++d) sorted[3 * i + d] = queries[3 * order[i] + d];
+    const std::vector<float> sorted = detail::queries_in_order(queries, order);
     RadiusParams p = params;
     p.sort_queries = 0;
     RadiusResult tmp;
