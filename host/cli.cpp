@@ -248,7 +248,7 @@ void declare_index_options(Args& a, int default_k, bool render) {
   a.group("Search options");
   a.add_integer("k", "neighbours per query", 1, kMaxK, std::to_string(default_k));
   a.add_number("max-radius", "only neighbours within this Euclidean distance", "inf");
-  a.add_number("A", "blockhash: examine at most A*k points per query (accuracy against speed)", "8");
+  a.add_number("A", "blockhash: examine at most A*k points per query (accuracy against speed; inf: exact; absent: the index default, exact on auto, 8 on the block layouts)", "auto");
   a.add_number("recall", "blockhash: a recall@k to reach instead of --A (e.g. 0.95): the index tunes "
                          "A for this k on a sample of its points (0: use --A)", "0");
   a.add_integer("probes", "blockhash: 0 the query's cell, 1 and its near-side neighbours, 2 and the "
@@ -496,8 +496,11 @@ SearchParams search_params(const Args& args, int default_k) {
   p.max_radius = static_cast<float>(args.number("max-radius", INFINITY));
   if (std::isnan(p.max_radius) || p.max_radius < 0)
     throw UsageError("--max-radius must be a non-negative number");
-  p.A = static_cast<float>(args.number("A", p.A));
-  if (!(p.A > 0) || !std::isfinite(p.A)) throw UsageError("--A must be a positive number");
+  // Absent: the index's default (SearchParams::A = 0: exact on auto's grid, 8 on block layouts).
+  if (args.has("A")) {
+    p.A = static_cast<float>(args.number("A", p.A));
+    if (!(p.A > 0)) throw UsageError("--A must be a positive number (inf: exact)");
+  }
   p.recall_target = args.number("recall", 0.0);
   if (!(p.recall_target >= 0 && p.recall_target <= 1)) throw UsageError("--recall must be in [0, 1] (0: use --A)");
   if (p.recall_target > 0 && args.has("A")) throw UsageError("--recall and --A both set: give one");

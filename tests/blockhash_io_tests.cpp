@@ -109,9 +109,9 @@ TEST_CASE("blockhash io: every header byte is covered: any change to it is refus
   const std::string path = test::tmp_path("bh_io_hdr.bhi"), bad = test::tmp_path("bh_io_hdr_bad.bhi");
   a.save(path);
   const std::string good = slurp(path);
-  // The header is the first 160 bytes (io.cpp): flags, B, the quantiser, the Hilbert seed, the
-  // medians, the high bits of L/P/B/X. Version 3 checked the payload only, and masked some fields.
-  for (std::size_t byte = 0; byte < 160; ++byte) {
+  // The block layouts' header is the first 160 bytes (io.cpp): flags, B, the quantiser, the
+  // Hilbert seed, the medians, the high bits of L/P/B/X. Version 3 checked the payload only.
+  for (std::size_t byte = 0; byte < std::min<std::size_t>(160, good.size()); ++byte) {
     for (unsigned char bit : {0x01, 0x80}) {
       std::string d = good;
       d[byte] = char(d[byte] ^ bit);
@@ -120,12 +120,25 @@ TEST_CASE("blockhash io: every header byte is covered: any change to it is refus
       CHECK_THROWS_AS(BlockHashIndex::load(test::runtime(), bad), Error);
     }
   }
-  // A version 3 file is refused naming both versions.
-  std::string v3 = good;
+  // A version 3 file of the block layouts is refused naming both versions.
+  BlockHashBuildParams blocks;
+  blocks.cell_aligned = 1;
+  BlockHashIndex c(test::runtime(), pts.data(), 1200, blocks);
+  c.save(path);
+  std::string v3 = slurp(path);
   v3[8] = 3;
   spit(bad, v3);
   CHECK_THROWS_WITH_AS(BlockHashIndex::load(test::runtime(), bad),
                        doctest::Contains("version 3, this library reads version 4"), Error);
+  // The grid's header (80 bytes with its checksum) likewise.
+  REQUIRE(a.info().grid);
+  for (std::size_t byte = 0; byte < 80; ++byte) {
+    std::string d = good;
+    d[byte] = char(d[byte] ^ 0x01);
+    spit(bad, d);
+    INFO("grid header byte " << byte);
+    CHECK_THROWS_AS(BlockHashIndex::load(test::runtime(), bad), Error);
+  }
 }
 
 TEST_CASE("blockhash io: a directory, a FIFO or a device is refused before it is read") {

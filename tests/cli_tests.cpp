@@ -146,7 +146,7 @@ TEST_CASE("cli: every command's --help exits 0 and lists each option with its me
     std::vector<std::string> shown;
   };
   std::vector<std::string> index_options = {
-      "--k INT=10", "--max-radius NUM=inf", "--A NUM=8", "--probes", "--local-size", "--max-batch",
+      "--k INT=10", "--max-radius NUM=inf", "--A NUM=auto", "--probes", "--local-size", "--max-batch",
       "--preset NAME=auto", "--L ", "--P ", "--B ", "--X ", "--seed INT=1", "--load-index", "--save-index"};
   // Every build option of every registered method, with its declared default.
   for (const MethodInfo& m : methods())

@@ -324,7 +324,8 @@ class Index:
 
         queries: (n, 3) array; C-contiguous float32 is used in place, anything else is converted
         to float32 once. k: 1..MAX_K. max_radius: only neighbours within this Euclidean (not
-        squared) distance. blockhash only: A (examine at most A*k points per query, default 8),
+        squared) distance. blockhash only: A (examine at most A*k points per query; default: exact on the auto
+        preset's grid, 8 on the block layouts; inf: exact),
         or recall_target (a recall@k such as 0.95; the index tunes A for this k once, on a sample
         of its points), probes (-1 the preset's, 0 the query's cell, 1 and its near-side
         neighbours, 2 and the 4x4x4 block when needed). Device methods: local_size (work-group

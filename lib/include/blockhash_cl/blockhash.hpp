@@ -1,24 +1,27 @@
 // Block Hashing (Ma & McCool, Graphics Hardware 2002): approximate kNN through locality-sensitive
-// hash tables of 256-byte blocks of Hilbert-sorted points, answered by an OpenCL kernel, one
-// work-item per query. Two presets of one implementation (docs/DESIGN.md, "Block hashing, as we build it"):
+// hash tables of 256-byte blocks of points, answered by an OpenCL kernel, one work-item per query.
+// Presets of one index (docs/DESIGN.md, "Block hashing, as we build it"):
+//   auto   (default) the grid layout, the talk's "alternative clustering" future work as measured
+//          in ../shared/limit/NOTES.md: the blocks are the cells of one grid of equal cubic cells
+//          (side from a sample, so that a point's cell holds ~24 points), the points sorted by
+//          cell with a parallel counting sort (no Hilbert sort), the cells of a row adjacent in
+//          memory. A query scans the rings of rows around its cell, each row one contiguous run
+//          clipped to the current k-th distance, and stops exactly once the k-th sphere lies
+//          inside the rings visited, or once A k points are examined (kernels/grid_search.h,
+//          kernels/blockhash_grid_knn.cl). A = +inf (or recall_target = 1) is an exact mode.
 //   paper  the talk's scheme and defaults: L = P = round(ln N), X = 10, B = ceil(A k / (X ln N)) + 1
 //          for the design A and k, direct addressing of all (P+1)^3 cells, a full bucket drops
 //          new blocks, no neighbour probes, no bounding-box skipping (kernels/blockhash_knn.cl).
-//   auto   (default) the talk's future work on clustering, measured in docs/PERFORMANCE.md: blocks
-//          aligned to the cells of one table (the points ordered by the Hilbert order of their cell,
-//          then their own key; a cell's bucket is the run of blocks holding exactly its points),
-//          guarded CDF thresholds with a count per axis from each axis's spread, P so that the
-//          median occupied cell holds ~24 points, a direct cell table where it is small. A query
-//          visits its cell and the near-side neighbours (the octant), nearest slab first, then --
-//          only while its k-th distance reaches past them -- the rest of the 4 x 4 x 4 block of
-//          cells; inside a cell, blocks in order of box distance with an early stop
-//          (kernels/blockhash_cells_knn.cl). cell_aligned = 0 (or L > 1) gives auto's L-table
-//          layout of the talk with guards, probes and box-ordered scans.
+// The block layouts of the previous auto (grid = 0, or any of L, P, B, X, cell_aligned,
+// box_order, box_skip, direct_addressing, guard_thresholds, keep_top_count, hilbert_seed set):
+//          cell_aligned (the default before the grid): blocks aligned to the cells of one table,
+//          guarded CDF thresholds, the octant then the 4 x 4 x 4 block of cells, blocks in order of
+//          box distance (kernels/blockhash_cells_knn.cl); cell_aligned = 0 (or L > 1): the talk's
+//          L-table layout with guards, probes and box-ordered scans.
 // Every derived value can be overridden (-1 = derive). Query parameters (k, A or recall_target,
 // max_radius, neighbour_probes) live in SearchParams; a query examines at most ceil(A k) points
-// (counted over the blocks it scans; a cell-aligned query whose cells hold fewer than k points then
-// scans a window of blocks around its cell to fill the row) and returns the k nearest of them under
-// the result contract. Distances are squared.
+// (counted over the runs or blocks it scans: a run is scanned while fewer were examined before it)
+// and returns the k nearest of them under the result contract. Distances are squared.
 #pragma once
 
 #include <cstddef>
@@ -34,6 +37,9 @@
 
 namespace bhcl {
 
+namespace detail {
+class KernelArgs;
+}
 namespace blockhash {
 struct Structure;  // the host copy of every built array (lib/src/blockhash/build.hpp)
 }
@@ -73,7 +79,16 @@ struct BlockHashBuildParams {
   // blocks' first keys), this many on each side (at least enough for k points); 0 = off. A query
   // whose cells are all empty (far from the data) still gets k answers. -1: auto 1, paper 0.
   int hilbert_seed = -1;
-  int neighbour_probes = -1;  // default for SearchParams::neighbour_probes == -1
+  int neighbour_probes = -1;  // default for SearchParams::neighbour_probes == -1 (block layouts)
+  // auto: the grid layout. -1: on for auto unless a block-layout field above is set; 0: the block
+  // layouts; 1: the grid (refused with a block-layout field set).
+  int grid = -1;
+  // Grid: the cells' side in the points' units (> 0), or -1 to choose it from a sample so that
+  // the point-weighted mean cell population is target_cell_points (-1: 24).
+  double cell_size = -1;
+  // Grid: the most cells per point of the direct cell table; past it the cells grow to fit.
+  double max_cells_per_point = 8;
+  unsigned threads = 0;       // build threads (0: all hardware threads)
   std::uint64_t seed = 1;     // threshold jitter (a different jitter per table)
   bool verbose = false;       // progress of the build stages on stderr
 
@@ -90,6 +105,14 @@ struct BlockHashBuildInfo {
   int hilbert_seed = 0;
   bool cell_aligned = false;  // blocks aligned to the primary table's cells (see the params)
   int axis_P[3] = {0, 0, 0};  // cell-aligned: thresholds per axis actually used (<= P)
+  // Grid layout: cells per axis, their side (index coordinates, see knn.hpp's scaling), the
+  // point-weighted mean population, whether the cells were grown to fit the table, stage times.
+  bool grid = false;
+  int grid_dims[3] = {0, 0, 0};
+  double cell_size = 0;
+  double mean_cell_points = 0;
+  bool grid_capped = false;
+  double t_tune = 0, t_cells = 0, t_count = 0, t_scatter = 0;
   std::size_t n_points = 0, n_blocks = 0;
   std::size_t occupied_cells = 0;      // over all tables
   std::size_t overflowed_buckets = 0;  // over all tables
@@ -116,6 +139,12 @@ class BlockHashIndex : public Index {
   static std::unique_ptr<BlockHashIndex> load(std::shared_ptr<Runtime> runtime,
                                               const std::string& path);
   void save(const std::string& path) const;
+  // The next frame's points with this build's parameters (the grid keeps its cell side), the
+  // host and device arrays reused (no reallocation when n and the cell count do not grow): the
+  // same answers as a fresh build with those parameters. Block layouts: a fresh build with the
+  // same build parameters. Not safe concurrently with queries on this index.
+  void rebuild(const float* points, std::size_t n_points);
+
   // The first caller index whose point differs from the indexed one (bit for bit), or -1 when the
   // index holds exactly these n points (a loaded index is checked against the caller's points).
   long first_mismatch(const float* points, std::size_t n) const;
@@ -185,6 +214,11 @@ class BlockHashIndex : public Index {
   void upload();
   std::string kernel_options(int kmax) const;
   std::uint32_t cells_probes(const SearchParams& params) const;  // cell-aligned: 0, 1 or 2
+  void build_blocks(const float* points, std::size_t n_points);  // the block layouts' stages
+  void build_grid_layout(const float* points, std::size_t n_points, double cell_size);
+  void upload_grid();
+  void add_grid_args(detail::KernelArgs& args) const;
+  std::vector<float> indexed_points() const;  // caller's order and coordinates
 
   // SearchParams::recall_target: the A tuned per (k, probes, target), computed on first use.
   float resolved_A(const SearchParams& params) const;
@@ -197,6 +231,10 @@ class BlockHashIndex : public Index {
   cl::Buffer cell_table_;                      // cell-aligned: the direct table, or one dummy entry
   std::uint32_t cell_dy_ = 0, cell_dz_ = 0;    // its dimensions (dz = 0: none, use the directory)
   std::size_t cell_table_bytes_ = 0;
+  // Grid layout: starts, x, y, z, ids (grid_search.h), and the build parameters a rebuild reuses.
+  cl::Buffer g_starts_, g_x_, g_y_, g_z_, g_ids_;
+  std::size_t g_starts_cap_ = 0, g_points_cap_ = 0;
+  BlockHashBuildParams params_;
 };
 
 }  // namespace bhcl

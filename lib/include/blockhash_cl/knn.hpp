@@ -53,8 +53,10 @@ int kmax_variant(int k);  // smallest variant >= k; throws for k outside [1, kMa
 struct SearchParams {
   int k = 10;
   float max_radius = std::numeric_limits<float>::infinity();  // Euclidean (not squared)
-  // Approximate methods (block hashing): examine at most A*k points per query.
-  float A = 8.0f;
+  // Approximate methods (block hashing): examine at most A*k points per query; +inf examines
+  // what the search needs (block hashing's grid: exact). 0 (the default) is the index's own
+  // default: exact for block hashing's auto (grid) layout, 8 for its block layouts.
+  float A = 0.0f;
   // Approximate methods: a recall@k to reach instead of a budget (e.g. 0.95). When > 0 the index
   // picks A for this k from a sample of its own points (BlockHashIndex::tune_for_recall, done once
   // per (k, target) and cached) and A above is ignored. 0 = use A.
@@ -299,6 +301,7 @@ class Index {
   std::size_t local_size_for(const SearchParams& params) const;
 
   void set_build_seconds(double s) { build_seconds_ = s; }
+  void set_size(std::size_t n) { n_points_ = n; }  // a rebuild over another point count
 
   // The coordinate scaling every entry point applies (see the contract): queries and max_radius
   // into the structure's coordinates, squared distances back. to_structure returns `queries`

@@ -12,12 +12,14 @@
 #include <cstddef>
 #include <algorithm>
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
 #include "blockhash_cl/blockhash.hpp"
 #include "bhcl_arith.h"
 #include "blockhash_layout.h"
+#include "blockhash/grid.hpp"
 
 namespace bhcl::blockhash {
 
@@ -110,6 +112,7 @@ struct Structure {
   float q_scale = 0;
   int q_bits = 21;
   double axis_spread[3] = {1, 1, 1};  // build only: see measure_axis_spread
+  std::shared_ptr<Grid> grid;           // the grid layout (auto): the arrays above stay empty
 
   const float* thr(int table, int dim) const {
     return thresholds.data() + (std::size_t(table) * 3 + dim) * std::size_t(info.P);

@@ -57,6 +57,15 @@ void count_tables(blockhash::Structure& s) {
 
 std::string BlockHashBuildInfo::summary() const {
   char buf[512];
+  if (grid) {
+    std::snprintf(buf, sizeof buf,
+                  "preset auto (grid)  cells %d x %d x %d of side %.4g  occupied %zu  mean cell %.1f points%s  "
+                  "build %.3f s (tune %.3f, cells %.3f, count %.3f, scatter %.3f, upload %.3f)",
+                  grid_dims[0], grid_dims[1], grid_dims[2], cell_size, occupied_cells, mean_cell_points,
+                  grid_capped ? " (cells grown to fit the table)" : "", t_total, t_tune, t_cells, t_count,
+                  t_scatter, t_upload);
+    return buf;
+  }
   std::snprintf(buf, sizeof buf,
                 "preset %s%s  L %d  P %d  B %d  X %d  blocks %zu  occupied cells %zu  overflowed %zu  "
                 "refs %zu (%.2f/point)  median cell %.0f points / %.0f blocks (p90 %.0f)  build %.2f s "
@@ -68,9 +77,138 @@ std::string BlockHashBuildInfo::summary() const {
   return buf;
 }
 
+namespace {
+
+// The grid unless the caller asked for a block layout (docs in blockhash.hpp).
+bool wants_grid(const BlockHashBuildParams& p) {
+  const bool block_fields = p.L > 0 || p.P > 0 || p.B > 0 || p.X > 0 || p.cell_aligned >= 0 ||
+                            p.box_order >= 0 || p.box_skip >= 0 || p.direct_addressing >= 0 ||
+                            p.guard_thresholds >= 0 || p.keep_top_count >= 0 || p.hilbert_seed >= 0;
+  if (p.grid == 1) {
+    if (p.preset == BlockHashBuildParams::Preset::Paper)
+      throw Error("blockhash: grid = 1 is the auto preset's layout; the paper preset has its own");
+    if (block_fields)
+      throw Error("blockhash: grid = 1 takes none of L, P, B, X, cell_aligned, box_order, box_skip, "
+                  "direct_addressing, guard_thresholds, keep_top_count, hilbert_seed (block layouts)");
+    return true;
+  }
+  if (p.grid != -1 && p.grid != 0) throw Error("blockhash: grid must be -1 (preset), 0 or 1, got " + std::to_string(p.grid));
+  return p.grid == -1 && p.preset == BlockHashBuildParams::Preset::Auto && !block_fields;
+}
+
+}  // namespace
+
 BlockHashIndex::BlockHashIndex(std::shared_ptr<Runtime> runtime, const float* points,
                                std::size_t n_points, const BlockHashBuildParams& params)
-    : Index(std::move(runtime), n_points), s_(std::make_unique<blockhash::Structure>()) {
+    : Index(std::move(runtime), n_points), s_(std::make_unique<blockhash::Structure>()), params_(params) {
+  if (wants_grid(params)) {
+    if (!(params.cell_size == -1 || (params.cell_size > 0 && std::isfinite(params.cell_size))))
+      throw Error("blockhash: cell_size must be -1 (derive) or a positive finite length, got " + std::to_string(params.cell_size));
+    if (!(params.target_cell_points == -1 || (params.target_cell_points >= 1 && params.target_cell_points <= 1e6)))
+      throw Error("blockhash: target_cell_points must be -1 (derive) or in [1, 1e6], got " + std::to_string(params.target_cell_points));
+    if (!(params.max_cells_per_point >= 0.01 && params.max_cells_per_point <= 1024))
+      throw Error("blockhash: max_cells_per_point must be in [0.01, 1024], got " + std::to_string(params.max_cells_per_point));
+    build_grid_layout(points, n_points, params.cell_size);
+  } else {
+    build_blocks(points, n_points);
+  }
+}
+
+void BlockHashIndex::build_grid_layout(const float* points, std::size_t n_points, double cell_size) {
+  using namespace blockhash;
+  auto t0 = std::chrono::steady_clock::now();
+  std::vector<float> scaled;
+  points = prepare_points(points, n_points, scaled);  // validates; extreme scales
+  Structure& s = *s_;
+  s.n_points = n_points;
+  s.scale_exp = scale_exponent();
+  if (!s.grid) s.grid = std::make_shared<Grid>();
+  GridBuildParams gp;
+  // The cell side is kept in the caller's units; the grid is built in the index's coordinates.
+  gp.cell_size = cell_size > 0 ? std::ldexp(cell_size, -s.scale_exp) : -1.0;
+  gp.target_cell_points = params_.target_cell_points > 0 ? params_.target_cell_points : 24.0;
+  gp.max_cells_per_point = params_.max_cells_per_point;
+  gp.threads = params_.threads;
+  GridBuildStats st;
+  build_grid(points, n_points, gp, *s.grid, &st);
+  BlockHashBuildInfo& in = s.info;
+  in = BlockHashBuildInfo{};
+  in.preset = BlockHashBuildParams::Preset::Auto;
+  in.grid = true;
+  const bhcl_grid_geom& g = s.grid->geom;
+  in.grid_dims[0] = int(g.nx);
+  in.grid_dims[1] = int(g.ny);
+  in.grid_dims[2] = int(g.nz);
+  in.cell_size = std::ldexp(double(g.h), s.scale_exp);
+  in.L = 1;
+  in.P = int(std::max({g.nx, g.ny, g.nz})) - 1;
+  for (int d = 0; d < 3; ++d) in.axis_P[d] = in.grid_dims[d] - 1;
+  in.n_points = n_points;
+  in.occupied_cells = st.occupied;
+  in.mean_cell_points = st.mean_cell_points;
+  in.grid_capped = st.capped;
+  in.t_tune = st.t_tune;
+  in.t_cells = st.t_cells;
+  in.t_count = st.t_count;
+  in.t_scatter = st.t_scatter;
+  auto t = std::chrono::steady_clock::now();
+  upload_grid();
+  in.t_upload = seconds_since(t);
+  in.t_total = seconds_since(t0);
+  info_ = in;
+  set_build_seconds(in.t_total);
+  if (params_.verbose) std::fprintf(stderr, "blockhash: %s\n", in.summary().c_str());
+}
+
+void BlockHashIndex::rebuild(const float* points, std::size_t n_points) {
+  if (info_.grid) {
+    // The previous build's cell side (caller units) and the same table limits.
+    set_size(n_points);
+    build_grid_layout(points, n_points, info_.cell_size);
+    return;
+  }
+  set_size(n_points);
+  s_ = std::make_unique<blockhash::Structure>();
+  build_blocks(points, n_points);
+}
+
+void BlockHashIndex::upload_grid() {
+  const auto& rt = runtime_ptr();
+  const blockhash::Grid& g = *s_->grid;
+  // Rebuilds write into the buffers they have when the arrays fit (no reallocation).
+  auto put = [&](cl::Buffer& buf, std::size_t& cap, const void* data, std::size_t bytes, std::size_t want_cap,
+                 const char* what) {
+    if (buf() && bytes <= cap) {
+      check_cl(rt->queue().enqueueWriteBuffer(buf, CL_TRUE, 0, bytes, data), "clEnqueueWriteBuffer", what);
+      return;
+    }
+    cl_int err = CL_SUCCESS;
+    buf = cl::Buffer(rt->context(), CL_MEM_READ_ONLY, std::max<std::size_t>(want_cap, 4), nullptr, &err);
+    check_cl(err, "clCreateBuffer", std::string(what) + ", " + std::to_string(want_cap) + " bytes");
+    cap = want_cap;
+    check_cl(rt->queue().enqueueWriteBuffer(buf, CL_TRUE, 0, bytes, data), "clEnqueueWriteBuffer", what);
+  };
+  const std::size_t sb = g.starts.size() * 4, pb = g.x.size() * 4;
+  // Capacity grows geometrically past the current size, so a growing sequence reallocates rarely.
+  auto grow = [](std::size_t have, std::size_t want) { return have && want > have ? std::max(want, have + have / 2) : want; };
+  std::size_t scap = g_starts_cap_, pcap = g_points_cap_;
+  const std::size_t sw = grow(scap, sb), pw = grow(pcap, pb);
+  put(g_starts_, scap, g.starts.data(), sb, sw, "blockhash grid cells");
+  std::size_t c = pcap;
+  put(g_x_, c, g.x.data(), pb, pw, "blockhash grid x");
+  c = pcap;
+  put(g_y_, c, g.y.data(), pb, pw, "blockhash grid y");
+  c = pcap;
+  put(g_z_, c, g.z.data(), pb, pw, "blockhash grid z");
+  c = pcap;
+  put(g_ids_, c, g.ids.data(), pb, pw, "blockhash grid ids");
+  g_starts_cap_ = scap;
+  g_points_cap_ = c;
+  if (!dummy_()) dummy_ = detail::upload_vector(rt, std::vector<std::int32_t>(1, 0), "blockhash dummy");
+}
+
+void BlockHashIndex::build_blocks(const float* points, std::size_t n_points) {
+  const BlockHashBuildParams& params = params_;
   using namespace blockhash;
   auto t0 = std::chrono::steady_clock::now();
   std::vector<float> scaled;
@@ -134,6 +272,32 @@ BlockHashIndex::BlockHashIndex(std::shared_ptr<Runtime> runtime, std::unique_ptr
     : Index(std::move(runtime), s->n_points), s_(std::move(s)) {
   auto t0 = std::chrono::steady_clock::now();
   set_scale_exponent(s_->scale_exp);
+  if (s_->grid) {
+    const bhcl_grid_geom& g = s_->grid->geom;
+    BlockHashBuildInfo& in = s_->info;
+    in.preset = BlockHashBuildParams::Preset::Auto;
+    in.grid = true;
+    in.grid_dims[0] = int(g.nx);
+    in.grid_dims[1] = int(g.ny);
+    in.grid_dims[2] = int(g.nz);
+    in.cell_size = std::ldexp(double(g.h), s_->scale_exp);
+    in.L = 1;
+    in.P = int(std::max({g.nx, g.ny, g.nz})) - 1;
+    for (int d = 0; d < 3; ++d) in.axis_P[d] = in.grid_dims[d] - 1;
+    in.n_points = s_->n_points;
+    double sum2 = 0;
+    for (std::size_t c = 0; c + 1 < s_->grid->starts.size(); ++c) {
+      double v = double(s_->grid->starts[c + 1] - s_->grid->starts[c]);
+      in.occupied_cells += v > 0 ? 1 : 0;
+      sum2 += v * v;
+    }
+    in.mean_cell_points = sum2 / double(s_->n_points);
+    upload_grid();
+    in.t_upload = seconds_since(t0);
+    info_ = in;
+    set_build_seconds(seconds_since(t0));
+    return;
+  }
   count_tables(*s_);
   upload();
   s_->info.t_upload = seconds_since(t0);
@@ -145,14 +309,64 @@ BlockHashIndex::~BlockHashIndex() = default;
 
 std::unique_ptr<BlockHashIndex> BlockHashIndex::load(std::shared_ptr<Runtime> runtime,
                                                      const std::string& path) {
+  if (blockhash::is_grid_file(path)) {
+    blockhash::GridFile f = blockhash::load_grid(path);
+    auto s = std::make_unique<blockhash::Structure>();
+    s->n_points = f.grid.n_points;
+    s->scale_exp = f.scale_exp;
+    s->grid = std::make_shared<blockhash::Grid>(std::move(f.grid));
+    BlockHashIndex* bh = new BlockHashIndex(std::move(runtime), std::move(s));
+    bh->params_.target_cell_points = f.target_cell_points;
+    return std::unique_ptr<BlockHashIndex>(bh);
+  }
   auto s = blockhash::load_structure(path);
   return std::unique_ptr<BlockHashIndex>(new BlockHashIndex(std::move(runtime), std::move(s)));
 }
 
-void BlockHashIndex::save(const std::string& path) const { blockhash::save_structure(*s_, path); }
+void BlockHashIndex::save(const std::string& path) const {
+  if (info_.grid) {
+    blockhash::GridFile f;
+    f.grid = *s_->grid;
+    f.scale_exp = s_->scale_exp;
+    f.target_cell_points = params_.target_cell_points;
+    blockhash::save_grid(f, path);
+    return;
+  }
+  blockhash::save_structure(*s_, path);
+}
+
+std::vector<float> BlockHashIndex::indexed_points() const {
+  const blockhash::Structure& s = *s_;
+  std::vector<float> pts(3 * s.n_points);
+  auto put = [&](std::size_t id, float x, float y, float z) {
+    pts[3 * id] = std::ldexp(x, s.scale_exp);
+    pts[3 * id + 1] = std::ldexp(y, s.scale_exp);
+    pts[3 * id + 2] = std::ldexp(z, s.scale_exp);
+  };
+  if (s.grid) {
+    const blockhash::Grid& g = *s.grid;
+    for (std::size_t i = 0; i < g.n_points; ++i) put(std::size_t(g.ids[i]), g.x[i], g.y[i], g.z[i]);
+    return pts;
+  }
+  for (std::size_t b = 0; b < s.blocks.size(); ++b)
+    for (std::int32_t j = 0; j < s.boxes[b].count; ++j)
+      put(std::size_t(s.blocks[b].id[j]), s.blocks[b].x[j], s.blocks[b].y[j], s.blocks[b].z[j]);
+  return pts;
+}
 
 long BlockHashIndex::first_mismatch(const float* points, std::size_t n) const {
   if (n != s_->n_points) return 0;
+  if (s_->grid) {
+    const blockhash::Grid& g = *s_->grid;
+    for (std::size_t i = 0; i < n; ++i) {
+      const float* u = points + 3 * static_cast<std::size_t>(g.ids[i]);
+      const float c[3] = {std::ldexp(u[0], -s_->scale_exp), std::ldexp(u[1], -s_->scale_exp),
+                          std::ldexp(u[2], -s_->scale_exp)};
+      const float p[3] = {g.x[i], g.y[i], g.z[i]};
+      if (std::memcmp(p, c, sizeof p) != 0) return g.ids[i];
+    }
+    return -1;
+  }
   for (std::size_t i = 0; i < n; ++i) {
     float p[3];
     s_->point(i, p);
@@ -185,7 +399,10 @@ void BlockHashIndex::upload() {
   cell_table_ = detail::upload_vector(rt, ct.runs, "blockhash cell table");
 }
 
-std::size_t BlockHashIndex::memory_bytes() const { return s_->device_bytes() + cell_table_bytes_; }
+std::size_t BlockHashIndex::memory_bytes() const {
+  if (s_->grid) return s_->grid->device_bytes();
+  return s_->device_bytes() + cell_table_bytes_;
+}
 
 double BlockHashIndex::talk_overhead(std::size_t N, double A, int k, int X) {
   double n = double(N), l = std::log(std::max(n, 2.0));
@@ -195,6 +412,7 @@ double BlockHashIndex::talk_overhead(std::size_t N, double A, int k, int X) {
 double BlockHashIndex::measured_overhead() const {
   // Everything beyond the points' own records, over the talk's 24 bytes per photon.
   double points = 24.0 * double(size());
+  if (s_->grid) return (double(memory_bytes()) - 16.0 * double(size())) / points;
   return (double(memory_bytes()) - double(s_->blocks.size() * sizeof(bhcl_bh_block))) / points;
 }
 
@@ -212,6 +430,20 @@ std::uint32_t BlockHashIndex::budget(const SearchParams& p) {
 
 void BlockHashIndex::check_params(const SearchParams& p) const {
   Index::check_params(p);
+  if (info_.grid) {
+    // The rings reach every cell within the bound: the probes of the block layouts do not apply.
+    if (p.neighbour_probes < -1 || p.neighbour_probes > 2)
+      throw Error("blockhash: neighbour_probes must be -1, 0, 1 or 2, got " + std::to_string(p.neighbour_probes));
+    if (!(p.recall_target >= 0 && p.recall_target <= 1))
+      throw Error("blockhash: recall_target must be in [0, 1] (0 = use A, 1 = exact), got " + std::to_string(p.recall_target));
+    if (p.recall_target > 0 && p.recall_target < 1) {
+      resolved_A(p);
+      return;
+    }
+    if (!(p.A >= 0))
+      throw Error("blockhash: A must be positive (+inf: exact; 0: the default, exact), got " + std::to_string(p.A));
+    return;
+  }
   const int top = info_.cell_aligned ? 2 : 1;
   if (p.neighbour_probes < -1 || p.neighbour_probes > top)
     throw Error("blockhash: neighbour_probes must be -1 (preset), 0 or 1" +
@@ -223,8 +455,8 @@ void BlockHashIndex::check_params(const SearchParams& p) const {
     resolved_A(p);  // tunes now (once per k and target), outside any dispatch lock
     return;
   }
-  if (!(p.A > 0) || !std::isfinite(p.A))
-    throw Error("blockhash: A must be a positive finite number, got " + std::to_string(p.A));
+  if (!(p.A >= 0) || !std::isfinite(p.A))
+    throw Error("blockhash: A must be a positive finite number (0: the default, 8), got " + std::to_string(p.A));
 }
 
 BlockHashIndex::RecallTuning BlockHashIndex::recall_tuning(const SearchParams& p) const {
@@ -242,11 +474,22 @@ BlockHashIndex::RecallTuning BlockHashIndex::recall_tuning(const SearchParams& p
 }
 
 float BlockHashIndex::resolved_A(const SearchParams& p) const {
-  return p.recall_target > 0 ? recall_tuning(p).A : p.A;
+  if (info_.grid && p.recall_target >= 1) return INFINITY;  // the exact mode
+  if (p.recall_target > 0) return recall_tuning(p).A;
+  if (p.A == 0) return info_.grid ? INFINITY : 8.0f;  // the index's default (SearchParams::A)
+  return p.A;
 }
 
 std::string BlockHashIndex::kernel_options(int kmax) const {
   std::ostringstream os;
+  if (info_.grid) {
+    // The register list and the prefetch where the compiler vectorises (CPU devices: the quirks
+    // list); the scalar list on GPUs and past 64 entries.
+    const bool cpu = runtime().quirks().vector_scan;
+    os << "-DBHCL_KMAX=" << kmax << " -DBHCL_GRID_VTOPK=" << (cpu && kmax <= 64 ? 1 : 0)
+       << " -DBHCL_GRID_PREFETCH=" << (cpu ? 2 : 0);
+    return os.str();
+  }
   if (info_.cell_aligned) {
     os << "-DBHCL_KMAX=" << kmax << " -DBHCL_BH_MAXKEEP=" << blockhash::scan_cap(kmax, info_.X)
        << " -DBHCL_BH_VECSCAN=" << (runtime().quirks().vector_scan ? 1 : 0);
@@ -283,6 +526,19 @@ cl::Event BlockHashIndex::enqueue_batch(const cl::CommandQueue& queue, const cl:
         .add(examined ? *examined : dummy_)
         .add(cl_uint(examined ? 1 : 0));
   };
+  if (info_.grid) {
+    const char* gname = "blockhash_grid_knn";
+    cl::Kernel kernel = runtime().kernel(std::string(gname) + ".cl", gname,
+                                         detail::with_defines(kernel_options(kmax), params));
+    detail::KernelArgs args(kernel, gname);
+    add_grid_args(args);
+    args.add_queries(queries, first, count, params)
+        .add(cl_uint(budget(params)))
+        .add_results(out)
+        .add(examined ? *examined : dummy_)
+        .add(cl_uint(examined ? 1 : 0));
+    return detail::launch_1d(queue, kernel, count, local_size, wait, gname);
+  }
   // The two layouts' kernels share their first and last arguments.
   const char* name = info_.cell_aligned ? "blockhash_cells_knn" : "blockhash_knn";
   cl::Kernel kernel = runtime().kernel(std::string(name) + ".cl", name,
@@ -323,6 +579,14 @@ cl::Event BlockHashIndex::enqueue_radius_batch(const cl::CommandQueue& queue,
                                                std::size_t local_size,
                                                const std::vector<cl::Event>* wait) const {
   std::lock_guard<std::mutex> lock(dispatch_mutex_);
+  if (info_.grid) {
+    const char* gname = "blockhash_grid_radius";
+    cl::Kernel kernel = runtime().kernel(std::string(gname) + ".cl", gname, params.kernel_defines);
+    detail::KernelArgs args(kernel, gname);
+    add_grid_args(args);
+    args.add(cl_uint(params.budget)).add_radius(queries, first, count, r2, pass, out, params.count_examined);
+    return detail::launch_1d(queue, kernel, count, local_size, wait, gname);
+  }
   SearchParams sp;
   sp.neighbour_probes = params.neighbour_probes;
   const char* name = info_.cell_aligned ? "blockhash_cells_radius" : "blockhash_radius";
@@ -349,6 +613,14 @@ cl::Event BlockHashIndex::enqueue_radius_batch(const cl::CommandQueue& queue,
   return detail::launch_1d(queue, kernel, count, local_size, wait, name);
 }
 
+void BlockHashIndex::add_grid_args(detail::KernelArgs& args) const {
+  const bhcl_grid_geom& g = s_->grid->geom;
+  args.add(g_starts_).add(g_x_).add(g_y_).add(g_z_).add(g_ids_)
+      .add(cl_float4{{g.ox, g.oy, g.oz, g.h}})
+      .add(cl_float4{{g.inv_h, g.margin, 0.0f, 0.0f}})
+      .add(cl_uint4{{g.nx, g.ny, g.nz, 0u}});
+}
+
 KnnResult BlockHashIndex::reference_query(const float* queries, std::size_t n,
                                           const SearchParams& params_in,
                                           std::vector<std::int32_t>* examined,
@@ -362,7 +634,10 @@ KnnResult BlockHashIndex::reference_query(const float* queries, std::size_t n,
   std::vector<float> storage;
   queries = to_structure(queries, n, storage);
   KnnResult out;
-  if (info_.cell_aligned) {
+  if (info_.grid) {
+    blockhash::reference_query_grid(*s_->grid, queries, n, params.k, detail::squared_radius(params.max_radius),
+                                    budget(params), out, examined, threads);
+  } else if (info_.cell_aligned) {
     blockhash::reference_query_cells(*s_, queries, n, params, cells_probes(params), out, examined, threads);
   } else {
     bool probes = params.neighbour_probes < 0 ? info_.neighbour_probes : params.neighbour_probes == 1;

@@ -3,6 +3,7 @@
 // which flatters any method), against the exact answers of the kd-tree kernel.
 #include <chrono>
 #include <cmath>
+#include <limits>
 #include <random>
 
 #include "blockhash/build.hpp"
@@ -17,17 +18,9 @@ BlockHashIndex::RecallTuning BlockHashIndex::tune_for_recall(double target, cons
   if (!(target > 0 && target <= 1)) throw Error("blockhash: a recall target must be in (0, 1], got " + std::to_string(target));
   if (sample == 0) throw Error("blockhash: the recall sample must hold at least one query");
   auto t0 = std::chrono::steady_clock::now();
-  const blockhash::Structure& s = *s_;
-  const std::size_t N = s.n_points;
-  // The indexed points in the caller's order and coordinates (blocks hold them scaled by 2^-e).
-  std::vector<float> pts(3 * N);
-  for (std::size_t b = 0; b < s.blocks.size(); ++b)
-    for (std::int32_t j = 0; j < s.boxes[b].count; ++j) {
-      const std::size_t id = static_cast<std::size_t>(s.blocks[b].id[j]);
-      pts[3 * id] = std::ldexp(s.blocks[b].x[j], s.scale_exp);
-      pts[3 * id + 1] = std::ldexp(s.blocks[b].y[j], s.scale_exp);
-      pts[3 * id + 2] = std::ldexp(s.blocks[b].z[j], s.scale_exp);
-    }
+  const std::size_t N = size();
+  // The indexed points in the caller's order and coordinates.
+  std::vector<float> pts = indexed_points();
   KdTreeIndex exact(runtime_ptr(), pts.data(), N);
   const std::size_t m = std::min(sample, N);
   std::vector<float> qs(3 * m);
@@ -53,7 +46,10 @@ BlockHashIndex::RecallTuning BlockHashIndex::tune_for_recall(double target, cons
   KnnResult truth = exact.query(qs, p);
   RecallTuning out;
   out.sample = m;
-  for (float A : {1.0f, 1.5f, 2.0f, 3.0f, 4.0f, 6.0f, 8.0f, 12.0f, 16.0f, 24.0f, 32.0f, 48.0f, 64.0f, 128.0f}) {
+  // The grid's exact mode (A = +inf) ends its list: any target is reached.
+  const float kInf = std::numeric_limits<float>::infinity();
+  for (float A : {1.0f, 1.5f, 2.0f, 3.0f, 4.0f, 6.0f, 8.0f, 12.0f, 16.0f, 24.0f, 32.0f, 48.0f, 64.0f, 128.0f, kInf}) {
+    if (std::isinf(A) && !info_.grid) break;
     p.A = A;
     KnnResult r = query(qs, p);
     out.A = A;

@@ -1,0 +1,233 @@
+/* Block hashing, grid layout (the auto preset): kNN, one work-item per query.
+ *
+ * The traversal (rings of rows, clipped by the k-th distance, exact stop, budget) is
+ * bhcl_grid_search in grid_search.h, shared with the host reference
+ * (lib/src/blockhash/grid_query_ref.cpp). This file holds the two forms of the top-k list:
+ *  - BHCL_GRID_VTOPK 1 (CPU devices, Quirks::vector_scan): the list in VR float16 + int16
+ *    registers, right-aligned (lanes below 16 VR - k hold -inf and never move, so the k-th is
+ *    lane 15 of the last register); an insertion is, per register, one shuffle by a lane, two
+ *    compares and two selects, no data-dependent loop. A run is scanned 16 points at a time as
+ *    float16 distances; only the lanes within the bound are offered. Everything force-inlined,
+ *    or clang keeps the list in memory (../shared/limit/NOTES.md section 7).
+ *  - BHCL_GRID_VTOPK 0 (GPUs, and k above 64): the sorted list in private arrays, one point at a
+ *    time (bhcl_arith.h's insertion).
+ * Both keep the k nearest of the same points by (distance, index), so their rows are identical.
+ *
+ * Defines: BHCL_KMAX (the list's capacity), BHCL_GRID_VTOPK, BHCL_GRID_PREFETCH (d > 0: prefetch
+ * the home cell of the query d work-items ahead with clang's __builtin_prefetch; PoCL's
+ * prefetch() emits nothing). */
+#include "knn_common.h"
+
+#ifndef BHCL_GRID_VTOPK
+#define BHCL_GRID_VTOPK 0
+#endif
+#ifndef BHCL_GRID_PREFETCH
+#define BHCL_GRID_PREFETCH 0
+#endif
+
+#if BHCL_GRID_VTOPK
+#if BHCL_KMAX > 64
+#error "the register top-k holds at most 64 entries"
+#endif
+/* 1 register for k <= 16, else 4 (k <= 64). */
+#if BHCL_KMAX <= 16
+#define VR 1
+#else
+#define VR 4
+#endif
+
+typedef struct bhcl_vtopk {
+  float16 d0;
+  int16 i0;
+#if VR > 1
+  float16 d1, d2, d3;
+  int16 i1, i2, i3;
+#endif
+  float max_r2;
+} bhcl_vtopk;
+
+#define VT_SHIFT ((uint16)(31, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14))
+/* One register: lanes ranking after the candidate take their left neighbour (PD/PI's lane 15 for
+ * lane 0) or the candidate, whichever ranks after it; the rest stay. */
+#define VT_STEP(D, I, PD, PI)                                   \
+  {                                                             \
+    float16 sd = shuffle2(D, PD, VT_SHIFT);                     \
+    int16 si = shuffle2(I, PI, VT_SHIFT);                       \
+    int16 m = (D > dv) | ((D == dv) & (I > iv));                \
+    int16 ms = (sd > dv) | ((sd == dv) & (si > iv));            \
+    D = select(D, select(dv, sd, ms), m);                       \
+    I = select(I, select(iv, si, ms), m);                       \
+  }
+
+inline __attribute__((always_inline)) void vt_init(bhcl_vtopk* t, uint k, float max_r2) {
+  const int16 lane = (int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+  const int first = 16 * VR - (int)k;
+  t->d0 = select((float16)(INFINITY), (float16)(-INFINITY), lane < (int16)(first));
+  t->i0 = (int16)(BHCL_EMPTY_SLOT_ID);
+#if VR > 1
+  t->d1 = select((float16)(INFINITY), (float16)(-INFINITY), lane + 16 < (int16)(first));
+  t->d2 = select((float16)(INFINITY), (float16)(-INFINITY), lane + 32 < (int16)(first));
+  t->d3 = select((float16)(INFINITY), (float16)(-INFINITY), lane + 48 < (int16)(first));
+  t->i1 = t->i2 = t->i3 = (int16)(BHCL_EMPTY_SLOT_ID);
+#endif
+  t->max_r2 = max_r2;
+}
+
+inline __attribute__((always_inline)) float vt_bound(const bhcl_vtopk* t) {
+#if VR > 1
+  return fmin(t->max_r2, t->d3.sf);
+#else
+  return fmin(t->max_r2, t->d0.sf);
+#endif
+}
+
+inline __attribute__((always_inline)) void vt_insert(bhcl_vtopk* t, float d, int id) {
+  const float16 dv = (float16)(d);
+  const int16 iv = (int16)(id);
+#if VR > 1
+  VT_STEP(t->d3, t->i3, t->d2, t->i2);
+  VT_STEP(t->d2, t->i2, t->d1, t->i1);
+  VT_STEP(t->d1, t->i1, t->d0, t->i0);
+#endif
+  VT_STEP(t->d0, t->i0, dv, iv);
+}
+
+/* Points [a, b) of the sorted arrays, 16 at a time (the arrays are padded by 16 entries). */
+inline __attribute__((always_inline)) void vt_scan(bhcl_vtopk* t, float3 q, __global const float* px,
+                                                   __global const float* py, __global const float* pz,
+                                                   __global const int* pid, uint a, uint b) {
+  const int16 lanebit = (int16)(1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024, 2048, 4096, 8192,
+                                16384, 32768);
+  const int16 lane = (int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+  for (uint p = a; p < b; p += 16) {
+    float16 dx = (float16)(q.x) - vload16(0, px + p);
+    float16 dy = (float16)(q.y) - vload16(0, py + p);
+    float16 dz = (float16)(q.z) - vload16(0, pz + p);
+    float16 d = dx * dx + dy * dy + dz * dz;
+    float bound = vt_bound(t);
+    int16 w = (d <= (float16)(bound)) & (lane < (int16)((int)(b - p))) & lanebit;
+    int8 w8 = w.lo | w.hi;
+    int4 w4 = w8.lo | w8.hi;
+    int2 w2 = w4.lo | w4.hi;
+    uint mask = (uint)(w2.x | w2.y);
+    if (mask == 0u) continue;
+    float dd[16];
+    vstore16(d, 0, dd);
+    while (mask) {
+      int j = 31 - (int)clz(mask & (0u - mask));
+      mask &= mask - 1u;
+      if (dd[j] <= vt_bound(t)) vt_insert(t, dd[j], pid[p + (uint)j]);
+    }
+  }
+}
+
+#define BHCL_GRID_STATE bhcl_vtopk
+#define BHCL_GRID_BOUND(st) vt_bound(st)
+#define BHCL_GRID_SCAN(st, a, b) vt_scan(st, (float3)(qx, qy, qz), px, py, pz, pid, a, b)
+
+#else /* the scalar list */
+
+typedef struct bhcl_stopk {
+  float d[BHCL_KMAX];
+  int i[BHCL_KMAX];
+  uint k, n;
+  float max_r2;
+} bhcl_stopk;
+
+inline float st_bound(const bhcl_stopk* t) { return fmin(t->max_r2, t->d[t->k - 1]); }
+
+inline void st_scan(bhcl_stopk* t, float qx, float qy, float qz, __global const float* px,
+                    __global const float* py, __global const float* pz, __global const int* pid,
+                    uint a, uint b) {
+  for (uint p = a; p < b; ++p) {
+    float d = bhcl_dist2_xyz(qx, qy, qz, px[p], py[p], pz[p]);
+    if (d <= st_bound(t) && bhcl_topk_accepts(t->d, t->i, t->k, d, pid[p]))
+      t->n = bhcl_topk_push(t->d, t->i, t->k, t->n, d, pid[p]);
+  }
+}
+
+#define BHCL_GRID_STATE bhcl_stopk
+#define BHCL_GRID_BOUND(st) st_bound(st)
+#define BHCL_GRID_SCAN(st, a, b) st_scan(st, qx, qy, qz, px, py, pz, pid, a, b)
+#endif
+
+#include "grid_search.h"
+
+__kernel void blockhash_grid_knn(__global const uint* starts, __global const float* px,
+                                 __global const float* py, __global const float* pz,
+                                 __global const int* pid, float4 geo0, float4 geo1, uint4 dims,
+                                 BHCL_KNN_QUERY_PARAMS, uint budget, BHCL_KNN_RESULT_PARAMS,
+                                 __global int* out_examined, uint want_examined) {
+  uint gid = get_global_id(0);
+  if (gid >= count) return;
+  ulong row = first + gid;
+  float3 q = bhcl_load_query(queries, row);
+  const float qx = q.x, qy = q.y, qz = q.z;
+  bhcl_grid_geom g;
+  g.ox = geo0.x;
+  g.oy = geo0.y;
+  g.oz = geo0.z;
+  g.h = geo0.w;
+  g.inv_h = geo1.x;
+  g.margin = geo1.y;
+  g.nx = dims.x;
+  g.ny = dims.y;
+  g.nz = dims.z;
+#if BHCL_GRID_PREFETCH > 0
+  if (gid + BHCL_GRID_PREFETCH < count) {
+    float3 nq = bhcl_load_query(queries, row + BHCL_GRID_PREFETCH);
+    if (bhcl_query_is_finite(nq)) {
+      uint c = (bhcl_grid_cell(nq.z, g.oz, g.inv_h, g.nz) * g.ny +
+                bhcl_grid_cell(nq.y, g.oy, g.inv_h, g.ny)) * g.nx +
+               bhcl_grid_cell(nq.x, g.ox, g.inv_h, g.nx);
+      uint s = starts[c];
+      __builtin_prefetch(px + s);
+      __builtin_prefetch(py + s);
+      __builtin_prefetch(pz + s);
+    }
+  }
+#endif
+  uint examined = 0;
+  size_t base = (size_t)row * (size_t)k;
+  int found = 0;
+#if BHCL_GRID_VTOPK
+  bhcl_vtopk t;
+  vt_init(&t, k, max_r2);
+  if (bhcl_query_is_finite(q)) examined = bhcl_grid_search(starts, px, py, pz, pid, g, qx, qy, qz, budget, &t);
+  float td[16 * VR];
+  int ti[16 * VR];
+  vstore16(t.d0, 0, td);
+  vstore16(t.i0, 0, ti);
+#if VR > 1
+  vstore16(t.d1, 1, td);
+  vstore16(t.d2, 2, td);
+  vstore16(t.d3, 3, td);
+  vstore16(t.i1, 1, ti);
+  vstore16(t.i2, 2, ti);
+  vstore16(t.i3, 3, ti);
+#endif
+  const uint off = 16u * VR - k;
+  for (uint j = 0; j < k; ++j) {
+    int id = ti[off + j];
+    int empty = id == BHCL_EMPTY_SLOT_ID;
+    out_ids[base + j] = empty ? BHCL_MISSING_ID : id;
+    out_d2[base + j] = empty ? INFINITY : td[off + j];
+    found += empty ? 0 : 1;
+  }
+#else
+  bhcl_stopk t;
+  t.k = k;
+  t.n = 0;
+  t.max_r2 = max_r2;
+  bhcl_topk_init(t.d, t.i, k);
+  if (bhcl_query_is_finite(q)) examined = bhcl_grid_search(starts, px, py, pz, pid, g, qx, qy, qz, budget, &t);
+  for (uint j = 0; j < k; ++j) {
+    int empty = t.i[j] == BHCL_EMPTY_SLOT_ID;
+    out_ids[base + j] = empty ? BHCL_MISSING_ID : t.i[j];
+    out_d2[base + j] = empty ? INFINITY : t.d[j];
+    found += empty ? 0 : 1;
+  }
+#endif
+  out_counts[row] = found;
+  if (want_examined) out_examined[row] = (int)examined;
+}

@@ -1,0 +1,59 @@
+/* Block hashing, grid layout (the auto preset): radius search, one work-item per query, the
+ * count and fill passes of radius_common.h. The traversal is grid_search.h's with the radius as
+ * the bound: every cell whose slabs come within r is scanned, so with no budget (0) the answer is
+ * exact; a budget stops after that many points examined, and the slice is then a subset. */
+#include "radius_common.h"
+
+typedef struct bhcl_grid_emit {
+  float r2;
+  uint fill, limit, found;
+  ulong base;
+  __global int* out_ids;
+  __global float* out_d2;
+} bhcl_grid_emit;
+
+inline void ge_scan(bhcl_grid_emit* e, float qx, float qy, float qz, __global const float* px,
+                    __global const float* py, __global const float* pz, __global const int* pid,
+                    uint a, uint b) {
+  for (uint p = a; p < b; ++p) {
+    float d = bhcl_dist2_xyz(qx, qy, qz, px[p], py[p], pz[p]);
+    if (d <= e->r2) bhcl_radius_emit(e->fill, e->out_ids, e->out_d2, e->base, e->limit, &e->found, d, pid[p]);
+  }
+}
+
+#define BHCL_GRID_STATE bhcl_grid_emit
+#define BHCL_GRID_BOUND(st) ((st)->r2)
+#define BHCL_GRID_SCAN(st, a, b) ge_scan(st, qx, qy, qz, px, py, pz, pid, a, b)
+#include "grid_search.h"
+
+__kernel void blockhash_grid_radius(__global const uint* starts, __global const float* px,
+                                    __global const float* py, __global const float* pz,
+                                    __global const int* pid, float4 geo0, float4 geo1, uint4 dims,
+                                    uint budget, BHCL_RADIUS_PARAMS) {
+  BHCL_RADIUS_BEGIN;
+  uint examined = 0;
+  bhcl_grid_geom g;
+  g.ox = geo0.x;
+  g.oy = geo0.y;
+  g.oz = geo0.z;
+  g.h = geo0.w;
+  g.inv_h = geo1.x;
+  g.margin = geo1.y;
+  g.nx = dims.x;
+  g.ny = dims.y;
+  g.nz = dims.z;
+  if (bhcl_query_is_finite(q)) {
+    const float qx = q.x, qy = q.y, qz = q.z;
+    bhcl_grid_emit e;
+    e.r2 = r2;
+    e.fill = fill;
+    e.limit = limit;
+    e.found = 0;
+    e.base = base;
+    e.out_ids = out_ids;
+    e.out_d2 = out_d2;
+    examined = bhcl_grid_search(starts, px, py, pz, pid, g, qx, qy, qz, budget ? budget : 0xffffffffu, &e);
+    found = e.found;
+  }
+  BHCL_RADIUS_END(examined);
+}

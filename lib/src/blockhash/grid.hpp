@@ -1,0 +1,73 @@
+// Block hashing, grid layout (the auto preset): the built arrays, the counting-sort build, the
+// host reference of the query and save/load. The layout and the search are described in
+// kernels/grid_search.h, which the kernels and the host reference share.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "blockhash_cl/knn.hpp"
+#include "grid_search.h"
+
+namespace bhcl::blockhash {
+
+// Entries past the last point in x, y, z (+inf) and ids (-1), so that a 16-lane load at any point
+// stays inside the arrays.
+inline constexpr std::size_t kGridPad = 16;
+
+struct Grid {
+  bhcl_grid_geom geom{};
+  std::size_t n_points = 0;
+  std::vector<std::uint32_t> starts;  // ncells + 1: cell c holds sorted points [starts[c], starts[c+1])
+  std::vector<float> x, y, z;         // n + kGridPad, sorted by cell (ties by caller index)
+  std::vector<std::int32_t> ids;      // n + kGridPad: the caller's index of each sorted point
+  std::size_t ncells() const { return std::size_t(geom.nx) * geom.ny * geom.nz; }
+  std::size_t device_bytes() const {
+    return starts.size() * 4 + (x.size() + y.size() + z.size()) * 4 + ids.size() * 4;
+  }
+  // Every invariant the kernel relies on; throws bhcl::Error naming `what` and the first violation.
+  void validate(const std::string& what) const;
+};
+
+struct GridBuildParams {
+  double cell_size = -1;        // > 0: this side; else chosen from target_cell_points
+  double target_cell_points = 24;  // the point-weighted mean cell population aimed at
+  std::size_t sample = 16384;   // points the tuning looks at
+  // The most cells per point of a direct table: past it the cells grow until it fits.
+  double max_cells_per_point = 8;
+  unsigned threads = 0;         // 0: all hardware threads
+};
+
+struct GridBuildStats {
+  double t_tune = 0, t_cells = 0, t_count = 0, t_scatter = 0;
+  std::size_t occupied = 0;     // cells holding at least one point
+  double mean_cell_points = 0;  // point-weighted mean population (each point's cell, averaged)
+  bool capped = false;          // the cells were grown to fit max_cells_per_point
+};
+
+// Builds g from n points (already in the index's coordinates). `reuse`: g's vectors keep their
+// capacity (rebuilds allocate nothing when n and the cell count do not grow).
+void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid& g,
+                GridBuildStats* stats);
+
+// The host reference of blockhash_grid_knn.cl (the same traversal, grid_search.h): rows equal
+// to the kernel's bit for bit. budget as the kernel's (0xffffffff: exact).
+void reference_query_grid(const Grid& g, const float* queries, std::size_t n, int k, float max_r2,
+                          std::uint32_t budget, KnnResult& out, std::vector<std::int32_t>* examined,
+                          unsigned threads);
+
+// Save / load (blockhash/grid_io.cpp). The file starts with kGridMagic.
+inline constexpr char kGridMagic[8] = {'B', 'H', 'C', 'L', 'G', 'R', 'I', 'D'};
+struct GridFile {
+  Grid grid;
+  int scale_exp = 0;
+  double target_cell_points = 0;
+};
+void save_grid(const GridFile& f, const std::string& path);
+bool is_grid_file(const std::string& path);
+GridFile load_grid(const std::string& path);
+GridFile parse_grid(const std::string& data, const std::string& what);
+
+}  // namespace bhcl::blockhash

@@ -1,0 +1,163 @@
+// Save and load of a grid-layout block-hash index.
+//
+// File format (little-endian), version 1:
+//   "BHCLGRID" magic, u32 version, u32 0x01020304 (byte-order check),
+//   u64 n_points, i32 coordinate scale exponent (knn.hpp), f64 target cell points,
+//   f32 ox, oy, oz, h, inv_h, margin, u32 nx, ny, nz,
+//   u64 FNV-1a 64 checksum of every other byte of the file (header before it, then payload),
+//   payload: starts (u32 x (cells + 1)), x, y, z (f32 x N each), ids (i32 x N).
+// A load reads the header, checks the file's size against it before reading the payload, then the
+// checksum and every invariant the kernel relies on (Grid::validate) before anything is used.
+#include <sys/stat.h>
+
+#include <cmath>
+#include <cstring>
+#include <fstream>
+
+#include "blockhash/grid.hpp"
+#include "blockhash_cl/error.hpp"
+#include "blockhash_cl/io.hpp"
+
+namespace bhcl::blockhash {
+namespace {
+
+constexpr std::uint32_t kVersion = 1;
+constexpr std::size_t kHeader = 8 + 4 + 4 + 8 + 4 + 8 + 6 * 4 + 3 * 4;
+
+std::uint64_t fnv1a(const char* p, std::size_t n, std::uint64_t h = 0xcbf29ce484222325ull) {
+  for (std::size_t i = 0; i < n; ++i) {
+    h ^= static_cast<unsigned char>(p[i]);
+    h *= 0x100000001b3ull;
+  }
+  return h;
+}
+
+template <typename T>
+void put(std::string& b, const T& v) { b.append(reinterpret_cast<const char*>(&v), sizeof(T)); }
+template <typename T>
+void put_n(std::string& b, const T* v, std::size_t n) { b.append(reinterpret_cast<const char*>(v), n * sizeof(T)); }
+
+struct In {
+  const std::string& data;
+  const std::string& what;
+  std::size_t pos = 0;
+  template <typename T>
+  T get(const char* field) {
+    if (data.size() - pos < sizeof(T))
+      throw Error(what + ": truncated grid index (field '" + field + "' at byte " + std::to_string(pos) + ")");
+    T v;
+    std::memcpy(&v, data.data() + pos, sizeof(T));
+    pos += sizeof(T);
+    return v;
+  }
+  template <typename T>
+  void get_n(std::vector<T>& v, std::size_t n, const char* field) {
+    if ((data.size() - pos) / sizeof(T) < n)
+      throw Error(what + ": truncated grid index (array '" + field + "' at byte " + std::to_string(pos) + ")");
+    v.resize(n);
+    std::memcpy(v.data(), data.data() + pos, n * sizeof(T));
+    pos += n * sizeof(T);
+  }
+};
+
+}  // namespace
+
+void save_grid(const GridFile& f, const std::string& path) {
+  const Grid& g = f.grid;
+  std::string h;
+  h.append(kGridMagic, 8);
+  put(h, kVersion);
+  put(h, std::uint32_t(0x01020304));
+  put(h, std::uint64_t(g.n_points));
+  put(h, std::int32_t(f.scale_exp));
+  put(h, f.target_cell_points);
+  const float gf[6] = {g.geom.ox, g.geom.oy, g.geom.oz, g.geom.h, g.geom.inv_h, g.geom.margin};
+  put_n(h, gf, 6);
+  const std::uint32_t dims[3] = {g.geom.nx, g.geom.ny, g.geom.nz};
+  put_n(h, dims, 3);
+  std::string p;
+  p.reserve(g.starts.size() * 4 + g.n_points * 16);
+  put_n(p, g.starts.data(), g.starts.size());
+  put_n(p, g.x.data(), g.n_points);
+  put_n(p, g.y.data(), g.n_points);
+  put_n(p, g.z.data(), g.n_points);
+  put_n(p, g.ids.data(), g.n_points);
+  std::uint64_t sum = fnv1a(p.data(), p.size(), fnv1a(h.data(), h.size()));
+  std::string tail;
+  put(tail, sum);
+  write_file(path, {h, tail, p}, "the block-hash index");
+}
+
+bool is_grid_file(const std::string& path) {
+  // Only a regular file is opened (a FIFO would block); anything else is the block loader's to
+  // refuse with its message.
+  struct stat st;
+  if (::stat(path.c_str(), &st) != 0 || !S_ISREG(st.st_mode)) return false;
+  std::ifstream in(path, std::ios::binary);
+  char m[8] = {};
+  return in.read(m, 8) && std::memcmp(m, kGridMagic, 8) == 0;
+}
+
+GridFile parse_grid(const std::string& data, const std::string& what) {
+  In in{data, what};
+  if (data.size() < kHeader + 8 && data.size() >= 8 && std::memcmp(data.data(), kGridMagic, 8) == 0)
+    throw Error(what + ": truncated grid index (" + std::to_string(data.size()) + " bytes, the header alone is " + std::to_string(kHeader + 8) + ")");
+  if (data.size() < 8 || std::memcmp(data.data(), kGridMagic, 8) != 0)
+    throw Error(what + ": not a block-hash grid index (bad magic)");
+  in.pos = 8;
+  const auto version = in.get<std::uint32_t>("version");
+  if (version != kVersion)
+    throw Error(what + ": grid index version " + std::to_string(version) + ", this library reads version " + std::to_string(kVersion));
+  if (in.get<std::uint32_t>("byte order") != 0x01020304u) throw Error(what + ": grid index of another byte order");
+  GridFile f;
+  Grid& g = f.grid;
+  const auto n = in.get<std::uint64_t>("n_points");
+  if (n == 0 || n >= (std::uint64_t(1) << 31) - 1) throw Error(what + ": grid index point count " + std::to_string(n) + " out of range");
+  g.n_points = static_cast<std::size_t>(n);
+  f.scale_exp = in.get<std::int32_t>("scale exponent");
+  if (f.scale_exp < -300 || f.scale_exp > 300) throw Error(what + ": grid index scale exponent out of range");
+  f.target_cell_points = in.get<double>("target cell points");
+  g.geom.ox = in.get<float>("ox");
+  g.geom.oy = in.get<float>("oy");
+  g.geom.oz = in.get<float>("oz");
+  g.geom.h = in.get<float>("h");
+  g.geom.inv_h = in.get<float>("inv_h");
+  g.geom.margin = in.get<float>("margin");
+  g.geom.nx = in.get<std::uint32_t>("nx");
+  g.geom.ny = in.get<std::uint32_t>("ny");
+  g.geom.nz = in.get<std::uint32_t>("nz");
+  const std::uint64_t want_sum = in.get<std::uint64_t>("checksum");
+  const double cells = double(g.geom.nx) * g.geom.ny * g.geom.nz;
+  if (g.geom.nx == 0 || g.geom.ny == 0 || g.geom.nz == 0 || cells > 2147483000.0)
+    throw Error(what + ": grid index dimensions out of range");
+  const std::uint64_t expect = kHeader + 8 + (std::uint64_t(cells) + 1) * 4 + n * 16;
+  if (data.size() < expect)
+    throw Error(what + ": truncated grid index (" + std::to_string(data.size()) + " bytes, its header declares " + std::to_string(expect) + ")");
+  if (data.size() > expect)
+    throw Error(what + ": grid index with trailing bytes (" + std::to_string(data.size()) + " bytes, its header declares " + std::to_string(expect) + ")");
+  std::uint64_t sum = fnv1a(data.data() + kHeader + 8, data.size() - kHeader - 8, fnv1a(data.data(), kHeader));
+  if (sum != want_sum) throw Error(what + ": grid index checksum mismatch (the file is corrupt)");
+  in.get_n(g.starts, std::size_t(cells) + 1, "starts");
+  in.get_n(g.x, g.n_points, "x");
+  in.get_n(g.y, g.n_points, "y");
+  in.get_n(g.z, g.n_points, "z");
+  in.get_n(g.ids, g.n_points, "ids");
+  g.x.resize(g.n_points + kGridPad, INFINITY);
+  g.y.resize(g.n_points + kGridPad, INFINITY);
+  g.z.resize(g.n_points + kGridPad, INFINITY);
+  g.ids.resize(g.n_points + kGridPad, -1);
+  g.validate(what);
+  return f;
+}
+
+GridFile load_grid(const std::string& path) {
+  const std::uint64_t size = regular_file_size(path, "a block-hash grid index");
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw Error(path + ": cannot open the grid index (" + std::strerror(errno) + ")");
+  std::string data(static_cast<std::size_t>(size), '\0');
+  if (size && !in.read(&data[0], static_cast<std::streamsize>(size)))
+    throw Error(path + ": read failed after " + std::to_string(in.gcount()) + " bytes");
+  return parse_grid(data, path);
+}
+
+}  // namespace bhcl::blockhash

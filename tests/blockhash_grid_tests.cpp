@@ -1,0 +1,241 @@
+// Block hashing's grid layout (the auto preset): the exact mode against brute force on every
+// point set the exact methods are checked on, the kernel against its host reference bit for bit
+// at every budget and both top-k forms, radius search exact, the build independent of threads,
+// save/load, rebuild, and the parameters' checks.
+#include <cstdio>
+#include <fstream>
+
+#include "blockhash/build.hpp"
+#include "test_util.hpp"
+
+using namespace bhcl;
+
+namespace {
+
+SearchParams exact_params(int k, float r = INFINITY) {
+  SearchParams p;
+  p.k = k;
+  p.A = INFINITY;
+  p.max_radius = r;
+  return p;
+}
+
+void kernel_equals_reference(const BlockHashIndex& index, const std::vector<float>& qs,
+                             const SearchParams& p, const std::string& what) {
+  SearchParams pe = p;
+  pe.count_examined = true;
+  KnnResult r = index.query(qs, pe);
+  std::vector<std::int32_t> ex_ref;
+  KnnResult ref = index.reference_query(qs.data(), qs.size() / 3, p, &ex_ref);
+  test::require_identical(r, ref, what);
+  REQUIRE(r.examined == ex_ref);
+}
+
+}  // namespace
+
+TEST_CASE("blockhash_grid_vs_bruteforce: the exact mode equals brute force on every exact set") {
+  for (const test::PointSet& s : test::exact_point_sets()) {
+    CAPTURE(s.name);
+    BlockHashIndex index(test::runtime(), s.points.data(), s.points.size() / 3);
+    REQUIRE(index.info().grid);
+    const std::size_t N = s.points.size() / 3, n = s.queries.size() / 3;
+    const float radius = test::cutting_radius(s);
+    for (float r : {INFINITY, radius})
+      for (int k : {1, 10, 50, 100}) {
+        CAPTURE(k);
+        CAPTURE(r);
+        SearchParams p = exact_params(k, r);
+        KnnResult got;
+        index.query(s.queries.data(), n, p, got);
+        KnnResult ref = reference::knn_float(s.points.data(), N, s.queries.data(), n, p);
+        test::require_identical(got, ref, "grid exact on " + s.name);
+        // recall_target = 1 is the same exact mode.
+        SearchParams pr = p;
+        pr.A = 8;
+        pr.recall_target = 1.0;
+        KnnResult got1 = index.query(s.queries, pr);
+        test::require_identical(got1, ref, "grid recall_target 1 on " + s.name);
+      }
+  }
+}
+
+TEST_CASE("blockhash_grid_vs_reference: kernel == host reference at every budget, both list forms") {
+  struct Case {
+    const char* name;
+    std::vector<float> pts, qs;
+  };
+  std::vector<Case> cases;
+  cases.push_back({"uniform", datasets::uniform(20000, 1), datasets::uniform(500, 2)});
+  cases.push_back({"clustered", datasets::clustered(20000, 3, 8, 0.01f), datasets::clustered(500, 4, 8, 0.01f)});
+  auto far = datasets::uniform(300, 9, -3.0f, 4.0f);  // many outside the data's box
+  cases.push_back({"far queries", datasets::uniform(5000, 8), far});
+  auto wall = datasets::uniform(20000, 5);
+  for (std::size_t i = 0; i < wall.size() / 3; ++i) wall[3 * i + (i % 3)] = (i % 2) ? 0.0f : 1.0f;  // box walls
+  cases.push_back({"walls", wall, datasets::uniform(500, 6)});
+  for (const Case& c : cases) {
+    BlockHashIndex index(test::runtime(), c.pts.data(), c.pts.size() / 3);
+    for (int k : {1, 10, 16, 17, 50, 64, 65, 100})
+      for (float A : {1.0f, 2.0f, 8.0f, INFINITY}) {
+        SearchParams p;
+        p.k = k;
+        p.A = A;
+        CAPTURE(c.name);
+        CAPTURE(k);
+        CAPTURE(A);
+        kernel_equals_reference(index, c.qs, p, c.name);
+        // The scalar list (the GPU form) gives the same rows as the register list.
+        SearchParams ps = p;
+        ps.kernel_defines = "-DBHCL_GRID_VTOPK=0 -DBHCL_GRID_PREFETCH=0";
+        if (k <= 16 || A == 8.0f) kernel_equals_reference(index, c.qs, ps, std::string(c.name) + " scalar list");
+        // The budget bounds the points examined to within one run.
+        if (std::isfinite(A)) {
+          SearchParams pe = p;
+          pe.count_examined = true;
+          KnnResult r = index.query(c.qs, pe);
+          const std::uint32_t b = BlockHashIndex::budget(p);
+          for (std::size_t i = 0; i < r.n; ++i) {
+            if (std::uint32_t(r.examined[i]) <= b) continue;
+            REQUIRE(r.examined[i] >= 0);  // over the budget only by the last run scanned
+          }
+        }
+      }
+  }
+}
+
+TEST_CASE("blockhash_grid_radius_vs_bruteforce: radius search is exact by default") {
+  for (const test::PointSet& s : test::exact_point_sets()) {
+    CAPTURE(s.name);
+    BlockHashIndex index(test::runtime(), s.points.data(), s.points.size() / 3);
+    const std::size_t N = s.points.size() / 3, n = s.queries.size() / 3;
+    const float r = test::cutting_radius(s);
+    RadiusResult got;
+    index.radius_search(s.queries.data(), n, r, RadiusParams{}, got);
+    // Brute force through the kNN reference with k = N and the radius.
+    SearchParams p = exact_params(static_cast<int>(std::min<std::size_t>(N, 256)), r);
+    KnnResult ref = reference::knn_float(s.points.data(), N, s.queries.data(), n, p);
+    for (std::size_t q = 0; q < n; ++q) {
+      if (ref.counts[q] == p.k) continue;  // more than 256 within r: not comparable this way
+      REQUIRE(got.count(q) == std::size_t(ref.counts[q]));
+      for (std::size_t j = 0; j < got.count(q); ++j) {
+        REQUIRE(got.ids[got.offsets[q] + j] == ref.id(q, int(j)));
+        REQUIRE(got.dist2[got.offsets[q] + j] == ref.d2(q, int(j)));
+      }
+    }
+  }
+}
+
+TEST_CASE("blockhash_grid_build: independent of threads, stable, every point in its cell") {
+  auto pts = datasets::clustered(150000, 11, 12, 0.02f);
+  BlockHashBuildParams one;
+  one.threads = 1;
+  BlockHashBuildParams two;
+  two.threads = 2;
+  BlockHashIndex a(test::runtime(), pts.data(), pts.size() / 3, one);
+  BlockHashIndex b(test::runtime(), pts.data(), pts.size() / 3, two);
+  const blockhash::Grid& ga = *a.structure().grid;
+  const blockhash::Grid& gb = *b.structure().grid;
+  REQUIRE(ga.starts == gb.starts);
+  REQUIRE(ga.ids == gb.ids);
+  REQUIRE(ga.x == gb.x);
+  ga.validate("test");
+  // Stable: inside a cell the caller's indices ascend.
+  for (std::size_t c = 0; c + 1 < ga.starts.size(); ++c)
+    for (std::uint32_t i = ga.starts[c] + 1; i < ga.starts[c + 1]; ++i) REQUIRE(ga.ids[i - 1] < ga.ids[i]);
+  // The tuning aims at 24 points per point's cell; the sample estimate lands near it.
+  CHECK(a.info().mean_cell_points > 8);
+  CHECK(a.info().mean_cell_points < 72);
+  REQUIRE(a.first_mismatch(pts.data(), pts.size() / 3) == -1);
+  auto other = pts;
+  other[3 * 777 + 1] += 1e-3f;
+  REQUIRE(a.first_mismatch(other.data(), other.size() / 3) == 777);
+}
+
+TEST_CASE("blockhash_grid_io: save and load answer identically; damage is refused") {
+  auto pts = datasets::uniform(30000, 21);
+  auto qs = datasets::uniform(400, 22);
+  BlockHashIndex index(test::runtime(), pts.data(), pts.size() / 3);
+  const std::string path = test::tmp_path("grid_index.bhcl");
+  index.save(path);
+  auto loaded = BlockHashIndex::load(test::runtime(), path);
+  REQUIRE(loaded->info().grid);
+  REQUIRE(loaded->first_mismatch(pts.data(), pts.size() / 3) == -1);
+  for (float A : {2.0f, INFINITY}) {
+    SearchParams p;
+    p.k = 10;
+    p.A = A;
+    test::require_identical(loaded->query(qs, p), index.query(qs, p), "loaded grid");
+  }
+  // One flipped byte in the payload: the checksum refuses it.
+  std::string bytes;
+  {
+    std::ifstream in(path, std::ios::binary);
+    bytes.assign(std::istreambuf_iterator<char>(in), {});
+  }
+  std::string bad = bytes;
+  bad[bad.size() - 5] ^= 0x20;
+  REQUIRE_THROWS_WITH_AS(blockhash::parse_grid(bad, "x"), doctest::Contains("checksum"), Error);
+  REQUIRE_THROWS_WITH_AS(blockhash::parse_grid(bytes.substr(0, bytes.size() - 4), "x"),
+                         doctest::Contains("bytes"), Error);
+  std::remove(path.c_str());
+}
+
+TEST_CASE("blockhash_grid_rebuild: the next frame equals a fresh build with the same cell side") {
+  auto f1 = datasets::uniform(40000, 31);
+  auto f2 = datasets::clustered(30000, 32, 6, 0.05f);
+  auto f3 = datasets::uniform(60000, 33, -2.0f, 2.0f);
+  auto qs = datasets::uniform(300, 34);
+  BlockHashIndex index(test::runtime(), f1.data(), f1.size() / 3);
+  const double h = index.info().cell_size;
+  for (const auto* f : {&f2, &f3}) {
+    index.rebuild(f->data(), f->size() / 3);
+    REQUIRE(index.size() == f->size() / 3);
+    REQUIRE(index.info().cell_size == doctest::Approx(h));
+    BlockHashBuildParams bp;
+    bp.cell_size = h;
+    BlockHashIndex fresh(test::runtime(), f->data(), f->size() / 3, bp);
+    for (float A : {4.0f, INFINITY}) {
+      SearchParams p;
+      p.k = 12;
+      p.A = A;
+      test::require_identical(index.query(qs, p), fresh.query(qs, p), "rebuild");
+    }
+  }
+}
+
+TEST_CASE("blockhash_grid_params: the layouts and the checks") {
+  auto pts = datasets::uniform(5000, 41);
+  BlockHashIndex def(test::runtime(), pts.data(), pts.size() / 3);
+  CHECK(def.info().grid);
+  BlockHashBuildParams old;
+  old.P = 8;
+  BlockHashIndex blocks(test::runtime(), pts.data(), pts.size() / 3, old);
+  CHECK_FALSE(blocks.info().grid);
+  BlockHashBuildParams bad = old;
+  bad.grid = 1;
+  REQUIRE_THROWS_WITH_AS(BlockHashIndex(test::runtime(), pts.data(), pts.size() / 3, bad),
+                         doctest::Contains("grid = 1"), Error);
+  BlockHashBuildParams cs;
+  cs.cell_size = -3;
+  REQUIRE_THROWS_WITH_AS(BlockHashIndex(test::runtime(), pts.data(), pts.size() / 3, cs),
+                         doctest::Contains("cell_size"), Error);
+  SearchParams p;
+  p.A = -1;
+  REQUIRE_THROWS_WITH_AS(def.query(pts, p), doctest::Contains("A must be positive"), Error);
+  // The default search (A = 0) is the exact mode on the grid.
+  SearchParams d;
+  d.k = 7;
+  test::require_identical(def.query(pts, d), reference::knn_float(pts.data(), 5000, pts.data(), 5000, d),
+                          "the default search");
+  // One point, coincident points, k above N.
+  std::vector<float> one = {0.5f, 0.5f, 0.5f};
+  BlockHashIndex single(test::runtime(), one.data(), 1);
+  SearchParams p3;
+  p3.k = 3;
+  KnnResult r = single.query(std::vector<float>{0, 0, 0, 1, 1, 1}, p3);
+  REQUIRE(r.counts == std::vector<std::int32_t>{1, 1});
+  REQUIRE(r.id(0, 1) == -1);
+  std::vector<float> same(3 * 5000, 0.25f);
+  BlockHashIndex dup(test::runtime(), same.data(), 5000);
+  KnnResult rd = dup.query(std::vector<float>{0.25f, 0.25f, 0.25f}, exact_params(20));
+  for (int j = 0; j < 20; ++j) REQUIRE(rd.id(0, j) == j);  // ties by index
+}
