@@ -13,7 +13,8 @@
  *    time (bhcl_arith.h's insertion).
  * Both keep the k nearest of the same points by (distance, index), so their rows are identical.
  *
- * Defines: BHCL_KMAX (the list's capacity), BHCL_GRID_VTOPK, BHCL_GRID_PREFETCH (d > 0: prefetch
+ * Defines: BHCL_KMAX (the list's capacity), BHCL_GRID_VTOPK, BHCL_GRID_ROWCAP (the runs of a ring
+ * sorted nearest first before they are scanned; 0: none), BHCL_GRID_PREFETCH (d > 0: prefetch
  * the home cell of the query d work-items ahead with clang's __builtin_prefetch; PoCL's
  * prefetch() emits nothing). */
 #include "knn_common.h"
@@ -24,6 +25,11 @@
 #ifndef BHCL_GRID_PREFETCH
 #define BHCL_GRID_PREFETCH 0
 #endif
+/* The runs of a ring gathered and scanned nearest first (0: scanned as met; grid_search.h). */
+#ifndef BHCL_GRID_ROWCAP
+#define BHCL_GRID_ROWCAP 0
+#endif
+#define BHCL_GRID_ROWBUF (BHCL_GRID_ROWCAP > 0 ? BHCL_GRID_ROWCAP : 1)
 
 #if BHCL_GRID_VTOPK
 #if BHCL_KMAX > 64
@@ -48,13 +54,17 @@ typedef struct bhcl_vtopk {
 
 #define VT_SHIFT ((uint16)(31, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14))
 /* One register: lanes ranking after the candidate take their left neighbour (PD/PI's lane 15 for
- * lane 0) or the candidate, whichever ranks after it; the rest stay. */
-#define VT_STEP(D, I, PD, PI)                                   \
+ * lane 0) or the candidate, whichever ranks after it; the rest stay. GT(A, AI) is "(A, AI) ranks
+ * after the candidate": by distance alone when no lane ties the candidate's distance (the common
+ * case), by (distance, index) otherwise. */
+#define VT_GT_FAST(A, AI) (A > dv)
+#define VT_GT_TIES(A, AI) ((A > dv) | ((A == dv) & (AI > iv)))
+#define VT_STEP(D, I, PD, PI, GT)                               \
   {                                                             \
     float16 sd = shuffle2(D, PD, VT_SHIFT);                     \
     int16 si = shuffle2(I, PI, VT_SHIFT);                       \
-    int16 m = (D > dv) | ((D == dv) & (I > iv));                \
-    int16 ms = (sd > dv) | ((sd == dv) & (si > iv));            \
+    int16 m = GT(D, I);                                         \
+    int16 ms = GT(sd, si);                                      \
     D = select(D, select(dv, sd, ms), m);                       \
     I = select(I, select(iv, si, ms), m);                       \
   }
@@ -85,11 +95,25 @@ inline __attribute__((always_inline)) void vt_insert(bhcl_vtopk* t, float d, int
   const float16 dv = (float16)(d);
   const int16 iv = (int16)(id);
 #if VR > 1
-  VT_STEP(t->d3, t->i3, t->d2, t->i2);
-  VT_STEP(t->d2, t->i2, t->d1, t->i1);
-  VT_STEP(t->d1, t->i1, t->d0, t->i0);
+  const int tie = any((t->d0 == dv) | (t->d1 == dv) | (t->d2 == dv) | (t->d3 == dv));
+#else
+  const int tie = any(t->d0 == dv);
 #endif
-  VT_STEP(t->d0, t->i0, dv, iv);
+  if (tie) {
+#if VR > 1
+    VT_STEP(t->d3, t->i3, t->d2, t->i2, VT_GT_TIES);
+    VT_STEP(t->d2, t->i2, t->d1, t->i1, VT_GT_TIES);
+    VT_STEP(t->d1, t->i1, t->d0, t->i0, VT_GT_TIES);
+#endif
+    VT_STEP(t->d0, t->i0, dv, iv, VT_GT_TIES);
+  } else {
+#if VR > 1
+    VT_STEP(t->d3, t->i3, t->d2, t->i2, VT_GT_FAST);
+    VT_STEP(t->d2, t->i2, t->d1, t->i1, VT_GT_FAST);
+    VT_STEP(t->d1, t->i1, t->d0, t->i0, VT_GT_FAST);
+#endif
+    VT_STEP(t->d0, t->i0, dv, iv, VT_GT_FAST);
+  }
 }
 
 /* Points [a, b) of the sorted arrays, 16 at a time (the arrays are padded by 16 entries). */
@@ -193,7 +217,7 @@ __kernel void blockhash_grid_knn(__global const uint* starts, __global const flo
 #if BHCL_GRID_VTOPK
   bhcl_vtopk t;
   vt_init(&t, k, max_r2);
-  if (bhcl_query_is_finite(q)) examined = bhcl_grid_search(starts, px, py, pz, pid, g, qx, qy, qz, budget, &t);
+  if (bhcl_query_is_finite(q)) examined = bhcl_grid_search(starts, px, py, pz, pid, g, qx, qy, qz, budget, BHCL_GRID_ROWCAP, &t);
   float td[16 * VR];
   int ti[16 * VR];
   vstore16(t.d0, 0, td);
@@ -220,7 +244,7 @@ __kernel void blockhash_grid_knn(__global const uint* starts, __global const flo
   t.n = 0;
   t.max_r2 = max_r2;
   bhcl_topk_init(t.d, t.i, k);
-  if (bhcl_query_is_finite(q)) examined = bhcl_grid_search(starts, px, py, pz, pid, g, qx, qy, qz, budget, &t);
+  if (bhcl_query_is_finite(q)) examined = bhcl_grid_search(starts, px, py, pz, pid, g, qx, qy, qz, budget, BHCL_GRID_ROWCAP, &t);
   for (uint j = 0; j < k; ++j) {
     int empty = t.i[j] == BHCL_EMPTY_SLOT_ID;
     out_ids[base + j] = empty ? BHCL_MISSING_ID : t.i[j];

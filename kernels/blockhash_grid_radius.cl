@@ -24,6 +24,7 @@ inline void ge_scan(bhcl_grid_emit* e, float qx, float qy, float qz, __global co
 #define BHCL_GRID_STATE bhcl_grid_emit
 #define BHCL_GRID_BOUND(st) ((st)->r2)
 #define BHCL_GRID_SCAN(st, a, b) ge_scan(st, qx, qy, qz, px, py, pz, pid, a, b)
+#define BHCL_GRID_ROWBUF 1 /* runs scanned as met (cap 0): every run within r is scanned anyway */
 #include "grid_search.h"
 
 __kernel void blockhash_grid_radius(__global const uint* starts, __global const float* px,
@@ -52,7 +53,7 @@ __kernel void blockhash_grid_radius(__global const uint* starts, __global const 
     e.base = base;
     e.out_ids = out_ids;
     e.out_d2 = out_d2;
-    examined = bhcl_grid_search(starts, px, py, pz, pid, g, qx, qy, qz, budget ? budget : 0xffffffffu, &e);
+    examined = bhcl_grid_search(starts, px, py, pz, pid, g, qx, qy, qz, budget ? budget : 0xffffffffu, 0u, &e);
     found = e.found;
   }
   BHCL_RADIUS_END(examined);

@@ -12,9 +12,9 @@
  * clustering" future work), the bucket of a cell is its run.
  *
  * The search. Ring r around the query's home cell is the cells at Chebyshev distance r; its rows
- * are visited nearer offsets first (0, -1, +1, -2, ...), each clipped at both ends to the cells
- * whose slab distance is within the current bound (the k-th distance, or the radius), and scanned
- * as one run. After ring r the search stops when the bound lies inside the box of the rings
+ * (offsets 0, -1, +1, -2, ...) are each clipped at both ends to the cells whose slab distance is
+ * within the current bound (the k-th distance, or the radius) and gathered as one run, then the
+ * runs are scanned nearest first (by the row's slab distance) while within the bound. After ring r the search stops when the bound lies inside the box of the rings
  * visited (exact), when the rings cover the grid, or (budget) when `budget` points are examined:
  * a run is scanned when fewer than `budget` points were examined before it.
  *
@@ -82,12 +82,46 @@ BHCL_GRID_INLINE int bhcl_grid_offset(int j) { return (j & 1) ? -((j + 1) >> 1) 
  * been included before without one). */
 #if defined(BHCL_GRID_STATE) && !defined(BHCL_GRID_SEARCH_FN)
 #define BHCL_GRID_SEARCH_FN
-/* The search of one query (finite q): returns the points examined. */
+#ifndef BHCL_GRID_ROWBUF
+#define BHCL_GRID_ROWBUF 32
+#endif
+
+/* Runs [a, b) of a ring gathered for a nearest-first scan (row distance d), at most `cap`. */
+typedef struct bhcl_grid_rows {
+  float d[BHCL_GRID_ROWBUF];
+  bhcl_u32 a[BHCL_GRID_ROWBUF], b[BHCL_GRID_ROWBUF];
+} bhcl_grid_rows;
+
+/* One run of the ring: into the sorted buffer (stable: equal distances keep their visit order),
+ * or, with the buffer full (or cap 0), scanned at once. Returns 0 when the budget stops the search. */
+#define BHCL_GRID_RUN(d_, a_, b_)                                                   \
+  if ((a_) < (b_)) {                                                                \
+    if (nr < cap) {                                                                 \
+      bhcl_u32 j = nr++;                                                            \
+      while (j > 0 && rows.d[j - 1] > (d_)) {                                       \
+        rows.d[j] = rows.d[j - 1];                                                  \
+        rows.a[j] = rows.a[j - 1];                                                  \
+        rows.b[j] = rows.b[j - 1];                                                  \
+        --j;                                                                        \
+      }                                                                             \
+      rows.d[j] = (d_);                                                             \
+      rows.a[j] = (a_);                                                             \
+      rows.b[j] = (b_);                                                             \
+    } else {                                                                        \
+      if (examined >= budget) return examined;                                      \
+      BHCL_GRID_SCAN(st, (a_), (b_));                                               \
+      examined += (b_) - (a_);                                                      \
+    }                                                                               \
+  }
+
+/* The search of one query (finite q): returns the points examined. cap (<= BHCL_GRID_ROWBUF):
+ * the runs of a ring gathered and scanned nearest first (0: each run scanned as it is met, the
+ * GPU form, no private array); the kernel and the reference must use the same cap. */
 BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search(BHCL_GLOBAL const bhcl_u32* starts,
                                            BHCL_GLOBAL const float* px, BHCL_GLOBAL const float* py,
                                            BHCL_GLOBAL const float* pz, BHCL_GLOBAL const bhcl_i32* pid,
                                            const bhcl_grid_geom g, float qx, float qy, float qz,
-                                           bhcl_u32 budget, BHCL_GRID_STATE* st) {
+                                           bhcl_u32 budget, bhcl_u32 cap, BHCL_GRID_STATE* st) {
   const bhcl_u32 cx = bhcl_grid_cell(qx, g.ox, g.inv_h, g.nx);
   const bhcl_u32 cy = bhcl_grid_cell(qy, g.oy, g.inv_h, g.ny);
   const bhcl_u32 cz = bhcl_grid_cell(qz, g.oz, g.inv_h, g.nz);
@@ -97,8 +131,10 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search(BHCL_GLOBAL const bhcl_u32* starts,
   t = cz > g.nz - 1u - cz ? cz : g.nz - 1u - cz;
   rmax = rmax > t ? rmax : t;
   bhcl_u32 examined = 0;
+  bhcl_grid_rows rows;
   for (bhcl_u32 r = 0; r <= rmax; ++r) {
     const int side = 2 * (int)r + 1;
+    bhcl_u32 nr = 0;
     for (int jz = 0; jz < side; ++jz) {
       const int oz = bhcl_grid_offset(jz);
       const int z = (int)cz + oz;
@@ -110,7 +146,7 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search(BHCL_GLOBAL const bhcl_u32* starts,
         if (y < 0 || y >= (int)g.ny) continue;
         const float ey = bhcl_grid_slab(qy, g.oy, g.h, g.margin, (bhcl_u32)y);
         const float syz = ey * ey + ez * ez;
-        float bound = BHCL_GRID_BOUND(st);
+        const float bound = BHCL_GRID_BOUND(st);
         if (syz > bound) continue;
         const bhcl_u32 row = ((bhcl_u32)z * g.ny + (bhcl_u32)y) * g.nx;
         const int ay = oy < 0 ? -oy : oy, az = oz < 0 ? -oz : oz;
@@ -130,28 +166,28 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search(BHCL_GLOBAL const bhcl_u32* starts,
             --xb;
           }
           if (xa > xb) continue;
-          if (examined >= budget) return examined;
           const bhcl_u32 a = starts[row + (bhcl_u32)xa], b = starts[row + (bhcl_u32)xb + 1u];
-          if (a < b) {
-            BHCL_GRID_SCAN(st, a, b);
-            examined += b - a;
-          }
+          BHCL_GRID_RUN(syz, a, b)
         } else {
           /* An inner row: only its two end cells belong to the ring. */
           for (int e = 0; e < 2; ++e) {
             const int x = e == 0 ? (int)cx - (int)r : (int)cx + (int)r;
             if (x < 0 || x >= (int)g.nx) continue;
             const float ex = bhcl_grid_slab(qx, g.ox, g.h, g.margin, (bhcl_u32)x);
-            if (ex * ex + syz > BHCL_GRID_BOUND(st)) continue;
-            if (examined >= budget) return examined;
+            const float d = ex * ex + syz;
+            if (d > bound) continue;
             const bhcl_u32 a = starts[row + (bhcl_u32)x], b = starts[row + (bhcl_u32)x + 1u];
-            if (a < b) {
-              BHCL_GRID_SCAN(st, a, b);
-              examined += b - a;
-            }
+            BHCL_GRID_RUN(d, a, b)
           }
         }
       }
+    }
+    /* The gathered runs, nearest first, while within the bound. */
+    for (bhcl_u32 i = 0; i < nr; ++i) {
+      if (rows.d[i] > BHCL_GRID_BOUND(st)) break;
+      if (examined >= budget) return examined;
+      BHCL_GRID_SCAN(st, rows.a[i], rows.b[i]);
+      examined += rows.b[i] - rows.a[i];
     }
     /* Exact stop: nothing outside the rings visited is within the bound. */
     float w = bhcl_grid_reach(qx, g.ox, g.h, g.margin, cx, r, g.nx);
@@ -161,4 +197,5 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search(BHCL_GLOBAL const bhcl_u32* starts,
   }
   return examined;
 }
+#undef BHCL_GRID_RUN
 #endif /* BHCL_GRID_STATE */

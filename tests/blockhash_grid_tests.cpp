@@ -85,7 +85,7 @@ TEST_CASE("blockhash_grid_vs_reference: kernel == host reference at every budget
         kernel_equals_reference(index, c.qs, p, c.name);
         // The scalar list (the GPU form) gives the same rows as the register list.
         SearchParams ps = p;
-        ps.kernel_defines = "-DBHCL_GRID_VTOPK=0 -DBHCL_GRID_PREFETCH=0";
+        ps.kernel_defines = "-DBHCL_GRID_VTOPK=0 -DBHCL_GRID_PREFETCH=0 -DBHCL_GRID_ROWCAP=0";
         if (k <= 16 || A == 8.0f) kernel_equals_reference(index, c.qs, ps, std::string(c.name) + " scalar list");
         // The budget bounds the points examined to within one run.
         if (std::isfinite(A)) {

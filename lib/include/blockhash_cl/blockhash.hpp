@@ -218,6 +218,7 @@ class BlockHashIndex : public Index {
   void build_grid_layout(const float* points, std::size_t n_points, double cell_size);
   void upload_grid();
   void add_grid_args(detail::KernelArgs& args) const;
+  std::uint32_t row_cap_for(const SearchParams& params) const;  // the kernel's BHCL_GRID_ROWCAP
   std::vector<float> indexed_points() const;  // caller's order and coordinates
 
   // SearchParams::recall_target: the A tuned per (k, probes, target), computed on first use.

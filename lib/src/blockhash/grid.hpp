@@ -53,10 +53,13 @@ void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid&
                 GridBuildStats* stats);
 
 // The host reference of blockhash_grid_knn.cl (the same traversal, grid_search.h): rows equal
-// to the kernel's bit for bit. budget as the kernel's (0xffffffff: exact).
+// to the kernel's bit for bit. budget as the kernel's (0xffffffff: exact); row_cap the kernel's
+// BHCL_GRID_ROWCAP (at most BHCL_GRID_ROWBUF).
 void reference_query_grid(const Grid& g, const float* queries, std::size_t n, int k, float max_r2,
-                          std::uint32_t budget, KnnResult& out, std::vector<std::int32_t>* examined,
-                          unsigned threads);
+                          std::uint32_t budget, std::uint32_t row_cap, KnnResult& out,
+                          std::vector<std::int32_t>* examined, unsigned threads);
+// The row cap of the kernel variant a device gets (CPU devices 32, GPUs 0: no private array).
+inline std::uint32_t grid_row_cap(bool cpu) { return cpu ? 32u : 0u; }
 
 // Save / load (blockhash/grid_io.cpp). The file starts with kGridMagic.
 inline constexpr char kGridMagic[8] = {'B', 'H', 'C', 'L', 'G', 'R', 'I', 'D'};

@@ -487,7 +487,7 @@ std::string BlockHashIndex::kernel_options(int kmax) const {
     // list); the scalar list on GPUs and past 64 entries.
     const bool cpu = runtime().quirks().vector_scan;
     os << "-DBHCL_KMAX=" << kmax << " -DBHCL_GRID_VTOPK=" << (cpu && kmax <= 64 ? 1 : 0)
-       << " -DBHCL_GRID_PREFETCH=" << (cpu ? 2 : 0);
+       << " -DBHCL_GRID_PREFETCH=" << (cpu ? 2 : 0) << " -DBHCL_GRID_ROWCAP=" << blockhash::grid_row_cap(cpu);
     return os.str();
   }
   if (info_.cell_aligned) {
@@ -613,6 +613,16 @@ cl::Event BlockHashIndex::enqueue_radius_batch(const cl::CommandQueue& queue,
   return detail::launch_1d(queue, kernel, count, local_size, wait, name);
 }
 
+std::uint32_t BlockHashIndex::row_cap_for(const SearchParams& p) const {
+  // The kernel's BHCL_GRID_ROWCAP: the device's, unless the caller's defines override it (the last
+  // -D of a name wins, as in the OpenCL compiler).
+  std::uint32_t cap = blockhash::grid_row_cap(runtime().quirks().vector_scan);
+  const std::string key = "-DBHCL_GRID_ROWCAP=";
+  for (std::size_t at = p.kernel_defines.find(key); at != std::string::npos; at = p.kernel_defines.find(key, at + 1))
+    cap = static_cast<std::uint32_t>(std::strtoul(p.kernel_defines.c_str() + at + key.size(), nullptr, 10));
+  return cap;
+}
+
 void BlockHashIndex::add_grid_args(detail::KernelArgs& args) const {
   const bhcl_grid_geom& g = s_->grid->geom;
   args.add(g_starts_).add(g_x_).add(g_y_).add(g_z_).add(g_ids_)
@@ -636,7 +646,7 @@ KnnResult BlockHashIndex::reference_query(const float* queries, std::size_t n,
   KnnResult out;
   if (info_.grid) {
     blockhash::reference_query_grid(*s_->grid, queries, n, params.k, detail::squared_radius(params.max_radius),
-                                    budget(params), out, examined, threads);
+                                    budget(params), row_cap_for(params), out, examined, threads);
   } else if (info_.cell_aligned) {
     blockhash::reference_query_cells(*s_, queries, n, params, cells_probes(params), out, examined, threads);
   } else {
