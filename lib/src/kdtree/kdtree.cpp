@@ -67,8 +67,13 @@ struct Task {
 
 // Makes the node of `task` (a leaf, or a median split of its points, which reorders perm inside
 // [begin, end) only) and pushes its children, if any: the right one first.
+struct KeyId {
+  float key;
+  std::uint32_t id;
+};
+
 void make_node(const float* xyz, std::size_t leaf, const Shape& shape, KdTreeArrays& t,
-               const Task& task, std::vector<Task>& out) {
+               const Task& task, std::vector<Task>& out, std::vector<KeyId>& scratch) {
   const std::size_t count = task.end - task.begin;
   bhcl_kd_node node{0.0f, BHCL_KD_LEAF, 0u, 0u};
   if (count <= leaf) {
@@ -97,12 +102,19 @@ void make_node(const float* xyz, std::size_t leaf, const Shape& shape, KdTreeArr
     }
   }
   const std::size_t mid = task.begin + count / 2;
-  std::nth_element(t.perm.begin() + task.begin, t.perm.begin() + mid, t.perm.begin() + task.end,
-                   [xyz, dim](std::uint32_t a, std::uint32_t b) {
-                     return xyz[3 * std::size_t(a) + dim] < xyz[3 * std::size_t(b) + dim];
-                   });
+  // nth_element over (coordinate, index) pairs gathered once: it compares and moves exactly as it
+  // would over perm with a comparator that gathers the coordinates (its steps depend on the
+  // comparisons' outcomes alone), so the order is the same, from contiguous loads.
+  scratch.resize(count);
+  for (std::size_t i = 0; i < count; ++i) {
+    const std::uint32_t id = t.perm[task.begin + i];
+    scratch[i] = {xyz[3 * std::size_t(id) + dim], id};
+  }
+  std::nth_element(scratch.begin(), scratch.begin() + (mid - task.begin), scratch.end(),
+                   [](const KeyId& a, const KeyId& b) { return a.key < b.key; });
+  for (std::size_t i = 0; i < count; ++i) t.perm[task.begin + i] = scratch[i].id;
   const std::size_t right = task.index + 1 + shape.nodes(mid - task.begin);
-  node.split = xyz[3 * std::size_t(t.perm[mid]) + dim];
+  node.split = scratch[mid - task.begin].key;
   node.dim = static_cast<std::uint32_t>(dim);
   node.a = static_cast<std::uint32_t>(right);
   t.nodes[task.index] = node;
@@ -136,7 +148,8 @@ KdTreeArrays build_kdtree(const float* xyz, std::size_t n, std::size_t leaf, uns
   while (threads > 1 && !level.empty() && level.size() < threads && n / level.size() >= kMinParallel) {
     std::vector<std::vector<Task>> children(level.size());
     parallel_for(level.size(), [&](std::size_t b, std::size_t e) {
-      for (std::size_t i = b; i < e; ++i) make_node(xyz, leaf, shape, t, level[i], children[i]);
+      std::vector<KeyId> scratch;
+      for (std::size_t i = b; i < e; ++i) make_node(xyz, leaf, shape, t, level[i], children[i], scratch);
     }, threads, 1);
     std::vector<Task> next;
     for (auto& c : children) next.insert(next.end(), c.rbegin(), c.rend());
@@ -144,12 +157,13 @@ KdTreeArrays build_kdtree(const float* xyz, std::size_t n, std::size_t leaf, uns
   }
   parallel_for(level.size(), [&](std::size_t b, std::size_t e) {
     std::vector<Task> stack;
+    std::vector<KeyId> scratch;
     for (std::size_t i = b; i < e; ++i) {
       stack.assign(1, level[i]);
       while (!stack.empty()) {
         Task task = stack.back();
         stack.pop_back();
-        make_node(xyz, leaf, shape, t, task, stack);
+        make_node(xyz, leaf, shape, t, task, stack, scratch);
       }
     }
   }, threads, 1);
