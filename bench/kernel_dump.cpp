@@ -1,8 +1,8 @@
 // kernel_dump: builds every OpenCL program the library uses, at the options it passes, so that
 // BHCL_DUMP_PROGRAMS=dir (lib/src/core/runtime.cpp) writes each one's source and options to dir.
 // Every method of the registry (each choice of a "preset" option), each compiled k variant
-// (kKmaxVariants: k <= 8, 16, 32, 64, 128, 256) for kNN, and the radius kernel; a method added to
-// the registry, or a preset added to its choices, is covered without a change here.
+// (kKmaxVariants: k <= 8, 16, 32, 64, 128, 256) for kNN, and the radius kernel, plus scale.cl; a
+// method added to the registry, or a preset added to its choices, is covered without a change here.
 // bench/gpu_kernel_table.sh runs it (with BHCL_QUIRKS_AS=nvidia, so the defines are a GPU's) and
 // compiles the dump for sm_90.
 #include <algorithm>
@@ -65,6 +65,10 @@ int main(int argc, char** argv) {
         ++programs;
       }
     }
+    // The coordinate-scaling kernels that buffer-level queries run at extreme scales
+    // (Index::enqueue_query), built with no extra options there.
+    rt->program("scale.cl");
+    ++programs;
     std::fprintf(stderr, "kernel_dump: %d kernel variants built (%.1f s of program builds)\n",
                  programs, rt->build_seconds());
   } catch (const std::exception& e) {
