@@ -2,6 +2,7 @@
 #include "blockhash_cl/kdtree.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cstddef>
 #include <cstdint>
@@ -129,8 +130,8 @@ void make_node(const float* xyz, std::size_t leaf, const Shape& shape, KdTreeArr
 // so the build is O(N log N) whatever the data (duplicates, flat or collinear sets split by
 // position, never by value, so the tree stays balanced: depth <= ceil(log2(N / leaf))).
 // In parallel: the top levels one level at a time, each level's nodes on the threads, until there
-// are at least as many subtrees as threads; then whole subtrees per thread (the subtrees of one
-// level differ by at most one point, so contiguous ranges of them balance).
+// are 4 subtrees per thread (or they get small); then each thread builds whole subtrees, taking
+// the next one left.
 KdTreeArrays build_kdtree(const float* xyz, std::size_t n, std::size_t leaf, unsigned threads) {
   if (threads == 0) threads = default_threads();
   KdTreeArrays t;
@@ -145,20 +146,23 @@ KdTreeArrays build_kdtree(const float* xyz, std::size_t n, std::size_t leaf, uns
   // Below this many points a subtree is not worth a thread of its own.
   constexpr std::size_t kMinParallel = 1 << 14;
   std::vector<Task> level{{0, n, 0}};
-  while (threads > 1 && !level.empty() && level.size() < threads && n / level.size() >= kMinParallel) {
+  while (threads > 1 && !level.empty() && level.size() < 4 * std::size_t(threads) &&
+         n / level.size() >= kMinParallel) {
     std::vector<std::vector<Task>> children(level.size());
     parallel_for(level.size(), [&](std::size_t b, std::size_t e) {
       std::vector<KeyId> scratch;
       for (std::size_t i = b; i < e; ++i) make_node(xyz, leaf, shape, t, level[i], children[i], scratch);
     }, threads, 1);
-    std::vector<Task> next;
-    for (auto& c : children) next.insert(next.end(), c.rbegin(), c.rend());
-    level.swap(next);
+    std::vector<Task> below;
+    for (auto& c : children) below.insert(below.end(), c.rbegin(), c.rend());
+    level.swap(below);
   }
-  parallel_for(level.size(), [&](std::size_t b, std::size_t e) {
+  // Each thread takes the next subtree left (any thread count balances).
+  std::atomic<std::size_t> next{0};
+  parallel_for(std::min<std::size_t>(threads, level.size()), [&](std::size_t, std::size_t) {
     std::vector<Task> stack;
     std::vector<KeyId> scratch;
-    for (std::size_t i = b; i < e; ++i) {
+    for (std::size_t i; (i = next.fetch_add(1)) < level.size();) {
       stack.assign(1, level[i]);
       while (!stack.empty()) {
         Task task = stack.back();
