@@ -15,7 +15,9 @@ packages=(
   python3-venv python3-dev pybind11-dev python3-scipy python3-pytest
 )
 if [ "${1:-}" = "--ci" ]; then
-  packages+=(clang libclang-rt-14-dev)
+  # libclc-15: libclc's nvptx builtins for bench/gpu_kernel_table.sh (with the CUDA toolkit's
+  # ptxas where installed; the step skips without it).
+  packages+=(clang libclang-rt-14-dev libclc-15)
 fi
 
 missing=()

@@ -17,6 +17,8 @@ struct KdTreeParams {
   // FLANN in the same run): 16, 24 and 32 within noise of each other, 12 about 15 % slower,
   // 6-8 slower still.
   int leaf_size = 16;
+  // Host threads for the build (0: all hardware threads). The tree is the same for every count.
+  unsigned build_threads = 0;
 };
 
 class KdTreeIndex : public Index {

@@ -1,11 +1,26 @@
 // The quirks list: what differs between the OpenCL drivers we run on, decided once per device.
 #include "blockhash_cl/quirks.hpp"
 
+#include <cstdlib>
+#include <string>
+
+#include "blockhash_cl/error.hpp"
 #include "blockhash_cl/runtime.hpp"
 
 namespace bhcl {
 
-Quirks quirks_for(const DeviceInfo& info) {
+Quirks quirks_for(const DeviceInfo& device) {
+  DeviceInfo info = device;
+  // BHCL_QUIRKS_AS=nvidia: decide the quirks (and so the kernels' defines) as for an NVIDIA GPU
+  // whatever the device; for tools that compile the kernels for a GPU offline
+  // (bench/gpu_kernel_table.sh). Results are the same; only speed differs.
+  if (const char* as = std::getenv("BHCL_QUIRKS_AS"); as && *as) {
+    if (std::string(as) != "nvidia")
+      throw Error(std::string("BHCL_QUIRKS_AS='") + as + "' is not known: the one value is 'nvidia'");
+    info.is_pocl = false;
+    info.is_nvidia = true;
+    info.type = CL_DEVICE_TYPE_GPU;
+  }
   Quirks q;
   if (info.is_pocl) {
     // PoCL 3.1 compiles machine code per kernel and local size at the first enqueue.

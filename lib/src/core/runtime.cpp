@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cstdlib>
 #include <fstream>
+#include <functional>
 #include <sstream>
 #include <string_view>
 #include <tuple>
@@ -93,6 +94,22 @@ struct ProgramKey {
     return std::tie(context, device, file, options) < std::tie(o.context, o.device, o.file, o.options);
   }
 };
+
+// BHCL_DUMP_PROGRAMS=dir: each library program built (first build of a file at some options)
+// is written to dir as NAME.cl (its source, includes resolved) and NAME.options (the full option
+// string the build got), NAME = the file's stem and a hash of options and source. For tools that
+// compile the kernels offline (bench/gpu_kernel_table.sh: registers and stack for sm_90).
+void dump_program(const std::string& file, const std::string& source, const std::string& options) {
+  const char* dir = std::getenv("BHCL_DUMP_PROGRAMS");
+  if (!dir || !*dir) return;
+  std::string stem = file.substr(0, file.rfind('.'));
+  std::ostringstream name;
+  name << dir << "/" << stem << "." << std::hex << (std::hash<std::string>{}(options + '\n' + source) & 0xffffffffu);
+  std::ofstream src(name.str() + ".cl", std::ios::binary), opt(name.str() + ".options", std::ios::binary);
+  src << source;
+  opt << options << "\n";
+  if (!src || !opt) throw Error("BHCL_DUMP_PROGRAMS: cannot write '" + name.str() + ".cl/.options'");
+}
 
 std::mutex& cache_mutex() {
   static std::mutex m;
@@ -293,7 +310,9 @@ cl::Program Runtime::program(const std::string& file, const std::string& options
     auto it = program_cache().find(key);
     if (it != program_cache().end()) return it->second;
   }
-  cl::Program p = build_source(kernel_source(file), options, file);
+  std::string source = kernel_source(file);
+  dump_program(file, source, build_options(options));
+  cl::Program p = build_source(source, options, file);
   std::lock_guard<std::mutex> lock(cache_mutex());
   return program_cache().emplace(key, p).first->second;
 }

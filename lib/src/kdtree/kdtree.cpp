@@ -2,13 +2,17 @@
 #include "blockhash_cl/kdtree.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cstddef>
 #include <cstdint>
+#include <map>
 #include <vector>
 
 #include "blockhash_cl/error.hpp"
 #include "core/device_util.hpp"
+#include "core/parallel.hpp"
+#include "kdtree/build.hpp"
 #include "kdtree_layout.h"
 
 // The layout of kernels/kdtree_layout.h as the host writes it.
@@ -21,81 +25,156 @@ static_assert(offsetof(bhcl_kd_point, id) == 12, "bhcl_kd_point.id is the w lane
 static_assert(BHCL_KD_LEAF == 3u, "leaf marker follows the split dimensions 0..2");
 
 namespace bhcl {
+namespace detail {
 namespace {
 
-struct BuiltTree {
-  std::vector<bhcl_kd_node> nodes;
-  std::vector<std::uint32_t> perm;  // leaf order -> caller's index
-  std::size_t leaves = 0;
-  int depth = 0;
+// The tree's shape follows from the point counts alone (a node of c > leaf points has children
+// of c / 2 and c - c / 2), so every subtree's node count, and so every node's index in the
+// depth-first array, is known before a split is made: subtrees are built independently, in any
+// order, on any thread, into their own slices of the arrays.
+class Shape {
+ public:
+  Shape(std::size_t n, std::size_t leaf) : leaf_(leaf) { visit(n); }
+  std::size_t nodes(std::size_t c) const { return of(c).nodes; }
+  std::size_t leaves(std::size_t c) const { return of(c).leaves; }
+  int depth(std::size_t c) const { return of(c).depth; }
+
+ private:
+  struct Counts {
+    std::size_t nodes, leaves;
+    int depth;
+  };
+  // Every count in the tree is n halved down and up, at most two per level: a small table,
+  // filled once, read-only while the threads build.
+  const Counts& visit(std::size_t c) {
+    auto it = memo_.find(c);
+    if (it != memo_.end()) return it->second;
+    Counts r{1, 1, 0};
+    if (c > leaf_) {
+      Counts a = visit(c / 2), b = visit(c - c / 2);
+      r = {1 + a.nodes + b.nodes, a.leaves + b.leaves, 1 + std::max(a.depth, b.depth)};
+    }
+    return memo_.emplace(c, r).first->second;
+  }
+  const Counts& of(std::size_t c) const { return memo_.at(c); }
+  std::size_t leaf_;
+  std::map<std::size_t, Counts> memo_;
 };
+
+struct Task {
+  std::size_t begin, end;  // the node's points: perm[begin, end)
+  std::size_t index;       // the node's slot in the depth-first array
+};
+
+// Makes the node of `task` (a leaf, or a median split of its points, which reorders perm inside
+// [begin, end) only) and pushes its children, if any: the right one first.
+struct KeyId {
+  float key;
+  std::uint32_t id;
+};
+
+void make_node(const float* xyz, std::size_t leaf, const Shape& shape, KdTreeArrays& t,
+               const Task& task, std::vector<Task>& out, std::vector<KeyId>& scratch) {
+  const std::size_t count = task.end - task.begin;
+  bhcl_kd_node node{0.0f, BHCL_KD_LEAF, 0u, 0u};
+  if (count <= leaf) {
+    node.a = static_cast<std::uint32_t>(task.begin);
+    node.b = static_cast<std::uint32_t>(count);
+    t.nodes[task.index] = node;
+    return;
+  }
+  float lo[3], hi[3];
+  for (int d = 0; d < 3; ++d) lo[d] = hi[d] = xyz[3 * std::size_t(t.perm[task.begin]) + d];
+  for (std::size_t i = task.begin + 1; i < task.end; ++i) {
+    const float* p = xyz + 3 * std::size_t(t.perm[i]);
+    for (int d = 0; d < 3; ++d) {
+      lo[d] = std::min(lo[d], p[d]);
+      hi[d] = std::max(hi[d], p[d]);
+    }
+  }
+  // Extents in double: hi - lo can overflow float for far-apart finite points.
+  int dim = 0;
+  double widest = -1.0;
+  for (int d = 0; d < 3; ++d) {
+    double e = double(hi[d]) - double(lo[d]);
+    if (e > widest) {
+      widest = e;
+      dim = d;
+    }
+  }
+  const std::size_t mid = task.begin + count / 2;
+  // nth_element over (coordinate, index) pairs gathered once: it compares and moves exactly as it
+  // would over perm with a comparator that gathers the coordinates (its steps depend on the
+  // comparisons' outcomes alone), so the order is the same, from contiguous loads.
+  scratch.resize(count);
+  for (std::size_t i = 0; i < count; ++i) {
+    const std::uint32_t id = t.perm[task.begin + i];
+    scratch[i] = {xyz[3 * std::size_t(id) + dim], id};
+  }
+  std::nth_element(scratch.begin(), scratch.begin() + (mid - task.begin), scratch.end(),
+                   [](const KeyId& a, const KeyId& b) { return a.key < b.key; });
+  for (std::size_t i = 0; i < count; ++i) t.perm[task.begin + i] = scratch[i].id;
+  const std::size_t right = task.index + 1 + shape.nodes(mid - task.begin);
+  node.split = scratch[mid - task.begin].key;
+  node.dim = static_cast<std::uint32_t>(dim);
+  node.a = static_cast<std::uint32_t>(right);
+  t.nodes[task.index] = node;
+  out.push_back({mid, task.end, right});
+  out.push_back({task.begin, mid, task.index + 1});
+}
+
+}  // namespace
 
 // Median splits on the widest dimension of each node's points, nodes in depth-first order (left
 // child = next node). An explicit stack instead of recursion; nth_element keeps every level O(n),
 // so the build is O(N log N) whatever the data (duplicates, flat or collinear sets split by
 // position, never by value, so the tree stays balanced: depth <= ceil(log2(N / leaf))).
-BuiltTree build_tree(const float* xyz, std::size_t n, std::size_t leaf) {
-  BuiltTree t;
+// In parallel: the top levels one level at a time, each level's nodes on the threads, until there
+// are 4 subtrees per thread (or they get small); then each thread builds whole subtrees, taking
+// the next one left.
+KdTreeArrays build_kdtree(const float* xyz, std::size_t n, std::size_t leaf, unsigned threads) {
+  if (threads == 0) threads = default_threads();
+  KdTreeArrays t;
+  const Shape shape(n, leaf);
+  t.nodes.resize(shape.nodes(n));
+  t.leaves = shape.leaves(n);
+  t.depth = shape.depth(n);
   t.perm.resize(n);
-  for (std::size_t i = 0; i < n; ++i) t.perm[i] = static_cast<std::uint32_t>(i);
-  t.nodes.reserve(2 * (n / leaf + 1));
-  struct Task {
-    std::size_t begin, end;
-    int depth;
-    std::int64_t parent;  // inner node whose right child this is; -1 for the root and left children
-  };
-  std::vector<Task> stack;
-  stack.push_back({0, n, 0, -1});
-  while (!stack.empty()) {
-    Task task = stack.back();
-    stack.pop_back();
-    const std::uint32_t index = static_cast<std::uint32_t>(t.nodes.size());
-    if (task.parent >= 0) t.nodes[static_cast<std::size_t>(task.parent)].a = index;
-    const std::size_t count = task.end - task.begin;
-    bhcl_kd_node node{0.0f, BHCL_KD_LEAF, 0u, 0u};
-    if (count <= leaf) {
-      node.a = static_cast<std::uint32_t>(task.begin);
-      node.b = static_cast<std::uint32_t>(count);
-      t.nodes.push_back(node);
-      ++t.leaves;
-      t.depth = std::max(t.depth, task.depth);
-      continue;
-    }
-    float lo[3], hi[3];
-    for (int d = 0; d < 3; ++d) lo[d] = hi[d] = xyz[3 * std::size_t(t.perm[task.begin]) + d];
-    for (std::size_t i = task.begin + 1; i < task.end; ++i) {
-      const float* p = xyz + 3 * std::size_t(t.perm[i]);
-      for (int d = 0; d < 3; ++d) {
-        lo[d] = std::min(lo[d], p[d]);
-        hi[d] = std::max(hi[d], p[d]);
-      }
-    }
-    // Extents in double: hi - lo can overflow float for far-apart finite points.
-    int dim = 0;
-    double widest = -1.0;
-    for (int d = 0; d < 3; ++d) {
-      double e = double(hi[d]) - double(lo[d]);
-      if (e > widest) {
-        widest = e;
-        dim = d;
-      }
-    }
-    const std::size_t mid = task.begin + count / 2;
-    std::nth_element(t.perm.begin() + task.begin, t.perm.begin() + mid, t.perm.begin() + task.end,
-                     [xyz, dim](std::uint32_t a, std::uint32_t b) {
-                       return xyz[3 * std::size_t(a) + dim] < xyz[3 * std::size_t(b) + dim];
-                     });
-    node.split = xyz[3 * std::size_t(t.perm[mid]) + dim];
-    node.dim = static_cast<std::uint32_t>(dim);
-    t.nodes.push_back(node);
-    // LIFO: the left child is popped next and so gets index + 1; the right child patches `a`.
-    stack.push_back({mid, task.end, task.depth + 1, static_cast<std::int64_t>(index)});
-    stack.push_back({task.begin, mid, task.depth + 1, -1});
+  parallel_for(n, [&](std::size_t b, std::size_t e) {
+    for (std::size_t i = b; i < e; ++i) t.perm[i] = static_cast<std::uint32_t>(i);
+  }, threads, 1 << 16);
+  // Below this many points a subtree is not worth a thread of its own.
+  constexpr std::size_t kMinParallel = 1 << 14;
+  std::vector<Task> level{{0, n, 0}};
+  while (threads > 1 && !level.empty() && level.size() < 4 * std::size_t(threads) &&
+         n / level.size() >= kMinParallel) {
+    std::vector<std::vector<Task>> children(level.size());
+    parallel_for(level.size(), [&](std::size_t b, std::size_t e) {
+      std::vector<KeyId> scratch;
+      for (std::size_t i = b; i < e; ++i) make_node(xyz, leaf, shape, t, level[i], children[i], scratch);
+    }, threads, 1);
+    std::vector<Task> below;
+    for (auto& c : children) below.insert(below.end(), c.rbegin(), c.rend());
+    level.swap(below);
   }
+  // Each thread takes the next subtree left (any thread count balances).
+  std::atomic<std::size_t> next{0};
+  parallel_for(std::min<std::size_t>(threads, level.size()), [&](std::size_t, std::size_t) {
+    std::vector<Task> stack;
+    std::vector<KeyId> scratch;
+    for (std::size_t i; (i = next.fetch_add(1)) < level.size();) {
+      stack.assign(1, level[i]);
+      while (!stack.empty()) {
+        Task task = stack.back();
+        stack.pop_back();
+        make_node(xyz, leaf, shape, t, task, stack, scratch);
+      }
+    }
+  }, threads, 1);
   return t;
 }
 
-}  // namespace
+}  // namespace detail
 
 KdTreeIndex::KdTreeIndex(std::shared_ptr<Runtime> runtime, const float* points,
                          std::size_t n_points, const KdTreeParams& params)
@@ -107,16 +186,19 @@ KdTreeIndex::KdTreeIndex(std::shared_ptr<Runtime> runtime, const float* points,
   std::vector<float> scaled;
   points = prepare_points(points, n_points, scaled);  // validates; extreme scales
   leaf_size_ = params.leaf_size;
-  BuiltTree tree = build_tree(points, n_points, static_cast<std::size_t>(leaf_size_));
+  detail::KdTreeArrays tree = detail::build_kdtree(points, n_points, static_cast<std::size_t>(leaf_size_),
+                                                   params.build_threads);
   n_nodes_ = tree.nodes.size();
   n_leaves_ = tree.leaves;
   depth_ = tree.depth;
 
   std::vector<bhcl_kd_point> reordered(n_points);
-  for (std::size_t i = 0; i < n_points; ++i) {
-    const float* p = points + 3 * std::size_t(tree.perm[i]);
-    reordered[i] = bhcl_kd_point{p[0], p[1], p[2], static_cast<std::int32_t>(tree.perm[i])};
-  }
+  detail::parallel_for(n_points, [&](std::size_t b, std::size_t e) {
+    for (std::size_t i = b; i < e; ++i) {
+      const float* p = points + 3 * std::size_t(tree.perm[i]);
+      reordered[i] = bhcl_kd_point{p[0], p[1], p[2], static_cast<std::int32_t>(tree.perm[i])};
+    }
+  }, params.build_threads, 1 << 16);
   nodes_ = detail::upload_vector(runtime_ptr(), tree.nodes, "kdtree nodes");
   points_ = detail::upload_vector(runtime_ptr(), reordered, "kdtree points");
   set_build_seconds(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
