@@ -69,16 +69,39 @@ void ldexp_all(const float* src, float* dst, std::size_t count, int e) {
 
 int Index::choose_scale_exponent(const float* points, std::size_t n) {
   double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+  double maxabs = 0;
   for (std::size_t i = 0; i < n; ++i)
     for (int d = 0; d < 3; ++d) {
-      lo[d] = std::min(lo[d], double(points[3 * i + d]));
-      hi[d] = std::max(hi[d], double(points[3 * i + d]));
+      const double v = points[3 * i + d];
+      lo[d] = std::min(lo[d], v);
+      hi[d] = std::max(hi[d], v);
+      maxabs = std::max(maxabs, std::fabs(v));
     }
   double extent = 0;
   for (int d = 0; d < 3 && n; ++d) extent = std::max(extent, hi[d] - lo[d]);
   // Squared distances stay normal floats with room to spare inside [2^-40, 2^40].
-  if (extent == 0 || (extent >= std::ldexp(1.0, -40) && extent <= std::ldexp(1.0, 40))) return 0;
-  return std::ilogb(extent);
+  auto in_range = [](double x) { return x >= std::ldexp(1.0, -40) && x <= std::ldexp(1.0, 40); };
+  if (extent == 0 || in_range(extent)) return 0;
+  // Outside: the scale of the bulk, so that a few far outliers (a point at 3e24 among points in
+  // [0,1]^3) do not flush every other distance to zero. Per dimension the 1st to 99th percentile
+  // of a strided sample of at most 2^20 points.
+  const std::size_t step = std::max<std::size_t>(1, n / (std::size_t(1) << 20));
+  std::vector<float> v;
+  v.reserve(n / step + 1);
+  double bulk = 0;
+  for (int d = 0; d < 3; ++d) {
+    v.clear();
+    for (std::size_t i = 0; i < n; i += step) v.push_back(points[3 * i + d]);
+    const std::size_t a = v.size() / 100, b = v.size() - 1 - v.size() / 100;
+    std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(a), v.end());
+    const double qa = v[a];
+    std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(b), v.end());
+    bulk = std::max(bulk, double(v[b]) - qa);
+  }
+  int e = (bulk == 0 || in_range(bulk)) ? 0 : std::ilogb(bulk);
+  // Every scaled coordinate below 2^126, so that the difference of two is a finite float.
+  if (maxabs > 0) e = std::max(e, std::ilogb(maxabs) - 125);
+  return e;
 }
 
 const float* Index::prepare_points(const float* points, std::size_t n, std::vector<float>& storage) {
@@ -86,11 +109,83 @@ const float* Index::prepare_points(const float* points, std::size_t n, std::vect
   if (n > 0x7ffffffeu)
     throw Error(method() + ": N = " + std::to_string(n) + " exceeds the int32 index range");
   validate_points(points, n, "points");
+  if (exact()) caller_points_.assign(points, points + 3 * n);
   scale_exp_ = choose_scale_exponent(points, n);
   if (scale_exp_ == 0) return points;
   storage.resize(3 * n);
   ldexp_all(points, storage.data(), 3 * n, -scale_exp_);
   return storage.data();
+}
+
+namespace {
+// Below this a squared distance in the structure's coordinates may have lost precision (its
+// components' squares underflow); the float ranking is then not vouched for.
+const float kTrustedMin = std::ldexp(1.0f, -120);
+// A double squared distance as the contract reports it: rounded to float, +inf above FLT_MAX.
+float to_float_or_inf(double d) {
+  return d > double(std::numeric_limits<float>::max()) ? INFINITY : static_cast<float>(d);
+}
+}  // namespace
+
+bool Index::entry_suspect(const float* q, std::int32_t id, float d) const {
+  if (std::isinf(d)) return true;  // overflowed: ranked by index, not by the true distance
+  if (d == 0) {
+    const float* p = caller_points_.data() + 3 * static_cast<std::size_t>(id);
+    return !(p[0] == q[0] && p[1] == q[1] && p[2] == q[2]);  // flushed to zero
+  }
+  return d < kTrustedMin;
+}
+
+void Index::collect_suspect_rows(const float* caller_queries, std::size_t first, std::size_t m,
+                                 float r2s, const KnnResult& out, std::vector<std::size_t>& rows) const {
+  if (!exact() || caller_points_.empty()) return;
+  const std::size_t k = static_cast<std::size_t>(out.k);
+  const int full = static_cast<int>(std::min<std::size_t>(k, size()));
+  const bool tiny_radius = r2s > 0 && r2s < kTrustedMin;
+  for (std::size_t i = first; i < first + m; ++i) {
+    const float* q = caller_queries + 3 * i;
+    if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2])) continue;
+    const int c = out.counts[i];
+    bool bad = tiny_radius || (std::isinf(r2s) && c < full);
+    for (int j = 0; j < c && !bad; ++j) bad = entry_suspect(q, out.ids[i * k + j], out.dist2[i * k + j]);
+    if (bad) rows.push_back(i);
+  }
+}
+
+void Index::answer_rows_exactly(const float* caller_queries, const std::vector<std::size_t>& rows,
+                                const SearchParams& params, KnnResult& out) const {
+  if (rows.empty()) return;
+  const std::size_t k = static_cast<std::size_t>(params.k);
+  const double r = params.max_radius;
+  const double r2 = std::isinf(r) ? INFINITY : r * r;
+  const std::size_t N = size();
+  const float* pts = caller_points_.data();
+  detail::parallel_for(rows.size(), [&](std::size_t b, std::size_t e) {
+    std::vector<std::pair<double, std::int32_t>> best;
+    for (std::size_t t = b; t < e; ++t) {
+      const std::size_t row = rows[t];
+      const double qx = caller_queries[3 * row], qy = caller_queries[3 * row + 1],
+                   qz = caller_queries[3 * row + 2];
+      best.clear();
+      for (std::size_t i = 0; i < N; ++i) {
+        const double dx = qx - pts[3 * i], dy = qy - pts[3 * i + 1], dz = qz - pts[3 * i + 2];
+        const double d = dx * dx + dy * dy + dz * dz;
+        if (!(d <= r2)) continue;
+        const std::pair<double, std::int32_t> c{d, static_cast<std::int32_t>(i)};
+        if (best.size() < k) {
+          best.insert(std::upper_bound(best.begin(), best.end(), c), c);
+        } else if (c < best.back()) {
+          best.pop_back();
+          best.insert(std::upper_bound(best.begin(), best.end(), c), c);
+        }
+      }
+      for (std::size_t j = 0; j < k; ++j) {
+        out.ids[row * k + j] = j < best.size() ? best[j].second : -1;
+        out.dist2[row * k + j] = j < best.size() ? to_float_or_inf(best[j].first) : INFINITY;
+      }
+      out.counts[row] = static_cast<std::int32_t>(best.size());
+    }
+  }, 0, 1);
 }
 
 SearchParams Index::scaled(const SearchParams& p) const {
@@ -238,11 +333,16 @@ cl::Event Index::enqueue_query(const cl::CommandQueue& queue, const cl::Buffer& 
              "clEnqueueReadBuffer", method() + " queries");
     KnnResult r;
     r.resize(n, params.k);
+    const std::vector<float> caller_q = scale_exp_ ? q : std::vector<float>();
     if (scale_exp_)
       ldexp_all(q.data(), q.data(), q.size(), -scale_exp_);
     host_search(q.data(), n, sp, r);
+    const float* cq = scale_exp_ ? caller_q.data() : q.data();
+    std::vector<std::size_t> suspects;
+    collect_suspect_rows(cq, 0, n, detail::squared_radius(sp.max_radius), r, suspects);
     if (scale_exp_)
       ldexp_all(r.dist2.data(), r.dist2.data(), r.dist2.size(), 2 * scale_exp_);
+    answer_rows_exactly(cq, suspects, params, r);
     cl::Event e;
     check_cl(queue.enqueueWriteBuffer(out.ids, CL_TRUE, 0, nk * 4, r.ids.data()), "clEnqueueWriteBuffer", "ids");
     check_cl(queue.enqueueWriteBuffer(out.dist2, CL_TRUE, 0, nk * 4, r.dist2.data()), "clEnqueueWriteBuffer", "dist2");
@@ -310,6 +410,10 @@ QueryStats Index::query(const float* queries, std::size_t n, const SearchParams&
     if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2])) ++st.nonfinite_queries;
   }
   const SearchParams sp = scaled(params);
+  // Exact methods: rows the float search cannot vouch for, answered again in double at the end.
+  const float* caller_queries = queries;
+  const float r2s = detail::squared_radius(sp.max_radius);
+  std::vector<std::size_t> suspects;
   // Queries in the structure's coordinates: the caller's, or a scaled copy (extreme scales).
   std::vector<float> scaled_queries;
   if (scale_exp_ != 0) {
@@ -323,7 +427,9 @@ QueryStats Index::query(const float* queries, std::size_t n, const SearchParams&
   };
   if (answers_on_host()) {
     st.query_s = host_search(queries, n, sp, out);
+    collect_suspect_rows(caller_queries, 0, n, r2s, out, suspects);
     unscale(out.dist2.data(), out.dist2.size());
+    answer_rows_exactly(caller_queries, suspects, params, out);
     st.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     return st;
   }
@@ -371,8 +477,10 @@ QueryStats Index::query(const float* queries, std::size_t n, const SearchParams&
     for (const auto& e : kernels) st.query_s += event_seconds(e);
     st.download_s += event_seconds(d1) + event_seconds(d2) + event_seconds(d3);
     st.batches += kernels.size();
+    collect_suspect_rows(caller_queries, first, m, r2s, out, suspects);
     unscale(out.dist2.data() + first * k, m * k);
   }
+  answer_rows_exactly(caller_queries, suspects, params, out);
   st.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return st;
 }
