@@ -60,6 +60,24 @@ bool looks_like_text(const void* data, std::size_t size) {
   return digit;
 }
 
+// UTF-16 text: a byte order mark (FF FE or FE FF), or, without one, printable ASCII in every
+// other byte with zeros between (checked over the first 256 bytes).
+bool looks_like_utf16(const unsigned char* b, std::size_t size) {
+  if (size >= 2 && ((b[0] == 0xFF && b[1] == 0xFE) || (b[0] == 0xFE && b[1] == 0xFF))) return true;
+  const std::size_t m = std::min<std::size_t>(size, 256) & ~std::size_t(1);
+  if (m < 4) return false;
+  for (int zero_at = 0; zero_at < 2; ++zero_at) {
+    bool ok = true, digit = false;
+    for (std::size_t i = 0; i < m && ok; i += 2) {
+      const unsigned char z = b[i + zero_at], c = b[i + 1 - zero_at];
+      ok = z == 0 && (c == '\n' || c == '\r' || c == '\t' || (c >= 0x20 && c < 0x7f));
+      digit = digit || (c >= '0' && c <= '9');
+    }
+    if (ok && digit) return true;
+  }
+  return false;
+}
+
 // A double coordinate as float: refused (not turned into inf) when it does not fit.
 float to_float(double v, const std::string& what, std::size_t value_index) {
   if (std::isfinite(v) && std::fabs(v) > static_cast<double>(FLT_MAX)) {
@@ -505,6 +523,18 @@ PointFormat sniff_point_format(const void* data, std::size_t size) {
 std::vector<float> parse_points(const void* data, std::size_t size, const std::string& what,
                                 PointFormat format, bool require_finite) {
   if (format == PointFormat::Auto) format = point_format_from_name(what);
+  if (format == PointFormat::Auto || format == PointFormat::Text) {
+    // Text as editors save it: a UTF-8 byte order mark is skipped; UTF-16 is named, not called
+    // binary data.
+    const auto* b = static_cast<const unsigned char*>(data);
+    if (size >= 3 && b[0] == 0xEF && b[1] == 0xBB && b[2] == 0xBF) {
+      data = b + 3;
+      size -= 3;
+    } else if (looks_like_utf16(b, size)) {
+      fail(what, "is UTF-16 text; text point files are read as ASCII or UTF-8 (convert it, e.g. "
+                 "iconv -f UTF-16 -t UTF-8)");
+    }
+  }
   if (format == PointFormat::Auto) format = sniff_point_format(data, size);
   std::vector<float> xyz;
   switch (format) {
