@@ -1,6 +1,8 @@
 // Issue 22, classes 4 and 5: messages that name the right thing (text encodings, MTL integers),
 // and sizes checked before allocation (point files past the index range, kNN results that
 // cannot fit).
+#include <fcntl.h>
+
 #include "test_util.hpp"
 
 #ifdef BHCL_HAVE_RENDER
@@ -52,6 +54,55 @@ TEST_CASE("messages: a UTF-8 byte order mark is accepted, and UTF-16 text is nam
     CHECK(msg.find(name) != std::string::npos);
     CHECK(msg.find("binary data") == std::string::npos);
   }
+}
+
+TEST_CASE("sizes: point files past the index range are refused before they are read") {
+  // A sparse raw file of 2^31 - 1 points (25.8 GB on paper, nothing on disk).
+  const std::string raw = test::tmp_path("huge.f32");
+  {
+    const int fd = open(raw.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    REQUIRE(fd >= 0);
+    REQUIRE(ftruncate(fd, off_t(0x7fffffff) * 12) == 0);
+    close(fd);
+  }
+  std::string msg = error_of(raw);
+  CHECK(msg.find("holds 2147483647 points (by its size)") != std::string::npos);
+  CHECK(msg.find("refused before reading") != std::string::npos);
+  std::remove(raw.c_str());
+  // NPY and PLY headers that declare more points than the file could ever hold in the range.
+  std::string header = "{'descr': '<f4', 'fortran_order': False, 'shape': (3000000000, 3), }";
+  while ((header.size() + 11) % 64) header += ' ';
+  header += '\n';
+  std::string npy = std::string("\x93NUMPY\x01\x00", 8);
+  npy += static_cast<char>(header.size() & 0xff);
+  npy += static_cast<char>(header.size() >> 8);
+  npy += header + std::string(48, '\0');
+  msg = error_of(write_bytes("huge.npy", npy));
+  CHECK(msg.find("holds 3000000000 points (by its header)") != std::string::npos);
+  const std::string ply = "ply\nformat binary_little_endian 1.0\nelement vertex 4000000000\nproperty float x\n"
+                          "property float y\nproperty float z\nend_header\n" + std::string(36, '\0');
+  msg = error_of(write_bytes("huge.ply", ply));
+  CHECK(msg.find("holds 4000000000 points (by its header)") != std::string::npos);
+  // Files in range still read.
+  CHECK(read_points_file(write_bytes("small.f32", std::string(24, '\0'))).size() == 6);
+}
+
+TEST_CASE("sizes: a kNN result that cannot fit is refused with what it needs, before any search") {
+  const std::vector<float> pts = datasets::uniform(1000, 5);
+  BruteForceIndex index(test::runtime(), pts.data(), 1000);
+  SearchParams p;
+  p.k = 256;
+  p.sort_queries = 0;
+  KnnResult out;
+  // 2^40 queries x k = 256: 2.3 PB of results; the queries are never read.
+  CHECK_THROWS_WITH_AS(index.query(pts.data(), std::size_t(1) << 40, p, out),
+                       doctest::Contains("the result needs 2256197.9 GB"), Error);
+  CHECK_THROWS_WITH_AS(check_result_memory(std::size_t(1) << 40, 256, false, 1, "bruteforce"),
+                       doctest::Contains("refused before the search"), Error);
+  // A result that fits is answered as before.
+  CHECK_NOTHROW(check_result_memory(1000, 10, false, 1, "bruteforce"));
+  CHECK_NOTHROW(index.query(pts.data(), 1000, p, out));
+  CHECK(out.counts[0] == 256);
 }
 
 #ifdef BHCL_HAVE_RENDER

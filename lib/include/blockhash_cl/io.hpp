@@ -35,7 +35,10 @@ PointFormat sniff_point_format(const void* data, std::size_t size);
 // Reads a point file in any of the formats above. Throws bhcl::Error naming the path for a
 // missing/unreadable file, a malformed or contradicting file, or (when require_finite) the first
 // point with a NaN/Inf coordinate. An empty file (or zero points) gives an empty vector.
-std::vector<float> read_points_file(const std::string& path, bool require_finite = true);
+// A file that declares more than max_points points (raw: by its size; NPY, PLY: by its header)
+// is refused before its body is read (0: no limit). The default is the index range, N <= 2^31 - 2.
+std::vector<float> read_points_file(const std::string& path, bool require_finite = true,
+                                    std::size_t max_points = 0x7ffffffe);
 
 // Parses the bytes of a point file (what read_points_file does after reading); `what` names the
 // source in errors and, by its extension, picks the format (else the content does). The fuzz

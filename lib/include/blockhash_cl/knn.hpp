@@ -190,6 +190,12 @@ struct QueryStats {
   double queries_per_s() const { return query_s > 0 ? n_queries / query_s : 0.0; }
 };
 
+// Sizes before allocation: throws bhcl::Error ("the result needs 7.2 GB ...") when a kNN result of
+// n x k (held `copies` times) cannot fit the memory this process can still allocate (the ulimit
+// -v / -d limits, the cgroup's memory.max, the machine's available memory and free swap). The
+// host-array query calls it before any search.
+void check_result_memory(std::size_t n, int k, bool examined, int copies, const std::string& method);
+
 // Validates a point array (n x 3 float): finite everywhere. Throws bhcl::Error naming the first
 // bad point, its coordinates and `what` (e.g. "points").
 void validate_points(const float* xyz, std::size_t n, const char* what);

@@ -568,10 +568,56 @@ std::uint64_t regular_file_size(const std::string& path, const std::string& what
   return static_cast<std::uint64_t>(st.st_size);
 }
 
-std::vector<float> read_points_file(const std::string& path, bool require_finite) {
+namespace {
+
+// The point count a file declares before its body is read: raw by its size, NPY by its shape,
+// PLY by its vertex element; 0 when the prefix does not say (text, or an unknown header).
+std::uint64_t declared_points(const std::string& path, const char* head, std::size_t head_size,
+                              std::uint64_t size, const char** by) {
+  *by = "header";
+  PointFormat f = point_format_from_name(path);
+  if (f == PointFormat::Auto) {
+    if (is_ply(head, head_size)) f = PointFormat::Ply;
+    else if (is_npy(head, head_size)) f = PointFormat::Npy;
+    else if (looks_like_text(head, head_size) || looks_like_utf16(reinterpret_cast<const unsigned char*>(head), head_size) ||
+             (head_size >= 3 && static_cast<unsigned char>(head[0]) == 0xEF)) f = PointFormat::Text;
+    else f = PointFormat::Raw;
+  }
+  const std::string h(head, head_size);
+  auto number_after = [&](const std::string& key, std::size_t limit) -> std::uint64_t {
+    const std::size_t at = h.find(key);
+    if (at == std::string::npos || at > limit) return 0;
+    return std::strtoull(h.c_str() + at + key.size(), nullptr, 10);
+  };
+  switch (f) {
+    case PointFormat::Raw: *by = "size"; return size / 12;
+    case PointFormat::Npy: return is_npy(head, head_size) ? number_after("'shape': (", h.size()) : 0;
+    case PointFormat::Ply: return is_ply(head, head_size) ? number_after("element vertex ", h.find("end_header")) : 0;
+    default: return 0;
+  }
+}
+
+}  // namespace
+
+std::vector<float> read_points_file(const std::string& path, bool require_finite, std::size_t max_points) {
   const std::uint64_t size = regular_file_size(path, "a point file");
   std::ifstream in(path, std::ios::binary);
   if (!in) throw Error(path + ": cannot open point file (" + std::strerror(errno) + ")");
+  if (max_points) {
+    // Sizes before allocation: a file that declares more points than the index range is refused
+    // from its size or header, before its body is read.
+    char head[4096];
+    in.read(head, static_cast<std::streamsize>(std::min<std::uint64_t>(size, sizeof head)));
+    const std::size_t got = static_cast<std::size_t>(in.gcount());
+    const char* by = "";
+    const std::uint64_t declared = declared_points(path, head, got, size, &by);
+    if (declared > max_points)
+      throw Error(path + ": holds " + std::to_string(declared) + " points (by its " + by +
+                  "), more than the index range allows (" + std::to_string(max_points) +
+                  "): refused before reading it");
+    in.clear();
+    in.seekg(0);
+  }
   std::vector<char> bytes(static_cast<std::size_t>(size));
   if (size > 0 && !in.read(bytes.data(), static_cast<std::streamsize>(size)))
     throw Error(path + ": read failed after " + std::to_string(in.gcount()) + " bytes");
