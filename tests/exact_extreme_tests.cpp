@@ -1,7 +1,9 @@
 // Issue 22, class 1: exact means exact for every finite input. Points in [0,1]^3 with far
 // outliers (1e19 .. 3e38) and mixed scales; every exact method against a double-precision brute
 // force over the caller's float points.
+#include <chrono>
 #include <random>
+#include <tuple>
 
 #include "blockhash_cl/config.hpp"
 #include "test_util.hpp"
@@ -169,3 +171,42 @@ TEST_CASE("exact extreme: mixed scales (clusters at 1e-20 and 1, outliers of bot
 }
 
 }  // namespace bhcl
+
+#if BHCL_HAVE_FLANN
+namespace bhcl {
+TEST_CASE("bounded work: coincident points, FLANN within 3x brute force and identical to it") {
+  // FLANN visits every point that ties the k-th distance: before the guard, N identical points
+  // cost it a full scan per query (2M points: 43-65 s, 11x brute force).
+  const std::size_t N = 400000, n = 400;
+  std::vector<float> pts(3 * N);
+  for (std::size_t i = 0; i < N; ++i) {
+    pts[3 * i] = 0.25f;
+    pts[3 * i + 1] = 0.5f;
+    pts[3 * i + 2] = 0.75f;
+  }
+  for (std::size_t i = 0; i < 1000; ++i) pts[3 * (i * 397)] = 0.25f + float(i) * 1e-3f;  // a few apart
+  const std::vector<float> qs = unit_points(n, 11);
+  SearchParams p;
+  p.k = 16;
+  auto timed = [&](auto make) {
+    auto t0 = std::chrono::steady_clock::now();
+    auto index = make();
+    KnnResult r;
+    index->query(qs.data(), n, p, r);
+    RadiusResult rr;
+    index->radius_search(qs.data(), 4, 0.3f, RadiusParams{}, rr);
+    const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    return std::make_tuple(s, r, rr);
+  };
+  // Warm the brute-force kernel so that its compile does not count.
+  BruteForceIndex(test::runtime(), pts.data(), 1000).warm_up(p);
+  const auto [bf_s, bf, bfr] = timed([&] { return std::make_unique<BruteForceIndex>(test::runtime(), pts.data(), N); });
+  const auto [fl_s, fl, flr] = timed([&] { return std::make_unique<FlannIndex>(test::runtime(), pts.data(), N); });
+  MESSAGE("coincident points N = " << N << ": brute force " << bf_s << " s, flann " << fl_s << " s");
+  test::require_identical(fl, bf, "flann on coincident points");
+  CHECK(flr.offsets == bfr.offsets);
+  CHECK(flr.ids == bfr.ids);
+  CHECK(fl_s <= 3 * bf_s + 0.1);
+}
+}  // namespace bhcl
+#endif

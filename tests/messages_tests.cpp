@@ -105,6 +105,44 @@ TEST_CASE("sizes: a kNN result that cannot fit is refused with what it needs, be
   CHECK(out.counts[0] == 256);
 }
 
+TEST_CASE("fork: an index queried in a forked child gets a clear error, never a hang") {
+  const std::vector<float> pts = datasets::uniform(2000, 6);
+  KdTreeIndex index(test::runtime(), pts.data(), 2000);
+  SearchParams p;
+  p.k = 4;
+  KnnResult out;
+  index.query(pts.data(), 100, p, out);
+  const std::string msg_path = test::tmp_path("fork_msg_" + std::to_string(getpid()) + ".txt");
+  const pid_t pid = fork();
+  REQUIRE(pid >= 0);
+  if (pid == 0) {
+    alarm(120);  // a hang ends the child (and fails the check below)
+    std::string text = "answered";
+    try {
+      KnnResult r;
+      index.query(pts.data(), 100, p, r);
+    } catch (const Error& e) {
+      text = e.what();
+    }
+    std::ofstream(msg_path) << text;
+    _exit(0);
+  }
+  int status = 0;
+  waitpid(pid, &status, 0);
+  CHECK(WIFEXITED(status));
+  std::ifstream in(msg_path);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  std::remove(msg_path.c_str());
+  INFO(ss.str());
+  CHECK(ss.str().find("a forked child") != std::string::npos);
+  CHECK(ss.str().find("spawn") != std::string::npos);
+  // The parent still answers.
+  KnnResult again;
+  index.query(pts.data(), 100, p, again);
+  CHECK(again.ids == out.ids);
+}
+
 #ifdef BHCL_HAVE_RENDER
 TEST_CASE("messages: MTL illum outside the illumination models is refused at file:line") {
   write_bytes("illum_ok.obj", "mtllib illum.mtl\nusemtl m\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");

@@ -12,6 +12,10 @@
 //    reports how many there were in QueryStats::nonfinite_queries. Points must be finite: an
 //    index build throws naming the first bad point.
 //  - Results do not depend on batch size, work-group size or thread count.
+//  - fork(): OpenCL objects do not survive it. In a forked child of the process that built (or
+//    first queried) an index, every device method's call throws bhcl::Error saying so instead of
+//    hanging; build the index in the child, or start children with spawn (Python's
+//    multiprocessing.get_context("spawn")). FLANN answers on the host and works in a child.
 //  - Exact methods (kd-tree, brute force, FLANN) return the true k nearest of the caller's float
 //    points for every finite input, ties to the lower index, whatever the scales (e.g. points in
 //    [0,1]^3 with one outlier at 3e24, or clusters at 1e-20 and 1 in one set). They compute in

@@ -2,6 +2,7 @@
 #include "blockhash_cl/knn.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <cctype>
 #include <chrono>
 #include <cmath>
@@ -10,6 +11,7 @@
 #include <sstream>
 
 #include <sys/resource.h>
+#include <unistd.h>
 
 #include "blockhash_cl/error.hpp"
 #include "core/device_util.hpp"
@@ -124,6 +126,26 @@ std::uint64_t allocatable_bytes(std::string* bound) {
 
 }  // namespace
 
+namespace {
+
+// The process that first used OpenCL through an index (0: none yet). OpenCL objects do not
+// survive fork(): a forked child that inherits an index would hang in its first OpenCL call, so
+// device methods refuse there with a clear error.
+std::atomic<long> g_opencl_pid{0};
+
+void refuse_in_forked_child(const std::string& method) {
+  const long self = static_cast<long>(::getpid());
+  long first = 0;
+  if (g_opencl_pid.compare_exchange_strong(first, self) || first == self) return;
+  throw Error(method + ": this index (its OpenCL runtime) was created in process " + std::to_string(first) +
+              "; this is process " + std::to_string(self) +
+              ", a forked child, where OpenCL cannot be used (its objects do not survive fork) and a call "
+              "would hang: build the index in the child, or start children with spawn (Python: "
+              "multiprocessing.get_context('spawn'))");
+}
+
+}  // namespace
+
 void check_result_memory(std::size_t n, int k, bool examined, int copies, const std::string& method) {
   const double bytes = (double(n) * k * 8.0 + double(n) * (examined ? 8.0 : 4.0)) * copies + (copies > 1 ? 20.0 * n : 0.0);
   if (bytes < double(std::size_t(64) << 20)) return;  // small results: not worth the /proc reads
@@ -181,6 +203,7 @@ const float* Index::prepare_points(const float* points, std::size_t n, std::vect
   if (n > 0x7ffffffeu)
     throw Error(method() + ": N = " + std::to_string(n) + " exceeds the int32 index range");
   validate_points(points, n, "points");
+  if (!answers_on_host()) refuse_in_forked_child(method());
   if (exact()) caller_points_.assign(points, points + 3 * n);
   scale_exp_ = choose_scale_exponent(points, n);
   if (scale_exp_ == 0) return points;
@@ -288,6 +311,7 @@ double Index::host_search(const float*, std::size_t, const SearchParams&, KnnRes
 }
 
 void Index::check_params(const SearchParams& p) const {
+  if (!answers_on_host()) refuse_in_forked_child(method());
   kmax_variant(p.k);  // throws for k outside [1, kMaxK]
   if (p.count_examined && !counts_examined())
     throw Error("count_examined: method " + method() + " does not count the points it examines");
