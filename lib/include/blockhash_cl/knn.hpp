@@ -14,8 +14,9 @@
 //  - Results do not depend on batch size, work-group size or thread count.
 //  - fork(): OpenCL objects do not survive it. In a forked child of the process that built (or
 //    first queried) an index, every device method's call throws bhcl::Error saying so instead of
-//    hanging; build the index in the child, or start children with spawn (Python's
-//    multiprocessing.get_context("spawn")). FLANN answers on the host and works in a child.
+//    hanging: use an index in the process that built it, or start children with spawn (Python's
+//    multiprocessing.get_context("spawn")); a forked child can build its own index only when its
+//    parent has not used OpenCL. FLANN answers on the host and works in a child.
 //  - Exact methods (kd-tree, brute force, FLANN) return the true k nearest of the caller's float
 //    points for every finite input, ties to the lower index, whatever the scales (e.g. points in
 //    [0,1]^3 with one outlier at 3e24, or clusters at 1e-20 and 1 in one set). They compute in

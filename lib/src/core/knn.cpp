@@ -140,8 +140,9 @@ void refuse_in_forked_child(const std::string& method) {
   throw Error(method + ": this index (its OpenCL runtime) was created in process " + std::to_string(first) +
               "; this is process " + std::to_string(self) +
               ", a forked child, where OpenCL cannot be used (its objects do not survive fork) and a call "
-              "would hang: build the index in the child, or start children with spawn (Python: "
-              "multiprocessing.get_context('spawn'))");
+              "would hang: use the index in the process that built it, or start children with spawn "
+              "(Python: multiprocessing.get_context('spawn')); a forked child can build its own index "
+              "only when its parent has not used OpenCL");
 }
 
 }  // namespace
