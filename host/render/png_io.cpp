@@ -10,6 +10,8 @@
 #include <memory>
 
 #include "blockhash_cl/error.hpp"
+#include "blockhash_cl/io.hpp"
+#include <string>
 
 namespace bhcl::render {
 
@@ -68,9 +70,17 @@ float auto_exposure(const Image& image) {
   return lum[k] > 0 ? 1.0f / lum[k] : 1.0f;
 }
 
+namespace {
+void png_append(png_structp png, png_bytep data, png_size_t n) {
+  static_cast<std::string*>(png_get_io_ptr(png))->append(reinterpret_cast<const char*>(data), n);
+}
+void png_no_flush(png_structp) {}
+}  // namespace
+
 void write_png(const std::string& path, const Rgb8& image) {
-  std::unique_ptr<std::FILE, FileCloser> f(std::fopen(path.c_str(), "wb"));
-  if (!f) throw Error(path + ": cannot open the PNG file for writing");
+  // Encoded into memory, then written whole by bhcl::write_file (a temporary renamed over the
+  // target: a failed write leaves the old image intact and names the reason).
+  std::string bytes;
   png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, nullptr, nullptr, nullptr);
   png_infop info = png ? png_create_info_struct(png) : nullptr;
   if (!png || !info) {
@@ -82,7 +92,7 @@ void write_png(const std::string& path, const Rgb8& image) {
     png_destroy_write_struct(&png, &info);
     throw Error(path + ": writing the PNG failed");
   }
-  png_init_io(png, f.get());
+  png_set_write_fn(png, &bytes, png_append, png_no_flush);
   png_set_IHDR(png, info, static_cast<png_uint_32>(image.width), static_cast<png_uint_32>(image.height), 8,
                PNG_COLOR_TYPE_RGB, PNG_INTERLACE_NONE, PNG_COMPRESSION_TYPE_DEFAULT, PNG_FILTER_TYPE_DEFAULT);
   png_set_sRGB(png, info, PNG_sRGB_INTENT_PERCEPTUAL);
@@ -91,8 +101,7 @@ void write_png(const std::string& path, const Rgb8& image) {
     png_write_row(png, const_cast<png_bytep>(image.px.data() + static_cast<std::size_t>(y) * image.width * 3));
   png_write_end(png, nullptr);
   png_destroy_write_struct(&png, &info);
-  // Checked at close: a full disk shows at the final flush.
-  if (std::fclose(f.release()) != 0) throw Error(path + ": writing the PNG failed (" + std::strerror(errno) + ")");
+  write_file(path, {bytes}, "the PNG");
 }
 
 Rgb8 read_png(const std::string& path) {

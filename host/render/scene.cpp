@@ -3,6 +3,7 @@
 
 #include <unistd.h>
 
+#include <cerrno>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
@@ -176,6 +177,21 @@ struct LineReader {
     if (!std::isfinite(v)) fail(std::string("non-finite ") + what + " '" + tok + "'");
     return v;
   }
+  // An integer in [lo, hi]: anything else (a fraction, a value out of range) refused at file:line.
+  int integer(std::istringstream& in, const char* what, long lo, long hi) const {
+    std::string tok;
+    if (!(in >> tok)) fail(std::string("missing ") + what);
+    char* end = nullptr;
+    errno = 0;
+    const long v = std::strtol(tok.c_str(), &end, 10);
+    if (end == tok.c_str() || *end != '\0')
+      fail(std::string("bad ") + what + " '" + tok + "': must be an integer in [" + std::to_string(lo) + ", " +
+           std::to_string(hi) + "]");
+    if (errno == ERANGE || v < lo || v > hi)
+      fail(std::string(what) + " " + tok + " is out of range: must be an integer in [" + std::to_string(lo) +
+           ", " + std::to_string(hi) + "]");
+    return static_cast<int>(v);
+  }
   Vec3 vec3(std::istringstream& in, const char* what) const {
     Vec3 v;
     v.x = number(in, what);
@@ -224,7 +240,7 @@ std::map<std::string, Material> load_mtl(const std::string& path) {
     else if (key == "Ks") cur->ks = r.vec3(in, "Ks");
     else if (key == "Ke") cur->emission = r.vec3(in, "Ke");
     else if (key == "Ni") cur->ior = r.number(in, "Ni");
-    else if (key == "illum") illum = static_cast<int>(r.number(in, "illum"));
+    else if (key == "illum") illum = r.integer(in, "illum", 0, 10);  // the MTL illumination models 0..10
     else if (key == "Ka" || key == "Ns" || key == "d" || key == "Tr" || key == "Tf" ||
              key.rfind("map_", 0) == 0)
       continue;

@@ -114,6 +114,18 @@ def _xyz(array: Any, what: str) -> "npt.NDArray[np.float32]":
         raise TypeError(f"{what} must be a float32 or float64 array, got dtype {a.dtype}")
     if a.ndim != 2 or a.shape[1] != 3:
         raise ValueError(f"{what} must have shape (n, 3), got {a.shape}")
+    if a.dtype.kind == "f" and a.dtype.itemsize > 4:
+        # A finite float64 beyond the float32 range would become inf in the cast: named, not
+        # called non-finite (points) or answered with an empty row (queries).
+        with np.errstate(over="ignore"):
+            a32 = np.ascontiguousarray(a, dtype=np.float32)
+        beyond = np.isinf(a32) & np.isfinite(a)
+        if beyond.any():
+            i = int(np.flatnonzero(beyond.any(axis=1))[0])
+            x, y, z = (float(v) for v in a[i])
+            raise ValueError(f"{what}: row {i} ({x!r}, {y!r}, {z!r}) has a coordinate beyond the float32 "
+                             f"range (|x| <= {float(np.finfo(np.float32).max)!r}); the library stores float32")
+        return a32
     return np.ascontiguousarray(a, dtype=np.float32)
 
 
@@ -217,7 +229,7 @@ class Index:
         kNN's; radius_search reads its own RadiusParams."""
         _refuse_unknown(self.method, options, _search_options(self.method), "search parameter")
         p = _core.SearchParams()
-        p.k = _int("k", k)
+        p.k = _int("k", k, 1, MAX_K)
         if options.get("A") is not None and options.get("recall_target") is not None:
             raise ValueError("A and recall_target both given: give one (recall_target picks A)")
         if options.get("max_radius") is not None:

@@ -433,3 +433,24 @@ def test_radius_search_unsorted_slices(data, indexes):
     assert np.array_equal(o, ou)
     for a, b in zip(_slices(o, i), _slices(ou, iu)):
         assert np.array_equal(np.sort(a), np.sort(b))
+
+
+def test_issue22_messages_name_the_right_range(indexes, data):
+    """k beyond int32 names the k range; a float64 coordinate beyond float32 is named with its
+    row (points and queries), never "non-finite" or an empty row."""
+    _, q = data
+    kd = indexes["kdtree"]
+    with pytest.raises(ValueError, match=r"k = 2147483648 is out of range: must be in \[1, 256\]"):
+        kd.query(q, k=2**31)
+    pts = np.random.default_rng(3).random((40, 3))
+    pts[11, 1] = 1e300
+    with pytest.raises(ValueError, match=r"points: row 11 .* beyond the float32 range"):
+        bh.make_index("kdtree", pts)
+    qs = np.random.default_rng(4).random((5, 3))
+    qs[3, 0] = -1e39
+    with pytest.raises(ValueError, match=r"queries: row 3 .* beyond the float32 range"):
+        kd.query(qs, k=2)
+    # NaN in a float64 query keeps the contract: an empty row.
+    qs[3, 0] = np.nan
+    d2, ids = kd.query(qs, k=2)
+    assert (ids[3] == -1).all()

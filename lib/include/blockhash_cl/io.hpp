@@ -35,7 +35,10 @@ PointFormat sniff_point_format(const void* data, std::size_t size);
 // Reads a point file in any of the formats above. Throws bhcl::Error naming the path for a
 // missing/unreadable file, a malformed or contradicting file, or (when require_finite) the first
 // point with a NaN/Inf coordinate. An empty file (or zero points) gives an empty vector.
-std::vector<float> read_points_file(const std::string& path, bool require_finite = true);
+// A file that declares more than max_points points (raw: by its size; NPY, PLY: by its header)
+// is refused before its body is read (0: no limit). The default is the index range, N <= 2^31 - 2.
+std::vector<float> read_points_file(const std::string& path, bool require_finite = true,
+                                    std::size_t max_points = 0x7ffffffe);
 
 // Parses the bytes of a point file (what read_points_file does after reading); `what` names the
 // source in errors and, by its extension, picks the format (else the content does). The fuzz
@@ -51,10 +54,14 @@ std::vector<float> parse_points(const void* data, std::size_t size, const std::s
 // it should have held, before anything is opened (a FIFO's open would wait for a writer).
 std::uint64_t regular_file_size(const std::string& path, const std::string& what);
 
-// Writes `parts` one after the other to `path`, replacing it. Every output of the library and of
-// bhcl goes through here: the write is checked after the file is closed (a full disk shows only
-// at the flush of close), so a failure is a bhcl::Error naming the file and `what` it held, never
-// a short file and success.
+// Writes `parts` one after the other to `path`, replacing it atomically. Every output of the
+// library, of bhcl and of the renderer goes through here: the bytes go to a temporary beside the
+// target (".NAME.tmp.PID.N" in the same directory), are flushed to the disk (fsync) and checked,
+// then the temporary is renamed over `path`. A failure (a full disk, a size limit, no
+// permission) is a bhcl::Error naming the file, `what` it held and the system's reason
+// (strerror); the temporary is removed and the old file stays intact, never a short file and
+// success. A kill during the write leaves the old file too (and at most the temporary). A path
+// that names a device or FIFO (/dev/stdout) is written in place.
 void write_file(const std::string& path, std::initializer_list<std::string_view> parts,
                 const std::string& what);
 

@@ -12,11 +12,26 @@
 //    reports how many there were in QueryStats::nonfinite_queries. Points must be finite: an
 //    index build throws naming the first bad point.
 //  - Results do not depend on batch size, work-group size or thread count.
-//  - Extreme scales: when the points' extent is outside [2^-40, 2^40] (e.g. a 1e-20 or a 1e30
-//    box, or subnormal coordinates), every method computes in coordinates scaled by a power of
-//    two (exact: the ranking is that of the true distances) and scales the distances back. A
-//    squared distance beyond the float range then reads +inf, and such rows keep the order of
-//    the true distances rather than the index order among the +inf entries.
+//  - fork(): OpenCL objects do not survive it. In a forked child of the process that built (or
+//    first queried) an index, every device method's call throws bhcl::Error saying so instead of
+//    hanging: use an index in the process that built it, or start children with spawn (Python's
+//    multiprocessing.get_context("spawn")); a forked child can build its own index only when its
+//    parent has not used OpenCL. FLANN answers on the host and works in a child.
+//  - Exact methods (kd-tree, brute force, FLANN) return the true k nearest of the caller's float
+//    points for every finite input, ties to the lower index, whatever the scales (e.g. points in
+//    [0,1]^3 with one outlier at 3e24, or clusters at 1e-20 and 1 in one set). They compute in
+//    float, in the caller's coordinates or in coordinates scaled by a power of two (an exact
+//    scaling: points whose extent is outside [2^-40, 2^40] get the scale of the bulk of the points,
+//    never one that a few far outliers set). A row the float search cannot vouch for (a distance
+//    that overflowed, one below 2^-120 in the scaled coordinates, a zero distance to a point that
+//    differs from the query, or a radius whose square leaves the normal float range) is answered
+//    again on the host in double precision over the caller's points: the ids are then those of
+//    the true distances, and each distance is the double one rounded to float. A squared
+//    distance that does not fit a float (above FLT_MAX) is reported as +inf; its rank is still
+//    the true distance's. Radius search the same (a point is within when its true squared
+//    distance <= r*r). The host-array calls do this (query, radius_search); the buffer-level call
+//    of a device method (enqueue_query) stays in float on the device without the check. Exact
+//    methods keep a host copy of the caller's points for it (12 bytes per point).
 #pragma once
 
 #include <CL/opencl.hpp>
@@ -182,6 +197,12 @@ struct QueryStats {
   double queries_per_s() const { return query_s > 0 ? n_queries / query_s : 0.0; }
 };
 
+// Sizes before allocation: throws bhcl::Error ("the result needs 7.2 GB ...") when a kNN result of
+// n x k (held `copies` times) cannot fit the memory this process can still allocate (the ulimit
+// -v / -d limits, the cgroup's memory.max, the machine's available memory and free swap). The
+// host-array query calls it before any search.
+void check_result_memory(std::size_t n, int k, bool examined, int copies, const std::string& method);
+
 // Validates a point array (n x 3 float): finite everywhere. Throws bhcl::Error naming the first
 // bad point, its coordinates and `what` (e.g. "points").
 void validate_points(const float* xyz, std::size_t n, const char* what);
@@ -256,7 +277,9 @@ class Index {
   // by a subclass that loads a saved structure.
   int scale_exponent() const { return scale_exp_; }
   void set_scale_exponent(int e) { scale_exp_ = e; }
-  // The exponent prepare_points picks for a point set: 0 when its extent is within [2^-40, 2^40].
+  // The exponent prepare_points picks for a point set: 0 when its extent is within [2^-40, 2^40],
+  // else that of the bulk's extent (per dimension, the 1st to 99th percentile), raised where
+  // needed so that every scaled coordinate stays below 2^126 (differences stay finite).
   static int choose_scale_exponent(const float* points, std::size_t n);
 
   // Host methods (FLANN) answer on the host: they return true and implement host_search, which
@@ -325,8 +348,21 @@ class Index {
                          const std::vector<cl::Event>* wait, std::vector<cl::Event>* kernels,
                          double* compile_s) const;
 
+  // Exact methods: rows of `out` in [first, first + m) (distances still in the structure's
+  // coordinates, r2s the structure's squared radius) that the float search cannot vouch for
+  // (see the contract), appended to `rows`; and the double-precision answer of such rows.
+  void collect_suspect_rows(const float* caller_queries, std::size_t first, std::size_t m, float r2s,
+                            const KnnResult& out, std::vector<std::size_t>& rows) const;
+  void answer_rows_exactly(const float* caller_queries, const std::vector<std::size_t>& rows,
+                           const SearchParams& params, KnnResult& out) const;
+  void radius_exact_fallback(const float* caller_queries, std::size_t n, double r2, float r2s,
+                             const RadiusParams& params, RadiusResult& out) const;
+  bool entry_suspect(const float* q, std::int32_t id, float d) const;
+
   std::shared_ptr<Runtime> runtime_;
   std::size_t n_points_;
+  // Exact methods: the caller's points as given (the double-precision fallback's input).
+  std::vector<float> caller_points_;
   int scale_exp_ = 0;
   double build_seconds_ = 0.0;
   mutable std::mutex warm_mutex_;

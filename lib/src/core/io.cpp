@@ -10,6 +10,9 @@
 #include <sstream>
 
 #include <sys/stat.h>
+#include <fcntl.h>
+#include <unistd.h>
+#include <atomic>
 
 #include "blockhash_cl/error.hpp"
 
@@ -55,6 +58,24 @@ bool looks_like_text(const void* data, std::size_t size) {
     return false;
   }
   return digit;
+}
+
+// UTF-16 text: a byte order mark (FF FE or FE FF), or, without one, printable ASCII in every
+// other byte with zeros between (checked over the first 256 bytes).
+bool looks_like_utf16(const unsigned char* b, std::size_t size) {
+  if (size >= 2 && ((b[0] == 0xFF && b[1] == 0xFE) || (b[0] == 0xFE && b[1] == 0xFF))) return true;
+  const std::size_t m = std::min<std::size_t>(size, 256) & ~std::size_t(1);
+  if (m < 4) return false;
+  for (int zero_at = 0; zero_at < 2; ++zero_at) {
+    bool ok = true, digit = false;
+    for (std::size_t i = 0; i < m && ok; i += 2) {
+      const unsigned char z = b[i + zero_at], c = b[i + 1 - zero_at];
+      ok = z == 0 && (c == '\n' || c == '\r' || c == '\t' || (c >= 0x20 && c < 0x7f));
+      digit = digit || (c >= '0' && c <= '9');
+    }
+    if (ok && digit) return true;
+  }
+  return false;
 }
 
 // A double coordinate as float: refused (not turned into inf) when it does not fit.
@@ -502,6 +523,18 @@ PointFormat sniff_point_format(const void* data, std::size_t size) {
 std::vector<float> parse_points(const void* data, std::size_t size, const std::string& what,
                                 PointFormat format, bool require_finite) {
   if (format == PointFormat::Auto) format = point_format_from_name(what);
+  if (format == PointFormat::Auto || format == PointFormat::Text) {
+    // Text as editors save it: a UTF-8 byte order mark is skipped; UTF-16 is named, not called
+    // binary data.
+    const auto* b = static_cast<const unsigned char*>(data);
+    if (size >= 3 && b[0] == 0xEF && b[1] == 0xBB && b[2] == 0xBF) {
+      data = b + 3;
+      size -= 3;
+    } else if (looks_like_utf16(b, size)) {
+      fail(what, "is UTF-16 text; text point files are read as ASCII or UTF-8 (convert it, e.g. "
+                 "iconv -f UTF-16 -t UTF-8)");
+    }
+  }
   if (format == PointFormat::Auto) format = sniff_point_format(data, size);
   std::vector<float> xyz;
   switch (format) {
@@ -535,27 +568,133 @@ std::uint64_t regular_file_size(const std::string& path, const std::string& what
   return static_cast<std::uint64_t>(st.st_size);
 }
 
-std::vector<float> read_points_file(const std::string& path, bool require_finite) {
+namespace {
+
+// The point count a file declares before its body is read: raw by its size, NPY by its shape,
+// PLY by its vertex element; 0 when the prefix does not say (text, or an unknown header).
+std::uint64_t declared_points(const std::string& path, const char* head, std::size_t head_size,
+                              std::uint64_t size, const char** by) {
+  *by = "header";
+  PointFormat f = point_format_from_name(path);
+  if (f == PointFormat::Auto) {
+    if (is_ply(head, head_size)) f = PointFormat::Ply;
+    else if (is_npy(head, head_size)) f = PointFormat::Npy;
+    else if (looks_like_text(head, head_size) || looks_like_utf16(reinterpret_cast<const unsigned char*>(head), head_size) ||
+             (head_size >= 3 && static_cast<unsigned char>(head[0]) == 0xEF)) f = PointFormat::Text;
+    else f = PointFormat::Raw;
+  }
+  const std::string h(head, head_size);
+  auto number_after = [&](const std::string& key, std::size_t limit) -> std::uint64_t {
+    const std::size_t at = h.find(key);
+    if (at == std::string::npos || at > limit) return 0;
+    return std::strtoull(h.c_str() + at + key.size(), nullptr, 10);
+  };
+  switch (f) {
+    case PointFormat::Raw: *by = "size"; return size / 12;
+    case PointFormat::Npy: return is_npy(head, head_size) ? number_after("'shape': (", h.size()) : 0;
+    case PointFormat::Ply: return is_ply(head, head_size) ? number_after("element vertex ", h.find("end_header")) : 0;
+    default: return 0;
+  }
+}
+
+}  // namespace
+
+std::vector<float> read_points_file(const std::string& path, bool require_finite, std::size_t max_points) {
   const std::uint64_t size = regular_file_size(path, "a point file");
   std::ifstream in(path, std::ios::binary);
   if (!in) throw Error(path + ": cannot open point file (" + std::strerror(errno) + ")");
+  if (max_points) {
+    // Sizes before allocation: a file that declares more points than the index range is refused
+    // from its size or header, before its body is read.
+    char head[4096];
+    in.read(head, static_cast<std::streamsize>(std::min<std::uint64_t>(size, sizeof head)));
+    const std::size_t got = static_cast<std::size_t>(in.gcount());
+    const char* by = "";
+    const std::uint64_t declared = declared_points(path, head, got, size, &by);
+    if (declared > max_points)
+      throw Error(path + ": holds " + std::to_string(declared) + " points (by its " + by +
+                  "), more than the index range allows (" + std::to_string(max_points) +
+                  "): refused before reading it");
+    in.clear();
+    in.seekg(0);
+  }
   std::vector<char> bytes(static_cast<std::size_t>(size));
   if (size > 0 && !in.read(bytes.data(), static_cast<std::streamsize>(size)))
     throw Error(path + ": read failed after " + std::to_string(in.gcount()) + " bytes");
   return parse_points(bytes.data(), bytes.size(), path, require_finite);
 }
 
+namespace {
+
+std::string system_reason(int err) { return std::string(" (") + std::strerror(err) + ")"; }
+
+}  // namespace
+
 void write_file(const std::string& path, std::initializer_list<std::string_view> parts,
                 const std::string& what) {
-  errno = 0;
-  std::ofstream out(path, std::ios::binary | std::ios::trunc);
-  if (!out) throw Error(path + ": cannot open for writing " + what + " (" + std::strerror(errno) + ")");
-  for (std::string_view part : parts) out.write(part.data(), static_cast<std::streamsize>(part.size()));
-  errno = 0;
-  out.close();  // flushes: a full disk shows here
-  if (!out)
-    throw Error(path + ": writing " + what + " failed" +
-                (errno ? std::string(" (") + std::strerror(errno) + ")" : std::string()));
+  // A temporary beside the target (same directory, so the rename is atomic), written, flushed to
+  // the disk and renamed over it: a failure or a kill leaves the old file as it was.
+  static std::atomic<unsigned> serial{0};
+  // Through a symbolic link: the file it names is replaced (beside it), not the link.
+  std::string target = path;
+  struct stat link {};
+  if (::lstat(path.c_str(), &link) == 0 && S_ISLNK(link.st_mode)) {
+    if (char* real = ::realpath(path.c_str(), nullptr)) {
+      target = real;
+      std::free(real);
+    }
+  }
+  const std::size_t slash = target.find_last_of('/');
+  const std::string dir = slash == std::string::npos ? std::string() : target.substr(0, slash + 1);
+  const std::string name = slash == std::string::npos ? target : target.substr(slash + 1);
+  if (name.empty()) throw Error(path + ": cannot write " + what + " (the path names a directory)");
+  const std::string tmp = dir + "." + name + ".tmp." + std::to_string(::getpid()) + "." +
+                          std::to_string(serial.fetch_add(1));
+  struct stat old {};
+  const bool had_old = ::stat(path.c_str(), &old) == 0;
+  if (had_old && S_ISDIR(old.st_mode)) throw Error(path + ": cannot write " + what + " (a directory)");
+  if (had_old && !S_ISREG(old.st_mode)) {
+    // A device or FIFO (/dev/null, /dev/stdout): written in place, there is nothing to replace.
+    errno = 0;
+    std::ofstream out(path, std::ios::binary);
+    if (!out) throw Error(path + ": cannot open for writing " + what + system_reason(errno));
+    for (std::string_view part : parts) out.write(part.data(), static_cast<std::streamsize>(part.size()));
+    errno = 0;
+    out.close();
+    if (!out) throw Error(path + ": writing " + what + " failed" + (errno ? system_reason(errno) : std::string()));
+    return;
+  }
+  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
+  if (fd < 0) throw Error(path + ": cannot open for writing " + what + system_reason(errno));
+  auto fail = [&](const std::string& step, int err) {
+    ::close(fd);
+    ::unlink(tmp.c_str());
+    return Error(path + ": writing " + what + " failed" + (step.empty() ? "" : " (" + step + ")") +
+                 system_reason(err));
+  };
+  if (had_old) (void)::fchmod(fd, old.st_mode & 07777);  // keep the old file's permissions
+  for (std::string_view part : parts) {
+    const char* p = part.data();
+    std::size_t left = part.size();
+    while (left > 0) {
+      const ssize_t w = ::write(fd, p, std::min<std::size_t>(left, std::size_t(1) << 30));
+      if (w < 0 && errno == EINTR) continue;
+      if (w <= 0) throw fail("", w < 0 ? errno : ENOSPC);
+      p += w;
+      left -= static_cast<std::size_t>(w);
+    }
+  }
+  if (::fsync(fd) != 0 && errno != EINVAL && errno != EROFS) throw fail("fsync", errno);
+  if (::close(fd) != 0) {
+    const int err = errno;
+    ::unlink(tmp.c_str());
+    throw Error(path + ": writing " + what + " failed (close)" + system_reason(err));
+  }
+  if (::rename(tmp.c_str(), target.c_str()) != 0) {
+    const int err = errno;
+    ::unlink(tmp.c_str());
+    throw Error(path + ": writing " + what + " failed (rename of the temporary " + tmp + ")" + system_reason(err));
+  }
 }
 
 void write_raw_file(const std::string& path, const void* data, std::size_t bytes) {

@@ -2,10 +2,16 @@
 #include "blockhash_cl/knn.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <cctype>
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
+#include <fstream>
 #include <sstream>
+
+#include <sys/resource.h>
+#include <unistd.h>
 
 #include "blockhash_cl/error.hpp"
 #include "core/device_util.hpp"
@@ -65,20 +71,132 @@ void ldexp_all(const float* src, float* dst, std::size_t count, int e) {
   for (std::size_t i = 0; i < count; ++i) dst[i] = std::ldexp(src[i], e);
 }
 
+// "7.2 GB": decimal gigabytes, one decimal.
+std::string gigabytes(double bytes) {
+  std::ostringstream os;
+  os.setf(std::ios::fixed);
+  os.precision(1);
+  os << bytes / 1e9 << " GB";
+  return os.str();
+}
+
+// A number from a /proc or /sys file: the value after `key` (the whole file when key is empty),
+// times `unit`; 0 when absent or unlimited ("max").
+std::uint64_t number_in_file(const char* path, const std::string& key, std::uint64_t unit) {
+  std::ifstream in(path);
+  std::string line;
+  while (std::getline(in, line)) {
+    if (!key.empty() && line.compare(0, key.size(), key) != 0) continue;
+    const char* p = line.c_str() + key.size();
+    char* end = nullptr;
+    const unsigned long long v = std::strtoull(p, &end, 10);
+    return end == p ? 0 : static_cast<std::uint64_t>(v) * unit;
+  }
+  return 0;
+}
+
+// The memory this process can still allocate, and what bounds it: the address-space and data
+// limits (less what is mapped), the cgroup's memory.max (less what it uses), and the machine's
+// available memory plus free swap. UINT64_MAX when nothing is known.
+std::uint64_t allocatable_bytes(std::string* bound) {
+  std::uint64_t best = std::numeric_limits<std::uint64_t>::max();
+  auto consider = [&](std::uint64_t v, const char* what) {
+    if (v < best) {
+      best = v;
+      *bound = what;
+    }
+  };
+  rlimit rl{};
+  if (getrlimit(RLIMIT_AS, &rl) == 0 && rl.rlim_cur != RLIM_INFINITY) {
+    const std::uint64_t used = number_in_file("/proc/self/status", "VmSize:", 1024);
+    consider(rl.rlim_cur > used ? rl.rlim_cur - used : 0, "the address-space limit (ulimit -v)");
+  }
+  if (getrlimit(RLIMIT_DATA, &rl) == 0 && rl.rlim_cur != RLIM_INFINITY) {
+    const std::uint64_t used = number_in_file("/proc/self/status", "VmData:", 1024);
+    consider(rl.rlim_cur > used ? rl.rlim_cur - used : 0, "the data-size limit (ulimit -d)");
+  }
+  if (const std::uint64_t max = number_in_file("/sys/fs/cgroup/memory.max", "", 1)) {
+    const std::uint64_t used = number_in_file("/sys/fs/cgroup/memory.current", "", 1);
+    consider(max > used ? max - used : 0, "the cgroup's memory.max");
+  }
+  const std::uint64_t avail = number_in_file("/proc/meminfo", "MemAvailable:", 1024);
+  if (avail) consider(avail + number_in_file("/proc/meminfo", "SwapFree:", 1024), "the machine's available memory");
+  return best;
+}
+
 }  // namespace
+
+namespace {
+
+// The process that first used OpenCL through an index (0: none yet). OpenCL objects do not
+// survive fork(): a forked child that inherits an index would hang in its first OpenCL call, so
+// device methods refuse there with a clear error.
+std::atomic<long> g_opencl_pid{0};
+
+void refuse_in_forked_child(const std::string& method) {
+  const long self = static_cast<long>(::getpid());
+  long first = 0;
+  if (g_opencl_pid.compare_exchange_strong(first, self) || first == self) return;
+  throw Error(method + ": this index (its OpenCL runtime) was created in process " + std::to_string(first) +
+              "; this is process " + std::to_string(self) +
+              ", a forked child, where OpenCL cannot be used (its objects do not survive fork) and a call "
+              "would hang: use the index in the process that built it, or start children with spawn "
+              "(Python: multiprocessing.get_context('spawn')); a forked child can build its own index "
+              "only when its parent has not used OpenCL");
+}
+
+}  // namespace
+
+void check_result_memory(std::size_t n, int k, bool examined, int copies, const std::string& method) {
+  const double bytes = (double(n) * k * 8.0 + double(n) * (examined ? 8.0 : 4.0)) * copies + (copies > 1 ? 20.0 * n : 0.0);
+  if (bytes < double(std::size_t(64) << 20)) return;  // small results: not worth the /proc reads
+  std::string bound;
+  const std::uint64_t can = allocatable_bytes(&bound);
+  if (bytes > double(std::numeric_limits<std::size_t>::max() / 2) || bytes > double(can)) {
+    std::ostringstream os;
+    os << method << " query: the result needs " << gigabytes(bytes) << " (n = " << n << " queries x k = " << k
+       << ": ids and squared distances" << (copies > 1 ? ", and the Hilbert-ordered copy" : "") << ")";
+    if (can != std::numeric_limits<std::uint64_t>::max()) os << ", more than the " << gigabytes(double(can)) << " that " << bound << " leaves";
+    os << ": refused before the search (query in smaller batches or with a smaller k)";
+    throw Error(os.str());
+  }
+}
 
 int Index::choose_scale_exponent(const float* points, std::size_t n) {
   double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+  double maxabs = 0;
   for (std::size_t i = 0; i < n; ++i)
     for (int d = 0; d < 3; ++d) {
-      lo[d] = std::min(lo[d], double(points[3 * i + d]));
-      hi[d] = std::max(hi[d], double(points[3 * i + d]));
+      const double v = points[3 * i + d];
+      lo[d] = std::min(lo[d], v);
+      hi[d] = std::max(hi[d], v);
+      maxabs = std::max(maxabs, std::fabs(v));
     }
   double extent = 0;
   for (int d = 0; d < 3 && n; ++d) extent = std::max(extent, hi[d] - lo[d]);
   // Squared distances stay normal floats with room to spare inside [2^-40, 2^40].
-  if (extent == 0 || (extent >= std::ldexp(1.0, -40) && extent <= std::ldexp(1.0, 40))) return 0;
-  return std::ilogb(extent);
+  auto in_range = [](double x) { return x >= std::ldexp(1.0, -40) && x <= std::ldexp(1.0, 40); };
+  if (extent == 0 || in_range(extent)) return 0;
+  // Outside: the scale of the bulk, so that a few far outliers (a point at 3e24 among points in
+  // [0,1]^3) do not flush every other distance to zero. Per dimension the 1st to 99th percentile
+  // of a strided sample of at most 2^20 points.
+  const std::size_t step = std::max<std::size_t>(1, n / (std::size_t(1) << 20));
+  std::vector<float> v;
+  v.reserve(n / step + 1);
+  double bulk = 0;
+  for (int d = 0; d < 3; ++d) {
+    v.clear();
+    for (std::size_t i = 0; i < n; i += step) v.push_back(points[3 * i + d]);
+    const std::size_t a = v.size() / 100, b = v.size() - 1 - v.size() / 100;
+    std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(a), v.end());
+    const double qa = v[a];
+    std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(b), v.end());
+    bulk = std::max(bulk, double(v[b]) - qa);
+  }
+  int e = (bulk == 0 || in_range(bulk)) ? 0 : std::ilogb(bulk);
+  // Every scaled coordinate below 2^126, so that the difference of two is a finite float.
+  if (maxabs > 0) e = std::max(e, std::ilogb(maxabs) - 125);
+  return e;
 }
 
 const float* Index::prepare_points(const float* points, std::size_t n, std::vector<float>& storage) {
@@ -86,11 +204,84 @@ const float* Index::prepare_points(const float* points, std::size_t n, std::vect
   if (n > 0x7ffffffeu)
     throw Error(method() + ": N = " + std::to_string(n) + " exceeds the int32 index range");
   validate_points(points, n, "points");
+  if (!answers_on_host()) refuse_in_forked_child(method());
+  if (exact()) caller_points_.assign(points, points + 3 * n);
   scale_exp_ = choose_scale_exponent(points, n);
   if (scale_exp_ == 0) return points;
   storage.resize(3 * n);
   ldexp_all(points, storage.data(), 3 * n, -scale_exp_);
   return storage.data();
+}
+
+namespace {
+// Below this a squared distance in the structure's coordinates may have lost precision (its
+// components' squares underflow); the float ranking is then not vouched for.
+const float kTrustedMin = std::ldexp(1.0f, -120);
+// A double squared distance as the contract reports it: rounded to float, +inf above FLT_MAX.
+float to_float_or_inf(double d) {
+  return d > double(std::numeric_limits<float>::max()) ? INFINITY : static_cast<float>(d);
+}
+}  // namespace
+
+bool Index::entry_suspect(const float* q, std::int32_t id, float d) const {
+  if (std::isinf(d)) return true;  // overflowed: ranked by index, not by the true distance
+  if (d == 0) {
+    const float* p = caller_points_.data() + 3 * static_cast<std::size_t>(id);
+    return !(p[0] == q[0] && p[1] == q[1] && p[2] == q[2]);  // flushed to zero
+  }
+  return d < kTrustedMin;
+}
+
+void Index::collect_suspect_rows(const float* caller_queries, std::size_t first, std::size_t m,
+                                 float r2s, const KnnResult& out, std::vector<std::size_t>& rows) const {
+  if (!exact() || caller_points_.empty()) return;
+  const std::size_t k = static_cast<std::size_t>(out.k);
+  const int full = static_cast<int>(std::min<std::size_t>(k, size()));
+  const bool tiny_radius = r2s > 0 && r2s < kTrustedMin;
+  for (std::size_t i = first; i < first + m; ++i) {
+    const float* q = caller_queries + 3 * i;
+    if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2])) continue;
+    const int c = out.counts[i];
+    bool bad = tiny_radius || (std::isinf(r2s) && c < full);
+    for (int j = 0; j < c && !bad; ++j) bad = entry_suspect(q, out.ids[i * k + j], out.dist2[i * k + j]);
+    if (bad) rows.push_back(i);
+  }
+}
+
+void Index::answer_rows_exactly(const float* caller_queries, const std::vector<std::size_t>& rows,
+                                const SearchParams& params, KnnResult& out) const {
+  if (rows.empty()) return;
+  const std::size_t k = static_cast<std::size_t>(params.k);
+  const double r = params.max_radius;
+  const double r2 = std::isinf(r) ? INFINITY : r * r;
+  const std::size_t N = size();
+  const float* pts = caller_points_.data();
+  detail::parallel_for(rows.size(), [&](std::size_t b, std::size_t e) {
+    std::vector<std::pair<double, std::int32_t>> best;
+    for (std::size_t t = b; t < e; ++t) {
+      const std::size_t row = rows[t];
+      const double qx = caller_queries[3 * row], qy = caller_queries[3 * row + 1],
+                   qz = caller_queries[3 * row + 2];
+      best.clear();
+      for (std::size_t i = 0; i < N; ++i) {
+        const double dx = qx - pts[3 * i], dy = qy - pts[3 * i + 1], dz = qz - pts[3 * i + 2];
+        const double d = dx * dx + dy * dy + dz * dz;
+        if (!(d <= r2)) continue;
+        const std::pair<double, std::int32_t> c{d, static_cast<std::int32_t>(i)};
+        if (best.size() < k) {
+          best.insert(std::upper_bound(best.begin(), best.end(), c), c);
+        } else if (c < best.back()) {
+          best.pop_back();
+          best.insert(std::upper_bound(best.begin(), best.end(), c), c);
+        }
+      }
+      for (std::size_t j = 0; j < k; ++j) {
+        out.ids[row * k + j] = j < best.size() ? best[j].second : -1;
+        out.dist2[row * k + j] = j < best.size() ? to_float_or_inf(best[j].first) : INFINITY;
+      }
+      out.counts[row] = static_cast<std::int32_t>(best.size());
+    }
+  }, 0, 1);
 }
 
 SearchParams Index::scaled(const SearchParams& p) const {
@@ -121,6 +312,7 @@ double Index::host_search(const float*, std::size_t, const SearchParams&, KnnRes
 }
 
 void Index::check_params(const SearchParams& p) const {
+  if (!answers_on_host()) refuse_in_forked_child(method());
   kmax_variant(p.k);  // throws for k outside [1, kMaxK]
   if (p.count_examined && !counts_examined())
     throw Error("count_examined: method " + method() + " does not count the points it examines");
@@ -238,11 +430,16 @@ cl::Event Index::enqueue_query(const cl::CommandQueue& queue, const cl::Buffer& 
              "clEnqueueReadBuffer", method() + " queries");
     KnnResult r;
     r.resize(n, params.k);
+    const std::vector<float> caller_q = scale_exp_ ? q : std::vector<float>();
     if (scale_exp_)
       ldexp_all(q.data(), q.data(), q.size(), -scale_exp_);
     host_search(q.data(), n, sp, r);
+    const float* cq = scale_exp_ ? caller_q.data() : q.data();
+    std::vector<std::size_t> suspects;
+    collect_suspect_rows(cq, 0, n, detail::squared_radius(sp.max_radius), r, suspects);
     if (scale_exp_)
       ldexp_all(r.dist2.data(), r.dist2.data(), r.dist2.size(), 2 * scale_exp_);
+    answer_rows_exactly(cq, suspects, params, r);
     cl::Event e;
     check_cl(queue.enqueueWriteBuffer(out.ids, CL_TRUE, 0, nk * 4, r.ids.data()), "clEnqueueWriteBuffer", "ids");
     check_cl(queue.enqueueWriteBuffer(out.dist2, CL_TRUE, 0, nk * 4, r.dist2.data()), "clEnqueueWriteBuffer", "dist2");
@@ -271,6 +468,9 @@ QueryStats Index::query(const float* queries, std::size_t n, const SearchParams&
   auto t0 = std::chrono::steady_clock::now();
   check_params(params);
   const bool sort = params.sort_queries > 0 || (params.sort_queries < 0 && n >= kAutoSortQueries);
+  // Sizes before allocation: a result that cannot fit is refused with what it needs, before any
+  // search (the Hilbert-ordered path holds the rows twice).
+  check_result_memory(n, params.k, params.count_examined, sort && n > 1 ? 2 : 1, method());
   if (sort && n > 1) {
     // Dispatch in Hilbert order, return rows in the caller's order.
     std::vector<std::size_t> order = detail::hilbert_query_order(queries, n);
@@ -282,8 +482,8 @@ QueryStats Index::query(const float* queries, std::size_t n, const SearchParams&
     // (A reference: the copy below runs on other threads, where the name would mean their own.)
     thread_local KnnResult rows;
     KnnResult& tmp = rows;
+    out.resize(n, params.k);  // before the search: a result that cannot be held fails first
     QueryStats st = query(sorted.data(), n, p, tmp);
-    out.resize(n, params.k);
     const std::size_t k = static_cast<std::size_t>(params.k);
     detail::parallel_for(n, [&](std::size_t b, std::size_t e) {
       for (std::size_t i = b; i < e; ++i) {
@@ -310,6 +510,10 @@ QueryStats Index::query(const float* queries, std::size_t n, const SearchParams&
     if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2])) ++st.nonfinite_queries;
   }
   const SearchParams sp = scaled(params);
+  // Exact methods: rows the float search cannot vouch for, answered again in double at the end.
+  const float* caller_queries = queries;
+  const float r2s = detail::squared_radius(sp.max_radius);
+  std::vector<std::size_t> suspects;
   // Queries in the structure's coordinates: the caller's, or a scaled copy (extreme scales).
   std::vector<float> scaled_queries;
   if (scale_exp_ != 0) {
@@ -323,7 +527,9 @@ QueryStats Index::query(const float* queries, std::size_t n, const SearchParams&
   };
   if (answers_on_host()) {
     st.query_s = host_search(queries, n, sp, out);
+    collect_suspect_rows(caller_queries, 0, n, r2s, out, suspects);
     unscale(out.dist2.data(), out.dist2.size());
+    answer_rows_exactly(caller_queries, suspects, params, out);
     st.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     return st;
   }
@@ -371,8 +577,10 @@ QueryStats Index::query(const float* queries, std::size_t n, const SearchParams&
     for (const auto& e : kernels) st.query_s += event_seconds(e);
     st.download_s += event_seconds(d1) + event_seconds(d2) + event_seconds(d3);
     st.batches += kernels.size();
+    collect_suspect_rows(caller_queries, first, m, r2s, out, suspects);
     unscale(out.dist2.data() + first * k, m * k);
   }
+  answer_rows_exactly(caller_queries, suspects, params, out);
   st.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return st;
 }

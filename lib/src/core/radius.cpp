@@ -178,9 +178,73 @@ QueryStats Index::radius_impl(const float* queries, std::size_t n, float r, bool
     radius_on_device(q, n, r2, params, out, st);
   }
   finish_slices(out, params.max_results, params.sorted);
-  distances_to_caller(out.dist2.data(), out.dist2.size());
+  if (exact()) {
+    // Slices the float search cannot vouch for answered again in double (see the contract).
+    const double r2d = squared ? double(r) : double(r) * double(r);
+    radius_exact_fallback(queries, n, r2d, r2, params, out);
+  } else {
+    distances_to_caller(out.dist2.data(), out.dist2.size());
+  }
   st.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return st;
+}
+
+void Index::radius_exact_fallback(const float* caller_queries, std::size_t n, double r2, float r2s,
+                                  const RadiusParams& params, RadiusResult& out) const {
+  std::vector<std::size_t> rows;
+  const bool tiny_radius = r2s > 0 && r2s < std::ldexp(1.0f, -120);
+  for (std::size_t i = 0; i < n && !caller_points_.empty(); ++i) {
+    const float* q = caller_queries + 3 * i;
+    if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2])) continue;
+    bool bad = tiny_radius;
+    for (std::int64_t j = out.offsets[i]; j < out.offsets[i + 1] && !bad; ++j)
+      bad = entry_suspect(q, out.ids[static_cast<std::size_t>(j)], out.dist2[static_cast<std::size_t>(j)]);
+    if (bad) rows.push_back(i);
+  }
+  distances_to_caller(out.dist2.data(), out.dist2.size());
+  if (rows.empty()) return;
+  // The suspect slices in double over the caller's points, then the layout rebuilt.
+  const std::size_t N = size();
+  const float* pts = caller_points_.data();
+  std::vector<std::vector<std::pair<double, std::int32_t>>> redo(rows.size());
+  detail::parallel_for(rows.size(), [&](std::size_t b, std::size_t e) {
+    for (std::size_t t = b; t < e; ++t) {
+      const float* q = caller_queries + 3 * rows[t];
+      auto& v = redo[t];
+      for (std::size_t i = 0; i < N; ++i) {
+        const double dx = double(q[0]) - pts[3 * i], dy = double(q[1]) - pts[3 * i + 1],
+                     dz = double(q[2]) - pts[3 * i + 2];
+        const double d = dx * dx + dy * dy + dz * dz;
+        if (d <= r2) v.emplace_back(d, static_cast<std::int32_t>(i));
+      }
+      std::sort(v.begin(), v.end());  // sorted whatever params.sorted says: any order is allowed
+    }
+  }, 0, 1);
+  RadiusResult r;
+  r.n = n;
+  r.offsets.assign(n + 1, 0);
+  r.found = out.found;
+  r.examined = out.examined;
+  r.truncated_queries = 0;
+  const float fmax = std::numeric_limits<float>::max();
+  std::size_t t = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    if (t < rows.size() && rows[t] == i) {
+      const auto& v = redo[t++];
+      const std::size_t m = params.max_results ? std::min(params.max_results, v.size()) : v.size();
+      for (std::size_t j = 0; j < m; ++j) {
+        r.ids.push_back(v[j].second);
+        r.dist2.push_back(v[j].first > double(fmax) ? INFINITY : static_cast<float>(v[j].first));
+      }
+      r.found[i] = static_cast<std::int64_t>(v.size());
+    } else {
+      r.ids.insert(r.ids.end(), out.ids.begin() + out.offsets[i], out.ids.begin() + out.offsets[i + 1]);
+      r.dist2.insert(r.dist2.end(), out.dist2.begin() + out.offsets[i], out.dist2.begin() + out.offsets[i + 1]);
+    }
+    r.offsets[i + 1] = static_cast<std::int64_t>(r.ids.size());
+    if (static_cast<std::int64_t>(r.count(i)) < r.found[i]) ++r.truncated_queries;
+  }
+  out = std::move(r);
 }
 
 void Index::radius_on_device(const float* queries, std::size_t n, float r2,

@@ -12,6 +12,7 @@
 #include <limits>
 #include <mutex>
 #include <thread>
+#include <tuple>
 #include <vector>
 
 #include "blockhash_cl/error.hpp"
@@ -30,10 +31,19 @@ namespace {
 using FlannTree = flann::KDTreeSingleIndex<flann::L2_Simple<float>>;
 
 // The k smallest (distance, index) pairs under the contract's order, fed by FLANN's traversal.
+// Coincident points: FLANN's tree holds one representative per group of identical points, and
+// a representative's hit stands for its members (the caller's indices, ascending).
+struct Groups {
+  std::vector<std::int64_t> begin;    // unique point u's members: members[begin[u] .. begin[u+1])
+  std::vector<std::int32_t> members;
+  bool empty() const { return begin.empty(); }
+};
+
 class ExactResultSet : public flann::ResultSet<float> {
  public:
-  ExactResultSet(const float* points, int k, float r2, bool recompute)
-      : points_(points), k_(k), r2_(r2), recompute_(recompute) {
+  ExactResultSet(const float* points, int k, float r2, bool recompute, const Groups* groups = nullptr)
+      : points_(points), k_(k), r2_(r2), recompute_(recompute),
+        groups_(groups && !groups->empty() ? groups : nullptr) {
     d_.resize(static_cast<std::size_t>(k));
     id_.resize(static_cast<std::size_t>(k));
   }
@@ -51,18 +61,28 @@ class ExactResultSet : public flann::ResultSet<float> {
   // bit; FlannIndex checks that at build time and recomputes when it is not (`recompute`).
   // Recomputing always would cost a cache miss per accepted candidate on the caller's array.
   void addPoint(float dist, std::size_t index) override {
+    if (groups_) {
+      // A representative: its members share the distance; the first rejected ends the group
+      // (ascending indices rank after it), so a group costs at most k + 1 insertions.
+      const std::int64_t b = groups_->begin[index], e = groups_->begin[index + 1];
+      const float d = recompute_ ? reference::dist2_float(points_ + 3 * std::size_t(groups_->members[b]), q_) : dist;
+      for (std::int64_t j = b; j < e; ++j)
+        if (!add(d, groups_->members[static_cast<std::size_t>(j)])) break;
+      return;
+    }
     const auto id = static_cast<std::int32_t>(index);
     add(recompute_ ? reference::dist2_float(points_ + 3 * index, q_) : dist, id);
   }
 
   void add(std::int32_t id) { add(reference::dist2_float(points_ + 3 * std::size_t(id), q_), id); }
 
-  void add(float d, std::int32_t id) {
-    if (!(d <= r2_)) return;
+  bool add(float d, std::int32_t id) {
+    if (!(d <= r2_)) return false;
     const auto k = static_cast<bhcl_u32>(k_);
-    if (size_ == k_ && !bhcl_topk_accepts(d_.data(), id_.data(), k, d, id)) return;
+    if (size_ == k_ && !bhcl_topk_accepts(d_.data(), id_.data(), k, d, id)) return false;
     size_ = static_cast<int>(bhcl_topk_push(d_.data(), id_.data(), k, static_cast<bhcl_u32>(size_), d, id));
     if (size_ == k_) worst_ = slack(std::min(r2_, d_[k_ - 1]));
+    return true;
   }
 
   // FLANN prunes a cell when its (incrementally summed, rounded) lower bound exceeds this, and
@@ -84,6 +104,7 @@ class ExactResultSet : public flann::ResultSet<float> {
   int k_;
   float r2_;
   bool recompute_;
+  const Groups* groups_;
   int size_ = 0;
   float worst_ = 0.0f;
   std::vector<float> d_;
@@ -118,16 +139,28 @@ void run_workers(std::size_t threads, std::atomic<std::size_t>& next, std::size_
 // Every point within r2 under the contract's distance, fed by FLANN's traversal (radius search).
 class RadiusCollectSet : public flann::ResultSet<float> {
  public:
-  RadiusCollectSet(const float* points, float r2, bool recompute)
-      : points_(points), r2_(r2), worst_(r2 + r2 * (1.0f / 1024.0f) + 1e-30f), recompute_(recompute) {}
+  RadiusCollectSet(const float* points, float r2, bool recompute, const Groups* groups = nullptr)
+      : points_(points), r2_(r2), worst_(r2 + r2 * (1.0f / 1024.0f) + 1e-30f), recompute_(recompute),
+        groups_(groups && !groups->empty() ? groups : nullptr) {}
   void reset(const float* query) {
     q_ = query;
     found_.clear();
   }
   bool full() const override { return true; }
   void addPoint(float dist, std::size_t index) override {
+    if (groups_) {  // a representative of coincident points: every member
+      const std::int64_t b = groups_->begin[index], e = groups_->begin[index + 1];
+      const float d = recompute_ ? reference::dist2_float(points_ + 3 * std::size_t(groups_->members[b]), q_) : dist;
+      if (d <= r2_)
+        for (std::int64_t j = b; j < e; ++j) found_.emplace_back(d, groups_->members[static_cast<std::size_t>(j)]);
+      return;
+    }
     const float d = recompute_ ? reference::dist2_float(points_ + 3 * index, q_) : dist;
     if (d <= r2_) found_.emplace_back(d, static_cast<std::int32_t>(index));
+  }
+  // A caller's point (the linear scan), not a representative.
+  void add_caller_point(float d, std::int32_t id) {
+    if (d <= r2_) found_.emplace_back(d, id);
   }
   // The same slack as ExactResultSet: FLANN's rounded cell bounds never prune a point within r2.
   float worstDist() const override { return worst_; }
@@ -138,8 +171,51 @@ class RadiusCollectSet : public flann::ResultSet<float> {
   const float* q_ = nullptr;
   float r2_, worst_;
   bool recompute_;
+  const Groups* groups_;
   std::vector<std::pair<float, std::int32_t>> found_;
 };
+
+// Groups identical points when there are many (a sample of 4096 points holding duplicates):
+// `unique` gets one representative per group, in the order of first occurrence, and `groups` the
+// members of each, ascending. Returns false (nothing filled) for point sets without duplicates
+// in the sample, which are searched as they are.
+bool group_coincident(const std::vector<float>& pts, std::vector<float>& unique, Groups& groups) {
+  const std::size_t n = pts.size() / 3;
+  if (n < 2) return false;
+  auto key = [&](std::size_t i) { return std::make_tuple(pts[3 * i], pts[3 * i + 1], pts[3 * i + 2]); };
+  {
+    const std::size_t step = std::max<std::size_t>(1, n / 4096);
+    std::vector<std::tuple<float, float, float>> sample;
+    for (std::size_t i = 0; i < n; i += step) sample.push_back(key(i));
+    std::sort(sample.begin(), sample.end());
+    if (std::adjacent_find(sample.begin(), sample.end()) == sample.end()) return false;
+  }
+  std::vector<std::int32_t> order(n);
+  for (std::size_t i = 0; i < n; ++i) order[i] = static_cast<std::int32_t>(i);
+  std::stable_sort(order.begin(), order.end(), [&](std::int32_t a, std::int32_t b) { return key(a) < key(b); });
+  // Groups in the order of their first (lowest) member.
+  std::vector<std::pair<std::int32_t, std::size_t>> firsts;  // (lowest member, start in order)
+  for (std::size_t i = 0; i < n; ++i)
+    if (i == 0 || key(order[i]) != key(order[i - 1])) firsts.emplace_back(order[i], i);
+  if (firsts.size() == n) return false;
+  std::vector<std::size_t> ends(firsts.size());
+  for (std::size_t g = 0; g < firsts.size(); ++g) ends[g] = g + 1 < firsts.size() ? firsts[g + 1].second : n;
+  std::vector<std::size_t> by_first(firsts.size());
+  for (std::size_t g = 0; g < by_first.size(); ++g) by_first[g] = g;
+  std::sort(by_first.begin(), by_first.end(), [&](std::size_t a, std::size_t b) { return firsts[a].first < firsts[b].first; });
+  unique.clear();
+  unique.reserve(3 * firsts.size());
+  groups.begin.assign(1, 0);
+  groups.members.clear();
+  groups.members.reserve(n);
+  for (std::size_t g : by_first) {
+    const std::int32_t rep = firsts[g].first;
+    unique.insert(unique.end(), pts.begin() + 3 * std::size_t(rep), pts.begin() + 3 * std::size_t(rep) + 3);
+    for (std::size_t i = firsts[g].second; i < ends[g]; ++i) groups.members.push_back(order[i]);  // ascending (stable)
+    groups.begin.push_back(static_cast<std::int64_t>(groups.members.size()));
+  }
+  return true;
+}
 
 }  // namespace
 
@@ -147,6 +223,11 @@ struct FlannIndex::Impl {
   std::vector<float> points;  // the caller's points, kept for FLANN (it keeps row pointers) and
                               // for recomputing distances
   std::unique_ptr<FlannTree> tree;
+  // Coincident points (a bounded-work guard): FLANN visits every point that ties the k-th
+  // distance, so 2M identical points cost a full scan per query (11x brute force). When the
+  // points hold duplicates the tree is built over one representative per group instead.
+  std::vector<float> unique_points;
+  Groups groups;
   bool recompute = false;  // FLANN's distances differ from the contract's: recompute them
 };
 
@@ -182,8 +263,10 @@ FlannIndex::FlannIndex(std::shared_ptr<Runtime> runtime, const float* points,
   const float* pts = prepare_points(points, n_points, scaled);  // validates; extreme scales
   threads_ = params.threads ? params.threads : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   impl_->points.assign(pts, pts + 3 * n_points);
+  const bool grouped = group_coincident(impl_->points, impl_->unique_points, impl_->groups);
   try {
-    flann::Matrix<float> m(impl_->points.data(), n_points, 3);
+    flann::Matrix<float> m(grouped ? impl_->unique_points.data() : impl_->points.data(),
+                           grouped ? impl_->unique_points.size() / 3 : n_points, 3);
     impl_->tree = std::make_unique<FlannTree>(m, flann::KDTreeSingleIndexParams(params.leaf_max_size, true));
     impl_->tree->buildIndex();
     impl_->recompute = !flann_distance_matches(impl_->points.data(), n_points);
@@ -197,7 +280,8 @@ FlannIndex::~FlannIndex() = default;
 
 std::size_t FlannIndex::memory_bytes() const {
   return static_cast<std::size_t>(std::max(0, impl_->tree->usedMemory())) + size() * 12 +
-         impl_->points.size() * sizeof(float);
+         impl_->points.size() * sizeof(float) + impl_->unique_points.size() * sizeof(float) +
+         impl_->groups.begin.size() * 8 + impl_->groups.members.size() * 4;
 }
 
 std::size_t FlannIndex::search(const float* queries, std::size_t n, const SearchParams& params,
@@ -213,7 +297,7 @@ std::size_t FlannIndex::search(const float* queries, std::size_t n, const Search
   std::atomic<std::size_t> next{0}, nonfinite{0};
   constexpr std::size_t kChunk = 256;  // queries per grab: balances threads, little contention
   auto work = [&]() {
-    ExactResultSet set(pts, k, r2, impl_->recompute);
+    ExactResultSet set(pts, k, r2, impl_->recompute, &impl_->groups);
     std::size_t bad = 0;
     for (;;) {
       const std::size_t begin = next.fetch_add(kChunk);
@@ -260,7 +344,7 @@ double FlannIndex::host_radius_search(const float* queries, std::size_t n, float
   std::atomic<std::size_t> next{0};
   constexpr std::size_t kChunk = 256;
   auto work = [&]() {
-    RadiusCollectSet set(pts, r2, impl_->recompute);
+    RadiusCollectSet set(pts, r2, impl_->recompute, &impl_->groups);
     for (;;) {
       const std::size_t begin = next.fetch_add(kChunk);
       if (begin >= n) break;
@@ -270,7 +354,8 @@ double FlannIndex::host_radius_search(const float* queries, std::size_t n, float
         set.reset(q);
         if (std::isinf(r2)) {
           // FLANN takes a point only when its distance is below the bound, never at +inf.
-          for (std::size_t i = 0; i < N; ++i) set.addPoint(reference::dist2_float(pts + 3 * i, q), i);
+          for (std::size_t i = 0; i < N; ++i)
+            set.add_caller_point(reference::dist2_float(pts + 3 * i, q), static_cast<std::int32_t>(i));
         } else {
           impl_->tree->findNeighbors(set, q, fp);
         }

@@ -1,0 +1,194 @@
+// Issue 22, classes 2 and 3: every output written atomically (a temporary beside the target,
+// renamed when complete; a failed write names the file and the system's reason and leaves the old
+// file intact), and the renderer's EXR keeps radiance beyond the half-float range.
+#include <dirent.h>
+#include <signal.h>
+#include <sys/resource.h>
+#include <sys/stat.h>
+
+#include "test_util.hpp"
+
+#ifdef BHCL_HAVE_RENDER
+#include <OpenEXR/ImfChannelList.h>
+#include <OpenEXR/ImfHeader.h>
+#include <OpenEXR/ImfInputFile.h>
+
+#include "exr_io.hpp"
+#include "png_io.hpp"
+#endif
+
+namespace bhcl {
+namespace {
+
+std::string slurp(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+// Temporaries of write_file (".NAME.tmp.*") left in the test folder for `name`.
+int leftover_temporaries(const std::string& name) {
+  int count = 0;
+  DIR* d = opendir(BHCL_TEST_TMP_DIR);
+  REQUIRE(d != nullptr);
+  const std::string prefix = "." + name + ".tmp.";
+  while (dirent* e = readdir(d))
+    if (std::string(e->d_name).rfind(prefix, 0) == 0) ++count;
+  closedir(d);
+  return count;
+}
+
+// Runs fn in a forked child whose file-size limit is `limit` bytes (a full disk as the writer
+// sees it: write() fails with EFBIG once the limit is reached). Returns the child's message:
+// "ok" when fn returned, else the bhcl::Error's text.
+template <typename Fn>
+std::string under_size_limit(rlim_t limit, Fn fn) {
+  const std::string msg = test::tmp_path("limit_msg_" + std::to_string(getpid()) + ".txt");
+  const pid_t pid = fork();
+  REQUIRE(pid >= 0);
+  if (pid == 0) {
+    signal(SIGXFSZ, SIG_IGN);
+    std::string text = "ok";
+    try {
+      rlimit rl{limit, limit};
+      setrlimit(RLIMIT_FSIZE, &rl);
+      fn();
+    } catch (const std::exception& e) {
+      text = e.what();
+    }
+    rlimit rl{RLIM_INFINITY, RLIM_INFINITY};
+    setrlimit(RLIMIT_FSIZE, &rl);  // lowering is allowed only one way for non-root: ignore failure
+    FILE* f = std::fopen(msg.c_str(), "w");
+    if (f) {
+      std::fputs(text.c_str(), f);
+      std::fclose(f);
+    }
+    _exit(0);
+  }
+  int status = 0;
+  waitpid(pid, &status, 0);
+  const std::string text = slurp(msg);
+  std::remove(msg.c_str());
+  return text;
+}
+
+}  // namespace
+
+TEST_CASE("durability: write_file replaces atomically, and a failed write names the reason and keeps the old file") {
+  const std::string name = "dur_target.bin";
+  const std::string path = test::tmp_path(name);
+  write_file(path, {"old contents"}, "the test file");
+  REQUIRE(slurp(path) == "old contents");
+  chmod(path.c_str(), 0640);
+  // A write past the size limit (a full disk): an error naming the file and the reason.
+  const std::string big(1 << 20, 'x');
+  const std::string msg = under_size_limit(4096, [&] { write_file(path, {big}, "the test file"); });
+  INFO(msg);
+  CHECK(msg.find(path + ": writing the test file failed") != std::string::npos);
+  CHECK(msg.find(std::strerror(EFBIG)) != std::string::npos);
+  CHECK(slurp(path) == "old contents");
+  CHECK(leftover_temporaries(name) == 0);
+  // A successful write replaces the contents and keeps the permissions.
+  write_file(path, {"new ", "contents"}, "the test file");
+  CHECK(slurp(path) == "new contents");
+  struct stat st {};
+  REQUIRE(stat(path.c_str(), &st) == 0);
+  CHECK((st.st_mode & 0777) == 0640);
+  CHECK(leftover_temporaries(name) == 0);
+  // Through a symbolic link the file it names is replaced; the link stays a link.
+  const std::string link = test::tmp_path("dur_link.bin");
+  std::remove(link.c_str());
+  REQUIRE(symlink(path.c_str(), link.c_str()) == 0);
+  write_file(link, {"via link"}, "the test file");
+  CHECK(slurp(path) == "via link");
+  struct stat ls {};
+  REQUIRE(lstat(link.c_str(), &ls) == 0);
+  CHECK(S_ISLNK(ls.st_mode));
+  // A folder that does not exist: the reason.
+  CHECK_THROWS_WITH_AS(write_file(test::tmp_path("no_such_dir/x.bin"), {"x"}, "the test file"),
+                       doctest::Contains("No such file or directory"), Error);
+}
+
+TEST_CASE("durability: bhcl outputs and --save-index under a full disk keep the old files") {
+  const std::vector<float> pts = datasets::uniform(20000, 91);
+  const std::string P = test::write_points("dur_p.f32", pts);
+  const std::string O = test::tmp_path("dur_");
+  const std::string ids = O + "ids.raw", d2 = O + "d2.raw", idx = O + "saved.bhi";
+  const std::string base = "knn --points " + P + " --queries " + P + " --k 8 --quiet --out-ids " + ids +
+                           " --out-dist2 " + d2;
+  REQUIRE(test::run_bhcl(base + " --method blockhash --save-index " + idx) == 0);
+  const std::string old_ids = slurp(ids), old_idx = slurp(idx);
+  REQUIRE(old_ids.size() == 20000u * 8 * 4);
+  // The same run under a 64 KiB file-size limit: every output is larger than that.
+  const std::string cmd = "sh -c 'trap \"\" XFSZ; ulimit -f 128; exec \"" + std::string(BHCL_TOOL_PATH) + "\" " +
+                          base + " --method blockhash --save-index " + idx + "' > " + O + "log.txt 2>&1";
+  const int status = std::system(cmd.c_str());
+  const std::string log = slurp(O + "log.txt");
+  INFO(log);
+  CHECK(WIFEXITED(status));
+  CHECK(WEXITSTATUS(status) == 1);
+  // bhcl's own message (not, say, the OpenCL compiler's): the file, what it held, the reason.
+  CHECK(log.find(": writing the ") != std::string::npos);
+  CHECK(log.find(std::string("failed (") + std::strerror(EFBIG) + ")") != std::string::npos);
+  CHECK(slurp(ids) == old_ids);
+  CHECK(slurp(idx) == old_idx);
+  CHECK(leftover_temporaries("dur_ids.raw") == 0);
+  CHECK(leftover_temporaries("dur_saved.bhi") == 0);
+  // The kept index still loads and answers.
+  CHECK(test::run_bhcl("knn --points " + P + " --queries " + P + " --k 8 --quiet --method blockhash --load-index " +
+                       idx + " --out-ids " + O + "ids2.raw --out-dist2 " + O + "d22.raw") == 0);
+}
+
+#ifdef BHCL_HAVE_RENDER
+TEST_CASE("durability: EXR and PNG writers keep the old image when the write fails") {
+  render::Image img(64, 64);
+  for (std::size_t i = 0; i < img.rgb.size(); ++i) img.rgb[i] = float(i % 97) / 97.0f;
+  const std::string exr = test::tmp_path("dur_img.exr"), png = test::tmp_path("dur_img.png");
+  render::write_exr(exr, img);
+  render::write_png(png, render::tonemap(img, 1.0f));
+  const std::string old_exr = slurp(exr), old_png = slurp(png);
+  REQUIRE(!old_exr.empty());
+  REQUIRE(!old_png.empty());
+  render::Image big(512, 512);
+  for (std::size_t i = 0; i < big.rgb.size(); ++i) big.rgb[i] = float((i * 7919) % 1013) / 13.0f;
+  std::string msg = under_size_limit(1024, [&] { render::write_exr(exr, big); });
+  CHECK(msg.find(exr + ": writing the OpenEXR image failed") != std::string::npos);
+  CHECK(msg.find(std::strerror(EFBIG)) != std::string::npos);
+  msg = under_size_limit(1024, [&] { render::write_png(png, render::tonemap(big, 1.0f)); });
+  CHECK(msg.find(png + ": writing the PNG failed") != std::string::npos);
+  CHECK(slurp(exr) == old_exr);
+  CHECK(slurp(png) == old_png);
+  CHECK(leftover_temporaries("dur_img.exr") == 0);
+  CHECK(leftover_temporaries("dur_img.png") == 0);
+}
+
+TEST_CASE("renderer: radiance beyond the half-float range is written as float32 EXR, never +inf") {
+  auto channel_type = [](const std::string& path) {
+    Imf::InputFile f(path.c_str());
+    return f.header().channels().findChannel("R")->type;
+  };
+  render::Image img(4, 4);
+  for (auto& v : img.rgb) v = 0.5f;
+  const std::string path = test::tmp_path("bright.exr");
+  // In range: half channels, as before.
+  render::write_exr(path, img);
+  CHECK(channel_type(path) == Imf::HALF);
+  // An emitter seen directly at 1e6 (beyond 65504): float32 channels, the value kept.
+  img.rgb[0] = 1e6f;
+  img.rgb[5] = 3e38f;
+  CHECK(render::needs_float_exr(img));
+  render::write_exr(path, img);
+  CHECK(channel_type(path) == Imf::FLOAT);
+  render::Image back = render::read_exr(path);
+  CHECK(back.rgb[0] == 1e6f);
+  CHECK(back.rgb[5] == 3e38f);
+  for (float v : back.rgb) CHECK(std::isfinite(v));
+  // Half asked for explicitly: +inf, with a warning (kept for callers that want small files).
+  render::write_exr(path, img, render::ExrPixels::Half);
+  CHECK(channel_type(path) == Imf::HALF);
+  CHECK(std::isinf(render::read_exr(path).rgb[0]));
+}
+#endif
+
+}  // namespace bhcl
