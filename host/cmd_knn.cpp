@@ -35,8 +35,6 @@ void declare_knn(Args& a) {
                             "of --out-ids and --out-dist2 (int64, n + 1; NPY when named .npy)", "", "FILE");
   a.add_integer("max-results", "with --radius: at most this many results per query, the nearest "
                                "(0: no cap; truncated queries are counted)", 0, Args::kNoLimit, "0");
-  a.add_integer("budget", "with --radius, blockhash: examine at most this many points per query "
-                          "(0: every block within the radius that the probes reach)", 0, 4294967295LL, "0");
   a.group("");
   declare_knn_distributed(a);
 }
@@ -95,9 +93,10 @@ int run_radius(const Args& args) {
     j["N"] = N;
     j["n"] = n;
     j["build"] = build_json(*index, mopt);
-    j["radius"] = {{"radius", radius}, {"max_results", rp.max_results}, {"budget", rp.budget},
-                   {"probes", rp.neighbour_probes}, {"results", total},
-                   {"truncated_queries", all.truncated_queries}};
+    j["radius"] = {{"radius", radius}, {"max_results", rp.max_results}};
+    j["radius"].update(table_values(args, method, OptionInfo::Radius));
+    j["radius"]["results"] = total;
+    j["radius"]["truncated_queries"] = all.truncated_queries;
     j["build_s"] = index->build_seconds();
     j["compile_s"] = st.compile_s;
     j["query_s"] = st.query_s;
@@ -130,10 +129,10 @@ int run_knn_multi(const Args& args, const std::vector<std::string>& devices) {
     params = search_params(args);
   }
   MethodOptions mopt = method_options(args);
-  if (!mopt.save_index.empty()) throw UsageError("--save-index does not apply with several devices");
+  if (!mopt.save_index().empty()) throw UsageError("--save-index does not apply with several devices");
   const std::string out_ids = args.str("out-ids"), out_dist2 = args.str("out-dist2");
   check_distinct_files({{"--points", args.str("points")}, {"--queries", args.str("queries")},
-                        {"--load-index", mopt.load_index}},
+                        {"--load-index", mopt.load_index()}},
                        {{"--out-ids", out_ids}, {"--out-dist2", out_dist2},
                         {"--out-offsets", args.str("out-offsets", "")},
                         {"--out-counts", args.str("out-counts", "")}, {"--stats", args.str("stats", "")}});

@@ -103,7 +103,7 @@ int run_knn_distributed(const Args& args) {
   const std::string out_dist2 = args.str("out-dist2");
   SearchParams params = search_params(args);
   MethodOptions mopt = method_options(args);
-  if (!mopt.load_index.empty() || !mopt.save_index.empty())
+  if (!mopt.load_index().empty() || !mopt.save_index().empty())
     throw UsageError("--load-index and --save-index do not apply with --distributed (each rank builds its shard)");
   check_distinct_files({{"--points", args.str("points")}, {"--queries", args.str("queries")}},
                        {{"--out-ids", out_ids}, {"--out-dist2", out_dist2},

@@ -323,22 +323,22 @@ int run_render(const Args& args) {
     std::vector<FileArg> outputs = {{"--out", out},
                                     {args.has("png") ? "--png" : "the PNG beside --out", args.str("png", base + ".png")},
                                     {"--stats", args.str("stats", "")},
-                                    {"--save-index", mopt.save_index}};
+                                    {"--save-index", mopt.save_index()}};
     if (compare) outputs.push_back({"the comparison sheet beside --out", base + "_compare.png"});
     check_distinct_files({{"--scene", args.str("scene", "")},
-                          {"--load-index", mopt.load_index},
+                          {"--load-index", mopt.load_index()},
                           {"--reference", args.str("reference", "")}},
                          outputs);
   }
-  ropt.seed = mopt.seed;
-  ropt.threads = mopt.threads;
+  ropt.seed = static_cast<std::uint64_t>(mopt.integer("seed", 1));
+  ropt.threads = static_cast<int>(mopt.integer("threads", 0));
   long long photons = args.integer("photons", 200000);
   const double exposure_opt = args.number("exposure", 0.0);
   if (exposure_opt < 0 || !std::isfinite(exposure_opt)) throw UsageError("--exposure must be >= 0 (0: automatic)");
 
   // The scene, in Embree.
   Scene scene = load_scene(args.str("scene", "cornell"));
-  EmbreeScene es(scene, mopt.threads);
+  EmbreeScene es(scene, ropt.threads);
   LightSampler lights(scene);
   Vec3 P = lights.total_power();
   std::fprintf(stderr,
@@ -351,8 +351,8 @@ int run_render(const Args& args) {
   PhotonTraceOptions popt;
   popt.photons = static_cast<std::size_t>(photons);
   const long long photon_seed = args.integer("photon-seed", -1);
-  popt.seed = photon_seed >= 0 ? static_cast<std::uint64_t>(photon_seed) : mopt.seed;
-  popt.threads = mopt.threads;
+  popt.seed = photon_seed >= 0 ? static_cast<std::uint64_t>(photon_seed) : ropt.seed;
+  popt.threads = ropt.threads;
   PhotonMaps maps;
   {
     Progress bar("photons", !quiet);

@@ -109,7 +109,7 @@ DistributedIndex::DistributedIndex(MPI_Comm comm, std::shared_ptr<Runtime> runti
     const MethodInfo* info = nullptr;
     try {
       info = &method_info(params.method);
-      if (!params.options.load_index.empty() || !params.options.save_index.empty())
+      if (!params.options.load_index().empty() || !params.options.save_index().empty())
         throw Error("load_index / save_index are not supported: each rank builds its shard's index");
       if (!(params.border_factor >= 1 && params.border_factor <= 1024))
         throw Error("border_factor must be in [1, 1024], got " + std::to_string(params.border_factor));

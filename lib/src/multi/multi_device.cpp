@@ -80,7 +80,7 @@ MultiDeviceIndex::MultiDeviceIndex(std::vector<std::shared_ptr<Runtime>> runtime
     if (!runtimes[d]) throw Error("MultiDeviceIndex: runtime " + std::to_string(d) + " is null");
     names.push_back(runtimes[d]->info().summary());
   }
-  if (!options.save_index.empty())
+  if (!options.save_index().empty())
     throw Error("MultiDeviceIndex: save_index does not apply (save a single-device index)");
   indexes_.resize(runtimes.size());
   on_each_device(runtimes.size(), names, [&](std::size_t d) {
