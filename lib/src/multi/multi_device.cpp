@@ -9,6 +9,7 @@
 #include <thread>
 
 #include "blockhash_cl/error.hpp"
+#include "core/parallel.hpp"
 
 namespace bhcl {
 
@@ -17,25 +18,13 @@ namespace {
 // Runs fn(d) for every device on its own thread; rethrows the first failure, naming the device.
 template <typename Fn>
 void on_each_device(std::size_t devices, const std::vector<std::string>& names, Fn&& fn) {
-  std::vector<std::exception_ptr> errors(devices);
-  std::vector<std::thread> pool;
-  for (std::size_t d = 0; d < devices; ++d)
-    pool.emplace_back([&, d] {
-      try {
-        fn(d);
-      } catch (...) {
-        errors[d] = std::current_exception();
-      }
-    });
-  for (auto& t : pool) t.join();
-  for (std::size_t d = 0; d < devices; ++d) {
-    if (!errors[d]) continue;
+  detail::parallel_tasks(devices, [&](std::size_t d) {
     try {
-      std::rethrow_exception(errors[d]);
+      fn(d);
     } catch (const std::exception& e) {
       throw Error("device " + std::to_string(d) + " (" + names[d] + "): " + e.what());
     }
-  }
+  });
 }
 
 // A part's time: its wall time without compiles, not its kernel event time. Devices that share
