@@ -116,8 +116,9 @@ class BlockHashIndex : public Index {
   static std::unique_ptr<BlockHashIndex> load(std::shared_ptr<Runtime> runtime,
                                               const std::string& path);
   void save(const std::string& path) const;
-  // The first caller index whose point differs from the indexed one (bit for bit), or -1 when the
-  // index holds exactly these n points (a loaded index is checked against the caller's points).
+  // The first caller index whose point differs from the indexed one (bit for bit), -1 when the
+  // index holds exactly these n points, -2 when n is not size() (no point compared). A loaded
+  // index is checked against the caller's points.
   long first_mismatch(const float* points, std::size_t n) const;
 
   std::string method() const override { return "blockhash"; }

@@ -152,7 +152,7 @@ std::unique_ptr<BlockHashIndex> BlockHashIndex::load(std::shared_ptr<Runtime> ru
 void BlockHashIndex::save(const std::string& path) const { blockhash::save_structure(*s_, path); }
 
 long BlockHashIndex::first_mismatch(const float* points, std::size_t n) const {
-  if (n != s_->n_points) return 0;
+  if (n != s_->n_points) return -2;  // not an index: the sizes differ
   for (std::size_t i = 0; i < n; ++i) {
     float p[3];
     s_->point(i, p);
@@ -271,7 +271,6 @@ cl::Event BlockHashIndex::enqueue_batch(const cl::CommandQueue& queue, const cl:
   SearchParams params = params_in;
   params.A = resolved_A(params_in);
   params.recall_target = 0;
-  std::lock_guard<std::mutex> lock(dispatch_mutex_);
   int kmax = kmax_variant(params.k);
   // The arguments both block-hash kernels end with: the queries, k, radius, budget, the blocks a
   // query keeps, the results and the examined counts.
@@ -322,7 +321,6 @@ cl::Event BlockHashIndex::enqueue_radius_batch(const cl::CommandQueue& queue,
                                                const RadiusBuffers& out, const RadiusParams& params,
                                                std::size_t local_size,
                                                const std::vector<cl::Event>* wait) const {
-  std::lock_guard<std::mutex> lock(dispatch_mutex_);
   SearchParams sp;
   sp.neighbour_probes = params.neighbour_probes;
   const char* name = info_.cell_aligned ? "blockhash_cells_radius" : "blockhash_radius";
