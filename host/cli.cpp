@@ -145,6 +145,30 @@ Json stats_header(const std::string& command, const Runtime& rt) {
   return j;
 }
 
+void add_query_stats(Json& j, const Index& index, const QueryStats& st) {
+  j["build_s"] = index.build_seconds();
+  j["compile_s"] = st.compile_s;
+  j["query_s"] = st.query_s;
+  j["upload_s"] = st.upload_s;
+  j["download_s"] = st.download_s;
+  j["wall_s"] = st.wall_s;
+  j["queries_per_s"] = st.queries_per_s();
+  j["batches"] = st.batches;
+  j["nonfinite_queries"] = st.nonfinite_queries;
+}
+
+void write_radius_result(const Args& args, const RadiusResult& r) {
+  const std::size_t n = r.offsets.size() - 1, total = r.total();
+  write_array_file(args.str("out-offsets"), r.offsets.data(), n + 1, 0);
+  write_array_file(args.str("out-ids"), r.ids.data(), total, 0);
+  write_array_file(args.str("out-dist2"), r.dist2.data(), total, 0);
+  if (args.has("out-counts")) {
+    std::vector<std::int32_t> counts(n);
+    for (std::size_t i = 0; i < n; ++i) counts[i] = static_cast<std::int32_t>(r.count(i));
+    write_array_file(args.str("out-counts"), counts.data(), n, 0);
+  }
+}
+
 Json inputs_json(const Args& args, std::size_t N, std::size_t n, const SearchParams& p) {
   Json j;
   j["points"] = args.str("points");

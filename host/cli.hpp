@@ -79,6 +79,10 @@ using Json = nlohmann::ordered_json;
 void write_json(const std::string& path, const Json& j);
 // What every stats file starts with: the tool and library version, the command and the device.
 Json stats_header(const std::string& command, const Runtime& rt);
+// The timings and counts of a query call (with the index's build time) into a stats object.
+void add_query_stats(Json& j, const Index& index, const QueryStats& st);
+// A radius result into --out-offsets, --out-ids, --out-dist2 and (when given) --out-counts.
+void write_radius_result(const Args& args, const RadiusResult& r);
 // The inputs of a knn or eval run: the point and query files, N, n, k and the radius.
 Json inputs_json(const Args& args, std::size_t N, std::size_t n, const SearchParams& p);
 // The build parameters an index actually used (its method's MethodInfo::used_build: derived ones

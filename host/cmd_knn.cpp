@@ -70,14 +70,7 @@ int run_radius(const Args& args) {
   QueryStats st = radius_with_progress(*index, queries, radius, rp, all, quiet);
 
   const std::size_t total = all.total();
-  write_array_file(out_offsets, all.offsets.data(), n + 1, 0);
-  write_array_file(out_ids, all.ids.data(), total, 0);
-  write_array_file(out_dist2, all.dist2.data(), total, 0);
-  if (args.has("out-counts")) {
-    std::vector<std::int32_t> counts(n);
-    for (std::size_t i = 0; i < n; ++i) counts[i] = static_cast<std::int32_t>(all.count(i));
-    write_array_file(args.str("out-counts"), counts.data(), n, 0);
-  }
+  write_radius_result(args, all);
   std::fprintf(stderr,
                "bhcl knn --radius: %s on %s: N=%zu n=%zu r=%g  build %.3f s  compile %.3f s  query %.4f s "
                "(%.0f q/s)  results %zu (%.2f per query)  truncated queries %zu\n",
@@ -97,15 +90,7 @@ int run_radius(const Args& args) {
     j["radius"].update(table_values(args, method, OptionInfo::Radius));
     j["radius"]["results"] = total;
     j["radius"]["truncated_queries"] = all.truncated_queries;
-    j["build_s"] = index->build_seconds();
-    j["compile_s"] = st.compile_s;
-    j["query_s"] = st.query_s;
-    j["upload_s"] = st.upload_s;
-    j["download_s"] = st.download_s;
-    j["wall_s"] = st.wall_s;
-    j["queries_per_s"] = st.queries_per_s();
-    j["batches"] = st.batches;
-    j["nonfinite_queries"] = st.nonfinite_queries;
+    add_query_stats(j, *index, st);
     j["memory_bytes"] = index->memory_bytes();
     write_json(args.str("stats"), j);
   }
@@ -233,15 +218,7 @@ int run_knn(const Args& args) {
     j.update(inputs_json(args, N, n, params));
     j["build"] = build_json(*index, mopt);
     j["search"] = search_json(*index, params);
-    j["build_s"] = index->build_seconds();
-    j["compile_s"] = st.compile_s;
-    j["query_s"] = st.query_s;
-    j["upload_s"] = st.upload_s;
-    j["download_s"] = st.download_s;
-    j["wall_s"] = st.wall_s;
-    j["queries_per_s"] = st.queries_per_s();
-    j["batches"] = st.batches;
-    j["nonfinite_queries"] = st.nonfinite_queries;
+    add_query_stats(j, *index, st);
     j["neighbours_found"] = found;
     j["memory_bytes"] = index->memory_bytes();
     write_json(args.str("stats"), j);
