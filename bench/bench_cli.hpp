@@ -9,6 +9,8 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <map>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -25,6 +27,33 @@ class BenchCli {
     app_.option_defaults()->always_capture_default();
   }
   CLI::App& app() { return app_; }
+
+  // Every option of `method`'s table in `scope` (OptionInfo::Search, ::Build) that is not declared
+  // yet and not in `skip`, as --NAME with the table's help, range and default, checked by the
+  // table; the given ones land in `given` (by name, as text) for apply_search or MethodOptions.
+  void table_options(const std::string& method, unsigned scope, std::map<std::string, std::string>& given,
+                     const std::set<std::string>& skip = {}) {
+    for (const OptionInfo* o : options_in(method_info(method).options, scope)) {
+      if (skip.count(o->name) || o->kind == OptionInfo::Kind::File || app_.get_option_no_throw("--" + o->name)) continue;
+      app_.add_option("--" + o->name, given[o->name], method + ": " + o->help + " (" + o->range_text() + ")")
+          ->check([o](const std::string& v) {
+            try {
+              o->parse(v);
+              return std::string();
+            } catch (const std::exception& e) {
+              return std::string(e.what());
+            }
+          })
+          ->default_str(o->def)
+          ->type_name(o->kind == OptionInfo::Kind::Integer ? "INT" : o->kind == OptionInfo::Kind::Number ? "NUM" : "NAME");
+    }
+  }
+  // The given search options (table_options) into p.
+  static void apply_search(const std::string& method, const std::map<std::string, std::string>& given,
+                           SearchParams& p) {
+    for (const OptionInfo* o : method_info(method).search_options())
+      if (auto it = given.find(o->name); it != given.end() && !it->second.empty()) o->set_search(&p, o->parse(it->second));
+  }
 
   // A whole number in [lo, hi] (1e6 accepted); for vectors, each comma-separated element.
   template <typename T>
@@ -73,9 +102,6 @@ class BenchCli {
   CLI::Option* ks(std::vector<int>& v) { return integers("k", v, "neighbours per query", 1, kMaxK); }
   CLI::Option* As(std::vector<float>& v) {
     return numbers("A", v, "blockhash: examine at most A*k points per query", 1e-3, 1e6);
-  }
-  CLI::Option* probes(std::vector<int>& v) {
-    return integers("probes", v, "blockhash: neighbour probes (-1: the preset decides)", -1, 2);
   }
   CLI::Option* reps(int& v) { return integer("reps", v, "timed repetitions (the median is reported)", 1, 1000); }
   CLI::Option* csv(std::string& v) { return text("csv", v, "write the rows here as CSV", "FILE"); }

@@ -2,7 +2,7 @@
 //
 //   blockhash_accuracy [--data uniform,cornell,dragon] [--N 1000000] [--queries 5000]
 //                      [--A 1,2,4,8,16,32] [--k 10,50] [--presets auto,paper] [--reps 3]
-//                      [--csv out.csv] [--data-dir DIR] [--seed 1] [--local-size WG] [--probes 0|1]
+//                      [--csv out.csv] [--data-dir DIR] [--seed 1] [--local-size WG] [block hashing's search options]
 //                      [--L L] [--X X] [--hilbert-seed S] [--box-order 0|1] [--target POINTS]  (auto only)
 // (blockhash_accuracy --help lists them with their meanings and defaults.)
 //
@@ -47,7 +47,7 @@ struct Options {
   std::vector<std::string> presets = {"auto", "paper"};
   int reps = 3;
   std::size_t local = 0;  // work-group size (0: the device default)
-  int probes = -1;        // SearchParams::neighbour_probes (-1: the preset's)
+  std::map<std::string, std::string> search;  // block hashing's table search options given
   int L = -1, X = -1, seed_blocks = -1, box_order = -1;  // auto build overrides (-1: derive)
   double target = 100;    // auto: target points per median occupied cell
   std::string csv = "blockhash_accuracy.csv";
@@ -122,12 +122,12 @@ int main(int argc, char** argv) {
   cli.data_dir(o.data_dir);
   cli.seed(o.seed);
   cli.integer("local-size", o.local, "OpenCL work-group size (0: the device default)", 0, 1 << 20);
-  cli.integer("probes", o.probes, "blockhash: neighbour probes (-1: the preset decides)", -1, 2);
   cli.integer("L", o.L, "auto: hash tables (-1: derive)", -1, 1 << 16);
   cli.integer("X", o.X, "auto: points per block (-1: derive)", -1, 16);
   cli.integer("hilbert-seed", o.seed_blocks, "auto: blocks gathered around the query's key on each side (-1: derive)", -1, 1 << 20);
   cli.integer("box-order", o.box_order, "auto: 1 scans blocks by box distance, 0 in bucket order (-1: derive)", -1, 1);
   cli.number("target", o.target, "auto: target points per median occupied cell", 1.0, 1e9);
+  cli.table_options("blockhash", OptionInfo::Search, o.search, {"A", "recall"});
   cli.parse(argc, argv);
   if (o.data.empty() || o.A.empty() || o.k.empty() || o.presets.empty()) cli.fail("empty list");
   if (!std::getenv("POCL_CACHE_DIR")) setenv("POCL_CACHE_DIR", BHCL_BUILD_TREE_POCL_CACHE, 0);
@@ -192,7 +192,7 @@ int main(int argc, char** argv) {
             p.k = k;
             p.A = A;
             p.local_size = o.local;
-            p.neighbour_probes = o.probes;
+            bench::BenchCli::apply_search("blockhash", o.search, p);
             Row row;
             row.compile_s = idx->warm_up(p);
             KnnResult r;

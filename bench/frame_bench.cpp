@@ -90,14 +90,14 @@ int main(int argc, char** argv) {
       if (!only.empty() && std::find(only.begin(), only.end(), m.name) == only.end() && m.name != baseline)
         continue;
       std::vector<std::string> presets = {""};
-      for (const OptionInfo& o : m.build_options)
-        if (o.name == "preset" && o.kind == OptionInfo::Kind::Choice) presets = o.choices;
+      for (const OptionInfo* o : m.build_options())
+        if (o->name == "preset" && o->kind == OptionInfo::Kind::Choice) presets = o->choices;
       for (const auto& preset : presets)
         entries.push_back({&m, preset, preset.empty() ? m.name : m.name + ":" + preset});
     }
     auto build = [&](Entry& e) {
       MethodOptions mo;
-      mo.preset = e.preset;
+      if (!e.preset.empty()) mo.set("preset", e.preset);
       return e.info->make(rt, pts.data(), n_pts, mo);
     };
 

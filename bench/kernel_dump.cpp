@@ -45,11 +45,11 @@ int main(int argc, char** argv) {
       if (!m.on_device) continue;
       if (!only.empty() && std::find(only.begin(), only.end(), m.name) == only.end()) continue;
       std::vector<std::string> presets = {""};
-      for (const OptionInfo& o : m.build_options)
-        if (o.name == "preset" && o.kind == OptionInfo::Kind::Choice) presets = o.choices;
+      for (const OptionInfo* o : m.build_options())
+        if (o->name == "preset" && o->kind == OptionInfo::Kind::Choice) presets = o->choices;
       for (const std::string& preset : presets) {
         MethodOptions mo;
-        mo.preset = preset;
+        if (!preset.empty()) mo.set("preset", preset);
         std::fprintf(stderr, "kernel_dump: %s%s%s: building on %zu %s points\n", m.name.c_str(),
                      preset.empty() ? "" : " ", preset.c_str(), N, data.c_str());
         auto index = m.make(rt, pts.data(), N, mo);

@@ -45,7 +45,7 @@ struct Options {
   std::string data_dir;
   bool append = false;
   // Block-hash build and search knobs (-1: the preset's).
-  int L = -1, P = -1, B = -1, X = -1, probes = -1;
+  std::map<std::string, std::string> build, search;  // block hashing's table options given
 };
 
 Options parse(int argc, char** argv) {
@@ -70,11 +70,9 @@ Options parse(int argc, char** argv) {
         v.push_back("auto");
         return v;
       }()));
-  cli.integer("L", o.L, "blockhash: hash tables (-1: the preset decides)", -1, 1 << 16);
-  cli.integer("P", o.P, "blockhash: thresholds per dimension (-1: the preset decides)", -1, 1024);
-  cli.integer("B", o.B, "blockhash: block references per bucket (-1: the preset decides)", -1, 1 << 16);
-  cli.integer("X", o.X, "blockhash: points per block (-1: the preset decides)", -1, 16);
-  cli.integer("probes", o.probes, "blockhash: neighbour probes (-1: the preset decides)", -1, 2);
+  // Block hashing's own build and search options, from its table (--A and --preset are swept).
+  cli.table_options("blockhash", OptionInfo::Build, o.build, {"preset"});
+  cli.table_options("blockhash", OptionInfo::Search, o.search, {"A", "recall"});
   cli.parse(argc, argv);
   if (o.methods.empty()) o.methods = method_names();
   if (o.ks.empty() || o.As.empty() || o.data.empty() || o.sizes.empty()) cli.fail("empty list");
@@ -148,7 +146,7 @@ int main(int argc, char** argv) {
         const std::string truth_method = o.truth == "auto" ? default_truth_method() : o.truth;
         auto t0 = std::chrono::steady_clock::now();
         MethodOptions topt;
-        topt.threads = threads;
+        if (truth_method == "flann") topt.set("threads", std::to_string(threads));
         auto truth_index = make_index(truth_method, rt, pts.data(), n_pts, topt);
         KnnResult truth_all = truth_index->query(qs, tp);
         truth_index.reset();
@@ -159,12 +157,12 @@ int main(int argc, char** argv) {
           std::vector<std::string> presets = is_bh ? o.presets : std::vector<std::string>{""};
           for (const auto& preset : presets) {
             MethodOptions mo;
-            mo.preset = preset;
-            mo.threads = threads;
-            mo.L = o.L;
-            mo.P = o.P;
-            mo.B = o.B;
-            mo.X = o.X;
+            if (method == "flann") mo.set("threads", std::to_string(threads));
+            if (is_bh) {
+              if (!preset.empty()) mo.set("preset", preset);
+              for (const auto& [name, v] : o.build)
+                if (!v.empty()) mo.set(name, v);
+            }
             std::unique_ptr<Index> index;
             try {
               index = make_index(method, rt, pts.data(), n_pts, mo);
@@ -183,7 +181,7 @@ int main(int argc, char** argv) {
                   SearchParams p;
                   p.k = k;
                   if (A > 0) p.A = A;
-                  p.neighbour_probes = o.probes;
+                  if (is_bh) bench::BenchCli::apply_search("blockhash", o.search, p);
                   p.sort_queries = sort == "on";
                   Row r;
                   r.data = label;

@@ -43,6 +43,18 @@ using namespace bhcl;
 
 namespace {
 
+// The block-hash search options the harness sweeps: its table's search options but A and recall
+// (swept as --A and --recall) and the device options every method shares.
+std::vector<const OptionInfo*> sweep_options() {
+  std::vector<const OptionInfo*> out;
+  const std::vector<OptionInfo> device = device_search_options();
+  for (const OptionInfo* o : method_info("blockhash").search_options()) {
+    const bool shared = std::any_of(device.begin(), device.end(), [&](const OptionInfo& d) { return d.name == o->name; });
+    if (o->name != "A" && o->name != "recall" && !shared) out.push_back(o);
+  }
+  return out;
+}
+
 struct BuildSpec { std::string name; BlockHashBuildParams params; };
 struct DefineSpec { std::string name, defines; };
 
@@ -54,7 +66,10 @@ struct Options {
   std::vector<std::string> orders = {"random", "sorted"};
   std::vector<float> As = {1, 1.5f, 2, 3, 4, 6, 8};
   std::vector<double> recalls;  // --recall: variants asking for a recall target instead of an A
-  std::vector<int> probes = {-1};
+  // Block hashing's own search options (its table's, but A and recall, which are swept above, and
+  // the device options): each swept over a comma list, default its table default.
+  std::vector<const OptionInfo*> sweep;
+  std::vector<std::vector<std::string>> sweep_values;
   std::vector<BuildSpec> builds = {{"auto", {}}};
   std::vector<DefineSpec> defines = {{"base", ""}};
   std::string baseline_defines, csv, device, data_dir;
@@ -92,34 +107,23 @@ long long integer(const std::string& s, const std::string& what, double lo, doub
   return static_cast<long long>(v);
 }
 
-// One key of a --bh-build spec. Range checks beyond "an integer" are the index's (exit 1 then).
+// One key of a --bh-build spec: a build option of block hashing's table, by its name ("L",
+// "target-cell-points"), keyword ("target_cell_points") or the field it sets; range-checked there.
 void set_key(BlockHashBuildParams& p, const std::string& key, const std::string& v, const std::string& what) {
-  auto i = [&] { return static_cast<int>(integer(v, what + " " + key, -1, 2147483647.0)); };
-  if (key == "preset") {
-    try { p.preset = BlockHashBuildParams::parse_preset(v); } catch (const Error& e) { bad(what + ": " + e.what()); }
-  } else if (key == "L") p.L = i();
-  else if (key == "P") p.P = i();
-  else if (key == "B") p.B = i();
-  else if (key == "X") p.X = i();
-  else if (key == "target_cell_points") p.target_cell_points = num(v, what + " " + key);
-  else if (key == "cell_aligned") p.cell_aligned = i();
-  else if (key == "hilbert_seed") p.hilbert_seed = i();
-  else if (key == "neighbour_probes") p.neighbour_probes = i();
-  else if (key == "box_order") p.box_order = i();
-  else if (key == "box_skip") p.box_skip = i();
-  else if (key == "direct_addressing") p.direct_addressing = i();
-  else if (key == "guard_thresholds") p.guard_thresholds = i();
-  else if (key == "keep_top_count") p.keep_top_count = i();
-  else if (key == "b_percentile") p.b_percentile = num(v, what + " " + key);
-  else if (key == "design_A") p.design_A = num(v, what + " " + key);
-  else if (key == "design_k") p.design_k = i();
-  else if (key == "hist_bins") p.hist_bins = i();
-  else if (key == "hilbert_bits") p.hilbert_bits = i();
-  else if (key == "seed") p.seed = static_cast<std::uint64_t>(integer(v, what + " seed", 0, 9.0e18));
-  else bad(what + ": unknown key '" + key + "'");
+  for (const OptionInfo* o : method_info("blockhash").build_options()) {
+    const std::string field = o->field.substr(o->field.find("::") == std::string::npos ? 0 : o->field.find("::") + 2);
+    if (!o->set || (key != o->name && key != o->keyword_name() && key != field)) continue;
+    try {
+      o->set(&p, o->parse(v, what + " " + key));
+    } catch (const Error& e) {
+      bad(e.what());
+    }
+    return;
+  }
+  bad(what + ": unknown key '" + key + "'");
 }
 
-// Names appear in variant names (build/A/probes/defines) and CSV cells.
+// Names appear in variant names (build/A/sweep/defines) and CSV cells.
 std::string check_name(const std::string& name, const std::string& what) {
   if (name.empty() || name.find_first_of("/,\" ") != std::string::npos)
     bad(what + ": name '" + name + "' must be non-empty, without / , \" or spaces");
@@ -184,11 +188,29 @@ Options parse(int argc, char** argv) {
   cli.names("order", o.orders, "query orders: random, sorted (Hilbert)")->check(CLI::IsMember({"random", "sorted"}));
   cli.As(o.As);
   cli.numbers("recall", o.recalls, "blockhash variants asking for these recall targets instead of an A", 1e-6, 1.0);
-  cli.probes(o.probes);
-  cli.text("bh-build", builds, "blockhash builds: \"name[:key=value,...];...\"; keys: preset L P B X "
-           "target_cell_points cell_aligned hilbert_seed neighbour_probes box_order box_skip "
-           "direct_addressing guard_thresholds keep_top_count b_percentile design_A design_k hist_bins "
-           "hilbert_bits seed; a bare name is a preset (auto, paper) [default: auto]", "SPECS");
+  o.sweep = sweep_options();
+  o.sweep_values.resize(o.sweep.size());
+  for (std::size_t i = 0; i < o.sweep.size(); ++i) {
+    const OptionInfo* s = o.sweep[i];
+    o.sweep_values[i] = {s->def};
+    cli.app()
+        .add_option("--" + s->name, o.sweep_values[i], "blockhash: " + s->help + " (" + s->range_text() + "), comma separated")
+        ->delimiter(',')
+        ->check([s](const std::string& v) {
+          try {
+            s->parse(v);
+            return std::string();
+          } catch (const std::exception& e) {
+            return std::string(e.what());
+          }
+        })
+        ->type_name("LIST");
+  }
+  std::string keys;  // block hashing's build options, from its table
+  for (const OptionInfo* k : method_info("blockhash").build_options())
+    if (k->set) keys += " " + k->keyword_name();
+  cli.text("bh-build", builds, "blockhash builds: \"name[:key=value,...];...\"; keys:" + keys +
+           "; a bare name is a preset (auto, paper) [default: auto]", "SPECS");
   cli.text("defines", defines, "kernel variants: \"name:-DFOO=1 -DBAR;...\" [default: base, none]", "SPECS");
   cli.text("baseline-defines", o.baseline_defines, "-D switches for the kd-tree baseline's kernel", "DEFINES");
   cli.csv(o.csv);
@@ -216,6 +238,7 @@ Options parse(int argc, char** argv) {
 // One timed configuration. Baselines have A = 0 and an empty build.
 struct Variant {
   std::string name, method, build, defines_name;
+  std::vector<std::string> sweep;  // block-hash variants: the values of Options::sweep
   const Index* index = nullptr;
   SearchParams params;  // k set per run
   double compile_s = 0;
@@ -233,7 +256,30 @@ std::string fmt_A(float A) {
   return b;
 }
 
-std::string probes_name(int p) { return p < 0 ? "def" : std::to_string(p); }
+// A swept value in variant names: the option's initial and the value ("def": the default), e.g. "pdef".
+std::string sweep_tag(const OptionInfo& o, const std::string& v) {
+  return o.name.substr(0, 1) + (v == o.def ? "def" : v);
+}
+std::string sweep_tags(const Options& o, const std::vector<std::string>& values) {
+  std::string t;
+  for (std::size_t i = 0; i < values.size(); ++i) t += (i ? "," : "") + sweep_tag(*o.sweep[i], values[i]);
+  return t;
+}
+
+// Every combination of the swept values, the first option outermost.
+std::vector<std::vector<std::string>> sweep_product(const Options& o) {
+  std::vector<std::vector<std::string>> out = {{}};
+  for (const auto& values : o.sweep_values) {
+    std::vector<std::vector<std::string>> next;
+    for (const auto& prefix : out)
+      for (const auto& v : values) {
+        next.push_back(prefix);
+        next.back().push_back(v);
+      }
+    out = std::move(next);
+  }
+  return out;
+}
 
 // Rows that differ (ids, distances bit for bit, or counts) between two results of one shape.
 std::size_t differing_rows(const KnnResult& a, const KnnResult& b) {
@@ -284,7 +330,7 @@ void run_set(const Options& o, const std::shared_ptr<Runtime>& rt, const std::st
   }
 
   // Variants: the two baselines first (their times are the ratios' numerators), then block hashing
-  // grouped by (build, defines, probes) with A innermost, as the tables list them.
+  // grouped by (build, defines, swept search options) with A innermost, as the tables list them.
   std::vector<Variant> vars;
   auto base = [&](const std::string& name, const Index* idx, const std::string& defines) {
     Variant v;
@@ -296,11 +342,11 @@ void run_set(const Options& o, const std::shared_ptr<Runtime>& rt, const std::st
   };
   base("kdtree", &kd, o.baseline_defines);
   base("flann", &fl, "");
-  // Block-hash variants: build x defines x probes x (each A, then each recall target; a
+  // Block-hash variants: build x defines x swept search options x (each A, then each recall target; a
   // recall-target variant's A is tuned by the index at warm-up, BlockHashIndex::tune_for_recall).
   for (std::size_t bi = 0; bi < o.builds.size(); ++bi)
     for (const auto& d : o.defines)
-      for (int pr : o.probes) {
+      for (const std::vector<std::string>& sw : sweep_product(o)) {
         auto add = [&](const std::string& knob, float A, double recall) {
           Variant v;
           v.method = "blockhash";
@@ -309,9 +355,10 @@ void run_set(const Options& o, const std::shared_ptr<Runtime>& rt, const std::st
           v.index = bh[bi].get();
           v.params.A = A;
           v.params.recall_target = recall;
-          v.params.neighbour_probes = pr;
+          v.sweep = sw;
+          for (std::size_t i = 0; i < sw.size(); ++i) o.sweep[i]->set_search(&v.params, o.sweep[i]->parse(sw[i]));
           v.params.kernel_defines = d.defines;
-          v.name = v.build + "/" + knob + "/p" + probes_name(pr) + "/" + d.name;
+          v.name = v.build + "/" + knob + "/" + sweep_tags(o, sw) + "/" + d.name;
           vars.push_back(v);
         };
         for (float A : o.As) add("A" + fmt_A(A), A, 0.0);
@@ -324,7 +371,7 @@ void run_set(const Options& o, const std::shared_ptr<Runtime>& rt, const std::st
   for (auto& v : vars) v.params.sort_queries = 0;  // each order's array is dispatched as it is
 
   // Warm-up: kernel compiles (PoCL compiles at the first launch) never land in a timed run.
-  // Reported per structure and defines variant (A and probes share a kernel).
+  // Reported per structure and defines variant (A and the swept search options share a kernel).
   std::vector<std::pair<std::string, double>> compiles;
   for (auto& v : vars)
     for (int k : o.ks) {
@@ -442,9 +489,10 @@ void run_set(const Options& o, const std::shared_ptr<Runtime>& rt, const std::st
         if (csv) {
           const Variant& v = vars[vi];
           const bool bhv = v.method == "blockhash";
-          const std::string probes = bhv ? std::to_string(v.params.neighbour_probes) : "";
           *csv << set << ',' << N << ',' << n << ',' << k << ',' << o.orders[oi] << ',' << v.name << ','
-               << v.method << ',' << v.build << ',' << (bhv ? fmt_A(v.params.A) : "") << ',' << probes << ','
+               << v.method << ',' << v.build << ',' << (bhv ? fmt_A(v.params.A) : "") << ',';
+          for (std::size_t i = 0; i < o.sweep.size(); ++i) *csv << (bhv ? v.sweep[i] : "") << ',';
+          *csv
                << v.defines_name << ",\"" << v.params.kernel_defines << "\",\""
                << (v.method == "flann" ? "host" : rt->info().device_name) << "\"," << threads << ','
                << o.rounds << ',' << v.index->build_seconds() << ','
@@ -455,13 +503,13 @@ void run_set(const Options& o, const std::shared_ptr<Runtime>& rt, const std::st
         }
       }
       std::printf("kd-tree kernel vs FLANN: %.2f (median of per-round t_flann / t_kd)\n", med_fl[0]);
-      // Per (build, defines, probes) group (contiguous in vars): the smallest A reaching the target.
+      // Per (build, defines, swept options) group (contiguous in vars): the smallest A reaching the target.
       for (std::size_t g = 2; g < vars.size();) {
         std::size_t end = g, best = 0;
         double top = -1;
         float top_A = 0;
         for (; end < vars.size() && vars[end].build == vars[g].build && vars[end].defines_name == vars[g].defines_name &&
-               vars[end].params.neighbour_probes == vars[g].params.neighbour_probes;
+               vars[end].sweep == vars[g].sweep;
              ++end) {
           const double rec = row[end].acc.recall;
           if (vars[end].params.recall_target > 0) continue;  // its A is the index's choice: own row
@@ -473,9 +521,8 @@ void run_set(const Options& o, const std::shared_ptr<Runtime>& rt, const std::st
           std::printf("smallest A with recall >= %g: %s ratio_kd %.2f ratio_flann %.2f\n", o.recall_target,
                       vars[best].name.c_str(), med_kd[best], med_fl[best]);
         else
-          std::printf("smallest A with recall >= %g: %s/A*/p%s/%s none reaches the target (best recall %.4f at A%s)\n",
-                      o.recall_target, v.build.c_str(),
-                      probes_name(v.params.neighbour_probes).c_str(),
+          std::printf("smallest A with recall >= %g: %s/A*/%s/%s none reaches the target (best recall %.4f at A%s)\n",
+                      o.recall_target, v.build.c_str(), sweep_tags(o, v.sweep).c_str(),
                       v.defines_name.c_str(), top, fmt_A(top_A).c_str());
         g = end;
       }
@@ -509,7 +556,9 @@ int main(int argc, char** argv) {
     if (!o.csv.empty()) {
       csv = std::make_unique<std::ofstream>(o.csv, std::ios::trunc);
       if (!*csv) throw Error(o.csv + ": cannot open for writing");
-      *csv << "data,N,n,k,order,variant,method,build,A,probes,defines_name,defines,device,threads,rounds,"
+      *csv << "data,N,n,k,order,variant,method,build,A,";
+      for (const OptionInfo* s : o.sweep) *csv << s->name << ',';
+      *csv << "defines_name,defines,device,threads,rounds,"
               "build_s,compile_s,qps_median,ratio_kd_median,ratio_flann_median,ratio_kd_min,ratio_kd_max,"
               "ratio_flann_min,ratio_flann_max,recall,fn_rate,max_dilation,mean_dilation\n";
     }

@@ -10,12 +10,8 @@
 
 #include <sys/stat.h>
 
-#include "blockhash_cl/blockhash.hpp"
 #include "blockhash_cl/config.hpp"
 #include "blockhash_cl/error.hpp"
-#if BHCL_HAVE_FLANN
-#include "blockhash_cl/flann_index.hpp"
-#endif
 #include "blockhash_cl/io.hpp"
 #include "progress.hpp"
 
@@ -47,6 +43,20 @@ void Args::add_integer(const std::string& name, const std::string& help, long lo
   add(name, help + range, def, "INT");
 }
 
+void Args::add_table_option(const OptionInfo& o, const std::string& help, const std::string& type) {
+  table_[o.name] = &o;
+  add(o.name, help, o.def, type);
+}
+
+OptionValue Args::table_value(const std::string& key) const {
+  const std::string v = str(key);
+  try {
+    return table_.at(key)->parse(v, "--" + key);
+  } catch (const Error& e) {
+    throw UsageError(e.what());
+  }
+}
+
 void Args::add_number(const std::string& name, const std::string& help, const std::string& def) {
   add(name, help, def, "NUM");
 }
@@ -63,7 +73,10 @@ void Args::check_extras() const {
   }
 }
 
-bool Args::has(const std::string& key) const { return app_->count("--" + key) != 0; }
+bool Args::has(const std::string& key) const {
+  const CLI::Option* o = app_->get_option_no_throw("--" + key);  // undeclared: not given
+  return o && o->count() != 0;
+}
 
 std::string Args::str(const std::string& key) const {
   if (!has(key)) throw UsageError("missing required option --" + key);
@@ -75,6 +88,7 @@ std::string Args::str(const std::string& key, const std::string& fallback) const
 }
 
 long long Args::integer(const std::string& key) const {
+  if (table_.count(key)) return table_value(key).integer;
   const std::string v = str(key);
   auto range = ranges_.find(key);
   const long long lo = range == ranges_.end() ? std::numeric_limits<long long>::min() : range->second.first;
@@ -104,6 +118,7 @@ long long Args::integer(const std::string& key, long long fallback) const {
 
 double Args::number(const std::string& key, double fallback) const {
   if (!has(key)) return fallback;
+  if (table_.count(key)) return table_value(key).number;
   std::string v = str(key);
   size_t pos = 0;
   double x = 0;
@@ -130,6 +145,30 @@ Json stats_header(const std::string& command, const Runtime& rt) {
   return j;
 }
 
+void add_query_stats(Json& j, const Index& index, const QueryStats& st) {
+  j["build_s"] = index.build_seconds();
+  j["compile_s"] = st.compile_s;
+  j["query_s"] = st.query_s;
+  j["upload_s"] = st.upload_s;
+  j["download_s"] = st.download_s;
+  j["wall_s"] = st.wall_s;
+  j["queries_per_s"] = st.queries_per_s();
+  j["batches"] = st.batches;
+  j["nonfinite_queries"] = st.nonfinite_queries;
+}
+
+void write_radius_result(const Args& args, const RadiusResult& r) {
+  const std::size_t n = r.offsets.size() - 1, total = r.total();
+  write_array_file(args.str("out-offsets"), r.offsets.data(), n + 1, 0);
+  write_array_file(args.str("out-ids"), r.ids.data(), total, 0);
+  write_array_file(args.str("out-dist2"), r.dist2.data(), total, 0);
+  if (args.has("out-counts")) {
+    std::vector<std::int32_t> counts(n);
+    for (std::size_t i = 0; i < n; ++i) counts[i] = static_cast<std::int32_t>(r.count(i));
+    write_array_file(args.str("out-counts"), counts.data(), n, 0);
+  }
+}
+
 Json inputs_json(const Args& args, std::size_t N, std::size_t n, const SearchParams& p) {
   Json j;
   j["points"] = args.str("points");
@@ -142,30 +181,16 @@ Json inputs_json(const Args& args, std::size_t N, std::size_t n, const SearchPar
 }
 
 Json build_json(const Index& index, const MethodOptions& options) {
-  Json b;
-  if (const auto* bh = dynamic_cast<const BlockHashIndex*>(&index)) {
-    const BlockHashBuildInfo& i = bh->info();
-    b["preset"] = BlockHashBuildParams::preset_name(i.preset);
-    b["L"] = i.L;
-    b["P"] = i.P;
-    b["B"] = i.B;
-    b["X"] = i.X;
+  Json b = Json::object();
+  const MethodInfo& m = method_info(index.method());
+  if (m.used_build)
+    for (const auto& [name, value] : m.used_build(index)) b[name] = Json::parse(value);
+  if (m.saves) {
     // A loaded index carries its own jitter; the seed given only matters for a build.
-    if (options.load_index.empty()) b["seed"] = options.seed;
-    b["guard_thresholds"] = i.guard_thresholds;
-    b["keep_top_count"] = i.keep_top_count;
-    b["direct_addressing"] = i.direct_addressing;
-    b["box_skip"] = i.box_skip;
-    b["neighbour_probes"] = i.neighbour_probes;
-    b["box_order"] = i.box_order;
-    b["hilbert_seed"] = i.hilbert_seed;
-    if (!options.load_index.empty()) b["load_index"] = options.load_index;
-    if (!options.save_index.empty()) b["save_index"] = options.save_index;
+    if (options.load_index().empty()) b["seed"] = options.integer("seed", 1);
+    if (!options.load_index().empty()) b["load_index"] = options.load_index();
+    if (!options.save_index().empty()) b["save_index"] = options.save_index();
   }
-#if BHCL_HAVE_FLANN
-  if (const auto* fl = dynamic_cast<const FlannIndex*>(&index)) b["threads"] = fl->threads();
-#endif
-  if (b.is_null()) b = Json::object();
   return b;
 }
 
@@ -173,20 +198,10 @@ Json search_json(const Index& index, const SearchParams& p) {
   Json s;
   s["k"] = p.k;
   s["max_radius"] = p.max_radius;  // null: unbounded
-  if (const auto* bh = dynamic_cast<const BlockHashIndex*>(&index)) {
-    if (p.recall_target > 0) {
-      // The A the index tuned for this target (cached: no second tuning).
-      BlockHashIndex::RecallTuning t = bh->recall_tuning(p);
-      s["recall_target"] = p.recall_target;
-      s["A"] = t.A;
-      s["tuned_sample_recall"] = t.recall;
-      s["tuned_reached"] = t.reached;
-    } else {
-      s["A"] = p.A;
-    }
-    s["neighbour_probes"] = p.neighbour_probes >= 0 ? p.neighbour_probes : (bh->info().neighbour_probes ? (bh->info().cell_aligned ? 2 : 1) : 0);
-  }
-  if (index.method() != "flann") {  // the device methods
+  const MethodInfo& m = method_info(index.method());
+  if (m.used_search)
+    for (const auto& [name, value] : m.used_search(index, p)) s[name] = Json::parse(value);
+  if (m.on_device) {
     s["local_size"] = p.local_size ? p.local_size : index.runtime().quirks().default_local_size;
     s["max_batch"] = p.max_batch;  // 0: automatic
   }
@@ -196,15 +211,12 @@ Json search_json(const Index& index, const SearchParams& p) {
 
 namespace {
 
-// The methods that read option `name` (a build option of their registry entry or one of their
-// search options), in display order.
+// The methods whose option table holds `name`, in display order.
 std::vector<std::string> option_users(const std::string& name) {
   std::vector<std::string> users;
-  for (const MethodInfo& m : methods()) {
-    bool reads = std::find(m.search_options.begin(), m.search_options.end(), name) != m.search_options.end();
-    for (const OptionInfo& o : m.build_options) reads = reads || o.name == name;
-    if (reads) users.push_back(m.name);
-  }
+  for (const MethodInfo& m : methods())
+    if (std::any_of(m.options.begin(), m.options.end(), [&](const OptionInfo& o) { return o.name == name; }))
+      users.push_back(m.name);
   return users;
 }
 
@@ -214,14 +226,32 @@ std::string joined(const std::vector<std::string>& v, const char* sep) {
   return s;
 }
 
-// Every build option of the registry once (the first entry that declares it describes it).
-std::vector<const OptionInfo*> build_options() {
+// Every option of the registry's tables in `scope` once (the first entry that declares it
+// describes it).
+std::vector<const OptionInfo*> table_options(unsigned scope) {
   std::vector<const OptionInfo*> all;
   for (const MethodInfo& m : methods())
-    for (const OptionInfo& o : m.build_options)
-      if (std::none_of(all.begin(), all.end(), [&](const OptionInfo* x) { return x->name == o.name; }))
-        all.push_back(&o);
+    for (const OptionInfo* o : options_in(m.options, scope))
+      if (std::none_of(all.begin(), all.end(), [&](const OptionInfo* x) { return x->name == o->name; }))
+        all.push_back(o);
   return all;
+}
+std::vector<const OptionInfo*> build_options() { return table_options(OptionInfo::Build); }
+
+// Declares one table option, its help prefixed by the methods that read it.
+void declare_table_option(Args& a, const OptionInfo& o, std::string help) {
+  switch (o.kind) {
+    case OptionInfo::Kind::Integer:
+    case OptionInfo::Kind::Number:
+      a.add_table_option(o, help + " (" + o.range_text() + ")", o.kind == OptionInfo::Kind::Integer ? "INT" : "NUM");
+      break;
+    case OptionInfo::Kind::Choice:
+      a.add_table_option(o, help + " (" + joined(o.choices, ", ") + ")", "NAME");
+      break;
+    case OptionInfo::Kind::File:
+      a.add_table_option(o, help, "FILE");
+      break;
+  }
 }
 
 }  // namespace
@@ -241,51 +271,39 @@ void declare_run_options(Args& a, const std::string& stats_help) {
   a.add_text("stats", stats_help, "", "FILE");
   declare_device_option(a);
   a.add_flag("quiet", "no progress bars");
-  declare_index_options(a);
+  declare_index_options(a, 10, false, true);
 }
 
-void declare_index_options(Args& a, int default_k, bool render) {
+void declare_index_options(Args& a, int default_k, bool render, bool radius) {
   a.group("Search options");
   a.add_integer("k", "neighbours per query", 1, kMaxK, std::to_string(default_k));
   a.add_number("max-radius", "only neighbours within this Euclidean distance", "inf");
-  a.add_number("A", "blockhash: examine at most A*k points per query (accuracy against speed; inf: exact; absent: the index default, exact on auto, 8 on the block layouts)", "auto");
-  a.add_number("recall", "blockhash: a recall@k to reach instead of --A (e.g. 0.95): the index tunes "
-                         "A for this k on a sample of its points (0: use --A)", "0");
-  a.add_integer("probes", "blockhash: 0 the query's cell, 1 and its near-side neighbours, 2 and the "
-                          "4x4x4 block when needed (auto's cell-aligned layout; -1: the preset decides)",
-                -1, 2, "-1");
-  a.add_integer("local-size", "device methods: OpenCL work-group size (0: the device default)", 0,
-                1 << 20, "0");
-  a.add_integer("max-batch", "device methods: at most this many queries per dispatch (0: automatic)",
-                0, Args::kNoLimit, "0");
+  // From the method tables: each option once, with the methods that read it.
+  for (const OptionInfo* o : table_options(OptionInfo::Search)) declare_table_option(a, *o, joined(option_users(o->name), ", ") + ": " + o->help);
+  if (radius) {
+    a.group("Radius search");
+    for (const OptionInfo* o : table_options(OptionInfo::Radius))
+      if (!(o->scope & OptionInfo::Search)) declare_table_option(a, *o, "with --radius, " + joined(option_users(o->name), ", ") + ": " + o->help);
+  }
   a.group("Build options");
-  // From the method registry: each option once, with the methods that read it.
   for (const OptionInfo* o : build_options()) {
     std::string help = joined(option_users(o->name), ", ") + ": " + o->help;
     if (render && o->name == "seed") help = "seed of the rays (and of the photons unless --photon-seed), and " + help;
     if (render && o->name == "threads") help = "host threads of Embree and the photon tracer, and " + help;
-    switch (o->kind) {
-      case OptionInfo::Kind::Integer:
-        a.add_integer(o->name, help, o->lo, o->hi, o->def);
-        break;
-      case OptionInfo::Kind::Choice:
-        a.add_text(o->name, help + " (" + joined(o->choices, ", ") + ")", o->def, "NAME");
-        break;
-      case OptionInfo::Kind::File:
-        a.add_text(o->name, help, o->def, "FILE");
-        break;
-    }
+    declare_table_option(a, *o, help);
   }
   a.group("");
 }
 
 void check_method_options(const Args& args, const std::vector<std::string>& methods,
-                          const std::set<std::string>& also) {
+                          std::set<std::string> also) {
   const auto known = method_names();
   for (const auto& m : methods)
     if (std::find(known.begin(), known.end(), m) == known.end()) return;
-  std::vector<std::string> only = {"A", "recall", "probes", "local-size", "max-batch"};
-  for (const OptionInfo* o : build_options()) only.push_back(o->name);
+  std::vector<std::string> only;
+  for (const OptionInfo* o : table_options(OptionInfo::Build | OptionInfo::Search | OptionInfo::Radius)) only.push_back(o->name);
+  for (const OptionInfo* o : table_options(OptionInfo::Radius))  // kNN: refused later, as radius-only
+    if (!(o->scope & OptionInfo::Search) && !args.has("radius")) also.insert(o->name);
   for (const auto& option : only) {
     if (!args.has(option) || also.count(option)) continue;
     const std::vector<std::string> users = option_users(option);
@@ -310,21 +328,32 @@ void add_slice_stats(QueryStats& total, const QueryStats& s) {
 }  // namespace
 
 RadiusParams radius_search_options(const Args& args, const std::vector<std::string>& methods, float& radius) {
-  for (const char* o : {"k", "max-radius", "A", "recall"})
+  for (const char* o : {"k", "max-radius"})
     if (args.has(o)) throw UsageError(std::string("--") + o + " does not apply with --radius");
-  if (args.has("budget") && std::find(methods.begin(), methods.end(), "blockhash") == methods.end())
-    throw UsageError("--budget does not apply to method " + joined(methods, " and ") + " (only to blockhash)");
-  check_method_options(args, methods, {"budget"});
+  for (const OptionInfo* o : table_options(OptionInfo::Search))
+    if (!(o->scope & OptionInfo::Radius) && args.has(o->name))
+      throw UsageError("--" + o->name + " does not apply with --radius");
+  check_method_options(args, methods);
   const double r = args.number("radius", 0.0);
   if (!std::isfinite(r) || r < 0 || !std::isfinite(static_cast<float>(r)))
     throw UsageError("--radius must be a finite number >= 0");
   radius = static_cast<float>(r);
   RadiusParams rp;
-  rp.budget = static_cast<std::uint32_t>(args.integer("budget", 0));
-  rp.neighbour_probes = static_cast<int>(args.integer("probes", -1));
-  rp.local_size = static_cast<std::size_t>(args.integer("local-size", 0));
-  rp.max_batch = static_cast<std::size_t>(args.integer("max-batch", 0));
+  for (const OptionInfo* o : table_options(OptionInfo::Radius))
+    if (args.has(o->name)) o->set_radius(&rp, args.table_value(o->name));
   return rp;
+}
+
+Json table_values(const Args& args, const std::string& method, unsigned scope) {
+  Json j = Json::object();
+  for (const OptionInfo* o : options_in(method_info(method).options, scope)) {
+    if (o->kind == OptionInfo::Kind::File) continue;
+    const OptionValue v = args.has(o->name) ? args.table_value(o->name) : o->parse(o->def.empty() ? "0" : o->def);
+    if (o->kind == OptionInfo::Kind::Integer) j[o->name] = v.integer;
+    else if (o->kind == OptionInfo::Kind::Number) j[o->name] = v.number;
+    else j[o->name] = v.text;
+  }
+  return j;
 }
 
 QueryStats radius_with_progress(const Index& index, const std::vector<float>& queries, float radius,
@@ -363,7 +392,7 @@ std::unique_ptr<Index> build_with_progress(const std::string& method, std::share
                                            const std::vector<float>& points,
                                            const MethodOptions& options, bool quiet) {
   const std::size_t N = points.size() / 3;
-  render::Progress bar((options.load_index.empty() ? "build " : "load ") + method + " (" +
+  render::Progress bar((options.load_index().empty() ? "build " : "load ") + method + " (" +
                            std::to_string(N) + " points)",
                        !quiet);
   bar.update(0.0);
@@ -450,9 +479,9 @@ CommandInputs read_command_inputs(const Args& args, std::vector<FileArg> outputs
   CommandInputs in;
   in.mopt = method_options(args);
   outputs.push_back({"--stats", args.str("stats", "")});
-  outputs.push_back({"--save-index", in.mopt.save_index});
+  outputs.push_back({"--save-index", in.mopt.save_index()});
   check_distinct_files({{"--points", args.str("points")}, {"--queries", args.str("queries")},
-                        {"--load-index", in.mopt.load_index}},
+                        {"--load-index", in.mopt.load_index()}},
                        outputs);
   read_points_and_queries(args, in.points, in.queries);
   in.N = in.points.size() / 3;
@@ -472,21 +501,16 @@ MethodOptions method_options(const Args& args) {
   MethodOptions m;
   for (const OptionInfo* o : build_options()) {
     if (!args.has(o->name)) continue;
-    const std::string v = args.str(o->name);
-    long long x = 0;
-    if (o->kind == OptionInfo::Kind::Integer) x = args.integer(o->name);  // range-checked
-    if (o->kind == OptionInfo::Kind::Choice &&
-        std::find(o->choices.begin(), o->choices.end(), v) == o->choices.end())
-      throw UsageError("--" + o->name + " must be " + joined(o->choices, " or ") + ", got '" + v + "'");
-    o->set(m, v, x);
+    args.table_value(o->name);  // checked against the table (UsageError naming the option)
+    m.set(o->name, args.str(o->name));
   }
   // A saved index carries its own build parameters: a build option beside --load-index would be
   // silently ignored, so it is refused.
-  if (!m.load_index.empty())
+  if (!m.load_index().empty())
     for (const MethodInfo& method : methods())
-      for (const OptionInfo& o : method.build_options)
-        if (method.saves && o.name != "load-index" && o.name != "save-index" && args.has(o.name))
-          throw UsageError("--" + o.name + " does not apply with --load-index (the saved index carries its build parameters)");
+      for (const OptionInfo* o : method.build_options())
+        if (method.saves && o->name != "load-index" && o->name != "save-index" && args.has(o->name))
+          throw UsageError("--" + o->name + " does not apply with --load-index (the saved index carries its build parameters)");
   return m;
 }
 
@@ -496,17 +520,12 @@ SearchParams search_params(const Args& args, int default_k) {
   p.max_radius = static_cast<float>(args.number("max-radius", INFINITY));
   if (std::isnan(p.max_radius) || p.max_radius < 0)
     throw UsageError("--max-radius must be a non-negative number");
-  // Absent: the index's default (SearchParams::A = 0: exact on auto's grid, 8 on block layouts).
-  if (args.has("A")) {
-    p.A = static_cast<float>(args.number("A", p.A));
-    if (!(p.A > 0)) throw UsageError("--A must be a positive number (inf: exact)");
-  }
-  p.recall_target = args.number("recall", 0.0);
-  if (!(p.recall_target >= 0 && p.recall_target <= 1)) throw UsageError("--recall must be in [0, 1] (0: use --A)");
+  for (const OptionInfo* o : table_options(OptionInfo::Radius))
+    if (!(o->scope & OptionInfo::Search) && args.has(o->name))
+      throw UsageError("--" + o->name + " applies only with --radius");
+  for (const OptionInfo* o : table_options(OptionInfo::Search))
+    if (args.has(o->name)) o->set_search(&p, args.table_value(o->name));
   if (p.recall_target > 0 && args.has("A")) throw UsageError("--recall and --A both set: give one");
-  p.neighbour_probes = static_cast<int>(args.integer("probes", -1));
-  p.local_size = static_cast<std::size_t>(args.integer("local-size", 0));
-  p.max_batch = static_cast<std::size_t>(args.integer("max-batch", 0));
   return p;
 }
 

@@ -42,6 +42,8 @@ class Args {
                    const std::string& def);
   void add_number(const std::string& name, const std::string& help, const std::string& def);
   void add_flag(const std::string& name, const std::string& help);
+  // An option of a method table: parsed and range-checked by its entry (OptionInfo::parse).
+  void add_table_option(const OptionInfo& o, const std::string& help, const std::string& type);
   // The help group of the options declared next ("" for the main list).
   void group(const std::string& name) { group_ = name; }
 
@@ -57,6 +59,8 @@ class Args {
   long long integer(const std::string& key) const;  // required
   double number(const std::string& key, double fallback) const;
   bool flag(const std::string& key) const { return has(key); }
+  // A table option's value, checked by its entry (UsageError naming the option otherwise).
+  OptionValue table_value(const std::string& key) const;
 
  private:
   CLI::Option* add(const std::string& name, const std::string& help, const std::string& def,
@@ -66,6 +70,7 @@ class Args {
   std::string group_;
   std::map<std::string, std::string> values_;  // node-based: CLI11 keeps pointers into it
   std::map<std::string, std::pair<long long, long long>> ranges_;
+  std::map<std::string, const OptionInfo*> table_;  // the registry's entries (static storage)
 };
 
 // Stats files: JSON objects in insertion order (nlohmann-json).
@@ -74,11 +79,15 @@ using Json = nlohmann::ordered_json;
 void write_json(const std::string& path, const Json& j);
 // What every stats file starts with: the tool and library version, the command and the device.
 Json stats_header(const std::string& command, const Runtime& rt);
+// The timings and counts of a query call (with the index's build time) into a stats object.
+void add_query_stats(Json& j, const Index& index, const QueryStats& st);
+// A radius result into --out-offsets, --out-ids, --out-dist2 and (when given) --out-counts.
+void write_radius_result(const Args& args, const RadiusResult& r);
 // The inputs of a knn or eval run: the point and query files, N, n, k and the radius.
 Json inputs_json(const Args& args, std::size_t N, std::size_t n, const SearchParams& p);
-// The build parameters an index actually used (derived ones filled in: block hashing's L, P, B, X
-// and switches; FLANN's threads) and the search parameters of a query with `p` (defaults
-// resolved: the work-group size, block hashing's probes), so that a run can be reproduced.
+// The build parameters an index actually used (its method's MethodInfo::used_build: derived ones
+// filled in) and the search parameters of a query with `p` (defaults resolved: the work-group
+// size, MethodInfo::used_search), so that a run can be reproduced.
 Json build_json(const Index& index, const MethodOptions& options);
 Json search_json(const Index& index, const SearchParams& p);
 
@@ -91,18 +100,17 @@ void declare_data_options(Args& args, const std::string& method_help);
 // index options below.
 void declare_run_options(Args& args, const std::string& stats_help);
 
-// Options shared by every command that builds and queries an index (knn, eval, render):
-// --k --max-radius --A --probes --local-size --max-batch and the build options
-// --preset --L --P --B --X --threads --seed --load-index --save-index.
-// `render`: --seed and --threads also drive the renderer (their help says so).
-void declare_index_options(Args& args, int default_k = 10, bool render = false);
+// Options shared by every command that builds and queries an index (knn, eval, render): --k,
+// --max-radius and every search and build option of the method tables (the radius-only ones
+// with `radius`). `render`: --seed and --threads also drive the renderer (their help says so).
+void declare_index_options(Args& args, int default_k = 10, bool render = false, bool radius = false);
 MethodOptions method_options(const Args& args);
 SearchParams search_params(const Args& args, int default_k = 10);
 // Throws UsageError for a method option given although none of `methods` reads it (e.g. --A for
 // kdtree, --threads for anything but flann); `also` lists options the command itself reads.
 // An unknown method skips the check: make_index names it.
 void check_method_options(const Args& args, const std::vector<std::string>& methods,
-                          const std::set<std::string>& also = {});
+                          std::set<std::string> also = {});
 // Builds the index (make_index) and answers the queries in slices, drawing a progress bar on a
 // terminal (unless `quiet`): the build, then the query batches. Results do not depend on the
 // slicing (the contract); the stats are the slices' sums (wall time: the whole call).
@@ -114,10 +122,12 @@ QueryStats query_with_progress(const Index& index, const std::vector<float>& que
 // The same for a radius search (Index::radius_search; the slices concatenated).
 QueryStats radius_with_progress(const Index& index, const std::vector<float>& queries, float radius,
                                 const RadiusParams& params, RadiusResult& out, bool quiet);
-// --radius and --budget, checked for `methods`: --k, --max-radius, --A and --recall are refused
-// with it, --budget only for blockhash, r must be finite and >= 0 (the caller adds its own, e.g.
+// --radius and the tables' radius options, checked for `methods`: --k, --max-radius and the
+// kNN-only options are refused with it, r must be finite and >= 0 (the caller adds its own, e.g.
 // knn's --max-results).
 RadiusParams radius_search_options(const Args& args, const std::vector<std::string>& methods, float& radius);
+// The method table's options in `scope` as JSON, by name: the value given, else the default.
+Json table_values(const Args& args, const std::string& method, unsigned scope);
 
 // A file a command reads or writes, by the option that names it.
 struct FileArg {

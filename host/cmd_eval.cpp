@@ -45,8 +45,6 @@ void declare_eval(Args& a) {
   a.group("Radius search");
   a.add_number("radius", "evaluate the radius search instead of kNN: every point within this Euclidean "
                          "distance of each query, against the truth's", "");
-  a.add_integer("budget", "with --radius, blockhash: examine at most this many points per query "
-                          "(0: every block within the radius that the probes reach)", 0, 4294967295LL, "0");
   a.group("");
 }
 
@@ -60,8 +58,8 @@ struct EvalInputs {
 EvalInputs read_eval_inputs(const Args& args) {
   EvalInputs e{read_command_inputs(args, {}), {}};
   e.topt = e.in.mopt;
-  e.topt.load_index.clear();
-  e.topt.save_index.clear();
+  e.topt.values.erase("load-index");
+  e.topt.values.erase("save-index");
   return e;
 }
 

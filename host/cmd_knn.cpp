@@ -35,8 +35,6 @@ void declare_knn(Args& a) {
                             "of --out-ids and --out-dist2 (int64, n + 1; NPY when named .npy)", "", "FILE");
   a.add_integer("max-results", "with --radius: at most this many results per query, the nearest "
                                "(0: no cap; truncated queries are counted)", 0, Args::kNoLimit, "0");
-  a.add_integer("budget", "with --radius, blockhash: examine at most this many points per query "
-                          "(0: every block within the radius that the probes reach)", 0, 4294967295LL, "0");
   a.group("");
   declare_knn_distributed(a);
 }
@@ -72,14 +70,7 @@ int run_radius(const Args& args) {
   QueryStats st = radius_with_progress(*index, queries, radius, rp, all, quiet);
 
   const std::size_t total = all.total();
-  write_array_file(out_offsets, all.offsets.data(), n + 1, 0);
-  write_array_file(out_ids, all.ids.data(), total, 0);
-  write_array_file(out_dist2, all.dist2.data(), total, 0);
-  if (args.has("out-counts")) {
-    std::vector<std::int32_t> counts(n);
-    for (std::size_t i = 0; i < n; ++i) counts[i] = static_cast<std::int32_t>(all.count(i));
-    write_array_file(args.str("out-counts"), counts.data(), n, 0);
-  }
+  write_radius_result(args, all);
   std::fprintf(stderr,
                "bhcl knn --radius: %s on %s: N=%zu n=%zu r=%g  build %.3f s  compile %.3f s  query %.4f s "
                "(%.0f q/s)  results %zu (%.2f per query)  truncated queries %zu\n",
@@ -95,18 +86,11 @@ int run_radius(const Args& args) {
     j["N"] = N;
     j["n"] = n;
     j["build"] = build_json(*index, mopt);
-    j["radius"] = {{"radius", radius}, {"max_results", rp.max_results}, {"budget", rp.budget},
-                   {"probes", rp.neighbour_probes}, {"results", total},
-                   {"truncated_queries", all.truncated_queries}};
-    j["build_s"] = index->build_seconds();
-    j["compile_s"] = st.compile_s;
-    j["query_s"] = st.query_s;
-    j["upload_s"] = st.upload_s;
-    j["download_s"] = st.download_s;
-    j["wall_s"] = st.wall_s;
-    j["queries_per_s"] = st.queries_per_s();
-    j["batches"] = st.batches;
-    j["nonfinite_queries"] = st.nonfinite_queries;
+    j["radius"] = {{"radius", radius}, {"max_results", rp.max_results}};
+    j["radius"].update(table_values(args, method, OptionInfo::Radius));
+    j["radius"]["results"] = total;
+    j["radius"]["truncated_queries"] = all.truncated_queries;
+    add_query_stats(j, *index, st);
     j["memory_bytes"] = index->memory_bytes();
     write_json(args.str("stats"), j);
   }
@@ -130,10 +114,10 @@ int run_knn_multi(const Args& args, const std::vector<std::string>& devices) {
     params = search_params(args);
   }
   MethodOptions mopt = method_options(args);
-  if (!mopt.save_index.empty()) throw UsageError("--save-index does not apply with several devices");
+  if (!mopt.save_index().empty()) throw UsageError("--save-index does not apply with several devices");
   const std::string out_ids = args.str("out-ids"), out_dist2 = args.str("out-dist2");
   check_distinct_files({{"--points", args.str("points")}, {"--queries", args.str("queries")},
-                        {"--load-index", mopt.load_index}},
+                        {"--load-index", mopt.load_index()}},
                        {{"--out-ids", out_ids}, {"--out-dist2", out_dist2},
                         {"--out-offsets", args.str("out-offsets", "")},
                         {"--out-counts", args.str("out-counts", "")}, {"--stats", args.str("stats", "")}});
@@ -234,15 +218,7 @@ int run_knn(const Args& args) {
     j.update(inputs_json(args, N, n, params));
     j["build"] = build_json(*index, mopt);
     j["search"] = search_json(*index, params);
-    j["build_s"] = index->build_seconds();
-    j["compile_s"] = st.compile_s;
-    j["query_s"] = st.query_s;
-    j["upload_s"] = st.upload_s;
-    j["download_s"] = st.download_s;
-    j["wall_s"] = st.wall_s;
-    j["queries_per_s"] = st.queries_per_s();
-    j["batches"] = st.batches;
-    j["nonfinite_queries"] = st.nonfinite_queries;
+    add_query_stats(j, *index, st);
     j["neighbours_found"] = found;
     j["memory_bytes"] = index->memory_bytes();
     write_json(args.str("stats"), j);

@@ -103,7 +103,7 @@ int run_knn_distributed(const Args& args) {
   const std::string out_dist2 = args.str("out-dist2");
   SearchParams params = search_params(args);
   MethodOptions mopt = method_options(args);
-  if (!mopt.load_index.empty() || !mopt.save_index.empty())
+  if (!mopt.load_index().empty() || !mopt.save_index().empty())
     throw UsageError("--load-index and --save-index do not apply with --distributed (each rank builds its shard)");
   check_distinct_files({{"--points", args.str("points")}, {"--queries", args.str("queries")}},
                        {{"--out-ids", out_ids}, {"--out-dist2", out_dist2},
@@ -152,14 +152,7 @@ int run_knn_distributed(const Args& args) {
     DistributedQueryStats rds;
     const QueryStats rst = index.radius_search(queries.data(), n, radius, rparams, rr, &rds);
     if (rank == 0) try {
-        write_array_file(args.str("out-offsets"), rr.offsets.data(), n + 1, 0);
-        write_array_file(out_ids, rr.ids.data(), rr.total(), 0);
-        write_array_file(out_dist2, rr.dist2.data(), rr.total(), 0);
-        if (args.has("out-counts")) {
-          std::vector<std::int32_t> counts(n);
-          for (std::size_t i = 0; i < n; ++i) counts[i] = static_cast<std::int32_t>(rr.count(i));
-          write_array_file(args.str("out-counts"), counts.data(), n, 0);
-        }
+        write_radius_result(args, rr);
         std::fprintf(stderr,
                      "bhcl knn --distributed --radius: %s on %d rank(s): N=%zu n=%zu r=%g  build %.3f s  "
                      "query %.3f s  queries on more than one rank %zu (%.1f %%)  results %zu  truncated %zu\n",

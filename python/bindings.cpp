@@ -93,27 +93,23 @@ py::dict stats_dict(const bhcl::QueryStats& s) {
   return o;
 }
 
+// Values of the method's MethodInfo::used_* (JSON text) into a dict.
+void add_used(py::dict& o, const bhcl::MethodInfo::Used& used) {
+  py::object loads = py::module_::import("json").attr("loads");
+  for (const auto& [name, value] : used) o[py::str(name)] = loads(value);
+}
+
 // What the search actually used beyond the caller's parameters (as `bhcl knn --stats` writes it):
-// block hashing's A (tuned when a recall target was given) and probes.
+// the method's MethodInfo::used_search.
 void add_resolved(py::dict& o, const bhcl::Index& index, const bhcl::SearchParams& p) {
-  const auto* bh = dynamic_cast<const bhcl::BlockHashIndex*>(&index);
-  if (!bh) return;
-  if (p.recall_target > 0) {
-    bhcl::BlockHashIndex::RecallTuning t;
-    {
-      py::gil_scoped_release nogil;
-      t = bh->recall_tuning(p);  // cached by the query that just ran
-    }
-    o["recall_target"] = p.recall_target;
-    o["A"] = t.A;
-    o["tuned_sample_recall"] = t.recall;
-    o["tuned_reached"] = t.reached;
-  } else {
-    o["A"] = p.A;
+  const bhcl::MethodInfo& m = bhcl::method_info(index.method());
+  if (!m.used_search) return;
+  bhcl::MethodInfo::Used used;
+  {
+    py::gil_scoped_release nogil;
+    used = m.used_search(index, p);  // a recall tuning is cached by the query that just ran
   }
-  const auto& i = bh->info();
-  o["neighbour_probes"] =
-      p.neighbour_probes >= 0 ? p.neighbour_probes : (i.neighbour_probes ? (i.cell_aligned ? 2 : 1) : 0);
+  add_used(o, used);
 }
 
 // kNN: (dist2 (n, k) float32, ids (n, k) int32, counts (n,) int32, stats dict).
@@ -168,32 +164,8 @@ std::unique_ptr<bhcl::Index> make_index(const std::string& method,
 
 py::dict build_info(const bhcl::Index& index) {
   py::dict o;
-  if (const auto* bh = dynamic_cast<const bhcl::BlockHashIndex*>(&index)) {
-    const bhcl::BlockHashBuildInfo& i = bh->info();
-    o["preset"] = bhcl::BlockHashBuildParams::preset_name(i.preset);
-    o["L"] = i.L;
-    o["P"] = i.P;
-    o["B"] = i.B;
-    o["X"] = i.X;
-    o["cell_aligned"] = i.cell_aligned;
-    o["axis_P"] = py::make_tuple(i.axis_P[0], i.axis_P[1], i.axis_P[2]);
-    o["guard_thresholds"] = i.guard_thresholds;
-    o["keep_top_count"] = i.keep_top_count;
-    o["direct_addressing"] = i.direct_addressing;
-    o["box_skip"] = i.box_skip;
-    o["neighbour_probes"] = i.neighbour_probes;
-    o["box_order"] = i.box_order;
-    o["hilbert_seed"] = i.hilbert_seed;
-    o["n_blocks"] = i.n_blocks;
-    o["occupied_cells"] = i.occupied_cells;
-    o["overflowed_buckets"] = i.overflowed_buckets;
-    o["block_refs"] = i.block_refs;
-    o["median_cell_points"] = i.median_cell_points;
-    o["summary"] = i.summary();
-  }
-#if BHCL_HAVE_FLANN
-  if (const auto* fl = dynamic_cast<const bhcl::FlannIndex*>(&index)) o["threads"] = fl->threads();
-#endif
+  const bhcl::MethodInfo& m = bhcl::method_info(index.method());
+  if (m.used_build) add_used(o, m.used_build(index));
   return o;
 }
 
@@ -210,43 +182,57 @@ py::list method_table() {
     d["on_device"] = m.on_device;
     d["saves"] = m.saves;
     py::list opts;
-    for (const bhcl::OptionInfo& o : m.build_options) {
+    for (const bhcl::OptionInfo& o : m.options) {
       py::dict od;
       od["name"] = o.name;
+      od["keyword"] = o.keyword_name();
       od["help"] = o.help;
       od["default"] = o.def;
-      od["kind"] = o.kind == bhcl::OptionInfo::Kind::Integer ? "integer"
-                   : o.kind == bhcl::OptionInfo::Kind::Choice ? "choice" : "file";
-      od["lo"] = o.lo;
-      od["hi"] = o.hi;
+      od["kind"] = o.kind == bhcl::OptionInfo::Kind::Integer  ? "integer"
+                   : o.kind == bhcl::OptionInfo::Kind::Number ? "number"
+                   : o.kind == bhcl::OptionInfo::Kind::Choice ? "choice"
+                                                              : "file";
+      od["range"] = o.range_text();
+      od["lo"] = o.kind == bhcl::OptionInfo::Kind::Number ? py::object(py::float_(o.xlo)) : py::object(py::int_(o.lo));
+      od["hi"] = o.kind == bhcl::OptionInfo::Kind::Number ? py::object(py::float_(o.xhi)) : py::object(py::int_(o.hi));
       od["choices"] = o.choices;
+      od["build"] = bool(o.scope & bhcl::OptionInfo::Build);
+      od["search"] = bool(o.scope & bhcl::OptionInfo::Search);
+      od["radius"] = bool(o.scope & bhcl::OptionInfo::Radius);
+      od["field"] = o.field;
       opts.append(od);
     }
-    d["build_options"] = opts;
-    d["search_options"] = m.search_options;
+    d["options"] = opts;
     out.append(d);
   }
   return out;
 }
 
-// Stores one build option through its registry setter, range or choice checked as bhcl checks it.
+// One option of `method`'s table by name, parsed and range-checked by its entry (bhcl::Error,
+// a ValueError, naming it otherwise).
+const bhcl::OptionInfo& table_entry(const std::string& method, const std::string& name, unsigned scope) {
+  for (const bhcl::OptionInfo& o : bhcl::method_info(method).options)
+    if (o.name == name && (o.scope & scope)) return o;
+  throw bhcl::Error("option '" + name + "' does not apply to method " + method);
+}
+
 void set_build_option(bhcl::MethodOptions& opts, const std::string& method, const std::string& name,
-                      const std::string& text, long long value) {
-  for (const bhcl::OptionInfo& o : bhcl::method_info(method).build_options) {
-    if (o.name != name) continue;
-    if (o.kind == bhcl::OptionInfo::Kind::Integer && (value < o.lo || value > o.hi))
-      throw bhcl::Error(name + " = " + std::to_string(value) + " is out of range: must be in [" +
-                        std::to_string(o.lo) + ", " + std::to_string(o.hi) + "]");
-    if (o.kind == bhcl::OptionInfo::Kind::Choice &&
-        std::find(o.choices.begin(), o.choices.end(), text) == o.choices.end()) {
-      std::string all;
-      for (const auto& c : o.choices) all += (all.empty() ? "" : ", ") + c;
-      throw bhcl::Error(name + " = '" + text + "' is not one of " + all);
-    }
-    o.set(opts, text, value);
-    return;
-  }
-  throw bhcl::Error("build option '" + name + "' does not apply to method " + method);
+                      const std::string& text) {
+  const bhcl::OptionInfo& o = table_entry(method, name, bhcl::OptionInfo::Build);
+  o.parse(text, o.keyword_name());
+  opts.set(name, text);
+}
+
+void set_search_option(bhcl::SearchParams& p, const std::string& method, const std::string& name,
+                       const std::string& text) {
+  const bhcl::OptionInfo& o = table_entry(method, name, bhcl::OptionInfo::Search);
+  o.set_search(&p, o.parse(text, o.keyword_name()));
+}
+
+void set_radius_option(bhcl::RadiusParams& p, const std::string& method, const std::string& name,
+                       const std::string& text) {
+  const bhcl::OptionInfo& o = table_entry(method, name, bhcl::OptionInfo::Radius);
+  o.set_radius(&p, o.parse(text, o.keyword_name()));
 }
 
 void save(const bhcl::Index& index, const std::string& path) {
@@ -290,7 +276,11 @@ PYBIND11_MODULE(_core, m) {
   m.def("method_names", &bhcl::method_names, "Names make_index accepts, in display order.");
   m.def("method_table", &method_table, "The method registry: flags, build and search options.");
   m.def("set_build_option", &set_build_option, py::arg("options"), py::arg("method"),
-        py::arg("name"), py::arg("text"), py::arg("value"));
+        py::arg("name"), py::arg("text"));
+  m.def("set_search_option", &set_search_option, py::arg("params"), py::arg("method"),
+        py::arg("name"), py::arg("text"));
+  m.def("set_radius_option", &set_radius_option, py::arg("params"), py::arg("method"),
+        py::arg("name"), py::arg("text"));
   m.def("list_devices", [] {
     std::vector<py::dict> out;
     for (const auto& d : bhcl::list_devices()) out.push_back(device_dict(d));
@@ -318,7 +308,6 @@ PYBIND11_MODULE(_core, m) {
       .def_readwrite("max_radius", &bhcl::SearchParams::max_radius)
       .def_readwrite("A", &bhcl::SearchParams::A)
       .def_readwrite("recall_target", &bhcl::SearchParams::recall_target)
-      .def_readwrite("neighbour_probes", &bhcl::SearchParams::neighbour_probes)
       .def_readwrite("local_size", &bhcl::SearchParams::local_size)
       .def_readwrite("max_batch", &bhcl::SearchParams::max_batch)
       .def_readwrite("sort_queries", &bhcl::SearchParams::sort_queries);
@@ -326,7 +315,6 @@ PYBIND11_MODULE(_core, m) {
   py::class_<bhcl::RadiusParams>(m, "RadiusParams")
       .def(py::init<>())
       .def_readwrite("budget", &bhcl::RadiusParams::budget)
-      .def_readwrite("neighbour_probes", &bhcl::RadiusParams::neighbour_probes)
       .def_readwrite("max_results", &bhcl::RadiusParams::max_results)
       .def_readwrite("sorted", &bhcl::RadiusParams::sorted)
       .def_readwrite("local_size", &bhcl::RadiusParams::local_size)
@@ -337,16 +325,9 @@ PYBIND11_MODULE(_core, m) {
 
   py::class_<bhcl::MethodOptions>(m, "MethodOptions")
       .def(py::init<>())
-      .def_readwrite("preset", &bhcl::MethodOptions::preset)
-      .def_readwrite("L", &bhcl::MethodOptions::L)
-      .def_readwrite("P", &bhcl::MethodOptions::P)
-      .def_readwrite("B", &bhcl::MethodOptions::B)
-      .def_readwrite("X", &bhcl::MethodOptions::X)
-      .def_readwrite("threads", &bhcl::MethodOptions::threads)
-      .def_readwrite("leaf_size", &bhcl::MethodOptions::leaf_size)
-      .def_readwrite("seed", &bhcl::MethodOptions::seed)
-      .def_readwrite("load_index", &bhcl::MethodOptions::load_index)
-      .def_readwrite("save_index", &bhcl::MethodOptions::save_index);
+      .def_readwrite("values", &bhcl::MethodOptions::values)
+      .def("set", [](bhcl::MethodOptions& o, const std::string& name, const std::string& text) { o.set(name, text); },
+           py::arg("name"), py::arg("text"));
 
   py::class_<bhcl::Index, std::unique_ptr<bhcl::Index>>(m, "Index")
       .def_property_readonly("method", &bhcl::Index::method)

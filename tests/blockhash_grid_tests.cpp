@@ -150,7 +150,7 @@ TEST_CASE("blockhash_grid_build: independent of threads, stable, every point in 
   REQUIRE(a.first_mismatch(other.data(), other.size() / 3) == 777);
 }
 
-TEST_CASE("blockhash_grid_io: save and load answer identically; damage is refused") {
+TEST_CASE("blockhash_grid_io: save and load answer identically, damage is refused") {
   auto pts = datasets::uniform(30000, 21);
   auto qs = datasets::uniform(400, 22);
   BlockHashIndex index(test::runtime(), pts.data(), pts.size() / 3);
@@ -217,7 +217,7 @@ TEST_CASE("blockhash_grid_params: the layouts and the checks") {
   BlockHashBuildParams cs;
   cs.cell_size = -3;
   REQUIRE_THROWS_WITH_AS(BlockHashIndex(test::runtime(), pts.data(), pts.size() / 3, cs),
-                         doctest::Contains("cell_size"), Error);
+                         doctest::Contains("cell"), Error);
   SearchParams p;
   p.A = -1;
   REQUIRE_THROWS_WITH_AS(def.query(pts, p), doctest::Contains("A must be positive"), Error);

@@ -146,13 +146,13 @@ TEST_CASE("cli: every command's --help exits 0 and lists each option with its me
     std::vector<std::string> shown;
   };
   std::vector<std::string> index_options = {
-      "--k INT=10", "--max-radius NUM=inf", "--A NUM=auto", "--probes", "--local-size", "--max-batch",
+      "--k INT=10", "--max-radius NUM=inf", "--A NUM=0", "--probes", "--local-size", "--max-batch",
       "--preset NAME=auto", "--L ", "--P ", "--B ", "--X ", "--seed INT=1", "--load-index", "--save-index"};
   // Every build option of every registered method, with its declared default.
   for (const MethodInfo& m : methods())
-    for (const OptionInfo& o : m.build_options)
-      index_options.push_back("--" + o.name + (o.def.empty() ? std::string(" ") : "") +
-                              (o.kind == OptionInfo::Kind::Integer ? " INT=" + o.def : ""));
+    for (const OptionInfo* o : m.build_options())
+      index_options.push_back("--" + o->name + (o->def.empty() ? std::string(" ") : "") +
+                              (o->kind == OptionInfo::Kind::Integer ? " INT=" + o->def : ""));
   std::vector<Expect> cases = {
       {"knn", {"--points FILE REQUIRED", "--queries FILE REQUIRED", "--method NAME REQUIRED",
                "--out-ids FILE REQUIRED", "--out-dist2 FILE REQUIRED", "--out-counts", "--stats", "--device"}},
@@ -194,7 +194,7 @@ TEST_CASE("cli: missing --method, an option the method does not read, an out-of-
       {base + " --k 3 --method kdtree --L 4", "--L does not apply to method kdtree"},
       {base + " --k 99999999999999999999 --method kdtree", "--k must be in [1, 256]"},
       {base + " --k 4294967299 --method kdtree", "--k must be in [1, 256]"},  // 2^32 + 3: not narrowed to 3
-      {base + " --k 3 --method blockhash --X 17", "--X must be in [-1, 16]"},
+      {base + " --k 3 --method blockhash --X 17", "--X must be in [1, 16] (or -1)"},
       {base + " --k 3 --method blockhash --seed -1", "--seed must be >= 0"},
       {base + " --k 3 --method kdtree --max-batch -5", "--max-batch must be >= 0"},
       {base + " --k 3 --method kdtree --k", "option --k needs a value"},
@@ -381,9 +381,9 @@ TEST_CASE("cli: outputs never destroy inputs or each other, and misused options 
       {knn + "--method blockhash --out-ids " + O + "i --out-dist2 " + O + "d --load-index " + idx + " --L 3", "--L does not apply with --load-index"},
       {knn + "--method blockhash --out-ids " + O + "i --out-dist2 " + O + "d --load-index " + idx + " --preset paper", "--preset does not apply with --load-index"},
       // Integers are range-checked, never narrowed or wrapped.
-      {knn + "--method blockhash --out-ids " + O + "i --out-dist2 " + O + "d --L 4294967297", "--L must be in [-1, 65536], got 4294967297"},
+      {knn + "--method blockhash --out-ids " + O + "i --out-dist2 " + O + "d --L 4294967297", "--L must be in [1, 64] (or -1), got 4294967297"},
       {knn + "--method flann --out-ids " + O + "i --out-dist2 " + O + "d --threads 4294967296", "--threads must be in [0, 65536]"},
-      {knn + "--method blockhash --out-ids " + O + "i --out-dist2 " + O + "d --P -2", "--P must be in [-1, 1024], got -2"},
+      {knn + "--method blockhash --out-ids " + O + "i --out-dist2 " + O + "d --P -2", "--P must be in [1, 1024] (or -1), got -2"},
       {"demo --N -1 --no-render", "--N must be in [1,"},
       // The renderer's outputs, the derived PNG included.
       {"render --scene " + O + "scene.obj --out " + O + "scene.obj --photons 100 --size 8x8", "--out " + O + "scene.obj is the input --scene"},

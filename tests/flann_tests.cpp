@@ -23,7 +23,7 @@ TEST_CASE("flann: results do not depend on the thread count") {
     test::require_identical(index.query(qs, p), ref, "threads");
   }
   MethodOptions mo;
-  mo.threads = 3;
+  mo.set("threads", "3");
   auto viaf = make_index("flann", test::runtime(), pts.data(), 3000, mo);
   CHECK(viaf->method() == "flann");
   CHECK(viaf->exact());

@@ -141,7 +141,7 @@ TEST_CASE("radius: block hashing returns a subset within r, and finds most of it
   const RadiusResult ref = reference_radius(pts, qs, r * r);
   for (const std::string preset : {"auto", "paper"}) {
     MethodOptions o;
-    o.preset = preset;
+    o.set("preset", preset);
     auto index = make_index("blockhash", runtime(), pts.data(), pts.size() / 3, o);
     RadiusParams p;
     p.count_examined = true;

@@ -6,6 +6,7 @@
 #include <thread>
 
 #include "blockhash_cl/error.hpp"
+#include "parallel.hpp"
 
 namespace bhcl::render {
 namespace {
@@ -96,26 +97,18 @@ PhotonTraceResult trace_photons(const EmbreeScene& es, const LightSampler& light
   // The chunk size depends only on the target, so the photon set does not depend on threads.
   const std::size_t chunk = std::clamp<std::size_t>(opt.photons / 16, 64, 4096);
   const std::size_t max_emitted = opt.max_emitted ? opt.max_emitted : 64 * opt.photons + 1000000;
-  int threads = opt.threads > 0 ? opt.threads : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  const int threads = resolve_threads(opt.threads);
   const std::size_t round_chunks = static_cast<std::size_t>(threads) * 8;
 
   std::size_t next_chunk = 0;
   bool done = false;
   while (!done) {
     std::vector<ChunkOut> outs(round_chunks);
-    std::atomic<std::size_t> cursor{0};
-    auto work = [&] {
-      for (;;) {
-        std::size_t c = cursor.fetch_add(1);
-        if (c >= round_chunks) return;
-        std::uint64_t first = static_cast<std::uint64_t>(next_chunk + c) * chunk;
-        for (std::uint64_t i = first; i < first + chunk; ++i) trace_one(es, lights, opt, inv_lum, i, outs[c]);
-      }
-    };
-    std::vector<std::thread> pool;
-    for (int t = 1; t < threads; ++t) pool.emplace_back(work);
-    work();
-    for (auto& t : pool) t.join();
+    // One chunk of photons per task; a throw reaches the caller (parallel.hpp).
+    parallel_chunks(round_chunks, 1, threads, [&](std::size_t c, std::size_t, std::size_t) {
+      std::uint64_t first = static_cast<std::uint64_t>(next_chunk + c) * chunk;
+      for (std::uint64_t i = first; i < first + chunk; ++i) trace_one(es, lights, opt, inv_lum, i, outs[c]);
+    });
     es.check("photon tracing");
     for (auto& o : outs) {
       res.global.insert(res.global.end(), o.global.begin(), o.global.end());

@@ -23,7 +23,7 @@ from __future__ import annotations
 import operator
 import os
 import threading
-from typing import Any, Dict, List, Literal, Optional, Tuple, Union, overload
+from typing import Any, Dict, List, Optional, Tuple, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -45,14 +45,17 @@ HAVE_FLANN: bool = _core.HAVE_FLANN  # whether the "flann" method was built in
 # leaf_size), so a method or option the library gains appears here without a change. Anything
 # else is refused, as bhcl refuses an option the chosen method does not read.
 _TABLE: Dict[str, Dict[str, Any]] = {m["name"]: m for m in _core.method_table()}
-# File options are load() and save()'s business, not keyword arguments.
-_BUILD_OPTIONS: Dict[str, Dict[str, Dict[str, Any]]] = {
-    name: {o["name"].replace("-", "_"): o for o in m["build_options"] if o["kind"] != "file"}
-    for name, m in _TABLE.items()
-}
-# Search options by the registry's command-line names -> keyword arguments.
-_SEARCH_KEYWORD = {"A": "A", "recall": "recall_target", "probes": "probes",
-                   "local-size": "local_size", "max-batch": "max_batch"}
+
+
+def _scoped(scope: str) -> Dict[str, Dict[str, Dict[str, Any]]]:
+    # File options are load() and save()'s business, not keyword arguments.
+    return {name: {o["keyword"]: o for o in m["options"] if o[scope] and o["kind"] != "file"}
+            for name, m in _TABLE.items()}
+
+
+_BUILD_OPTIONS = _scoped("build")
+_SEARCH_OPTIONS = _scoped("search")
+_RADIUS_OPTIONS = _scoped("radius")
 _SEARCH_COMMON: Tuple[str, ...] = ("max_radius", "sort_queries")
 
 _INT32_MAX = 2**31 - 1
@@ -74,8 +77,34 @@ def build_options(method: str) -> Dict[str, Dict[str, Any]]:
 
 
 def _search_options(method: str) -> Tuple[str, ...]:
-    extra = _TABLE[method]["search_options"] if method in _TABLE else []
-    return _SEARCH_COMMON + tuple(_SEARCH_KEYWORD.get(o, o.replace("-", "_")) for o in extra)
+    return _SEARCH_COMMON + tuple(_SEARCH_OPTIONS.get(method, {}))
+
+
+def _option_text(name: str, entry: Dict[str, Any], value: Any) -> str:
+    """A keyword argument as the table's parser reads it (the range is the library's check)."""
+    if entry["kind"] == "choice":
+        if not isinstance(value, str):
+            raise TypeError(f"{name} must be a str, got {type(value).__name__}")
+        return value
+    if entry["kind"] == "number":
+        return repr(_float(name, value))
+    return str(_int(name, value, -2**63, 2**63 - 1))
+
+
+def _set_table_options(setter: Any, target: Any, method: str, table: Dict[str, Dict[str, Any]],
+                       given: Dict[str, Any]) -> None:
+    for name, value in given.items():
+        if value is not None and name in table:
+            setter(target, method, table[name]["name"], _option_text(name, table[name], value))
+
+
+def _options_doc(table: Dict[str, Dict[str, Dict[str, Any]]]) -> str:
+    """The keyword arguments of every method's table, for the docstrings."""
+    lines = []
+    for method, opts in table.items():
+        for kw, o in opts.items():
+            lines.append(f"      {method}: {kw} ({o['range']}, default {o['default'] or 'none'}): {o['help']}")
+    return "\n".join(lines)
 
 
 def _refuse_unknown(method: str, given: Dict[str, Any], accepted: Tuple[str, ...], kind: str) -> None:
@@ -234,126 +263,40 @@ class Index:
             raise ValueError("A and recall_target both given: give one (recall_target picks A)")
         if options.get("max_radius") is not None:
             p.max_radius = _float("max_radius", options["max_radius"])
-        if options.get("A") is not None:
-            p.A = _float("A", options["A"])
-        if options.get("recall_target") is not None:
-            p.recall_target = _float("recall_target", options["recall_target"])
-        if options.get("probes") is not None:
-            p.neighbour_probes = _int("probes", options["probes"])
-        if options.get("local_size") is not None:
-            p.local_size = _int("local_size", options["local_size"], 0, 1 << 20)
-        if options.get("max_batch") is not None:
-            p.max_batch = _int("max_batch", options["max_batch"], 0, 2**62)
+        _set_table_options(_core.set_search_option, p, self.method, _SEARCH_OPTIONS[self.method], options)
         if options.get("sort_queries") is not None:
             s = options["sort_queries"]
             p.sort_queries = int(s) if isinstance(s, bool) else _int("sort_queries", s, -1, 1)
         return p
 
-    @overload
     def query(
         self,
         queries: Any,
         k: int = 10,
         *,
-        A: Optional[float] = None,
         max_radius: Optional[float] = None,
-        recall_target: Optional[float] = None,
-        probes: Optional[int] = None,
-        local_size: Optional[int] = None,
-        max_batch: Optional[int] = None,
-        sort_queries: Optional[Union[bool, int]] = None,
-        return_counts: Literal[False] = ...,
-        return_stats: Literal[False] = ...,
-    ) -> Tuple[_F32, _I32]: ...
-
-    @overload
-    def query(
-        self,
-        queries: Any,
-        k: int = 10,
-        *,
-        A: Optional[float] = None,
-        max_radius: Optional[float] = None,
-        recall_target: Optional[float] = None,
-        probes: Optional[int] = None,
-        local_size: Optional[int] = None,
-        max_batch: Optional[int] = None,
-        sort_queries: Optional[Union[bool, int]] = None,
-        return_counts: Literal[True] = ...,
-        return_stats: Literal[False] = ...,
-    ) -> Tuple[_F32, _I32, _I32]: ...
-
-    @overload
-    def query(
-        self,
-        queries: Any,
-        k: int = 10,
-        *,
-        A: Optional[float] = None,
-        max_radius: Optional[float] = None,
-        recall_target: Optional[float] = None,
-        probes: Optional[int] = None,
-        local_size: Optional[int] = None,
-        max_batch: Optional[int] = None,
-        sort_queries: Optional[Union[bool, int]] = None,
-        return_counts: Literal[False] = ...,
-        return_stats: Literal[True] = ...,
-    ) -> Tuple[_F32, _I32, Dict[str, Any]]: ...
-
-    @overload
-    def query(
-        self,
-        queries: Any,
-        k: int = 10,
-        *,
-        A: Optional[float] = None,
-        max_radius: Optional[float] = None,
-        recall_target: Optional[float] = None,
-        probes: Optional[int] = None,
-        local_size: Optional[int] = None,
-        max_batch: Optional[int] = None,
-        sort_queries: Optional[Union[bool, int]] = None,
-        return_counts: Literal[True] = ...,
-        return_stats: Literal[True] = ...,
-    ) -> Tuple[_F32, _I32, _I32, Dict[str, Any]]: ...
-
-    def query(
-        self,
-        queries: Any,
-        k: int = 10,
-        *,
-        A: Optional[float] = None,
-        max_radius: Optional[float] = None,
-        recall_target: Optional[float] = None,
-        probes: Optional[int] = None,
-        local_size: Optional[int] = None,
-        max_batch: Optional[int] = None,
         sort_queries: Optional[Union[bool, int]] = None,
         return_counts: bool = False,
         return_stats: bool = False,
+        **search: Any,
     ) -> Tuple[Any, ...]:
         """The k nearest indexed points of each query.
 
         queries: (n, 3) array; C-contiguous float32 is used in place, anything else is converted
         to float32 once. k: 1..MAX_K. max_radius: only neighbours within this Euclidean (not
-        squared) distance. blockhash only: A (examine at most A*k points per query; default: exact on the auto
-        preset's grid, 8 on the block layouts; inf: exact),
-        or recall_target (a recall@k such as 0.95; the index tunes A for this k once, on a sample
-        of its points), probes (-1 the preset's, 0 the query's cell, 1 and its near-side
-        neighbours, 2 and the 4x4x4 block when needed). Device methods: local_size (work-group
-        size, 0 = device default), max_batch (queries per dispatch, 0 = automatic).
-        sort_queries: dispatch in Hilbert order (True/1, False/0, None: for large batches).
+        squared) distance. sort_queries: dispatch in Hilbert order (True/1, False/0, None: for
+        large batches). The search keywords of each method's option table (A and recall_target
+        exclude each other):
+{search_options}
 
         Returns (dist2, ids): (n, k) float32 squared distances and (n, k) int32 indices into the
         points, each row ascending (FAISS's order); then counts ((n,) int32, neighbours found per
         query) if return_counts, then the stats dict if return_stats (also in last_stats): n_queries,
         nonfinite_queries, batches, compile_s, upload_s, query_s, download_s, wall_s,
-        queries_per_s, and for blockhash the A and probes used (with recall_target: the A tuned
-        and the recall it reached on the tuning sample). The GIL is released while it runs.
+        queries_per_s, and for blockhash the search options used (with recall_target: the A
+        tuned and the recall it reached on the tuning sample). The GIL is released while it runs.
         """
-        p = self._search_params(k, dict(A=A, max_radius=max_radius, recall_target=recall_target,
-                                         probes=probes, local_size=local_size, max_batch=max_batch,
-                                         sort_queries=sort_queries))
+        p = self._search_params(k, dict(search, max_radius=max_radius, sort_queries=sort_queries))
         q = _xyz(queries, "queries")
         dist2, ids, counts, stats = self._impl.query(q, p)
         self.last_stats = stats
@@ -372,12 +315,9 @@ class Index:
         squared: bool = False,
         max_results: Optional[int] = None,
         return_sorted: bool = True,
-        budget: Optional[int] = None,
-        probes: Optional[int] = None,
-        local_size: Optional[int] = None,
-        max_batch: Optional[int] = None,
         sort_queries: Optional[Union[bool, int]] = None,
         return_stats: bool = False,
+        **search: Any,
     ) -> Tuple[Any, ...]:
         """Every indexed point within radius r of each query (scipy's query_ball_point, Open3D's
         fixed_radius_search, FAISS's range_search).
@@ -387,8 +327,9 @@ class Index:
         max_results: at most this many per query, the nearest (None/0: no cap; stats count the
         truncated queries). return_sorted=False leaves each slice in the order the method found
         its points (scipy's return_sorted, Open3D's sort), sparing the sort; a capped slice still
-        holds the nearest max_results. blockhash only: budget (examine at most this many points per query;
-        None/0: every block within r that the probes reach) and probes. Exact methods return
+        holds the nearest max_results. The radius keywords of each method's option table:
+{radius_options}
+        Exact methods return
         exactly the points within r; block hashing a subset (its recall is measured in
         docs/ACCURACY.md). A query with a NaN/Inf coordinate gets an empty slice.
 
@@ -399,24 +340,14 @@ class Index:
         cap). The GIL is released while it runs.
         """
         method = self.method
-        accepted = ("max_results", "sort_queries") + tuple(
-            o for o in ("budget", "probes", "local_size", "max_batch") if o in _search_options(method) or
-            (o == "budget" and "A" in _search_options(method)))
-        _refuse_unknown(method, dict(max_results=max_results, budget=budget, probes=probes,
-                                     local_size=local_size, max_batch=max_batch,
-                                     sort_queries=sort_queries), accepted, "search parameter")
+        accepted = ("max_results", "sort_queries") + tuple(_RADIUS_OPTIONS.get(method, {}))
+        _refuse_unknown(method, dict(search, max_results=max_results, sort_queries=sort_queries),
+                        accepted, "search parameter")
         p = _core.RadiusParams()
         p.sorted = bool(return_sorted)
         if max_results is not None:
             p.max_results = _int("max_results", max_results, 0, 2**62)
-        if budget is not None:
-            p.budget = _int("budget", budget, 0, 2**32 - 1)
-        if probes is not None:
-            p.neighbour_probes = _int("probes", probes)
-        if local_size is not None:
-            p.local_size = _int("local_size", local_size, 0, 1 << 20)
-        if max_batch is not None:
-            p.max_batch = _int("max_batch", max_batch, 0, 2**62)
+        _set_table_options(_core.set_radius_option, p, method, _RADIUS_OPTIONS[method], search)
         if sort_queries is not None:
             p.sort_queries = int(sort_queries) if isinstance(sort_queries, bool) else _int(
                 "sort_queries", sort_queries, -1, 1)
@@ -448,12 +379,8 @@ def make_index(method: str, points: Any, *, device: Union[None, str, Runtime] = 
     when it is not C-contiguous float32; the index keeps its own copy, not the array).
 
     Build options (keyword arguments; one the method does not read raises TypeError), from the
-    library's method registry (build_options() lists them with ranges and defaults):
-      blockhash: preset ("auto" default, or "paper"), L (tables), P (thresholds per dimension),
-                 B (block references per bucket), X (points per block, 1..16), seed (threshold
-                 jitter); -1 or absent: the preset decides.
-      kdtree:    leaf_size (most points per leaf, -1: 16).
-      flann:     threads (query threads, 0 = all hardware threads).
+    library's method tables (build_options() lists them with ranges and defaults):
+{build_options}
     device: a spec ("P:D", "cpu", "gpu", "pocl", "nvidia:1"), a Runtime, or None for
     BHCL_DEVICE, else PoCL, else the first device. The GIL is released during the build.
     """
@@ -462,17 +389,7 @@ def make_index(method: str, points: Any, *, device: Union[None, str, Runtime] = 
     table = _BUILD_OPTIONS.get(method, {})
     _refuse_unknown(method, options, tuple(table), "build option")
     opts = _core.MethodOptions()
-    for name, value in options.items():
-        if value is None:
-            continue
-        entry = table[name]
-        if entry["kind"] == "choice":
-            if not isinstance(value, str):
-                raise TypeError(f"{name} must be a str, got {type(value).__name__}")
-            _core.set_build_option(opts, method, entry["name"], value, 0)
-        else:
-            v = _int(name, value, entry["lo"], entry["hi"])
-            _core.set_build_option(opts, method, entry["name"], str(v), v)
+    _set_table_options(_core.set_build_option, opts, method, table, options)
     pts = _xyz(points, "points")
     return Index(_core.make_index(method, get_runtime(device), pts, opts))
 
@@ -483,6 +400,13 @@ def load(path: Union[str, "os.PathLike[str]"], points: Any, *,
     built from (the index refers to them by index); a file that does not match them, or is
     missing, truncated or corrupt, raises Error naming the file and what differs."""
     opts = _core.MethodOptions()
-    opts.load_index = os.fspath(path)
+    opts.set("load-index", os.fspath(path))
     pts = _xyz(points, "points")
     return Index(_core.make_index("blockhash", get_runtime(device), pts, opts))
+
+
+# The docstrings list what the option tables hold.
+Index.query.__doc__ = (Index.query.__doc__ or "").replace("{search_options}", _options_doc(_SEARCH_OPTIONS))
+Index.radius_search.__doc__ = (Index.radius_search.__doc__ or "").replace(
+    "{radius_options}", _options_doc(_RADIUS_OPTIONS))
+make_index.__doc__ = (make_index.__doc__ or "").replace("{build_options}", _options_doc(_BUILD_OPTIONS))

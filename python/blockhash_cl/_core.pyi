@@ -14,7 +14,9 @@ class OpenCLError(Error, RuntimeError): ...
 
 def method_names() -> List[str]: ...
 def method_table() -> List[Dict[str, Any]]: ...
-def set_build_option(options: MethodOptions, method: str, name: str, text: str, value: int) -> None: ...
+def set_build_option(options: MethodOptions, method: str, name: str, text: str) -> None: ...
+def set_search_option(params: SearchParams, method: str, name: str, text: str) -> None: ...
+def set_radius_option(params: RadiusParams, method: str, name: str, text: str) -> None: ...
 def list_devices() -> List[Dict[str, Any]]: ...
 def select_device(spec: str) -> Dict[str, Any]: ...
 def default_runtime() -> Runtime: ...
@@ -31,7 +33,6 @@ class SearchParams:
     max_radius: float
     A: float
     recall_target: float
-    neighbour_probes: int
     local_size: int
     max_batch: int
     sort_queries: int
@@ -39,7 +40,6 @@ class SearchParams:
 
 class RadiusParams:
     budget: int
-    neighbour_probes: int
     max_results: int
     sorted: bool
     local_size: int
@@ -50,16 +50,8 @@ class RadiusParams:
     def __init__(self) -> None: ...
 
 class MethodOptions:
-    preset: str
-    L: int
-    P: int
-    B: int
-    X: int
-    threads: int
-    leaf_size: int
-    seed: int
-    load_index: str
-    save_index: str
+    values: Dict[str, str]
+    def set(self, name: str, text: str) -> None: ...
     def __init__(self) -> None: ...
 
 class Index:

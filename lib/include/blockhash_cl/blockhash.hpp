@@ -145,8 +145,9 @@ class BlockHashIndex : public Index {
   // same build parameters. Not safe concurrently with queries on this index.
   void rebuild(const float* points, std::size_t n_points);
 
-  // The first caller index whose point differs from the indexed one (bit for bit), or -1 when the
-  // index holds exactly these n points (a loaded index is checked against the caller's points).
+  // The first caller index whose point differs from the indexed one (bit for bit), -1 when the
+  // index holds exactly these n points, -2 when n is not size() (no point compared). A loaded
+  // index is checked against the caller's points.
   long first_mismatch(const float* points, std::size_t n) const;
 
   std::string method() const override { return "blockhash"; }

@@ -333,10 +333,6 @@ class Index {
   const float* to_structure(const float* queries, std::size_t n, std::vector<float>& storage) const;
   void distances_to_caller(float* dist2, std::size_t count) const;
 
-  // Serialises kernel argument setting and dispatch; subclasses lock it in enqueue_batch if they
-  // keep kernel objects.
-  mutable std::mutex dispatch_mutex_;
-
  private:
   // Radius search: r Euclidean (squared = false) or squared. radius.cpp.
   QueryStats radius_impl(const float* queries, std::size_t n, float r, bool squared,

@@ -9,16 +9,11 @@ namespace bhcl {
 struct DeviceInfo;
 
 struct Quirks {
-  // PoCL builds machine code per kernel and local size at the first enqueue (0.1-0.3 s), so a
-  // warm-up launch is needed to keep compile time out of query timings.
-  bool compiles_at_first_launch = false;
   // Work-group size used when the caller does not set one.
   std::size_t default_local_size = 64;
   // Block scans as float16 vectors with an any() skip (CPU compilers vectorise them; on a GPU the
   // scalar loop is the better form). Results are the same either way.
   bool vector_scan = false;
-  // Options appended to every kernel build on this device.
-  std::string extra_build_options;
   // Human-readable list of the quirks that apply, for `bhcl devices` and the stats.
   std::string description;
 };

@@ -8,6 +8,7 @@
 #include <sstream>
 
 #include "blockhash/build.hpp"
+#include "blockhash/options.hpp"
 #include "blockhash_cl/error.hpp"
 #include "core/device_util.hpp"
 
@@ -101,9 +102,10 @@ bool wants_grid(const BlockHashBuildParams& p) {
 BlockHashIndex::BlockHashIndex(std::shared_ptr<Runtime> runtime, const float* points,
                                std::size_t n_points, const BlockHashBuildParams& params)
     : Index(std::move(runtime), n_points), s_(std::make_unique<blockhash::Structure>()), params_(params) {
+  check_build_fields(blockhash::option_table(), &params, "blockhash");  // every range, from the table
   if (wants_grid(params)) {
-    if (!(params.cell_size == -1 || (params.cell_size > 0 && std::isfinite(params.cell_size))))
-      throw Error("blockhash: cell_size must be -1 (derive) or a positive finite length, got " + std::to_string(params.cell_size));
+    if (!(params.cell_size == -1 || (params.cell_size > 0 && params.cell_size <= 1e30)))
+      throw Error("blockhash: cell_size must be -1 (derive) or a length in (0, 1e30], got " + std::to_string(params.cell_size));
     if (!(params.target_cell_points == -1 || (params.target_cell_points >= 1 && params.target_cell_points <= 1e6)))
       throw Error("blockhash: target_cell_points must be -1 (derive) or in [1, 1e6], got " + std::to_string(params.target_cell_points));
     if (!(params.max_cells_per_point >= 0.01 && params.max_cells_per_point <= 1024))
@@ -355,7 +357,7 @@ std::vector<float> BlockHashIndex::indexed_points() const {
 }
 
 long BlockHashIndex::first_mismatch(const float* points, std::size_t n) const {
-  if (n != s_->n_points) return 0;
+  if (n != s_->n_points) return -2;  // not an index: the sizes differ
   if (s_->grid) {
     const blockhash::Grid& g = *s_->grid;
     for (std::size_t i = 0; i < n; ++i) {
@@ -514,7 +516,6 @@ cl::Event BlockHashIndex::enqueue_batch(const cl::CommandQueue& queue, const cl:
   SearchParams params = params_in;
   params.A = resolved_A(params_in);
   params.recall_target = 0;
-  std::lock_guard<std::mutex> lock(dispatch_mutex_);
   int kmax = kmax_variant(params.k);
   // The arguments both block-hash kernels end with: the queries, k, radius, budget, the blocks a
   // query keeps, the results and the examined counts.
@@ -578,7 +579,6 @@ cl::Event BlockHashIndex::enqueue_radius_batch(const cl::CommandQueue& queue,
                                                const RadiusBuffers& out, const RadiusParams& params,
                                                std::size_t local_size,
                                                const std::vector<cl::Event>* wait) const {
-  std::lock_guard<std::mutex> lock(dispatch_mutex_);
   if (info_.grid) {
     const char* gname = "blockhash_grid_radius";
     cl::Kernel kernel = runtime().kernel(std::string(gname) + ".cl", gname, params.kernel_defines);

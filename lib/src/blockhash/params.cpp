@@ -7,6 +7,7 @@
 #include <cstdio>
 
 #include "blockhash/build.hpp"
+#include "blockhash/options.hpp"
 #include "blockhash_cl/error.hpp"
 #include "core/parallel.hpp"
 
@@ -119,6 +120,7 @@ double median_cell_points(const Structure& s, const BlockHashBuildParams& p, int
 }
 
 void derive_params(const BlockHashBuildParams& p, Structure& s) {
+  check_build_fields(option_table(), &p, "blockhash");  // every range, from the option table
   BlockHashBuildInfo& in = s.info;
   const bool paper = p.preset == BlockHashBuildParams::Preset::Paper;
   auto flag = [&](int v, bool paper_default) { return v < 0 ? (paper ? paper_default : !paper_default) : v != 0; };

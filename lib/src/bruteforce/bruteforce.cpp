@@ -23,7 +23,6 @@ cl::Event BruteForceIndex::enqueue_batch(const cl::CommandQueue& queue, const cl
                                          const ResultBuffers& out, const SearchParams& params,
                                          std::size_t local_size,
                                          const std::vector<cl::Event>* wait) const {
-  std::lock_guard<std::mutex> lock(dispatch_mutex_);
   int kmax = kmax_variant(params.k);
   cl::Kernel kernel = runtime().kernel("bruteforce_knn.cl", "bruteforce_knn",
                                        detail::with_defines("-DBHCL_KMAX=" + std::to_string(kmax), params));
@@ -42,7 +41,6 @@ cl::Event BruteForceIndex::enqueue_radius_batch(const cl::CommandQueue& queue,
                                                 const RadiusBuffers& out, const RadiusParams& params,
                                                 std::size_t local_size,
                                                 const std::vector<cl::Event>* wait) const {
-  std::lock_guard<std::mutex> lock(dispatch_mutex_);
   cl::Kernel kernel = runtime().kernel("bruteforce_radius.cl", "bruteforce_radius", params.kernel_defines);
   detail::KernelArgs args(kernel, "bruteforce_radius");
   args.add(points_).add(cl_uint(size())).add_radius(queries, first, count, r2, pass, out, params.count_examined);

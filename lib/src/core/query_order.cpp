@@ -8,7 +8,7 @@
 #include <limits>
 #include <utility>
 
-#include "blockhash/build.hpp"
+#include "sfc/hilbert.hpp"
 
 namespace bhcl::detail {
 
@@ -22,14 +22,14 @@ std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n) {
   std::vector<float> compact(3 * finite.size());
   for (std::size_t j = 0; j < finite.size(); ++j)
     for (int d = 0; d < 3; ++d) compact[3 * j + d] = xyz[3 * finite[j] + d];
-  // The block-hash build's quantiser and Hilbert keys, over the queries' own box.
-  blockhash::Quantiser q = blockhash::make_quantiser(compact.data(), finite.size(), 16);
-  std::vector<std::uint64_t> keys = blockhash::hilbert_keys(compact.data(), finite.size(), q);
+  // The curve's quantiser and Hilbert keys (sfc/hilbert.hpp), over the queries' own box.
+  const sfc::Quantiser q = sfc::make_quantiser(compact.data(), finite.size(), 16);
+  std::vector<std::uint64_t> keys = sfc::hilbert_keys(compact.data(), finite.size(), q);
   std::vector<std::size_t> order;
   order.reserve(n);
   if (finite.size() <= static_cast<std::size_t>(std::numeric_limits<std::int32_t>::max())) {
     // The build's sort (two halves on two threads, then merged; equal keys keep their order).
-    for (std::int32_t j : blockhash::hilbert_order(keys)) order.push_back(finite[static_cast<std::size_t>(j)]);
+    for (std::int32_t j : sfc::hilbert_order(keys)) order.push_back(finite[static_cast<std::size_t>(j)]);
   } else {
     std::vector<std::pair<std::uint64_t, std::size_t>> by_key(finite.size());
     for (std::size_t j = 0; j < finite.size(); ++j) by_key[j] = {keys[j], finite[j]};

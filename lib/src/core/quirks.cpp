@@ -23,8 +23,8 @@ Quirks quirks_for(const DeviceInfo& device) {
   }
   Quirks q;
   if (info.is_pocl) {
-    // PoCL 3.1 compiles machine code per kernel and local size at the first enqueue.
-    q.compiles_at_first_launch = true;
+    // PoCL 3.1 compiles machine code per kernel and local size at the first enqueue: each kernel
+    // variant is warmed up by a launch on Runtime::warm_queue (Index::warm_up), on every device alike.
     // On the pthread device a work-group runs as one loop on one core: 64 items amortise the
     // per-group cost while keeping enough groups for every core.
     q.default_local_size = 64;

@@ -2,6 +2,8 @@
 // max_radius and non-finite queries exactly as the kernels do.
 #include "blockhash_cl/reference.hpp"
 
+#include "core/parallel.hpp"
+
 #include <algorithm>
 #include <cmath>
 #include <thread>
@@ -45,13 +47,7 @@ KnnResult knn_generic(const float* points, std::size_t n_points, const float* qu
       out.counts[qi] = static_cast<std::int32_t>(best.size());
     }
   };
-  std::vector<std::thread> pool;
-  std::size_t per = (n_queries + threads - 1) / threads;
-  for (unsigned t = 0; t < threads; ++t) {
-    std::size_t b = t * per, e = std::min(n_queries, b + per);
-    if (b < e) pool.emplace_back(work, b, e);
-  }
-  for (auto& th : pool) th.join();
+  detail::parallel_for(n_queries, work, threads, 1);  // a throw reaches the caller
   return out;
 }
 

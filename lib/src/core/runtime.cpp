@@ -277,7 +277,6 @@ void Runtime::init_from(const DeviceInfo& info) {
 
 std::string Runtime::build_options(const std::string& extra) const {
   std::string opts = "-cl-std=CL1.2";
-  if (!quirks_.extra_build_options.empty()) opts += " " + quirks_.extra_build_options;
   if (!extra.empty()) opts += " " + extra;
   return opts;
 }

@@ -1,5 +1,6 @@
 // DistributedIndex: the build (keys, splitters, the exchange of points, the local index and the
-// shared boxes) and the two-phase query (owner, then the ranks the ball meets, then the merge).
+// shared boxes) and the two-phase kNN query (owner, then the ranks the ball meets, then the
+// merge). Radius search: radius.cpp.
 #include <algorithm>
 #include <cmath>
 #include <cstring>
@@ -12,32 +13,16 @@
 #include "blockhash_cl/error.hpp"
 #include "distributed/mpi_util.hpp"
 #include "distributed/shard.hpp"
+#include "distributed/wire.hpp"
 
 namespace bhcl {
 
 using distributed::Composite;
 using distributed::exchange;
 using distributed::Stopwatch;
+using namespace distributed::wire;
 
 namespace {
-
-constexpr const char* kWhat = "DistributedIndex";
-
-// A point on its way to its shard.
-struct PointRecord {
-  float xyz[3];
-  std::int32_t global;
-};
-static_assert(sizeof(PointRecord) == 16, "PointRecord is sent as 16 raw bytes");
-
-// A query on its way to a rank; budget_class 1 asks for the border budget (approximate methods).
-struct QueryRecord {
-  float xyz[3];
-  std::int32_t budget_class;
-};
-static_assert(sizeof(QueryRecord) == 16, "QueryRecord is sent as 16 raw bytes");
-
-std::string what_of(const std::exception& e) { return e.what()[0] ? e.what() : "unknown error"; }
 
 // A result row on the wire: k ids, k squared distances, the count and the points examined.
 std::size_t row_bytes(int k) { return static_cast<std::size_t>(k) * 8 + 8; }
@@ -85,13 +70,6 @@ void merge_row(KnnResult& out, std::size_t q, const unsigned char* src, int k,
   out.counts[q] = m;
 }
 
-void add_stats(QueryStats& into, const QueryStats& s) {
-  into.batches += s.batches;
-  into.compile_s += s.compile_s;
-  into.upload_s += s.upload_s;
-  into.query_s += s.query_s;
-  into.download_s += s.download_s;
-}
 
 }  // namespace
 
@@ -109,7 +87,7 @@ DistributedIndex::DistributedIndex(MPI_Comm comm, std::shared_ptr<Runtime> runti
     const MethodInfo* info = nullptr;
     try {
       info = &method_info(params.method);
-      if (!params.options.load_index.empty() || !params.options.save_index.empty())
+      if (!params.options.load_index().empty() || !params.options.save_index().empty())
         throw Error("load_index / save_index are not supported: each rank builds its shard's index");
       if (!(params.border_factor >= 1 && params.border_factor <= 1024))
         throw Error("border_factor must be in [1, 1024], got " + std::to_string(params.border_factor));
@@ -499,171 +477,6 @@ QueryStats DistributedIndex::query(const float* queries, std::size_t n, const Se
       merge_row(out, extra[j].query, &back[j * rb], k, ids_tmp, d2_tmp);
   }
   ds.phase2_s = p2.seconds();
-  st.wall_s = wall.seconds();
-  if (stats) *stats = std::move(ds);
-  return st;
-}
-
-QueryStats DistributedIndex::radius_search(const float* queries, std::size_t n, float r,
-                                           const RadiusParams& params, RadiusResult& out,
-                                           DistributedQueryStats* stats) const {
-  Stopwatch wall;
-  QueryStats st;
-  st.n_queries = n;
-  DistributedQueryStats ds;
-  const std::size_t R = static_cast<std::size_t>(ranks_);
-  std::string err;
-  try {
-    if (!std::isfinite(r) || r < 0)
-      throw Error("radius_search: the radius must be finite and >= 0, got " + std::to_string(r));
-    if (n > 0 && queries == nullptr) throw Error("queries is null with n = " + std::to_string(n));
-    if (params.count_examined && local_ && !local_->counts_examined())
-      throw Error("count_examined: method " + method_ + " does not count the points it examines");
-  } catch (const std::exception& e) {
-    err = what_of(e);
-  }
-  mpi_agree(comm_, err, std::string(kWhat) + "::radius_search");
-  {
-    // The radius, the cap and count_examined shape every rank's answer: they must agree.
-    std::uint32_t rbits;
-    std::memcpy(&rbits, &r, 4);
-    const long long cap = static_cast<long long>(params.max_results);
-    long long v[6] = {rbits, cap, params.count_examined, -(long long)rbits, -cap,
-                      -(long long)params.count_examined};
-    long long g[6];
-    MPI_Allreduce(v, g, 6, MPI_LONG_LONG, MPI_MIN, comm_);
-    if (g[0] != -g[3] || g[1] != -g[4] || g[2] != -g[5])
-      throw Error(std::string(kWhat) +
-                  "::radius_search: the ranks passed different radius, max_results or count_examined");
-  }
-  ds.ranks_visited.assign(n, 0);
-  ds.owner.assign(n, -1);
-  // Each finite query to its owner and to every other rank with a box meeting the ball.
-  const double r2 = double(r) * double(r);
-  struct Dest {
-    int rank;
-    std::size_t query;
-  };
-  std::vector<Dest> dests;
-  {
-    std::vector<int> met;
-    for (std::size_t i = 0; i < n; ++i) {
-      const float* q = queries + 3 * i;
-      if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2])) {
-        ++st.nonfinite_queries;
-        continue;
-      }
-      ds.owner[i] = owner_of(q);
-      dests.push_back({ds.owner[i], i});
-      ranks_meeting(q, r2, ds.owner[i], met);
-      for (int m : met) dests.push_back({m, i});
-      ds.ranks_visited[i] = 1 + static_cast<std::int32_t>(met.size());
-      if (!met.empty()) ++ds.multi_rank_queries;
-    }
-  }
-  std::stable_sort(dests.begin(), dests.end(), [](const Dest& a, const Dest& b) { return a.rank < b.rank; });
-  std::vector<std::size_t> send_counts(R, 0), recv_counts, back_counts, entry_counts_back;
-  std::vector<QueryRecord> records(dests.size());
-  for (std::size_t j = 0; j < dests.size(); ++j) {
-    ++send_counts[static_cast<std::size_t>(dests[j].rank)];
-    std::memcpy(records[j].xyz, queries + 3 * dests[j].query, 12);
-    records[j].budget_class = 0;
-  }
-  const std::vector<unsigned char> in =
-      exchange(comm_, records.data(), send_counts, sizeof(QueryRecord), recv_counts, "radius (queries)");
-  const std::size_t m = in.size() / sizeof(QueryRecord);
-  // The answers: per record (count, found, examined), then its entries (global id, distance).
-  struct Counts {
-    std::int64_t count, found, examined;
-  };
-  struct Entry {
-    std::int32_t id;
-    float d2;
-  };
-  static_assert(sizeof(Counts) == 24 && sizeof(Entry) == 8, "sent as raw bytes");
-  std::vector<Counts> counts(m);
-  std::vector<Entry> entries;
-  std::vector<std::size_t> entries_to(R, 0);
-  std::string e;
-  try {
-    if (m > 0 && !local_) throw Error("queries reached a rank with an empty shard");
-    if (m > 0) {
-      std::vector<float> xyz(3 * m);
-      for (std::size_t i = 0; i < m; ++i) std::memcpy(&xyz[3 * i], in.data() + i * sizeof(QueryRecord), 12);
-      RadiusResult rr;
-      RadiusParams p = params;
-      p.sort_queries = 0;  // records are grouped by source rank, already in key order per rank
-      add_stats(st, local_->radius_search(xyz.data(), m, r, p, rr));
-      entries.resize(rr.total());
-      for (std::size_t j = 0; j < rr.total(); ++j)
-        entries[j] = Entry{shard_ids_[static_cast<std::size_t>(rr.ids[j])], rr.dist2[j]};
-      std::size_t rec = 0;
-      for (std::size_t src = 0; src < R; ++src)
-        for (std::size_t c = 0; c < recv_counts[src]; ++c, ++rec) {
-          counts[rec] = Counts{static_cast<std::int64_t>(rr.count(rec)), rr.found[rec],
-                               params.count_examined ? rr.examined[rec] : 0};
-          entries_to[src] += rr.count(rec);
-        }
-    }
-  } catch (const std::exception& ex) {
-    e = std::string("radius: ") + what_of(ex);
-  }
-  mpi_agree(comm_, e, std::string(kWhat) + "::radius_search");
-  ds.answered = m;
-  const std::vector<unsigned char> cb = exchange(comm_, counts.data(), recv_counts, sizeof(Counts), back_counts,
-                                                 "radius (counts)");
-  const std::vector<unsigned char> eb = exchange(comm_, entries.data(), entries_to, sizeof(Entry),
-                                                 entry_counts_back, "radius (results)");
-  {
-    const std::size_t me = static_cast<std::size_t>(rank_);
-    std::size_t to_others = 0, from_others = m - recv_counts[me];
-    for (std::size_t rr = 0; rr < R; ++rr) to_others += rr == me ? 0 : send_counts[rr];
-    ds.owner_sent = to_others;
-    ds.owner_received = from_others;
-    std::size_t entries_out = 0, entries_in = 0;
-    for (std::size_t rr = 0; rr < R; ++rr)
-      if (rr != me) entries_out += entries_to[rr], entries_in += entry_counts_back[rr];
-    ds.bytes_sent = to_others * sizeof(QueryRecord) + from_others * sizeof(Counts) + entries_out * sizeof(Entry);
-    ds.bytes_received = from_others * sizeof(QueryRecord) + to_others * sizeof(Counts) + entries_in * sizeof(Entry);
-  }
-  // Merge: the answers come back in the order the records were sent (by destination rank).
-  std::vector<std::vector<std::pair<float, std::int32_t>>> rows(n);
-  std::vector<std::int64_t> found(n, 0), examined(n, 0);
-  {
-    std::size_t at = 0;
-    for (std::size_t j = 0; j < dests.size(); ++j) {
-      Counts c;
-      std::memcpy(&c, cb.data() + j * sizeof(Counts), sizeof c);
-      const std::size_t i = dests[j].query;
-      found[i] += c.found;
-      examined[i] += c.examined;
-      for (std::int64_t t = 0; t < c.count; ++t, ++at) {
-        Entry en;
-        std::memcpy(&en, eb.data() + at * sizeof(Entry), sizeof en);
-        rows[i].emplace_back(en.d2, en.id);
-      }
-    }
-  }
-  out.n = n;
-  out.offsets.assign(n + 1, 0);
-  out.ids.clear();
-  out.dist2.clear();
-  out.found = found;
-  out.truncated_queries = 0;
-  out.examined.assign(params.count_examined ? n : 0, 0);
-  for (std::size_t i = 0; i < n; ++i) {
-    auto& row = rows[i];
-    std::sort(row.begin(), row.end());
-    std::size_t keep = row.size();
-    if (params.max_results && keep > params.max_results) keep = params.max_results;
-    if (static_cast<std::int64_t>(keep) < found[i]) ++out.truncated_queries;
-    for (std::size_t t = 0; t < keep; ++t) {
-      out.dist2.push_back(row[t].first);
-      out.ids.push_back(row[t].second);
-    }
-    out.offsets[i + 1] = static_cast<std::int64_t>(out.ids.size());
-    if (params.count_examined) out.examined[i] = static_cast<std::int32_t>(std::min<std::int64_t>(examined[i], INT32_MAX));
-  }
   st.wall_s = wall.seconds();
   if (stats) *stats = std::move(ds);
   return st;

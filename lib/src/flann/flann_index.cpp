@@ -17,6 +17,7 @@
 
 #include "blockhash_cl/error.hpp"
 #include "blockhash_cl/reference.hpp"
+#include "core/parallel.hpp"
 #include "bhcl_arith.h"
 
 #include "blockhash_cl/config.hpp"
@@ -115,25 +116,15 @@ class ExactResultSet : public flann::ResultSet<float> {
 // threads, inline for one; the first exception stops the others and is rethrown here.
 template <typename Work>
 void run_workers(std::size_t threads, std::atomic<std::size_t>& next, std::size_t n, Work& work) {
-  if (threads <= 1) {
-    work();
-    return;
-  }
-  std::vector<std::thread> pool;
-  std::exception_ptr failure;
-  std::mutex failure_mutex;
-  for (std::size_t t = 0; t < threads; ++t)
-    pool.emplace_back([&]() {
-      try {
-        work();
-      } catch (...) {
-        std::lock_guard<std::mutex> lock(failure_mutex);
-        if (!failure) failure = std::current_exception();
-        next = n;  // stop the others
-      }
-    });
-  for (auto& th : pool) th.join();
-  if (failure) std::rethrow_exception(failure);
+  // parallel.hpp: every worker joined, the first exception rethrown; a failing worker stops the others.
+  detail::parallel_for(threads, [&](std::size_t, std::size_t) {
+    try {
+      work();
+    } catch (...) {
+      next = n;
+      throw;
+    }
+  }, static_cast<unsigned>(threads), 1);
 }
 
 // Every point within r2 under the contract's distance, fed by FLANN's traversal (radius search).

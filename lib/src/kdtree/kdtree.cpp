@@ -209,7 +209,6 @@ cl::Event KdTreeIndex::enqueue_batch(const cl::CommandQueue& queue, const cl::Bu
                                      const ResultBuffers& out, const SearchParams& params,
                                      std::size_t local_size,
                                      const std::vector<cl::Event>* wait) const {
-  std::lock_guard<std::mutex> lock(dispatch_mutex_);
   const int kmax = kmax_variant(params.k);
   // The stack must hold one entry per inner level; rounding up to a multiple of 8 lets trees of
   // similar size share a compiled program.
@@ -230,7 +229,6 @@ cl::Event KdTreeIndex::enqueue_radius_batch(const cl::CommandQueue& queue, const
                                             const RadiusBuffers& out, const RadiusParams& params,
                                             std::size_t local_size,
                                             const std::vector<cl::Event>* wait) const {
-  std::lock_guard<std::mutex> lock(dispatch_mutex_);
   const int stack = std::max(8, (depth_ + 7) / 8 * 8);  // as enqueue_batch
   std::string options = "-DBHCL_KD_STACK=" + std::to_string(stack);
   if (!params.kernel_defines.empty()) options += " " + params.kernel_defines;

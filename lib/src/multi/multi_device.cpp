@@ -9,6 +9,7 @@
 #include <thread>
 
 #include "blockhash_cl/error.hpp"
+#include "core/parallel.hpp"
 
 namespace bhcl {
 
@@ -17,25 +18,13 @@ namespace {
 // Runs fn(d) for every device on its own thread; rethrows the first failure, naming the device.
 template <typename Fn>
 void on_each_device(std::size_t devices, const std::vector<std::string>& names, Fn&& fn) {
-  std::vector<std::exception_ptr> errors(devices);
-  std::vector<std::thread> pool;
-  for (std::size_t d = 0; d < devices; ++d)
-    pool.emplace_back([&, d] {
-      try {
-        fn(d);
-      } catch (...) {
-        errors[d] = std::current_exception();
-      }
-    });
-  for (auto& t : pool) t.join();
-  for (std::size_t d = 0; d < devices; ++d) {
-    if (!errors[d]) continue;
+  detail::parallel_tasks(devices, [&](std::size_t d) {
     try {
-      std::rethrow_exception(errors[d]);
+      fn(d);
     } catch (const std::exception& e) {
       throw Error("device " + std::to_string(d) + " (" + names[d] + "): " + e.what());
     }
-  }
+  });
 }
 
 // A part's time: its wall time without compiles, not its kernel event time. Devices that share
@@ -80,7 +69,7 @@ MultiDeviceIndex::MultiDeviceIndex(std::vector<std::shared_ptr<Runtime>> runtime
     if (!runtimes[d]) throw Error("MultiDeviceIndex: runtime " + std::to_string(d) + " is null");
     names.push_back(runtimes[d]->info().summary());
   }
-  if (!options.save_index.empty())
+  if (!options.save_index().empty())
     throw Error("MultiDeviceIndex: save_index does not apply (save a single-device index)");
   indexes_.resize(runtimes.size());
   on_each_device(runtimes.size(), names, [&](std::size_t d) {

@@ -1,17 +1,19 @@
-// Stage 1 of the block-hash build: positions quantised in the bounding box, 3D Hilbert keys, and
-// the stable sort by (key, original index) that makes builds deterministic.
+// The 3D Hilbert curve (sfc/hilbert.hpp): positions quantised in the bounding box, Hilbert keys,
+// and the stable sort by (key, original index) that makes every use deterministic.
 #include <algorithm>
 #include <cmath>
 #include <numeric>
 
-#include "blockhash/build.hpp"
+#include "sfc/hilbert.hpp"
+
+#include "bhcl_arith.h"
 #include "blockhash_cl/error.hpp"
 #include "core/parallel.hpp"
 
-namespace bhcl::blockhash {
+namespace bhcl::sfc {
 
 Quantiser make_quantiser(const float* xyz, std::size_t n, int bits) {
-  if (bits < 1 || bits > 21) throw Error("blockhash: hilbert_bits must be in [1, 21], got " + std::to_string(bits));
+  if (bits < 1 || bits > 21) throw Error("hilbert_bits must be in [1, 21], got " + std::to_string(bits));
   Quantiser q;
   q.bits = bits;
   double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
@@ -72,18 +74,6 @@ void hilbert_decode(std::uint64_t key, int bits, std::uint32_t out[3]) {
   out[2] = X[2];
 }
 
-std::uint64_t query_hilbert_key(const Structure& s, const float q[3]) {
-  const float top = float((1u << s.q_bits) - 1);
-  std::uint32_t c[3];
-  for (int d = 0; d < 3; ++d) {
-    float v = std::floor((q[d] - s.q_origin[d]) * s.q_scale);
-    if (!(v > 0.0f)) v = 0.0f;  // also NaN (inf * 0)
-    if (v > top) v = top;
-    c[d] = static_cast<std::uint32_t>(v);
-  }
-  return hilbert_encode(c[0], c[1], c[2], s.q_bits);
-}
-
 std::vector<std::uint64_t> hilbert_keys(const float* xyz, std::size_t n, const Quantiser& q) {
   std::vector<std::uint64_t> keys(n);
   detail::parallel_for(n, [&](std::size_t b, std::size_t e) {
@@ -92,19 +82,6 @@ std::vector<std::uint64_t> hilbert_keys(const float* xyz, std::size_t n, const Q
                                q.cell(2, xyz[3 * i + 2]), q.bits);
   });
   return keys;
-}
-
-void sort_points(const float* xyz, std::size_t n, int bits, Structure& s) {
-  Quantiser q = make_quantiser(xyz, n, bits);
-  std::vector<std::uint64_t> keys = hilbert_keys(xyz, n, q);
-  s.order = hilbert_order(keys);
-  const std::size_t X = static_cast<std::size_t>(s.info.X);
-  s.block_keys.resize((n + X - 1) / X);
-  for (std::size_t b = 0; b < s.block_keys.size(); ++b) s.block_keys[b] = keys[s.order[b * X]];
-  for (int d = 0; d < 3; ++d) s.q_origin[d] = static_cast<float>(q.origin[d]);
-  // Finite even for a 1e-38-wide box (the clamp then maps every query to the grid's edge cells).
-  s.q_scale = static_cast<float>(std::min(q.scale, 3.0e38));
-  s.q_bits = q.bits;
 }
 
 std::vector<std::int32_t> hilbert_order(const std::vector<std::uint64_t>& keys) {
@@ -128,4 +105,4 @@ std::vector<std::int32_t> hilbert_order(const std::vector<std::uint64_t>& keys) 
   return order;
 }
 
-}  // namespace bhcl::blockhash
+}  // namespace bhcl::sfc

@@ -1,0 +1,102 @@
+// The one way to split host work over threads (builds, host references, FLANN's queries, several
+// devices, the renderer): every worker is joined before return, and the first exception a worker
+// throws is rethrown in the caller (none ends the process). Three shapes:
+//   parallel_for     contiguous ranges, one per thread;
+//   parallel_chunks  fixed chunks handed out in turn (chunking independent of the thread count);
+//   parallel_tasks   one thread per task (e.g. per device).
+#pragma once
+
+#include <algorithm>
+#include <atomic>
+#include <cstddef>
+#include <exception>
+#include <mutex>
+#include <thread>
+#include <vector>
+
+namespace bhcl::detail {
+
+inline unsigned default_threads() { return std::max(1u, std::thread::hardware_concurrency()); }
+
+// Calls fn(begin, end) on [0, n) cut into `threads` contiguous ranges (0: all hardware threads);
+// small n runs inline.
+template <typename Fn>
+void parallel_for(std::size_t n, Fn&& fn, unsigned threads = 0, std::size_t min_per_thread = 4096) {
+  if (threads == 0) threads = default_threads();
+  std::size_t t = std::min<std::size_t>(threads, std::max<std::size_t>(1, n / std::max<std::size_t>(1, min_per_thread)));
+  if (t <= 1) {
+    if (n) fn(std::size_t(0), n);
+    return;
+  }
+  std::vector<std::thread> pool;
+  std::exception_ptr error;
+  std::mutex m;
+  const std::size_t per = (n + t - 1) / t;
+  for (std::size_t i = 0; i < t; ++i) {
+    std::size_t b = i * per, e = std::min(n, b + per);
+    if (b >= e) break;
+    pool.emplace_back([&, b, e] {
+      try {
+        fn(b, e);
+      } catch (...) {
+        std::lock_guard<std::mutex> lock(m);
+        if (!error) error = std::current_exception();
+      }
+    });
+  }
+  for (auto& th : pool) th.join();
+  if (error) std::rethrow_exception(error);
+}
+
+// fn(chunk, begin, end) for chunks [c*chunk, min(n, (c+1)*chunk)) handed out in turn to `threads`
+// threads (0: all hardware threads; the caller is one of them). After a throw no new chunk starts;
+// the first exception is rethrown here.
+template <typename Fn>
+void parallel_chunks(std::size_t n, std::size_t chunk, unsigned threads, Fn&& fn) {
+  if (n == 0) return;
+  if (threads == 0) threads = default_threads();
+  const std::size_t chunks = (n + chunk - 1) / chunk;
+  std::atomic<std::size_t> next{0};
+  std::exception_ptr error;
+  std::mutex m;
+  auto work = [&] {
+    for (;;) {
+      const std::size_t c = next.fetch_add(1);
+      if (c >= chunks) return;
+      try {
+        fn(c, c * chunk, std::min(n, (c + 1) * chunk));
+      } catch (...) {
+        std::lock_guard<std::mutex> lock(m);
+        if (!error) error = std::current_exception();
+        next = chunks;
+      }
+    }
+  };
+  const std::size_t t = std::min<std::size_t>(threads, chunks);
+  std::vector<std::thread> pool;
+  for (std::size_t i = 1; i < t; ++i) pool.emplace_back(work);
+  work();
+  for (auto& th : pool) th.join();
+  if (error) std::rethrow_exception(error);
+}
+
+// fn(i) for i in [0, tasks), each on its own thread; all are joined, then the exception of the
+// lowest failing i is rethrown.
+template <typename Fn>
+void parallel_tasks(std::size_t tasks, Fn&& fn) {
+  std::vector<std::exception_ptr> errors(tasks);
+  std::vector<std::thread> pool;
+  for (std::size_t i = 0; i < tasks; ++i)
+    pool.emplace_back([&, i] {
+      try {
+        fn(i);
+      } catch (...) {
+        errors[i] = std::current_exception();
+      }
+    });
+  for (auto& th : pool) th.join();
+  for (auto& e : errors)
+    if (e) std::rethrow_exception(e);
+}
+
+}  // namespace bhcl::detail

@@ -1,0 +1,210 @@
+// Block hashing described once: its options (build, search, radius; name, kind, range, default,
+// help and the field each sets), its capabilities and its maker. The registry lists it; the
+// library's range checks (derive_params), bhcl, the Python module, the benchmarks and the tests
+// read this table.
+#include "blockhash/options.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstdint>
+#include <limits>
+
+#include "blockhash_cl/blockhash.hpp"
+#include "blockhash_cl/error.hpp"
+#include "blockhash_cl/factory.hpp"
+#include "blockhash_cl/knn.hpp"
+#include "blockhash_layout.h"
+
+namespace bhcl::blockhash {
+namespace {
+
+using P = BlockHashBuildParams;
+constexpr long long kIntMax = std::numeric_limits<int>::max();
+constexpr double kHuge = std::numeric_limits<double>::max();
+
+// -1: the preset decides; 0 off; 1 on.
+OptionInfo flag(const char* name, const char* help) {
+  return option::integer(name, std::string(help) + " (0 off, 1 on, -1: the preset decides)", 0, 1, "-1").or_unset();
+}
+
+// Every 64-bit seed is valid in the struct; the text form takes 0 .. 2^63 - 1.
+OptionInfo seed() {
+  OptionInfo o = BHCL_BUILD_OPTION(P, seed, option::integer("seed", "seed of the threshold jitter", 0,
+                                                            std::numeric_limits<long long>::max(), "1"));
+  o.get = [](const void* p, OptionValue& v) {
+    const std::uint64_t s = static_cast<const P*>(p)->seed;
+    v.integer = static_cast<long long>(std::min<std::uint64_t>(s, std::numeric_limits<long long>::max()));
+    v.number = double(v.integer);
+  };
+  return o;
+}
+
+std::vector<OptionInfo> make_table() {
+  OptionInfo preset = option::choice("preset", "parameter preset", {"auto", "paper"}, "auto");
+  preset.field = "BlockHashBuildParams::preset";
+  preset.get = [](const void* p, OptionValue& v) { v.text = P::preset_name(static_cast<const P*>(p)->preset); };
+  preset.set = [](void* p, const OptionValue& v) { static_cast<P*>(p)->preset = P::parse_preset(v.text); };
+  return {
+      preset,
+      BHCL_BUILD_OPTION(P, L, option::integer("L", "hash tables (-1: the preset decides)", 1, 64, "-1").or_unset()),
+      BHCL_BUILD_OPTION(P, P, option::integer("P", "thresholds per dimension (-1: the preset decides)", 1, BHCL_BH_MAX_P, "-1").or_unset()),
+      BHCL_BUILD_OPTION(P, B, option::integer("B", "block references per bucket (-1: the preset decides)", 1, 65535, "-1").or_unset()),
+      BHCL_BUILD_OPTION(P, X, option::integer("X", "points per block (-1: the preset decides)", 1, BHCL_BH_BLOCK_SLOTS, "-1").or_unset()),
+      seed(),
+      BHCL_BUILD_OPTION(P, grid, option::integer("grid", "auto: the grid layout (cells scanned as rows; -1: on for auto unless a block-layout option is set, 0: the block layouts, 1: the grid)", 0, 1, "-1").or_unset()),
+      BHCL_BUILD_OPTION(P, cell_size, option::number("cell-size", "grid: the cells' side in the points' units (-1: chosen so a point's cell holds ~target-cell-points)", 0, 1e30, "-1", true).or_unset()),
+      BHCL_BUILD_OPTION(P, max_cells_per_point, option::number("max-cells-per-point", "grid: the most cells per point of the direct table (past it the cells grow)", 0.01, 1024, "8")),
+      BHCL_BUILD_OPTION(P, target_cell_points, option::number("target-cell-points", "auto: the cell population aimed at (-1: 24; grid: a point's cell, block layouts: the median occupied cell, 100 for L tables)", 1, 1e6, "-1").or_unset()),
+      BHCL_BUILD_OPTION(P, cell_aligned, flag("cell-aligned", "auto: blocks aligned to the cells of one table")),
+      BHCL_BUILD_OPTION(P, b_percentile, option::number("b-percentile", "auto: B is this percentile of the distinct blocks per occupied cell", 0, 1, "0.9", true)),
+      BHCL_BUILD_OPTION(P, design_A, option::number("design-A", "paper: the A of the talk's rule for B", 0, kHuge, "8", true)),
+      BHCL_BUILD_OPTION(P, design_k, option::integer("design-k", "paper: the k of the talk's rule for B", 1, kIntMax, "10")),
+      BHCL_BUILD_OPTION(P, hist_bins, option::integer("hist-bins", "histogram bins per dimension of the threshold CDFs", 2, 1 << 22, "1024")),
+      BHCL_BUILD_OPTION(P, hilbert_bits, option::integer("hilbert-bits", "bits per dimension of the Hilbert keys", 1, 21, "21")),
+      BHCL_BUILD_OPTION(P, guard_thresholds, flag("guard-thresholds", "thresholds snapped to bin edges, de-duplicated, off heavy bins")),
+      BHCL_BUILD_OPTION(P, keep_top_count, flag("keep-top-count", "a full bucket keeps the blocks holding most of the cell's points")),
+      BHCL_BUILD_OPTION(P, direct_addressing, flag("direct-addressing", "all (P+1)^3 cells, not only the occupied ones")),
+      BHCL_BUILD_OPTION(P, box_skip, flag("box-skip", "skip blocks whose box is farther than the k-th distance")),
+      BHCL_BUILD_OPTION(P, box_order, flag("box-order", "scan blocks in order of box distance with an early stop")),
+      BHCL_BUILD_OPTION(P, hilbert_seed, option::integer("hilbert-seed", "box order: blocks gathered on each side of the query's Hilbert key (-1: the preset decides)", 0, 64, "-1").or_unset()),
+      BHCL_BUILD_OPTION(P, neighbour_probes, flag("default-probes", "the neighbour probes of a query that leaves them to the index")),
+      option::file("load-index", "load this saved index instead of building"),
+      option::file("save-index", "save the built index to this file"),
+      option::search<&SearchParams::A, nullptr>(
+          option::number("A", "examine at most A*k points per query (accuracy against speed; inf: exact on "
+                              "the grid; 0: the index default, exact on auto's grid, 8 on the block layouts)", 0,
+                         std::numeric_limits<double>::infinity(), "0"),
+          "SearchParams::A"),
+      option::search<&SearchParams::recall_target, nullptr>(
+          option::number("recall", "a recall@k to reach instead of A (e.g. 0.95): the index tunes A for this k "
+                                   "on a sample of its points (0: use A)", 0, 1, "0")
+              .with_keyword("recall_target"),
+          "SearchParams::recall_target"),
+      option::search<&SearchParams::neighbour_probes, &RadiusParams::neighbour_probes>(
+          option::integer("probes", "0 the query's cell, 1 and its near-side neighbours, 2 and the 4x4x4 block "
+                                    "when needed (auto's cell-aligned layout; the grid's rings need none; -1: the preset decides)", 0, 2, "-1")
+              .or_unset(),
+          "SearchParams::neighbour_probes"),
+      option::search<nullptr, &RadiusParams::budget>(
+          option::integer("budget", "examine at most this many points per query (0: every point within the radius "
+                                    "on the grid, exact; every block the probes reach on the block layouts)", 0, 4294967295LL, "0"),
+          "RadiusParams::budget"),
+  };
+}
+
+std::unique_ptr<Index> make(std::shared_ptr<Runtime> runtime, const float* points, std::size_t n_points,
+                            const MethodOptions& options) {
+  // A saved index replaces the build (its build parameters are the saved ones).
+  std::unique_ptr<BlockHashIndex> bh;
+  const std::string load = options.load_index(), save = options.save_index();
+  if (!load.empty()) {
+    bh = BlockHashIndex::load(std::move(runtime), load);
+    if (bh->size() != n_points)
+      throw Error(load + ": the saved index holds " + std::to_string(bh->size()) + " points, the point set " +
+                  std::to_string(n_points));
+    if (long i = bh->first_mismatch(points, n_points); i >= 0)
+      throw Error(load + ": the saved index was built from other points (point " + std::to_string(i) + " differs)");
+  } else {
+    BlockHashBuildParams bp;
+    apply_build_options(option_table(), options, &bp, "blockhash");
+    bh = std::make_unique<BlockHashIndex>(std::move(runtime), points, n_points, bp);
+  }
+  if (!save.empty()) bh->save(save);
+  return bh;
+}
+
+std::string json_bool(bool b) { return b ? "true" : "false"; }
+std::string json_real(double x) {
+  char b[40];
+  std::snprintf(b, sizeof b, "%.17g", x);
+  std::string s = b;
+  if (s.find_first_of(".eEn") == std::string::npos) s += ".0";  // stays a real number
+  return s;
+}
+std::string json_text(const std::string& t) {
+  std::string s = "\"";
+  for (char c : t) s += (c == '"' || c == '\\') ? std::string("\\") + c : std::string(1, c);
+  return s + "\"";
+}
+
+MethodInfo::Used used_build(const Index& index) {
+  const BlockHashBuildInfo& i = dynamic_cast<const BlockHashIndex&>(index).info();
+  const std::string axis = "[" + std::to_string(i.axis_P[0]) + ", " + std::to_string(i.axis_P[1]) + ", " +
+                           std::to_string(i.axis_P[2]) + "]";
+  if (i.grid)
+    return {{"preset", json_text(P::preset_name(i.preset))},
+            {"grid", "true"},
+            {"grid_dims", "[" + std::to_string(i.grid_dims[0]) + ", " + std::to_string(i.grid_dims[1]) + ", " +
+                              std::to_string(i.grid_dims[2]) + "]"},
+            {"cell_size", json_real(i.cell_size)},
+            {"occupied_cells", std::to_string(i.occupied_cells)},
+            {"mean_cell_points", json_real(i.mean_cell_points)},
+            {"cells_grown", json_bool(i.grid_capped)},
+            {"summary", json_text(i.summary())}};
+  return {{"preset", json_text(P::preset_name(i.preset))},
+          {"L", std::to_string(i.L)},
+          {"P", std::to_string(i.P)},
+          {"B", std::to_string(i.B)},
+          {"X", std::to_string(i.X)},
+          {"cell_aligned", json_bool(i.cell_aligned)},
+          {"axis_P", axis},
+          {"guard_thresholds", json_bool(i.guard_thresholds)},
+          {"keep_top_count", json_bool(i.keep_top_count)},
+          {"direct_addressing", json_bool(i.direct_addressing)},
+          {"box_skip", json_bool(i.box_skip)},
+          {"neighbour_probes", json_bool(i.neighbour_probes)},
+          {"box_order", json_bool(i.box_order)},
+          {"hilbert_seed", std::to_string(i.hilbert_seed)},
+          {"n_blocks", std::to_string(i.n_blocks)},
+          {"occupied_cells", std::to_string(i.occupied_cells)},
+          {"overflowed_buckets", std::to_string(i.overflowed_buckets)},
+          {"block_refs", std::to_string(i.block_refs)},
+          {"median_cell_points", json_real(i.median_cell_points)},
+          {"summary", json_text(i.summary())}};
+}
+
+MethodInfo::Used used_search(const Index& index, const SearchParams& p) {
+  const auto& bh = dynamic_cast<const BlockHashIndex&>(index);
+  MethodInfo::Used u;
+  if (p.recall_target > 0) {
+    // The A the index tuned for this target (cached by the query that ran: no second tuning).
+    const BlockHashIndex::RecallTuning t = bh.recall_tuning(p);
+    u = {{"recall_target", json_real(p.recall_target)},
+         {"A", json_real(t.A)},
+         {"tuned_sample_recall", json_real(t.recall)},
+         {"tuned_reached", json_bool(t.reached)}};
+  } else if (p.A == 0) {
+    // The index's default: the grid's exact mode (JSON has no infinity: "exact"), 8 elsewhere.
+    if (bh.info().grid) u = {{"A", json_text("inf")}, {"exact", "true"}};
+    else u = {{"A", json_real(8.0)}};
+  } else if (std::isinf(p.A)) {
+    u = {{"A", json_text("inf")}, {"exact", json_bool(bh.info().grid)}};
+  } else {
+    u = {{"A", json_real(p.A)}};
+  }
+  const BlockHashBuildInfo& i = bh.info();
+  if (i.grid) return u;
+  const int probes = p.neighbour_probes >= 0 ? p.neighbour_probes : (i.neighbour_probes ? (i.cell_aligned ? 2 : 1) : 0);
+  u.emplace_back("neighbour_probes", std::to_string(probes));
+  return u;
+}
+
+}  // namespace
+
+const std::vector<OptionInfo>& option_table() {
+  static const std::vector<OptionInfo> table = [] {
+    std::vector<OptionInfo> t = make_table();
+    for (OptionInfo& o : device_search_options()) t.push_back(o);
+    return t;
+  }();
+  return table;
+}
+
+// name, summary, exact, on a device, saves, options, maker, what a build and a search used.
+MethodInfo describe() {
+  return {"blockhash", "block hashing (Ma & McCool 2002): exact by default on auto's grid; examines at most A*k points per query with A",
+          false, true, true, option_table(), make, used_build, used_search};
+}
+
+}  // namespace bhcl::blockhash
