@@ -219,8 +219,8 @@ def test_bad_search_parameters(indexes, data):
         kd.query(q, k=2.5)
     with pytest.raises(TypeError, match="'A' does not apply to method kdtree"):
         kd.query(q, k=3, A=8)
-    with pytest.raises(ValueError, match=r"A must be in \(0, inf\), got 0"):
-        bhx.query(q, k=3, A=0)
+    with pytest.raises(ValueError, match=r"A must be in \[0, inf\], got -1"):
+        bhx.query(q, k=3, A=-1)
     with pytest.raises(ValueError, match="recall_target must be in"):
         bhx.query(q, k=3, recall_target=1.5)
     with pytest.raises(ValueError, match="give one"):
