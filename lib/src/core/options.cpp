@@ -131,7 +131,10 @@ std::vector<const OptionInfo*> options_in(const std::vector<OptionInfo>& table, 
 
 void apply_build_options(const std::vector<OptionInfo>& table, const MethodOptions& given,
                          void* params, const std::string& method) {
-  for (const auto& [name, text] : given.values) {
+  for (const auto& entry : given.values) {
+    // Not a structured binding: C++17 lambdas cannot capture one (clang refuses it).
+    const std::string& name = entry.first;
+    const std::string& text = entry.second;
     auto it = std::find_if(table.begin(), table.end(),
                            [&](const OptionInfo& o) { return o.name == name && (o.scope & OptionInfo::Build); });
     if (it == table.end()) continue;  // another method's (one MethodOptions may serve several)
