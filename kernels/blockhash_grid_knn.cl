@@ -187,16 +187,7 @@ __kernel void blockhash_grid_knn(__global const uint* starts, __global const flo
   ulong row = first + gid;
   float3 q = bhcl_load_query(queries, row);
   const float qx = q.x, qy = q.y, qz = q.z;
-  bhcl_grid_geom g;
-  g.ox = geo0.x;
-  g.oy = geo0.y;
-  g.oz = geo0.z;
-  g.h = geo0.w;
-  g.inv_h = geo1.x;
-  g.margin = geo1.y;
-  g.nx = dims.x;
-  g.ny = dims.y;
-  g.nz = dims.z;
+  const bhcl_grid_geom g = bhcl_grid_geom_from(geo0, geo1, dims);
 #if BHCL_GRID_PREFETCH > 0
   if (gid + BHCL_GRID_PREFETCH < count) {
     float3 nq = bhcl_load_query(queries, row + BHCL_GRID_PREFETCH);

@@ -33,16 +33,7 @@ __kernel void blockhash_grid_radius(__global const uint* starts, __global const 
                                     uint budget, BHCL_RADIUS_PARAMS) {
   BHCL_RADIUS_BEGIN;
   uint examined = 0;
-  bhcl_grid_geom g;
-  g.ox = geo0.x;
-  g.oy = geo0.y;
-  g.oz = geo0.z;
-  g.h = geo0.w;
-  g.inv_h = geo1.x;
-  g.margin = geo1.y;
-  g.nx = dims.x;
-  g.ny = dims.y;
-  g.nz = dims.z;
+  const bhcl_grid_geom g = bhcl_grid_geom_from(geo0, geo1, dims);
   if (bhcl_query_is_finite(q)) {
     const float qx = q.x, qy = q.y, qz = q.z;
     bhcl_grid_emit e;

@@ -47,6 +47,23 @@ typedef struct bhcl_grid_geom {
   bhcl_u32 nx, ny, nz;
 } bhcl_grid_geom;
 
+#ifdef __OPENCL_C_VERSION__
+/* The geometry from the kernels' three arguments (the host's order: see bhcl_grid_geom). */
+inline bhcl_grid_geom bhcl_grid_geom_from(float4 geo0, float4 geo1, uint4 dims) {
+  bhcl_grid_geom g;
+  g.ox = geo0.x;
+  g.oy = geo0.y;
+  g.oz = geo0.z;
+  g.h = geo0.w;
+  g.inv_h = geo1.x;
+  g.margin = geo1.y;
+  g.nx = dims.x;
+  g.ny = dims.y;
+  g.nz = dims.z;
+  return g;
+}
+#endif
+
 /* The cell of coordinate t along an axis of n cells from origin o: floor((t - o) / h), clamped. */
 BHCL_GRID_INLINE bhcl_u32 bhcl_grid_cell(float t, float o, float inv_h, bhcl_u32 n) {
   float f = (t - o) * inv_h;

@@ -80,6 +80,21 @@ std::string BlockHashBuildInfo::summary() const {
 
 namespace {
 
+// The build info a grid's geometry determines (a fresh build and a load fill it alike).
+void grid_geometry_info(const blockhash::Structure& s, BlockHashBuildInfo& in) {
+  const bhcl_grid_geom& g = s.grid->geom;
+  in.preset = BlockHashBuildParams::Preset::Auto;
+  in.grid = true;
+  in.grid_dims[0] = int(g.nx);
+  in.grid_dims[1] = int(g.ny);
+  in.grid_dims[2] = int(g.nz);
+  in.cell_size = std::ldexp(double(g.h), s.scale_exp);
+  in.L = 1;
+  in.P = int(std::max({g.nx, g.ny, g.nz})) - 1;
+  for (int d = 0; d < 3; ++d) in.axis_P[d] = in.grid_dims[d] - 1;
+  in.n_points = s.n_points;
+}
+
 // The grid unless the caller asked for a block layout (docs in blockhash.hpp).
 bool wants_grid(const BlockHashBuildParams& p) {
   const bool block_fields = p.L > 0 || p.P > 0 || p.B > 0 || p.X > 0 || p.cell_aligned >= 0 ||
@@ -135,17 +150,7 @@ void BlockHashIndex::build_grid_layout(const float* points, std::size_t n_points
   build_grid(points, n_points, gp, *s.grid, &st);
   BlockHashBuildInfo& in = s.info;
   in = BlockHashBuildInfo{};
-  in.preset = BlockHashBuildParams::Preset::Auto;
-  in.grid = true;
-  const bhcl_grid_geom& g = s.grid->geom;
-  in.grid_dims[0] = int(g.nx);
-  in.grid_dims[1] = int(g.ny);
-  in.grid_dims[2] = int(g.nz);
-  in.cell_size = std::ldexp(double(g.h), s.scale_exp);
-  in.L = 1;
-  in.P = int(std::max({g.nx, g.ny, g.nz})) - 1;
-  for (int d = 0; d < 3; ++d) in.axis_P[d] = in.grid_dims[d] - 1;
-  in.n_points = n_points;
+  grid_geometry_info(s, in);
   in.occupied_cells = st.occupied;
   in.mean_cell_points = st.mean_cell_points;
   in.grid_capped = st.capped;
@@ -275,18 +280,8 @@ BlockHashIndex::BlockHashIndex(std::shared_ptr<Runtime> runtime, std::unique_ptr
   auto t0 = std::chrono::steady_clock::now();
   set_scale_exponent(s_->scale_exp);
   if (s_->grid) {
-    const bhcl_grid_geom& g = s_->grid->geom;
     BlockHashBuildInfo& in = s_->info;
-    in.preset = BlockHashBuildParams::Preset::Auto;
-    in.grid = true;
-    in.grid_dims[0] = int(g.nx);
-    in.grid_dims[1] = int(g.ny);
-    in.grid_dims[2] = int(g.nz);
-    in.cell_size = std::ldexp(double(g.h), s_->scale_exp);
-    in.L = 1;
-    in.P = int(std::max({g.nx, g.ny, g.nz})) - 1;
-    for (int d = 0; d < 3; ++d) in.axis_P[d] = in.grid_dims[d] - 1;
-    in.n_points = s_->n_points;
+    grid_geometry_info(*s_, in);
     double sum2 = 0;
     for (std::size_t c = 0; c + 1 < s_->grid->starts.size(); ++c) {
       double v = double(s_->grid->starts[c + 1] - s_->grid->starts[c]);
