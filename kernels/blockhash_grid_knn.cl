@@ -25,6 +25,9 @@
 #ifndef BHCL_GRID_PREFETCH
 #define BHCL_GRID_PREFETCH 0
 #endif
+#ifndef BHCL_GRID_PREFETCH_DIR /* 1: also the directory entry, 2d ahead */
+#define BHCL_GRID_PREFETCH_DIR 1
+#endif
 /* The runs of a ring gathered and scanned nearest first (0: scanned as met; grid_search.h). */
 #ifndef BHCL_GRID_ROWCAP
 #define BHCL_GRID_ROWCAP 0
@@ -189,13 +192,24 @@ __kernel void blockhash_grid_knn(__global const uint* starts, __global const flo
   const float qx = q.x, qy = q.y, qz = q.z;
   const bhcl_grid_geom g = bhcl_grid_geom_from(geo0, geo1, dims);
 #if BHCL_GRID_PREFETCH > 0
+  /* Two stages, so that neither load waits: the directory entry of the query 2d work-items
+   * ahead, the home cell's points of the query d ahead (its entry fetched d items ago). */
+  if (BHCL_GRID_PREFETCH_DIR && gid + 2 * BHCL_GRID_PREFETCH < count) {
+    float3 fq = bhcl_load_query(queries, row + 2 * BHCL_GRID_PREFETCH);
+    if (bhcl_query_is_finite(fq)) {
+      uint c = (bhcl_grid_cell(fq.z, g.oz, g.inv_h, g.nz) * g.ny +
+                bhcl_grid_cell(fq.y, g.oy, g.inv_h, g.ny)) * g.nx +
+               bhcl_grid_cell(fq.x, g.ox, g.inv_h, g.nx);
+      __builtin_prefetch(starts + (g.sparse ? (c >> BHCL_GRID_SEG_BITS) : c));
+    }
+  }
   if (gid + BHCL_GRID_PREFETCH < count) {
     float3 nq = bhcl_load_query(queries, row + BHCL_GRID_PREFETCH);
     if (bhcl_query_is_finite(nq)) {
       uint c = (bhcl_grid_cell(nq.z, g.oz, g.inv_h, g.nz) * g.ny +
                 bhcl_grid_cell(nq.y, g.oy, g.inv_h, g.ny)) * g.nx +
                bhcl_grid_cell(nq.x, g.ox, g.inv_h, g.nx);
-      uint s = starts[c];
+      uint s = bhcl_grid_start(starts, g.sparse, c);
       __builtin_prefetch(px + s);
       __builtin_prefetch(py + s);
       __builtin_prefetch(pz + s);

@@ -5,10 +5,10 @@
  *
  * The layout. Cubic cells of side h over the points' box, nx x ny x nz of them, numbered
  * c = (z ny + y) nx + x (x fastest). The points are sorted by cell (stable: ties by the caller's
- * index) into structure-of-arrays x[], y[], z[], id[]; starts[c] is the first point of cell c and
- * starts[c + 1] its end (ncells + 1 entries). So the cells of a row (fixed y, z) are adjacent in
+ * index) into structure-of-arrays x[], y[], z[], id[]; start(c) is the first point of cell c and
+ * start(c + 1) its end (the directory of the cells: below). So the cells of a row (fixed y, z) are adjacent in
  * memory and a run of cells x0..x1 of a row is the one contiguous range
- * [starts[c(x0)], starts[c(x1) + 1]): the talk's blocks are the cells (its "alternative
+ * [start(c(x0)), start(c(x1) + 1)): the talk's blocks are the cells (its "alternative
  * clustering" future work), the bucket of a cell is its run.
  *
  * The search. Ring r around the query's home cell is the cells at Chebyshev distance r; its rows
@@ -45,7 +45,18 @@ typedef struct bhcl_grid_geom {
   float ox, oy, oz, h;
   float inv_h, margin;
   bhcl_u32 nx, ny, nz;
+  bhcl_u32 sparse; /* 0: starts is the direct table; BHCL_GRID_SEG_BITS: the two-level directory */
 } bhcl_grid_geom;
+
+/* The directory of the cells. Direct: starts[c] for every cell c (ncells + 1 entries). Where that
+ * table would be too large (points on surfaces in a large box: 10M points of the Cornell box make
+ * 72M cells, 4 % of them occupied) it is two-level over segments of 2^BHCL_GRID_SEG_BITS cells of
+ * a row: starts[s] for segment s (ncells / 16 + 1 entries) is, for a segment holding no point,
+ * BHCL_GRID_EMPTY_SEG | (the start of its cells: all equal), else the index in starts itself of
+ * the segment's 16 starts. A run's two ends cost two dependent loads each instead of one, and
+ * the table shrinks to about 4 bytes per 16 cells plus 64 bytes per occupied segment. */
+#define BHCL_GRID_SEG_BITS 4u
+#define BHCL_GRID_EMPTY_SEG 0x80000000u
 
 #ifdef __OPENCL_C_VERSION__
 /* The geometry from the kernels' three arguments (the host's order: see bhcl_grid_geom). */
@@ -60,6 +71,7 @@ inline bhcl_grid_geom bhcl_grid_geom_from(float4 geo0, float4 geo1, uint4 dims) 
   g.nx = dims.x;
   g.ny = dims.y;
   g.nz = dims.z;
+  g.sparse = dims.w;
   return g;
 }
 #endif
@@ -88,6 +100,14 @@ BHCL_GRID_INLINE float bhcl_grid_reach(float t, float o, float h, float margin, 
   if (c > r) w = t - (o + (float)(c - r) * h);
   if (c + r + 1u < n) w = BHCL_FMIN(w, (o + (float)(c + r + 1u) * h) - t);
   return w - margin;
+}
+
+/* The first sorted point of cell c (c = ncells: the point count), through either directory. */
+BHCL_GRID_INLINE bhcl_u32 bhcl_grid_start(BHCL_GLOBAL const bhcl_u32* starts, bhcl_u32 sparse, bhcl_u32 c) {
+  if (!sparse) return starts[c];
+  const bhcl_u32 e = starts[c >> BHCL_GRID_SEG_BITS];
+  return (e & BHCL_GRID_EMPTY_SEG) ? (e & ~BHCL_GRID_EMPTY_SEG)
+                                   : starts[e + (c & ((1u << BHCL_GRID_SEG_BITS) - 1u))];
 }
 
 /* Row offset j of a ring (0, -1, +1, -2, +2, ...). */
@@ -183,7 +203,8 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search(BHCL_GLOBAL const bhcl_u32* starts,
             --xb;
           }
           if (xa > xb) continue;
-          const bhcl_u32 a = starts[row + (bhcl_u32)xa], b = starts[row + (bhcl_u32)xb + 1u];
+          const bhcl_u32 a = bhcl_grid_start(starts, g.sparse, row + (bhcl_u32)xa);
+          const bhcl_u32 b = bhcl_grid_start(starts, g.sparse, row + (bhcl_u32)xb + 1u);
           BHCL_GRID_RUN(syz, a, b)
         } else {
           /* An inner row: only its two end cells belong to the ring. */
@@ -193,7 +214,8 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search(BHCL_GLOBAL const bhcl_u32* starts,
             const float ex = bhcl_grid_slab(qx, g.ox, g.h, g.margin, (bhcl_u32)x);
             const float d = ex * ex + syz;
             if (d > bound) continue;
-            const bhcl_u32 a = starts[row + (bhcl_u32)x], b = starts[row + (bhcl_u32)x + 1u];
+            const bhcl_u32 a = bhcl_grid_start(starts, g.sparse, row + (bhcl_u32)x);
+            const bhcl_u32 b = bhcl_grid_start(starts, g.sparse, row + (bhcl_u32)x + 1u);
             BHCL_GRID_RUN(d, a, b)
           }
         }

@@ -139,8 +139,8 @@ TEST_CASE("blockhash_grid_build: independent of threads, stable, every point in 
   REQUIRE(ga.x == gb.x);
   ga.validate("test");
   // Stable: inside a cell the caller's indices ascend.
-  for (std::size_t c = 0; c + 1 < ga.starts.size(); ++c)
-    for (std::uint32_t i = ga.starts[c] + 1; i < ga.starts[c + 1]; ++i) REQUIRE(ga.ids[i - 1] < ga.ids[i]);
+  for (std::size_t c = 0; c < ga.ncells(); ++c)
+    for (std::uint32_t i = ga.start(c) + 1; i < ga.start(c + 1); ++i) REQUIRE(ga.ids[i - 1] < ga.ids[i]);
   // The tuning aims at 24 points per point's cell; the sample estimate lands near it.
   CHECK(a.info().mean_cell_points > 8);
   CHECK(a.info().mean_cell_points < 72);
@@ -148,6 +148,79 @@ TEST_CASE("blockhash_grid_build: independent of threads, stable, every point in 
   auto other = pts;
   other[3 * 777 + 1] += 1e-3f;
   REQUIRE(a.first_mismatch(other.data(), other.size() / 3) == 777);
+}
+
+TEST_CASE("blockhash_grid_two_level_vs_bruteforce: the two-level directory answers as the direct one") {
+  BlockHashBuildParams two;
+  two.grid_directory = 1;
+  BlockHashBuildParams direct;
+  direct.grid_directory = 0;
+  for (const test::PointSet& s : test::exact_point_sets()) {
+    CAPTURE(s.name);
+    const std::size_t N = s.points.size() / 3, n = s.queries.size() / 3;
+    BlockHashIndex a(test::runtime(), s.points.data(), N, two);
+    REQUIRE(a.info().grid_two_level);
+    a.structure().grid->validate("two-level");
+    BlockHashBuildParams d = direct;
+    d.cell_size = a.info().cell_size;  // the same cells, so the same sorted order
+    d.max_cells_per_point = 1024;      // and no growing to fit a direct table
+    BlockHashIndex b(test::runtime(), s.points.data(), N, d);
+    REQUIRE_FALSE(b.info().grid_two_level);
+    REQUIRE_FALSE(b.info().grid_capped);
+    REQUIRE(a.structure().grid->ids == b.structure().grid->ids);
+    for (std::size_t c = 0; c <= a.structure().grid->ncells(); ++c)
+      REQUIRE(a.structure().grid->start(c) == b.structure().grid->start(c));
+    for (int k : {1, 10, 50}) {
+      CAPTURE(k);
+      SearchParams p = exact_params(k);
+      KnnResult ref = reference::knn_float(s.points.data(), N, s.queries.data(), n, p);
+      test::require_identical(a.query(s.queries, p), ref, "two-level exact on " + s.name);
+      SearchParams pa = p;
+      pa.A = 2;
+      test::require_identical(a.query(s.queries, pa), b.query(s.queries, pa), "two-level A 2 on " + s.name);
+      kernel_equals_reference(a, s.queries, pa, "two-level reference");
+      SearchParams ps = pa;
+      ps.kernel_defines = "-DBHCL_GRID_VTOPK=0 -DBHCL_GRID_PREFETCH=0 -DBHCL_GRID_ROWCAP=0";
+      kernel_equals_reference(a, s.queries, ps, "two-level scalar list");
+    }
+    RadiusResult ra, rb;
+    const float r = test::cutting_radius(s);
+    a.radius_search(s.queries.data(), n, r, RadiusParams{}, ra);
+    b.radius_search(s.queries.data(), n, r, RadiusParams{}, rb);
+    REQUIRE(ra.ids == rb.ids);
+    REQUIRE(ra.offsets == rb.offsets);
+  }
+}
+
+TEST_CASE("blockhash_grid_two_level: chosen for sparse sets, saved and loaded, damage refused") {
+  // Points on the six faces of a box: most cells of the box empty, as in the Cornell box.
+  auto pts = datasets::uniform(60000, 41);
+  for (std::size_t i = 0; i < pts.size() / 3; ++i) pts[3 * i + (i % 3)] = ((i / 3) % 2) ? 0.0f : 1.0f;
+  auto qs = datasets::uniform(500, 42);
+  BlockHashBuildParams bp;
+  bp.max_cells_per_point = 0.05;  // a direct table of 65536 cells at most (the floor)
+  bp.target_cell_points = 2;      // small cells: ~357k of them
+  BlockHashIndex index(test::runtime(), pts.data(), pts.size() / 3, bp);
+  REQUIRE(index.info().grid_two_level);
+  const double cells = double(index.info().grid_dims[0]) * index.info().grid_dims[1] * index.info().grid_dims[2];
+  REQUIRE(cells > 65536);  // more cells than a direct table may have
+  REQUIRE(index.info().grid_directory_bytes < cells * 4);
+  SearchParams p = exact_params(10);
+  KnnResult ref = reference::knn_float(pts.data(), pts.size() / 3, qs.data(), qs.size() / 3, p);
+  test::require_identical(index.query(qs, p), ref, "two-level faces");
+  const std::string path = test::tmp_path("grid_two_level.bhcl");
+  index.save(path);
+  auto loaded = BlockHashIndex::load(test::runtime(), path);
+  REQUIRE(loaded->info().grid_two_level);
+  REQUIRE(loaded->info().occupied_cells == index.info().occupied_cells);
+  test::require_identical(loaded->query(qs, p), ref, "loaded two-level");
+  // A segment entry pointing past the directory is refused by name.
+  blockhash::Grid g = *index.structure().grid;
+  std::size_t seg = 0;
+  while (g.starts[seg] & BHCL_GRID_EMPTY_SEG) ++seg;
+  g.starts[seg] = static_cast<std::uint32_t>(g.starts.size());
+  REQUIRE_THROWS_WITH_AS(g.validate("x"), doctest::Contains("segment"), Error);
+  std::remove(path.c_str());
 }
 
 TEST_CASE("blockhash_grid_io: save and load answer identically, damage is refused") {

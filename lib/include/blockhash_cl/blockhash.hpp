@@ -86,8 +86,13 @@ struct BlockHashBuildParams {
   // Grid: the cells' side in the points' units (> 0), or -1 to choose it from a sample so that
   // the point-weighted mean cell population is target_cell_points (-1: 24).
   double cell_size = -1;
-  // Grid: the most cells per point of the direct cell table; past it the cells grow to fit.
+  // Grid: the most cells per point of the direct cell table; past it the directory is two-level
+  // (up to 16x as many cells: 4 bytes per 16 cells plus 64 per occupied 16), past that the cells
+  // grow to fit.
   double max_cells_per_point = 8;
+  // Grid: the cell directory. -1: by the rule above; 0: direct only (the cells grow to fit);
+  // 1: two-level always.
+  int grid_directory = -1;
   unsigned threads = 0;       // build threads (0: all hardware threads)
   std::uint64_t seed = 1;     // threshold jitter (a different jitter per table)
   bool verbose = false;       // progress of the build stages on stderr
@@ -112,6 +117,8 @@ struct BlockHashBuildInfo {
   double cell_size = 0;
   double mean_cell_points = 0;
   bool grid_capped = false;
+  bool grid_two_level = false;           // the two-level directory (grid_search.h)
+  std::size_t grid_directory_bytes = 0;  // the directory's size
   double t_tune = 0, t_cells = 0, t_count = 0, t_scatter = 0;
   std::size_t n_points = 0, n_blocks = 0;
   std::size_t occupied_cells = 0;      // over all tables

@@ -5,7 +5,9 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "blockhash_cl/knn.hpp"
@@ -17,13 +19,48 @@ namespace bhcl::blockhash {
 // stays inside the arrays.
 inline constexpr std::size_t kGridPad = 16;
 
+// A vector whose resize leaves new elements uninitialised: the build writes every element in
+// parallel, so a serial zero fill first would only cost time (and fault every page on one core).
+template <typename T>
+struct NoInitAllocator : std::allocator<T> {
+  template <typename U>
+  struct rebind {
+    using other = NoInitAllocator<U>;
+  };
+  NoInitAllocator() = default;
+  template <typename U>
+  NoInitAllocator(const NoInitAllocator<U>&) {}
+  template <typename U, typename... Args>
+  void construct(U* p, Args&&... args) {
+    if constexpr (sizeof...(Args) == 0) ::new (static_cast<void*>(p)) U;
+    else ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
+  }
+};
+template <typename T>
+using GridVec = std::vector<T, NoInitAllocator<T>>;
+
+// The build's scratch, kept with the grid so that a rebuild allocates nothing.
+struct GridScratch {
+  GridVec<std::uint32_t> cell;     // each input point's cell
+  GridVec<float> rec;              // (x, y, z, index bits) per point, bucketed by cell range
+  GridVec<std::uint32_t> rec_cell; // the cell of each record
+};
+
 struct Grid {
   bhcl_grid_geom geom{};
   std::size_t n_points = 0;
-  std::vector<std::uint32_t> starts;  // ncells + 1: cell c holds sorted points [starts[c], starts[c+1])
-  std::vector<float> x, y, z;         // n + kGridPad, sorted by cell (ties by caller index)
-  std::vector<std::int32_t> ids;      // n + kGridPad: the caller's index of each sorted point
+  // The directory (grid_search.h): direct, ncells + 1 entries, or two-level (geom.sparse).
+  GridVec<std::uint32_t> starts;
+  GridVec<float> x, y, z;          // n + kGridPad, sorted by cell (ties by caller index)
+  GridVec<std::int32_t> ids;       // n + kGridPad: the caller's index of each sorted point
+  std::shared_ptr<GridScratch> scratch;  // build only; not saved, not uploaded
   std::size_t ncells() const { return std::size_t(geom.nx) * geom.ny * geom.nz; }
+  // The first sorted point of cell c (c = ncells: n_points), through the directory.
+  std::uint32_t start(std::size_t c) const {
+    return bhcl_grid_start(starts.data(), geom.sparse, static_cast<std::uint32_t>(c));
+  }
+  // The directory's entry count for this geometry and, when two-level, its occupied segments.
+  static std::size_t top_entries(std::size_t ncells) { return (ncells >> BHCL_GRID_SEG_BITS) + 1; }
   std::size_t device_bytes() const {
     return starts.size() * 4 + (x.size() + y.size() + z.size()) * 4 + ids.size() * 4;
   }
@@ -35,14 +72,17 @@ struct GridBuildParams {
   double cell_size = -1;        // > 0: this side; else chosen from target_cell_points
   double target_cell_points = 24;  // the point-weighted mean cell population aimed at
   std::size_t sample = 16384;   // points the tuning looks at
-  // The most cells per point of a direct table: past it the cells grow until it fits.
+  // The most cells per point of a direct table. Past it the directory is two-level (up to 16x
+  // as many cells) and past that the cells grow until it fits.
   double max_cells_per_point = 8;
+  int directory = -1;           // -1: by the rule above; 0: direct (cells grow); 1: two-level
   unsigned threads = 0;         // 0: all hardware threads
 };
 
 struct GridBuildStats {
   double t_tune = 0, t_cells = 0, t_count = 0, t_scatter = 0;
   std::size_t occupied = 0;     // cells holding at least one point
+  std::size_t occupied_segments = 0;  // two-level directory: segments holding a point
   double mean_cell_points = 0;  // point-weighted mean population (each point's cell, averaged)
   bool capped = false;          // the cells were grown to fit max_cells_per_point
 };

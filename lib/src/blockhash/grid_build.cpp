@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <cstring>
 #include <cmath>
 #include <limits>
 
@@ -99,6 +100,9 @@ double estimate_population(const std::vector<float>& s, std::size_t n, const Box
   return (sum2 - (1.0 - f) * double(m)) / (f * double(m));
 }
 
+// The cell side whose point-weighted mean population is the target, within 4 %: a safeguarded
+// secant search on log h (the population grows with h, about as h^d for points on a d-dimensional
+// set), each step one sort of the sample's cell keys. 3-6 steps where a bisection took 16.
 double choose_cell_side(const float* xyz, std::size_t n, const Box& b, const GridBuildParams& p) {
   double ext = 0;
   for (int d = 0; d < 3; ++d) ext = std::max(ext, double(b.hi[d]) - double(b.lo[d]));
@@ -108,27 +112,63 @@ double choose_cell_side(const float* xyz, std::size_t n, const Box& b, const Gri
   s.reserve(3 * (n / stride + 1));
   for (std::size_t i = 0; i < n; i += stride) s.insert(s.end(), xyz + 3 * i, xyz + 3 * i + 3);
   std::vector<std::uint64_t> keys;
-  // Bisection on log h around the guess for points filling the box's volume (the population
-  // falls as h shrinks): a bracket of 2^-12 .. 2^3 of it (surfaces and curves need smaller
-  // cells than a volume), 14 steps (0.1 % in h).
   double vol = 1;
   int dims = 0;
   for (int d = 0; d < 3; ++d) {
     double e = double(b.hi[d]) - double(b.lo[d]);
     if (e > ext * 1e-6) vol *= e, ++dims;
   }
+  // The guess for points filling the box's volume; surfaces and curves need larger cells than it,
+  // clusters smaller: the search stays within 2^-12 .. 2^3 of it (and inside the box).
   const double guess = std::pow(vol * p.target_cell_points / double(n), 1.0 / std::max(1, dims));
-  double lo = std::log(std::max(guess / 4096, ext * 1e-7)), hi = std::log(std::min(guess * 8, ext * 1.0001));
-  if (!(lo < hi)) lo = hi - 1;
-  if (estimate_population(s, n, b, std::exp(lo), keys) >= p.target_cell_points) return std::exp(lo);
-  if (estimate_population(s, n, b, std::exp(hi), keys) < p.target_cell_points) return std::exp(hi);
-  for (int it = 0; it < 14; ++it) {
-    double mid = 0.5 * (lo + hi);
-    if (estimate_population(s, n, b, std::exp(mid), keys) >= p.target_cell_points) hi = mid;
-    else lo = mid;
+  const double xlo = std::log(std::max(guess / 4096, ext * 1e-7));
+  const double xhi = std::log(std::min(guess * 8, ext * 1.0001));
+  if (!(xlo < xhi)) return std::exp(xhi);
+  const double target = std::log(p.target_cell_points), tol = std::log(1.04);
+  // f(x) = log population(e^x) - log target, increasing in x.
+  auto f = [&](double x) {
+    return std::log(std::max(estimate_population(s, n, b, std::exp(x), keys), 1e-9)) - target;
+  };
+  double x0 = std::clamp(std::log(guess), xlo, xhi), f0 = f(x0);
+  if (std::fabs(f0) < tol) return std::exp(x0);
+  // Bracket: steps of the secant's size from the guess (at least one doubling), toward the target.
+  double a = x0, fa = f0, bx = x0, fb = f0, slope = double(std::max(1, dims));
+  for (int it = 0; it < 12 && (fa < 0) == (fb < 0); ++it) {
+    a = bx, fa = fb;
+    double step = std::clamp(-fa / slope, -4.0 * std::log(2.0), 4.0 * std::log(2.0));
+    if (std::fabs(step) < std::log(2.0) * 0.25) step = fa < 0 ? std::log(2.0) * 0.25 : -std::log(2.0) * 0.25;
+    bx = std::clamp(a + step, xlo, xhi);
+    if (bx == a) return std::exp(a);  // at an end of the range: the best this search allows
+    fb = f(bx);
+    if (std::fabs(fb) < tol) return std::exp(bx);
+    if (fb != fa) slope = std::max(0.25, (fb - fa) / (bx - a));
   }
-  return std::exp(hi);
+  if ((fa < 0) == (fb < 0)) return std::exp(std::fabs(fa) < std::fabs(fb) ? a : bx);
+  // Illinois regula falsi inside the bracket.
+  int side = 0;
+  for (int it = 0; it < 8; ++it) {
+    if (!(fb != fa)) break;
+    const double x = (a * fb - bx * fa) / (fb - fa), fx = f(x);
+    if (std::fabs(fx) < tol) return std::exp(x);
+    if ((fx < 0) == (fb < 0)) {
+      bx = x, fb = fx;
+      if (side == -1) fa *= 0.5;
+      side = -1;
+    } else {
+      a = x, fa = fx;
+      if (side == 1) fb *= 0.5;
+      side = 1;
+    }
+  }
+  return std::exp(std::fabs(fa) < std::fabs(fb) ? a : bx);
 }
+
+// Per-thread scratch of the bucket pass (each cell range of a bucket counted locally); zero
+// between buckets: every entry a bucket touches is cleared before the next.
+struct BucketScratch {
+  std::vector<std::uint32_t> cnt;
+  std::vector<std::uint8_t> seg;
+};
 
 }  // namespace
 
@@ -136,90 +176,209 @@ void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid&
                 GridBuildStats* stats) {
   if (n == 0 || n >= (std::size_t(1) << 31) - 1)
     throw Error("blockhash grid: the point count must be in [1, 2^31 - 2], got " + std::to_string(n));
+  if (p.directory < -1 || p.directory > 1)
+    throw Error("blockhash grid: directory must be -1 (by size), 0 (direct) or 1 (two-level), got " +
+                std::to_string(p.directory));
   const unsigned threads = p.threads ? p.threads : detail::default_threads();
   GridBuildStats st;
   auto t0 = std::chrono::steady_clock::now();
   const Box box = bounding_box(xyz, n, threads);
   double h = p.cell_size > 0 ? p.cell_size : choose_cell_side(xyz, n, box, p);
+  if (!(h > 0) || !std::isfinite(h))
+    throw Error("blockhash grid: the cell side came out as " + std::to_string(h) + " (internal error)");
   bhcl_grid_geom geom = geometry(box, h);
-  // A direct table of at most max_cells_per_point cells per point (and 2^31): grow the cells.
-  const double cap = std::min(std::max(p.max_cells_per_point * double(n), 65536.0), 2147483000.0);
-  while (double(geom.nx) * geom.ny * geom.nz > cap) {
+  // A direct table of at most max_cells_per_point cells per point; past it a two-level directory
+  // of up to 16x as many cells (its top level then holds as many entries as the direct table
+  // would); past that (and 2^31 cells) the cells grow until the table fits.
+  const double direct_cap = std::min(std::max(p.max_cells_per_point * double(n), 65536.0), 2147483000.0);
+  auto cells_of = [](const bhcl_grid_geom& gg) { return double(gg.nx) * gg.ny * gg.nz; };
+  bool sparse = p.directory == 1 || (p.directory == -1 && cells_of(geom) > direct_cap);
+  const double cap = sparse ? std::min(direct_cap * double(1u << BHCL_GRID_SEG_BITS), 2147483000.0) : direct_cap;
+  while (cells_of(geom) > cap) {
     h *= 1.05;
     geom = geometry(box, h);
     st.capped = true;
   }
+  if (p.directory == -1 && sparse && cells_of(geom) <= direct_cap) sparse = false;
+  geom.sparse = sparse ? BHCL_GRID_SEG_BITS : 0u;
   st.t_tune = since(t0);
 
+  // Buckets: ranges of 2^shift cells (whole segments), about 1024 of them, so that a bucket's
+  // counts and records stay in cache while its cells are sorted.
   t0 = std::chrono::steady_clock::now();
   const std::size_t ncells = std::size_t(geom.nx) * geom.ny * geom.nz;
-  std::vector<std::uint32_t> cell(n);
+  unsigned shift = sparse ? BHCL_GRID_SEG_BITS : 0;
+  while ((ncells >> shift) > 1024) ++shift;
+  const std::size_t nb = ((ncells - 1) >> shift) + 1;
+  const unsigned T = static_cast<unsigned>(std::min<std::size_t>(threads, std::max<std::size_t>(1, n / 65536)));
+  const std::size_t per = (n + T - 1) / T;
+  if (!g.scratch) g.scratch = std::make_shared<GridScratch>();
+  GridScratch& sc = *g.scratch;
+  sc.cell.resize(n);
+  std::vector<std::uint32_t> hist(std::size_t(T) * nb, 0);
+  // 1. Every point's cell and, per thread, the points of each bucket.
   detail::parallel_for(
-      n,
-      [&](std::size_t b, std::size_t e) {
-        for (std::size_t i = b; i < e; ++i) {
-          std::uint32_t cx = bhcl_grid_cell(xyz[3 * i], geom.ox, geom.inv_h, geom.nx);
-          std::uint32_t cy = bhcl_grid_cell(xyz[3 * i + 1], geom.oy, geom.inv_h, geom.ny);
-          std::uint32_t cz = bhcl_grid_cell(xyz[3 * i + 2], geom.oz, geom.inv_h, geom.nz);
-          cell[i] = (cz * geom.ny + cy) * geom.nx + cx;
+      T,
+      [&](std::size_t tb, std::size_t te) {
+        for (std::size_t j = tb; j < te; ++j) {
+          std::uint32_t* hj = hist.data() + j * nb;
+          for (std::size_t i = j * per; i < std::min(n, (j + 1) * per); ++i) {
+            const std::uint32_t cx = bhcl_grid_cell(xyz[3 * i], geom.ox, geom.inv_h, geom.nx);
+            const std::uint32_t cy = bhcl_grid_cell(xyz[3 * i + 1], geom.oy, geom.inv_h, geom.ny);
+            const std::uint32_t cz = bhcl_grid_cell(xyz[3 * i + 2], geom.oz, geom.inv_h, geom.nz);
+            const std::uint32_t c = (cz * geom.ny + cy) * geom.nx + cx;
+            sc.cell[i] = c;
+            ++hj[c >> shift];
+          }
         }
       },
-      threads, 65536);
+      T, 1);
   st.t_cells = since(t0);
 
+  // 2. Each bucket's records, thread by thread in input order (so the sort is stable whatever
+  // the thread count): 16-byte (x, y, z, index) records, written in one pass.
+  t0 = std::chrono::steady_clock::now();
+  std::vector<std::uint32_t> bstart(nb + 1, 0);
+  for (std::size_t b = 0; b < nb; ++b) {
+    std::uint32_t s = bstart[b];
+    for (unsigned j = 0; j < T; ++j) {
+      const std::uint32_t v = hist[j * nb + b];
+      hist[j * nb + b] = s;
+      s += v;
+    }
+    bstart[b + 1] = s;
+  }
+  sc.rec.resize(4 * n);
+  sc.rec_cell.resize(n);
+  detail::parallel_for(
+      T,
+      [&](std::size_t tb, std::size_t te) {
+        for (std::size_t j = tb; j < te; ++j) {
+          std::uint32_t* pos = hist.data() + j * nb;
+          for (std::size_t i = j * per; i < std::min(n, (j + 1) * per); ++i) {
+            const std::uint32_t c = sc.cell[i];
+            const std::uint32_t k = pos[c >> shift]++;
+            float* r = sc.rec.data() + 4 * std::size_t(k);
+            r[0] = xyz[3 * i];
+            r[1] = xyz[3 * i + 1];
+            r[2] = xyz[3 * i + 2];
+            const std::uint32_t id = static_cast<std::uint32_t>(i);
+            std::memcpy(r + 3, &id, 4);
+            sc.rec_cell[k] = c;
+          }
+        }
+      },
+      T, 1);
+  st.t_count = since(t0);
+
+  // 3. Each bucket on its own: its cells' counts, its part of the directory, its points placed
+  // (stable), in parallel over buckets. The two-level directory first numbers the occupied
+  // segments of every bucket, so that each bucket knows where its segment tables go.
   t0 = std::chrono::steady_clock::now();
   g.geom = geom;
   g.n_points = n;
-  g.starts.assign(ncells + 1, 0);
-  std::uint32_t* cnt = g.starts.data() + 1;
-  detail::parallel_for(
-      n,
-      [&](std::size_t b, std::size_t e) {
-        for (std::size_t i = b; i < e; ++i) __atomic_fetch_add(cnt + cell[i], 1u, __ATOMIC_RELAXED);
-      },
-      threads, 65536);
-  double sum2 = 0;
-  for (std::size_t c = 0; c < ncells; ++c) {
-    std::uint32_t v = cnt[c];
-    st.occupied += v ? 1 : 0;
-    sum2 += double(v) * v;
-    cnt[c] = g.starts[c] + v;  // starts[c + 1] = starts[c] + count(c)
+  const std::size_t top = Grid::top_entries(ncells);
+  const std::size_t seg_per_bucket = std::size_t(1) << (shift - (sparse ? BHCL_GRID_SEG_BITS : 0));
+  std::vector<std::uint32_t> seg_base(nb + 1, 0);
+  if (sparse) {
+    detail::parallel_chunks(nb, 1, threads, [&](std::size_t b, std::size_t, std::size_t) {
+      static thread_local BucketScratch ws;
+      if (ws.seg.size() < seg_per_bucket) ws.seg.assign(seg_per_bucket, 0);
+      const std::size_t s0 = (b << shift) >> BHCL_GRID_SEG_BITS;
+      std::uint32_t occ = 0;
+      for (std::uint32_t r = bstart[b]; r < bstart[b + 1]; ++r) {
+        std::uint8_t& m = ws.seg[(sc.rec_cell[r] >> BHCL_GRID_SEG_BITS) - s0];
+        occ += m ? 0 : 1;
+        m = 1;
+      }
+      for (std::uint32_t r = bstart[b]; r < bstart[b + 1]; ++r) ws.seg[(sc.rec_cell[r] >> BHCL_GRID_SEG_BITS) - s0] = 0;
+      seg_base[b + 1] = occ;
+    });
+    for (std::size_t b = 0; b < nb; ++b) seg_base[b + 1] += seg_base[b];
+    const double entries = double(top) + double(seg_base[nb]) * double(1u << BHCL_GRID_SEG_BITS);
+    if (entries >= double(BHCL_GRID_EMPTY_SEG))
+      throw Error("blockhash grid: the two-level directory would need " + std::to_string(entries) +
+                  " entries (at most 2^31): give a larger cell_size");
+    g.starts.resize(static_cast<std::size_t>(entries));
+    st.occupied_segments = seg_base[nb];
+  } else {
+    g.starts.resize(ncells + 1);
+    g.starts[ncells] = static_cast<std::uint32_t>(n);
   }
-  st.mean_cell_points = sum2 / double(n);
-  st.t_count = since(t0);
-
-  t0 = std::chrono::steady_clock::now();
   g.x.resize(n + kGridPad);
   g.y.resize(n + kGridPad);
   g.z.resize(n + kGridPad);
   g.ids.resize(n + kGridPad);
-  // Each thread owns a range of cells holding about n / t points and walks every point in order,
-  // placing its own: stable (ties by caller index) whatever the thread count.
-  const unsigned t = static_cast<unsigned>(std::min<std::size_t>(threads, std::max<std::size_t>(1, n / 65536)));
-  std::vector<std::size_t> cut(t + 1, ncells);
-  cut[0] = 0;
-  for (unsigned j = 1; j < t; ++j)
-    cut[j] = static_cast<std::size_t>(
-        std::upper_bound(g.starts.begin(), g.starts.end(), std::uint32_t(n * j / t)) - g.starts.begin()) - 1;
-  std::vector<std::uint32_t> pos(g.starts.begin(), g.starts.end() - 1);
-  detail::parallel_for(
-      t,
-      [&](std::size_t b, std::size_t e) {
-        for (std::size_t j = b; j < e; ++j) {
-          const std::uint32_t c0 = std::uint32_t(cut[j]), c1 = std::uint32_t(cut[j + 1]);
-          if (c0 >= c1) continue;
-          for (std::size_t i = 0; i < n; ++i) {
-            const std::uint32_t c = cell[i];
-            if (c < c0 || c >= c1) continue;
-            const std::uint32_t k = pos[c]++;
-            g.x[k] = xyz[3 * i];
-            g.y[k] = xyz[3 * i + 1];
-            g.z[k] = xyz[3 * i + 2];
-            g.ids[k] = static_cast<std::int32_t>(i);
-          }
+  std::vector<std::uint32_t> occ_b(nb, 0);
+  std::vector<double> sum2_b(nb, 0.0);
+  const std::size_t cells_per_bucket = std::size_t(1) << shift;
+  detail::parallel_chunks(nb, 1, threads, [&](std::size_t b, std::size_t, std::size_t) {
+    static thread_local BucketScratch ws;
+    if (ws.cnt.size() < cells_per_bucket) ws.cnt.assign(cells_per_bucket, 0);
+    if (sparse && ws.seg.size() < seg_per_bucket) ws.seg.assign(seg_per_bucket, 0);
+    std::uint32_t* cnt = ws.cnt.data();
+    const std::size_t c0 = b << shift, c1 = std::min(ncells, c0 + cells_per_bucket);
+    const std::uint32_t rb = bstart[b], re = bstart[b + 1];
+    for (std::uint32_t r = rb; r < re; ++r) ++cnt[sc.rec_cell[r] - c0];
+    std::uint32_t run = rb, occ = 0;
+    double sum2 = 0;
+    if (!sparse) {
+      for (std::size_t c = c0; c < c1; ++c) {
+        const std::uint32_t v = cnt[c - c0];
+        g.starts[c] = run;
+        cnt[c - c0] = run;  // now the cell's write position
+        run += v;
+        occ += v ? 1 : 0;
+        sum2 += double(v) * v;
+      }
+    } else {
+      for (std::uint32_t r = rb; r < re; ++r) ws.seg[(sc.rec_cell[r] - c0) >> BHCL_GRID_SEG_BITS] = 1;
+      std::uint32_t slot = static_cast<std::uint32_t>(top) + (seg_base[b] << BHCL_GRID_SEG_BITS);
+      const std::size_t s0 = c0 >> BHCL_GRID_SEG_BITS;
+      const std::size_t s1 = std::min(((c1 - 1) >> BHCL_GRID_SEG_BITS) + 1, top);
+      for (std::size_t sg = s0; sg < s1; ++sg) {
+        if (!ws.seg[sg - s0]) {
+          g.starts[sg] = BHCL_GRID_EMPTY_SEG | run;
+          continue;
         }
-      },
-      t, 1);
+        ws.seg[sg - s0] = 0;
+        g.starts[sg] = slot;
+        for (std::size_t j = 0; j < (std::size_t(1) << BHCL_GRID_SEG_BITS); ++j) {
+          const std::size_t lc = ((sg - s0) << BHCL_GRID_SEG_BITS) + j;  // < cells_per_bucket
+          const std::uint32_t v = cnt[lc];
+          g.starts[slot + j] = run;
+          cnt[lc] = run;
+          run += v;
+          occ += v ? 1 : 0;
+          sum2 += double(v) * v;
+        }
+        slot += 1u << BHCL_GRID_SEG_BITS;
+      }
+    }
+    for (std::uint32_t r = rb; r < re; ++r) {
+      const std::uint32_t k = cnt[sc.rec_cell[r] - c0]++;
+      const float* rr = sc.rec.data() + 4 * std::size_t(r);
+      g.x[k] = rr[0];
+      g.y[k] = rr[1];
+      g.z[k] = rr[2];
+      std::memcpy(&g.ids[k], rr + 3, 4);
+    }
+    // Clear what this bucket touched (direct: its whole range, which it walked anyway).
+    if (!sparse) std::fill(cnt, cnt + (c1 - c0), 0u);
+    else  // every cell of an occupied segment became a write position, empty ones too
+      for (std::uint32_t r = rb; r < re; ++r)
+        std::fill_n(cnt + ((sc.rec_cell[r] - c0) & ~((1u << BHCL_GRID_SEG_BITS) - 1u)), 1u << BHCL_GRID_SEG_BITS, 0u);
+    occ_b[b] = occ;
+    sum2_b[b] = sum2;
+  });
+  // The top entry past the last segment (a run ending at the last cell reads it).
+  if (sparse && (ncells & ((std::size_t(1) << BHCL_GRID_SEG_BITS) - 1)) == 0)
+    g.starts[top - 1] = BHCL_GRID_EMPTY_SEG | static_cast<std::uint32_t>(n);
+  for (std::size_t b = 0; b < nb; ++b) {
+    st.occupied += occ_b[b];
+    st.mean_cell_points += sum2_b[b];
+  }
+  st.mean_cell_points /= double(n);
   for (std::size_t i = n; i < n + kGridPad; ++i) {
     g.x[i] = g.y[i] = g.z[i] = INFINITY;
     g.ids[i] = -1;
@@ -237,11 +396,29 @@ void Grid::validate(const std::string& what) const {
       !(geom.margin >= 0) || !std::isfinite(geom.margin))
     bad("the origin or margin is not finite");
   if (double(geom.nx) * geom.ny * geom.nz > 2147483000.0) bad("too many cells");
-  if (starts.size() != ncells() + 1) bad("the cell table has " + std::to_string(starts.size()) + " entries, not cells + 1");
   if (n_points == 0 || n_points >= (std::size_t(1) << 31) - 1) bad("the point count is out of range");
-  if (starts.front() != 0 || starts.back() != n_points) bad("the cell table does not span the points");
-  for (std::size_t c = 0; c + 1 < starts.size(); ++c)
-    if (starts[c] > starts[c + 1]) bad("the cell table decreases at cell " + std::to_string(c));
+  const std::size_t nc = ncells();
+  if (geom.sparse == 0) {
+    if (starts.size() != nc + 1) bad("the cell table has " + std::to_string(starts.size()) + " entries, not cells + 1");
+  } else if (geom.sparse == BHCL_GRID_SEG_BITS) {
+    const std::size_t top = top_entries(nc), seg = std::size_t(1) << BHCL_GRID_SEG_BITS;
+    if (starts.size() < top || (starts.size() - top) % seg != 0 || starts.size() >= BHCL_GRID_EMPTY_SEG)
+      bad("the two-level directory has " + std::to_string(starts.size()) + " entries for " + std::to_string(top) + " segments");
+    for (std::size_t sg = 0; sg < top; ++sg) {
+      const std::uint32_t e = starts[sg];
+      if (e & BHCL_GRID_EMPTY_SEG) continue;
+      if (e < top || (e - top) % seg != 0 || std::size_t(e) + seg > starts.size())
+        bad("segment " + std::to_string(sg) + " points outside the directory");
+    }
+  } else {
+    bad("the directory kind is " + std::to_string(geom.sparse) + " (0 or " + std::to_string(BHCL_GRID_SEG_BITS) + " expected)");
+  }
+  if (start(0) != 0 || start(nc) != n_points) bad("the cell table does not span the points");
+  for (std::size_t c = 0, prev = 0; c <= nc; ++c) {
+    const std::size_t v = start(c);
+    if (v < prev || v > n_points) bad("the cell table decreases or overruns at cell " + std::to_string(c));
+    prev = v;
+  }
   if (x.size() != n_points + kGridPad || y.size() != x.size() || z.size() != x.size() || ids.size() != x.size())
     bad("the point arrays have the wrong length");
   std::vector<bool> seen(n_points, false);
@@ -253,8 +430,8 @@ void Grid::validate(const std::string& what) const {
     seen[std::size_t(ids[i])] = true;
   }
   // Every point inside its cell: the search's slab bounds (and so its exactness) rely on it.
-  for (std::size_t c = 0; c < ncells(); ++c)
-    for (std::uint32_t i = starts[c]; i < starts[c + 1]; ++i) {
+  for (std::size_t c = 0; c < nc; ++c)
+    for (std::uint32_t i = start(c), e = start(c + 1); i < e; ++i) {
       std::size_t cx = bhcl_grid_cell(x[i], geom.ox, geom.inv_h, geom.nx);
       std::size_t cy = bhcl_grid_cell(y[i], geom.oy, geom.inv_h, geom.ny);
       std::size_t cz = bhcl_grid_cell(z[i], geom.oz, geom.inv_h, geom.nz);

@@ -1,11 +1,13 @@
 // Save and load of a grid-layout block-hash index.
 //
-// File format (little-endian), version 1:
+// File format (little-endian), version 2:
 //   "BHCLGRID" magic, u32 version, u32 0x01020304 (byte-order check),
 //   u64 n_points, i32 coordinate scale exponent (knn.hpp), f64 target cell points,
 //   f32 ox, oy, oz, h, inv_h, margin, u32 nx, ny, nz,
+//   u32 directory kind (0 direct, 4 two-level: grid_search.h), u64 directory entries,
 //   u64 FNV-1a 64 checksum of every other byte of the file (header before it, then payload),
-//   payload: starts (u32 x (cells + 1)), x, y, z (f32 x N each), ids (i32 x N).
+//   payload: the directory (u32 x entries), x, y, z (f32 x N each), ids (i32 x N).
+// Version 1 (read, not written) had no directory fields: a direct table of cells + 1 entries.
 // A load reads the header, checks the file's size against it before reading the payload, then the
 // checksum and every invariant the kernel relies on (Grid::validate) before anything is used.
 #include <sys/stat.h>
@@ -21,8 +23,9 @@
 namespace bhcl::blockhash {
 namespace {
 
-constexpr std::uint32_t kVersion = 1;
-constexpr std::size_t kHeader = 8 + 4 + 4 + 8 + 4 + 8 + 6 * 4 + 3 * 4;
+constexpr std::uint32_t kVersion = 2;
+constexpr std::size_t kHeaderV1 = 8 + 4 + 4 + 8 + 4 + 8 + 6 * 4 + 3 * 4;
+constexpr std::size_t kHeader = kHeaderV1 + 4 + 8;
 
 std::uint64_t fnv1a(const char* p, std::size_t n, std::uint64_t h = 0xcbf29ce484222325ull) {
   for (std::size_t i = 0; i < n; ++i) {
@@ -50,8 +53,9 @@ struct In {
     pos += sizeof(T);
     return v;
   }
-  template <typename T>
-  void get_n(std::vector<T>& v, std::size_t n, const char* field) {
+  template <typename V>
+  void get_n(V& v, std::size_t n, const char* field) {
+    using T = typename V::value_type;
     if ((data.size() - pos) / sizeof(T) < n)
       throw Error(what + ": truncated grid index (array '" + field + "' at byte " + std::to_string(pos) + ")");
     v.resize(n);
@@ -75,6 +79,8 @@ void save_grid(const GridFile& f, const std::string& path) {
   put_n(h, gf, 6);
   const std::uint32_t dims[3] = {g.geom.nx, g.geom.ny, g.geom.nz};
   put_n(h, dims, 3);
+  put(h, std::uint32_t(g.geom.sparse));
+  put(h, std::uint64_t(g.starts.size()));
   std::string p;
   p.reserve(g.starts.size() * 4 + g.n_points * 16);
   put_n(p, g.starts.data(), g.starts.size());
@@ -100,14 +106,15 @@ bool is_grid_file(const std::string& path) {
 
 GridFile parse_grid(const std::string& data, const std::string& what) {
   In in{data, what};
-  if (data.size() < kHeader + 8 && data.size() >= 8 && std::memcmp(data.data(), kGridMagic, 8) == 0)
-    throw Error(what + ": truncated grid index (" + std::to_string(data.size()) + " bytes, the header alone is " + std::to_string(kHeader + 8) + ")");
   if (data.size() < 8 || std::memcmp(data.data(), kGridMagic, 8) != 0)
     throw Error(what + ": not a block-hash grid index (bad magic)");
   in.pos = 8;
   const auto version = in.get<std::uint32_t>("version");
-  if (version != kVersion)
-    throw Error(what + ": grid index version " + std::to_string(version) + ", this library reads version " + std::to_string(kVersion));
+  if (version != 1 && version != kVersion)
+    throw Error(what + ": grid index version " + std::to_string(version) + ", this library reads versions 1 and " + std::to_string(kVersion));
+  const std::size_t header = version == 1 ? kHeaderV1 : kHeader;
+  if (data.size() < header + 8)
+    throw Error(what + ": truncated grid index (" + std::to_string(data.size()) + " bytes, the header alone is " + std::to_string(header + 8) + ")");
   if (in.get<std::uint32_t>("byte order") != 0x01020304u) throw Error(what + ": grid index of another byte order");
   GridFile f;
   Grid& g = f.grid;
@@ -126,18 +133,28 @@ GridFile parse_grid(const std::string& data, const std::string& what) {
   g.geom.nx = in.get<std::uint32_t>("nx");
   g.geom.ny = in.get<std::uint32_t>("ny");
   g.geom.nz = in.get<std::uint32_t>("nz");
-  const std::uint64_t want_sum = in.get<std::uint64_t>("checksum");
+  std::uint64_t entries = 0;
   const double cells = double(g.geom.nx) * g.geom.ny * g.geom.nz;
   if (g.geom.nx == 0 || g.geom.ny == 0 || g.geom.nz == 0 || cells > 2147483000.0)
     throw Error(what + ": grid index dimensions out of range");
-  const std::uint64_t expect = kHeader + 8 + (std::uint64_t(cells) + 1) * 4 + n * 16;
+  if (version == 1) {
+    entries = std::uint64_t(cells) + 1;
+  } else {
+    g.geom.sparse = in.get<std::uint32_t>("directory kind");
+    entries = in.get<std::uint64_t>("directory entries");
+    if (g.geom.sparse != 0 && g.geom.sparse != BHCL_GRID_SEG_BITS)
+      throw Error(what + ": grid index directory kind " + std::to_string(g.geom.sparse) + " unknown");
+    if (entries >= BHCL_GRID_EMPTY_SEG) throw Error(what + ": grid index directory size out of range");
+  }
+  const std::uint64_t want_sum = in.get<std::uint64_t>("checksum");
+  const std::uint64_t expect = header + 8 + entries * 4 + n * 16;
   if (data.size() < expect)
     throw Error(what + ": truncated grid index (" + std::to_string(data.size()) + " bytes, its header declares " + std::to_string(expect) + ")");
   if (data.size() > expect)
     throw Error(what + ": grid index with trailing bytes (" + std::to_string(data.size()) + " bytes, its header declares " + std::to_string(expect) + ")");
-  std::uint64_t sum = fnv1a(data.data() + kHeader + 8, data.size() - kHeader - 8, fnv1a(data.data(), kHeader));
+  std::uint64_t sum = fnv1a(data.data() + header + 8, data.size() - header - 8, fnv1a(data.data(), header));
   if (sum != want_sum) throw Error(what + ": grid index checksum mismatch (the file is corrupt)");
-  in.get_n(g.starts, std::size_t(cells) + 1, "starts");
+  in.get_n(g.starts, std::size_t(entries), "directory");
   in.get_n(g.x, g.n_points, "x");
   in.get_n(g.y, g.n_points, "y");
   in.get_n(g.z, g.n_points, "z");

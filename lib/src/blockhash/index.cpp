@@ -61,10 +61,10 @@ std::string BlockHashBuildInfo::summary() const {
   if (grid) {
     std::snprintf(buf, sizeof buf,
                   "preset auto (grid)  cells %d x %d x %d of side %.4g  occupied %zu  mean cell %.1f points%s  "
-                  "build %.3f s (tune %.3f, cells %.3f, count %.3f, scatter %.3f, upload %.3f)",
+                  "%s directory %.1f MB  build %.3f s (tune %.3f, cells %.3f, bucket %.3f, sort %.3f, upload %.3f)",
                   grid_dims[0], grid_dims[1], grid_dims[2], cell_size, occupied_cells, mean_cell_points,
-                  grid_capped ? " (cells grown to fit the table)" : "", t_total, t_tune, t_cells, t_count,
-                  t_scatter, t_upload);
+                  grid_capped ? " (cells grown to fit the table)" : "", grid_two_level ? "two-level" : "direct",
+                  double(grid_directory_bytes) / 1e6, t_total, t_tune, t_cells, t_count, t_scatter, t_upload);
     return buf;
   }
   std::snprintf(buf, sizeof buf,
@@ -145,6 +145,7 @@ void BlockHashIndex::build_grid_layout(const float* points, std::size_t n_points
   gp.cell_size = cell_size > 0 ? std::ldexp(cell_size, -s.scale_exp) : -1.0;
   gp.target_cell_points = params_.target_cell_points > 0 ? params_.target_cell_points : 24.0;
   gp.max_cells_per_point = params_.max_cells_per_point;
+  gp.directory = params_.grid_directory;
   gp.threads = params_.threads;
   GridBuildStats st;
   build_grid(points, n_points, gp, *s.grid, &st);
@@ -154,6 +155,8 @@ void BlockHashIndex::build_grid_layout(const float* points, std::size_t n_points
   in.occupied_cells = st.occupied;
   in.mean_cell_points = st.mean_cell_points;
   in.grid_capped = st.capped;
+  in.grid_two_level = s.grid->geom.sparse != 0;
+  in.grid_directory_bytes = s.grid->starts.size() * 4;
   in.t_tune = st.t_tune;
   in.t_cells = st.t_cells;
   in.t_count = st.t_count;
@@ -283,11 +286,16 @@ BlockHashIndex::BlockHashIndex(std::shared_ptr<Runtime> runtime, std::unique_ptr
     BlockHashBuildInfo& in = s_->info;
     grid_geometry_info(*s_, in);
     double sum2 = 0;
-    for (std::size_t c = 0; c + 1 < s_->grid->starts.size(); ++c) {
-      double v = double(s_->grid->starts[c + 1] - s_->grid->starts[c]);
+    const blockhash::Grid& gr = *s_->grid;
+    for (std::size_t c = 0, a = gr.start(0); c < gr.ncells(); ++c) {
+      const std::size_t b = gr.start(c + 1);
+      const double v = double(b - a);
       in.occupied_cells += v > 0 ? 1 : 0;
       sum2 += v * v;
+      a = b;
     }
+    in.grid_two_level = gr.geom.sparse != 0;
+    in.grid_directory_bytes = gr.starts.size() * 4;
     in.mean_cell_points = sum2 / double(s_->n_points);
     upload_grid();
     in.t_upload = seconds_since(t0);
@@ -623,7 +631,7 @@ void BlockHashIndex::add_grid_args(detail::KernelArgs& args) const {
   args.add(g_starts_).add(g_x_).add(g_y_).add(g_z_).add(g_ids_)
       .add(cl_float4{{g.ox, g.oy, g.oz, g.h}})
       .add(cl_float4{{g.inv_h, g.margin, 0.0f, 0.0f}})
-      .add(cl_uint4{{g.nx, g.ny, g.nz, 0u}});
+      .add(cl_uint4{{g.nx, g.ny, g.nz, g.sparse}});
 }
 
 KnnResult BlockHashIndex::reference_query(const float* queries, std::size_t n,

@@ -54,7 +54,8 @@ std::vector<OptionInfo> make_table() {
       seed(),
       BHCL_BUILD_OPTION(P, grid, option::integer("grid", "auto: the grid layout (cells scanned as rows; -1: on for auto unless a block-layout option is set, 0: the block layouts, 1: the grid)", 0, 1, "-1").or_unset()),
       BHCL_BUILD_OPTION(P, cell_size, option::number("cell-size", "grid: the cells' side in the points' units (-1: chosen so a point's cell holds ~target-cell-points)", 0, 1e30, "-1", true).or_unset()),
-      BHCL_BUILD_OPTION(P, max_cells_per_point, option::number("max-cells-per-point", "grid: the most cells per point of the direct table (past it the cells grow)", 0.01, 1024, "8")),
+      BHCL_BUILD_OPTION(P, max_cells_per_point, option::number("max-cells-per-point", "grid: the most cells per point of the direct table (past it a two-level directory of up to 16x as many, then the cells grow)", 0.01, 1024, "8")),
+      BHCL_BUILD_OPTION(P, grid_directory, option::integer("grid-directory", "grid: the cell directory (-1: by max-cells-per-point, 0: direct, 1: two-level)", 0, 1, "-1").or_unset()),
       BHCL_BUILD_OPTION(P, target_cell_points, option::number("target-cell-points", "auto: the cell population aimed at (-1: 24; grid: a point's cell, block layouts: the median occupied cell, 100 for L tables)", 1, 1e6, "-1").or_unset()),
       BHCL_BUILD_OPTION(P, cell_aligned, flag("cell-aligned", "auto: blocks aligned to the cells of one table")),
       BHCL_BUILD_OPTION(P, b_percentile, option::number("b-percentile", "auto: B is this percentile of the distinct blocks per occupied cell", 0, 1, "0.9", true)),
@@ -141,6 +142,8 @@ MethodInfo::Used used_build(const Index& index) {
             {"occupied_cells", std::to_string(i.occupied_cells)},
             {"mean_cell_points", json_real(i.mean_cell_points)},
             {"cells_grown", json_bool(i.grid_capped)},
+            {"two_level_directory", json_bool(i.grid_two_level)},
+            {"directory_bytes", std::to_string(i.grid_directory_bytes)},
             {"summary", json_text(i.summary())}};
   return {{"preset", json_text(P::preset_name(i.preset))},
           {"L", std::to_string(i.L)},
