@@ -6,6 +6,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <memory>
+#include <new>
 #include <string>
 #include <utility>
 #include <vector>
@@ -19,22 +20,32 @@ namespace bhcl::blockhash {
 // stays inside the arrays.
 inline constexpr std::size_t kGridPad = 16;
 
-// A vector whose resize leaves new elements uninitialised: the build writes every element in
-// parallel, so a serial zero fill first would only cost time (and fault every page on one core).
+// A vector whose resize leaves new elements uninitialised (the build writes every element in
+// parallel: a serial zero fill first would only cost time and fault every page on one core), and
+// whose large arrays sit on transparent huge pages where the system offers them (the build's
+// scatters write to hundreds of places at once: with 4 KiB pages each is a TLB miss).
+void* grid_allocate(std::size_t bytes);
+void grid_deallocate(void* p) noexcept;
 template <typename T>
-struct NoInitAllocator : std::allocator<T> {
-  template <typename U>
-  struct rebind {
-    using other = NoInitAllocator<U>;
-  };
+struct NoInitAllocator {
+  using value_type = T;
   NoInitAllocator() = default;
   template <typename U>
   NoInitAllocator(const NoInitAllocator<U>&) {}
+  T* allocate(std::size_t n) {
+    if (n > std::size_t(-1) / sizeof(T)) throw std::bad_alloc();
+    return static_cast<T*>(grid_allocate(n * sizeof(T)));
+  }
+  void deallocate(T* p, std::size_t) noexcept { grid_deallocate(p); }
   template <typename U, typename... Args>
   void construct(U* p, Args&&... args) {
     if constexpr (sizeof...(Args) == 0) ::new (static_cast<void*>(p)) U;
     else ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
   }
+  template <typename U>
+  bool operator==(const NoInitAllocator<U>&) const { return true; }
+  template <typename U>
+  bool operator!=(const NoInitAllocator<U>&) const { return false; }
 };
 template <typename T>
 using GridVec = std::vector<T, NoInitAllocator<T>>;

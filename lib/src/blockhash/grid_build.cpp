@@ -3,9 +3,12 @@
 //   the target), 3. every point's cell (parallel), 4. the counts (relaxed atomics), the prefix,
 //   5. a stable scatter into structure-of-arrays (parallel over disjoint cell ranges).
 // No sort of the points: 15-35 ms for 1M points on 2 cores (../shared/limit/NOTES.md section 3).
+#include <sys/mman.h>
+
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <cstdlib>
 #include <cstring>
 #include <cmath>
 #include <limits>
@@ -13,6 +16,10 @@
 #include "blockhash/grid.hpp"
 #include "blockhash_cl/error.hpp"
 #include "core/parallel.hpp"
+
+#ifndef BHCL_GRID_BUCKETS
+#define BHCL_GRID_BUCKETS 256
+#endif
 
 namespace bhcl::blockhash {
 namespace {
@@ -163,6 +170,10 @@ double choose_cell_side(const float* xyz, std::size_t n, const Box& b, const Gri
   return std::exp(std::fabs(fa) < std::fabs(fb) ? a : bx);
 }
 
+// The buckets of the first pass: few enough that a thread's write streams (two per bucket) stay
+// in L1 and its TLB, many enough that a bucket's counts and records stay in L2.
+constexpr std::size_t kBuckets = BHCL_GRID_BUCKETS;
+
 // Per-thread scratch of the bucket pass (each cell range of a bucket counted locally); zero
 // between buckets: every entry a bucket touches is cleared before the next.
 struct BucketScratch {
@@ -203,12 +214,12 @@ void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid&
   geom.sparse = sparse ? BHCL_GRID_SEG_BITS : 0u;
   st.t_tune = since(t0);
 
-  // Buckets: ranges of 2^shift cells (whole segments), about 1024 of them, so that a bucket's
+  // Buckets: ranges of 2^shift cells (whole segments), at most kBuckets of them, so that a bucket's
   // counts and records stay in cache while its cells are sorted.
   t0 = std::chrono::steady_clock::now();
   const std::size_t ncells = std::size_t(geom.nx) * geom.ny * geom.nz;
   unsigned shift = sparse ? BHCL_GRID_SEG_BITS : 0;
-  while ((ncells >> shift) > 1024) ++shift;
+  while ((ncells >> shift) > kBuckets) ++shift;
   const std::size_t nb = ((ncells - 1) >> shift) + 1;
   const unsigned T = static_cast<unsigned>(std::min<std::size_t>(threads, std::max<std::size_t>(1, n / 65536)));
   const std::size_t per = (n + T - 1) / T;
@@ -386,6 +397,24 @@ void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid&
   st.t_scatter = since(t0);
   if (stats) *stats = st;
 }
+
+void* grid_allocate(std::size_t bytes) {
+  constexpr std::size_t kHuge = std::size_t(2) << 20;
+  if (bytes >= 2 * kHuge) {
+    const std::size_t rounded = (bytes + kHuge - 1) / kHuge * kHuge;
+    if (void* p = std::aligned_alloc(kHuge, rounded)) {
+#ifdef MADV_HUGEPAGE
+      ::madvise(p, rounded, MADV_HUGEPAGE);  // advice only: without it the pages are 4 KiB
+#endif
+      return p;
+    }
+    throw std::bad_alloc();
+  }
+  if (void* p = std::malloc(bytes ? bytes : 1)) return p;
+  throw std::bad_alloc();
+}
+
+void grid_deallocate(void* p) noexcept { std::free(p); }
 
 void Grid::validate(const std::string& what) const {
   auto bad = [&](const std::string& m) { throw Error(what + ": corrupt grid index: " + m); };
