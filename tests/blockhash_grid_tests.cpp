@@ -41,7 +41,7 @@ TEST_CASE("blockhash_grid_vs_bruteforce: the exact mode equals brute force on ev
     const std::size_t N = s.points.size() / 3, n = s.queries.size() / 3;
     const float radius = test::cutting_radius(s);
     for (float r : {INFINITY, radius})
-      for (int k : {1, 10, 50, 100}) {
+      for (int k : {1, 17, 100}) {  // both register-list sizes and the scalar list
         CAPTURE(k);
         CAPTURE(r);
         SearchParams p = exact_params(k, r);
@@ -50,6 +50,7 @@ TEST_CASE("blockhash_grid_vs_bruteforce: the exact mode equals brute force on ev
         KnnResult ref = reference::knn_float(s.points.data(), N, s.queries.data(), n, p);
         test::require_identical(got, ref, "grid exact on " + s.name);
         // recall_target = 1 is the same exact mode.
+        if (std::isfinite(r)) continue;
         SearchParams pr = p;
         pr.A = 8;
         pr.recall_target = 1.0;
@@ -74,7 +75,8 @@ TEST_CASE("blockhash_grid_vs_reference: kernel == host reference at every budget
   cases.push_back({"walls", wall, datasets::uniform(500, 6)});
   for (const Case& c : cases) {
     BlockHashIndex index(test::runtime(), c.pts.data(), c.pts.size() / 3);
-    for (int k : {1, 10, 16, 17, 50, 64, 65, 100})
+    // The list forms' edges: one register (k <= 16), four (<= 64), the scalar list past them.
+    for (int k : {1, 16, 17, 64, 65})
       for (float A : {1.0f, 2.0f, 8.0f, INFINITY}) {
         SearchParams p;
         p.k = k;
