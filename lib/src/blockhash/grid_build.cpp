@@ -179,6 +179,7 @@ constexpr std::size_t kBuckets = BHCL_GRID_BUCKETS;
 struct BucketScratch {
   std::vector<std::uint32_t> cnt;
   std::vector<std::uint8_t> seg;
+  std::vector<std::uint32_t> rank;
 };
 
 }  // namespace
@@ -327,10 +328,27 @@ void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid&
     static thread_local BucketScratch ws;
     if (ws.cnt.size() < cells_per_bucket) ws.cnt.assign(cells_per_bucket, 0);
     if (sparse && ws.seg.size() < seg_per_bucket) ws.seg.assign(seg_per_bucket, 0);
+    if (sparse && ws.rank.size() < seg_per_bucket) ws.rank.resize(seg_per_bucket);
     std::uint32_t* cnt = ws.cnt.data();
     const std::size_t c0 = b << shift, c1 = std::min(ncells, c0 + cells_per_bucket);
     const std::uint32_t rb = bstart[b], re = bstart[b + 1];
-    for (std::uint32_t r = rb; r < re; ++r) ++cnt[sc.rec_cell[r] - c0];
+    constexpr std::uint32_t kSeg = 1u << BHCL_GRID_SEG_BITS;
+    // Two-level: the bucket's occupied segments ranked in order, and each cell counted at
+    // (rank, cell in segment): the counts of a sparse bucket stay a few KiB, not a count per
+    // cell of its range (1.5 MiB per bucket for the Cornell box at 10M points).
+    const std::size_t s0 = c0 >> BHCL_GRID_SEG_BITS;
+    const std::size_t s1 = sparse ? std::min(((c1 - 1) >> BHCL_GRID_SEG_BITS) + 1, top) : 0;
+    std::uint32_t nocc = 0;
+    if (sparse) {
+      for (std::uint32_t r = rb; r < re; ++r) ws.seg[(sc.rec_cell[r] - c0) >> BHCL_GRID_SEG_BITS] = 1;
+      for (std::size_t sg = s0; sg < s1; ++sg)
+        if (ws.seg[sg - s0]) ws.rank[sg - s0] = nocc++;
+    }
+    auto local = [&](std::uint32_t c) -> std::uint32_t {
+      if (!sparse) return c - static_cast<std::uint32_t>(c0);
+      return (ws.rank[(c - c0) >> BHCL_GRID_SEG_BITS] << BHCL_GRID_SEG_BITS) | (c & (kSeg - 1u));
+    };
+    for (std::uint32_t r = rb; r < re; ++r) ++cnt[local(sc.rec_cell[r])];
     std::uint32_t run = rb, occ = 0;
     double sum2 = 0;
     if (!sparse) {
@@ -343,19 +361,17 @@ void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid&
         sum2 += double(v) * v;
       }
     } else {
-      for (std::uint32_t r = rb; r < re; ++r) ws.seg[(sc.rec_cell[r] - c0) >> BHCL_GRID_SEG_BITS] = 1;
-      std::uint32_t slot = static_cast<std::uint32_t>(top) + (seg_base[b] << BHCL_GRID_SEG_BITS);
-      const std::size_t s0 = c0 >> BHCL_GRID_SEG_BITS;
-      const std::size_t s1 = std::min(((c1 - 1) >> BHCL_GRID_SEG_BITS) + 1, top);
+      const std::uint32_t slot0 = static_cast<std::uint32_t>(top) + (seg_base[b] << BHCL_GRID_SEG_BITS);
       for (std::size_t sg = s0; sg < s1; ++sg) {
         if (!ws.seg[sg - s0]) {
           g.starts[sg] = BHCL_GRID_EMPTY_SEG | run;
           continue;
         }
         ws.seg[sg - s0] = 0;
+        const std::uint32_t rk = ws.rank[sg - s0], slot = slot0 + (rk << BHCL_GRID_SEG_BITS);
         g.starts[sg] = slot;
-        for (std::size_t j = 0; j < (std::size_t(1) << BHCL_GRID_SEG_BITS); ++j) {
-          const std::size_t lc = ((sg - s0) << BHCL_GRID_SEG_BITS) + j;  // < cells_per_bucket
+        for (std::uint32_t j = 0; j < kSeg; ++j) {
+          const std::uint32_t lc = (rk << BHCL_GRID_SEG_BITS) | j;
           const std::uint32_t v = cnt[lc];
           g.starts[slot + j] = run;
           cnt[lc] = run;
@@ -363,22 +379,18 @@ void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid&
           occ += v ? 1 : 0;
           sum2 += double(v) * v;
         }
-        slot += 1u << BHCL_GRID_SEG_BITS;
       }
     }
     for (std::uint32_t r = rb; r < re; ++r) {
-      const std::uint32_t k = cnt[sc.rec_cell[r] - c0]++;
+      const std::uint32_t k = cnt[local(sc.rec_cell[r])]++;
       const float* rr = sc.rec.data() + 4 * std::size_t(r);
       g.x[k] = rr[0];
       g.y[k] = rr[1];
       g.z[k] = rr[2];
       std::memcpy(&g.ids[k], rr + 3, 4);
     }
-    // Clear what this bucket touched (direct: its whole range, which it walked anyway).
-    if (!sparse) std::fill(cnt, cnt + (c1 - c0), 0u);
-    else  // every cell of an occupied segment became a write position, empty ones too
-      for (std::uint32_t r = rb; r < re; ++r)
-        std::fill_n(cnt + ((sc.rec_cell[r] - c0) & ~((1u << BHCL_GRID_SEG_BITS) - 1u)), 1u << BHCL_GRID_SEG_BITS, 0u);
+    // Clear what this bucket touched: every count it used became a write position.
+    std::fill(cnt, cnt + (sparse ? std::size_t(nocc) * kSeg : c1 - c0), 0u);
     occ_b[b] = occ;
     sum2_b[b] = sum2;
   });
