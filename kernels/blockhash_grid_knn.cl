@@ -28,6 +28,10 @@
 #ifndef BHCL_GRID_PREFETCH_DIR /* 1: also the directory entry, 2d ahead */
 #define BHCL_GRID_PREFETCH_DIR 1
 #endif
+#ifndef BHCL_GRID_PREFETCH_RING /* 1: the 9 rows around the home cell, not only the home cell */
+#define BHCL_GRID_PREFETCH_RING 1
+#endif
+
 /* The runs of a ring gathered and scanned nearest first (0: scanned as met; grid_search.h). */
 #ifndef BHCL_GRID_ROWCAP
 #define BHCL_GRID_ROWCAP 0
@@ -180,6 +184,17 @@ inline void st_scan(bhcl_stopk* t, float qx, float qy, float qz, __global const 
 
 #include "grid_search.h"
 
+/* The cell of q offset by (dx, dy, dz), x clamped into the grid; 0xffffffff when its row lies
+ * outside the grid. */
+inline uint bhcl_grid_near_cell(const bhcl_grid_geom g, float3 q, int dx, int dy, int dz) {
+  int x = (int)bhcl_grid_cell(q.x, g.ox, g.inv_h, g.nx) + dx;
+  int y = (int)bhcl_grid_cell(q.y, g.oy, g.inv_h, g.ny) + dy;
+  int z = (int)bhcl_grid_cell(q.z, g.oz, g.inv_h, g.nz) + dz;
+  if (y < 0 || y >= (int)g.ny || z < 0 || z >= (int)g.nz) return 0xffffffffu;
+  x = x < 0 ? 0 : (x >= (int)g.nx ? (int)g.nx - 1 : x);
+  return ((uint)z * g.ny + (uint)y) * g.nx + (uint)x;
+}
+
 __kernel void blockhash_grid_knn(__global const uint* starts, __global const float* px,
                                  __global const float* py, __global const float* pz,
                                  __global const int* pid, float4 geo0, float4 geo1, uint4 dims,
@@ -192,29 +207,40 @@ __kernel void blockhash_grid_knn(__global const uint* starts, __global const flo
   const float qx = q.x, qy = q.y, qz = q.z;
   const bhcl_grid_geom g = bhcl_grid_geom_from(geo0, geo1, dims);
 #if BHCL_GRID_PREFETCH > 0
-  /* Two stages, so that neither load waits: the directory entry of the query 2d work-items
-   * ahead, the home cell's points of the query d ahead (its entry fetched d items ago). */
+  /* Two stages, so that neither load waits: the directory entries of the query 2d work-items
+   * ahead, the points of the query d ahead (its entries fetched d items ago). Either the home
+   * cell only or (RING) the first cell of each of the 9 rows around it, which the first rings
+   * scan: in a random query order each is a cache miss. */
+#if BHCL_GRID_PREFETCH_RING
+#define BHCL_GRID_PF_ROWS 9
+#else
+#define BHCL_GRID_PF_ROWS 1
+#endif
   if (BHCL_GRID_PREFETCH_DIR && gid + 2 * BHCL_GRID_PREFETCH < count) {
     float3 fq = bhcl_load_query(queries, row + 2 * BHCL_GRID_PREFETCH);
-    if (bhcl_query_is_finite(fq)) {
-      uint c = (bhcl_grid_cell(fq.z, g.oz, g.inv_h, g.nz) * g.ny +
-                bhcl_grid_cell(fq.y, g.oy, g.inv_h, g.ny)) * g.nx +
-               bhcl_grid_cell(fq.x, g.ox, g.inv_h, g.nx);
-      __builtin_prefetch(starts + (g.sparse ? (c >> BHCL_GRID_SEG_BITS) : c));
-    }
+    if (bhcl_query_is_finite(fq))
+      for (int j = 0; j < BHCL_GRID_PF_ROWS; ++j) {
+        /* the home cell, or the first cell (x - 1) of row j of the 3 x 3 around it */
+        uint c = BHCL_GRID_PF_ROWS == 1 ? bhcl_grid_near_cell(g, fq, 0, 0, 0)
+                                        : bhcl_grid_near_cell(g, fq, -1, j % 3 - 1, j / 3 - 1);
+        if (c != 0xffffffffu) __builtin_prefetch(starts + (g.sparse ? (c >> BHCL_GRID_SEG_BITS) : c));
+      }
   }
   if (gid + BHCL_GRID_PREFETCH < count) {
     float3 nq = bhcl_load_query(queries, row + BHCL_GRID_PREFETCH);
-    if (bhcl_query_is_finite(nq)) {
-      uint c = (bhcl_grid_cell(nq.z, g.oz, g.inv_h, g.nz) * g.ny +
-                bhcl_grid_cell(nq.y, g.oy, g.inv_h, g.ny)) * g.nx +
-               bhcl_grid_cell(nq.x, g.ox, g.inv_h, g.nx);
-      uint s = bhcl_grid_start(starts, g.sparse, c);
-      __builtin_prefetch(px + s);
-      __builtin_prefetch(py + s);
-      __builtin_prefetch(pz + s);
-    }
+    if (bhcl_query_is_finite(nq))
+      for (int j = 0; j < BHCL_GRID_PF_ROWS; ++j) {
+        /* the home cell, or the first cell (x - 1) of row j of the 3 x 3 around it */
+        uint c = BHCL_GRID_PF_ROWS == 1 ? bhcl_grid_near_cell(g, nq, 0, 0, 0)
+                                        : bhcl_grid_near_cell(g, nq, -1, j % 3 - 1, j / 3 - 1);
+        if (c == 0xffffffffu) continue;
+        uint s = bhcl_grid_start(starts, g.sparse, c);
+        __builtin_prefetch(px + s);
+        __builtin_prefetch(py + s);
+        __builtin_prefetch(pz + s);
+      }
   }
+#undef BHCL_GRID_PF_ROWS
 #endif
   uint examined = 0;
   size_t base = (size_t)row * (size_t)k;
