@@ -443,8 +443,13 @@ class Index:
         neighbours found per query) if return_counts, then the stats dict if return_stats (also
         in last_stats): n_queries, nonfinite_queries, batches, compile_s, upload_s, query_s,
         download_s, wall_s, queries_per_s, coordinates (see Index.coordinates), and for blockhash
-        the search options used (with recall_target: the A tuned and the recall it reached on
-        the tuning sample). The GIL is released while it runs.
+        the search options used. Block hashing with recall_target, or with neither A nor
+        recall_target on a block layout (grid=0, the paper preset: target 0.95; the grid's
+        default is exact), tunes A on a sample of THIS batch against exact answers, cached per
+        k, target and the batch's distribution; the stats then say A, tuned_on ("queries"),
+        tuned_sample_recall, tuned_reached (False: no A up to 1024 reaches the target there),
+        tuning_sample, tuning_cached, tuning_distribution, tuning_s and tuning_share (of the
+        call, compiles excluded). The GIL is released while it runs.
         """
         p = self._search_params(k, dict(search, max_radius=max_radius, sort_queries=sort_queries))
         a, single = _checked(queries, "queries", single_ok=True)
