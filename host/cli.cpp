@@ -17,6 +17,13 @@
 
 namespace bhcl::cli {
 
+namespace {
+// How read_points_and_queries stored this run's coordinates (one read per bhcl run), for the stats.
+bool g_coords_read = false;
+Recentring g_coords;
+}  // namespace
+
+
 CLI::Option* Args::add(const std::string& name, const std::string& help, const std::string& def,
                        const std::string& type) {
   CLI::Option* o = app_->add_option("--" + name, values_[name], help);
@@ -155,6 +162,14 @@ void add_query_stats(Json& j, const Index& index, const QueryStats& st) {
   j["queries_per_s"] = st.queries_per_s();
   j["batches"] = st.batches;
   j["nonfinite_queries"] = st.nonfinite_queries;
+  if (g_coords_read) {
+    // The precision the stored float32 coordinates leave, in the files' units.
+    j["coordinates"] = {{"recentred", g_coords.recentred},
+                        {"origin", {g_coords.origin[0], g_coords.origin[1], g_coords.origin[2]}},
+                        {"max_abs_relative", g_coords.max_abs_relative},
+                        {"float32_step", g_coords.float32_step},
+                        {"max_rounding", 0.5 * g_coords.float32_step}};
+  }
 }
 
 void write_radius_result(const Args& args, const RadiusResult& r) {
@@ -491,10 +506,21 @@ CommandInputs read_command_inputs(const Args& args, std::vector<FileArg> outputs
 }
 
 void read_points_and_queries(const Args& args, std::vector<float>& points, std::vector<float>& queries) {
-  points = read_points_file(args.str("points"));
+  // float64 kept: the files' coordinates in double, re-centred on the points' box where that
+  // gains precision (georeferenced data), then stored in float32 relative to it; the queries
+  // relative to the same origin, so distances stay in the files' units.
+  std::vector<double> pw = read_points_file_f64(args.str("points"), &points);
   if (points.empty()) throw Error(args.str("points") + ": the point file is empty (0 points)");
-  queries = read_points_file(args.str("queries"));
+  std::vector<double> qw = read_points_file_f64(args.str("queries"), &queries);
   if (queries.empty()) throw Error(args.str("queries") + ": the query file is empty (0 queries)");
+  g_coords = choose_origin(pw.data(), pw.size() / 3);
+  if (g_coords.recentred) {
+    points = relative_points(pw.data(), pw.size() / 3, g_coords, args.str("points"));
+    queries = relative_points(qw.data(), qw.size() / 3, g_coords, args.str("queries"));
+  } else {
+    relative_points(pw.data(), pw.size() / 3, g_coords, args.str("points"));  // the figures only
+  }
+  g_coords_read = true;
 }
 
 MethodOptions method_options(const Args& args) {

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdio>
 
+#include "blockhash_cl/blockhash.hpp"
 #include "blockhash_cl/error.hpp"
 #include "blockhash_cl/factory.hpp"
 #include "blockhash_cl/io.hpp"
@@ -197,6 +198,11 @@ int run_knn(const Args& args) {
   const auto& [mopt, points, queries, N, n, rt] = in;
   const bool quiet = args.flag("quiet");
   auto index = build_with_progress(method, rt, points, mopt, quiet);
+  // Block hashing: a recall target (or the block layouts' default one) tuned on a sample of these
+  // queries, not on the index's own points (BlockHashIndex::params_for_batch).
+  BlockHashIndex::BatchTuning bt;
+  if (const auto* bh = dynamic_cast<const BlockHashIndex*>(index.get()))
+    params = bh->params_for_batch(queries.data(), n, params, &bt);
   KnnResult result;
   QueryStats st = query_with_progress(*index, queries, params, result, quiet);
 
@@ -218,6 +224,12 @@ int run_knn(const Args& args) {
     j.update(inputs_json(args, N, n, params));
     j["build"] = build_json(*index, mopt);
     j["search"] = search_json(*index, params);
+    if (bt.tuned)
+      j["search"]["tuning"] = {{"recall_target", bt.target}, {"A", bt.tuning.A}, {"tuned_on", "queries"},
+                               {"sample", bt.tuning.sample}, {"sample_recall", bt.tuning.recall},
+                               {"reached", bt.tuning.reached}, {"cached", bt.cached},
+                               {"distribution", bt.distribution}, {"seconds", bt.seconds},
+                               {"compile_s", bt.compile_s}};
     add_query_stats(j, *index, st);
     j["neighbours_found"] = found;
     j["memory_bytes"] = index->memory_bytes();

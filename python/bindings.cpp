@@ -15,6 +15,7 @@
 #include <pybind11/stl.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cstdint>
 #include <memory>
 #include <string>
@@ -118,13 +119,39 @@ py::tuple knn_query(const bhcl::Index& index, const py::array_t<float, py::array
   const std::size_t n = rows_of(queries, "queries");
   bhcl::KnnResult r;
   bhcl::QueryStats st;
+  // Block hashing: a recall asked for (or the default one, on a layout where a budget applies) is
+  // tuned on a sample of this batch (BlockHashIndex::params_for_batch), not on the index's points.
+  const auto* bh = dynamic_cast<const bhcl::BlockHashIndex*>(&index);
+  bhcl::BlockHashIndex::BatchTuning bt;
+  bhcl::SearchParams run = params;
+  double wall = 0;
   {
     py::gil_scoped_release nogil;
-    st = index.query(queries.data(), n, params, r);
+    const auto t0 = std::chrono::steady_clock::now();
+    if (bh) run = bh->params_for_batch(queries.data(), n, params, &bt);
+    st = index.query(queries.data(), n, run, r);
+    wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   }
   const auto rows = static_cast<py::ssize_t>(n), k = static_cast<py::ssize_t>(params.k);
   py::dict stats = stats_dict(st);
-  add_resolved(stats, index, params);
+  add_resolved(stats, index, run);
+  if (bt.tuned) {
+    // What the tuning chose and measured, and its cost within this call (wall_s covers the
+    // query only; tuning_share is the tuning's part of both, compiles excluded).
+    stats["recall_target"] = bt.target;
+    stats["A"] = bt.tuning.A;
+    stats["tuned_on"] = "queries";
+    stats["tuned_sample_recall"] = bt.tuning.recall;
+    stats["tuned_reached"] = bt.tuning.reached;
+    stats["tuning_sample"] = bt.tuning.sample;
+    stats["tuning_cached"] = bt.cached;
+    stats["tuning_distribution"] = bt.distribution;
+    stats["tuning_s"] = bt.seconds;
+    stats["tuning_compile_s"] = bt.compile_s;
+    // Of the call's time without first-launch compiles (they happen once per process).
+    const double warm = wall - bt.compile_s - st.compile_s;
+    stats["tuning_share"] = warm > 0 ? std::min(1.0, bt.seconds / warm) : 0.0;
+  }
   return py::make_tuple(to_numpy(std::move(r.dist2), {rows, k}), to_numpy(std::move(r.ids), {rows, k}),
                         to_numpy(std::move(r.counts), {rows}), stats);
 }
@@ -235,6 +262,17 @@ void set_radius_option(bhcl::RadiusParams& p, const std::string& method, const s
   o.set_radius(&p, o.parse(text, o.keyword_name()));
 }
 
+// Host memory an index keeps beyond Index::memory_bytes (the device structure of a device
+// method; all of a host method's memory): block hashing's host copy of its structure, and an
+// exact device method's copy of the caller's points (the contract's double-precision fallback
+// reads it, 12 B per point). On PoCL both are the process's memory, which is what a Python user
+// measures.
+std::size_t host_bytes(const bhcl::Index& index) {
+  if (const auto* bh = dynamic_cast<const bhcl::BlockHashIndex*>(&index)) return bh->host_bytes();
+  if (index.exact() && bhcl::method_info(index.method()).on_device) return index.size() * 3 * sizeof(float);
+  return 0;
+}
+
 void save(const bhcl::Index& index, const std::string& path) {
   const auto* bh = dynamic_cast<const bhcl::BlockHashIndex*>(&index);
   if (!bh)
@@ -334,6 +372,7 @@ PYBIND11_MODULE(_core, m) {
       .def_property_readonly("exact", &bhcl::Index::exact)
       .def_property_readonly("size", &bhcl::Index::size)
       .def_property_readonly("memory_bytes", &bhcl::Index::memory_bytes)
+      .def_property_readonly("host_bytes", &host_bytes)
       .def_property_readonly("build_seconds", &bhcl::Index::build_seconds)
       .def_property_readonly("runtime", &bhcl::Index::runtime_ptr)
       .def_property_readonly("build_info", &build_info)

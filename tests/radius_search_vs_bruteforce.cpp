@@ -265,12 +265,21 @@ TEST_CASE("radius: every method, degenerate input") {
     index->radius_search(qs.data(), 1, 1e30f, {}, all);
     if (index->exact()) REQUIRE(all.count(0) == pts.size() / 3);
     // Bad radii and parameters are refused with a message.
-    for (float bad : {-1.0f, nan, inf}) {
+    for (float bad : {-1.0f, nan}) {
       RadiusResult x;
       CHECK_THROWS_WITH_AS(index->radius_search(qs.data(), 1, bad, {}, x),
-                           doctest::Contains("radius must be finite and >= 0"), Error);
+                           doctest::Contains("radius must be >= 0"), Error);
       CHECK_THROWS_WITH_AS(index->radius_search_squared(qs.data(), 1, bad, {}, x),
-                           doctest::Contains("squared radius must be finite and >= 0"), Error);
+                           doctest::Contains("squared radius must be >= 0"), Error);
+    }
+    // r = +inf (Euclidean or squared) is every point, as scipy's query_ball_point gives; block
+    // hashing's default radius search is exact too (its grid layout).
+    for (int squared = 0; squared < 2; ++squared) {
+      RadiusResult every;
+      if (squared) index->radius_search_squared(qs.data(), 1, inf, {}, every);
+      else index->radius_search(qs.data(), 1, inf, {}, every);
+      REQUIRE(every.count(0) == pts.size() / 3);
+      REQUIRE(every.found[0] == static_cast<std::int64_t>(pts.size() / 3));
     }
     RadiusParams bad;
     bad.sort_queries = 3;

@@ -20,10 +20,18 @@ at once; the library serialises what must be serialised.
 """
 from __future__ import annotations
 
+import io
+import json
 import operator
 import os
+import tempfile
 import threading
-from typing import Any, Dict, List, Optional, Tuple, Union
+from typing import Any, Dict, List, NamedTuple, Optional, Tuple, Union, overload
+
+try:  # Python >= 3.8
+    from typing import Literal
+except ImportError:  # pragma: no cover
+    from typing_extensions import Literal  # type: ignore
 
 import numpy as np
 import numpy.typing as npt
@@ -32,8 +40,9 @@ from . import _core
 from ._core import Error, OpenCLError, Runtime
 
 __all__ = [
-    "Error", "OpenCLError", "Runtime", "Index", "make_index", "load", "devices", "select_device",
-    "get_runtime", "method_names", "build_options", "MAX_K", "HAVE_FLANN", "__version__",
+    "Error", "OpenCLError", "Runtime", "Index", "RadiusResult", "RadiusResultWithStats", "make_index",
+    "load", "devices", "select_device", "get_runtime", "method_names", "build_options", "MAX_K",
+    "HAVE_FLANN", "__version__",
 ]
 
 __version__: str = _core.__version__
@@ -111,10 +120,24 @@ def _refuse_unknown(method: str, given: Dict[str, Any], accepted: Tuple[str, ...
     for name, value in given.items():
         if value is None or name in accepted:
             continue
-        users = [m for m, opts in _BUILD_OPTIONS.items() if name in opts]
-        users += [m for m in _BUILD_OPTIONS if name in _search_options(m) and m not in users]
-        where = f" (only to {', '.join(users)})" if users else ""
-        raise TypeError(f"{kind} '{name}' does not apply to method {method}{where}")
+        # The same method reads it, in the other call: say where it goes instead of listing the
+        # method itself as the one it applies to ("A does not apply to blockhash (only to
+        # blockhash)" for make_index("blockhash", P, A=8)).
+        if kind == "build option" and (name in _search_options(method) or name in _RADIUS_OPTIONS.get(method, {})):
+            raise TypeError(f"'{name}' is a search parameter of method {method}, not a build option: "
+                            f"pass it to query() or radius_search(), not make_index()")
+        if kind == "search parameter" and name in _BUILD_OPTIONS.get(method, {}):
+            raise TypeError(f"'{name}' is a build option of method {method}, not a search parameter: "
+                            f"pass it to make_index()")
+        build_users = [m for m, opts in _BUILD_OPTIONS.items() if name in opts]
+        search_users = [m for m in _BUILD_OPTIONS if name in _search_options(m) or name in _RADIUS_OPTIONS.get(m, {})]
+        where = []
+        if build_users:
+            where.append(f"a build option of {', '.join(build_users)}")
+        if search_users:
+            where.append(f"a search parameter of {', '.join(search_users)}")
+        tail = f" (it is {' and '.join(where)})" if where else ""
+        raise TypeError(f"{kind} '{name}' does not apply to method {method}{tail}")
 
 
 def _int(name: str, value: Any, lo: int = -_INT32_MAX - 1, hi: int = _INT32_MAX) -> int:
@@ -135,14 +158,66 @@ def _float(name: str, value: Any) -> float:
     return float(value)
 
 
-def _xyz(array: Any, what: str) -> "npt.NDArray[np.float32]":
-    """An (n, 3) array as C-contiguous float32: the array itself when it already is one (no copy),
-    else one converted copy. Integer input is converted; other kinds are refused."""
+def _checked(array: Any, what: str, single_ok: bool = False) -> Tuple[np.ndarray, bool]:
+    """The array as numpy, its kind and shape checked: (n, 3), or (3,) for one query where
+    single_ok (returned as (1, 3) with True)."""
     a = np.asarray(array)
     if a.dtype.kind not in "fiu":
         raise TypeError(f"{what} must be a float32 or float64 array, got dtype {a.dtype}")
+    if single_ok and a.shape == (3,):
+        return a.reshape(1, 3), True
     if a.ndim != 2 or a.shape[1] != 3:
-        raise ValueError(f"{what} must have shape (n, 3), got {a.shape}")
+        shapes = "(n, 3) or (3,)" if single_ok else "(n, 3)"
+        raise ValueError(f"{what} must have shape {shapes}, got {a.shape}")
+    return a, False
+
+
+def _origin_for(a: np.ndarray) -> np.ndarray:
+    """The origin float64 input is stored relative to: the centre of the finite coordinates'
+    bounding box, computed in float64 and rounded to a float32 value (exact in either precision),
+    where re-centring gains precision, i.e. where the largest |coordinate| is more than 4 times
+    the largest |coordinate - centre| (two bits or more; a box far from 0 for its size:
+    georeferenced data, UTM at 4.3e6 m). Elsewhere (a box around 0, float32 data cast up) the origin is 0, so that such input
+    gives the float32 answer bit for bit. float32 and integer input: always 0. Non-finite
+    coordinates are left to the library, which names the first such point."""
+    zero = np.zeros(3, np.float64)
+    if a.dtype.kind != "f" or a.dtype.itemsize <= 4 or a.size == 0:
+        return zero
+    fin = np.where(np.isfinite(a), a, np.nan).astype(np.float64)
+    with np.errstate(invalid="ignore"):
+        lo, hi = np.nanmin(fin, axis=0), np.nanmax(fin, axis=0)
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+        return zero
+    with np.errstate(over="ignore"):
+        c = (0.5 * lo + 0.5 * hi).astype(np.float32).astype(np.float64)
+    if not np.all(np.isfinite(c)):
+        return zero  # beyond the float32 range: _xyz names the row
+    far = max(float(np.max(np.abs(lo))), float(np.max(np.abs(hi))))
+    near = max(float(np.max(np.abs(lo - c))), float(np.max(np.abs(hi - c))))
+    return c if far > 4.0 * near else zero
+
+
+def _precision(origin: np.ndarray, extent: float) -> Dict[str, Any]:
+    """What float32 storage leaves of the caller's coordinates: the origin they are relative to
+    and the largest rounding of a stored coordinate (half the float32 spacing at the largest
+    relative |coordinate|), in caller units."""
+    step = float(np.spacing(np.float32(extent))) if np.isfinite(extent) else float("inf")
+    return {"origin": [float(v) for v in origin], "max_abs_relative": float(extent),
+            "float32_step": step, "max_rounding": 0.5 * step, "recentred": bool(np.any(origin != 0))}
+
+
+def _relative(a: np.ndarray, origin: np.ndarray, what: str) -> "npt.NDArray[np.float32]":
+    """a - origin computed in float64, then rounded once to C-contiguous float32: the coordinates
+    the index stores and answers in (distances are differences, so they stay in caller units)."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        rel = np.asarray(a, dtype=np.float64) - origin
+    return _xyz(rel, what)
+
+
+def _xyz(array: Any, what: str) -> "npt.NDArray[np.float32]":
+    """An (n, 3) array as C-contiguous float32: the array itself when it already is one (no copy),
+    else one converted copy. Integer input is converted; other kinds are refused."""
+    a, _ = _checked(array, what)
     if a.dtype.kind == "f" and a.dtype.itemsize > 4:
         # A finite float64 beyond the float32 range would become inf in the cast: named, not
         # called non-finite (points) or answered with an empty row (queries).
@@ -202,19 +277,69 @@ def select_device(spec: Optional[str] = None) -> Dict[str, Any]:
     return dict(_core.select_device("" if spec is None else spec))
 
 
+_F32A = npt.NDArray[np.float32]
+_I32A = npt.NDArray[np.int32]
+_I64A = npt.NDArray[np.int64]
+
+
+class RadiusResult(NamedTuple):
+    """Index.radius_search's result, FAISS's range_search layout: query i's neighbours are
+    ids[offsets[i]:offsets[i+1]] with SQUARED distances dist2[offsets[i]:offsets[i+1]]. A tuple,
+    so `offsets, dist2, ids = index.radius_search(q, r)` unpacks it."""
+
+    offsets: _I64A  # (n + 1,) int64, offsets[0] == 0
+    dist2: _F32A    # (total,) float32 squared distances, each slice sorted by (distance, id)
+    ids: _I32A      # (total,) int32 indices into the points
+
+    def slice(self, i: int) -> Tuple[_F32A, _I32A]:
+        """(dist2, ids) of query i."""
+        a, b = int(self.offsets[i]), int(self.offsets[i + 1])
+        return self.dist2[a:b], self.ids[a:b]
+
+
+class RadiusResultWithStats(NamedTuple):
+    """radius_search(..., return_stats=True): RadiusResult's three arrays and the stats dict
+    (n_queries, wall_s, results, truncated_queries, found, coordinates, ...)."""
+
+    offsets: _I64A
+    dist2: _F32A
+    ids: _I32A
+    stats: Dict[str, Any]
+
+
+# The container Index.save writes for the methods whose structure the library does not save
+# (their build takes well under the time of reading a structure back): the method, its build
+# options and the points, rebuilt by load(). A zip (numpy's npz), told from a block-hash file by
+# its first bytes.
+_NPZ_FORMAT = "blockhash_cl.index/1"
+
+
 class Index:
     """A built index of one method over (N, 3) points. Made by make_index() or load().
 
     Attributes: method, exact, size (also len()), memory_bytes, build_seconds, device (a dict as
-    devices() gives), build_info (the parameters a block-hash build used), last_stats (the last
-    query's stats dict, whichever thread ran it).
+    devices() gives), build_info (the parameters a block-hash build used), coordinates (the origin
+    float64 input is stored relative to and the rounding left), last_stats (the last query's
+    stats dict, whichever thread ran it).
+
+    Pickling (multiprocessing, dask) and save()/load() work for every method: a block-hash index
+    travels as its saved structure plus its points, the others as their points and build options
+    (rebuilt on arrival, the same answers). An unpickled index is built on the default device
+    (BHCL_DEVICE, else PoCL). The index keeps a host copy of its points for this (12 bytes per
+    point, counted in memory_bytes).
     """
 
-    __slots__ = ("_impl", "last_stats")
+    __slots__ = ("_impl", "last_stats", "_origin", "_points", "_options", "_coords")
 
-    def __init__(self, impl: "_core.Index") -> None:
+    def __init__(self, impl: "_core.Index", origin: Optional[np.ndarray] = None,
+                 points: Optional[np.ndarray] = None, options: Optional[Dict[str, Any]] = None) -> None:
         self._impl = impl
         self.last_stats: Optional[Dict[str, Any]] = None
+        self._origin = np.zeros(3, np.float64) if origin is None else np.asarray(origin, np.float64)
+        self._points = points
+        self._options = dict(options or {})
+        extent = float(np.max(np.abs(points))) if points is not None and points.size else 0.0
+        self._coords = _precision(self._origin, extent)
 
     @property
     def method(self) -> str:
@@ -233,8 +358,12 @@ class Index:
 
     @property
     def memory_bytes(self) -> int:
-        """Bytes of the structure (device memory, points included; host memory for flann)."""
-        return self._impl.memory_bytes
+        """Bytes this index holds, as the process's resident memory grows by them on PoCL (where
+        device memory is host memory): the library's structure (device arrays, points included),
+        its host copies (block hashing's structure, an exact method's copy of the points) and the
+        package's host copy of the points (12 B each, for pickling and save)."""
+        own = self._points.nbytes if self._points is not None else 0
+        return int(self._impl.memory_bytes) + int(self._impl.host_bytes) + own
 
     @property
     def build_seconds(self) -> float:
@@ -247,11 +376,29 @@ class Index:
     @property
     def build_info(self) -> Dict[str, Any]:
         """blockhash: the build parameters used (derived ones filled in) and the structure's
-        figures; flann: the thread count; other methods: {}."""
-        return dict(self._impl.build_info)
+        figures; flann: the thread count; every method: "coordinates" (see coordinates)."""
+        info = dict(self._impl.build_info)
+        info["coordinates"] = dict(self._coords)
+        return info
+
+    @property
+    def coordinates(self) -> Dict[str, Any]:
+        """How the caller's coordinates are stored: origin (float64 input far from 0 for its size
+        is stored in float32 relative to its box's centre, computed in double precision; else 0),
+        max_abs_relative, float32_step and max_rounding (the largest rounding of a stored
+        coordinate, in caller units), recentred. Distances are always in caller units."""
+        return dict(self._coords)
 
     def __repr__(self) -> str:
         return f"<blockhash_cl.Index {self.method} of {self.size} points on {self.device['summary']}>"
+
+    # --- coordinates
+    def _to_index(self, a: np.ndarray, what: str) -> "npt.NDArray[np.float32]":
+        """Queries in the index's stored coordinates: as they are (no copy for C-contiguous
+        float32) when the origin is 0, else relative to it, computed in float64."""
+        if not np.any(self._origin):
+            return _xyz(a, what)
+        return _relative(a, self._origin, what)
 
     def _search_params(self, k: int, options: Dict[str, Any]) -> "_core.SearchParams":
         """SearchParams from keyword arguments, refusing those this method does not read.
@@ -282,30 +429,52 @@ class Index:
     ) -> Tuple[Any, ...]:
         """The k nearest indexed points of each query.
 
-        queries: (n, 3) array; C-contiguous float32 is used in place, anything else is converted
-        to float32 once. k: 1..MAX_K. max_radius: only neighbours within this Euclidean (not
-        squared) distance. sort_queries: dispatch in Hilbert order (True/1, False/0, None: for
-        large batches). The search keywords of each method's option table (A and recall_target
-        exclude each other):
+        queries: (n, 3) array, or one query of shape (3,) (then each result loses its first
+        axis: dist2 and ids (k,), counts a scalar, as scipy's cKDTree.query gives);
+        C-contiguous float32 is used in place, anything else is converted to float32 once
+        (relative to the index's origin, in float64, when its points were re-centred). k:
+        1..MAX_K. max_radius: only neighbours within this Euclidean (not squared) distance.
+        sort_queries: dispatch in Hilbert order (True/1, False/0, None: for large batches). The
+        search keywords of each method's option table (A and recall_target exclude each other):
 {search_options}
 
-        Returns (dist2, ids): (n, k) float32 squared distances and (n, k) int32 indices into the
-        points, each row ascending (FAISS's order); then counts ((n,) int32, neighbours found per
-        query) if return_counts, then the stats dict if return_stats (also in last_stats): n_queries,
-        nonfinite_queries, batches, compile_s, upload_s, query_s, download_s, wall_s,
-        queries_per_s, and for blockhash the search options used (with recall_target: the A
-        tuned and the recall it reached on the tuning sample). The GIL is released while it runs.
+        Returns (dist2, ids): (n, k) float32 squared distances (caller units) and (n, k) int32
+        indices into the points, each row ascending (FAISS's order); then counts ((n,) int32,
+        neighbours found per query) if return_counts, then the stats dict if return_stats (also
+        in last_stats): n_queries, nonfinite_queries, batches, compile_s, upload_s, query_s,
+        download_s, wall_s, queries_per_s, coordinates (see Index.coordinates), and for blockhash
+        the search options used. Block hashing with recall_target, or with neither A nor
+        recall_target on a block layout (grid=0, the paper preset: target 0.95; the grid's
+        default is exact), tunes A on a sample of THIS batch against exact answers, cached per
+        k, target and the batch's distribution; the stats then say A, tuned_on ("queries"),
+        tuned_sample_recall, tuned_reached (False: no A up to 1024 reaches the target there),
+        tuning_sample, tuning_cached, tuning_distribution, tuning_s and tuning_share (of the
+        call, compiles excluded). The GIL is released while it runs.
         """
         p = self._search_params(k, dict(search, max_radius=max_radius, sort_queries=sort_queries))
-        q = _xyz(queries, "queries")
+        a, single = _checked(queries, "queries", single_ok=True)
+        q = self._to_index(a, "queries")
         dist2, ids, counts, stats = self._impl.query(q, p)
+        stats["coordinates"] = dict(self._coords)
         self.last_stats = stats
+        if single:
+            dist2, ids, counts = dist2[0], ids[0], counts[0]
         out: Tuple[Any, ...] = (dist2, ids)
         if return_counts:
             out += (counts,)
         if return_stats:
             out += (stats,)
         return out
+
+    @overload
+    def radius_search(self, queries: Any, r: float, *, squared: bool = ..., max_results: Optional[int] = ...,
+                      return_sorted: bool = ..., sort_queries: Optional[Union[bool, int]] = ...,
+                      return_stats: Literal[False] = ..., **search: Any) -> RadiusResult: ...
+
+    @overload
+    def radius_search(self, queries: Any, r: float, *, squared: bool = ..., max_results: Optional[int] = ...,
+                      return_sorted: bool = ..., sort_queries: Optional[Union[bool, int]] = ...,
+                      return_stats: Literal[True], **search: Any) -> RadiusResultWithStats: ...
 
     def radius_search(
         self,
@@ -318,26 +487,28 @@ class Index:
         sort_queries: Optional[Union[bool, int]] = None,
         return_stats: bool = False,
         **search: Any,
-    ) -> Tuple[Any, ...]:
+    ) -> Union[RadiusResult, RadiusResultWithStats]:
         """Every indexed point within radius r of each query (scipy's query_ball_point, Open3D's
         fixed_radius_search, FAISS's range_search).
 
-        r: the Euclidean radius (finite, >= 0); squared=True takes r as the squared radius
-        (nanoflann's and FLANN's convention). A point is within when its squared distance <= r*r.
+        queries: (n, 3), or (3,) for one query (n = 1). r: the Euclidean radius (>= 0; inf takes
+        every point, as scipy's does); squared=True takes r as the squared radius (nanoflann's
+        and FLANN's convention). A point is within when its squared distance <= r*r.
         max_results: at most this many per query, the nearest (None/0: no cap; stats count the
         truncated queries). return_sorted=False leaves each slice in the order the method found
         its points (scipy's return_sorted, Open3D's sort), sparing the sort; a capped slice still
         holds the nearest max_results. The radius keywords of each method's option table:
 {radius_options}
-        Exact methods return
-        exactly the points within r; block hashing a subset (its recall is measured in
-        docs/ACCURACY.md). A query with a NaN/Inf coordinate gets an empty slice.
+        Exact methods, and block hashing's default (grid) layout, return exactly the points
+        within r; a block-hash budget returns a subset. A query with a NaN/Inf coordinate gets
+        an empty slice.
 
-        Returns (offsets, dist2, ids) in FAISS's layout: query i's results are
+        Returns a RadiusResult (offsets, dist2, ids) in FAISS's layout: query i's results are
         dist2[offsets[i]:offsets[i+1]] (float32, SQUARED) and the same slice of ids (int32), each
-        sorted by (distance, index) unless return_sorted=False; offsets is (n + 1,) int64. With return_stats, a stats dict
-        too (as query's, plus results, truncated_queries and found, the (n,) counts before the
-        cap). The GIL is released while it runs.
+        sorted by (distance, index) unless return_sorted=False; offsets is (n + 1,) int64. With
+        return_stats, a RadiusResultWithStats whose stats are query's, plus results,
+        truncated_queries and found (the (n,) counts before the cap). The GIL is released while
+        it runs.
         """
         method = self.method
         accepted = ("max_results", "sort_queries") + tuple(_RADIUS_OPTIONS.get(method, {}))
@@ -352,31 +523,107 @@ class Index:
             p.sort_queries = int(sort_queries) if isinstance(sort_queries, bool) else _int(
                 "sort_queries", sort_queries, -1, 1)
         radius = _float("r", r)
-        q = _xyz(queries, "queries")
+        a, _ = _checked(queries, "queries", single_ok=True)
+        q = self._to_index(a, "queries")
         offsets, dist2, ids, found, stats = self._impl.radius_search(q, radius, bool(squared), p)
         stats["found"] = found
+        stats["coordinates"] = dict(self._coords)
         self.last_stats = stats
-        out: Tuple[Any, ...] = (offsets, dist2, ids)
         if return_stats:
-            out += (stats,)
-        return out
+            return RadiusResultWithStats(offsets, dist2, ids, stats)
+        return RadiusResult(offsets, dist2, ids)
 
     def warm_up(self, k: int = 10, **search: Any) -> float:
         """Compiles the kernel variant the search parameters need and launches it once, so that
         later query timings exclude compilation. Returns the seconds it took (0 if done before)."""
         return self._impl.warm_up(self._search_params(k, search))
 
+    # --- travelling: save/load and pickling
+    def _structure_bytes(self) -> bytes:
+        """A block-hash index's saved structure (the library's file format) as bytes."""
+        fd, tmp = tempfile.mkstemp(suffix=".bhi")
+        os.close(fd)
+        try:
+            self._impl.save(tmp)
+            with open(tmp, "rb") as f:
+                return f.read()
+        finally:
+            os.unlink(tmp)
+
     def save(self, path: Union[str, "os.PathLike[str]"]) -> None:
-        """Writes a block-hash index to a file (versioned, checksummed); load() reads it back.
-        Other methods raise Error (they rebuild quickly)."""
-        self._impl.save(os.fspath(path))
+        """Writes the index to a file that load() reads back, for every method. blockhash: the
+        library's block-hash file (versioned, checksummed; load needs the same points, as bhcl
+        --load-index). Other methods: a container of the method, its build options and its points
+        (load() rebuilds the structure from them; the points are then optional)."""
+        path = os.fspath(path)
+        if self.method == "blockhash":
+            self._impl.save(path)
+            return
+        if self._points is None:
+            raise Error(f"save: this {self.method} index holds no copy of its points")
+        with open(path, "wb") as f:
+            np.savez(f, format=np.array(_NPZ_FORMAT), method=np.array(self.method),
+                     options=np.array(json.dumps(self._options)), origin=self._origin, points=self._points)
+
+    def __getstate__(self) -> Dict[str, Any]:
+        if self._points is None:
+            raise Error(f"pickle: this {self.method} index holds no copy of its points")
+        state: Dict[str, Any] = {"format": _NPZ_FORMAT, "method": self.method, "options": dict(self._options),
+                                 "origin": self._origin.copy(), "points": self._points, "structure": None}
+        if self.method == "blockhash":
+            state["structure"] = self._structure_bytes()
+        return state
+
+    def __setstate__(self, state: Dict[str, Any]) -> None:
+        if not isinstance(state, dict) or state.get("format") != _NPZ_FORMAT:
+            raise Error("unpickle: not a blockhash_cl index state (format "
+                        f"{state.get('format') if isinstance(state, dict) else type(state).__name__!r})")
+        other = _rebuild(state["method"], state["points"], state["origin"], state["options"], state["structure"], None)
+        for name in Index.__slots__:
+            setattr(self, name, getattr(other, name))
+
+
+def _own_copy(pts: np.ndarray, given: Any) -> np.ndarray:
+    """The index's host copy of its stored points: `pts` itself when it is already a private
+    conversion, else a copy (the caller's array may change after the build). Read-only."""
+    if isinstance(given, np.ndarray) and np.shares_memory(pts, given):
+        pts = pts.copy()
+    pts.flags.writeable = False
+    return pts
+
+
+def _rebuild(method: str, pts: np.ndarray, origin: np.ndarray, options: Dict[str, Any],
+             structure: Optional[bytes], device: Union[None, str, Runtime]) -> Index:
+    """An index over stored (relative, float32) points: rebuilt from its build options, or for
+    block hashing read from its saved structure."""
+    pts = np.ascontiguousarray(pts, dtype=np.float32)
+    opts = _core.MethodOptions()
+    if structure is not None:
+        fd, tmp = tempfile.mkstemp(suffix=".bhi")
+        try:
+            with os.fdopen(fd, "wb") as f:
+                f.write(structure)
+            opts.set("load-index", tmp)
+            impl = _core.make_index(method, get_runtime(device), pts, opts)
+        finally:
+            os.unlink(tmp)
+    else:
+        table = _BUILD_OPTIONS.get(method, {})
+        _refuse_unknown(method, options, tuple(table), "build option")
+        _set_table_options(_core.set_build_option, opts, method, table, options)
+        impl = _core.make_index(method, get_runtime(device), pts, opts)
+    pts.flags.writeable = False
+    return Index(impl, origin, pts, options)
 
 
 def make_index(method: str, points: Any, *, device: Union[None, str, Runtime] = None,
                **options: Any) -> Index:
     """Builds an index of `method` ("blockhash", "kdtree", "bruteforce", "flann"; see
     method_names()) over points, an (N, 3) array (float32 or float64; converted to float32 once
-    when it is not C-contiguous float32; the index keeps its own copy, not the array).
+    when it is not C-contiguous float32; the index keeps its own copy, not the array). float64
+    points far from 0 for their size (georeferenced data) are re-centred in double precision on
+    their box and stored in float32 relative to it: queries are taken relative to the same origin
+    and distances come back in caller units (Index.coordinates states the rounding left).
 
     Build options (keyword arguments; one the method does not read raises TypeError), from the
     library's method tables (build_options() lists them with ranges and defaults):
@@ -390,19 +637,65 @@ def make_index(method: str, points: Any, *, device: Union[None, str, Runtime] = 
     _refuse_unknown(method, options, tuple(table), "build option")
     opts = _core.MethodOptions()
     _set_table_options(_core.set_build_option, opts, method, table, options)
-    pts = _xyz(points, "points")
-    return Index(_core.make_index(method, get_runtime(device), pts, opts))
+    a, _ = _checked(points, "points")
+    _check_count(a, method)
+    origin = _origin_for(a)
+    pts = _relative(a, origin, "points") if np.any(origin) else _xyz(a, "points")
+    impl = _core.make_index(method, get_runtime(device), pts, opts)
+    return Index(impl, origin, _own_copy(pts, points), {k: v for k, v in options.items() if v is not None})
 
 
-def load(path: Union[str, "os.PathLike[str]"], points: Any, *,
+_MAX_POINTS = 2**31 - 2  # one index's ids are int32 (the library's limit, knn.cpp)
+
+
+def _check_count(a: np.ndarray, method: str) -> None:
+    """Refuses a point set one index cannot hold before anything is converted or allocated (a
+    broadcast view of 2^31 rows costs nothing until it is copied)."""
+    if a.shape[0] > _MAX_POINTS:
+        raise Error(f"{method}: N = {a.shape[0]} points exceeds one index's int32 id range "
+                    f"(N <= 2^31 - 2 = {_MAX_POINTS}); nothing was allocated")
+
+
+def load(path: Union[str, "os.PathLike[str]"], points: Any = None, *,
          device: Union[None, str, Runtime] = None) -> Index:
-    """Reads a block-hash index saved by Index.save(). points must be the (N, 3) points it was
-    built from (the index refers to them by index); a file that does not match them, or is
-    missing, truncated or corrupt, raises Error naming the file and what differs."""
+    """Reads an index Index.save() wrote. A block-hash file needs the (N, 3) points it was built
+    from (the index refers to them by index; as bhcl --load-index); a file that does not match
+    them, or is missing, truncated or corrupt, raises Error naming the file and what differs. A
+    file of another method holds its points: `points`, when given, must equal them."""
+    path = os.fspath(path)
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4)
+    except OSError as e:
+        raise Error(f"load: cannot read {path}: {e.strerror}") from None
+    if head[:2] == b"PK":
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                fmt = str(z["format"])
+                method, options = str(z["method"]), json.loads(str(z["options"]))
+                origin, stored = np.array(z["origin"], np.float64), np.array(z["points"], np.float32)
+        except (KeyError, ValueError, OSError) as e:
+            raise Error(f"load: {path} is not a readable blockhash_cl index ({e})") from None
+        if fmt != _NPZ_FORMAT:
+            raise Error(f"load: {path} has format {fmt!r}, this version reads {_NPZ_FORMAT!r}")
+        if points is not None:
+            a, _ = _checked(points, "points")
+            mine = _relative(a, origin, "points") if np.any(origin) else _xyz(a, "points")
+            if mine.shape != stored.shape:
+                raise Error(f"load: {path} holds {len(stored)} points, {len(mine)} given")
+            diff = np.flatnonzero(np.any(mine != stored, axis=1))
+            if diff.size:
+                raise Error(f"load: {path}: point {int(diff[0])} differs from the one it was built from")
+        return _rebuild(method, stored, origin, options, None, device)
+    if points is None:
+        raise Error(f"load: {path} is a block-hash index file: give the points it was built from")
+    a, _ = _checked(points, "points")
+    origin = _origin_for(a)
+    pts = _relative(a, origin, "points") if np.any(origin) else _xyz(a, "points")
     opts = _core.MethodOptions()
-    opts.set("load-index", os.fspath(path))
-    pts = _xyz(points, "points")
-    return Index(_core.make_index("blockhash", get_runtime(device), pts, opts))
+    opts.set("load-index", path)
+    impl = _core.make_index("blockhash", get_runtime(device), pts, opts)
+    return Index(impl, origin, _own_copy(pts, points), {})
 
 
 # The docstrings list what the option tables hold.

@@ -160,6 +160,10 @@ class BlockHashIndex : public Index {
   std::string method() const override { return "blockhash"; }
   bool exact() const override { return false; }
   std::size_t memory_bytes() const override;  // every device array, points included
+  // Host memory the index keeps besides its device arrays: the host copy of the structure (its
+  // reference search, save() and first_mismatch() read it). On PoCL both are the process's memory;
+  // the Python package's memory_bytes reports their sum.
+  std::size_t host_bytes() const;
   double memory_per_point() const { return double(memory_bytes()) / double(size()); }
   // The talk's memory overhead (4 (Ak/X)(ln N)^3 + 12 (ln N)^2 + 1.6 N) / 24N, and ours measured
   // the same way: bytes beyond the points' own (24 B per talk photon) over 24 N.
@@ -198,6 +202,36 @@ class BlockHashIndex : public Index {
   // target), without the radius, and cached.
   RecallTuning recall_tuning(const SearchParams& params) const;
 
+  // Recall on the caller's queries. The search parameters a host-array batch should run with:
+  // when a recall is asked (params.recall_target in (0, 1)), or when neither A nor a target is
+  // given on a layout where a budget applies (the block layouts; their default target is
+  // kDefaultRecallTarget), A is tuned on a sample of THIS batch: at most 2000 of its finite
+  // queries, evenly spread over it, and at most an eighth of it (the bound on the tuning's share
+  // of the call; at least min(n, 256)), answered exactly by a kd-tree over the indexed points
+  // (built once per index) and by block hashing at A of tune_for_recall's ladder carried on to
+  // 1024, searched by bisection (recall grows with A; about 5 passes instead of up to 17): the
+  // smallest A whose recall@k on the sample clears the target by 1.5 standard errors wins. The
+  // result is cached per (k, probes, target, the batch's distribution: its box within the
+  // index's box, quantised to eighths, and the sample's median distance to its nearest indexed
+  // point over the points' mean spacing, quantised to half octaves), so a later batch of the
+  // same kind costs the signature only. Returns params with A set and recall_target 0; `info`
+  // (optional) says what was done. Other parameters (an explicit A, the grid's exact default)
+  // come back as they are. Index::query itself keeps A = 0 as 8 on the block layouts (its
+  // callers' parameters are not changed under them): the Python package and bhcl call this.
+  static constexpr double kDefaultRecallTarget = 0.95;
+  struct BatchTuning {
+    bool tuned = false;       // A was chosen for a target (false: params came back as given)
+    bool cached = false;      // from the cache (no sample answered now)
+    double target = 0;
+    RecallTuning tuning;      // the A, the recall measured on the sample, its size and time
+    std::string distribution; // the cache key's distribution part, for the stats
+    double seconds = 0;       // this call's own cost (signature and, unless cached, the tuning),
+                              // first-launch kernel compiles excluded (they are compile_s)
+    double compile_s = 0;     // kernel compiles the tuning's first launches triggered
+  };
+  SearchParams params_for_batch(const float* queries, std::size_t n, const SearchParams& params,
+                                BatchTuning* info = nullptr) const;
+
   // ceil(A k): the points a query may examine.
   static std::uint32_t budget(const SearchParams& params);
 
@@ -233,6 +267,12 @@ class BlockHashIndex : public Index {
   float resolved_A(const SearchParams& params) const;
   mutable std::mutex tune_mutex_;
   mutable std::map<std::tuple<int, int, double>, RecallTuning> tuned_;
+  // params_for_batch: tunings per (k, probes, target, distribution), and the exact kd-tree
+  // (over indexed_points(), built on the first tuning) they are checked against.
+  mutable std::map<std::tuple<int, int, double, std::string>, RecallTuning> batch_tuned_;
+  mutable std::shared_ptr<const Index> exact_;
+  mutable double exact_box_[6] = {0, 0, 0, 0, 0, 0};  // the indexed points' box (lo, hi)
+  mutable double exact_spacing_ = 0;                  // their mean spacing (box measure / N)^(1/d)
 
   std::unique_ptr<blockhash::Structure> s_;
   BlockHashBuildInfo info_;

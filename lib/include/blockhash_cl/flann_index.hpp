@@ -25,7 +25,7 @@
 namespace bhcl {
 
 struct FlannParams {
-  int threads = 0;         // query threads; 0 = all hardware threads
+  int threads = 0;         // query threads; 0 = the CPUs the process may use (sched_getaffinity)
   int leaf_max_size = 10;  // FLANN's default
 };
 

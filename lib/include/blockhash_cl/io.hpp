@@ -40,6 +40,28 @@ PointFormat sniff_point_format(const void* data, std::size_t size);
 std::vector<float> read_points_file(const std::string& path, bool require_finite = true,
                                     std::size_t max_points = 0x7ffffffe);
 
+// float64 kept: the file's coordinates as it holds them (a text file's decimals, a float64 PLY or
+// NPY in double; float32 sources widened), after the same checks as read_points_file, whose
+// float copy goes to *as_float when given.
+std::vector<double> read_points_file_f64(const std::string& path, std::vector<float>* as_float = nullptr,
+                                         bool require_finite = true, std::size_t max_points = 0x7ffffffe);
+
+// Coordinates stored in float32 relative to an origin computed in double precision (bhcl's point
+// files; the Python package does the same for float64 arrays): the centre of the points' box,
+// rounded to a float value, where that gains precision (the largest |coordinate| is more than 4
+// times the largest |coordinate - centre|: georeferenced data, UTM at 4.3e6 m), else 0. Queries
+// are taken relative to the same origin; distances are differences, so they stay in caller units.
+struct Recentring {
+  double origin[3] = {0, 0, 0};
+  bool recentred = false;
+  double max_abs_relative = 0;  // the largest |stored coordinate| (relative_points' inputs)
+  double float32_step = 0;      // the float spacing there: the rounding left is half of it
+};
+Recentring choose_origin(const double* xyz, std::size_t n);
+// xyz - origin in double, rounded once to float (a value beyond the float range refused naming
+// `what`); widens r.max_abs_relative and r.float32_step over what it converted.
+std::vector<float> relative_points(const double* xyz, std::size_t n, Recentring& r, const std::string& what);
+
 // Parses the bytes of a point file (what read_points_file does after reading); `what` names the
 // source in errors and, by its extension, picks the format (else the content does). The fuzz
 // target drives this.

@@ -251,7 +251,8 @@ class Index {
   // RadiusResult: offsets, ids, squared distances, each slice sorted by (distance, index)). Exact
   // methods return exactly those points; block hashing those among the points it examines (its
   // budget and probes), a subset. A query with a NaN/Inf coordinate gets an empty slice. r must be
-  // finite and >= 0 (bhcl::Error otherwise). Sizes are found by a count pass, then a fill pass
+  // >= 0 and not NaN (bhcl::Error otherwise); r = +inf takes every point at a finite distance
+  // (scipy's query_ball_point accepts it too). Sizes are found by a count pass, then a fill pass
   // writes them; batches are split to bound device memory (RadiusParams::max_batch_results).
   QueryStats radius_search(const float* queries, std::size_t n, float radius,
                            const RadiusParams& params, RadiusResult& out) const;

@@ -14,9 +14,29 @@
 #include <thread>
 #include <vector>
 
+#if defined(__linux__)
+#include <sched.h>
+#endif
+
 namespace bhcl::detail {
 
-inline unsigned default_threads() { return std::max(1u, std::thread::hardware_concurrency()); }
+// The CPUs this process may run on: its affinity mask (taskset, cgroup cpusets, a batch
+// scheduler's binding) where the OS tells it, else the hardware threads. hardware_concurrency()
+// counts every CPU of the machine, so a process confined to 2 of 64 cores would start 64
+// threads and oversubscribe the 2 it has.
+inline unsigned available_cpus() {
+#if defined(__linux__) && defined(CPU_COUNT)
+  cpu_set_t set;
+  CPU_ZERO(&set);
+  if (sched_getaffinity(0, sizeof(set), &set) == 0) {
+    const int c = CPU_COUNT(&set);
+    if (c > 0) return static_cast<unsigned>(c);
+  }
+#endif
+  return std::max(1u, std::thread::hardware_concurrency());
+}
+
+inline unsigned default_threads() { return available_cpus(); }
 
 // Calls fn(begin, end) on [0, n) cut into `threads` contiguous ranges (0: all hardware threads);
 // small n runs inline.

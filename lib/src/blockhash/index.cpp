@@ -409,6 +409,13 @@ std::size_t BlockHashIndex::memory_bytes() const {
   return s_->device_bytes() + cell_table_bytes_;
 }
 
+std::size_t BlockHashIndex::host_bytes() const {
+  // The grid's host vectors mirror its device arrays one for one; a block layout keeps its
+  // structure's arrays and the Hilbert order (the cell table lives on the device only).
+  if (s_->grid) return s_->grid->device_bytes();
+  return s_->device_bytes() + s_->order.size() * sizeof(std::int32_t);
+}
+
 double BlockHashIndex::talk_overhead(std::size_t N, double A, int k, int X) {
   double n = double(N), l = std::log(std::max(n, 2.0));
   return (4.0 * (A * k / X) * l * l * l + 12.0 * l * l + 1.6 * n) / (24.0 * n);

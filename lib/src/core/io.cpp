@@ -78,8 +78,16 @@ bool looks_like_utf16(const unsigned char* b, std::size_t size) {
   return false;
 }
 
+// read_points_file_f64: while set, every double coordinate a parser reads is also kept here at
+// its value index (the float copy is what the parsers return; a float source fills none).
+thread_local std::vector<double>* t_wide = nullptr;
+
 // A double coordinate as float: refused (not turned into inf) when it does not fit.
 float to_float(double v, const std::string& what, std::size_t value_index) {
+  if (t_wide) {
+    if (t_wide->size() <= value_index) t_wide->resize(value_index + 1, 0.0);
+    (*t_wide)[value_index] = v;
+  }
   if (std::isfinite(v) && std::fabs(v) > static_cast<double>(FLT_MAX)) {
     std::ostringstream os;
     os << "point " << value_index / 3 << " has coordinate " << "xyz"[value_index % 3] << " = " << v
@@ -622,6 +630,57 @@ std::vector<float> read_points_file(const std::string& path, bool require_finite
   if (size > 0 && !in.read(bytes.data(), static_cast<std::streamsize>(size)))
     throw Error(path + ": read failed after " + std::to_string(in.gcount()) + " bytes");
   return parse_points(bytes.data(), bytes.size(), path, require_finite);
+}
+
+std::vector<double> read_points_file_f64(const std::string& path, std::vector<float>* as_float,
+                                         bool require_finite, std::size_t max_points) {
+  std::vector<double> wide;
+  struct Sink {  // reset on every exit, errors included
+    explicit Sink(std::vector<double>* w) { t_wide = w; }
+    ~Sink() { t_wide = nullptr; }
+  } sink(&wide);
+  std::vector<float> xyz = read_points_file(path, require_finite, max_points);
+  // A float source (raw float32, NPY <f4) passed no double: its values widen exactly.
+  if (wide.size() != xyz.size()) wide.assign(xyz.begin(), xyz.end());
+  if (as_float) *as_float = std::move(xyz);
+  return wide;
+}
+
+Recentring choose_origin(const double* xyz, std::size_t n) {
+  Recentring r;
+  double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+  for (std::size_t i = 0; i < n; ++i)
+    for (int d = 0; d < 3; ++d) {
+      const double v = xyz[3 * i + d];
+      if (!std::isfinite(v)) continue;  // named later by the index build
+      lo[d] = std::min(lo[d], v);
+      hi[d] = std::max(hi[d], v);
+    }
+  double far = 0, near = 0, c[3];
+  for (int d = 0; d < 3; ++d) {
+    if (!(lo[d] <= hi[d])) return r;  // no finite coordinate: nothing to gain
+    c[d] = static_cast<double>(static_cast<float>(0.5 * lo[d] + 0.5 * hi[d]));
+    far = std::max({far, std::fabs(lo[d]), std::fabs(hi[d])});
+    near = std::max({near, std::fabs(lo[d] - c[d]), std::fabs(hi[d] - c[d])});
+  }
+  // Two bits gained or more (the Python package's rule, blockhash_cl._origin_for): elsewhere the
+  // float32 coordinates are as good and stay the caller's own.
+  if (far > 4.0 * near)
+    for (int d = 0; d < 3; ++d) r.origin[d] = c[d];
+  r.recentred = r.origin[0] != 0 || r.origin[1] != 0 || r.origin[2] != 0;
+  return r;
+}
+
+std::vector<float> relative_points(const double* xyz, std::size_t n, Recentring& r, const std::string& what) {
+  std::vector<float> out(3 * n);
+  for (std::size_t i = 0; i < 3 * n; ++i) {
+    const double v = xyz[i] - r.origin[i % 3];
+    if (std::isfinite(v)) r.max_abs_relative = std::max(r.max_abs_relative, std::fabs(v));
+    out[i] = to_float(v, what, i);
+  }
+  const float m = static_cast<float>(r.max_abs_relative);
+  r.float32_step = double(std::nextafter(m, INFINITY)) - double(m);
+  return out;
 }
 
 namespace {

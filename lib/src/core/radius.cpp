@@ -98,15 +98,16 @@ void Index::check_radius_params(const RadiusParams& p) const {
 
 QueryStats Index::radius_search(const float* queries, std::size_t n, float radius,
                                 const RadiusParams& params, RadiusResult& out) const {
-  if (!std::isfinite(radius) || radius < 0)
-    throw Error("radius_search: the radius must be finite and >= 0, got " + num(radius));
+  // +inf is a radius (every point at a finite distance), as scipy's query_ball_point takes it.
+  if (std::isnan(radius) || radius < 0)
+    throw Error("radius_search: the radius must be >= 0 (+inf: every point), got " + num(radius));
   return radius_impl(queries, n, radius, false, params, out);
 }
 
 QueryStats Index::radius_search_squared(const float* queries, std::size_t n, float r2,
                                         const RadiusParams& params, RadiusResult& out) const {
-  if (!std::isfinite(r2) || r2 < 0)
-    throw Error("radius_search_squared: the squared radius must be finite and >= 0, got " + num(r2));
+  if (std::isnan(r2) || r2 < 0)
+    throw Error("radius_search_squared: the squared radius must be >= 0 (+inf: every point), got " + num(r2));
   return radius_impl(queries, n, r2, true, params, out);
 }
 

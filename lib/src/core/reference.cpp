@@ -23,7 +23,7 @@ KnnResult knn_generic(const float* points, std::size_t n_points, const float* qu
   const D r2 = std::isinf(params.max_radius) ? D(INFINITY) : D(params.max_radius) * D(params.max_radius);
   KnnResult out;
   out.resize(n_queries, k);
-  if (threads == 0) threads = std::max(1u, std::thread::hardware_concurrency());
+  if (threads == 0) threads = detail::available_cpus();
   auto work = [&](std::size_t begin, std::size_t end) {
     std::vector<std::pair<D, std::int32_t>> best;
     best.reserve(k + 1);

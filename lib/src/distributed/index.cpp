@@ -3,6 +3,7 @@
 // merge). Radius search: radius.cpp.
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <limits>
 #include <numeric>
@@ -239,11 +240,54 @@ DistributedIndex::DistributedIndex(MPI_Comm comm, std::shared_ptr<Runtime> runti
     Stopwatch build_clock;
     err.clear();
     try {
-      if (m > 0) local_ = make_index(method_, std::move(runtime), xyz.data(), m, params.options);
+      if (m > 0) local_ = make_index(method_, runtime, xyz.data(), m, params.options);
     } catch (const std::exception& e) {
       err = "building the local " + method_ + " index of " + std::to_string(m) + " points: " + what_of(e);
     }
     mpi_agree(comm_, err, kWhat);
+    // Block hashing's grid: the cell side one process would choose for ALL the points, not each
+    // shard's own. The grid picks its side h so that the point-weighted mean population of a
+    // point's cell is target_cell_points: a shard of density rho_r picks h_r with h_r^3 rho_r =
+    // target, one process over every shard h = (sum_r w_r h_r^-3)^(-1/3), w_r the shard's share
+    // of the points. Each shard is rebuilt with that side (a grid build is a fraction of the
+    // sharding's cost), so that a budget A means on every shard what it means in one process.
+    // Not done when the caller set cell-size, or where a shard's extent is outside
+    // [2^-40, 2^40] (its index coordinates are then rescaled, knn.hpp, and sides do not compare).
+    if (method_ == "blockhash" && !params.options.has("cell-size")) {
+      const auto* bh = dynamic_cast<const BlockHashIndex*>(local_.get());
+      double extent = 0;
+      for (int d = 0; d < 3 && m > 0; ++d) {
+        float lo = xyz[static_cast<std::size_t>(d)], hi = lo;
+        for (std::size_t i = 0; i < m; ++i) {
+          lo = std::min(lo, xyz[3 * i + d]);
+          hi = std::max(hi, xyz[3 * i + d]);
+        }
+        extent = std::max(extent, double(hi) - double(lo));
+      }
+      const bool comparable = extent == 0 || (extent >= std::ldexp(1.0, -40) && extent <= std::ldexp(1.0, 40));
+      double mine[3] = {0, 0, 0}, sum[3] = {0, 0, 0};  // sum of m h^-3, of m, shards that cannot join
+      if (bh && bh->info().grid && bh->info().cell_size > 0 && comparable)
+        mine[0] = double(m) / std::pow(bh->info().cell_size, 3.0), mine[1] = double(m);
+      else if (m > 0)
+        mine[2] = 1;
+      MPI_Allreduce(mine, sum, 3, MPI_DOUBLE, MPI_SUM, comm_);
+      if (sum[2] == 0 && sum[0] > 0) {
+        const double h = std::cbrt(sum[1] / sum[0]);
+        err.clear();
+        try {
+          if (m > 0 && std::fabs(h / bh->info().cell_size - 1.0) > 1e-9) {
+            char text[40];
+            std::snprintf(text, sizeof text, "%.17g", h);
+            MethodOptions o = params.options;
+            o.set("cell-size", text);
+            local_ = make_index(method_, runtime, xyz.data(), m, o);
+          }
+        } catch (const std::exception& e) {
+          err = "rebuilding the local blockhash index with the global cell side " + std::to_string(h) + ": " + what_of(e);
+        }
+        mpi_agree(comm_, err, kWhat);
+      }
+    }
     build_stats_.build_s = build_clock.seconds();
     build_stats_.wall_s = wall.seconds();
   } catch (...) {

@@ -31,8 +31,8 @@ QueryStats DistributedIndex::radius_search(const float* queries, std::size_t n, 
   const std::size_t R = static_cast<std::size_t>(ranks_);
   std::string err;
   try {
-    if (!std::isfinite(r) || r < 0)
-      throw Error("radius_search: the radius must be finite and >= 0, got " + std::to_string(r));
+    if (std::isnan(r) || r < 0)  // +inf: every point, as Index::radius_search takes it
+      throw Error("radius_search: the radius must be >= 0 (+inf: every point), got " + std::to_string(r));
     if (n > 0 && queries == nullptr) throw Error("queries is null with n = " + std::to_string(n));
     if (params.count_examined && local_ && !local_->counts_examined())
       throw Error("count_examined: method " + method_ + " does not count the points it examines");

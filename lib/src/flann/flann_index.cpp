@@ -252,7 +252,7 @@ FlannIndex::FlannIndex(std::shared_ptr<Runtime> runtime, const float* points,
     throw Error("flann: leaf_max_size must be >= 1, got " + std::to_string(params.leaf_max_size));
   std::vector<float> scaled;
   const float* pts = prepare_points(points, n_points, scaled);  // validates; extreme scales
-  threads_ = params.threads ? params.threads : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  threads_ = params.threads ? params.threads : static_cast<int>(detail::available_cpus());
   impl_->points.assign(pts, pts + 3 * n_points);
   const bool grouped = group_coincident(impl_->points, impl_->unique_points, impl_->groups);
   try {
@@ -270,7 +270,11 @@ FlannIndex::FlannIndex(std::shared_ptr<Runtime> runtime, const float* points,
 FlannIndex::~FlannIndex() = default;
 
 std::size_t FlannIndex::memory_bytes() const {
-  return static_cast<std::size_t>(std::max(0, impl_->tree->usedMemory())) + size() * 12 +
+  // Host memory, all of it: FLANN's tree (its usedMemory), FLANN's reordered copy of the points
+  // (12 B each) and its row-pointer array (NNIndex::points_, 8 B each, which usedMemory leaves
+  // out), our points, the contract's copy of the caller's points (exact methods, 12 B each), and
+  // the groups of coincident points. Checked against the process's growth (tests/python).
+  return static_cast<std::size_t>(std::max(0, impl_->tree->usedMemory())) + size() * (12 + 8 + 12) +
          impl_->points.size() * sizeof(float) + impl_->unique_points.size() * sizeof(float) +
          impl_->groups.begin.size() * 8 + impl_->groups.members.size() * 4;
 }

@@ -8,7 +8,7 @@ namespace {
 const std::vector<OptionInfo>& table() {
   static const std::vector<OptionInfo> t = {
       BHCL_BUILD_OPTION(FlannParams, threads,
-                        option::integer("threads", "host threads (0: all hardware threads)", 0, 1 << 16, "0"))};
+                        option::integer("threads", "host threads (0: the CPUs this process may use, its affinity mask)", 0, 1 << 16, "0"))};
   return t;
 }
 
