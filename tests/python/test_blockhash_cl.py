@@ -184,7 +184,7 @@ def test_save_load_round_trip(tmp_path, data, indexes):
     (tmp_path / "bad.bhi").write_bytes(path.read_bytes()[:1000])
     with pytest.raises(ValueError):
         bh.load(tmp_path / "bad.bhi", pts)
-    # Every method saves now (test_issue25.py).
+    # Every method saves now (test_defaults.py).
     indexes["kdtree"].save(tmp_path / "k.idx")
     assert bh.load(tmp_path / "k.idx").method == "kdtree"
 
@@ -399,7 +399,7 @@ def test_radius_search_blockhash_recall(data, indexes):
 
 def test_radius_search_bad_input(indexes, data):
     _, q = data
-    for bad in (-1.0, float("nan")):  # inf is every point (test_issue25.py)
+    for bad in (-1.0, float("nan")):  # inf is every point (test_defaults.py)
         with pytest.raises(bh.Error, match="radius must be >= 0"):
             indexes["kdtree"].radius_search(q, bad)
     with pytest.raises(TypeError, match="budget"):

@@ -45,7 +45,7 @@ std::string write_text(const std::string& name, const std::vector<double>& xyz) 
 
 }  // namespace
 
-TEST_CASE("issue25: io keeps a text file's float64 coordinates and re-centres them") {
+TEST_CASE("defaults: io keeps a text file's float64 coordinates and re-centres them") {
   std::vector<double> pts;
   utm_points(500, 1, pts);
   const std::string P = write_text("i25_utm.xyz", pts);
@@ -75,7 +75,7 @@ TEST_CASE("issue25: io keeps a text file's float64 coordinates and re-centres th
   for (std::size_t i = 0; i < f32.size(); ++i) REQUIRE(w2[i] == double(f32[i]));
 }
 
-TEST_CASE("issue25: bhcl knn on UTM-like text files gives the exact rows (float64 kept)") {
+TEST_CASE("defaults: bhcl knn on UTM-like text files gives the exact rows (float64 kept)") {
   std::vector<double> pts, qs;
   utm_points(4000, 2, pts);
   utm_points(200, 3, qs);
@@ -128,7 +128,7 @@ TEST_CASE("issue25: bhcl knn on UTM-like text files gives the exact rows (float6
   }
 }
 
-TEST_CASE("issue25: a block layout's default meets 0.95 on the caller's queries, cached per distribution") {
+TEST_CASE("defaults: a block layout's default meets 0.95 on the caller's queries, cached per distribution") {
   // Clustered points, auto's block layout (grid = 0: cell-aligned blocks, a budget applies),
   // queries on the data and over the data's box. (The paper preset reaches recall@10 0.3-0.45 at
   // A = 128 here: tuned_reached false, which the stats say.)
@@ -181,7 +181,7 @@ TEST_CASE("issue25: a block layout's default meets 0.95 on the caller's queries,
   CHECK_FALSE(none.tuned);
 }
 
-TEST_CASE("issue25: the default thread count is the CPUs the process may use") {
+TEST_CASE("defaults: the default thread count is the CPUs the process may use") {
   cpu_set_t set;
   CPU_ZERO(&set);
   REQUIRE(sched_getaffinity(0, sizeof set, &set) == 0);
