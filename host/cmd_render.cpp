@@ -53,6 +53,16 @@ void declare_render(Args& a) {
   a.add_text("filter", "photon weights in the disc: box, cone or epanechnikov; with --compare a comma list", "cone",
              "NAME");
   a.add_flag("quiet", "no progress bars");
+  a.add_flag("lists", "shade from the k-nearest lists read back to the host (8 k + 4 bytes a query) instead of the "
+                      "density estimate made inside the query (16 bytes a query); for measurement");
+  a.group("Progressive photon mapping");
+  a.add_integer("passes", "passes, each with its own photons and rays, the disc shrinking pass to pass (Knaus and "
+                          "Zwicker's probabilistic PPM); the image is their mean", 1, 1000000, "1");
+  a.add_number("time", "no pass starts after this many seconds (> 0; pass 1 always runs; --passes still caps them)", "0");
+  a.add_number("alpha", "PPM's alpha in (0, 1): pass i's squared radius is (i - 1 + alpha) / i times pass i - 1's",
+               "0.666667");
+  a.add_integer("exr-every", "write the running image to --out every K passes (atomically: a temporary renamed)",
+                1, 1000000, "0");
   a.group("Comparison");
   a.add_flag("compare", "render with an exact method and with block hashing at several A, side by side");
   a.add_text("exact", "--compare: the exact method", has_method("kdtree") ? "kdtree" : "bruteforce", "NAME");
@@ -61,7 +71,7 @@ void declare_render(Args& a) {
   a.add_number("diff-scale", "--compare: relative error shown as full scale in the difference images", "0.1");
   a.add_flag("noise-floor", "--compare: also render the exact method with another photon seed and with another "
                             "render seed, and print their differences (the render's own Monte Carlo noise)");
-  a.add_text("reference", "--compare: an independent render of the same scene and camera (EXR, e.g. bhcl "
+  a.add_text("reference", "--compare, and progressive renders (each pass's image): an independent render of the same scene and camera (EXR, e.g. bhcl "
                           "pathtrace): each estimator's exact render is compared with it", "", "IMAGE.exr");
   a.add_integer("reference-block", "--compare: block size (pixels) of the block-averaged error against --reference",
                 1, 4096, "8");
@@ -71,9 +81,26 @@ void declare_render(Args& a) {
 int run_render(const Args& args) {
   {
     const bool cmp = args.flag("compare");
+    const bool prog0 = args.integer("passes", 1) > 1 || args.has("time");
     for (const char* o : {"exact", "approx", "compare-A", "diff-scale", "noise-floor", "reference", "reference-block"})
-      if (!cmp && args.has(o)) throw UsageError("--" + std::string(o) + " applies only with --compare");
+      if (!cmp && args.has(o) && !(prog0 && (std::string(o) == "reference" || std::string(o) == "reference-block")))
+        throw UsageError("--" + std::string(o) + " applies only with --compare" +
+                         (std::string(o).rfind("reference", 0) == 0 ? " or a progressive render" : ""));
     if (cmp && args.has("method")) throw UsageError("--method does not apply with --compare (see --exact, --approx)");
+    for (const char* o : {"passes", "time", "alpha", "exr-every", "lists"})
+      if (cmp && args.has(o)) throw UsageError("--" + std::string(o) + " does not apply with --compare");
+    const bool prog = args.integer("passes", 1) > 1 || args.has("time");
+    for (const char* o : {"alpha", "exr-every"})
+      if (!prog && args.has(o))
+        throw UsageError("--" + std::string(o) + " applies only to a progressive render (--passes N > 1 or --time)");
+    if (args.has("time")) {
+      const double t = args.number("time", 0);
+      if (!(t > 0) || !std::isfinite(t)) throw UsageError("--time must be a positive number of seconds");
+    }
+    if (args.has("alpha")) {
+      const double al = args.number("alpha", 0);
+      if (!(al > 0 && al < 1)) throw UsageError("--alpha must be in (0, 1) (exclusive), got " + args.str("alpha", ""));
+    }
     const std::string dflt = has_method("kdtree") ? "kdtree" : "bruteforce";
     // --threads and --seed also drive Embree and the photon tracer.
     if (cmp)
@@ -101,6 +128,8 @@ int run_render(const Args& args) {
   ropt.batch_queries = static_cast<std::size_t>(batch);
   const std::vector<DensityEstimator> ests = parse_estimators(args, compare);
   ropt.estimator = ests[0];
+  // --compare shades several estimators from one set of lists; one estimator needs none.
+  ropt.fused_estimate = !compare && !args.flag("lists");
   MethodOptions mopt = method_options(args);
   {
     // Before any work: no output may overwrite the scene, a saved index or another output (the
@@ -159,6 +188,10 @@ int run_render(const Args& args) {
 
   auto rt = std::make_shared<Runtime>(args.str("device", ""));
   const std::string device = rt->info().summary();
+
+  const bool progressive = args.integer("passes", 1) > 1 || args.has("time");
+  if (progressive) return run_progressive({args, t_start, quiet, out, base, ropt, ests, mopt, scene, es, lights, popt,
+                                           maps, photon_s, rt, device, exposure_opt});
 
   if (!compare) {
     const std::string method = args.str("method", has_method("kdtree") ? "kdtree" : "bruteforce");

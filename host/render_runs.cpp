@@ -171,10 +171,13 @@ void print_split(const char* title, const RenderRun& r, double photon_s) {
   const RenderStats& s = r.stats;
   std::fprintf(stderr,
                "%s [%s]: photons %.2f s | index build %.2f s (+ kernel compile %.2f s) | camera+shadow+gather rays %.2f s | "
-               "gather queries %.2f s (kernel %.2f s, %zu queries in %zu calls, %.0f q/s) | shading %.2f s\n",
+               "gather queries %.2f s (kernel %.2f s, %zu queries in %zu calls, %.0f q/s, %.1f result bytes a query back) | "
+               "shading %.2f s\n",
                title, r.label.c_str(), photon_s, r.build_s, r.warm_s + s.compile_s, s.trace_s, s.query_s,
                s.query_kernel_s, s.queries + s.caustic_queries, s.index_calls,
-               s.query_s > 0 ? (s.queries + s.caustic_queries) / s.query_s : 0.0, s.shade_s);
+               s.query_s > 0 ? (s.queries + s.caustic_queries) / s.query_s : 0.0,
+               s.queries + s.caustic_queries ? double(s.result_bytes) / double(s.queries + s.caustic_queries) : 0.0,
+               s.shade_s);
 }
 
 Json run_json(const RenderRun& r, const ImageDiff* d) {
@@ -194,6 +197,8 @@ Json run_json(const RenderRun& r, const ImageDiff* d) {
   j["queries"] = r.stats.queries;
   j["caustic_queries"] = r.stats.caustic_queries;
   j["index_calls"] = r.stats.index_calls;
+  j["result_bytes"] = r.stats.result_bytes;
+  j["fused_estimate"] = r.stats.result_bytes > 0 && r.stats.result_bytes == 16 * (r.stats.queries + r.stats.caustic_queries);
   if (d) {
     j["rmse"] = d->rmse;
     j["relative_rmse"] = d->relative_rmse;

@@ -85,5 +85,7 @@ struct RenderSetup {
 };
 // bhcl render --compare (cmd_render_compare.cpp).
 int run_compare(const RenderSetup& s);
+// bhcl render --passes N / --time S (cmd_render_progressive.cpp): s.maps are pass 1's photons.
+int run_progressive(const RenderSetup& s);
 
 }  // namespace bhcl::cli::render_cmd

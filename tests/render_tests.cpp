@@ -15,6 +15,7 @@
 #include "path_trace.hpp"
 #include "photon_trace.hpp"
 #include "png_io.hpp"
+#include "progressive.hpp"
 #include "scene.hpp"
 
 using namespace bhcl;
@@ -777,6 +778,235 @@ TEST_CASE("render: the path tracer: a white furnace converges to Le over 1 - rho
   CHECK(test::run_bhcl("pathtrace --out " + test::tmp_path("pt.exr") + " --size 0x4", &out) == 2);
   CHECK(test::run_bhcl("pathtrace --out " + test::tmp_path("pt.exr") + " --spp 0", &out) == 2);
   CHECK(test::run_bhcl("pathtrace --out " + test::tmp_path("pt.exr") + " --scene /no/such.obj", &out) == 1);
+}
+
+TEST_CASE("render: progressive photon mapping: the radius sequence, one pass equals the plain render") {
+  const double a = 2.0 / 3.0;
+  CHECK(ppm_radius_scale2(1, a) == 1.0);
+  CHECK(ppm_radius_scale2(2, a) == doctest::Approx((1 + a) / 2));
+  // r_{i+1}^2 / r_i^2 = (i + alpha) / (i + 1), and s_i ~ C i^(alpha - 1) as i grows.
+  for (int i = 1; i < 50; ++i)
+    CHECK(ppm_radius_scale2(i + 1, a) / ppm_radius_scale2(i, a) == doctest::Approx((i + a) / (i + 1)));
+  CHECK(ppm_radius_scale2(4000, a) / ppm_radius_scale2(1000, a) == doctest::Approx(std::pow(4.0, a - 1)).epsilon(0.01));
+  CHECK_THROWS_AS(ppm_radius_scale2(0, a), Error);
+  CHECK_THROWS_AS(ppm_radius_scale2(2, 1.0), Error);
+  CHECK(ppm_pass_seed(7, 1) == 7);
+  CHECK(ppm_pass_seed(7, 2) != ppm_pass_seed(7, 3));
+  CHECK(ppm_pass_seed(7, 2) != ppm_pass_seed(8, 2));
+
+  // One progressive pass is the plain render of the same seeds, bit for bit.
+  Scene scene = cornell_scene();
+  const std::string m = has_method("kdtree") ? "kdtree" : "bruteforce";
+  SmallRender plain = small_render(scene, m, 3000, 16, 4, 2, 7, 16);
+  EmbreeScene es(scene, 2);
+  LightSampler lights(scene);
+  RenderOptions ro;
+  ro.width = ro.height = 16;
+  ro.gather = 4;
+  ro.shadow_rays = 2;
+  ro.search.k = 16;
+  ro.seed = 7;
+  ro.threads = 2;
+  ro.batch_queries = 4096;
+  ProgressiveOptions po;
+  po.passes = 1;
+  po.method = m;
+  po.runtime = test::runtime();
+  po.photons.photons = 3000;
+  po.photons.seed = 7;
+  po.photons.threads = 2;
+  ProgressiveResult one = render_progressive(es, lights, ro, po);
+  CHECK(one.passes == 1);
+  CHECK(one.image.rgb == plain.image.rgb);
+}
+
+TEST_CASE("render: progressive photon mapping: more passes come closer to the path-traced reference") {
+  // A coarse photon map (3000 photons, k = 32) blurs the Cornell Box's corners and edges: the
+  // bias one render cannot lose. 12 passes shrink the disc to 0.64 r_1 and average 12 photon sets
+  // and ray sets: the block error against the path tracer must fall, for kd-tree and block hashing.
+  Scene scene = cornell_scene();
+  PathTraceStats pst;
+  const Image ref = path_traced(scene, 16, 1024, 2, pst);
+  EmbreeScene es(scene, 2);
+  LightSampler lights(scene);
+  RenderOptions ro;
+  ro.width = ro.height = 16;
+  ro.gather = 16;
+  ro.shadow_rays = 2;
+  ro.search.k = 32;
+  ro.seed = 3;
+  ro.threads = 2;
+  std::vector<std::string> methods = {has_method("kdtree") ? "kdtree" : "bruteforce"};
+  if (has_method("blockhash")) methods.push_back("blockhash");
+  for (const std::string& m : methods) {
+    ProgressiveOptions po;
+    po.method = m;
+    po.runtime = test::runtime();
+    po.photons.photons = 3000;
+    po.photons.seed = 3;
+    po.photons.threads = 2;
+    std::vector<double> errs;
+    std::vector<int> reported;
+    po.passes = 12;
+    ProgressiveResult r = render_progressive(es, lights, ro, po, nullptr, [&](const PassReport& rep, const Image& img) {
+      reported.push_back(rep.pass);
+      errs.push_back(block_error(img, ref, 4).relative_rmse);
+      if (m == "blockhash" && rep.pass > 1) CHECK(rep.rebuilt);  // the index rebuilt in place
+    });
+    REQUIRE(r.passes == 12);
+    REQUIRE(reported.size() == 12);
+    MESSAGE(m << ": 4x4-block relative RMSE vs path tracer: 1 pass " << errs[0] << ", 4 passes " << errs[3]
+              << ", 12 passes " << errs[11]);
+    CHECK(errs[11] < 0.8 * errs[0]);
+    CHECK(errs[3] < errs[0]);
+  }
+}
+
+TEST_CASE("render: bhcl render --passes: progress, periodic EXR, stats and argument errors") {
+  std::string exr = test::tmp_path("cli_ppm.exr"), json = test::tmp_path("cli_ppm.json");
+  std::string out;
+  int rc = test::run_bhcl("render --scene cornell --method bruteforce --photons 1500 --gather 2 --k 8 "
+                          "--size 12x8 --passes 3 --exr-every 2 --quiet --out " + exr + " --stats " + json, &out);
+  INFO(out);
+  REQUIRE(rc == 0);
+  CHECK(out.find("pass 2/3") != std::string::npos);
+  CHECK(out.find("(mean of 2 passes)") != std::string::npos);
+  CHECK(read_exr(exr).width == 12);
+  std::ifstream s(json);
+  const nlohmann::json j = nlohmann::json::parse(s);
+  CHECK(j.at("passes") == 3);
+  CHECK(j.at("exr_written") == 1);
+  CHECK(j.at("pass_reports").size() == 3);
+  CHECK(j.at("pass_reports")[2].at("radius_scale2").get<double>() < 1.0);
+  // --time alone: at least one pass, as many as fit.
+  CHECK(test::run_bhcl("render --method bruteforce --photons 1000 --gather 1 --k 4 --size 8x8 --time 0.01 --quiet "
+                       "--out " + exr, &out) == 0);
+  CHECK(out.find("pass 1") != std::string::npos);
+  const std::string base = "render --method bruteforce --photons 1000 --size 8x8 --quiet --out " + exr;
+  struct Bad {
+    const char* args;
+    const char* says;
+  };
+  for (const Bad& b : {Bad{" --passes 0", "--passes"}, Bad{" --passes 2 --alpha 1", "--alpha must be in (0, 1)"},
+                       Bad{" --passes 2 --alpha 0", "--alpha must be in (0, 1)"},
+                       Bad{" --alpha 0.5", "--alpha applies only to a progressive render"},
+                       Bad{" --exr-every 2", "--exr-every applies only to a progressive render"},
+                       Bad{" --passes 2 --exr-every 0", "--exr-every"},
+                       Bad{" --time -1", "--time must be a positive number"},
+                       Bad{" --time 0", "--time must be a positive number"}}) {
+    INFO(b.args);
+    CHECK(test::run_bhcl(base + b.args, &out) == 2);
+    CHECK_MESSAGE(out.find(b.says) != std::string::npos, out);
+  }
+  CHECK(test::run_bhcl("render --compare --passes 2 --photons 1000 --size 8x8 --quiet --out " + exr, &out) == 2);
+  CHECK(out.find("--passes does not apply with --compare") != std::string::npos);
+}
+
+TEST_CASE("render: the density estimate inside the query equals the host estimate from the lists, every method") {
+  // Tolerance: relative 2e-5 of the estimate plus 1e-6 of the largest estimate (float: the
+  // device sums in the same order as the host, the mean/var discs in float where the host uses
+  // double; a photon exactly on the disc's rim may then fall the other way, worth at most a
+  // filter weight of ~0 for cone/Epanechnikov, hence the absolute part).
+  Scene scene = cornell_scene();
+  EmbreeScene es(scene, 2);
+  LightSampler lights(scene);
+  PhotonTraceOptions po;
+  po.photons = 6000;
+  po.seed = 5;
+  po.threads = 2;
+  PhotonMaps maps = build_photon_maps(es, lights, po);
+  PhotonMap& map = *maps.global;
+  // Queries: photon positions nudged (dense regions) and points spread over the box; normals
+  // pointing every way, so that the facing test keeps some photons and drops others.
+  std::vector<float> qs, ns;
+  std::uint64_t st = 99;
+  auto u = [&]() {
+    st = st * 6364136223846793005ull + 1442695040888963407ull;
+    return float(double(st >> 11) / double(1ull << 53));
+  };
+  for (std::size_t i = 0; i < 600; ++i) {
+    const float* p = &map.positions()[3 * ((i * 9973) % map.size())];
+    for (int c = 0; c < 3; ++c) qs.push_back(i % 3 == 0 ? u() * 550.0f : p[c] + (u() - 0.5f) * 5.0f);
+    Vec3 n = normalize(Vec3{u() - 0.5f, u() - 0.5f, u() - 0.5f});
+    if (i % 4 == 0) n = Vec3{0, 1, 0};  // the floor's normal: most photons face it
+    ns.insert(ns.end(), {n.x, n.y, n.z});
+  }
+  const std::size_t n = qs.size() / 3;
+  for (const std::string& m : method_names()) {
+    map.build_index(m, test::runtime());
+    for (float max_r : {INFINITY, 40.0f})
+      for (float scale2 : {1.0f, 0.45f})
+        for (RadiusEstimator re : {RadiusEstimator::Kth, RadiusEstimator::Mean, RadiusEstimator::Variance})
+          for (DensityFilter f : {DensityFilter::Box, DensityFilter::Cone, DensityFilter::Epanechnikov}) {
+            const DensityEstimator est{re, f};
+            INFO(m << " " << estimator_name(est) << " max_radius " << max_r << " scale2 " << scale2);
+            SearchParams sp;
+            sp.k = 24;
+            sp.max_radius = max_r;
+            KnnResult lists;
+            map.query(qs.data(), n, sp, lists);
+            DensityResult fused;
+            map.estimate(qs.data(), ns.data(), n, sp, est, scale2, fused);
+            REQUIRE(fused.n == n);
+            CHECK(fused.bytes_read_back == 16 * n);
+            std::vector<Vec3> host(n);
+            double top = 0;
+            for (std::size_t q = 0; q < n; ++q) {
+              host[q] = map.radiance(lists, q, Vec3{ns[3 * q], ns[3 * q + 1], ns[3 * q + 2]}, Vec3{1, 1, 1}, max_r,
+                                     est, scale2);
+              top = std::max<double>(top, host[q].x);
+            }
+            REQUIRE(top > 0);
+            std::size_t bad = 0;
+            for (std::size_t q = 0; q < n; ++q) {
+              const float s = map.power_scale() / kPi;
+              const float got[3] = {fused.estimate[3 * q] * s, fused.estimate[3 * q + 1] * s, fused.estimate[3 * q + 2] * s};
+              const float want[3] = {host[q].x, host[q].y, host[q].z};
+              for (int c = 0; c < 3; ++c)
+                if (std::fabs(got[c] - want[c]) > 2e-5 * std::fabs(want[c]) + 1e-6 * top) {
+                  if (bad++ < 3) MESSAGE("query " << q << " channel " << c << ": fused " << got[c] << ", lists " << want[c]);
+                }
+            }
+            CHECK(bad == 0);
+          }
+  }
+  // Misuse: weights of another point set, a non-finite normal, a bad scale.
+  map.build_index("bruteforce", test::runtime());
+  std::vector<float> w(3 * 10, 1.0f);
+  CHECK_THROWS_WITH_AS(DensityWeights(*map.index(), w.data(), w.data(), 10), doctest::Contains("10 points given"), Error);
+  std::vector<float> bad_n = ns;
+  bad_n[3 * 7 + 1] = NAN;
+  DensityResult r;
+  CHECK_THROWS_WITH_AS(map.estimate(qs.data(), bad_n.data(), n, {}, {}, 1.0f, r), doctest::Contains("query 7"), Error);
+  CHECK_THROWS_WITH_AS(map.estimate(qs.data(), ns.data(), n, {}, {}, 1.5f, r), doctest::Contains("radius_scale2"), Error);
+}
+
+TEST_CASE("render: shading with the fused estimate matches shading from the lists") {
+  // The same rays and photons: the image from the estimates inside the query and the one from
+  // the lists differ by float rounding only (relative 1e-4 per pixel).
+  Scene scene = cornell_scene();
+  EmbreeScene es(scene, 2);
+  LightSampler lights(scene);
+  PhotonTraceOptions po;
+  po.photons = 4000;
+  po.seed = 2;
+  po.threads = 2;
+  PhotonMaps maps = build_photon_maps(es, lights, po);
+  maps.global->build_index(has_method("kdtree") ? "kdtree" : "bruteforce", test::runtime());
+  RenderOptions ro;
+  ro.width = ro.height = 16;
+  ro.gather = 8;
+  ro.search.k = 16;
+  ro.threads = 2;
+  ro.radius_scale2 = 0.7f;
+  RenderStats s1, s2;
+  const Image lists = FinalGatherRenderer(es, lights, *maps.global, nullptr, ro).render(s1);
+  ro.fused_estimate = true;
+  const Image fused = FinalGatherRenderer(es, lights, *maps.global, nullptr, ro).render(s2);
+  CHECK(s2.result_bytes == 16 * s2.queries);
+  CHECK(s1.result_bytes == s1.queries * (8 * 16 + 4));
+  for (std::size_t i = 0; i < lists.rgb.size(); ++i)
+    CHECK(fused.rgb[i] == doctest::Approx(lists.rgb[i]).epsilon(1e-4).scale(1e-3));
 }
 
 #endif  // BHCL_HAVE_RENDER

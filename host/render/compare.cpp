@@ -187,6 +187,11 @@ BlockError block_error(const Image& img, const Image& ref, int b) {
         continue;
       }
       ++out.blocks;
+      if (r > 0 && std::fabs(a - r) / r > out.worst_relative) {
+        out.worst_relative = std::fabs(a - r) / r;
+        out.worst_x = bx;
+        out.worst_y = by;
+      }
       kept_pixels += n;
       se += (a - r) * (a - r) / (static_cast<double>(n) * n);
       sum_ref += r;

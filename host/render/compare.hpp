@@ -33,6 +33,10 @@ double mean_luminance(const Image& img);  // 0 for an empty image
 struct BlockError {
   double relative_rmse = 0;  // of block luminance, over the mean reference block luminance
   double mean_bias = 0;      // (sum of luminance - the reference's) / the reference's, kept blocks
+  // The kept block farthest from the reference: |block - reference block| / reference block (blocks
+  // whose reference is black left out of this one), and its top-left pixel.
+  double worst_relative = 0;
+  int worst_x = -1, worst_y = -1;
   std::size_t blocks = 0, blocks_left_out = 0;
 };
 // Throws bhcl::Error when the sizes differ or b < 1.

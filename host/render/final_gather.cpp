@@ -78,6 +78,8 @@ FinalGatherRenderer::FinalGatherRenderer(const EmbreeScene& scene, const LightSa
   if (opt_.caustic_k <= 0) opt_.caustic_k = opt_.search.k;
   if (!(opt_.caustic_radius > 0)) opt_.caustic_radius = 0.02f * es_.scene().diagonal();
   if (opt_.batch_queries == 0) opt_.batch_queries = 262144;
+  if (!(opt_.radius_scale2 > 0) || !(opt_.radius_scale2 <= 1))
+    throw Error("render: the progressive radius scale must be in (0, 1], got " + std::to_string(opt_.radius_scale2));
 }
 
 std::size_t TracedPass::bytes() const {
@@ -240,21 +242,57 @@ void FinalGatherRenderer::shade_pass(const TracedPass& pass, std::size_t slots,
   KnnResult& gres = scratch.global;
   KnnResult& cres = scratch.caustic;
   const bool have_global = nq > 0 && !global_.empty();
-  if (have_global) {
-    stats.add_query(global_.query(pass.gather_xyz.data(), nq, opt_.search, gres));
-    stats.queries += nq;
-  }
   SearchParams cparams = opt_.search;
   cparams.k = opt_.caustic_k;
   cparams.max_radius = opt_.caustic_radius;
-  if (caustic_) {
-    stats.add_query(caustic_->query(pass.vis_xyz.data(), n, cparams, cres));
-    stats.caustic_queries += n;
+  // One estimator needs no lists: the estimate is made inside the query (the gather point's
+  // surface normal goes with it) and only the estimates come back.
+  const bool fused = opt_.fused_estimate && E == 1;
+  if (fused) {
+    if (have_global) {
+      std::vector<float>& nrm = scratch.normals;
+      nrm.resize(3 * nq);
+      for (std::size_t q = 0; q < nq; ++q) {
+        const GatherQuery& g = pass.gather[q];
+        const Vec3 ng = scene.geometric_normal(g.prim_side & ~kBackSide);
+        const Vec3 n = (g.prim_side & kBackSide) ? -ng : ng;
+        nrm[3 * q] = n.x;
+        nrm[3 * q + 1] = n.y;
+        nrm[3 * q + 2] = n.z;
+      }
+      stats.add_query(global_.estimate(pass.gather_xyz.data(), nrm.data(), nq, opt_.search, estimators[0],
+                                       opt_.radius_scale2, scratch.global_est));
+      stats.result_bytes += scratch.global_est.bytes_read_back;
+      stats.queries += nq;
+    }
+    if (caustic_) {
+      static_assert(sizeof(Vec3) == 3 * sizeof(float), "normals are read as n x 3 floats");
+      stats.add_query(caustic_->estimate(pass.vis_xyz.data(), reinterpret_cast<const float*>(pass.vis_n.data()), n,
+                                         cparams, estimators[0], opt_.radius_scale2, scratch.caustic_est));
+      stats.result_bytes += scratch.caustic_est.bytes_read_back;
+      stats.caustic_queries += n;
+    }
+  } else {
+    if (have_global) {
+      stats.add_query(global_.query(pass.gather_xyz.data(), nq, opt_.search, gres));
+      stats.result_bytes += nq * (8 * static_cast<std::size_t>(opt_.search.k) + 4);
+      stats.queries += nq;
+    }
+    if (caustic_) {
+      stats.add_query(caustic_->query(pass.vis_xyz.data(), n, cparams, cres));
+      stats.result_bytes += n * (8 * static_cast<std::size_t>(cparams.k) + 4);
+      stats.caustic_queries += n;
+    }
   }
   stats.query_s += since(t0);
 
   // Radiance estimates, summed per point in a fixed order, once per estimator.
   t0 = Clock::now();
+  const float gscale = global_.power_scale() / kPi;
+  const float cscale = caustic_ ? caustic_->power_scale() / kPi : 0.0f;
+  auto est3 = [](const DensityResult& d, std::size_t q) {
+    return Vec3{d.estimate[3 * q], d.estimate[3 * q + 1], d.estimate[3 * q + 2]};
+  };
   parallel_chunks(n, 256, opt_.threads, [&](std::size_t, std::size_t b, std::size_t e) {
     for (std::size_t i = b; i < e; ++i) {
       for (std::size_t k = 0; k < E; ++k) {
@@ -264,14 +302,21 @@ void FinalGatherRenderer::shade_pass(const TracedPass& pass, std::size_t slots,
           for (std::size_t q = pass.q_begin[i]; q < pass.q_begin[i + 1]; ++q) {
             const GatherQuery& g = pass.gather[q];
             const std::uint32_t prim = g.prim_side & ~kBackSide;
+            if (fused) {
+              indirect += g.weight * (scene.material_of(prim).kd * est3(scratch.global_est, q) * gscale);
+              continue;
+            }
             const Vec3 ng = scene.geometric_normal(prim);
             indirect += g.weight * global_.radiance(gres, q, (g.prim_side & kBackSide) ? -ng : ng,
-                                                    scene.material_of(prim).kd, opt_.search.max_radius, est);
+                                                    scene.material_of(prim).kd, opt_.search.max_radius, est,
+                                                    opt_.radius_scale2);
           }
         Vec3 caustic{0, 0, 0};
         if (caustic_)
           caustic = pass.vis_weight[i] *
-                    caustic_->radiance(cres, i, pass.vis_n[i], pass.vis_kd[i], cparams.max_radius, est);
+                    (fused ? pass.vis_kd[i] * est3(scratch.caustic_est, i) * cscale
+                           : caustic_->radiance(cres, i, pass.vis_n[i], pass.vis_kd[i], cparams.max_radius, est,
+                                                opt_.radius_scale2));
         out[k][pass.vis_slot[i]] += pass.direct[i] + (indirect + caustic);
       }
     }

@@ -43,6 +43,14 @@ struct RenderOptions {
   std::uint64_t seed = 1;
   int threads = 0;           // 0: hardware threads; the image does not depend on it
   std::size_t batch_queries = 262144;  // target gather queries per index call (sets the pass size)
+  // A progressive pass (progressive.hpp): every estimate's disc shrunk to this times the
+  // estimator's squared radius (global and caustic map). 1: the plain render.
+  float radius_scale2 = 1.0f;
+  // Shading with one estimator: the density estimate inside the query (PhotonMap::estimate): only
+  // 16 bytes per query come back instead of the k-nearest lists (8 k + 4). Equal to the lists' path
+  // up to float rounding, not bit for bit: off by default, so that shade() with several estimators
+  // (which needs the lists) and render() agree exactly; bhcl render turns it on.
+  bool fused_estimate = false;
 };
 
 struct RenderStats {
@@ -54,6 +62,7 @@ struct RenderStats {
   double query_kernel_s = 0;  // of which kernel execution (device event times)
   double compile_s = 0;       // kernel compiles during the calls (first launches)
   double shade_s = 0;         // radiance estimates and film
+  std::size_t result_bytes = 0;  // device -> host bytes of the query results (lists or estimates)
   void add_query(const QueryStats& q);
 };
 
@@ -137,6 +146,8 @@ class FinalGatherRenderer {
   // query) are then allocated once per image, not once per pass.
   struct QueryScratch {
     KnnResult global, caustic;
+    DensityResult global_est, caustic_est;  // RenderOptions::fused_estimate
+    std::vector<float> normals;
   };
   void shade_pass(const TracedPass& pass, std::size_t slots, const std::vector<DensityEstimator>& estimators,
                   std::vector<std::vector<Vec3>>& out, RenderStats& stats, QueryScratch& scratch) const;

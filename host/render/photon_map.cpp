@@ -3,6 +3,7 @@
 #include <chrono>
 #include <cmath>
 
+#include "blockhash_cl/blockhash.hpp"
 #include "blockhash_cl/error.hpp"
 #include "blockhash_cl/spatial_order.hpp"
 
@@ -34,6 +35,7 @@ PhotonMap::PhotonMap(std::string name, std::vector<PhotonRecord> records, float 
 void PhotonMap::build_index(const std::string& method, std::shared_ptr<Runtime> runtime,
                             const MethodOptions& options) {
   index_.reset();
+  weights_.reset();
   build_seconds_ = 0;
   if (records_.empty()) return;
   auto t0 = std::chrono::steady_clock::now();
@@ -47,16 +49,56 @@ QueryStats PhotonMap::query(const float* xyz, std::size_t n, const SearchParams&
   return index_->query(xyz, n, params, out);
 }
 
+void PhotonMap::rebuild_index_from(PhotonMap& previous, const std::string& method,
+                                   std::shared_ptr<Runtime> runtime, const MethodOptions& options) {
+  auto* bh = dynamic_cast<BlockHashIndex*>(previous.index_.get());
+  if (!bh || records_.empty()) {
+    build_index(method, std::move(runtime), options);
+    return;
+  }
+  weights_.reset();
+  auto t0 = std::chrono::steady_clock::now();
+  bh->rebuild(positions_.data(), records_.size());
+  index_ = std::move(previous.index_);
+  build_seconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+QueryStats PhotonMap::estimate(const float* xyz, const float* normals, std::size_t n, const SearchParams& params,
+                               const DensityEstimator& est, float scale2, DensityResult& out) const {
+  if (!index_) throw Error("photon map '" + name_ + "': estimate before build_index (or the map is empty)");
+  static_assert(sizeof(Vec3) == 3 * sizeof(float), "Vec3 arrays are read as n x 3 floats");
+  if (!weights_)
+    weights_ = std::make_unique<DensityWeights>(*index_, reinterpret_cast<const float*>(power_.data()),
+                                                reinterpret_cast<const float*>(direction_.data()), records_.size());
+  DensityParams p;
+  p.search = params;
+  p.radius = est.radius == RadiusEstimator::Kth ? DiscRadius::Kth
+             : est.radius == RadiusEstimator::Mean ? DiscRadius::Mean : DiscRadius::Variance;
+  p.filter = est.filter == DensityFilter::Box ? DiscFilter::Box
+             : est.filter == DensityFilter::Cone ? DiscFilter::Cone : DiscFilter::Epanechnikov;
+  p.cone = kConeFilter;
+  p.radius_scale2 = scale2;
+  return density_estimate(*index_, *weights_, xyz, normals, n, p, out);
+}
+
 Vec3 PhotonMap::radiance(const KnnResult& r, std::size_t row, Vec3 n, Vec3 kd, float max_radius,
-                         const DensityEstimator& est) const {
+                         const DensityEstimator& est, float scale2) const {
   const int count = r.counts[row];
   if (count <= 0) return {0, 0, 0};
   const float* d2 = r.dist2.data() + row * static_cast<std::size_t>(r.k);
-  const float r2 = disc_radius2(est.radius, d2, count, r.k, max_radius);
+  float r2 = disc_radius2(est.radius, d2, count, r.k, max_radius);
   if (!(r2 > 0) || !std::isfinite(r2)) return {0, 0, 0};  // all photons on the query point: no disc
+  // A progressive pass's shrunk disc: the photons beyond it (the list's tail) are left out.
+  int used = count;
+  if (scale2 < 1.0f) {
+    r2 *= scale2;
+    if (!(r2 > 0)) return {0, 0, 0};
+    used = 0;
+    while (used < count && d2[used] <= r2) ++used;
+  }
   const float radius = std::sqrt(r2);
   Vec3 sum{0, 0, 0};
-  for (int j = 0; j < count; ++j) {
+  for (int j = 0; j < used; ++j) {
     const std::size_t id = static_cast<std::size_t>(r.id(row, j));
     if (dot(direction_[id], n) <= 0) continue;  // arrived from behind the surface
     sum += power_[id] * filter_weight(est.filter, d2[j], r2, radius);

@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include "blockhash_cl/density_query.hpp"
 #include "blockhash_cl/factory.hpp"
 #include "blockhash_cl/knn.hpp"
 #include "density.hpp"
@@ -42,9 +43,28 @@ class PhotonMap {
   // Answers all queries (n x 3) in ONE call of the index. Throws if no index was built.
   QueryStats query(const float* xyz, std::size_t n, const SearchParams& params, KnnResult& out) const;
 
-  // The radiance estimate (see top of file) from row `row` of a query result.
+  // The next photon set's index: when `previous` holds a block-hashing index, it is rebuilt over
+  // this map's positions (BlockHashIndex::rebuild reuses its host and device arrays: no
+  // reallocation while the photon count does not grow) and moved here; otherwise (another method,
+  // no index) a fresh build_index. Progressive passes call it once per pass.
+  void rebuild_index_from(PhotonMap& previous, const std::string& method, std::shared_ptr<Runtime> runtime,
+                          const MethodOptions& options = {});
+
+  // The density estimate inside the query (blockhash_cl/density_query.hpp) for n queries with
+  // their surface normals: out.estimate[q] is sum w Phi / (norm_w pi r^2) over the photons facing
+  // the normal, without the lists coming back; the radiance is then kd * estimate * power_scale /
+  // pi, equal to radiance() from the lists up to float rounding. The photons' power and direction
+  // go to the device at the first call after each (re)build.
+  QueryStats estimate(const float* xyz, const float* normals, std::size_t n, const SearchParams& params,
+                      const DensityEstimator& estimator, float scale2, DensityResult& out) const;
+
+  // The radiance estimate (see top of file) from row `row` of a query result. scale2 < 1 shrinks
+  // the disc to scale2 times the estimator's squared radius (a progressive pass, see
+  // progressive.hpp): only the photons of the list inside the shrunk disc count (the list is
+  // sorted, so they are its first entries), every filter included. scale2 = 1 is the plain
+  // estimate, bit for bit.
   Vec3 radiance(const KnnResult& r, std::size_t row, Vec3 n, Vec3 kd, float max_radius,
-               const DensityEstimator& estimator = {}) const;
+               const DensityEstimator& estimator = {}, float scale2 = 1.0f) const;
 
  private:
   std::string name_;
@@ -55,6 +75,7 @@ class PhotonMap {
   std::vector<Vec3> power_, direction_;
   float power_scale_;
   std::unique_ptr<Index> index_;
+  mutable std::unique_ptr<DensityWeights> weights_;  // for estimate(); reset by every (re)build
   double build_seconds_ = 0;
 };
 
