@@ -197,15 +197,6 @@ int main(int argc, char** argv) {
     double t0 = now_s();
     BlockHashIndex ix(rt, all.data(), n0);
     const double t_first = now_s() - t0;
-    double t_ins = 0;
-    std::size_t at = n0;
-    for (int s = 0; s < 100; ++s) {
-      const std::size_t to = n0 + (N - n0) * std::size_t(s + 1) / 100;
-      t0 = now_s();
-      ix.insert(all.data() + 3 * at, to - at);
-      t_ins += now_s() - t0;
-      at = to;
-    }
     std::vector<float> qs = datasets::queries_by_name(data, n_queries, 2);
     auto compare = [&](const char* stage, const std::vector<float>& live, const std::vector<std::int32_t>& ids) {
       BlockHashIndex fresh(rt, live.data(), ids.size());
@@ -244,32 +235,51 @@ int main(int argc, char** argv) {
         std::fprintf(out, "growth,blockhash,%s recall_fresh %.4f recall_updated %.4f,%.6f,%.6f,%.4f\n", stage, recall_f,
                      recall_u, bench::median(qf), bench::median(qu), sp_ratio);
     };
-    std::printf("\n## Block hashing's grid grown 10x in 100 inserts (%zu -> %zu points): build of the first %.3f s, the 100 inserts %.3f s in all\n",
-                n0, N, t_first, t_ins);
+    // Compared at a quarter, half, three quarters and the end of the growth (a state just after a
+    // retune equals a fresh build; the others show the band the cells drift in).
+    double t_ins = 0;
+    std::size_t at = n0;
     std::vector<std::int32_t> ids(N);
     std::iota(ids.begin(), ids.end(), 0);
+    std::printf("\n## Block hashing's grid grown 10x in 100 inserts (%zu -> %zu points)\n", n0, N);
+    for (int s = 0; s < 100; ++s) {
+      const std::size_t to = n0 + (N - n0) * std::size_t(s + 1) / 100;
+      t0 = now_s();
+      ix.insert(all.data() + 3 * at, to - at);
+      t_ins += now_s() - t0;
+      at = to;
+      if ((s + 1) % 25 == 0 && s + 1 < 100) {
+        const std::string stage = "growth step " + std::to_string(s + 1);
+        compare(stage.c_str(), std::vector<float>(all.begin(), all.begin() + 3 * to),
+                std::vector<std::int32_t>(ids.begin(), ids.begin() + to));
+      }
+    }
+    std::printf("# build of the first %zu: %.3f s; the 100 inserts: %.3f s in all\n", n0, t_first, t_ins);
     compare("after growth 10x", std::vector<float>(all.begin(), all.begin() + 3 * N), ids);
     // Remove half, in 10 removes of random ids.
     std::vector<std::int32_t> order = ids;
     std::shuffle(order.begin(), order.end(), std::mt19937_64(17));
     double t_rem = 0;
+    std::printf("\n## Then half removed in 10 removes\n");
     for (int s = 0; s < 10; ++s) {
       const std::size_t a = N / 2 * std::size_t(s) / 10, b = N / 2 * std::size_t(s + 1) / 10;
       t0 = now_s();
       ix.remove(order.data() + a, b - a);
       t_rem += now_s() - t0;
-    }
-    std::vector<char> gone(N, 0);
-    for (std::size_t i = 0; i < N / 2; ++i) gone[std::size_t(order[i])] = 1;
-    std::vector<float> live;
-    std::vector<std::int32_t> live_ids;
-    for (std::size_t i = 0; i < N; ++i)
-      if (!gone[i]) {
-        live.insert(live.end(), all.begin() + 3 * i, all.begin() + 3 * i + 3);
-        live_ids.push_back(std::int32_t(i));
+      if (s == 4 || s == 9) {
+        std::vector<char> gone(N, 0);
+        for (std::size_t i = 0; i < b; ++i) gone[std::size_t(order[i])] = 1;
+        std::vector<float> live;
+        std::vector<std::int32_t> live_ids;
+        for (std::size_t i = 0; i < N; ++i)
+          if (!gone[i]) {
+            live.insert(live.end(), all.begin() + 3 * i, all.begin() + 3 * i + 3);
+            live_ids.push_back(std::int32_t(i));
+          }
+        compare(s == 4 ? "a quarter removed" : "after half removed", live, live_ids);
       }
-    std::printf("\n## Then half removed in 10 removes: %.3f s in all\n", t_rem);
-    compare("after half removed", live, live_ids);
+    }
+    std::printf("# the 10 removes: %.3f s in all\n", t_rem);
   }
   if (out) std::fclose(out);
   return 0;

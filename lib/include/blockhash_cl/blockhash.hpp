@@ -127,7 +127,7 @@ struct BlockHashBuildInfo {
   // still stored (grid: +inf coordinates, dropped by the next merge or compaction); merges:
   // inserts sorted into the existing cells; compactions; rebuilds: full builds an update made
   // (grid: points outside the grid's box keep the cell side, a mean cell population drifted past
-  // 2x or below 1/2 of the target retunes it; block layouts: every update); t_update: seconds
+  // 1.25x or below 0.8x of the tuned side's retunes it; block layouts: every update); t_update: seconds
   // spent in updates so far.
   std::size_t holes = 0, merges = 0, compactions = 0, update_rebuilds = 0, retunes = 0;
   double t_update = 0;
