@@ -74,6 +74,9 @@ class MultiDeviceIndex {
 
   std::vector<std::unique_ptr<Index>> indexes_;
   mutable std::shared_mutex update_mutex_;  // queries shared, insert/remove exclusive
+  // Writer preference (see Index's gate in lib/src/core/update.cpp): an update holds it while it
+  // waits for the lock, a query passes it before taking the lock.
+  mutable std::mutex update_gate_;
   mutable std::mutex weights_mutex_;
   mutable std::vector<double> weights_;
 };

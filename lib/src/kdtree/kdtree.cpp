@@ -222,10 +222,11 @@ void KdTreeIndex::build_tree(const float* points, std::size_t n_points, const st
   pos_.clear();  // filled by the first remove
 }
 
-// Updates (Index::insert/remove). An insert rebuilds the tree over the live points (measured
-// against a forest of trees in bench/update_bench.cpp: see docs/UPDATES.md); a remove turns each
-// point into a hole in place (+inf coordinates, the empty-slot id: never within any bound, never
-// ranked before an empty slot) and rebuilds once holes pass a quarter of the stored points.
+// Updates (Index::insert/remove; figures in docs/UPDATES.md). An insert joins the existing leaves
+// (insert_points below) or, past its limits, rebuilds the tree over the live points; a remove
+// turns each point into a hole in place (+inf coordinates, the empty-slot id: never within any
+// bound, never ranked before an empty slot) and rebuilds once holes pass a quarter of the stored
+// points. One tree rather than nanoflann's forest of log2 N trees: a query searches one tree.
 void KdTreeIndex::rebuild_live() {
   const std::vector<float>& cp = caller_points();
   const std::size_t bound = cp.size() / 3;

@@ -81,6 +81,7 @@ MultiDeviceIndex::MultiDeviceIndex(std::vector<std::shared_ptr<Runtime>> runtime
 // Updates: the first copy checks the input (its errors leave every copy unchanged), then the
 // others follow one by one (the copies' builds differ per device, so each updates its own).
 std::int32_t MultiDeviceIndex::insert(const float* points, std::size_t n) {
+  std::lock_guard<std::mutex> gate(update_gate_);  // writer preference
   std::unique_lock<std::shared_mutex> lock(update_mutex_);
   const std::int32_t first = indexes_.front()->insert(points, n);
   for (std::size_t d = 1; d < indexes_.size(); ++d) {
@@ -95,6 +96,7 @@ std::int32_t MultiDeviceIndex::insert(const float* points, std::size_t n) {
 }
 
 void MultiDeviceIndex::remove(const std::int32_t* ids, std::size_t n) {
+  std::lock_guard<std::mutex> gate(update_gate_);  // writer preference
   std::unique_lock<std::shared_mutex> lock(update_mutex_);
   indexes_.front()->remove(ids, n);
   for (std::size_t d = 1; d < indexes_.size(); ++d) {
@@ -155,7 +157,9 @@ void MultiDeviceIndex::learn(const std::vector<std::size_t>& counts, const std::
 
 QueryStats MultiDeviceIndex::query(const float* queries, std::size_t n, const SearchParams& params,
                                    KnnResult& out, std::vector<DeviceShare>* shares) const {
+  std::unique_lock<std::mutex> gate(update_gate_);
   std::shared_lock<std::shared_mutex> lock(update_mutex_);
+  gate.unlock();
   const std::size_t D = indexes_.size();
   const std::vector<double> w = weights();
   const std::vector<std::size_t> first = split(n);
@@ -192,7 +196,9 @@ QueryStats MultiDeviceIndex::query(const float* queries, std::size_t n, const Se
 QueryStats MultiDeviceIndex::radius_search(const float* queries, std::size_t n, float r,
                                            const RadiusParams& params, RadiusResult& out,
                                            std::vector<DeviceShare>* shares) const {
+  std::unique_lock<std::mutex> gate(update_gate_);
   std::shared_lock<std::shared_mutex> lock(update_mutex_);
+  gate.unlock();
   const std::size_t D = indexes_.size();
   const std::vector<double> w = weights();
   const std::vector<std::size_t> first = split(n);
