@@ -241,14 +241,12 @@ void BlockHashIndex::grid_remove(const std::int32_t* ids, std::size_t n) {
     hi = std::max(hi, p);
   }
   info_.holes += n;
-  const std::size_t live = g.n_points - info_.holes;
   if (8 * info_.holes > g.n_points) {
     grid_compact();
     // Too few points per cell for the tuned side: the leaf merge, a rebuild with a fresh side.
     if (info_.mean_cell_points < kRetuneBelow * grid_build_mean_) grid_rebuild_live(nullptr, 0, 0, true);
     return;
   }
-  (void)live;
   // The holes in place: one write per array of the span they touch.
   const auto& q = runtime_ptr()->queue();
   const std::size_t off = lo * 4, len = (hi - lo + 1) * 4;
