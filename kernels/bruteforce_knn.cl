@@ -27,7 +27,7 @@ __kernel void bruteforce_knn(__global const float4* points, uint n_points, BHCL_
     if (search) {
       for (uint j = 0; j < m; ++j) {
         float d = bhcl_dist2(q, tile[j]);
-        int idx = (int)(base + j);
+        int idx = as_int(tile[j].w);  /* the point's id (stable across updates) */
         if (d <= max_r2 && bhcl_topk_accepts(best_d, best_i, k, d, idx))
           nfound = bhcl_topk_push(best_d, best_i, k, nfound, d, idx);
       }

@@ -380,6 +380,26 @@ PYBIND11_MODULE(_core, m) {
       .def("radius_search", &radius_query, py::arg("queries").noconvert(), py::arg("r"),
            py::arg("squared"), py::arg("params"))
       .def("save", &save, py::arg("path"))
+      // Updates (Index::insert/remove): the new ids (first .. first + n - 1), GIL released.
+      .def("insert", [](bhcl::Index& index, const py::array_t<float, py::array::c_style>& points) {
+             const std::size_t n = rows_of(points, "points");
+             std::int32_t first = 0;
+             {
+               py::gil_scoped_release nogil;
+               first = index.insert(points.data(), n);
+             }
+             std::vector<std::int32_t> ids(n);
+             for (std::size_t i = 0; i < n; ++i) ids[i] = first + static_cast<std::int32_t>(i);
+             return to_numpy(std::move(ids), {static_cast<py::ssize_t>(n)});
+           }, py::arg("points").noconvert())
+      .def("remove", [](bhcl::Index& index, const py::array_t<std::int32_t, py::array::c_style>& ids) {
+             if (ids.ndim() != 1) throw bhcl::Error("remove: ids must be a 1-D array, got " + std::to_string(ids.ndim()) + " dimensions");
+             const std::size_t n = static_cast<std::size_t>(ids.shape(0));
+             py::gil_scoped_release nogil;
+             index.remove(ids.data(), n);
+           }, py::arg("ids").noconvert())
+      .def_property_readonly("id_bound", &bhcl::Index::id_bound)
+      .def("contains", &bhcl::Index::contains, py::arg("id"))
       .def("warm_up", [](const bhcl::Index& i, const bhcl::SearchParams& p) {
         py::gil_scoped_release nogil;
         return i.warm_up(p);

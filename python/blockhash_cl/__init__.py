@@ -538,6 +538,37 @@ class Index:
         later query timings exclude compilation. Returns the seconds it took (0 if done before)."""
         return self._impl.warm_up(self._search_params(k, search))
 
+    def add(self, points: Any) -> "np.ndarray":
+        """Adds (n, 3) points (float32 or float64) without a fresh build; returns their ids, an
+        int32 array id_bound, id_bound + 1, ... (ids are stable: never reused after a remove).
+        Waits for queries in progress on this index (updates are exclusive with queries).
+        float64 points are stored relative to the index's origin, as the build's were."""
+        ids = self._impl.insert(self._to_index(points, "points"))
+        if self._points is not None:  # the copy pickling and save rebuild from: ids stay in step
+            self._points = np.concatenate([self._points, np.asarray(points, dtype=self._points.dtype).reshape(-1, 3)])
+        return ids
+
+    def remove(self, ids: Any) -> None:
+        """Removes the points of these ids (a 1-D integer array or sequence). Raises Error for an
+        id never issued, already removed or given twice, and for removing every point."""
+        arr = np.asarray(ids)
+        if arr.ndim != 1 or not (arr.size == 0 or np.issubdtype(arr.dtype, np.integer)):
+            raise ValueError(f"remove: ids must be a 1-D array of integers, got shape {arr.shape} dtype {arr.dtype}")
+        if arr.size and (arr.min() < -2**31 or arr.max() >= 2**31):
+            raise ValueError("remove: an id is outside the int32 range")
+        self._impl.remove(np.ascontiguousarray(arr, dtype=np.int32))
+        # A rebuild from the points would renumber the ids after a hole: no copy to travel with.
+        self._points = None
+
+    @property
+    def id_bound(self) -> int:
+        """One past the largest id issued (the next add's first id)."""
+        return self._impl.id_bound
+
+    def contains(self, id: int) -> bool:
+        """True when id was issued and not removed."""
+        return bool(self._impl.contains(int(id)))
+
     # --- travelling: save/load and pickling
     def _structure_bytes(self) -> bytes:
         """A block-hash index's saved structure (the library's file format) as bytes."""

@@ -455,3 +455,37 @@ def test_issue22_messages_name_the_right_range(indexes, data):
     qs[3, 0] = np.nan
     d2, ids = kd.query(qs, k=2)
     assert (ids[3] == -1).all()
+
+
+@pytest.mark.parametrize("method", EXACT + ["blockhash"])
+def test_add_and_remove_keep_stable_ids(method):
+    """Index.add returns the new ids (id_bound, id_bound + 1, ...); Index.remove drops ids for
+    good; the answers are those of a fresh build over the live points (blockhash: exact mode)."""
+    rng = np.random.default_rng(23)
+    pts = rng.random((3000, 3), dtype=np.float32)
+    index = bh.make_index(method, pts)
+    more = rng.random((500, 3)) * 1.2 - 0.1  # float64, some outside the first box
+    ids = index.add(more)
+    assert ids.dtype == np.int32 and list(ids) == list(range(3000, 3500))
+    drop = np.concatenate([np.arange(0, 3000, 7), ids[::5]])
+    index.remove(drop)
+    assert len(index) == 3500 - len(drop) and index.id_bound == 3500
+    assert not index.contains(int(drop[0])) and index.contains(1)
+    live_ids = np.setdiff1d(np.arange(3500), drop)
+    live = np.concatenate([pts, more.astype(np.float32)])[live_ids]
+    q = rng.random((400, 3), dtype=np.float32)
+    opts = {"A": float("inf")} if method == "blockhash" else {}
+    dist2, got = index.query(q, k=8, **opts)
+    assert not np.isin(got, drop).any()
+    ref_d2, ref_i = reference(live, q, 8)
+    np.testing.assert_allclose(dist2, ref_d2, rtol=1e-5, atol=1e-9)
+    assert np.mean(got == live_ids[ref_i]) > 0.99
+    with pytest.raises(ValueError, match="already removed"):
+        index.remove([int(drop[0])])
+    with pytest.raises(ValueError, match="appears twice"):
+        index.remove([1, 1])
+    with pytest.raises(ValueError, match="outside"):
+        index.remove([3500])
+    with pytest.raises(ValueError, match="inserted points"):
+        index.add(np.array([[0.5, np.nan, 0.5]], dtype=np.float32))
+    assert index.add(pts[:2]).tolist() == [3500, 3501]  # never reused

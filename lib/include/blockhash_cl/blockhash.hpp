@@ -130,6 +130,14 @@ struct BlockHashBuildInfo {
   // Stage timings (seconds) and the total.
   double t_hilbert = 0, t_blocks = 0, t_params = 0, t_thresholds = 0, t_tables = 0, t_upload = 0;
   double t_total = 0;
+  // Updates (Index::insert/remove; lib/src/blockhash/grid_update.cpp). holes: removed points
+  // still stored (grid: +inf coordinates, dropped by the next merge or compaction); merges:
+  // inserts sorted into the existing cells; compactions; rebuilds: full builds an update made
+  // (grid: points outside the grid's box keep the cell side, a mean cell population drifted past
+  // 1.25x or below 0.8x of the tuned side's retunes it; block layouts: every update); t_update: seconds
+  // spent in updates so far.
+  std::size_t holes = 0, merges = 0, compactions = 0, update_rebuilds = 0, retunes = 0;
+  double t_update = 0;
   std::string summary() const;  // one line
 };
 
@@ -250,8 +258,23 @@ class BlockHashIndex : public Index {
                           const SearchParams& params, std::size_t local_size,
                           const std::vector<cl::Event>* wait) const override;
   void check_params(const SearchParams& params) const override;
+  void insert_points(const float* points, const float* scaled, std::size_t n, std::int32_t first) override;
+  void remove_points(const std::int32_t* ids, std::size_t n) override;
 
  private:
+  // Updates (grid_update.cpp): the grid natively, the block layouts by a rebuild.
+  void grid_insert(const float* scaled, std::size_t n, std::int32_t first);
+  void grid_remove(const std::int32_t* ids, std::size_t n);
+  void grid_compact();                                    // drops the holes, in place
+  void grid_rebuild_live(const float* extra, std::size_t m, std::int32_t first, bool retune);
+  void grid_upload_from(std::size_t point_from, std::size_t cell_from);
+  void grid_positions();                                  // id -> position, from the grid's ids
+  void blocks_update(const float* scaled, std::size_t n, std::int32_t first, const std::int32_t* ids,
+                     std::size_t n_removed);
+  void live_points(std::vector<float>& caller_xyz, std::vector<std::int32_t>& ids) const;
+  std::vector<std::int32_t> id_pos_;  // grid after updates: id -> sorted position (-1: none)
+  double grid_build_mean_ = 0;        // the mean cell population of the last full grid build
+
   BlockHashIndex(std::shared_ptr<Runtime> runtime, std::unique_ptr<blockhash::Structure> s);
   void upload();
   std::string kernel_options(int kmax) const;
@@ -261,7 +284,9 @@ class BlockHashIndex : public Index {
   void upload_grid();
   void add_grid_args(detail::KernelArgs& args) const;
   std::uint32_t row_cap_for(const SearchParams& params) const;  // the kernel's BHCL_GRID_ROWCAP
-  std::vector<float> indexed_points() const;  // caller's order and coordinates
+  // The indexed points in ascending id order and the caller's coordinates; ids (optional) gets
+  // their ids (0 .. N - 1 unless updates removed some).
+  std::vector<float> indexed_points(std::vector<std::int32_t>* ids = nullptr) const;
 
   // SearchParams::recall_target: the A tuned per (k, probes, target), computed on first use.
   float resolved_A(const SearchParams& params) const;

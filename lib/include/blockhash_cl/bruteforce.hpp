@@ -4,7 +4,9 @@
 #pragma once
 
 #include <cstddef>
+#include <cstdint>
 #include <memory>
+#include <vector>
 
 #include "blockhash_cl/knn.hpp"
 
@@ -17,7 +19,7 @@ class BruteForceIndex : public Index {
 
   std::string method() const override { return "bruteforce"; }
   bool exact() const override { return true; }
-  std::size_t memory_bytes() const override { return size() * 16; }
+  std::size_t memory_bytes() const override { return host_.size() * 16; }
 
  protected:
   cl::Event enqueue_radius_batch(const cl::CommandQueue& queue, const cl::Buffer& queries,
@@ -29,9 +31,18 @@ class BruteForceIndex : public Index {
                           std::size_t first, std::size_t count, const ResultBuffers& out,
                           const SearchParams& params, std::size_t local_size,
                           const std::vector<cl::Event>* wait) const override;
+  void insert_points(const float* points, const float* scaled, std::size_t n, std::int32_t first) override;
+  void remove_points(const std::int32_t* ids, std::size_t n) override;
 
  private:
-  cl::Buffer points_;  // float4 per point, w = 0
+  struct HostPoint {
+    float x, y, z;
+    std::int32_t id;
+  };
+  void upload_from(std::size_t from, bool fresh);
+  std::vector<HostPoint> host_;  // the device array: ascending ids
+  cl::Buffer points_;  // float4 per point, w = the point's id (int bits)
+  std::size_t cap_bytes_ = 0;
 };
 
 }  // namespace bhcl

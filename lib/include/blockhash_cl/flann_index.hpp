@@ -19,6 +19,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <memory>
+#include <vector>
 
 #include "blockhash_cl/knn.hpp"
 
@@ -51,7 +52,14 @@ class FlannIndex : public Index {
   double host_search(const float* queries, std::size_t n, const SearchParams& params,
                      KnnResult& out) const override;
 
+ protected:
+  void insert_points(const float* points, const float* scaled, std::size_t n, std::int32_t first) override;
+  void remove_points(const std::int32_t* ids, std::size_t n) override;
+
  private:
+  // The tree over n points (index coordinates); ext: their ids (empty: 0 .. n - 1).
+  void build_tree(const float* pts, std::size_t n, std::vector<std::int32_t> ext);
+  void rebuild_live();
   // Answers rows [0, n) into raw arrays (n*k ids and distances, n counts), in the index's own
   // (possibly scaled) coordinates; returns how many queries had a non-finite coordinate.
   std::size_t search(const float* queries, std::size_t n, const SearchParams& params,

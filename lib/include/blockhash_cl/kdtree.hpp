@@ -4,7 +4,9 @@
 #pragma once
 
 #include <cstddef>
+#include <cstdint>
 #include <memory>
+#include <vector>
 
 #include "blockhash_cl/knn.hpp"
 
@@ -37,6 +39,10 @@ class KdTreeIndex : public Index {
   // Inner nodes on the longest root-to-leaf path: the traversal stack the kernel needs.
   int depth() const { return depth_; }
   int leaf_size() const { return leaf_size_; }
+  // Updates: removed points still stored as holes (a rebuild drops them), and rebuilds so far.
+  std::size_t holes() const { return holes_; }
+  std::size_t update_rebuilds() const { return rebuilds_; }
+  std::size_t update_merges() const { return merges_; }  // inserts into the existing leaves
 
  protected:
   cl::Event enqueue_radius_batch(const cl::CommandQueue& queue, const cl::Buffer& queries,
@@ -48,8 +54,22 @@ class KdTreeIndex : public Index {
                           std::size_t first, std::size_t count, const ResultBuffers& out,
                           const SearchParams& params, std::size_t local_size,
                           const std::vector<cl::Event>* wait) const override;
+  void insert_points(const float* points, const float* scaled, std::size_t n, std::int32_t first) override;
+  void remove_points(const std::int32_t* ids, std::size_t n) override;
 
  private:
+  // The tree over n points (index coordinates); ids: each point's id (null: 0 .. n - 1).
+  void build_tree(const float* points, std::size_t n, const std::int32_t* ids);
+  void rebuild_live();  // over the live points of caller_points(), ids kept
+  struct HostPoint {  // kernels/kdtree_layout.h's bhcl_kd_point (checked in kdtree.cpp)
+    float x, y, z;
+    std::int32_t id;
+  };
+  std::vector<HostPoint> host_points_;  // the device's points array, kept for updates
+  std::vector<std::int32_t> pos_;  // id -> slot in host_points_ (-1: none); built by a remove
+  std::vector<std::uint32_t> host_nodes_;  // the device's nodes (bhcl_kd_node, 4 words each)
+  std::size_t holes_ = 0, rebuilds_ = 0, merges_ = 0, built_points_ = 0, points_cap_ = 0;
+  unsigned build_threads_ = 0;
   cl::Buffer nodes_;   // bhcl_kd_node, depth-first
   cl::Buffer points_;  // float4 in leaf order, w = the caller's index (int bits)
   std::size_t n_nodes_ = 0, n_leaves_ = 0;

@@ -37,11 +37,13 @@
 #include <CL/opencl.hpp>
 
 #include <cstddef>
+#include <algorithm>
 #include <cstdint>
 #include <limits>
 #include <memory>
 #include <mutex>
 #include <set>
+#include <shared_mutex>
 #include <string>
 #include <tuple>
 #include <utility>
@@ -265,9 +267,29 @@ class Index {
   // later query timings exclude compilation. Returns the seconds it took (0 if already done).
   double warm_up(const SearchParams& params) const;
 
+  // Points added and removed without a fresh build (every method; lib/src/core/update.cpp).
+  // Ids are stable: the points of an insert take the ids id_bound(), id_bound() + 1, ... in order
+  // (insert returns the first); a removed id is never returned again and never reused; size()
+  // counts the live points. Results answer as an index over the live points would, their ids
+  // the stable ones (exact methods: equal to a fresh build over the live points, ids mapped).
+  // Thread safety: queries (query, radius_search, enqueue_query, warm_up) may run concurrently
+  // with each other; insert and remove are exclusive: they wait for the queries in progress and
+  // queries wait for them (a std::shared_mutex). A buffer-level call's kernels are enqueued under
+  // the lock, and insert/remove finish the library's queue before changing device buffers, but a
+  // caller's queue is the caller's: finish it before an update.
+  // Throws bhcl::Error for non-finite points (naming the first), an empty batch, ids outside
+  // [0, id_bound()), already removed, duplicated within a call, removing every live point, or
+  // more than 2^31 - 2 ids in all; the index is unchanged when it throws.
+  std::int32_t insert(const float* points, std::size_t n);
+  void remove(const std::int32_t* ids, std::size_t n);
+  std::int32_t id_bound() const { return id_bound_; }     // one past the largest id issued
+  bool contains(std::int32_t id) const;                     // live (issued, not removed)
+  std::size_t removed_count() const { return removed_n_; }  // ids removed so far
+
  protected:
   Index(std::shared_ptr<Runtime> runtime, std::size_t n_points)
-      : runtime_(std::move(runtime)), n_points_(n_points) {}
+      : runtime_(std::move(runtime)), n_points_(n_points),
+        id_bound_(static_cast<std::int32_t>(std::min<std::size_t>(n_points, 0x7ffffffe))) {}
 
   // For the constructors of subclasses: validates the points (N in [1, 2^31 - 2], every
   // coordinate finite: bhcl::Error naming the method or the first bad point) and picks the coordinate
@@ -319,13 +341,39 @@ class Index {
   // Throws bhcl::Error for parameters this method cannot serve. The base checks k and radius.
   virtual void check_params(const SearchParams& params) const;
 
+  // Updates (see insert/remove): called under the exclusive lock with validated input. points:
+  // the caller's coordinates; scaled: the same in the structure's (2^-scale_exponent()); the new
+  // ids are first .. first + n - 1. ids: distinct live ids, ascending. The defaults throw (no
+  // update support). After insert_points/remove_points the base updates size() and id_bound().
+  virtual void insert_points(const float* points, const float* scaled, std::size_t n, std::int32_t first);
+  virtual void remove_points(const std::int32_t* ids, std::size_t n);
+  // Exact methods: the caller's point of a live id (the host copy the double-precision fallback
+  // reads; removed ids hold NaN). Empty for approximate methods.
+  const std::vector<float>& caller_points() const { return caller_points_; }
+  // The id range after a load (ids of a saved index after updates): id_bound = bound, and every
+  // id below it that is not in live[] counts as removed. live: ascending ids.
+  void set_id_state(std::int32_t bound, const std::vector<std::int32_t>& live);
+  // The lock a query holds shared (recursion-safe per thread: a query that queries its own index,
+  // e.g. the recall tuning, does not lock twice).
+  class ReadLock {
+   public:
+    explicit ReadLock(const Index& ix);
+    ~ReadLock();
+    ReadLock(const ReadLock&) = delete;
+    ReadLock& operator=(const ReadLock&) = delete;
+   private:
+    const Index* ix_;
+    bool held_ = false;
+  };
+
   // The most queries per dispatch this method allows (e.g. to bound scratch memory).
   virtual std::size_t max_dispatch_queries() const { return std::size_t(1) << 20; }
 
   std::size_t local_size_for(const SearchParams& params) const;
 
   void set_build_seconds(double s) { build_seconds_ = s; }
-  void set_size(std::size_t n) { n_points_ = n; }  // a rebuild over another point count
+  // A rebuild over another point set: n points with ids 0 .. n - 1 (the update state reset).
+  void set_size(std::size_t n);
 
   // The coordinate scaling every entry point applies (see the contract): queries and max_radius
   // into the structure's coordinates, squared distances back. to_structure returns `queries`
@@ -362,6 +410,12 @@ class Index {
   std::vector<float> caller_points_;
   int scale_exp_ = 0;
   double build_seconds_ = 0.0;
+  double warm_up_impl(const SearchParams& params) const;
+  // Updates: the lock (see insert), the ids issued and those removed (a bit per id issued).
+  mutable std::shared_mutex update_mutex_;
+  std::int32_t id_bound_ = 0;
+  std::vector<bool> removed_;
+  std::size_t removed_n_ = 0;
   mutable std::mutex warm_mutex_;
   mutable std::set<std::tuple<int, std::size_t, std::string>> warmed_;  // (kmax, local size, defines)
 };

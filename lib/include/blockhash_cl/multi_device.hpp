@@ -10,6 +10,7 @@
 #include <cstddef>
 #include <memory>
 #include <mutex>
+#include <shared_mutex>
 #include <string>
 #include <vector>
 
@@ -47,6 +48,14 @@ class MultiDeviceIndex {
   QueryStats radius_search(const float* queries, std::size_t n, float r, const RadiusParams& params,
                            RadiusResult& out, std::vector<DeviceShare>* shares = nullptr) const;
 
+  // Updates (Index::insert/remove, same ids and errors) applied to every device's copy; exclusive
+  // with this index's queries (a std::shared_mutex), so a query never sees the copies differ.
+  // A failure on one device leaves the copies differing: the call throws naming the device, and
+  // the index must be rebuilt.
+  std::int32_t insert(const float* points, std::size_t n);
+  void remove(const std::int32_t* ids, std::size_t n);
+  std::int32_t id_bound() const { return indexes_.front()->id_bound(); }
+
   std::size_t devices() const { return indexes_.size(); }
   const Index& index(std::size_t device) const { return *indexes_.at(device); }
   std::string method() const { return indexes_.front()->method(); }
@@ -64,6 +73,10 @@ class MultiDeviceIndex {
   void learn(const std::vector<std::size_t>& counts, const std::vector<double>& seconds) const;
 
   std::vector<std::unique_ptr<Index>> indexes_;
+  mutable std::shared_mutex update_mutex_;  // queries shared, insert/remove exclusive
+  // Writer preference (see Index's gate in lib/src/core/update.cpp): an update holds it while it
+  // waits for the lock, a query passes it before taking the lock.
+  mutable std::mutex update_gate_;
   mutable std::mutex weights_mutex_;
   mutable std::vector<double> weights_;
 };

@@ -171,6 +171,8 @@ void BlockHashIndex::build_grid_layout(const float* points, std::size_t n_points
 }
 
 void BlockHashIndex::rebuild(const float* points, std::size_t n_points) {
+  id_pos_.clear();  // a new point set: ids 0 .. n - 1 again (set_size), no update state
+  grid_build_mean_ = 0;
   if (info_.grid) {
     // The previous build's cell side (caller units) and the same table limits.
     set_size(n_points);
@@ -329,6 +331,15 @@ std::unique_ptr<BlockHashIndex> BlockHashIndex::load(std::shared_ptr<Runtime> ru
 }
 
 void BlockHashIndex::save(const std::string& path) const {
+  // Both file formats hold ids 0 .. N - 1 (a load checks they are a permutation): an index after
+  // inserts only saves as it is; after removals its ids are sparse, which the formats cannot
+  // say yet (a format change: the id bound and sparse ids), so the save refuses rather than
+  // renumber the caller's ids.
+  if (removed_count() > 0)
+    throw Error("blockhash: save: this index had points removed (" + std::to_string(removed_count()) +
+                " of " + std::to_string(id_bound()) + " ids): the index file formats hold ids 0 .. N - 1 "
+                "only; save a fresh index over the live points instead");
+  ReadLock lock(*this);
   if (info_.grid) {
     blockhash::GridFile f;
     f.grid = *s_->grid;
@@ -340,27 +351,43 @@ void BlockHashIndex::save(const std::string& path) const {
   blockhash::save_structure(*s_, path);
 }
 
-std::vector<float> BlockHashIndex::indexed_points() const {
+std::vector<float> BlockHashIndex::indexed_points(std::vector<std::int32_t>* ids) const {
   const blockhash::Structure& s = *s_;
-  std::vector<float> pts(3 * s.n_points);
-  auto put = [&](std::size_t id, float x, float y, float z) {
-    pts[3 * id] = std::ldexp(x, s.scale_exp);
-    pts[3 * id + 1] = std::ldexp(y, s.scale_exp);
-    pts[3 * id + 2] = std::ldexp(z, s.scale_exp);
+  // Slot of each id (ids after updates are sparse in [0, id_bound()); holes carry the empty-slot
+  // id and are skipped), then the points in ascending id order.
+  const std::size_t bound = std::size_t(id_bound());
+  std::vector<float> byid(3 * bound, NAN);
+  std::vector<char> have(bound, 0);
+  auto put = [&](std::int32_t id, float x, float y, float z) {
+    if (id < 0 || std::size_t(id) >= bound) return;  // a hole
+    byid[3 * std::size_t(id)] = std::ldexp(x, s.scale_exp);
+    byid[3 * std::size_t(id) + 1] = std::ldexp(y, s.scale_exp);
+    byid[3 * std::size_t(id) + 2] = std::ldexp(z, s.scale_exp);
+    have[std::size_t(id)] = 1;
   };
   if (s.grid) {
     const blockhash::Grid& g = *s.grid;
-    for (std::size_t i = 0; i < g.n_points; ++i) put(std::size_t(g.ids[i]), g.x[i], g.y[i], g.z[i]);
-    return pts;
+    for (std::size_t i = 0; i < g.n_points; ++i) put(g.ids[i], g.x[i], g.y[i], g.z[i]);
+  } else {
+    for (std::size_t b = 0; b < s.blocks.size(); ++b)
+      for (std::int32_t j = 0; j < s.boxes[b].count; ++j)
+        put(s.blocks[b].id[j], s.blocks[b].x[j], s.blocks[b].y[j], s.blocks[b].z[j]);
   }
-  for (std::size_t b = 0; b < s.blocks.size(); ++b)
-    for (std::int32_t j = 0; j < s.boxes[b].count; ++j)
-      put(std::size_t(s.blocks[b].id[j]), s.blocks[b].x[j], s.blocks[b].y[j], s.blocks[b].z[j]);
+  if (ids) ids->clear();
+  std::vector<float> pts;
+  pts.reserve(3 * size());
+  for (std::size_t id = 0; id < bound; ++id) {
+    if (!have[id]) continue;
+    pts.insert(pts.end(), byid.begin() + 3 * id, byid.begin() + 3 * id + 3);
+    if (ids) ids->push_back(static_cast<std::int32_t>(id));
+  }
   return pts;
 }
 
 long BlockHashIndex::first_mismatch(const float* points, std::size_t n) const {
   if (n != s_->n_points) return -2;  // not an index: the sizes differ
+  // After removals the ids are not the caller's indexes 0 .. n - 1: nothing to compare by index.
+  if (removed_count() > 0 || std::size_t(id_bound()) != n) return -2;
   if (s_->grid) {
     const blockhash::Grid& g = *s_->grid;
     for (std::size_t i = 0; i < n; ++i) {

@@ -129,7 +129,25 @@ std::string json_text(const std::string& t) {
   return s + "\"";
 }
 
+MethodInfo::Used used_build_fields(const Index& index);
+
+// The build's figures, and after updates (Index::insert/remove) their statistics too (only then:
+// an index never updated reports what it did before).
 MethodInfo::Used used_build(const Index& index) {
+  MethodInfo::Used u = used_build_fields(index);
+  const BlockHashBuildInfo& i = dynamic_cast<const BlockHashIndex&>(index).info();
+  if (i.holes || i.merges || i.compactions || i.update_rebuilds) {
+    u.insert(u.end() - 1, {{"holes", std::to_string(i.holes)},
+                           {"merges", std::to_string(i.merges)},
+                           {"compactions", std::to_string(i.compactions)},
+                           {"update_rebuilds", std::to_string(i.update_rebuilds)},
+                           {"retunes", std::to_string(i.retunes)},
+                           {"update_seconds", json_real(i.t_update)}});
+  }
+  return u;
+}
+
+MethodInfo::Used used_build_fields(const Index& index) {
   const BlockHashBuildInfo& i = dynamic_cast<const BlockHashIndex&>(index).info();
   const std::string axis = "[" + std::to_string(i.axis_P[0]) + ", " + std::to_string(i.axis_P[1]) + ", " +
                            std::to_string(i.axis_P[2]) + "]";

@@ -23,7 +23,8 @@ BlockHashIndex::RecallTuning BlockHashIndex::tune_for_recall(double target, cons
   auto t0 = std::chrono::steady_clock::now();
   const std::size_t N = size();
   // The indexed points in the caller's order and coordinates.
-  std::vector<float> pts = indexed_points();
+  std::vector<std::int32_t> ids;  // after updates the live ids are sparse: truth mapped to them
+  std::vector<float> pts = indexed_points(&ids);
   KdTreeIndex exact(runtime_ptr(), pts.data(), N);
   const std::size_t m = std::min(sample, N);
   std::vector<float> qs(3 * m);
@@ -47,6 +48,8 @@ BlockHashIndex::RecallTuning BlockHashIndex::tune_for_recall(double target, cons
   p.recall_target = 0;
   p.sort_queries = 0;
   KnnResult truth = exact.query(qs, p);
+  for (auto& id : truth.ids)
+    if (id >= 0) id = ids[std::size_t(id)];
   RecallTuning out;
   out.sample = m;
   // The grid's exact mode (A = +inf) ends its list: any target is reached.

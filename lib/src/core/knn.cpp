@@ -254,7 +254,8 @@ void Index::answer_rows_exactly(const float* caller_queries, const std::vector<s
   const std::size_t k = static_cast<std::size_t>(params.k);
   const double r = params.max_radius;
   const double r2 = std::isinf(r) ? INFINITY : r * r;
-  const std::size_t N = size();
+  // Every id issued: a removed one holds NaN, which `d <= r2` rejects.
+  const std::size_t N = caller_points_.size() / 3;
   const float* pts = caller_points_.data();
   detail::parallel_for(rows.size(), [&](std::size_t b, std::size_t e) {
     std::vector<std::pair<double, std::int32_t>> best;
@@ -341,6 +342,7 @@ std::size_t Index::local_size_for(const SearchParams& p) const {
 }
 
 double Index::warm_up(const SearchParams& params) const {
+  ReadLock read_lock(*this);  // the launch reads the structure's buffers (see insert)
   check_params(params);
   if (answers_on_host()) return 0.0;
   std::size_t local = local_size_for(params);
@@ -399,6 +401,7 @@ cl::Event Index::enqueue_query(const cl::CommandQueue& queue, const cl::Buffer& 
                                std::size_t n, const ResultBuffers& out,
                                const SearchParams& params,
                                const std::vector<cl::Event>* wait) const {
+  ReadLock lock(*this);  // kernels enqueued with the structure's buffers (see insert)
   check_params(params);
   // Buffers too small for n queries would be written out of bounds: refuse.
   auto need = [&](const cl::Buffer& b, std::size_t bytes, const char* what) {
@@ -466,6 +469,7 @@ cl::Event Index::enqueue_query(const cl::CommandQueue& queue, const cl::Buffer& 
 QueryStats Index::query(const float* queries, std::size_t n, const SearchParams& params,
                         KnnResult& out) const {
   auto t0 = std::chrono::steady_clock::now();
+  ReadLock lock(*this);  // queries share the index; insert/remove wait (see insert)
   check_params(params);
   const bool sort = params.sort_queries > 0 || (params.sort_queries < 0 && n >= kAutoSortQueries);
   // Sizes before allocation: a result that cannot fit is refused with what it needs, before any

@@ -114,6 +114,7 @@ QueryStats Index::radius_search_squared(const float* queries, std::size_t n, flo
 QueryStats Index::radius_impl(const float* queries, std::size_t n, float r, bool squared,
                               const RadiusParams& params, RadiusResult& out) const {
   auto t0 = std::chrono::steady_clock::now();
+  ReadLock lock(*this);  // queries share the index; insert/remove wait (see Index::insert)
   check_radius_params(params);
   if (n > 0 && !queries) throw Error("radius_search: queries is null with n = " + std::to_string(n));
   const bool sort = params.sort_queries > 0 || (params.sort_queries < 0 && n >= kAutoSortQueries);
@@ -205,7 +206,8 @@ void Index::radius_exact_fallback(const float* caller_queries, std::size_t n, do
   distances_to_caller(out.dist2.data(), out.dist2.size());
   if (rows.empty()) return;
   // The suspect slices in double over the caller's points, then the layout rebuilt.
-  const std::size_t N = size();
+  // Every id issued: a removed one holds NaN, which `d <= r2` rejects.
+  const std::size_t N = caller_points_.size() / 3;
   const float* pts = caller_points_.data();
   std::vector<std::vector<std::pair<double, std::int32_t>>> redo(rows.size());
   detail::parallel_for(rows.size(), [&](std::size_t b, std::size_t e) {

@@ -220,6 +220,10 @@ struct FlannIndex::Impl {
   std::vector<float> unique_points;
   Groups groups;
   bool recompute = false;  // FLANN's distances differ from the contract's: recompute them
+  // After updates: the stable id of each of `points` (ascending; empty: the identity).
+  std::vector<std::int32_t> ext;
+  std::int32_t id(std::int32_t i) const { return ext.empty() ? i : ext[std::size_t(i)]; }
+  int leaf_max_size = 10;
 };
 
 namespace {
@@ -253,19 +257,51 @@ FlannIndex::FlannIndex(std::shared_ptr<Runtime> runtime, const float* points,
   std::vector<float> scaled;
   const float* pts = prepare_points(points, n_points, scaled);  // validates; extreme scales
   threads_ = params.threads ? params.threads : static_cast<int>(detail::available_cpus());
-  impl_->points.assign(pts, pts + 3 * n_points);
-  const bool grouped = group_coincident(impl_->points, impl_->unique_points, impl_->groups);
+  impl_->leaf_max_size = params.leaf_max_size;
+  build_tree(pts, n_points, {});
+  set_build_seconds(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+}
+
+void FlannIndex::build_tree(const float* pts, std::size_t n_points, std::vector<std::int32_t> ext) {
+  auto fresh = std::make_unique<Impl>();
+  fresh->leaf_max_size = impl_->leaf_max_size;
+  fresh->points.assign(pts, pts + 3 * n_points);
+  fresh->ext = std::move(ext);
+  const bool grouped = group_coincident(fresh->points, fresh->unique_points, fresh->groups);
   try {
-    flann::Matrix<float> m(grouped ? impl_->unique_points.data() : impl_->points.data(),
-                           grouped ? impl_->unique_points.size() / 3 : n_points, 3);
-    impl_->tree = std::make_unique<FlannTree>(m, flann::KDTreeSingleIndexParams(params.leaf_max_size, true));
-    impl_->tree->buildIndex();
-    impl_->recompute = !flann_distance_matches(impl_->points.data(), n_points);
+    flann::Matrix<float> m(grouped ? fresh->unique_points.data() : fresh->points.data(),
+                           grouped ? fresh->unique_points.size() / 3 : n_points, 3);
+    fresh->tree = std::make_unique<FlannTree>(m, flann::KDTreeSingleIndexParams(fresh->leaf_max_size, true));
+    fresh->tree->buildIndex();
+    fresh->recompute = !flann_distance_matches(fresh->points.data(), n_points);
   } catch (const std::exception& e) {
     throw Error(std::string("flann: building KDTreeSingleIndex failed: ") + e.what());
   }
-  set_build_seconds(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+  impl_ = std::move(fresh);  // only once built: a failed update leaves the index as it was
 }
+
+// Updates: a fresh tree over the live points, ids mapped (FLANN's own addPoints rebuilds the tree
+// too once it grows by half, and its removePoint keeps removed points in every search; the wrapper's
+// coincident-point groups are rebuilt with the tree). bench/update_bench.cpp measures the cost.
+void FlannIndex::rebuild_live() {
+  const std::vector<float>& cp = caller_points();
+  std::vector<float> live;
+  std::vector<std::int32_t> ids;
+  live.reserve(3 * size());
+  ids.reserve(size());
+  for (std::size_t i = 0; i < cp.size() / 3; ++i)
+    if (!std::isnan(cp[3 * i])) {
+      live.insert(live.end(), cp.begin() + 3 * i, cp.begin() + 3 * i + 3);
+      ids.push_back(static_cast<std::int32_t>(i));
+    }
+  std::vector<float> storage;
+  const float* pts = to_structure(live.data(), ids.size(), storage);
+  const std::size_t n = ids.size();
+  build_tree(pts, n, std::move(ids));
+}
+
+void FlannIndex::insert_points(const float*, const float*, std::size_t, std::int32_t) { rebuild_live(); }
+void FlannIndex::remove_points(const std::int32_t*, std::size_t) { rebuild_live(); }
 
 FlannIndex::~FlannIndex() = default;
 
@@ -286,7 +322,7 @@ std::size_t FlannIndex::search(const float* queries, std::size_t n, const Search
   const float r2 = std::isinf(params.max_radius) ? std::numeric_limits<float>::infinity()
                                                  : params.max_radius * params.max_radius;
   const float* pts = impl_->points.data();
-  const std::size_t N = size();
+  const std::size_t N = impl_->points.size() / 3;  // stored = live (updates rebuild)
   const int full_row = static_cast<int>(std::min<std::size_t>(N, static_cast<std::size_t>(k)));
   const flann::SearchParams fp(flann::FLANN_CHECKS_UNLIMITED, 0.0f);
   std::atomic<std::size_t> next{0}, nonfinite{0};
@@ -316,7 +352,7 @@ std::size_t FlannIndex::search(const float* queries, std::size_t n, const Search
         }
         const int c = set.size();
         for (int j = 0; j < k; ++j) {
-          row_ids[j] = j < c ? set.id(j) : -1;
+          row_ids[j] = j < c ? impl_->id(set.id(j)) : -1;
           row_d2[j] = j < c ? set.d(j) : std::numeric_limits<float>::infinity();
         }
         counts[qi] = c;
@@ -333,7 +369,7 @@ double FlannIndex::host_radius_search(const float* queries, std::size_t n, float
                                       const RadiusParams&, RadiusResult& out) const {
   auto t0 = std::chrono::steady_clock::now();
   const float* pts = impl_->points.data();
-  const std::size_t N = size();
+  const std::size_t N = impl_->points.size() / 3;
   const flann::SearchParams fp(flann::FLANN_CHECKS_UNLIMITED, 0.0f);
   std::vector<std::vector<std::pair<float, std::int32_t>>> rows(n);
   std::atomic<std::size_t> next{0};
@@ -372,7 +408,7 @@ double FlannIndex::host_radius_search(const float* queries, std::size_t n, float
     std::size_t at = static_cast<std::size_t>(out.offsets[i]);
     for (const auto& [d, id] : rows[i]) {
       out.dist2[at] = d;
-      out.ids[at++] = id;
+      out.ids[at++] = impl_->id(id);
     }
   }
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();

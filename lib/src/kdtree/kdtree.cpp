@@ -6,6 +6,8 @@
 #include <chrono>
 #include <cstddef>
 #include <cstdint>
+#include <cmath>
+#include <cstring>
 #include <map>
 #include <vector>
 
@@ -14,6 +16,7 @@
 #include "core/parallel.hpp"
 #include "kdtree/build.hpp"
 #include "kdtree_layout.h"
+#include "bhcl_shared.h"
 
 // The layout of kernels/kdtree_layout.h as the host writes it.
 static_assert(sizeof(bhcl_kd_node) == 16, "bhcl_kd_node must be 16 bytes");
@@ -186,22 +189,157 @@ KdTreeIndex::KdTreeIndex(std::shared_ptr<Runtime> runtime, const float* points,
   std::vector<float> scaled;
   points = prepare_points(points, n_points, scaled);  // validates; extreme scales
   leaf_size_ = params.leaf_size;
+  build_threads_ = params.build_threads;
+  build_tree(points, n_points, nullptr);
+  set_build_seconds(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+}
+
+void KdTreeIndex::build_tree(const float* points, std::size_t n_points, const std::int32_t* ids) {
+  static_assert(sizeof(HostPoint) == sizeof(bhcl_kd_point) && offsetof(HostPoint, id) == offsetof(bhcl_kd_point, id),
+                "HostPoint mirrors bhcl_kd_point");
   detail::KdTreeArrays tree = detail::build_kdtree(points, n_points, static_cast<std::size_t>(leaf_size_),
-                                                   params.build_threads);
+                                                   build_threads_);
   n_nodes_ = tree.nodes.size();
   n_leaves_ = tree.leaves;
   depth_ = tree.depth;
-
-  std::vector<bhcl_kd_point> reordered(n_points);
+  // w = the point's id: the caller's index, or after updates the stable id (ids ascending in the
+  // input, so ties still go to the lower id).
+  host_points_.resize(n_points);
   detail::parallel_for(n_points, [&](std::size_t b, std::size_t e) {
     for (std::size_t i = b; i < e; ++i) {
       const float* p = points + 3 * std::size_t(tree.perm[i]);
-      reordered[i] = bhcl_kd_point{p[0], p[1], p[2], static_cast<std::int32_t>(tree.perm[i])};
+      const std::int32_t id = ids ? ids[tree.perm[i]] : static_cast<std::int32_t>(tree.perm[i]);
+      host_points_[i] = HostPoint{p[0], p[1], p[2], id};
     }
-  }, params.build_threads, 1 << 16);
+  }, build_threads_, 1 << 16);
   nodes_ = detail::upload_vector(runtime_ptr(), tree.nodes, "kdtree nodes");
-  points_ = detail::upload_vector(runtime_ptr(), reordered, "kdtree points");
-  set_build_seconds(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+  points_ = detail::upload_vector(runtime_ptr(), host_points_, "kdtree points");
+  points_cap_ = std::max<std::size_t>(host_points_.size(), 1) * sizeof(HostPoint);
+  host_nodes_.resize(tree.nodes.size() * 4);
+  std::memcpy(host_nodes_.data(), tree.nodes.data(), tree.nodes.size() * sizeof(bhcl_kd_node));
+  holes_ = 0;
+  built_points_ = n_points;
+  pos_.clear();  // filled by the first remove
+}
+
+// Updates (Index::insert/remove; figures in docs/UPDATES.md). An insert joins the existing leaves
+// (insert_points below) or, past its limits, rebuilds the tree over the live points; a remove
+// turns each point into a hole in place (+inf coordinates, the empty-slot id: never within any
+// bound, never ranked before an empty slot) and rebuilds once holes pass a quarter of the stored
+// points. One tree rather than nanoflann's forest of log2 N trees: a query searches one tree.
+void KdTreeIndex::rebuild_live() {
+  const std::vector<float>& cp = caller_points();
+  const std::size_t bound = cp.size() / 3;
+  std::vector<float> live;
+  std::vector<std::int32_t> ids;
+  live.reserve(3 * size());
+  ids.reserve(size());
+  for (std::size_t i = 0; i < bound; ++i)
+    if (!std::isnan(cp[3 * i])) {
+      live.insert(live.end(), cp.begin() + 3 * i, cp.begin() + 3 * i + 3);
+      ids.push_back(static_cast<std::int32_t>(i));
+    }
+  std::vector<float> storage;
+  const float* pts = to_structure(live.data(), ids.size(), storage);
+  build_tree(pts, ids.size(), ids.data());
+}
+
+// An insert into the existing leaves: the traversal prunes a cell by its distance to the split
+// planes that bound it (kernels/kdtree_knn.cl), a lower bound for any point inside the cell, so a
+// new point may join the leaf whose cell holds it (descending by the splits) without changing
+// any answer's exactness. The points array is laid out again with each leaf's new points behind
+// its old ones (one O(N) pass, holes dropped), the nodes' counts updated. Leaves grow: past 4x the
+// leaf size, or once the set has grown by half since the last build, the tree is rebuilt.
+void KdTreeIndex::insert_points(const float*, const float* scaled, std::size_t m, std::int32_t first) {
+  const bhcl_kd_node* nodes = reinterpret_cast<const bhcl_kd_node*>(host_nodes_.data());
+  const std::size_t n_nodes = host_nodes_.size() / 4;
+  std::vector<std::uint32_t> leaf(m), added(n_nodes, 0);
+  std::size_t biggest = 0;
+  for (std::size_t i = 0; i < m; ++i) {
+    const float* p = scaled + 3 * i;
+    std::uint32_t node = 0;
+    while (nodes[node].dim != BHCL_KD_LEAF) node = p[nodes[node].dim] <= nodes[node].split ? node + 1 : nodes[node].a;
+    leaf[i] = node;
+    biggest = std::max<std::size_t>(biggest, nodes[node].b + ++added[node]);
+  }
+  const std::size_t stored = host_points_.size() - holes_ + m;
+  if (biggest > 4 * std::size_t(leaf_size_) || 2 * stored > 3 * built_points_) {
+    rebuild_live();  // caller_points() already holds the new points
+    ++rebuilds_;
+    return;
+  }
+  // The new points of each leaf, in id order (a counting sort by leaf).
+  std::vector<std::uint32_t> start(n_nodes + 1, 0), order(m);
+  for (std::size_t c = 0; c < n_nodes; ++c) start[c + 1] = start[c] + added[c];
+  {
+    std::vector<std::uint32_t> at(start.begin(), start.end() - 1);
+    for (std::size_t i = 0; i < m; ++i) order[at[leaf[i]]++] = std::uint32_t(i);
+  }
+  // Leaves in depth-first order hold ascending ranges of the points array: one pass lays it out.
+  std::vector<HostPoint> next;
+  next.reserve(stored);
+  bhcl_kd_node* wn = reinterpret_cast<bhcl_kd_node*>(host_nodes_.data());
+  for (std::size_t c = 0; c < n_nodes; ++c) {
+    if (wn[c].dim != BHCL_KD_LEAF) continue;
+    const std::size_t a = next.size();
+    for (std::uint32_t i = wn[c].a; i < wn[c].a + wn[c].b; ++i)
+      if (host_points_[i].id != BHCL_EMPTY_SLOT_ID) next.push_back(host_points_[i]);
+    for (std::uint32_t j = start[c]; j < start[c + 1]; ++j) {
+      const std::uint32_t i = order[j];
+      next.push_back(HostPoint{scaled[3 * i], scaled[3 * i + 1], scaled[3 * i + 2], first + std::int32_t(i)});
+    }
+    wn[c].a = std::uint32_t(a);
+    wn[c].b = std::uint32_t(next.size() - a);
+  }
+  host_points_.swap(next);
+  holes_ = 0;
+  pos_.clear();
+  const auto& rt = runtime_ptr();
+  check_cl(rt->queue().finish(), "clFinish", "kdtree insert");
+  const std::size_t bytes = host_points_.size() * sizeof(HostPoint);
+  if (bytes > points_cap_) {  // capacity grown by half: a growing sequence reallocates rarely
+    const std::size_t cap = std::max(bytes, points_cap_ + points_cap_ / 2);
+    cl_int err = CL_SUCCESS;
+    points_ = cl::Buffer(rt->context(), CL_MEM_READ_ONLY, cap, nullptr, &err);
+    check_cl(err, "clCreateBuffer", "kdtree points, " + std::to_string(cap) + " bytes");
+    points_cap_ = cap;
+  }
+  check_cl(rt->queue().enqueueWriteBuffer(points_, CL_FALSE, 0, bytes, host_points_.data()), "clEnqueueWriteBuffer",
+           "kdtree points (insert)");
+  check_cl(rt->queue().enqueueWriteBuffer(nodes_, CL_TRUE, 0, host_nodes_.size() * 4, host_nodes_.data()),
+           "clEnqueueWriteBuffer", "kdtree nodes (insert)");
+  ++merges_;
+}
+
+void KdTreeIndex::remove_points(const std::int32_t* ids, std::size_t n) {
+  if (4 * (holes_ + n) > host_points_.size()) {
+    rebuild_live();  // caller_points() already holds NaN for these ids
+    ++rebuilds_;
+    return;
+  }
+  if (pos_.empty()) {
+    pos_.assign(std::size_t(id_bound()), -1);
+    for (std::size_t i = 0; i < host_points_.size(); ++i)
+      if (host_points_[i].id != BHCL_EMPTY_SLOT_ID) pos_[std::size_t(host_points_[i].id)] = std::int32_t(i);
+  }
+  pos_.resize(std::size_t(id_bound()), -1);
+  std::vector<std::int32_t> at(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    at[i] = pos_[std::size_t(ids[i])];
+    if (at[i] < 0) throw Error("kdtree: remove: id " + std::to_string(ids[i]) + " is not in the tree (internal)");
+  }
+  const auto& rt = runtime_ptr();
+  check_cl(rt->queue().finish(), "clFinish", "kdtree remove");
+  std::int32_t lo = *std::min_element(at.begin(), at.end()), hi = *std::max_element(at.begin(), at.end());
+  for (std::size_t i = 0; i < n; ++i) {
+    host_points_[std::size_t(at[i])] = HostPoint{INFINITY, INFINITY, INFINITY, BHCL_EMPTY_SLOT_ID};
+    pos_[std::size_t(ids[i])] = -1;
+  }
+  // One write of the span the holes touch (fewer, larger writes beat one per point).
+  check_cl(rt->queue().enqueueWriteBuffer(points_, CL_TRUE, std::size_t(lo) * sizeof(HostPoint),
+                                          std::size_t(hi - lo + 1) * sizeof(HostPoint), host_points_.data() + lo),
+           "clEnqueueWriteBuffer", "kdtree points (remove)");
+  holes_ += n;
 }
 
 cl::Event KdTreeIndex::enqueue_batch(const cl::CommandQueue& queue, const cl::Buffer& queries,

@@ -78,6 +78,37 @@ MultiDeviceIndex::MultiDeviceIndex(std::vector<std::shared_ptr<Runtime>> runtime
   weights_.assign(runtimes.size(), 1.0 / double(runtimes.size()));
 }
 
+// Updates: the first copy checks the input (its errors leave every copy unchanged), then the
+// others follow one by one (the copies' builds differ per device, so each updates its own).
+std::int32_t MultiDeviceIndex::insert(const float* points, std::size_t n) {
+  std::lock_guard<std::mutex> gate(update_gate_);  // writer preference
+  std::unique_lock<std::shared_mutex> lock(update_mutex_);
+  const std::int32_t first = indexes_.front()->insert(points, n);
+  for (std::size_t d = 1; d < indexes_.size(); ++d) {
+    try {
+      if (indexes_[d]->insert(points, n) != first) throw Error("the copies' ids differ");
+    } catch (const std::exception& e) {
+      throw Error("multi-device insert: device " + std::to_string(d) + " (" + indexes_[d]->runtime().info().summary() +
+                  "): " + e.what() + "; the copies now differ, rebuild the index");
+    }
+  }
+  return first;
+}
+
+void MultiDeviceIndex::remove(const std::int32_t* ids, std::size_t n) {
+  std::lock_guard<std::mutex> gate(update_gate_);  // writer preference
+  std::unique_lock<std::shared_mutex> lock(update_mutex_);
+  indexes_.front()->remove(ids, n);
+  for (std::size_t d = 1; d < indexes_.size(); ++d) {
+    try {
+      indexes_[d]->remove(ids, n);
+    } catch (const std::exception& e) {
+      throw Error("multi-device remove: device " + std::to_string(d) + " (" + indexes_[d]->runtime().info().summary() +
+                  "): " + e.what() + "; the copies now differ, rebuild the index");
+    }
+  }
+}
+
 std::vector<double> MultiDeviceIndex::weights() const {
   std::lock_guard<std::mutex> lock(weights_mutex_);
   return weights_;
@@ -126,6 +157,9 @@ void MultiDeviceIndex::learn(const std::vector<std::size_t>& counts, const std::
 
 QueryStats MultiDeviceIndex::query(const float* queries, std::size_t n, const SearchParams& params,
                                    KnnResult& out, std::vector<DeviceShare>* shares) const {
+  std::unique_lock<std::mutex> gate(update_gate_);
+  std::shared_lock<std::shared_mutex> lock(update_mutex_);
+  gate.unlock();
   const std::size_t D = indexes_.size();
   const std::vector<double> w = weights();
   const std::vector<std::size_t> first = split(n);
@@ -162,6 +196,9 @@ QueryStats MultiDeviceIndex::query(const float* queries, std::size_t n, const Se
 QueryStats MultiDeviceIndex::radius_search(const float* queries, std::size_t n, float r,
                                            const RadiusParams& params, RadiusResult& out,
                                            std::vector<DeviceShare>* shares) const {
+  std::unique_lock<std::mutex> gate(update_gate_);
+  std::shared_lock<std::shared_mutex> lock(update_mutex_);
+  gate.unlock();
   const std::size_t D = indexes_.size();
   const std::vector<double> w = weights();
   const std::vector<std::size_t> first = split(n);

@@ -1,0 +1,392 @@
+// Block hashing: points added and removed without a fresh build (issue 23; Index::insert/remove).
+//
+// The grid layout natively, through the Grid's public arrays and build_grid only (the grid's
+// build, its file format and its kernels are unchanged):
+//  - remove: the point becomes a hole in place: x = y = z = +inf, id = BHCL_EMPTY_SLOT_ID. The
+//    kernels need no change: a hole's distance is +inf, never within a finite bound, and
+//    (+inf, 0x7fffffff) never ranks before an empty slot of the top-k list (the same pair), so it
+//    is never returned. Holes still count as examined points of a budget, so past 1/8 of the stored
+//    points they are compacted (one stable pass, in place).
+//  - insert, points inside the grid's box: the B+ tree's leaf insert done in bulk. A counting
+//    sort of the new points alone into the existing cells, then one backward pass over the cells
+//    moving each cell's run right by the new points before it and writing its new points behind
+//    it (in place, O(N) memory moves, no tuning, no sort of the old points). Ids stay ascending
+//    inside a cell (new ids are larger), as a fresh build's stable scatter gives them.
+//  - the leaf split: a cell side tuned for a population (target_cell_points) stops fitting when
+//    the set grows or shrinks; once the point-weighted mean cell population drifts past 1.25x (or
+//    below 0.8x) of the last tuned build's, the grid is rebuilt over the live points with a freshly
+//    tuned side. Growth by doubling keeps the amortised cost per point O(1).
+//  - points outside the grid's box: a full build over the live points with the previous cell side
+//    (the slab bounds, and so the exact mode, rely on every point lying inside its cell).
+//  - device buffers: the changed tail of each array written in place where it fits, reallocated
+//    with capacity grown by half where not (upload_grid).
+// The block layouts (the previous auto and the paper preset) are rebuilt over the live points on
+// every update (their Hilbert blocks and tables have no cheap insert), ids mapped.
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+
+#include "bhcl_shared.h"
+#include "blockhash/build.hpp"
+#include "blockhash_cl/error.hpp"
+#include "core/device_util.hpp"
+
+namespace bhcl {
+namespace {
+
+constexpr std::int32_t kHoleId = BHCL_EMPTY_SLOT_ID;
+// The band of mean cell populations (relative to the tuned side's) an update keeps the cells in:
+// outside it the side is retuned by a full build. Recall at a given A and the query time follow
+// the population (bench/update_bench: 10x the population gave +0.15 recall at A = 2, k = 10, and
+// 0.88x the speed), so the band is narrow; growth by 1.25x per retune still amortises the rebuilds
+// to O(1) per point (10 full builds over a 10x growth).
+constexpr double kRetuneAbove = 1.25, kRetuneBelow = 0.8;
+
+double since(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+std::uint32_t cell_of(const bhcl_grid_geom& g, const float* p) {
+  std::uint32_t cx = bhcl_grid_cell(p[0], g.ox, g.inv_h, g.nx);
+  std::uint32_t cy = bhcl_grid_cell(p[1], g.oy, g.inv_h, g.ny);
+  std::uint32_t cz = bhcl_grid_cell(p[2], g.oz, g.inv_h, g.nz);
+  return (cz * g.ny + cy) * g.nx + cx;
+}
+
+// Inside the grid's box: [o, o + n h] per axis (in double: the last cell's slab ends there; the
+// geometry's margin covers the float rounding of the cell assignment, as for a fresh build's points).
+bool inside(const bhcl_grid_geom& g, const float* p) {
+  const double o[3] = {g.ox, g.oy, g.oz};
+  const double n[3] = {double(g.nx), double(g.ny), double(g.nz)};
+  for (int d = 0; d < 3; ++d)
+    if (!(double(p[d]) >= o[d] && double(p[d]) <= o[d] + n[d] * double(g.h))) return false;
+  return true;
+}
+
+// The update counters survive the full builds an update makes (which reset the build info).
+struct UpdateCounters {
+  std::size_t merges, compactions, update_rebuilds, retunes;
+  double t_update;
+  explicit UpdateCounters(const BlockHashBuildInfo& in)
+      : merges(in.merges), compactions(in.compactions), update_rebuilds(in.update_rebuilds),
+        retunes(in.retunes), t_update(in.t_update) {}
+  void put(BlockHashBuildInfo& in) const {
+    in.merges = merges;
+    in.compactions = compactions;
+    in.update_rebuilds = update_rebuilds;
+    in.retunes = retunes;
+    in.t_update = t_update;
+  }
+};
+
+}  // namespace
+
+void BlockHashIndex::insert_points(const float* points, const float* scaled, std::size_t n, std::int32_t first) {
+  auto t0 = std::chrono::steady_clock::now();
+  if (info_.grid && grid_build_mean_ <= 0) grid_build_mean_ = info_.mean_cell_points;  // the build's
+  check_cl(runtime_ptr()->queue().finish(), "clFinish", "blockhash insert");
+  if (info_.grid) {
+    bool in_box = true;
+    for (std::size_t i = 0; i < n && in_box; ++i) in_box = inside(s_->grid->geom, scaled + 3 * i);
+    if (in_box) grid_insert(scaled, n, first);
+    else grid_rebuild_live(points, n, first, false);
+  } else {
+    blocks_update(points, n, first, nullptr, 0);
+  }
+  {
+    std::lock_guard<std::mutex> lock(tune_mutex_);
+    tuned_.clear();  // a recall tuning belongs to the point set it was measured on
+  }
+  info_.t_update += since(t0);
+}
+
+void BlockHashIndex::remove_points(const std::int32_t* ids, std::size_t n) {
+  auto t0 = std::chrono::steady_clock::now();
+  if (info_.grid && grid_build_mean_ <= 0) grid_build_mean_ = info_.mean_cell_points;  // the build's
+  check_cl(runtime_ptr()->queue().finish(), "clFinish", "blockhash remove");
+  if (info_.grid) grid_remove(ids, n);
+  else blocks_update(nullptr, 0, 0, ids, n);
+  {
+    std::lock_guard<std::mutex> lock(tune_mutex_);
+    tuned_.clear();
+  }
+  info_.t_update += since(t0);
+}
+
+void BlockHashIndex::grid_positions() {
+  const blockhash::Grid& g = *s_->grid;
+  id_pos_.assign(std::size_t(id_bound()), -1);
+  for (std::size_t i = 0; i < g.n_points; ++i)
+    if (g.ids[i] != kHoleId) id_pos_[std::size_t(g.ids[i])] = static_cast<std::int32_t>(i);
+}
+
+void BlockHashIndex::grid_upload_from(std::size_t point_from, std::size_t cell_from) {
+  const blockhash::Grid& g = *s_->grid;
+  const std::size_t pb = g.x.size() * 4, sb = g.starts.size() * 4;
+  if (pb > g_points_cap_ || sb > g_starts_cap_ || !g_x_()) {
+    upload_grid();  // reallocates what no longer fits, capacity grown by half
+    return;
+  }
+  const auto& q = runtime_ptr()->queue();
+  const std::size_t off = point_from * 4, len = pb - off;
+  if (len > 0) {
+    check_cl(q.enqueueWriteBuffer(g_x_, CL_FALSE, off, len, g.x.data() + point_from), "clEnqueueWriteBuffer", "blockhash grid x");
+    check_cl(q.enqueueWriteBuffer(g_y_, CL_FALSE, off, len, g.y.data() + point_from), "clEnqueueWriteBuffer", "blockhash grid y");
+    check_cl(q.enqueueWriteBuffer(g_z_, CL_FALSE, off, len, g.z.data() + point_from), "clEnqueueWriteBuffer", "blockhash grid z");
+    check_cl(q.enqueueWriteBuffer(g_ids_, CL_FALSE, off, len, g.ids.data() + point_from), "clEnqueueWriteBuffer", "blockhash grid ids");
+  }
+  if (cell_from * 4 < sb)
+    check_cl(q.enqueueWriteBuffer(g_starts_, CL_FALSE, cell_from * 4, sb - cell_from * 4, g.starts.data() + cell_from),
+             "clEnqueueWriteBuffer", "blockhash grid cells");
+  check_cl(q.finish(), "clFinish", "blockhash grid update");
+}
+
+void BlockHashIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t first) {
+  blockhash::Grid& g = *s_->grid;
+  if (g.geom.sparse) {
+    // The two-level directory is not merged in place (its segment tables would move): a build
+    // over the live points and the new ones with the same cell side, as for points off the box.
+    std::vector<float> caller(3 * m);
+    for (std::size_t i = 0; i < 3 * m; ++i) caller[i] = std::ldexp(scaled[i], s_->scale_exp);
+    grid_rebuild_live(caller.data(), m, first, false);
+    return;
+  }
+  if (info_.holes) grid_compact();
+  const bhcl_grid_geom& geom = g.geom;
+  const std::size_t nc = g.ncells(), n0 = g.n_points, n1 = n0 + m;
+  // The new points' cells and a counting sort of them alone (stable: ascending ids in a cell).
+  std::vector<std::uint32_t> cell(m), add(nc + 1, 0);
+  for (std::size_t i = 0; i < m; ++i) {
+    cell[i] = cell_of(geom, scaled + 3 * i);
+    ++add[cell[i] + 1];
+  }
+  std::size_t first_cell = nc;
+  double sum2 = 0;
+  std::size_t occupied = 0;
+  for (std::size_t c = 0; c < nc; ++c) {
+    const double v = double(g.starts[c + 1] - g.starts[c]) + add[c + 1];
+    sum2 += v * v;
+    occupied += v > 0 ? 1 : 0;
+    if (add[c + 1] && first_cell == nc) first_cell = c;
+    add[c + 1] += add[c];  // add[c] = new points in cells < c
+  }
+  const double mean = sum2 / double(n1);
+  // The leaf split: the cells have grown too full for the side tuned at the last full build.
+  if (mean > kRetuneAbove * std::max(1.0, grid_build_mean_)) {
+    std::vector<float> caller(3 * m);
+    for (std::size_t i = 0; i < 3 * m; ++i) caller[i] = std::ldexp(scaled[i], s_->scale_exp);
+    grid_rebuild_live(caller.data(), m, first, true);
+    return;
+  }
+  std::vector<std::uint32_t> order(m);
+  {
+    std::vector<std::uint32_t> at(add.begin(), add.end() - 1);
+    for (std::size_t i = 0; i < m; ++i) order[at[cell[i]]++] = static_cast<std::uint32_t>(i);
+  }
+  g.x.resize(n1 + blockhash::kGridPad);
+  g.y.resize(n1 + blockhash::kGridPad);
+  g.z.resize(n1 + blockhash::kGridPad);
+  g.ids.resize(n1 + blockhash::kGridPad);
+  // Backward over the cells: run c moves right by the new points of cells < c (add[c]), its own
+  // new points land behind it. Destinations never lie left of their sources, and every cell right
+  // of c has already moved, so nothing unread is overwritten. Cells before the first receiving
+  // one do not move.
+  std::uint32_t old_end = g.starts[nc];
+  g.starts[nc] = static_cast<std::uint32_t>(n1);
+  for (std::size_t c = nc; c-- > first_cell;) {
+    const std::uint32_t s0 = g.starts[c], s1 = old_end;
+    old_end = s0;
+    const std::uint32_t shift = add[c], k = add[c + 1] - add[c];
+    const std::uint32_t dst = s0 + shift, len = s1 - s0;
+    if (shift && len) {
+      std::memmove(g.x.data() + dst, g.x.data() + s0, len * 4);
+      std::memmove(g.y.data() + dst, g.y.data() + s0, len * 4);
+      std::memmove(g.z.data() + dst, g.z.data() + s0, len * 4);
+      std::memmove(g.ids.data() + dst, g.ids.data() + s0, len * 4);
+    }
+    for (std::uint32_t j = 0; j < k; ++j) {
+      const std::uint32_t i = order[add[c] + j], p = dst + len + j;
+      g.x[p] = scaled[3 * i];
+      g.y[p] = scaled[3 * i + 1];
+      g.z[p] = scaled[3 * i + 2];
+      g.ids[p] = first + static_cast<std::int32_t>(i);
+    }
+    g.starts[c] = dst;
+  }
+  for (std::size_t i = n1; i < n1 + blockhash::kGridPad; ++i) {
+    g.x[i] = g.y[i] = g.z[i] = INFINITY;
+    g.ids[i] = -1;
+  }
+  g.n_points = n1;
+  s_->n_points = n1;
+  const std::size_t p_from = first_cell < nc ? g.starts[first_cell] : n0;
+  if (id_pos_.size() != std::size_t(id_bound())) {
+    if (id_pos_.empty()) grid_positions();
+    else id_pos_.resize(std::size_t(id_bound()), -1);
+  }
+  for (std::size_t i = p_from; i < n1; ++i) id_pos_[std::size_t(g.ids[i])] = static_cast<std::int32_t>(i);
+  grid_upload_from(p_from, first_cell);
+  info_.n_points = n1;
+  info_.occupied_cells = occupied;
+  info_.mean_cell_points = mean;
+  ++info_.merges;
+}
+
+void BlockHashIndex::grid_remove(const std::int32_t* ids, std::size_t n) {
+  blockhash::Grid& g = *s_->grid;
+  if (id_pos_.size() != std::size_t(id_bound())) grid_positions();
+  std::size_t lo = g.n_points, hi = 0;
+  for (std::size_t i = 0; i < n; ++i)
+    if (id_pos_[std::size_t(ids[i])] < 0)
+      throw Error("blockhash: remove: id " + std::to_string(ids[i]) + " is not stored (internal)");
+  for (std::size_t i = 0; i < n; ++i) {
+    const std::size_t p = std::size_t(id_pos_[std::size_t(ids[i])]);
+    g.x[p] = g.y[p] = g.z[p] = INFINITY;
+    g.ids[p] = kHoleId;
+    id_pos_[std::size_t(ids[i])] = -1;
+    lo = std::min(lo, p);
+    hi = std::max(hi, p);
+  }
+  info_.holes += n;
+  if (8 * info_.holes > g.n_points) {
+    grid_compact();
+    // Too few points per cell for the tuned side: the leaf merge, a rebuild with a fresh side.
+    if (info_.mean_cell_points < kRetuneBelow * grid_build_mean_) grid_rebuild_live(nullptr, 0, 0, true);
+    return;
+  }
+  // The holes in place: one write per array of the span they touch.
+  const auto& q = runtime_ptr()->queue();
+  const std::size_t off = lo * 4, len = (hi - lo + 1) * 4;
+  check_cl(q.enqueueWriteBuffer(g_x_, CL_FALSE, off, len, g.x.data() + lo), "clEnqueueWriteBuffer", "blockhash grid x");
+  check_cl(q.enqueueWriteBuffer(g_y_, CL_FALSE, off, len, g.y.data() + lo), "clEnqueueWriteBuffer", "blockhash grid y");
+  check_cl(q.enqueueWriteBuffer(g_z_, CL_FALSE, off, len, g.z.data() + lo), "clEnqueueWriteBuffer", "blockhash grid z");
+  check_cl(q.enqueueWriteBuffer(g_ids_, CL_FALSE, off, len, g.ids.data() + lo), "clEnqueueWriteBuffer", "blockhash grid ids");
+  check_cl(q.finish(), "clFinish", "blockhash grid remove");
+}
+
+void BlockHashIndex::grid_compact() {
+  blockhash::Grid& g = *s_->grid;
+  if (g.geom.sparse) {  // the two-level directory: rebuilt over the live points, same side
+    grid_rebuild_live(nullptr, 0, 0, false);
+    info_.holes = 0;
+    ++info_.compactions;
+    return;
+  }
+  const std::size_t nc = g.ncells();
+  std::size_t w = 0, first_moved = g.n_points;
+  double sum2 = 0;
+  std::size_t occupied = 0;
+  for (std::size_t c = 0; c < nc; ++c) {
+    const std::uint32_t s0 = g.starts[c], s1 = g.starts[c + 1];
+    g.starts[c] = static_cast<std::uint32_t>(w);
+    const std::size_t w0 = w;
+    for (std::uint32_t i = s0; i < s1; ++i) {
+      if (g.ids[i] == kHoleId) {
+        first_moved = std::min<std::size_t>(first_moved, i);
+        continue;
+      }
+      if (w != i) {
+        g.x[w] = g.x[i];
+        g.y[w] = g.y[i];
+        g.z[w] = g.z[i];
+        g.ids[w] = g.ids[i];
+      }
+      ++w;
+    }
+    const double v = double(w - w0);
+    sum2 += v * v;
+    occupied += w > w0 ? 1 : 0;
+  }
+  g.starts[nc] = static_cast<std::uint32_t>(w);
+  g.x.resize(w + blockhash::kGridPad);
+  g.y.resize(w + blockhash::kGridPad);
+  g.z.resize(w + blockhash::kGridPad);
+  g.ids.resize(w + blockhash::kGridPad);
+  for (std::size_t i = w; i < w + blockhash::kGridPad; ++i) {
+    g.x[i] = g.y[i] = g.z[i] = INFINITY;
+    g.ids[i] = -1;
+  }
+  g.n_points = w;
+  s_->n_points = w;
+  info_.n_points = w;
+  info_.holes = 0;
+  info_.occupied_cells = occupied;
+  info_.mean_cell_points = w ? sum2 / double(w) : 0;
+  ++info_.compactions;
+  if (id_pos_.size() != std::size_t(id_bound())) grid_positions();
+  else
+    for (std::size_t i = std::min(first_moved, w); i < w; ++i) id_pos_[std::size_t(g.ids[i])] = static_cast<std::int32_t>(i);
+  // The cell table changes from the first cell holding a hole on; simplest to write it whole.
+  grid_upload_from(std::min(first_moved, w), 0);
+}
+
+void BlockHashIndex::live_points(std::vector<float>& xyz, std::vector<std::int32_t>& ids) const {
+  xyz = indexed_points(&ids);
+}
+
+void BlockHashIndex::grid_rebuild_live(const float* extra, std::size_t m, std::int32_t first, bool retune) {
+  std::vector<float> pts;
+  std::vector<std::int32_t> ids;
+  live_points(pts, ids);
+  pts.insert(pts.end(), extra, extra + 3 * m);
+  for (std::size_t i = 0; i < m; ++i) ids.push_back(first + static_cast<std::int32_t>(i));
+  const UpdateCounters keep(info_);
+  // A fresh side (-1: tuned from a sample, as a fresh build) or the previous one (caller units).
+  build_grid_layout(pts.data(), ids.size(), retune ? -1.0 : info_.cell_size);
+  blockhash::Grid& g = *s_->grid;
+  // build_grid numbers the points 0 .. n - 1 in the order given (ascending ids): their ids.
+  for (std::size_t i = 0; i < g.n_points; ++i) g.ids[i] = ids[std::size_t(g.ids[i])];
+  check_cl(runtime_ptr()->queue().enqueueWriteBuffer(g_ids_, CL_TRUE, 0, g.ids.size() * 4, g.ids.data()),
+           "clEnqueueWriteBuffer", "blockhash grid ids");
+  keep.put(info_);
+  ++info_.update_rebuilds;
+  if (retune) ++info_.retunes;
+  // The reference population is that of a tuned side (the first build's or a retune's): a rebuild
+  // that kept the side must not move it, or growth by small steps would never retune.
+  if (retune) grid_build_mean_ = info_.mean_cell_points;
+  grid_positions();
+}
+
+void BlockHashIndex::blocks_update(const float* points, std::size_t n, std::int32_t first,
+                                   const std::int32_t* removed, std::size_t n_removed) {
+  std::vector<float> pts, kept;
+  std::vector<std::int32_t> ids, kept_ids;
+  live_points(pts, ids);
+  if (n_removed) {  // removed: ascending, as ids
+    kept.reserve(pts.size());
+    std::size_t j = 0;
+    for (std::size_t i = 0; i < ids.size(); ++i) {
+      while (j < n_removed && removed[j] < ids[i]) ++j;
+      if (j < n_removed && removed[j] == ids[i]) continue;
+      kept.insert(kept.end(), pts.begin() + 3 * i, pts.begin() + 3 * i + 3);
+      kept_ids.push_back(ids[i]);
+    }
+    pts.swap(kept);
+    ids.swap(kept_ids);
+  }
+  pts.insert(pts.end(), points, points + 3 * n);
+  for (std::size_t i = 0; i < n; ++i) ids.push_back(first + static_cast<std::int32_t>(i));
+  const UpdateCounters keep(info_);
+  auto fresh = std::make_unique<blockhash::Structure>();
+  std::swap(s_, fresh);
+  try {
+    build_blocks(pts.data(), ids.size());
+  } catch (...) {
+    std::swap(s_, fresh);
+    upload();
+    throw;
+  }
+  // The build numbers the points 0 .. n - 1 in the order given (ascending ids): their ids, in the
+  // blocks the kernels read and in the order a reference query and a save read.
+  blockhash::Structure& s = *s_;
+  for (auto& o : s.order) o = ids[std::size_t(o)];
+  for (std::size_t b = 0; b < s.blocks.size(); ++b)
+    for (std::int32_t j = 0; j < s.boxes[b].count; ++j) s.blocks[b].id[j] = ids[std::size_t(s.blocks[b].id[j])];
+  upload();
+  keep.put(info_);
+  ++info_.update_rebuilds;
+  s.info = info_;
+}
+
+}  // namespace bhcl

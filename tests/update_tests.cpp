@@ -1,0 +1,366 @@
+// Points added and removed without a fresh build (Index::insert / Index::remove, issue 23).
+// Every method after random sequences of inserts and removes against a fresh build over the live
+// points (ids mapped to the stable ones): exact methods and block hashing's exact grid mode bit for
+// bit, the block layouts equal to a fresh build of theirs; removed ids never returned; the errors
+// for bad input; queries concurrent with updates; save and load after updates.
+#include <atomic>
+#include <map>
+#include <random>
+#include <thread>
+
+#include "blockhash/build.hpp"
+#include "blockhash_cl/blockhash.hpp"
+#include "blockhash_cl/bruteforce.hpp"
+#include "blockhash_cl/kdtree.hpp"
+#include "blockhash_cl/multi_device.hpp"
+#include "test_util.hpp"
+
+using namespace bhcl;
+
+namespace {
+
+// The live point set the index should hold: id -> point, ascending ids.
+struct Model {
+  std::map<std::int32_t, std::array<float, 3>> live;
+  std::int32_t next = 0;
+  void add(const std::vector<float>& p) {
+    for (std::size_t i = 0; i < p.size() / 3; ++i) live[next++] = {p[3 * i], p[3 * i + 1], p[3 * i + 2]};
+  }
+  std::vector<float> points(std::vector<std::int32_t>& ids) const {
+    std::vector<float> out;
+    ids.clear();
+    for (const auto& [id, p] : live) {
+      out.insert(out.end(), p.begin(), p.end());
+      ids.push_back(id);
+    }
+    return out;
+  }
+};
+
+std::vector<float> uniform(std::mt19937_64& rng, std::size_t n, float lo, float hi) {
+  std::uniform_real_distribution<float> u(lo, hi);
+  std::vector<float> p(3 * n);
+  for (auto& v : p) v = u(rng);
+  return p;
+}
+
+// A fresh brute force over the model's live points, ids mapped to the stable ones.
+KnnResult fresh_answer(const Model& m, const std::vector<float>& qs, const SearchParams& sp) {
+  std::vector<std::int32_t> ids;
+  std::vector<float> pts = m.points(ids);
+  BruteForceIndex bf(test::runtime(), pts.data(), ids.size());
+  KnnResult r = bf.query(qs, sp);
+  for (auto& id : r.ids)
+    if (id >= 0) id = ids[std::size_t(id)];
+  return r;
+}
+
+void require_no_removed(const KnnResult& r, const Model& m) {
+  for (std::int32_t id : r.ids)
+    if (id >= 0) REQUIRE_MESSAGE(m.live.count(id), "id " << id << " is not live");
+}
+
+// One random step on index and model: an insert (some points outside the current box) or a
+// remove of random live ids.
+void random_step(Index& ix, Model& m, std::mt19937_64& rng, std::size_t step) {
+  if (step % 3 != 2) {
+    const std::size_t n = 1 + rng() % 300;
+    const float spread = step % 4 == 1 ? 1.6f : 1.0f;  // now and then past the box
+    std::vector<float> p = uniform(rng, n, -0.3f * spread, spread);
+    const std::int32_t first = ix.insert(p.data(), n);
+    REQUIRE(first == m.next);
+    m.add(p);
+  } else {
+    std::vector<std::int32_t> all;
+    for (const auto& kv : m.live) all.push_back(kv.first);
+    std::shuffle(all.begin(), all.end(), rng);
+    all.resize(std::min<std::size_t>(all.size() - 1, 1 + rng() % 400));
+    ix.remove(all.data(), all.size());
+    for (std::int32_t id : all) m.live.erase(id);
+  }
+  REQUIRE(ix.size() == m.live.size());
+  REQUIRE(ix.id_bound() == m.next);
+}
+
+void check_exact(const Index& ix, const Model& m, std::mt19937_64& rng) {
+  std::vector<float> qs = uniform(rng, 150, -0.5f, 1.7f);
+  for (const auto& kv : m.live)  // queries on live points: distance-0 ties
+    if (rng() % 64 == 0) qs.insert(qs.end(), kv.second.begin(), kv.second.end());
+  for (int k : {1, 10, 33}) {
+    for (float r : {INFINITY, 0.08f}) {
+      SearchParams sp;
+      sp.k = k;
+      sp.max_radius = r;
+      KnnResult got = ix.query(qs, sp);
+      require_no_removed(got, m);
+      test::require_identical(got, fresh_answer(m, qs, sp), ix.method() + " k " + std::to_string(k));
+    }
+  }
+  // Radius search: the live points within r, stable ids.
+  RadiusResult rr;
+  ix.radius_search(qs.data(), qs.size() / 3, 0.1f, RadiusParams{}, rr);
+  for (std::size_t q = 0; q < rr.n; ++q)
+    for (std::int64_t j = rr.offsets[q]; j < rr.offsets[q + 1]; ++j) {
+      const std::int32_t id = rr.ids[std::size_t(j)];
+      REQUIRE(m.live.count(id));
+    }
+  std::size_t expect = 0;
+  for (std::size_t q = 0; q < qs.size() / 3; ++q)
+    for (const auto& kv : m.live) {
+      float d = 0;
+      for (int a = 0; a < 3; ++a) d += (qs[3 * q + a] - kv.second[a]) * (qs[3 * q + a] - kv.second[a]);
+      expect += d <= 0.1f * 0.1f ? 1 : 0;
+    }
+  REQUIRE(rr.total() == expect);
+}
+
+}  // namespace
+
+TEST_CASE("updates: exact methods after random inserts and removes equal a fresh build") {
+  for (const auto& method : exact_method_names()) {
+    CAPTURE(method);
+    std::mt19937_64 rng(7);
+    Model m;
+    std::vector<float> p0 = uniform(rng, 1500, 0.0f, 1.0f);
+    auto ix = make_index(method, test::runtime(), p0.data(), 1500);
+    m.add(p0);
+    for (std::size_t step = 0; step < 9; ++step) {
+      CAPTURE(step);
+      random_step(*ix, m, rng, step);
+      check_exact(*ix, m, rng);
+    }
+    REQUIRE(!ix->contains(-1));
+    REQUIRE(!ix->contains(m.next));
+  }
+}
+
+TEST_CASE("updates: block hashing's grid (exact mode) after random inserts and removes") {
+  std::mt19937_64 rng(11);
+  Model m;
+  std::vector<float> p0 = uniform(rng, 2000, 0.0f, 1.0f);
+  BlockHashIndex ix(test::runtime(), p0.data(), 2000);
+  REQUIRE(ix.info().grid);
+  m.add(p0);
+  for (std::size_t step = 0; step < 12; ++step) {
+    CAPTURE(step);
+    random_step(ix, m, rng, step);
+    check_exact(ix, m, rng);  // A = 0: the grid's exact mode
+    // The host reference sees the same arrays as the kernel.
+    std::vector<float> qs = uniform(rng, 64, 0.0f, 1.0f);
+    SearchParams sp;
+    sp.k = 8;
+    sp.A = 2;
+    KnnResult dev = ix.query(qs, sp), ref = ix.reference_query(qs.data(), 64, sp);
+    require_no_removed(dev, m);
+    test::require_identical(dev, ref, "grid budget A = 2, kernel vs reference");
+  }
+  // A growth past twice the tuned population retunes; removes past 1/8 holes compact.
+  std::vector<float> big = uniform(rng, 6000, 0.0f, 1.0f);
+  ix.insert(big.data(), 6000);
+  m.add(big);
+  check_exact(ix, m, rng);
+  const BlockHashBuildInfo& in = ix.info();
+  MESSAGE("merges " << in.merges << " compactions " << in.compactions << " rebuilds " << in.update_rebuilds
+                    << " retunes " << in.retunes << " holes " << in.holes);
+  CHECK(in.merges > 0);
+  CHECK(in.compactions > 0);
+  CHECK(in.update_rebuilds > 0);
+  CHECK(in.retunes > 0);
+  // A few removes stay holes in place (no compaction) and are still never returned.
+  std::vector<std::int32_t> few;
+  for (const auto& kv : m.live)
+    if (few.size() < 5) few.push_back(kv.first);
+  const std::size_t compactions = in.compactions;
+  ix.remove(few.data(), few.size());
+  for (std::int32_t id : few) m.live.erase(id);
+  CHECK(ix.info().holes == 5);
+  CHECK(ix.info().compactions == compactions);
+  check_exact(ix, m, rng);
+}
+
+TEST_CASE("updates: block hashing's two-level grid directory after random inserts and removes") {
+  std::mt19937_64 rng(12);
+  Model m;
+  std::vector<float> p0 = uniform(rng, 2000, 0.0f, 1.0f);
+  BlockHashBuildParams bp;
+  bp.grid_directory = 1;  // updates rebuild it over the live points (no in-place merge)
+  BlockHashIndex ix(test::runtime(), p0.data(), 2000, bp);
+  REQUIRE(ix.info().grid_two_level);
+  m.add(p0);
+  for (std::size_t step = 0; step < 8; ++step) {
+    CAPTURE(step);
+    random_step(ix, m, rng, step);
+    REQUIRE(ix.info().grid_two_level);
+    check_exact(ix, m, rng);
+    std::vector<float> qs = uniform(rng, 64, 0.0f, 1.0f);
+    SearchParams sp;
+    sp.k = 8;
+    sp.A = 2;
+    KnnResult dev = ix.query(qs, sp), ref = ix.reference_query(qs.data(), 64, sp);
+    require_no_removed(dev, m);
+    test::require_identical(dev, ref, "two-level grid A = 2, kernel vs reference");
+  }
+}
+
+TEST_CASE("updates: block hashing's block layouts equal a fresh build over the live points") {
+  for (int preset = 0; preset < 2; ++preset) {
+    CAPTURE(preset);
+    BlockHashBuildParams bp;
+    if (preset == 0) bp.cell_aligned = 1;
+    else bp.preset = BlockHashBuildParams::Preset::Paper;
+    std::mt19937_64 rng(5);
+    Model m;
+    std::vector<float> p0 = uniform(rng, 1200, 0.0f, 1.0f);
+    BlockHashIndex ix(test::runtime(), p0.data(), 1200, bp);
+    REQUIRE(!ix.info().grid);
+    m.add(p0);
+    for (std::size_t step = 0; step < 4; ++step) {
+      random_step(ix, m, rng, step);
+      std::vector<std::int32_t> ids;
+      std::vector<float> pts = m.points(ids);
+      BlockHashIndex fresh(test::runtime(), pts.data(), ids.size(), bp);
+      std::vector<float> qs = uniform(rng, 100, 0.0f, 1.0f);
+      SearchParams sp;
+      sp.k = 10;
+      KnnResult want = fresh.query(qs, sp), got = ix.query(qs, sp);
+      for (auto& id : want.ids)
+        if (id >= 0) id = ids[std::size_t(id)];
+      require_no_removed(got, m);
+      test::require_identical(got, want, "block layout after updates");
+    }
+    CHECK(ix.info().update_rebuilds == 4);
+  }
+}
+
+TEST_CASE("updates: bad input is refused, naming what and where, the index unchanged") {
+  for (const auto& method : method_names()) {
+    CAPTURE(method);
+    std::mt19937_64 rng(3);
+    std::vector<float> p0 = uniform(rng, 100, 0.0f, 1.0f);
+    auto ix = make_index(method, test::runtime(), p0.data(), 100);
+    std::vector<float> bad = {0.5f, 0.5f, 0.5f, 0.1f, NAN, 0.2f};
+    CHECK_THROWS_WITH_AS(ix->insert(bad.data(), 2), doctest::Contains("inserted points"), Error);
+    CHECK_THROWS_WITH_AS(ix->insert(bad.data(), 0), doctest::Contains("no points"), Error);
+    std::int32_t out[] = {3, 100};
+    CHECK_THROWS_WITH_AS(ix->remove(out, 2), doctest::Contains("id 100 (entry 1) is outside"), Error);
+    std::int32_t neg[] = {-1};
+    CHECK_THROWS_WITH_AS(ix->remove(neg, 1), doctest::Contains("outside"), Error);
+    std::int32_t dup[] = {4, 7, 4};
+    CHECK_THROWS_WITH_AS(ix->remove(dup, 3), doctest::Contains("id 4 appears twice (entries 0 and 2)"), Error);
+    REQUIRE(ix->size() == 100);
+    std::int32_t one[] = {7};
+    ix->remove(one, 1);
+    CHECK_THROWS_WITH_AS(ix->remove(one, 1), doctest::Contains("id 7 (entry 0) was already removed"), Error);
+    std::vector<std::int32_t> all;
+    for (std::int32_t i = 0; i < 100; ++i)
+      if (i != 7) all.push_back(i);
+    CHECK_THROWS_WITH_AS(ix->remove(all.data(), all.size()), doctest::Contains("empty"), Error);
+    REQUIRE(ix->size() == 99);
+    REQUIRE(!ix->contains(7));
+    REQUIRE(ix->contains(8));
+    REQUIRE(ix->insert(p0.data(), 1) == 100);  // ids never reused
+    REQUIRE(ix->size() == 100);
+  }
+}
+
+TEST_CASE("updates: queries concurrent with inserts and removes see one state or the next") {
+  for (const std::string method : {"kdtree", "blockhash"}) {
+    CAPTURE(method);
+    std::mt19937_64 rng(21);
+    Model m;
+    std::vector<float> p0 = uniform(rng, 3000, 0.0f, 1.0f);
+    auto ix = make_index(method, test::runtime(), p0.data(), 3000);
+    m.add(p0);
+    const std::vector<float> qs = uniform(rng, 200, 0.0f, 1.0f);
+    SearchParams sp;
+    sp.k = 5;
+    // The answers of every state the sequence passes through, computed beforehand.
+    struct Step {
+      std::vector<float> add;
+      std::vector<std::int32_t> drop;
+    };
+    std::vector<Step> steps;
+    std::vector<KnnResult> states{fresh_answer(m, qs, sp)};
+    Model sim = m;
+    for (int s = 0; s < 8; ++s) {
+      Step st;
+      if (s % 2 == 0) {
+        st.add = uniform(rng, 200, 0.0f, 1.0f);
+        sim.add(st.add);
+      } else {
+        for (const auto& kv : sim.live)
+          if (rng() % 10 == 0) st.drop.push_back(kv.first);
+        for (std::int32_t id : st.drop) sim.live.erase(id);
+      }
+      steps.push_back(st);
+      states.push_back(fresh_answer(sim, qs, sp));
+    }
+    std::atomic<bool> done{false};
+    std::atomic<int> mismatches{0}, answered{0};
+    auto reader = [&]() {
+      while (!done.load()) {
+        KnnResult r = ix->query(qs, sp);
+        bool any = false;
+        for (const auto& s : states) any = any || (r.ids == s.ids && r.dist2 == s.dist2 && r.counts == s.counts);
+        if (!any) ++mismatches;
+        ++answered;
+      }
+    };
+    std::thread t1(reader), t2(reader);
+    for (const auto& st : steps) {
+      if (!st.add.empty()) ix->insert(st.add.data(), st.add.size() / 3);
+      else ix->remove(st.drop.data(), st.drop.size());
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
+    done = true;
+    t1.join();
+    t2.join();
+    MESSAGE(method << ": " << answered.load() << " concurrent queries");
+    CHECK(mismatches.load() == 0);
+    CHECK(answered.load() > 0);
+    KnnResult last = ix->query(qs, sp);
+    test::require_identical(last, states.back(), "after the sequence");
+  }
+}
+
+TEST_CASE("updates: the multi-device index updates every replica") {
+  std::mt19937_64 rng(9);
+  Model m;
+  std::vector<float> p0 = uniform(rng, 800, 0.0f, 1.0f);
+  MultiDeviceIndex md({test::runtime(), test::runtime()}, "kdtree", p0.data(), 800);
+  m.add(p0);
+  std::vector<float> add = uniform(rng, 100, 0.0f, 1.2f);
+  REQUIRE(md.insert(add.data(), 100) == 800);
+  m.add(add);
+  std::vector<std::int32_t> drop = {0, 5, 850};
+  md.remove(drop.data(), drop.size());
+  for (std::int32_t id : drop) m.live.erase(id);
+  REQUIRE(md.size() == m.live.size());
+  std::vector<float> qs = uniform(rng, 300, 0.0f, 1.0f);
+  SearchParams sp;
+  sp.k = 7;
+  KnnResult r;
+  md.query(qs.data(), 300, sp, r);
+  test::require_identical(r, fresh_answer(m, qs, sp), "multi-device after updates");
+}
+
+TEST_CASE("updates: block hashing saved and loaded after inserts, a save after removes refused") {
+  std::mt19937_64 rng(13);
+  std::vector<float> p0 = uniform(rng, 1000, 0.0f, 1.0f);
+  BlockHashIndex ix(test::runtime(), p0.data(), 1000);
+  std::vector<float> add = uniform(rng, 300, 0.0f, 1.0f);
+  ix.insert(add.data(), 300);
+  const std::string path = test::tmp_path("update_grid.bhcl");
+  ix.save(path);
+  auto loaded = BlockHashIndex::load(test::runtime(), path);
+  REQUIRE(loaded->size() == 1300);
+  REQUIRE(loaded->id_bound() == 1300);
+  std::vector<float> qs = uniform(rng, 100, 0.0f, 1.0f);
+  SearchParams sp;
+  sp.k = 10;
+  sp.A = 3;
+  test::require_identical(loaded->query(qs, sp), ix.query(qs, sp), "loaded after inserts");
+  std::int32_t drop[] = {2, 1200};
+  ix.remove(drop, 2);
+  CHECK_THROWS_WITH_AS(ix.save(path), doctest::Contains("had points removed"), Error);
+}
