@@ -265,11 +265,14 @@ void set_radius_option(bhcl::RadiusParams& p, const std::string& method, const s
 // Host memory an index keeps beyond Index::memory_bytes (the device structure of a device
 // method; all of a host method's memory): block hashing's host copy of its structure, and an
 // exact device method's copy of the caller's points (the contract's double-precision fallback
-// reads it, 12 B per point). On PoCL both are the process's memory, which is what a Python user
+// reads it, 12 B per point) and its host mirror of the device arrays. On PoCL both are the process's memory, which is what a Python user
 // measures.
 std::size_t host_bytes(const bhcl::Index& index) {
   if (const auto* bh = dynamic_cast<const bhcl::BlockHashIndex*>(&index)) return bh->host_bytes();
-  if (index.exact() && bhcl::method_info(index.method()).on_device) return index.size() * 3 * sizeof(float);
+  // An exact device method also keeps a host mirror of its device arrays, for insert/remove
+  // (KdTreeIndex::host_points_ and host_nodes_, BruteForceIndex::host_): memory_bytes() again.
+  if (index.exact() && bhcl::method_info(index.method()).on_device)
+    return index.size() * 3 * sizeof(float) + index.memory_bytes();
   return 0;
 }
 

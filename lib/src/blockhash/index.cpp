@@ -439,7 +439,13 @@ std::size_t BlockHashIndex::memory_bytes() const {
 std::size_t BlockHashIndex::host_bytes() const {
   // The grid's host vectors mirror its device arrays one for one; a block layout keeps its
   // structure's arrays and the Hilbert order (the cell table lives on the device only).
-  if (s_->grid) return s_->grid->device_bytes();
+  // The grid also keeps its build scratch (cells, records: 24 B per point) for rebuilds.
+  if (s_->grid) {
+    const blockhash::Grid& g = *s_->grid;
+    std::size_t scratch = 0;
+    if (g.scratch) scratch = g.scratch->cell.capacity() * 4 + g.scratch->rec.capacity() * 4 + g.scratch->rec_cell.capacity() * 4;
+    return g.device_bytes() + scratch;
+  }
   return s_->device_bytes() + s_->order.size() * sizeof(std::int32_t);
 }
 
