@@ -134,6 +134,18 @@ TEST_CASE("updates: exact methods after random inserts and removes equal a fresh
   }
 }
 
+// 64 random queries at A = 2: the kernel equals the host reference and returns no removed id.
+template <typename Rng>
+void budget_kernel_equals_reference(const BlockHashIndex& ix, const Model& m, Rng& rng, const char* what) {
+  std::vector<float> qs = uniform(rng, 64, 0.0f, 1.0f);
+  SearchParams sp;
+  sp.k = 8;
+  sp.A = 2;
+  KnnResult dev = ix.query(qs, sp), ref = ix.reference_query(qs.data(), 64, sp);
+  require_no_removed(dev, m);
+  test::require_identical(dev, ref, what);
+}
+
 TEST_CASE("updates: block hashing's grid (exact mode) after random inserts and removes") {
   std::mt19937_64 rng(11);
   Model m;
@@ -146,13 +158,7 @@ TEST_CASE("updates: block hashing's grid (exact mode) after random inserts and r
     random_step(ix, m, rng, step);
     check_exact(ix, m, rng);  // A = 0: the grid's exact mode
     // The host reference sees the same arrays as the kernel.
-    std::vector<float> qs = uniform(rng, 64, 0.0f, 1.0f);
-    SearchParams sp;
-    sp.k = 8;
-    sp.A = 2;
-    KnnResult dev = ix.query(qs, sp), ref = ix.reference_query(qs.data(), 64, sp);
-    require_no_removed(dev, m);
-    test::require_identical(dev, ref, "grid budget A = 2, kernel vs reference");
+    budget_kernel_equals_reference(ix, m, rng, "grid budget A = 2, kernel vs reference");
   }
   // A growth past twice the tuned population retunes; removes past 1/8 holes compact.
   std::vector<float> big = uniform(rng, 6000, 0.0f, 1.0f);
@@ -192,13 +198,7 @@ TEST_CASE("updates: block hashing's two-level grid directory after random insert
     random_step(ix, m, rng, step);
     REQUIRE(ix.info().grid_two_level);
     check_exact(ix, m, rng);
-    std::vector<float> qs = uniform(rng, 64, 0.0f, 1.0f);
-    SearchParams sp;
-    sp.k = 8;
-    sp.A = 2;
-    KnnResult dev = ix.query(qs, sp), ref = ix.reference_query(qs.data(), 64, sp);
-    require_no_removed(dev, m);
-    test::require_identical(dev, ref, "two-level grid A = 2, kernel vs reference");
+    budget_kernel_equals_reference(ix, m, rng, "two-level grid A = 2, kernel vs reference");
   }
 }
 
