@@ -381,13 +381,27 @@ void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid&
         }
       }
     }
-    for (std::uint32_t r = rb; r < re; ++r) {
-      const std::uint32_t k = cnt[local(sc.rec_cell[r])]++;
-      const float* rr = sc.rec.data() + 4 * std::size_t(r);
-      g.x[k] = rr[0];
-      g.y[k] = rr[1];
-      g.z[k] = rr[2];
-      std::memcpy(&g.ids[k], rr + 3, 4);
+    // The arrays' pointers in locals: through the vectors, every store (which may alias them, as
+    // far as the compiler knows) reloaded the four data pointers and the thread-local ranks.
+    {
+      float* const X = g.x.data();
+      float* const Y = g.y.data();
+      float* const Z = g.z.data();
+      std::int32_t* const I = g.ids.data();
+      const std::uint32_t* const rc = sc.rec_cell.data();
+      const float* const rec = sc.rec.data();
+      const std::uint32_t* const rank = sparse ? ws.rank.data() : nullptr;
+      for (std::uint32_t r = rb; r < re; ++r) {
+        const std::uint32_t c = rc[r];
+        const std::uint32_t lc = sparse ? (rank[(c - c0) >> BHCL_GRID_SEG_BITS] << BHCL_GRID_SEG_BITS) | (c & (kSeg - 1u))
+                                        : c - static_cast<std::uint32_t>(c0);
+        const std::uint32_t k = cnt[lc]++;
+        const float* rr = rec + 4 * std::size_t(r);
+        X[k] = rr[0];
+        Y[k] = rr[1];
+        Z[k] = rr[2];
+        std::memcpy(I + k, rr + 3, 4);
+      }
     }
     // Clear what this bucket touched: every count it used became a write position.
     std::fill(cnt, cnt + (sparse ? std::size_t(nocc) * kSeg : c1 - c0), 0u);
