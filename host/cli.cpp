@@ -152,6 +152,14 @@ Json stats_header(const std::string& command, const Runtime& rt) {
   return j;
 }
 
+void add_image_fields(Json& j, const Args& args, const std::string& scene, int width, int height, int spp) {
+  j["scene"] = scene;
+  j["scene_arg"] = args.str("scene", "cornell");
+  j["width"] = width;
+  j["height"] = height;
+  j["spp"] = spp;
+}
+
 void add_query_stats(Json& j, const Index& index, const QueryStats& st) {
   j["build_s"] = index.build_seconds();
   j["compile_s"] = st.compile_s;
@@ -330,18 +338,6 @@ void check_method_options(const Args& args, const std::vector<std::string>& meth
   }
 }
 
-namespace {
-// The stats of one slice of a sliced call added to the call's (wall time is the caller's).
-void add_slice_stats(QueryStats& total, const QueryStats& s) {
-  total.nonfinite_queries += s.nonfinite_queries;
-  total.batches += s.batches;
-  total.compile_s += s.compile_s;
-  total.upload_s += s.upload_s;
-  total.query_s += s.query_s;
-  total.download_s += s.download_s;
-}
-}  // namespace
-
 RadiusParams radius_search_options(const Args& args, const std::vector<std::string>& methods, float& radius) {
   for (const char* o : {"k", "max-radius"})
     if (args.has(o)) throw UsageError(std::string("--") + o + " does not apply with --radius");
@@ -385,14 +381,8 @@ QueryStats radius_with_progress(const Index& index, const std::vector<float>& qu
   for (std::size_t first = 0; first < n || first == 0; first += slice) {
     const std::size_t m = std::min(slice, n - first);
     QueryStats s = index.radius_search(queries.data() + 3 * first, m, radius, params, part);
-    const std::int64_t base = all.offsets.back();
-    for (std::size_t i = 1; i <= m; ++i) all.offsets.push_back(base + part.offsets[i]);
-    all.ids.insert(all.ids.end(), part.ids.begin(), part.ids.end());
-    all.dist2.insert(all.dist2.end(), part.dist2.begin(), part.dist2.end());
-    all.found.insert(all.found.end(), part.found.begin(), part.found.end());
-    all.examined.insert(all.examined.end(), part.examined.begin(), part.examined.end());
-    all.truncated_queries += part.truncated_queries;
-    add_slice_stats(st, s);
+    all.append(part);
+    st.add_slice(s);
     bar.update(double(first + m) / double(std::max<std::size_t>(n, 1)));
     if (n == 0) break;
   }
@@ -441,7 +431,7 @@ QueryStats query_with_progress(const Index& index, const std::vector<float>& que
     std::copy(part.dist2.begin(), part.dist2.end(), out.dist2.begin() + first * k);
     std::copy(part.counts.begin(), part.counts.end(), out.counts.begin() + first);
     if (params.count_examined) std::copy(part.examined.begin(), part.examined.end(), out.examined.begin() + first);
-    add_slice_stats(total, st);
+    total.add_slice(st);
     bar.update(double(first + m) / double(n));
   }
   bar.finish();

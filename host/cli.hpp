@@ -79,6 +79,8 @@ using Json = nlohmann::ordered_json;
 void write_json(const std::string& path, const Json& j);
 // What every stats file starts with: the tool and library version, the command and the device.
 Json stats_header(const std::string& command, const Runtime& rt);
+// The fields every image's stats file carries next: scene, scene_arg (--scene), width, height, spp.
+void add_image_fields(Json& j, const Args& args, const std::string& scene, int width, int height, int spp);
 // The timings and counts of a query call (with the index's build time) into a stats object.
 void add_query_stats(Json& j, const Index& index, const QueryStats& st);
 // A radius result into --out-offsets, --out-ids, --out-dist2 and (when given) --out-counts.

@@ -74,11 +74,7 @@ int run_pathtrace(const Args& args) {
   if (args.has("stats")) {
     Json j;
     j["command"] = "pathtrace";
-    j["scene"] = scene.name;
-    j["scene_arg"] = args.str("scene", "cornell");
-    j["width"] = opt.width;
-    j["height"] = opt.height;
-    j["spp"] = opt.spp;
+    add_image_fields(j, args, scene.name, opt.width, opt.height, opt.spp);
     j["max_depth"] = opt.max_depth;
     j["seed"] = opt.seed;
     j["paths"] = stats.paths;

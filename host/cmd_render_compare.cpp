@@ -110,15 +110,8 @@ int run_compare(const RenderSetup& s) {
   // The independent reference, when given: each estimator's exact render against it, per pixel
   // and on blocks of pixels (which average away most of the render's per-pixel noise and keep
   // the estimator's bias: blur at corners and edges, darkening near walls).
-  Image reference;
   const int block = static_cast<int>(args.integer("reference-block", 8));
-  if (args.has("reference")) {
-    reference = read_exr(args.str("reference"));
-    if (reference.width != ropt.width || reference.height != ropt.height)
-      throw UsageError("--reference " + args.str("reference") + " is " + std::to_string(reference.width) + "x" +
-                       std::to_string(reference.height) + ", the render " + std::to_string(ropt.width) + "x" +
-                       std::to_string(ropt.height));
-  }
+  const Image reference = read_reference(args, ropt);
 
   const float exposure = exposure_opt > 0 ? static_cast<float>(exposure_opt) : auto_exposure(runs[0].images[0]);
   TextPainter text(std::clamp(ropt.width / 22, 9, 16));

@@ -34,15 +34,8 @@ int run_progressive(const RenderSetup& s) {
   int written = 0;
   // --reference: each pass's running image against it on blocks (block_error: emitter blocks left
   // out), the convergence curve.
-  Image reference;
   const int rblock = static_cast<int>(args.integer("reference-block", 8));
-  if (args.has("reference")) {
-    reference = read_exr(args.str("reference"));
-    if (reference.width != ropt.width || reference.height != ropt.height)
-      throw UsageError("--reference " + args.str("reference") + " is " + std::to_string(reference.width) + "x" +
-                       std::to_string(reference.height) + ", the render " + std::to_string(ropt.width) + "x" +
-                       std::to_string(ropt.height));
-  }
+  const Image reference = read_reference(args, ropt);
   std::vector<BlockError> errors;
   auto on_pass = [&](const PassReport& r, const Image& img) {
     if (args.has("reference")) {
@@ -85,11 +78,7 @@ int run_progressive(const RenderSetup& s) {
   if (args.has("stats")) {
     // s.maps was moved into pass 1: the header's photon figures come from the reports.
     Json j = stats_header("render", *s.rt);
-    j["scene"] = s.scene.name;
-    j["scene_arg"] = args.str("scene", "cornell");
-    j["width"] = ropt.width;
-    j["height"] = ropt.height;
-    j["spp"] = ropt.spp;
+    add_image_fields(j, args, s.scene.name, ropt.width, ropt.height, ropt.spp);
     j["gather"] = ropt.gather;
     j["k"] = ropt.search.k;
     j["estimator"] = estimator_name(ropt.estimator);

@@ -208,15 +208,23 @@ Json run_json(const RenderRun& r, const ImageDiff* d) {
   return j;
 }
 
+Image read_reference(const Args& args, const RenderOptions& ropt) {
+  Image reference;
+  if (args.has("reference")) {
+    reference = read_exr(args.str("reference"));
+    if (reference.width != ropt.width || reference.height != ropt.height)
+      throw UsageError("--reference " + args.str("reference") + " is " + std::to_string(reference.width) + "x" +
+                       std::to_string(reference.height) + ", the render " + std::to_string(ropt.width) + "x" +
+                       std::to_string(ropt.height));
+  }
+  return reference;
+}
+
 // The scene and render settings every stats file of `bhcl render` carries.
 Json render_header(const Runtime& rt, const Args& args, const std::string& scene, const RenderOptions& ropt,
                    const PhotonMaps& maps, std::size_t photons_requested) {
   Json j = stats_header("render", rt);
-  j["scene"] = scene;
-  j["scene_arg"] = args.str("scene", "cornell");
-  j["width"] = ropt.width;
-  j["height"] = ropt.height;
-  j["spp"] = ropt.spp;
+  add_image_fields(j, args, scene, ropt.width, ropt.height, ropt.spp);
   j["gather"] = ropt.gather;
   j["shadow_rays"] = ropt.shadow_rays;
   j["k"] = ropt.search.k;

@@ -61,6 +61,9 @@ void print_skipped(const RenderRun& r, const PhotonMaps& maps);
 void print_split(const char* title, const RenderRun& r, double photon_s);
 Json run_json(const RenderRun& r, const ImageDiff* d);
 // The scene and render settings every stats file of `bhcl render` carries.
+// --reference (with --reference-block): the reference image, checked to be the render's size;
+// empty without --reference.
+Image read_reference(const Args& args, const RenderOptions& ropt);
 Json render_header(const Runtime& rt, const Args& args, const std::string& scene, const RenderOptions& ropt,
                    const PhotonMaps& maps, std::size_t photons_requested);
 

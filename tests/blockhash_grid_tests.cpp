@@ -61,10 +61,7 @@ TEST_CASE("blockhash_grid_vs_bruteforce: the exact mode equals brute force on ev
 }
 
 TEST_CASE("blockhash_grid_vs_reference: kernel == host reference at every budget, both list forms") {
-  struct Case {
-    const char* name;
-    std::vector<float> pts, qs;
-  };
+  using Case = test::NamedCase;
   std::vector<Case> cases;
   cases.push_back({"uniform", datasets::uniform(20000, 1), datasets::uniform(500, 2)});
   cases.push_back({"clustered", datasets::clustered(20000, 3, 8, 0.01f), datasets::clustered(500, 4, 8, 0.01f)});

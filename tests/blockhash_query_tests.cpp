@@ -51,10 +51,7 @@ void kernel_equals_reference(const BlockHashIndex& index, const std::vector<floa
 }  // namespace
 
 TEST_CASE("blockhash_vs_reference: every distribution, both presets, kernel == host reference") {
-  struct Case {
-    const char* name;
-    std::vector<float> pts, qs;
-  };
+  using Case = test::NamedCase;
   std::vector<Case> cases;
   cases.push_back({"uniform", datasets::uniform(12000, 1), datasets::uniform(400, 2)});
   cases.push_back({"far queries", datasets::clustered(12000, 3, 8, 0.01f), datasets::clustered(400, 4, 8, 0.01f)});
@@ -309,10 +306,7 @@ TEST_CASE("blockhash: bhcl knn --method blockhash with presets and save/load") {
 TEST_CASE("blockhash: a recall target is met on held-out queries") {
   // The index tunes A on a sample of its own points; queries it never saw must reach the target
   // within 0.01 (or above), for every preset and a spread of targets.
-  struct Set {
-    const char* name;
-    std::vector<float> pts, qs;
-  };
+  using Set = test::NamedCase;
   std::vector<Set> sets;
   sets.push_back({"uniform", datasets::uniform(40000, 61), datasets::uniform(2000, 62)});
   sets.push_back({"cornell", datasets::cornell_photons(40000, 63), datasets::cornell_queries(2000, 64, 0.5f)});

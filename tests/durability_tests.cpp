@@ -20,12 +20,7 @@
 namespace bhcl {
 namespace {
 
-std::string slurp(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
+using test::slurp;
 
 // Temporaries of write_file (".NAME.tmp.*") left in the test folder for `name`.
 int leftover_temporaries(const std::string& name) {

@@ -12,29 +12,9 @@ namespace {
 // Every point with dist2_float <= r_i^2, sorted (d, id): the contract's rule per query.
 RadiusResult brute_per_query(const std::vector<float>& pts, const std::vector<float>& qs,
                              const std::vector<float>& radii) {
-  RadiusResult r;
-  r.n = qs.size() / 3;
-  r.offsets.assign(r.n + 1, 0);
-  r.found.assign(r.n, 0);
-  const std::size_t N = pts.size() / 3;
-  for (std::size_t q = 0; q < r.n; ++q) {
-    const float* qp = &qs[3 * q];
-    const float r2 = radii[q] * radii[q];
-    std::vector<std::pair<float, std::int32_t>> row;
-    if (std::isfinite(qp[0]) && std::isfinite(qp[1]) && std::isfinite(qp[2]))
-      for (std::size_t i = 0; i < N; ++i) {
-        const float d = reference::dist2_float(&pts[3 * i], qp);
-        if (d <= r2) row.emplace_back(d, static_cast<std::int32_t>(i));
-      }
-    std::sort(row.begin(), row.end());
-    for (auto& [d, id] : row) {
-      r.dist2.push_back(d);
-      r.ids.push_back(id);
-    }
-    r.found[q] = static_cast<std::int64_t>(row.size());
-    r.offsets[q + 1] = static_cast<std::int64_t>(r.ids.size());
-  }
-  return r;
+  std::vector<float> r2(radii.size());
+  for (std::size_t q = 0; q < radii.size(); ++q) r2[q] = radii[q] * radii[q];
+  return reference_radius_slices(pts, qs, r2);
 }
 
 // Radii spread over two orders of magnitude around a radius holding ~`target` points, with some
@@ -59,19 +39,6 @@ std::vector<float> spread_radii(const std::vector<float>& pts, std::size_t n, st
     r[i] = i % 17 == 0 ? 0.0f : i % 5 == 0 ? base : static_cast<float>(base * std::pow(10.0, 2.0 * u - 1.3));
   }
   return r;
-}
-
-void require_same_slices(const RadiusResult& a, const RadiusResult& b, const std::string& what) {
-  INFO(what);
-  REQUIRE(a.n == b.n);
-  REQUIRE(a.offsets == b.offsets);
-  REQUIRE(a.found == b.found);
-  REQUIRE(a.ids == b.ids);
-  for (std::size_t i = 0; i < a.dist2.size(); ++i)
-    if (std::memcmp(&a.dist2[i], &b.dist2[i], sizeof(float)) != 0) {
-      FAIL_CHECK("entry " << i << ": d2 " << a.dist2[i] << " vs " << b.dist2[i]);
-      return;
-    }
 }
 
 }  // namespace

@@ -11,42 +11,7 @@ namespace {
 
 // The exact answer under the contract: every point with dist2_float <= r2, sorted (d, id).
 RadiusResult reference_radius(const std::vector<float>& pts, const std::vector<float>& qs, float r2) {
-  RadiusResult r;
-  r.n = qs.size() / 3;
-  r.offsets.assign(r.n + 1, 0);
-  r.found.assign(r.n, 0);
-  const std::size_t N = pts.size() / 3;
-  for (std::size_t q = 0; q < r.n; ++q) {
-    const float* qp = &qs[3 * q];
-    std::vector<std::pair<float, std::int32_t>> row;
-    if (std::isfinite(qp[0]) && std::isfinite(qp[1]) && std::isfinite(qp[2]))
-      for (std::size_t i = 0; i < N; ++i) {
-        float d = reference::dist2_float(&pts[3 * i], qp);
-        if (d <= r2) row.emplace_back(d, static_cast<std::int32_t>(i));
-      }
-    std::sort(row.begin(), row.end());
-    for (auto& [d, id] : row) {
-      r.dist2.push_back(d);
-      r.ids.push_back(id);
-    }
-    r.found[q] = static_cast<std::int64_t>(row.size());
-    r.offsets[q + 1] = static_cast<std::int64_t>(r.ids.size());
-  }
-  return r;
-}
-
-void require_same(const RadiusResult& a, const RadiusResult& b, const std::string& what) {
-  INFO(what);
-  REQUIRE(a.n == b.n);
-  REQUIRE(a.offsets == b.offsets);
-  REQUIRE(a.found == b.found);
-  for (std::size_t i = 0; i < a.ids.size(); ++i) {
-    if (a.ids[i] != b.ids[i] || std::memcmp(&a.dist2[i], &b.dist2[i], sizeof(float)) != 0) {
-      FAIL_CHECK("entry " << i << ": id " << a.ids[i] << " d2 " << a.dist2[i] << " vs id " << b.ids[i]
-                          << " d2 " << b.dist2[i]);
-      return;
-    }
-  }
+  return reference_radius_slices(pts, qs, {r2});
 }
 
 // The layout's invariants and, per entry, the contract's distance within r2; returns the count.
@@ -124,12 +89,12 @@ TEST_CASE("radius: exact methods equal the float reference, checked in double (e
       auto index = make_index(m, runtime(), s.points.data(), s.points.size() / 3);
       RadiusResult got;
       index->radius_search(s.queries.data(), s.queries.size() / 3, r, {}, got);
-      require_same(got, ref, m + " on " + s.name + ", r = " + std::to_string(r));
+      require_same_slices(got, ref, m + " on " + s.name + ", r = " + std::to_string(r));
       REQUIRE(got.truncated_queries == 0);
       // r = 0: exactly the coincident points.
       RadiusResult zero;
       index->radius_search(s.queries.data(), s.queries.size() / 3, 0.0f, {}, zero);
-      require_same(zero, reference_radius(s.points, s.queries, 0.0f), m + " on " + s.name + ", r = 0");
+      require_same_slices(zero, reference_radius(s.points, s.queries, 0.0f), m + " on " + s.name + ", r = 0");
     }
   }
 }
@@ -211,13 +176,13 @@ TEST_CASE("radius: every method, results do not depend on batching, sorting or t
     split.max_batch = 7;
     split.max_batch_results = 50;  // many fill dispatches, and queries above it alone
     index->radius_search(qs.data(), qs.size() / 3, r, split, b);
-    require_same(b, a, m + ": split batches");
+    require_same_slices(b, a, m + ": split batches");
     RadiusParams sorted = p;
     sorted.sort_queries = 1;
     index->radius_search(qs.data(), qs.size() / 3, r, sorted, c);
-    require_same(c, a, m + ": Hilbert-sorted dispatch");
+    require_same_slices(c, a, m + ": Hilbert-sorted dispatch");
     index->radius_search_squared(qs.data(), qs.size() / 3, r * r, p, d);
-    require_same(d, a, m + ": squared form");
+    require_same_slices(d, a, m + ": squared form");
     // Unsorted slices: the same points per query; with a cap, the same nearest ones.
     for (std::size_t cap : {std::size_t(0), std::size_t(3)}) {
       RadiusParams u = p, s = p;

@@ -23,6 +23,36 @@ using namespace bhcl::render;
 
 namespace {
 
+// The photon maps of a scene: `photons` traced with `seed` on `threads` threads; `method`
+// (non-empty) indexes the global map and the caustic one where there is one.
+PhotonMaps trace_photons(const EmbreeScene& es, const LightSampler& lights, std::size_t photons,
+                         std::uint64_t seed, int threads, const std::string& method = "") {
+  PhotonTraceOptions po;
+  po.photons = photons;
+  po.seed = seed;
+  po.threads = threads;
+  PhotonMaps maps = build_photon_maps(es, lights, po);
+  if (!method.empty()) {
+    maps.global->build_index(method, test::runtime());
+    if (maps.caustic) maps.caustic->build_index(method, test::runtime());
+  }
+  return maps;
+}
+
+// A small render's options: size x size pixels, `gather` rays and k neighbours per point.
+RenderOptions small_options(int size, int gather, int k, std::uint64_t seed, int threads, int shadow_rays = 2,
+                            int spp = 1) {
+  RenderOptions ro;
+  ro.width = ro.height = size;
+  ro.gather = gather;
+  ro.shadow_rays = shadow_rays;
+  ro.spp = spp;
+  ro.search.k = k;
+  ro.seed = seed;
+  ro.threads = threads;
+  return ro;
+}
+
 struct SmallRender {
   Image image;
   RenderStats stats;
@@ -35,21 +65,8 @@ SmallRender small_render(const Scene& scene, const std::string& method, std::siz
                          int shadow_rays = 2, int spp = 1) {
   EmbreeScene es(scene, threads);
   LightSampler lights(scene);
-  PhotonTraceOptions po;
-  po.photons = photons;
-  po.seed = seed;
-  po.threads = threads;
-  PhotonMaps maps = build_photon_maps(es, lights, po);
-  maps.global->build_index(method, test::runtime());
-  if (maps.caustic) maps.caustic->build_index(method, test::runtime());
-  RenderOptions ro;
-  ro.width = ro.height = size;
-  ro.gather = gather;
-  ro.shadow_rays = shadow_rays;
-  ro.spp = spp;
-  ro.search.k = k;
-  ro.seed = seed;
-  ro.threads = threads;
+  PhotonMaps maps = trace_photons(es, lights, photons, seed, threads, method);
+  RenderOptions ro = small_options(size, gather, k, seed, threads, shadow_rays, spp);
   ro.batch_queries = 4096;  // several passes, so the pass logic is exercised
   SmallRender out;
   FinalGatherRenderer r(es, lights, *maps.global, maps.caustic.get(), ro);
@@ -449,23 +466,10 @@ Image glass_render(const Scene& scene, std::size_t photons, int size, int gather
                    int spp, int k, float caustic_radius, std::uint64_t seed = 5) {
   EmbreeScene es(scene, 2);
   LightSampler lights(scene);
-  PhotonTraceOptions po;
-  po.photons = photons;
-  po.seed = seed;
-  po.threads = 2;
-  PhotonMaps maps = build_photon_maps(es, lights, po);
-  maps.global->build_index("bruteforce", test::runtime());
-  if (maps.caustic) maps.caustic->build_index("bruteforce", test::runtime());
-  RenderOptions ro;
-  ro.width = ro.height = size;
-  ro.gather = gather;
-  ro.shadow_rays = shadow_rays;
-  ro.spp = spp;
-  ro.search.k = k;
+  PhotonMaps maps = trace_photons(es, lights, photons, seed, 2, "bruteforce");
+  RenderOptions ro = small_options(size, gather, k, seed, 2, shadow_rays, spp);
   ro.caustic_k = k;
   ro.caustic_radius = caustic_radius;
-  ro.seed = seed;
-  ro.threads = 2;
   RenderStats stats;
   FinalGatherRenderer r(es, lights, *maps.global, maps.caustic.get(), ro);
   return r.render(stats);
@@ -670,12 +674,7 @@ TEST_CASE("render: rays traced once and shaded per estimator equal a render per 
     Scene scene = load_scene(scene_name);
     EmbreeScene es(scene, 2);
     LightSampler lights(scene);
-    PhotonTraceOptions po;
-    po.photons = 4000;
-    po.threads = 2;
-    PhotonMaps maps = build_photon_maps(es, lights, po);
-    maps.global->build_index("bruteforce", test::runtime());
-    if (maps.caustic) maps.caustic->build_index("bruteforce", test::runtime());
+    PhotonMaps maps = trace_photons(es, lights, 4000, PhotonTraceOptions{}.seed, 2, "bruteforce");
     RenderOptions ro;
     ro.width = 24;
     ro.height = 20;
@@ -800,13 +799,7 @@ TEST_CASE("render: progressive photon mapping: the radius sequence, one pass equ
   SmallRender plain = small_render(scene, m, 3000, 16, 4, 2, 7, 16);
   EmbreeScene es(scene, 2);
   LightSampler lights(scene);
-  RenderOptions ro;
-  ro.width = ro.height = 16;
-  ro.gather = 4;
-  ro.shadow_rays = 2;
-  ro.search.k = 16;
-  ro.seed = 7;
-  ro.threads = 2;
+  RenderOptions ro = small_options(16, 4, 16, 7, 2);
   ro.batch_queries = 4096;
   ProgressiveOptions po;
   po.passes = 1;
@@ -829,13 +822,7 @@ TEST_CASE("render: progressive photon mapping: more passes come closer to the pa
   const Image ref = path_traced(scene, 16, 1024, 2, pst);
   EmbreeScene es(scene, 2);
   LightSampler lights(scene);
-  RenderOptions ro;
-  ro.width = ro.height = 16;
-  ro.gather = 16;
-  ro.shadow_rays = 2;
-  ro.search.k = 32;
-  ro.seed = 3;
-  ro.threads = 2;
+  RenderOptions ro = small_options(16, 16, 32, 3, 2);
   std::vector<std::string> methods = {has_method("kdtree") ? "kdtree" : "bruteforce"};
   if (has_method("blockhash")) methods.push_back("blockhash");
   for (const std::string& m : methods) {
@@ -910,11 +897,7 @@ TEST_CASE("render: the density estimate inside the query equals the host estimat
   Scene scene = cornell_scene();
   EmbreeScene es(scene, 2);
   LightSampler lights(scene);
-  PhotonTraceOptions po;
-  po.photons = 6000;
-  po.seed = 5;
-  po.threads = 2;
-  PhotonMaps maps = build_photon_maps(es, lights, po);
+  PhotonMaps maps = trace_photons(es, lights, 6000, 5, 2);
   PhotonMap& map = *maps.global;
   // Queries: photon positions nudged (dense regions) and points spread over the box; normals
   // pointing every way, so that the facing test keeps some photons and drops others.
@@ -987,11 +970,7 @@ TEST_CASE("render: shading with the fused estimate matches shading from the list
   Scene scene = cornell_scene();
   EmbreeScene es(scene, 2);
   LightSampler lights(scene);
-  PhotonTraceOptions po;
-  po.photons = 4000;
-  po.seed = 2;
-  po.threads = 2;
-  PhotonMaps maps = build_photon_maps(es, lights, po);
+  PhotonMaps maps = trace_photons(es, lights, 4000, 2, 2);
   maps.global->build_index(has_method("kdtree") ? "kdtree" : "bruteforce", test::runtime());
   RenderOptions ro;
   ro.width = ro.height = 16;

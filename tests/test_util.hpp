@@ -34,6 +34,11 @@ struct PointSet {
   std::string name;
   std::vector<float> points, queries;
 };
+// A named case of a test's own: points and queries.
+struct NamedCase {
+  const char* name;
+  std::vector<float> pts, qs;
+};
 // Queries for a point set: uniform over its box grown by 10 %, exact copies of points (distance
 // 0 ties, duplicates), and points moved by a tiny jitter (near-ties); `each` of every kind.
 std::vector<float> queries_for(const std::vector<float>& pts, std::uint64_t seed, std::size_t each = 100);
@@ -137,6 +142,13 @@ inline int run_bhcl(const std::string& args, std::string* output = nullptr, cons
   return WIFEXITED(status) ? WEXITSTATUS(status) : 128;
 }
 
+// The contract's exact radius answer: every point with dist2_float <= r2[q] (r2: one squared
+// radius per query, or one for all), each slice sorted by (distance, id).
+RadiusResult reference_radius_slices(const std::vector<float>& pts, const std::vector<float>& qs,
+                                     const std::vector<float>& r2);
+// a and b slice for slice: the same offsets, counts and ids, the same distances to the bit.
+void require_same_slices(const RadiusResult& a, const RadiusResult& b, const std::string& what);
+
 inline std::string tmp_path(const std::string& name) {
   return std::string(BHCL_TEST_TMP_DIR) + "/" + name;
 }
@@ -146,6 +158,18 @@ inline std::string write_points(const std::string& name, const std::vector<float
   std::string path = tmp_path(name);
   write_points_file(path, xyz);
   return path;
+}
+
+// A file's bytes (empty when it cannot be read), and a file written with `data`.
+inline std::string slurp(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+inline void spit(const std::string& path, const std::string& data) {
+  std::ofstream out(path, std::ios::binary | std::ios::trunc);
+  out.write(data.data(), static_cast<std::streamsize>(data.size()));
 }
 
 template <typename T>

@@ -165,6 +165,19 @@ std::string dir_of(const std::string& path) {
 struct LineReader {
   std::string file;
   int line = 0;
+  // The next line of f that holds a keyword (blank lines and # comments skipped): its first word
+  // in key, the rest left in `in`; false at the end of the file. Counts the lines fail() names.
+  bool next(std::istream& f, std::istringstream& in, std::string& key) {
+    std::string text;
+    while (std::getline(f, text)) {
+      ++line;
+      in.clear();
+      in.str(text);
+      if (!(in >> key) || key[0] == '#') continue;
+      return true;
+    }
+    return false;
+  }
   [[noreturn]] void fail(const std::string& msg) const {
     throw Error(file + ":" + std::to_string(line) + ": " + msg);
   }
@@ -218,12 +231,9 @@ std::map<std::string, Material> load_mtl(const std::string& path) {
     if (illum == 3) cur->type = MaterialType::Mirror;
     else if (illum == 4 || illum == 6 || illum == 7) cur->type = MaterialType::Glass;
   };
-  std::string text;
-  while (std::getline(f, text)) {
-    ++r.line;
-    std::istringstream in(text);
-    std::string key;
-    if (!(in >> key) || key[0] == '#') continue;
+  std::istringstream in;
+  std::string key;
+  while (r.next(f, in, key)) {
     if (key == "newmtl") {
       finish();
       std::string name;
@@ -290,12 +300,9 @@ Scene load_obj_scene(const std::string& path) {
     m.name = "default";
     return used[""] = s.add_material(m);
   };
-  std::string text;
-  while (std::getline(f, text)) {
-    ++r.line;
-    std::istringstream in(text);
-    std::string key;
-    if (!(in >> key) || key[0] == '#') continue;
+  std::istringstream in;
+  std::string key;
+  while (r.next(f, in, key)) {
     if (key == "v") {
       s.vertices.push_back(r.vec3(in, "vertex coordinate"));
       std::string w;

@@ -148,37 +148,43 @@ bool lobe_point(std::mt19937_64& rng, Vec3& p) {
   return first_hit(o, d, p);
 }
 
-}  // namespace
-
-std::vector<float> cornell_photons(std::size_t n, std::uint64_t seed) {
-  static const SurfaceSampler sampler;
+// n points on one generator seeded with `seed`, point i drawn by draw(rng, u, i, xyz, p, normal)
+// into xyz[3 i ..] (p and normal: a surface sample's scratch).
+template <class Draw>
+std::vector<float> draw_points(std::size_t n, std::uint64_t seed, Draw draw) {
   std::mt19937_64 rng(seed);
   std::uniform_real_distribution<double> u(0.0, 1.0);
   std::vector<float> xyz(3 * n);
   for (std::size_t i = 0; i < n; ++i) {
     Vec3 p, normal;
-    if (i > 0 && u(rng) < 0.01) {  // an exact duplicate of an earlier point
-      std::size_t src = std::uniform_int_distribution<std::size_t>(0, i - 1)(rng);
-      for (int d = 0; d < 3; ++d) xyz[3 * i + d] = xyz[3 * src + d];
-      continue;
-    }
-    if (u(rng) < 0.5 || !lobe_point(rng, p)) sampler.sample(rng, p, normal);
-    for (int d = 0; d < 3; ++d) xyz[3 * i + d] = p[d];
+    draw(rng, u, i, xyz, p, normal);
   }
   return xyz;
 }
 
+}  // namespace
+
+std::vector<float> cornell_photons(std::size_t n, std::uint64_t seed) {
+  static const SurfaceSampler sampler;
+  return draw_points(n, seed, [&](std::mt19937_64& rng, std::uniform_real_distribution<double>& u, std::size_t i,
+                                  std::vector<float>& xyz, Vec3& p, Vec3& normal) {
+    if (i > 0 && u(rng) < 0.01) {  // an exact duplicate of an earlier point
+      std::size_t src = std::uniform_int_distribution<std::size_t>(0, i - 1)(rng);
+      for (int d = 0; d < 3; ++d) xyz[3 * i + d] = xyz[3 * src + d];
+      return;
+    }
+    if (u(rng) < 0.5 || !lobe_point(rng, p)) sampler.sample(rng, p, normal);
+    for (int d = 0; d < 3; ++d) xyz[3 * i + d] = p[d];
+  });
+}
+
 std::vector<float> cornell_queries(std::size_t n, std::uint64_t seed, float offset_mm) {
   static const SurfaceSampler sampler;
-  std::mt19937_64 rng(seed);
-  std::uniform_real_distribution<double> u(0.0, 1.0);
-  std::vector<float> xyz(3 * n);
-  for (std::size_t i = 0; i < n; ++i) {
-    Vec3 p, normal;
+  return draw_points(n, seed, [&](std::mt19937_64& rng, std::uniform_real_distribution<double>&, std::size_t i,
+                                  std::vector<float>& xyz, Vec3& p, Vec3& normal) {
     sampler.sample(rng, p, normal);
     for (int d = 0; d < 3; ++d) xyz[3 * i + d] = p[d] + offset_mm * normal[d];
-  }
-  return xyz;
+  });
 }
 
 std::vector<float> by_name(const std::string& name, std::size_t n, std::uint64_t seed) {

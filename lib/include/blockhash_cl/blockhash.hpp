@@ -248,18 +248,9 @@ class BlockHashIndex : public Index {
   bool counts_examined() const override { return true; }
 
  protected:
-  cl::Event enqueue_radius_batch(const cl::CommandQueue& queue, const cl::Buffer& queries,
-                                 std::size_t first, std::size_t count, float r2, int pass,
-                                 const RadiusBuffers& out, const RadiusParams& params,
-                                 std::size_t local_size,
-                                 const std::vector<cl::Event>* wait) const override;
-  cl::Event enqueue_batch(const cl::CommandQueue& queue, const cl::Buffer& queries,
-                          std::size_t first, std::size_t count, const ResultBuffers& out,
-                          const SearchParams& params, std::size_t local_size,
-                          const std::vector<cl::Event>* wait) const override;
+  BHCL_INDEX_DEVICE_HOOKS
   void check_params(const SearchParams& params) const override;
-  void insert_points(const float* points, const float* scaled, std::size_t n, std::int32_t first) override;
-  void remove_points(const std::int32_t* ids, std::size_t n) override;
+  BHCL_INDEX_UPDATE_HOOKS
 
  private:
   // Updates (grid_update.cpp): the grid natively, the block layouts by a rebuild.
@@ -279,6 +270,9 @@ class BlockHashIndex : public Index {
   void upload();
   std::string kernel_options(int kmax) const;
   std::uint32_t cells_probes(const SearchParams& params) const;  // cell-aligned: 0, 1 or 2
+  bool table_probes(int neighbour_probes) const;                // the L-table layout: 0 or 1
+  // The arguments both block layouts' kernels (kNN and radius) begin with, up to the probes.
+  void add_layout_args(detail::KernelArgs& args, int neighbour_probes) const;
   void build_blocks(const float* points, std::size_t n_points);  // the block layouts' stages
   void build_grid_layout(const float* points, std::size_t n_points, double cell_size);
   void upload_grid();

@@ -53,8 +53,7 @@ class FlannIndex : public Index {
                      KnnResult& out) const override;
 
  protected:
-  void insert_points(const float* points, const float* scaled, std::size_t n, std::int32_t first) override;
-  void remove_points(const std::int32_t* ids, std::size_t n) override;
+  BHCL_INDEX_UPDATE_HOOKS
 
  private:
   // The tree over n points (index coordinates); ext: their ids (empty: 0 .. n - 1).

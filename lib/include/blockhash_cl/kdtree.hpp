@@ -45,17 +45,8 @@ class KdTreeIndex : public Index {
   std::size_t update_merges() const { return merges_; }  // inserts into the existing leaves
 
  protected:
-  cl::Event enqueue_radius_batch(const cl::CommandQueue& queue, const cl::Buffer& queries,
-                                 std::size_t first, std::size_t count, float r2, int pass,
-                                 const RadiusBuffers& out, const RadiusParams& params,
-                                 std::size_t local_size,
-                                 const std::vector<cl::Event>* wait) const override;
-  cl::Event enqueue_batch(const cl::CommandQueue& queue, const cl::Buffer& queries,
-                          std::size_t first, std::size_t count, const ResultBuffers& out,
-                          const SearchParams& params, std::size_t local_size,
-                          const std::vector<cl::Event>* wait) const override;
-  void insert_points(const float* points, const float* scaled, std::size_t n, std::int32_t first) override;
-  void remove_points(const std::int32_t* ids, std::size_t n) override;
+  BHCL_INDEX_DEVICE_HOOKS
+  BHCL_INDEX_UPDATE_HOOKS
 
  private:
   // The tree over n points (index coordinates); ids: each point's id (null: 0 .. n - 1).

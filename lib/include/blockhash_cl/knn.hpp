@@ -178,6 +178,17 @@ struct RadiusResult {
 
   std::size_t count(std::size_t q) const { return static_cast<std::size_t>(offsets[q + 1] - offsets[q]); }
   std::size_t total() const { return offsets.empty() ? 0 : static_cast<std::size_t>(offsets.back()); }
+  // The queries of `part` (a later slice of the same call) after these: offsets shifted, slices,
+  // counts and examined appended. Starts from offsets = {0}.
+  void append(const RadiusResult& part) {
+    const std::int64_t base = offsets.back();
+    for (std::size_t i = 1; i < part.offsets.size(); ++i) offsets.push_back(base + part.offsets[i]);
+    ids.insert(ids.end(), part.ids.begin(), part.ids.end());
+    dist2.insert(dist2.end(), part.dist2.begin(), part.dist2.end());
+    found.insert(found.end(), part.found.begin(), part.found.end());
+    examined.insert(examined.end(), part.examined.begin(), part.examined.end());
+    truncated_queries += part.truncated_queries;
+  }
 };
 
 // The device buffers of one radius dispatch (Index::enqueue_radius_batch): counts and examined
@@ -197,6 +208,16 @@ struct QueryStats {
   double download_s = 0.0; // device -> host copies (event times)
   double wall_s = 0.0;     // the whole call, host clock (host methods: their search time is query_s)
   double queries_per_s() const { return query_s > 0 ? n_queries / query_s : 0.0; }
+  // A slice of the same call answered on its own (a band, a sub-batch): its counts and times
+  // added; n_queries and wall_s stay the caller's.
+  void add_slice(const QueryStats& s) {
+    nonfinite_queries += s.nonfinite_queries;
+    batches += s.batches;
+    compile_s += s.compile_s;
+    upload_s += s.upload_s;
+    query_s += s.query_s;
+    download_s += s.download_s;
+  }
 };
 
 // Sizes before allocation: throws bhcl::Error ("the result needs 7.2 GB ...") when a kNN result of
@@ -419,5 +440,22 @@ class Index {
   mutable std::mutex warm_mutex_;
   mutable std::set<std::tuple<int, std::size_t, std::string>> warmed_;  // (kmax, local size, defines)
 };
+
+// What a method's class declares of the Index hooks above, in one line each (under protected:):
+// a device method's kNN and radius dispatch, and any method's insert/remove.
+#define BHCL_INDEX_DEVICE_HOOKS                                                                     \
+  cl::Event enqueue_radius_batch(const cl::CommandQueue& queue, const cl::Buffer& queries,          \
+                                 std::size_t first, std::size_t count, float r2, int pass,          \
+                                 const RadiusBuffers& out, const RadiusParams& params,              \
+                                 std::size_t local_size,                                            \
+                                 const std::vector<cl::Event>* wait) const override;                \
+  cl::Event enqueue_batch(const cl::CommandQueue& queue, const cl::Buffer& queries,                 \
+                          std::size_t first, std::size_t count, const ResultBuffers& out,           \
+                          const SearchParams& params, std::size_t local_size,                       \
+                          const std::vector<cl::Event>* wait) const override;
+#define BHCL_INDEX_UPDATE_HOOKS                                                                     \
+  void insert_points(const float* points, const float* scaled, std::size_t n, std::int32_t first) \
+      override;                                                                                     \
+  void remove_points(const std::int32_t* ids, std::size_t n) override;
 
 }  // namespace bhcl

@@ -8,6 +8,7 @@
 #pragma once
 
 #include <cstddef>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <shared_mutex>
@@ -71,6 +72,12 @@ class MultiDeviceIndex {
   // Parts of n by the current weights: first[d] .. first[d + 1].
   std::vector<std::size_t> split(std::size_t n) const;
   void learn(const std::vector<std::size_t>& counts, const std::vector<double>& seconds) const;
+  // One batch over every device (kNN and radius alike), under the shared lock: run(d, first, m)
+  // answers queries [first, first + m) on device d (all devices at once), then merge(d, first)
+  // takes device d's part, in device order; the stats summed, the shares listed, the split learnt.
+  QueryStats on_devices(std::size_t n, const std::function<QueryStats(std::size_t, std::size_t, std::size_t)>& run,
+                        const std::function<void(std::size_t, std::size_t)>& merge,
+                        std::vector<DeviceShare>* shares) const;
 
   std::vector<std::unique_ptr<Index>> indexes_;
   mutable std::shared_mutex update_mutex_;  // queries shared, insert/remove exclusive

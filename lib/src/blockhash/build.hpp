@@ -20,6 +20,7 @@
 #include "bhcl_arith.h"
 #include "blockhash_layout.h"
 #include "blockhash/grid.hpp"
+#include "sfc/hilbert.hpp"
 
 namespace bhcl::blockhash {
 
@@ -27,26 +28,14 @@ struct Structure;
 
 // ---- Stage 1: Hilbert keys -------------------------------------------------------------------
 
-// Maps coordinates to a 2^bits grid over the points' bounding box. One scale for all three axes
-// (the largest extent), so a flat box keeps its shape and a zero extent maps to cell 0; computed in
-// double from the offset to the box's corner, so tiny, huge and far-offset boxes keep their
-// resolution.
-struct Quantiser {
-  double origin[3] = {0, 0, 0};
-  double scale = 0;  // cells per unit length
-  int bits = 21;
-  std::uint32_t cell(int dim, float v) const;
-};
-Quantiser make_quantiser(const float* xyz, std::size_t n, int bits);
-
-// The Hilbert index of grid cell (x, y, z), each < 2^bits, bits <= 21 (Skilling's transpose
-// algorithm). hilbert_decode is its inverse.
-std::uint64_t hilbert_encode(std::uint32_t x, std::uint32_t y, std::uint32_t z, int bits);
-void hilbert_decode(std::uint64_t key, int bits, std::uint32_t out[3]);
-
-std::vector<std::uint64_t> hilbert_keys(const float* xyz, std::size_t n, const Quantiser& q);
-// The permutation that sorts by (key, original index): order[i] = original index of the i-th point.
-std::vector<std::int32_t> hilbert_order(const std::vector<std::uint64_t>& keys);
+// The curve is the sfc module's (sfc/hilbert.hpp): its quantiser, keys and stable sort, named here
+// as the stage's own.
+using sfc::Quantiser;
+using sfc::make_quantiser;
+using sfc::hilbert_encode;
+using sfc::hilbert_decode;
+using sfc::hilbert_keys;
+using sfc::hilbert_order;
 
 // The whole stage on a structure: s.order, s.block_keys (the key of each block's first point, for
 // X = s.info.X) and the query quantiser (s.q_*).

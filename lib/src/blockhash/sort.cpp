@@ -1,46 +1,12 @@
 // Stage 1 of the block-hash build: the points in Hilbert order (sfc/hilbert.hpp, the curve's own
-// module), each block's first key and the query-side quantiser. The stage-1 names build.hpp
-// declares forward to the sfc module (build.hpp may declare them as aliases of sfc's instead).
+// module, whose names build.hpp brings into the stage), each block's first key and the
+// query-side quantiser.
 #include <algorithm>
 
 #include "blockhash/build.hpp"
 #include "sfc/hilbert.hpp"
 
 namespace bhcl::blockhash {
-namespace {
-
-sfc::Quantiser to_sfc(const Quantiser& q) {
-  sfc::Quantiser s;
-  for (int d = 0; d < 3; ++d) s.origin[d] = q.origin[d];
-  s.scale = q.scale;
-  s.bits = q.bits;
-  return s;
-}
-
-}  // namespace
-
-Quantiser make_quantiser(const float* xyz, std::size_t n, int bits) {
-  const sfc::Quantiser s = sfc::make_quantiser(xyz, n, bits);
-  Quantiser q;
-  for (int d = 0; d < 3; ++d) q.origin[d] = s.origin[d];
-  q.scale = s.scale;
-  q.bits = s.bits;
-  return q;
-}
-
-std::uint32_t Quantiser::cell(int dim, float v) const { return to_sfc(*this).cell(dim, v); }
-
-std::uint64_t hilbert_encode(std::uint32_t x, std::uint32_t y, std::uint32_t z, int bits) {
-  return sfc::hilbert_encode(x, y, z, bits);
-}
-
-void hilbert_decode(std::uint64_t key, int bits, std::uint32_t out[3]) { sfc::hilbert_decode(key, bits, out); }
-
-std::vector<std::uint64_t> hilbert_keys(const float* xyz, std::size_t n, const Quantiser& q) {
-  return sfc::hilbert_keys(xyz, n, to_sfc(q));
-}
-
-std::vector<std::int32_t> hilbert_order(const std::vector<std::uint64_t>& keys) { return sfc::hilbert_order(keys); }
 
 std::uint64_t query_hilbert_key(const Structure& s, const float q[3]) {
   const float top = float((1u << s.q_bits) - 1);

@@ -57,12 +57,7 @@ QueryStats radius_search_per_query(const Index& index, const float* queries, std
     qb.resize(3 * (b - a));
     for (std::size_t j = a; j < b; ++j) std::copy_n(queries + 3 * order[j], 3, qb.data() + 3 * (j - a));
     const QueryStats s = index.radius_search(qb.data(), b - a, rband, bp, band);
-    st.nonfinite_queries += s.nonfinite_queries;
-    st.batches += s.batches;
-    st.compile_s += s.compile_s;
-    st.upload_s += s.upload_s;
-    st.query_s += s.query_s;
-    st.download_s += s.download_s;
+    st.add_slice(s);
     for (std::size_t j = a; j < b; ++j) {
       const std::size_t q = order[j], row = j - a;
       const float ri = radii[q];

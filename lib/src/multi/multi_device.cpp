@@ -155,76 +155,25 @@ void MultiDeviceIndex::learn(const std::vector<std::size_t>& counts, const std::
     if (qps[d] > 0) weights_[d] = 0.5 * weights_[d] + 0.5 * known * qps[d] / sum;
 }
 
-QueryStats MultiDeviceIndex::query(const float* queries, std::size_t n, const SearchParams& params,
-                                   KnnResult& out, std::vector<DeviceShare>* shares) const {
+QueryStats MultiDeviceIndex::on_devices(
+    std::size_t n, const std::function<QueryStats(std::size_t, std::size_t, std::size_t)>& run,
+    const std::function<void(std::size_t, std::size_t)>& merge, std::vector<DeviceShare>* shares) const {
   std::unique_lock<std::mutex> gate(update_gate_);
   std::shared_lock<std::shared_mutex> lock(update_mutex_);
   gate.unlock();
   const std::size_t D = indexes_.size();
   const std::vector<double> w = weights();
   const std::vector<std::size_t> first = split(n);
-  std::vector<KnnResult> parts(D);
   std::vector<QueryStats> st(D);
   std::vector<std::string> names;
   for (const auto& ix : indexes_) names.push_back(ix->runtime().info().summary());
-  on_each_device(D, names, [&](std::size_t d) {
-    st[d] = indexes_[d]->query(queries + 3 * first[d], first[d + 1] - first[d], params, parts[d]);
-  });
-  out.resize(n, params.k);
-  if (params.count_examined) out.examined.assign(n, 0);
-  const std::size_t k = static_cast<std::size_t>(params.k);
+  on_each_device(D, names, [&](std::size_t d) { st[d] = run(d, first[d], first[d + 1] - first[d]); });
   QueryStats total;
   total.n_queries = n;
   std::vector<std::size_t> counts(D);
   std::vector<double> seconds(D);
   for (std::size_t d = 0; d < D; ++d) {
-    const std::size_t m = first[d + 1] - first[d];
-    std::copy(parts[d].ids.begin(), parts[d].ids.end(), out.ids.begin() + first[d] * k);
-    std::copy(parts[d].dist2.begin(), parts[d].dist2.end(), out.dist2.begin() + first[d] * k);
-    std::copy(parts[d].counts.begin(), parts[d].counts.end(), out.counts.begin() + first[d]);
-    if (params.count_examined)
-      std::copy(parts[d].examined.begin(), parts[d].examined.end(), out.examined.begin() + first[d]);
-    add_part(total, st[d]);
-    counts[d] = m;
-    seconds[d] = part_seconds(st[d]);
-    if (shares) shares->push_back({names[d], m, w[d], st[d]});
-  }
-  learn(counts, seconds);
-  return total;
-}
-
-QueryStats MultiDeviceIndex::radius_search(const float* queries, std::size_t n, float r,
-                                           const RadiusParams& params, RadiusResult& out,
-                                           std::vector<DeviceShare>* shares) const {
-  std::unique_lock<std::mutex> gate(update_gate_);
-  std::shared_lock<std::shared_mutex> lock(update_mutex_);
-  gate.unlock();
-  const std::size_t D = indexes_.size();
-  const std::vector<double> w = weights();
-  const std::vector<std::size_t> first = split(n);
-  std::vector<RadiusResult> parts(D);
-  std::vector<QueryStats> st(D);
-  std::vector<std::string> names;
-  for (const auto& ix : indexes_) names.push_back(ix->runtime().info().summary());
-  on_each_device(D, names, [&](std::size_t d) {
-    st[d] = indexes_[d]->radius_search(queries + 3 * first[d], first[d + 1] - first[d], r, params, parts[d]);
-  });
-  out = RadiusResult{};
-  out.n = n;
-  out.offsets.assign(1, 0);
-  QueryStats total;
-  total.n_queries = n;
-  std::vector<std::size_t> counts(D);
-  std::vector<double> seconds(D);
-  for (std::size_t d = 0; d < D; ++d) {
-    const RadiusResult& p = parts[d];
-    const std::int64_t base = out.offsets.back();
-    for (std::size_t i = 1; i < p.offsets.size(); ++i) out.offsets.push_back(base + p.offsets[i]);
-    out.ids.insert(out.ids.end(), p.ids.begin(), p.ids.end());
-    out.dist2.insert(out.dist2.end(), p.dist2.begin(), p.dist2.end());
-    out.found.insert(out.found.end(), p.found.begin(), p.found.end());
-    out.examined.insert(out.examined.end(), p.examined.begin(), p.examined.end());
-    out.truncated_queries += p.truncated_queries;
+    merge(d, first[d]);
     add_part(total, st[d]);
     counts[d] = first[d + 1] - first[d];
     seconds[d] = part_seconds(st[d]);
@@ -232,6 +181,49 @@ QueryStats MultiDeviceIndex::radius_search(const float* queries, std::size_t n, 
   }
   learn(counts, seconds);
   return total;
+}
+
+QueryStats MultiDeviceIndex::query(const float* queries, std::size_t n, const SearchParams& params,
+                                   KnnResult& out, std::vector<DeviceShare>* shares) const {
+  std::vector<KnnResult> parts(indexes_.size());
+  const std::size_t k = static_cast<std::size_t>(params.k);
+  return on_devices(
+      n,
+      [&](std::size_t d, std::size_t first, std::size_t m) {
+        return indexes_[d]->query(queries + 3 * first, m, params, parts[d]);
+      },
+      [&](std::size_t d, std::size_t first) {
+        if (d == 0) {
+          out.resize(n, params.k);
+          if (params.count_examined) out.examined.assign(n, 0);
+        }
+        std::copy(parts[d].ids.begin(), parts[d].ids.end(), out.ids.begin() + first * k);
+        std::copy(parts[d].dist2.begin(), parts[d].dist2.end(), out.dist2.begin() + first * k);
+        std::copy(parts[d].counts.begin(), parts[d].counts.end(), out.counts.begin() + first);
+        if (params.count_examined)
+          std::copy(parts[d].examined.begin(), parts[d].examined.end(), out.examined.begin() + first);
+      },
+      shares);
+}
+
+QueryStats MultiDeviceIndex::radius_search(const float* queries, std::size_t n, float r,
+                                           const RadiusParams& params, RadiusResult& out,
+                                           std::vector<DeviceShare>* shares) const {
+  std::vector<RadiusResult> parts(indexes_.size());
+  return on_devices(
+      n,
+      [&](std::size_t d, std::size_t first, std::size_t m) {
+        return indexes_[d]->radius_search(queries + 3 * first, m, r, params, parts[d]);
+      },
+      [&](std::size_t d, std::size_t) {
+        if (d == 0) {
+          out = RadiusResult{};
+          out.n = n;
+          out.offsets.assign(1, 0);
+        }
+        out.append(parts[d]);
+      },
+      shares);
 }
 
 }  // namespace bhcl

@@ -1,0 +1,249 @@
+// BlockHashIndex's search side: the parameter checks and the tuned A, the kernels' options and
+// arguments, the kNN and radius dispatch, and the host reference of the same query.
+#include <algorithm>
+#include <cmath>
+#include <cstdlib>
+#include <sstream>
+
+#include "blockhash/build.hpp"
+#include "blockhash_cl/error.hpp"
+#include "core/device_util.hpp"
+
+namespace bhcl {
+
+std::uint32_t BlockHashIndex::cells_probes(const SearchParams& p) const {
+  if (p.neighbour_probes >= 0) return static_cast<std::uint32_t>(p.neighbour_probes);
+  // The octant, then the rest of the 4 x 4 x 4 block only for queries whose k-th distance still
+  // reaches past the octant (phase 2 of the kernel): it costs a comparison when not needed.
+  return info_.neighbour_probes ? 2u : 0u;
+}
+
+bool BlockHashIndex::table_probes(int neighbour_probes) const {
+  return neighbour_probes < 0 ? info_.neighbour_probes : neighbour_probes == 1;
+}
+
+void BlockHashIndex::add_layout_args(detail::KernelArgs& args, int neighbour_probes) const {
+  args.add(blocks_).add(boxes_).add(thresholds_).add(cl_uint(info_.P)).add(keys_);
+  if (info_.cell_aligned) {
+    SearchParams sp;
+    sp.neighbour_probes = neighbour_probes;
+    args.add(cl_uint(s_->keys.size()))
+        .add(buckets_)
+        .add(cell_table_)
+        .add(cl_uint(cell_dy_))
+        .add(cl_uint(cell_dz_))
+        .add(cl_uint(cells_probes(sp)));
+  } else {
+    args.add(table_starts_).add(buckets_).add(refs_).add(cl_uint(table_probes(neighbour_probes) ? 1 : 0));
+  }
+}
+
+std::uint32_t BlockHashIndex::budget(const SearchParams& p) {
+  double b = std::ceil(double(p.A) * double(p.k));
+  return static_cast<std::uint32_t>(std::min(b, 4294967295.0));
+}
+
+void BlockHashIndex::check_params(const SearchParams& p) const {
+  Index::check_params(p);
+  if (info_.grid) {
+    // The rings reach every cell within the bound: the probes of the block layouts do not apply.
+    if (p.neighbour_probes < -1 || p.neighbour_probes > 2)
+      throw Error("blockhash: neighbour_probes must be -1, 0, 1 or 2, got " + std::to_string(p.neighbour_probes));
+    if (!(p.recall_target >= 0 && p.recall_target <= 1))
+      throw Error("blockhash: recall_target must be in [0, 1] (0 = use A, 1 = exact), got " + std::to_string(p.recall_target));
+    if (p.recall_target > 0 && p.recall_target < 1) {
+      resolved_A(p);
+      return;
+    }
+    if (!(p.A >= 0))
+      throw Error("blockhash: A must be positive (+inf: exact; 0: the default, exact), got " + std::to_string(p.A));
+    return;
+  }
+  const int top = info_.cell_aligned ? 2 : 1;
+  if (p.neighbour_probes < -1 || p.neighbour_probes > top)
+    throw Error("blockhash: neighbour_probes must be -1 (preset), 0 or 1" +
+                std::string(info_.cell_aligned ? " or 2 (cell-aligned: two near-side cells and the far one)" : "") +
+                ", got " + std::to_string(p.neighbour_probes));
+  if (!(p.recall_target >= 0 && p.recall_target <= 1))
+    throw Error("blockhash: recall_target must be in [0, 1] (0 = use A), got " + std::to_string(p.recall_target));
+  if (p.recall_target > 0) {
+    resolved_A(p);  // tunes now (once per k and target), outside any dispatch lock
+    return;
+  }
+  if (!(p.A >= 0) || !std::isfinite(p.A))
+    throw Error("blockhash: A must be a positive finite number (0: the default, 8), got " + std::to_string(p.A));
+}
+
+BlockHashIndex::RecallTuning BlockHashIndex::recall_tuning(const SearchParams& p) const {
+  // Tuned without the radius (in whichever coordinates the caller's path holds it): the budget
+  // a recall needs does not depend on it.
+  auto key = std::make_tuple(p.k, p.neighbour_probes, p.recall_target);
+  SearchParams tp = p;
+  tp.max_radius = INFINITY;
+  std::lock_guard<std::mutex> lock(tune_mutex_);
+  auto it = tuned_.find(key);
+  if (it != tuned_.end()) return it->second;
+  RecallTuning t = tune_for_recall(p.recall_target, tp);
+  tuned_[key] = t;
+  return t;
+}
+
+float BlockHashIndex::resolved_A(const SearchParams& p) const {
+  if (info_.grid && p.recall_target >= 1) return INFINITY;  // the exact mode
+  if (p.recall_target > 0) return recall_tuning(p).A;
+  if (p.A == 0) return info_.grid ? INFINITY : 8.0f;  // the index's default (SearchParams::A)
+  return p.A;
+}
+
+std::string BlockHashIndex::kernel_options(int kmax) const {
+  std::ostringstream os;
+  if (info_.grid) {
+    // The register list and the prefetch where the compiler vectorises (CPU devices: the quirks
+    // list); the scalar list on GPUs and past 64 entries.
+    const bool cpu = runtime().quirks().vector_scan;
+    os << "-DBHCL_KMAX=" << kmax << " -DBHCL_GRID_VTOPK=" << (cpu && kmax <= 64 ? 1 : 0)
+       << " -DBHCL_GRID_PREFETCH=" << (cpu ? 2 : 0) << " -DBHCL_GRID_ROWCAP=" << blockhash::grid_row_cap(cpu);
+    return os.str();
+  }
+  if (info_.cell_aligned) {
+    os << "-DBHCL_KMAX=" << kmax << " -DBHCL_BH_MAXKEEP=" << blockhash::scan_cap(kmax, info_.X)
+       << " -DBHCL_BH_VECSCAN=" << (runtime().quirks().vector_scan ? 1 : 0);
+    return os.str();
+  }
+  os << "-DBHCL_KMAX=" << kmax << " -DBHCL_BH_L=" << info_.L
+     << " -DBHCL_BH_DIRECT=" << (info_.direct_addressing ? 1 : 0)
+     << " -DBHCL_BH_BOXSKIP=" << (info_.box_skip && !info_.box_order ? 1 : 0)
+     << " -DBHCL_BH_BOXORDER=" << (info_.box_order ? 1 : 0);
+  // Only the defines the variant uses, so that indexes differing elsewhere share a program.
+  if (info_.box_order) os << " -DBHCL_BH_MAXKEEP=" << blockhash::scan_cap(kmax, info_.X);
+  else os << " -DBHCL_BH_SCANCAP=" << blockhash::scan_cap(kmax, info_.X);
+  return os.str();
+}
+
+cl::Event BlockHashIndex::enqueue_batch(const cl::CommandQueue& queue, const cl::Buffer& queries,
+                                        std::size_t first, std::size_t count,
+                                        const ResultBuffers& out, const SearchParams& params_in,
+                                        std::size_t local_size,
+                                        const std::vector<cl::Event>* wait) const {
+  const cl::Buffer* examined = params_in.count_examined ? &out.examined : nullptr;
+  SearchParams params = params_in;
+  params.A = resolved_A(params_in);
+  params.recall_target = 0;
+  int kmax = kmax_variant(params.k);
+  // The arguments both block-hash kernels end with: the queries, k, radius, budget, the blocks a
+  // query keeps, the results and the examined counts.
+  auto add_query_args = [&](detail::KernelArgs& args) {
+    args.add_queries(queries, first, count, params)
+        .add(cl_uint(budget(params)))
+        .add(cl_uint(blockhash::keep_blocks(budget(params), kmax, info_.X)))
+        .add_results(out)
+        .add(examined ? *examined : dummy_)
+        .add(cl_uint(examined ? 1 : 0));
+  };
+  if (info_.grid) {
+    const char* gname = "blockhash_grid_knn";
+    cl::Kernel kernel = runtime().kernel(std::string(gname) + ".cl", gname,
+                                         detail::with_defines(kernel_options(kmax), params));
+    detail::KernelArgs args(kernel, gname);
+    add_grid_args(args);
+    args.add_queries(queries, first, count, params)
+        .add(cl_uint(budget(params)))
+        .add_results(out)
+        .add(examined ? *examined : dummy_)
+        .add(cl_uint(examined ? 1 : 0));
+    return detail::launch_1d(queue, kernel, count, local_size, wait, gname);
+  }
+  // The two layouts' kernels share their first and last arguments.
+  const char* name = info_.cell_aligned ? "blockhash_cells_knn" : "blockhash_knn";
+  cl::Kernel kernel = runtime().kernel(std::string(name) + ".cl", name,
+                                       detail::with_defines(kernel_options(kmax), params));
+  detail::KernelArgs args(kernel, name);
+  add_layout_args(args, params.neighbour_probes);
+  if (info_.cell_aligned) {
+    args.add(block_keys_)
+        .add(cl_uint(s_->blocks.size()))
+        .add(cl_uint(s_->cell_bits()))
+        .add(cl_uint(blockhash::cells_seed_side(info_.hilbert_seed, params.k)));
+  } else {
+    args.add(block_keys_)
+        .add(cl_uint(s_->blocks.size()))
+        .add(cl_float4{{s_->q_origin[0], s_->q_origin[1], s_->q_origin[2], s_->q_scale}})
+        .add(cl_uint(s_->q_bits))
+        .add(cl_uint(blockhash::seed_side(info_.hilbert_seed, params.k, info_.X)));
+  }
+  add_query_args(args);
+  return detail::launch_1d(queue, kernel, count, local_size, wait, name);
+}
+
+cl::Event BlockHashIndex::enqueue_radius_batch(const cl::CommandQueue& queue,
+                                               const cl::Buffer& queries, std::size_t first,
+                                               std::size_t count, float r2, int pass,
+                                               const RadiusBuffers& out, const RadiusParams& params,
+                                               std::size_t local_size,
+                                               const std::vector<cl::Event>* wait) const {
+  if (info_.grid) {
+    const char* gname = "blockhash_grid_radius";
+    cl::Kernel kernel = runtime().kernel(std::string(gname) + ".cl", gname, params.kernel_defines);
+    detail::KernelArgs args(kernel, gname);
+    add_grid_args(args);
+    args.add(cl_uint(params.budget)).add_radius(queries, first, count, r2, pass, out, params.count_examined);
+    return detail::launch_1d(queue, kernel, count, local_size, wait, gname);
+  }
+  const char* name = info_.cell_aligned ? "blockhash_cells_radius" : "blockhash_radius";
+  std::ostringstream options;
+  if (!info_.cell_aligned)
+    options << "-DBHCL_BH_L=" << info_.L << " -DBHCL_BH_DIRECT=" << (info_.direct_addressing ? 1 : 0)
+            << " -DBHCL_BH_SCANCAP=" << blockhash::scan_cap(kMaxK, info_.X);
+  if (!params.kernel_defines.empty()) options << " " << params.kernel_defines;
+  cl::Kernel kernel = runtime().kernel(std::string(name) + ".cl", name, options.str());
+  detail::KernelArgs args(kernel, name);
+  add_layout_args(args, params.neighbour_probes);
+  args.add(cl_uint(params.budget)).add_radius(queries, first, count, r2, pass, out, params.count_examined);
+  return detail::launch_1d(queue, kernel, count, local_size, wait, name);
+}
+
+std::uint32_t BlockHashIndex::row_cap_for(const SearchParams& p) const {
+  // The kernel's BHCL_GRID_ROWCAP: the device's, unless the caller's defines override it (the last
+  // -D of a name wins, as in the OpenCL compiler).
+  std::uint32_t cap = blockhash::grid_row_cap(runtime().quirks().vector_scan);
+  const std::string key = "-DBHCL_GRID_ROWCAP=";
+  for (std::size_t at = p.kernel_defines.find(key); at != std::string::npos; at = p.kernel_defines.find(key, at + 1))
+    cap = static_cast<std::uint32_t>(std::strtoul(p.kernel_defines.c_str() + at + key.size(), nullptr, 10));
+  return cap;
+}
+
+void BlockHashIndex::add_grid_args(detail::KernelArgs& args) const {
+  const bhcl_grid_geom& g = s_->grid->geom;
+  args.add(g_starts_).add(g_x_).add(g_y_).add(g_z_).add(g_ids_)
+      .add(cl_float4{{g.ox, g.oy, g.oz, g.h}})
+      .add(cl_float4{{g.inv_h, g.margin, 0.0f, 0.0f}})
+      .add(cl_uint4{{g.nx, g.ny, g.nz, g.sparse}});
+}
+
+KnnResult BlockHashIndex::reference_query(const float* queries, std::size_t n,
+                                          const SearchParams& params_in,
+                                          std::vector<std::int32_t>* examined,
+                                          unsigned threads) const {
+  check_params(params_in);
+  // The same path as query(): the tuned A, queries and radius in the structure's coordinates,
+  // distances back in the caller's.
+  SearchParams params = scaled(params_in);
+  params.A = resolved_A(params_in);
+  params.recall_target = 0;
+  std::vector<float> storage;
+  queries = to_structure(queries, n, storage);
+  KnnResult out;
+  if (info_.grid) {
+    blockhash::reference_query_grid(*s_->grid, queries, n, params.k, detail::squared_radius(params.max_radius),
+                                    budget(params), row_cap_for(params), out, examined, threads);
+  } else if (info_.cell_aligned) {
+    blockhash::reference_query_cells(*s_, queries, n, params, cells_probes(params), out, examined, threads);
+  } else {
+    blockhash::reference_query(*s_, queries, n, params, table_probes(params.neighbour_probes), out, examined,
+                               threads);
+  }
+  distances_to_caller(out.dist2.data(), out.dist2.size());
+  return out;
+}
+
+}  // namespace bhcl
