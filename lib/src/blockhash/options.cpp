@@ -147,7 +147,9 @@ MethodInfo::Used used_build(const Index& index) {
                            {"compactions", std::to_string(i.compactions)},
                            {"update_rebuilds", std::to_string(i.update_rebuilds)},
                            {"retunes", std::to_string(i.retunes)},
-                           {"update_seconds", json_real(i.t_update)}});
+                           {"update_seconds", json_real(i.t_update)},
+                           {"id_bound", std::to_string(index.id_bound())},
+                           {"removed", std::to_string(index.removed_count())}});
   }
   return u;
 }
