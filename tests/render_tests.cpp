@@ -23,6 +23,21 @@ using namespace bhcl::render;
 
 namespace {
 
+// The Cornell Box, its Embree scene, lights and one set of photon maps (indices not built).
+struct CornellPhotons {
+  Scene scene = cornell_scene();
+  EmbreeScene es{scene, 2};
+  LightSampler lights{scene};
+  PhotonMaps maps;
+  CornellPhotons(std::size_t photons, std::uint64_t seed) {
+    PhotonTraceOptions po;
+    po.photons = photons;
+    po.seed = seed;
+    po.threads = 2;
+    maps = build_photon_maps(es, lights, po);
+  }
+};
+
 struct SmallRender {
   Image image;
   RenderStats stats;
@@ -1051,15 +1066,8 @@ TEST_CASE("render: the density estimate inside the query equals the host estimat
   // device sums in the same order as the host, the mean/var discs in float where the host uses
   // double; a photon exactly on the disc's rim may then fall the other way, worth at most a
   // filter weight of ~0 for cone/Epanechnikov, hence the absolute part).
-  Scene scene = cornell_scene();
-  EmbreeScene es(scene, 2);
-  LightSampler lights(scene);
-  PhotonTraceOptions po;
-  po.photons = 6000;
-  po.seed = 5;
-  po.threads = 2;
-  PhotonMaps maps = build_photon_maps(es, lights, po);
-  PhotonMap& map = *maps.global;
+  CornellPhotons cp(6000, 5);
+  PhotonMap& map = *cp.maps.global;
   // Queries: photon positions nudged (dense regions) and points spread over the box; normals
   // pointing every way, so that the facing test keeps some photons and drops others.
   std::vector<float> qs, ns;
@@ -1128,14 +1136,10 @@ TEST_CASE("render: the density estimate inside the query equals the host estimat
 TEST_CASE("render: shading with the fused estimate matches shading from the lists") {
   // The same rays and photons: the image from the estimates inside the query and the one from
   // the lists differ by float rounding only (relative 1e-4 per pixel).
-  Scene scene = cornell_scene();
-  EmbreeScene es(scene, 2);
-  LightSampler lights(scene);
-  PhotonTraceOptions po;
-  po.photons = 4000;
-  po.seed = 2;
-  po.threads = 2;
-  PhotonMaps maps = build_photon_maps(es, lights, po);
+  CornellPhotons cp(4000, 2);
+  PhotonMaps& maps = cp.maps;
+  const EmbreeScene& es = cp.es;
+  const LightSampler& lights = cp.lights;
   maps.global->build_index(has_method("kdtree") ? "kdtree" : "bruteforce", test::runtime());
   RenderOptions ro;
   ro.width = ro.height = 16;
