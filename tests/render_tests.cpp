@@ -937,6 +937,27 @@ TEST_CASE("render: the path tracer: a white furnace converges to Le over 1 - rho
   CHECK(test::run_bhcl("pathtrace --out " + test::tmp_path("pt.exr") + " --size 0x4", &out) == 2);
   CHECK(test::run_bhcl("pathtrace --out " + test::tmp_path("pt.exr") + " --spp 0", &out) == 2);
   CHECK(test::run_bhcl("pathtrace --out " + test::tmp_path("pt.exr") + " --scene /no/such.obj", &out) == 1);
+  // --window / --base: the window's pixels traced, the others the base image's.
+  const std::string base = test::tmp_path("pt_base.exr"), win = test::tmp_path("pt_win.exr");
+  REQUIRE(test::run_bhcl("pathtrace --scene cornell --size 8x8 --spp 2 --quiet --out " + base, &out) == 0);
+  REQUIRE(test::run_bhcl("pathtrace --scene cornell --size 8x8 --spp 8 --window 2,2,4,3 --base " + base +
+                             " --quiet --out " + win, &out) == 0);
+  const Image b = read_exr(base), w = read_exr(win);
+  std::size_t kept = 0, changed = 0;
+  for (int y = 0; y < 8; ++y)
+    for (int x = 0; x < 8; ++x) {
+      const std::size_t i = static_cast<std::size_t>(y) * 8 + x;
+      const bool same = b.at(i).x == w.at(i).x && b.at(i).y == w.at(i).y && b.at(i).z == w.at(i).z;
+      if (x >= 2 && x < 4 && y == 2) changed += !same;
+      else kept += same;
+    }
+  CHECK(kept == 62);
+  CHECK(changed == 2);
+  CHECK(test::run_bhcl("pathtrace --size 8x8 --window 2,2,9,3 --out " + win, &out) == 2);
+  CHECK(out.find("--window") != std::string::npos);
+  CHECK(test::run_bhcl("pathtrace --size 8x8 --base " + base + " --out " + win, &out) == 2);
+  CHECK(test::run_bhcl("pathtrace --size 4x4 --window 0,0,2,2 --base " + base + " --out " + win, &out) == 2);
+  CHECK(out.find("is 8x8") != std::string::npos);
 }
 
 TEST_CASE("render: progressive photon mapping: the radius sequence, one pass equals the plain render") {
