@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 
@@ -177,18 +178,6 @@ void add_query_stats(Json& j, const Index& index, const QueryStats& st) {
                         {"max_abs_relative", g_coords.max_abs_relative},
                         {"float32_step", g_coords.float32_step},
                         {"max_rounding", 0.5 * g_coords.float32_step}};
-  }
-}
-
-void write_radius_result(const Args& args, const RadiusResult& r) {
-  const std::size_t n = r.offsets.size() - 1, total = r.total();
-  write_array_file(args.str("out-offsets"), r.offsets.data(), n + 1, 0);
-  write_array_file(args.str("out-ids"), r.ids.data(), total, 0);
-  write_array_file(args.str("out-dist2"), r.dist2.data(), total, 0);
-  if (args.has("out-counts")) {
-    std::vector<std::int32_t> counts(n);
-    for (std::size_t i = 0; i < n; ++i) counts[i] = static_cast<std::int32_t>(r.count(i));
-    write_array_file(args.str("out-counts"), counts.data(), n, 0);
   }
 }
 
@@ -367,29 +356,68 @@ Json table_values(const Args& args, const std::string& method, unsigned scope) {
   return j;
 }
 
-QueryStats radius_with_progress(const Index& index, const std::vector<float>& queries, float radius,
-                                const RadiusParams& params, RadiusResult& all, bool quiet) {
+// BHCL_SLICE_ROWS (a positive count): the most queries a slice holds, overriding the sizes below
+// (the tests drive many slices through small batches with it). 0: not set.
+static std::size_t slice_rows_override() {
+  const char* e = std::getenv("BHCL_SLICE_ROWS");
+  if (!e || !*e) return 0;
+  char* end = nullptr;
+  const unsigned long long v = std::strtoull(e, &end, 10);
+  if (*end != '\0' || v == 0) throw UsageError(std::string("BHCL_SLICE_ROWS must be a positive count, got '") + e + "'");
+  return static_cast<std::size_t>(v);
+}
+
+std::size_t knn_slice_rows(std::size_t n, int k, bool count_examined, bool bar) {
+  if (const std::size_t o = slice_rows_override()) return std::max<std::size_t>(1, std::min(o, n));
+  // About 256 MiB of rows a slice (ids, squared distances, the count, the examined count), at
+  // least 2^15 queries (large enough for the Hilbert dispatch order and full devices); with a
+  // progress bar also about a hundredth of the batch.
+  const std::size_t row = static_cast<std::size_t>(k) * 8 + (count_examined ? 8 : 4);
+  std::size_t rows = std::max<std::size_t>(std::size_t(1) << 15, (std::size_t(256) << 20) / row);
+  if (bar) rows = std::min(rows, std::max<std::size_t>(std::size_t(1) << 15, n / 100));
+  return std::max<std::size_t>(1, std::min(rows, n));
+}
+
+QueryStats radius_in_slices(const Index& index, const std::vector<float>& queries, float radius,
+                            const RadiusParams& params, bool quiet, const RadiusSink& sink) {
   const std::size_t n = queries.size() / 3;
   render::Progress bar("radius " + index.method() + " (" + std::to_string(n) + " queries)", !quiet);
-  const std::size_t slice =
-      bar.enabled() ? std::max<std::size_t>(std::size_t(1) << 15, n / 100) : std::max<std::size_t>(n, 1);
+  // A slice's result is known only after its search: 2^18 queries bound it (with a bar, about a
+  // hundredth of the batch, at least 2^15).
+  std::size_t slice = std::size_t(1) << 18;
+  if (bar.enabled()) slice = std::min(slice, std::max<std::size_t>(std::size_t(1) << 15, n / 100));
+  if (const std::size_t o = slice_rows_override()) slice = o;
   auto t0 = std::chrono::steady_clock::now();
   RadiusResult part;
-  all = RadiusResult{};
-  all.offsets.assign(1, 0);
   QueryStats st;
   for (std::size_t first = 0; first < n || first == 0; first += slice) {
     const std::size_t m = std::min(slice, n - first);
     QueryStats s = index.radius_search(queries.data() + 3 * first, m, radius, params, part);
-    all.append(part);
+    sink(first, part);
     st.add_slice(s);
     bar.update(double(first + m) / double(std::max<std::size_t>(n, 1)));
     if (n == 0) break;
   }
   bar.finish();
-  all.n = n;
   st.n_queries = n;
   st.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return st;
+}
+
+QueryStats radius_with_progress(const Index& index, const std::vector<float>& queries, float radius,
+                                const RadiusParams& params, RadiusResult& all, bool quiet) {
+  all = RadiusResult{};
+  all.offsets.assign(1, 0);
+  QueryStats st = radius_in_slices(index, queries, radius, params, quiet, [&](std::size_t, const RadiusResult& part) {
+    const std::int64_t base = all.offsets.back();
+    for (std::size_t i = 1; i <= part.n; ++i) all.offsets.push_back(base + part.offsets[i]);
+    all.ids.insert(all.ids.end(), part.ids.begin(), part.ids.end());
+    all.dist2.insert(all.dist2.end(), part.dist2.begin(), part.dist2.end());
+    all.found.insert(all.found.end(), part.found.begin(), part.found.end());
+    all.examined.insert(all.examined.end(), part.examined.begin(), part.examined.end());
+    all.truncated_queries += part.truncated_queries;
+  });
+  all.n = queries.size() / 3;
   return st;
 }
 
@@ -406,38 +434,39 @@ std::unique_ptr<Index> build_with_progress(const std::string& method, std::share
   return index;
 }
 
-QueryStats query_with_progress(const Index& index, const std::vector<float>& queries,
-                               const SearchParams& params, KnnResult& out, bool quiet) {
+QueryStats query_in_slices(const Index& index, const std::vector<float>& queries, const SearchParams& params,
+                           bool quiet, const KnnSink& sink) {
   const std::size_t n = queries.size() / 3;
   render::Progress bar("query " + index.method() + " (" + std::to_string(n) + " queries)", !quiet);
-  // Without a bar one call; with one, about 100 slices of at least 2^15 queries (large enough for
-  // the Hilbert dispatch order and full devices).
-  const std::size_t slice = bar.enabled() ? std::max<std::size_t>(std::size_t(1) << 15, n / 100) : n;
-  if (slice >= n) {
-    QueryStats st = index.query(queries.data(), n, params, out);
-    bar.finish();
-    return st;
-  }
+  const std::size_t slice = knn_slice_rows(n, params.k, params.count_examined, bar.enabled());
   auto t0 = std::chrono::steady_clock::now();
-  out.resize(n, params.k);
-  if (params.count_examined) out.examined.assign(n, 0);
-  const std::size_t k = static_cast<std::size_t>(params.k);
   QueryStats total;
   KnnResult part;
-  for (std::size_t first = 0; first < n; first += slice) {
+  for (std::size_t first = 0; first < n || first == 0; first += slice) {
     const std::size_t m = std::min(slice, n - first);
     QueryStats st = index.query(queries.data() + 3 * first, m, params, part);
-    std::copy(part.ids.begin(), part.ids.end(), out.ids.begin() + first * k);
-    std::copy(part.dist2.begin(), part.dist2.end(), out.dist2.begin() + first * k);
-    std::copy(part.counts.begin(), part.counts.end(), out.counts.begin() + first);
-    if (params.count_examined) std::copy(part.examined.begin(), part.examined.end(), out.examined.begin() + first);
+    sink(first, part);
     total.add_slice(st);
-    bar.update(double(first + m) / double(n));
+    bar.update(double(first + m) / double(std::max<std::size_t>(n, 1)));
+    if (n == 0) break;
   }
   bar.finish();
   total.n_queries = n;
   total.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return total;
+}
+
+QueryStats query_with_progress(const Index& index, const std::vector<float>& queries,
+                               const SearchParams& params, KnnResult& out, bool quiet) {
+  const std::size_t n = queries.size() / 3, k = static_cast<std::size_t>(params.k);
+  out.resize(n, params.k);
+  if (params.count_examined) out.examined.assign(n, 0);
+  return query_in_slices(index, queries, params, quiet, [&](std::size_t first, const KnnResult& part) {
+    std::copy(part.ids.begin(), part.ids.end(), out.ids.begin() + first * k);
+    std::copy(part.dist2.begin(), part.dist2.end(), out.dist2.begin() + first * k);
+    std::copy(part.counts.begin(), part.counts.end(), out.counts.begin() + first);
+    if (params.count_examined) std::copy(part.examined.begin(), part.examined.end(), out.examined.begin() + first);
+  });
 }
 
 namespace {

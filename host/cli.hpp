@@ -5,6 +5,7 @@
 #include <nlohmann/json.hpp>
 
 #include <limits>
+#include <functional>
 #include <map>
 #include <set>
 #include <sstream>
@@ -83,8 +84,6 @@ Json stats_header(const std::string& command, const Runtime& rt);
 void add_image_fields(Json& j, const Args& args, const std::string& scene, int width, int height, int spp);
 // The timings and counts of a query call (with the index's build time) into a stats object.
 void add_query_stats(Json& j, const Index& index, const QueryStats& st);
-// A radius result into --out-offsets, --out-ids, --out-dist2 and (when given) --out-counts.
-void write_radius_result(const Args& args, const RadiusResult& r);
 // The inputs of a knn or eval run: the point and query files, N, n, k and the radius.
 Json inputs_json(const Args& args, std::size_t N, std::size_t n, const SearchParams& p);
 // The build parameters an index actually used (its method's MethodInfo::used_build: derived ones
@@ -124,6 +123,17 @@ QueryStats query_with_progress(const Index& index, const std::vector<float>& que
 // The same for a radius search (Index::radius_search; the slices concatenated).
 QueryStats radius_with_progress(const Index& index, const std::vector<float>& queries, float radius,
                                 const RadiusParams& params, RadiusResult& out, bool quiet);
+// The same, each slice handed to `sink` as it finishes (first query, its rows) and then dropped,
+// so that the whole result is never held (bhcl knn writes the slices as they come, ResultFiles).
+// kNN slices hold about 256 MiB of rows (knn_slice_rows), radius slices 2^18 queries; with a
+// progress bar also about a hundredth of the batch each.
+using KnnSink = std::function<void(std::size_t first, const KnnResult& part)>;
+using RadiusSink = std::function<void(std::size_t first, const RadiusResult& part)>;
+QueryStats query_in_slices(const Index& index, const std::vector<float>& queries, const SearchParams& params,
+                           bool quiet, const KnnSink& sink);
+QueryStats radius_in_slices(const Index& index, const std::vector<float>& queries, float radius,
+                            const RadiusParams& params, bool quiet, const RadiusSink& sink);
+std::size_t knn_slice_rows(std::size_t n, int k, bool count_examined, bool bar);
 // --radius and the tables' radius options, checked for `methods`: --k, --max-radius and the
 // kNN-only options are refused with it, r must be finite and >= 0 (the caller adds its own, e.g.
 // knn's --max-results).

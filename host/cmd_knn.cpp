@@ -13,6 +13,7 @@
 #include "cli.hpp"
 #include "commands.hpp"
 #include "progress.hpp"
+#include "result_files.hpp"
 
 namespace bhcl::cli {
 void declare_knn_distributed(Args& a);      // cmd_knn_distributed.cpp: --distributed and its options
@@ -67,17 +68,18 @@ int run_radius(const Args& args) {
   const bool quiet = args.flag("quiet");
   auto index = build_with_progress(method, rt, points, mopt, quiet);
 
-  RadiusResult all;
-  QueryStats st = radius_with_progress(*index, queries, radius, rp, all, quiet);
-
-  const std::size_t total = all.total();
-  write_radius_result(args, all);
+  // Each slice written as it finishes (no second copy of the result), renamed in place at the end.
+  RadiusOutputs files(args, n);
+  QueryStats st = radius_in_slices(*index, queries, radius, rp, quiet,
+                                   [&](std::size_t, const RadiusResult& part) { files.append(part); });
+  files.commit();
+  const std::size_t total = files.total(), truncated = files.truncated_queries();
   std::fprintf(stderr,
                "bhcl knn --radius: %s on %s: N=%zu n=%zu r=%g  build %.3f s  compile %.3f s  query %.4f s "
                "(%.0f q/s)  results %zu (%.2f per query)  truncated queries %zu\n",
                index->method().c_str(), rt->info().device_name.c_str(), N, n, radius,
                index->build_seconds(), st.compile_s, st.query_s, st.queries_per_s(), total,
-               n ? double(total) / double(n) : 0.0, all.truncated_queries);
+               n ? double(total) / double(n) : 0.0, truncated);
   if (args.has("stats")) {
     Json j = stats_header("knn", *rt);
     j["method"] = index->method();
@@ -90,7 +92,7 @@ int run_radius(const Args& args) {
     j["radius"] = {{"radius", radius}, {"max_results", rp.max_results}};
     j["radius"].update(table_values(args, method, OptionInfo::Radius));
     j["radius"]["results"] = total;
-    j["radius"]["truncated_queries"] = all.truncated_queries;
+    j["radius"]["truncated_queries"] = truncated;
     add_query_stats(j, *index, st);
     j["memory_bytes"] = index->memory_bytes();
     write_json(args.str("stats"), j);
@@ -203,15 +205,13 @@ int run_knn(const Args& args) {
   BlockHashIndex::BatchTuning bt;
   if (const auto* bh = dynamic_cast<const BlockHashIndex*>(index.get()))
     params = bh->params_for_batch(queries.data(), n, params, &bt);
-  KnnResult result;
-  QueryStats st = query_with_progress(*index, queries, params, result, quiet);
-
-  write_array_file(out_ids, result.ids.data(), n, static_cast<std::size_t>(params.k));
-  write_array_file(out_dist2, result.dist2.data(), n, static_cast<std::size_t>(params.k));
-  if (args.has("out-counts")) write_array_file(args.str("out-counts"), result.counts.data(), n, 0);
-
-  std::size_t found = 0;
-  for (auto c : result.counts) found += static_cast<std::size_t>(c);
+  // Each slice of rows written as it finishes (no second copy of the result), renamed in place at
+  // the end; a failure leaves the old files and no temporary.
+  KnnOutputs files(args, n, params.k);
+  QueryStats st = query_in_slices(*index, queries, params, quiet,
+                                  [&](std::size_t, const KnnResult& part) { files.append(part); });
+  files.commit();
+  const std::size_t found = files.found();
   std::fprintf(stderr,
                "bhcl knn: %s on %s: N=%zu n=%zu k=%d  build %.3f s  compile %.3f s  query %.4f s "
                "(%.0f q/s)  neighbours found %zu\n",

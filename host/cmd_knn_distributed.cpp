@@ -2,7 +2,9 @@
 // answered by bhcl::DistributedIndex. Rank 0 reads --points and --queries and passes them all to
 // the index, which shards the points by Hilbert-key range and routes the queries; rank 0 gets
 // every row back and writes the outputs. MPI is initialised here, only in this mode.
+#include <algorithm>
 #include <cstdio>
+#include <cstdlib>
 #include <memory>
 #include <chrono>
 #include <string>
@@ -15,6 +17,7 @@
 #include "blockhash_cl/runtime.hpp"
 #include "cli.hpp"
 #include "commands.hpp"
+#include "result_files.hpp"
 
 #if BHCL_HAVE_MPI
 #include "blockhash_cl/distributed.hpp"
@@ -85,6 +88,43 @@ Json gathered(double v, int rank, int ranks) {
   return j;
 }
 
+// The query calls of a distributed run: rank 0 holds every query, so it tells every rank n and
+// the slice size, and every rank makes the same calls, rank 0 passing slice s of its queries and
+// the others none.
+std::size_t g_n_global = 0, g_slice_rows = 1;
+std::size_t slice_count() { return g_n_global == 0 ? 1 : (g_n_global + g_slice_rows - 1) / g_slice_rows; }
+std::pair<std::size_t, std::size_t> slice_of(std::size_t s, std::size_t n, int rank) {
+  if (rank != 0) return {0, 0};
+  const std::size_t first = std::min(n, s * g_slice_rows);
+  return {first, std::min(g_slice_rows, n - first)};
+}
+// One slice's statistics into the run's (sums; the per-query vectors are not kept: the tool
+// reports their sums).
+std::size_t ds_visits = 0;
+void add_distributed_stats(QueryStats& st, DistributedQueryStats& ds, const QueryStats& ps,
+                           const DistributedQueryStats& pds) {
+  st.n_queries += ps.n_queries;
+  st.nonfinite_queries += ps.nonfinite_queries;
+  st.batches += ps.batches;
+  st.compile_s += ps.compile_s;
+  st.upload_s += ps.upload_s;
+  st.query_s += ps.query_s;
+  st.download_s += ps.download_s;
+  st.wall_s += ps.wall_s;
+  ds.multi_rank_queries += pds.multi_rank_queries;
+  ds.owner_sent += pds.owner_sent;
+  ds.owner_received += pds.owner_received;
+  ds.extra_sent += pds.extra_sent;
+  ds.extra_received += pds.extra_received;
+  ds.reanswered += pds.reanswered;
+  ds.answered += pds.answered;
+  ds.bytes_sent += pds.bytes_sent;
+  ds.bytes_received += pds.bytes_received;
+  ds.phase1_s += pds.phase1_s;
+  ds.phase2_s += pds.phase2_s;
+  for (auto v : pds.ranks_visited) ds_visits += static_cast<std::size_t>(v);
+}
+
 }  // namespace
 
 int run_knn_distributed(const Args& args) {
@@ -145,20 +185,62 @@ int run_knn_distributed(const Args& args) {
 
   DistributedIndex index(MPI_COMM_WORLD, rt, points.data(), points.size() / 3, bp);
   const std::size_t N = index.size(), n = queries.size() / 3;
+  {
+    // Rank 0's n (the others hold none) and its slice size: radius slices of 2^18 queries (their
+    // results are known only after the search), kNN slices of about 256 MiB of rows.
+    std::uint64_t v[2] = {n, radius_mode ? std::min<std::uint64_t>(std::uint64_t(1) << 18, std::max<std::size_t>(n, 1))
+                                         : knn_slice_rows(n, params.k, params.count_examined, false)};
+    if (radius_mode && rank == 0)
+      if (const char* e = std::getenv("BHCL_SLICE_ROWS"); e && *e) v[1] = knn_slice_rows(n, 1, false, false);
+    MPI_Bcast(v, 2, MPI_UINT64_T, 0, MPI_COMM_WORLD);
+    g_n_global = static_cast<std::size_t>(v[0]);
+    g_slice_rows = std::max<std::size_t>(1, static_cast<std::size_t>(v[1]));
+  }
   std::vector<float>().swap(points);
   if (radius_mode) {
     // Radius search: rank 0's queries, the slices written there (FAISS layout, as bhcl knn --radius).
-    RadiusResult rr;
+    // In slices (every rank calls each; the others pass none), each written on rank 0 as it
+    // comes back (RadiusOutputs): the whole result is never held there.
     DistributedQueryStats rds;
-    const QueryStats rst = index.radius_search(queries.data(), n, radius, rparams, rr, &rds);
+    QueryStats rst;
+    std::unique_ptr<RadiusOutputs> files;
     if (rank == 0) try {
-        write_radius_result(args, rr);
+        files = std::make_unique<RadiusOutputs>(args, n);
+      } catch (const std::exception& e) {
+        err = e.what();
+      }
+    mpi_agree(MPI_COMM_WORLD, err, what);
+    const std::size_t slices = slice_count();
+    for (std::size_t s = 0; s < slices; ++s) {
+      const auto [first, m] = slice_of(s, n, rank);
+      RadiusResult part;
+      DistributedQueryStats pds;
+      const QueryStats ps = index.radius_search(queries.data() + 3 * first, m, radius, rparams, part, &pds);
+      add_distributed_stats(rst, rds, ps, pds);
+      if (rank == 0 && err.empty()) try {
+          files->append(part);
+        } catch (const std::exception& e) {
+          err = e.what();  // told to every rank after the last slice
+        }
+    }
+    std::size_t rank_total = 0, rank_truncated = 0;
+    if (rank == 0 && err.empty()) try {
+        files->commit();
+        rank_total = files->total();
+        rank_truncated = files->truncated_queries();
+      } catch (const std::exception& e) {
+        err = e.what();
+      }
+    files.reset();  // a failed write: the temporaries removed
+    mpi_agree(MPI_COMM_WORLD, err, what);
+    if (rank == 0) try {
+        const std::size_t total = rank_total, truncated = rank_truncated;
         std::fprintf(stderr,
                      "bhcl knn --distributed --radius: %s on %d rank(s): N=%zu n=%zu r=%g  build %.3f s  "
                      "query %.3f s  queries on more than one rank %zu (%.1f %%)  results %zu  truncated %zu\n",
                      index.method().c_str(), ranks, N, n, double(radius), index.build_stats().wall_s, rst.wall_s,
                      rds.multi_rank_queries, n ? 100.0 * double(rds.multi_rank_queries) / double(n) : 0.0,
-                     rr.total(), rr.truncated_queries);
+                     total, truncated);
         if (args.has("stats")) {
           Json j = stats_header("knn", *rt);
           j["method"] = index.method();
@@ -166,7 +248,7 @@ int run_knn_distributed(const Args& args) {
           j["N"] = N;
           j["n"] = n;
           j["radius"] = {{"radius", radius}, {"max_results", rparams.max_results}, {"budget", rparams.budget},
-                         {"results", rr.total()}, {"truncated_queries", rr.truncated_queries}};
+                         {"results", total}, {"truncated_queries", truncated}};
           j["build_s"] = index.build_stats().wall_s;
           j["wall_s"] = rst.wall_s;
           j["nonfinite_queries"] = rst.nonfinite_queries;
@@ -179,9 +261,41 @@ int run_knn_distributed(const Args& args) {
     mpi_agree(MPI_COMM_WORLD, err, what);
     return 0;
   }
-  KnnResult result;
+  // In slices (every rank calls each; the others pass none), each written on rank 0 as it comes
+  // back (KnnOutputs): the whole result is never held there.
   DistributedQueryStats ds;
-  const QueryStats st = index.query(queries.data(), n, params, result, &ds);
+  QueryStats st;
+  std::unique_ptr<KnnOutputs> files;
+  if (rank == 0) try {
+      files = std::make_unique<KnnOutputs>(args, n, params.k);
+    } catch (const std::exception& e) {
+      err = e.what();
+    }
+  mpi_agree(MPI_COMM_WORLD, err, what);
+  std::size_t found = 0;
+  {
+    const std::size_t slices = slice_count();
+    for (std::size_t s = 0; s < slices; ++s) {
+      const auto [first, m] = slice_of(s, n, rank);
+      KnnResult part;
+      DistributedQueryStats pds;
+      const QueryStats ps = index.query(queries.data() + 3 * first, m, params, part, &pds);
+      add_distributed_stats(st, ds, ps, pds);
+      if (rank == 0 && err.empty()) try {
+          files->append(part);
+        } catch (const std::exception& e) {
+          err = e.what();  // told to every rank after the last slice
+        }
+    }
+    if (rank == 0 && err.empty()) try {
+        files->commit();
+        found = files->found();
+      } catch (const std::exception& e) {
+        err = e.what();
+      }
+    files.reset();  // a failed write: the temporaries removed
+    mpi_agree(MPI_COMM_WORLD, err, what);
+  }
 
   // Per-rank figures gathered on rank 0 (every rank takes part in the gathers).
   const DistributedBuildStats& bs = index.build_stats();
@@ -195,12 +309,7 @@ int run_knn_distributed(const Args& args) {
 
   // Rank 0 writes; a failure there fails every rank.
   if (rank == 0) try {
-      write_array_file(out_ids, result.ids.data(), n, static_cast<std::size_t>(params.k));
-      write_array_file(out_dist2, result.dist2.data(), n, static_cast<std::size_t>(params.k));
-      if (args.has("out-counts")) write_array_file(args.str("out-counts"), result.counts.data(), n, 0);
-      std::size_t found = 0, visits = 0;
-      for (auto c : result.counts) found += static_cast<std::size_t>(c);
-      for (auto v : ds.ranks_visited) visits += static_cast<std::size_t>(v);
+      const std::size_t visits = ds_visits;
       std::fprintf(stderr,
                    "bhcl knn --distributed: %s on %d rank(s) (%s on rank 0): N=%zu n=%zu k=%d  build %.3f s  "
                    "query %.3f s  queries on more than one rank %zu (%.1f %%)  neighbours found %zu\n",

@@ -32,6 +32,9 @@ void declare_pathtrace(Args& a) {
   a.add_number("exposure", "tone-mapping exposure (0: automatic)", "0");
   a.add_text("stats", "write timings and parameters here as JSON", "", "FILE");
   a.add_flag("quiet", "no progress bar");
+  a.add_text("window", "trace only the pixels x0 <= x < x1, y0 <= y < y1", "", "X0,Y0,X1,Y1");
+  a.add_text("base", "with --window: the pixels outside the window are this image's (an EXR of the same size)", "",
+             "IMAGE.exr");
 }
 
 int run_pathtrace(const Args& args) {
@@ -45,8 +48,18 @@ int run_pathtrace(const Args& args) {
   const double exposure_opt = args.number("exposure", 0.0);
   if (exposure_opt < 0 || !std::isfinite(exposure_opt)) throw UsageError("--exposure must be >= 0 (0: automatic)");
   const std::string out = args.str("out");
+  const std::string window = args.str("window", ""), base = args.str("base", "");
+  if (!window.empty()) {
+    char tail = 0;
+    if (std::sscanf(window.c_str(), "%d,%d,%d,%d%c", &opt.window_x0, &opt.window_y0, &opt.window_x1, &opt.window_y1,
+                    &tail) != 4 ||
+        opt.window_x0 < 0 || opt.window_y0 < 0 || opt.window_x1 > opt.width || opt.window_y1 > opt.height ||
+        opt.window_x0 >= opt.window_x1 || opt.window_y0 >= opt.window_y1)
+      throw UsageError("--window must be X0,Y0,X1,Y1 inside the image with X0 < X1 and Y0 < Y1, got '" + window + "'");
+  }
+  if (!base.empty() && window.empty()) throw UsageError("--base applies only with --window");
   const std::string png = args.str("png", strip_extension(out) + ".png");
-  check_distinct_files({{"--scene", args.str("scene", "")}},
+  check_distinct_files({{"--scene", args.str("scene", "")}, {"--base", base}},
                        {{"--out", out}, {args.has("png") ? "--png" : "the PNG beside --out", png},
                         {"--stats", args.str("stats", "")}});
 
@@ -60,6 +73,18 @@ int run_pathtrace(const Args& args) {
     Progress bar("path trace", !args.flag("quiet"));
     img = path_trace(es, lights, opt, stats, &bar);
     bar.finish();
+  }
+  if (!base.empty()) {
+    const Image b = read_exr(base);
+    if (b.width != img.width || b.height != img.height)
+      throw UsageError("--base " + base + " is " + std::to_string(b.width) + "x" + std::to_string(b.height) +
+                       ", the image " + std::to_string(img.width) + "x" + std::to_string(img.height));
+    for (int y = 0; y < img.height; ++y)
+      for (int x = 0; x < img.width; ++x)
+        if (x < opt.window_x0 || x >= opt.window_x1 || y < opt.window_y0 || y >= opt.window_y1) {
+          const std::size_t i = static_cast<std::size_t>(y) * img.width + x;
+          img.set(i, b.at(i));
+        }
   }
   write_exr(out, img);
   const float exposure = exposure_opt > 0 ? static_cast<float>(exposure_opt) : auto_exposure(img);
@@ -76,6 +101,8 @@ int run_pathtrace(const Args& args) {
     j["command"] = "pathtrace";
     add_image_fields(j, args, scene.name, opt.width, opt.height, opt.spp);
     j["max_depth"] = opt.max_depth;
+    if (!window.empty()) j["window"] = {opt.window_x0, opt.window_y0, opt.window_x1, opt.window_y1};
+    if (!base.empty()) j["base"] = base;
     j["seed"] = opt.seed;
     j["paths"] = stats.paths;
     j["vertices"] = stats.vertices;

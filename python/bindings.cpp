@@ -403,6 +403,15 @@ PYBIND11_MODULE(_core, m) {
            }, py::arg("ids").noconvert())
       .def_property_readonly("id_bound", &bhcl::Index::id_bound)
       .def("contains", &bhcl::Index::contains, py::arg("id"))
+      .def_property_readonly("removed_count", &bhcl::Index::removed_count)
+      .def("removed_ids", [](const bhcl::Index& index) {  // ascending (a loaded index's, for its copy)
+             std::vector<std::int32_t> ids;
+             ids.reserve(index.removed_count());
+             for (std::int32_t id = 0; id < index.id_bound() && ids.size() < index.removed_count(); ++id)
+               if (!index.contains(id)) ids.push_back(id);
+             const auto n = static_cast<py::ssize_t>(ids.size());
+             return to_numpy(std::move(ids), {n});
+           })
       .def("warm_up", [](const bhcl::Index& i, const bhcl::SearchParams& p) {
         py::gil_scoped_release nogil;
         return i.warm_up(p);

@@ -18,12 +18,22 @@ for m in kdtree bruteforce; do
   cmp i1 iN && cmp d1 dN && cmp c1 cN
   echo "$m: $np rank(s) wrote the one-process files"
 done
+# Issue 22: rank 0 writes the rows in slices as they come back (here 5 slices of 700 queries, every
+# rank taking part in each call): the same files.
+args="--points p.txt --queries q.txt --method kdtree --k 20 --max-radius 0.01 --quiet"
+BHCL_SLICE_ROWS=700 "$mpiexec" -np "$np" "$@" "$bhcl" knn $args --out-ids iS --out-dist2 dS --out-counts cS --distributed
+"$bhcl" knn $args --out-ids i1 --out-dist2 d1 --out-counts c1
+cmp i1 iS && cmp d1 dS && cmp c1 cS
+echo "kdtree in slices: $np rank(s) wrote the one-process files"
 # Radius search: the same three arrays as one process (an exact method, a cap).
 rargs="--points p.txt --queries q.txt --method kdtree --radius 0.02 --max-results 30 --quiet"
 "$bhcl" knn $rargs --out-offsets o1 --out-ids ri1 --out-dist2 rd1
 "$mpiexec" -np "$np" "$@" "$bhcl" knn $rargs --out-offsets oN --out-ids riN --out-dist2 rdN --distributed
 cmp o1 oN && cmp ri1 riN && cmp rd1 rdN
 echo "radius: $np rank(s) wrote the one-process files"
+BHCL_SLICE_ROWS=700 "$mpiexec" -np "$np" "$@" "$bhcl" knn $rargs --out-offsets oS --out-ids riS --out-dist2 rdS --distributed
+cmp o1 oS && cmp ri1 riS && cmp rd1 rdS
+echo "radius in slices: $np rank(s) wrote the one-process files"
 if "$mpiexec" -np "$np" "$@" "$bhcl" knn --points missing.txt --queries q.txt --method kdtree \
     --out-ids iN --out-dist2 dN --distributed --quiet 2> err.txt; then
   echo "a missing point file did not fail"; exit 1

@@ -14,10 +14,17 @@
 //  - radius search: exact methods equal one process bit for bit (with and without a cap), block
 //    hashing a subset within r with one process's recall;
 //  - a rank given a NaN point, an unknown method on one rank, or ranks passing different k make
-//    the call throw on every rank with a message naming the failing rank.
+//    the call throw on every rank with a message naming the failing rank;
+//  - ranks passing different build or search parameters (method, an option, boxes, A, the
+//    recall target, the radius, the cap) are refused on every rank naming rank and parameter;
+//  - with --hang-rank R (its own CTest case): a rank that stops answering ends the job within
+//    the deadline with a message naming it, never a hang.
 #include <mpi.h>
 
 #include <algorithm>
+#include <chrono>
+#include <cstdlib>
+#include <thread>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -300,7 +307,8 @@ void radius_search_as_one_process() {
   } catch (const std::exception& e) {
     msg = e.what();
   }
-  if (g_ranks > 1) EXPECT(msg.find("different radius") != std::string::npos, "message: '%s'", msg.c_str());
+  if (g_ranks > 1)
+    EXPECT(msg.find("has radius = 0.300000012 where rank 0 has 0.200000003") != std::string::npos, "message: '%s'", msg.c_str());
 }
 
 // NaN queries get empty rows and are counted; the exchange counts balance over the ranks.
@@ -445,7 +453,7 @@ void failures_reach_every_rank() {
     p.k = g_rank == bad ? 6 : 5;
     if (g_ranks > 1)
       expect_collective_error("different k per rank", [&] { dist.query(pts.data(), 10, p, r); },
-                              {"different k"});
+                              {"rank " + std::to_string(bad) + " has k = 6 where rank 0 has 5"});
   }
   {
     // A failure inside the local query (count_examined on a method that does not count) on
@@ -462,6 +470,93 @@ void failures_reach_every_rank() {
   bhcl::KnnResult r;
   dist.query(pts.data(), 4, p, r);
   EXPECT(r.counts[0] == 3 && r.ids[0] == 0 && r.dist2[0] == 0.0f, "row 0: %d %d %g", r.counts[0], r.ids[0], r.dist2[0]);
+}
+
+// Issue 22: ranks started with different parameters are refused on every rank, naming the first
+// differing rank, the parameter and both values (a hash of every build and search parameter is
+// checked on the build and on each call); before, a different method or A on one rank ran and
+// reported "exact" while the rows it answered were another method's.
+void parameters_must_agree() {
+  if (g_ranks < 2) return;
+  const std::vector<float> pts = bhcl::datasets::uniform(2000, 23);
+  const int bad = g_ranks - 1;
+  const std::string who = "rank " + std::to_string(bad) + " has ";
+  {
+    bhcl::DistributedBuildParams bp;
+    bp.method = g_rank == bad ? "bruteforce" : "kdtree";
+    expect_collective_error(
+        "a different method on one rank",
+        [&] { bhcl::DistributedIndex d(MPI_COMM_WORLD, runtime(), pts.data(), 2000, bp); },
+        {who + "method = bruteforce where rank 0 has kdtree"});
+  }
+  {
+    bhcl::DistributedBuildParams bp;
+    if (g_rank == bad) bp.options.set("leaf-size", "8");
+    expect_collective_error(
+        "a method option on one rank only",
+        [&] { bhcl::DistributedIndex d(MPI_COMM_WORLD, runtime(), pts.data(), 2000, bp); },
+        {who + "option leaf-size = 8 where rank 0 has (not set)"});
+  }
+  {
+    bhcl::DistributedBuildParams bp;
+    bp.boxes_per_rank = g_rank == bad ? 4 : 16;
+    expect_collective_error(
+        "different boxes_per_rank",
+        [&] { bhcl::DistributedIndex d(MPI_COMM_WORLD, runtime(), pts.data(), 2000, bp); },
+        {who + "boxes_per_rank = 4 where rank 0 has 16"});
+  }
+  bhcl::DistributedBuildParams bp;
+  bp.method = "blockhash";
+  bhcl::DistributedIndex dist(MPI_COMM_WORLD, runtime(), pts.data(), g_rank == 0 ? 2000 : 0, bp);
+  {
+    bhcl::SearchParams p;
+    p.k = 5;
+    p.A = g_rank == bad ? 2.0f : 4.0f;
+    bhcl::KnnResult r;
+    expect_collective_error("a different A on one rank", [&] { dist.query(pts.data(), 10, p, r); },
+                            {who + "A = 2 where rank 0 has 4"});
+    p.A = 4;
+    p.recall_target = g_rank == bad ? 0.9 : 0.0;
+    expect_collective_error("a different recall target on one rank", [&] { dist.query(pts.data(), 10, p, r); },
+                            {who + "recall_target = 0.9"});
+  }
+  {
+    bhcl::RadiusParams rp;
+    rp.max_results = g_rank == bad ? 3 : 0;
+    bhcl::RadiusResult rr;
+    expect_collective_error("a different cap on one rank",
+                            [&] { dist.radius_search(pts.data(), 10, 0.1f, rp, rr); },
+                            {who + "max_results = 3 where rank 0 has 0"});
+    rp.max_results = 0;
+    expect_collective_error("a different radius on one rank",
+                            [&] { dist.radius_search(pts.data(), 10, g_rank == bad ? 0.2f : 0.1f, rp, rr); },
+                            {who + "radius = 0.200000003 where rank 0 has 0.100000001"});
+  }
+  // Agreeing again, the index answers.
+  bhcl::SearchParams p;
+  p.k = 3;
+  bhcl::KnnResult r;
+  dist.query(pts.data(), 4, p, r);
+  EXPECT(r.counts[0] == 3 && r.ids[0] == 0 && r.dist2[0] == 0.0f, "row 0: %d %d %g", r.counts[0], r.ids[0], r.dist2[0]);
+}
+
+// Issue 22: `--hang-rank R` (a CTest case of its own, BHCL_MPI_DEADLINE_S set short): rank R stops
+// answering before a query (it sleeps); the other ranks must not wait forever: the query's first
+// step ends the job (MPI_Abort) with a message naming rank R. Returns only if nobody noticed.
+int hang_one_rank(int hung) {
+  const std::vector<float> pts = bhcl::datasets::uniform(2000, 24);
+  bhcl::DistributedIndex dist(MPI_COMM_WORLD, runtime(), pts.data(), g_rank == 0 ? 2000 : 0);
+  if (g_rank == 0) std::printf("built; rank %d now stops answering\n", hung), std::fflush(stdout);
+  if (g_rank == hung) {
+    for (int i = 0; i < 600; ++i) std::this_thread::sleep_for(std::chrono::seconds(1));
+  } else {
+    bhcl::SearchParams p;
+    p.k = 3;
+    bhcl::KnnResult r;
+    dist.query(pts.data(), 4, p, r);
+  }
+  std::fprintf(stderr, "rank %d: FAILED: the query returned although rank %d never called it\n", g_rank, hung);
+  return 1;
 }
 
 template <typename F>
@@ -488,12 +583,18 @@ int main(int argc, char** argv) {
   MPI_Init(&argc, &argv);
   MPI_Comm_rank(MPI_COMM_WORLD, &g_rank);
   MPI_Comm_size(MPI_COMM_WORLD, &g_ranks);
+  if (argc == 3 && std::strcmp(argv[1], "--hang-rank") == 0) {
+    const int rc = hang_one_rank(std::atoi(argv[2]));
+    MPI_Finalize();
+    return rc;
+  }
   run("exact methods equal one process bit for bit", exact_methods_match_single_process);
   run("fewer points than ranks", fewer_points_than_ranks);
   run("non-finite queries and statistics", nonfinite_queries_and_stats);
   run("radius search as one process", radius_search_as_one_process);
   run("block hashing recall as one process", blockhash_recall_as_one_process);
   run("a failing rank fails the call on every rank", failures_reach_every_rank);
+  run("ranks passing different parameters are refused on every rank", parameters_must_agree);
   int all = 0;
   MPI_Allreduce(&g_failures, &all, 1, MPI_INT, MPI_SUM, MPI_COMM_WORLD);
   if (g_rank == 0) std::printf("%s: %d failed check(s) over %d rank(s)\n", all ? "FAILED" : "passed", all, g_ranks);

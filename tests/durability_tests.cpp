@@ -135,6 +135,118 @@ TEST_CASE("durability: bhcl outputs and --save-index under a full disk keep the 
                        idx + " --out-ids " + O + "ids2.raw --out-dist2 " + O + "d22.raw") == 0);
 }
 
+TEST_CASE("durability: kill -9 during --save-index over an existing index leaves the old index whole") {
+  // Before: a 0-byte file. The save goes to a temporary renamed over the target, so a kill at any
+  // moment leaves the old index (or the new one, the same bytes: the build is deterministic).
+  const std::vector<float> pts = datasets::uniform(200000, 95);
+  const std::string P = test::write_points("kill_p.f32", pts);
+  const std::string idx = test::tmp_path("kill_saved.bhi");
+  const std::string args = "knn --points " + P + " --queries " + P + " --k 4 --quiet --method blockhash --out-ids " +
+                           test::tmp_path("kill_ids.raw") + " --out-dist2 " + test::tmp_path("kill_d2.raw") +
+                           " --save-index " + idx;
+  REQUIRE(test::run_bhcl(args) == 0);
+  const std::string old_idx = slurp(idx);
+  REQUIRE(old_idx.size() > 200000u * 12);
+  for (int ms : {100, 300, 600, 1000, 1500, 2500}) {
+    const pid_t pid = fork();
+    REQUIRE(pid >= 0);
+    if (pid == 0) {
+      execl("/bin/sh", "sh", "-c", ("exec \"" + std::string(BHCL_TOOL_PATH) + "\" " + args + " > /dev/null 2>&1").c_str(),
+            static_cast<char*>(nullptr));
+      _exit(127);
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(ms));
+    kill(pid, SIGKILL);
+    int status = 0;
+    waitpid(pid, &status, 0);
+    INFO("killed after " << ms << " ms");
+    CHECK(slurp(idx) == old_idx);
+  }
+}
+
+// The rows of an NPY file's header: its shape's first number, checked against the file's size.
+std::size_t npy_rows_checked(const std::string& bytes, std::size_t item) {
+  REQUIRE(bytes.size() >= 10);
+  REQUIRE(bytes.compare(0, 6, "\x93NUMPY") == 0);
+  const std::size_t hlen = static_cast<unsigned char>(bytes[8]) | (static_cast<unsigned char>(bytes[9]) << 8);
+  const std::string h = bytes.substr(10, hlen);
+  const std::size_t at = h.find("'shape': (");
+  REQUIRE(at != std::string::npos);
+  const std::size_t rows = std::stoull(h.substr(at + 10));
+  CHECK(bytes.size() == 10 + hlen + rows * item);
+  CHECK((10 + hlen) % 64 == 0);
+  return rows;
+}
+
+TEST_CASE("durability: bhcl knn writes its results in slices as they finish, the same bytes as one slice, and a failure partway leaves no partial output") {
+  const std::vector<float> pts = datasets::uniform(20000, 93);
+  const std::string P = test::write_points("sl_p.f32", pts);
+  const std::string O = test::tmp_path("sl_");
+  const std::string common = "knn --points " + P + " --queries " + P + " --method kdtree --quiet";
+  // kNN: one slice against 20 (BHCL_SLICE_ROWS = 1000), raw and NPY.
+  for (const char* ext : {".raw", ".npy"}) {
+    const std::string knn = common + " --k 8 --out-ids " + O + "ids%" + ext + " --out-dist2 " + O + "d2%" + ext +
+                            " --out-counts " + O + "c%" + ext;
+    auto with = [&](const std::string& tag) {
+      std::string c = knn;
+      for (std::size_t at; (at = c.find('%')) != std::string::npos;) c.replace(at, 1, tag);
+      return c;
+    };
+    REQUIRE(test::run_bhcl(with("1")) == 0);
+    REQUIRE(test::run_bhcl(with("N"), nullptr, "BHCL_SLICE_ROWS=1000") == 0);
+    for (const char* f : {"ids", "d2", "c"}) {
+      const std::string one = slurp(O + f + "1" + ext), many = slurp(O + f + "N" + ext);
+      INFO(f << ext);
+      CHECK(one.size() > 0);
+      CHECK(one == many);
+    }
+    if (std::string(ext) == ".npy") CHECK(npy_rows_checked(slurp(O + "idsN.npy"), 32) == 20000u);
+  }
+  // Radius: the FAISS layout, one slice against 20; the NPY header of the ids (their number known
+  // only at the end) rewritten with the true length.
+  for (const char* ext : {".raw", ".npy"}) {
+    auto with = [&](const std::string& tag) {
+      return common + " --radius 0.05 --out-offsets " + O + "ro" + tag + ext + " --out-ids " + O + "ri" + tag + ext +
+             " --out-dist2 " + O + "rd" + tag + ext + " --out-counts " + O + "rc" + tag + ext;
+    };
+    REQUIRE(test::run_bhcl(with("1")) == 0);
+    REQUIRE(test::run_bhcl(with("N"), nullptr, "BHCL_SLICE_ROWS=1000") == 0);
+    for (const char* f : {"ro", "ri", "rd", "rc"}) {
+      INFO(f << ext);
+      CHECK(slurp(O + f + "1" + ext) == slurp(O + f + "N" + ext));
+    }
+    if (std::string(ext) == ".npy") {
+      const std::string offs = slurp(O + "roN.npy");
+      REQUIRE(npy_rows_checked(offs, 8) == 20001u);
+      std::int64_t total = 0;
+      std::memcpy(&total, offs.data() + offs.size() - 8, 8);
+      CHECK(total > 20000);
+      CHECK(npy_rows_checked(slurp(O + "riN.npy"), 4) == static_cast<std::size_t>(total));
+      CHECK(npy_rows_checked(slurp(O + "rdN.npy"), 4) == static_cast<std::size_t>(total));
+    }
+  }
+#if BHCL_HAVE_FLANN
+  // A failure partway (the file-size limit reached after a few slices were written: a full disk
+  // as the writer sees it): exit 1 with the file and the system's reason, the old files as they
+  // were, no temporary. Before, --out-ids kept a partial file that read as valid rows. (FLANN, a
+  // host method: PoCL's compiler also writes files at run time, and fails first under the limit.)
+  const std::string old_ids = slurp(O + "ids1.raw");
+  const std::string cmd = "sh -c 'trap \"\" XFSZ; ulimit -f 128; BHCL_SLICE_ROWS=1000 exec \"" +
+                          std::string(BHCL_TOOL_PATH) + "\" knn --points " + P + " --queries " + P +
+                          " --method flann --quiet --k 8 --out-ids " + O + "ids1.raw --out-dist2 " +
+                          O + "d21.raw' > " + O + "log.txt 2>&1";
+  const int status = std::system(cmd.c_str());
+  const std::string log = slurp(O + "log.txt");
+  INFO(log);
+  CHECK(WIFEXITED(status));
+  CHECK(WEXITSTATUS(status) == 1);
+  CHECK(log.find(O + "ids1.raw: writing the raw array failed (" + std::strerror(EFBIG) + ")") != std::string::npos);
+  CHECK(slurp(O + "ids1.raw") == old_ids);
+  CHECK(leftover_temporaries("sl_ids1.raw") == 0);
+  CHECK(leftover_temporaries("sl_d21.raw") == 0);
+#endif
+}
+
 #ifdef BHCL_HAVE_RENDER
 TEST_CASE("durability: EXR and PNG writers keep the old image when the write fails") {
   render::Image img(64, 64);

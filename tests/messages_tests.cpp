@@ -105,6 +105,34 @@ TEST_CASE("sizes: a kNN result that cannot fit is refused with what it needs, be
   CHECK(out.counts[0] == 256);
 }
 
+TEST_CASE("sizes: a radius call that cannot fit is refused with what it needs, before any search") {
+  const std::vector<float> pts = datasets::uniform(1000, 6);
+  BruteForceIndex index(test::runtime(), pts.data(), 1000);
+  RadiusParams rp;
+  RadiusResult out;
+  // 2^40 queries: their offsets and counts alone are 17.6 TB; the queries are never read (in the
+  // Hilbert order the reordered copy doubles it). Before, nothing was checked: std::bad_alloc.
+  for (int sort : {0, 1}) {
+    rp.sort_queries = sort;
+    CHECK_THROWS_WITH_AS(index.radius_search(pts.data(), std::size_t(1) << 40, 0.1f, rp, out),
+                         doctest::Contains(sort ? "the radius result needs 57174.8 GB" : "the radius result needs 17592.3 GB"),
+                         Error);
+  }
+  CHECK_THROWS_WITH_AS(index.radius_search(pts.data(), std::size_t(1) << 40, 0.1f, rp, out),
+                       doctest::Contains("refused before the search"), Error);
+  // What the count pass found, before it is fetched: 2^40 points within the radius of 1000 queries.
+  CHECK_THROWS_WITH_AS(check_radius_memory(1000, std::size_t(1) << 40, false, 1, 0, "bruteforce"),
+                       doctest::Contains("points within the radius counted by the count pass"), Error);
+  CHECK_THROWS_WITH_AS(check_radius_memory(1000, std::size_t(1) << 40, false, 1, 0, "bruteforce"),
+                       doctest::Contains("refused before any of them is fetched"), Error);
+  // A call that fits is answered as before.
+  CHECK_NOTHROW(check_radius_memory(1000, 1000000, false, 2, 0, "bruteforce"));
+  rp.sort_queries = -1;
+  CHECK_NOTHROW(index.radius_search(pts.data(), 1000, 0.1f, rp, out));
+  CHECK(out.n == 1000);
+  CHECK(out.count(0) >= 1);
+}
+
 TEST_CASE("fork: an index queried in a forked child gets a clear error, never a hang") {
   const std::vector<float> pts = datasets::uniform(2000, 6);
   KdTreeIndex index(test::runtime(), pts.data(), 2000);

@@ -463,13 +463,14 @@ TEST_CASE("render: the automatic exposure is not pulled down by pixels that see 
 namespace {
 
 Image glass_render(const Scene& scene, std::size_t photons, int size, int gather, int shadow_rays,
-                   int spp, int k, float caustic_radius, std::uint64_t seed = 5) {
+                   int spp, int k, float caustic_radius, std::uint64_t seed = 5, int max_specular_depth = 0) {
   EmbreeScene es(scene, 2);
   LightSampler lights(scene);
   PhotonMaps maps = trace_photons(es, lights, photons, seed, 2, "bruteforce");
   RenderOptions ro = small_options(size, gather, k, seed, 2, shadow_rays, spp);
   ro.caustic_k = k;
   ro.caustic_radius = caustic_radius;
+  if (max_specular_depth > 0) ro.max_specular_depth = max_specular_depth;
   RenderStats stats;
   FinalGatherRenderer r(es, lights, *maps.global, maps.caustic.get(), ro);
   return r.render(stats);
@@ -587,6 +588,149 @@ TEST_CASE("render: a white furnace half filled with glass keeps radiance / n^2 u
                                           << " (expected " << expect << " everywhere)");
   CHECK(mean == doctest::Approx(expect).epsilon(0.05));
   CHECK(centre_mean == doctest::Approx(expect).epsilon(0.06));
+}
+
+Material glass_material(float ior) {
+  Material g;
+  g.name = "glass";
+  g.type = MaterialType::Glass;
+  g.ks = {1, 1, 1};
+  g.ior = ior;
+  return g;
+}
+
+// A box of glass faces (outward fronts) from lo to hi; the bottom face (y = lo.y) only if asked.
+void add_glass_box(Scene& s, Vec3 lo, Vec3 hi, std::uint32_t m, bool bottom) {
+  Vec3 p[8];
+  for (int i = 0; i < 8; ++i) p[i] = {(i & 1) ? hi.x : lo.x, (i & 2) ? hi.y : lo.y, (i & 4) ? hi.z : lo.z};
+  const int faces[6][4] = {{0, 1, 5, 4}, {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}, {0, 2, 3, 1}, {4, 5, 7, 6}};
+  const Vec3 centre = (lo + hi) * 0.5f;
+  for (int f = 0; f < 6; ++f) {
+    if (f == 0 && !bottom) continue;
+    Vec3 a = p[faces[f][0]], b = p[faces[f][1]], c = p[faces[f][2]], d = p[faces[f][3]];
+    if (dot(cross(b - a, c - a), a - centre) < 0) std::swap(b, d);  // front outwards
+    s.add_quad(a, b, c, d, m);
+  }
+}
+
+TEST_CASE("render: camera chains trapped by total internal reflection are followed as deep as the path tracer's") {
+  // A glass light pipe (4 x 4 x 70, closed) in the white furnace, its end face seen at 50 degrees
+  // from its axis through a 10 degree field of view: a refracted camera ray runs down the pipe at
+  // 31 degrees to the axis, reflected totally by the side faces about 10 times before the far end.
+  // In the furnace every chain that reaches a wall sees Le / (1 - rho) (the n^2 factors of the two
+  // crossings cancel), so every pixel should. The renderer used to end a chain after 8 specular
+  // vertices (the path tracer after 64): the pipe came out black but for its Fresnel reflection,
+  // as the shipped glass block's right face came out 3x too dark (issue 24).
+  const float Le = 1.0f, rho = 0.5f, expect = Le / (1.0f - rho);
+  Scene s = furnace_scene(Le, rho);
+  s.name = "light pipe";
+  add_glass_box(s, {48, 48, 15}, {52, 52, 85}, s.add_material(glass_material(1.5f)), true);
+  const float a = 50.0f * kPi / 180.0f;
+  s.camera.position = {50 + 10 * std::sin(a), 50, 15 - 10 * std::cos(a)};
+  s.camera.direction = {-std::sin(a), 0, std::cos(a)};
+  s.camera.up = {0, 1, 0};
+  s.camera.vfov_deg = 10;
+  const Image deep = glass_render(s, 20000, 8, 24, 16, 4, 32, 12.0f, 11);
+  const Image cut = glass_render(s, 20000, 8, 24, 16, 4, 32, 12.0f, 11, 8);
+  const double mean = mean_luminance(deep), mean_cut = mean_luminance(cut);
+  MESSAGE("light pipe: mean radiance " << mean << " (expected " << expect << "); chains cut at 8 specular vertices: "
+                                       << mean_cut);
+  CHECK(RenderOptions{}.max_specular_depth >= PathTraceOptions{}.max_depth);
+  CHECK(mean == doctest::Approx(expect).epsilon(0.06));
+  CHECK(mean_cut < 0.5 * expect);  // the scene does need the deep chains
+}
+
+TEST_CASE("render: the path tracer's window traces only its pixels, each as the whole image has it") {
+  // bhcl pathtrace --window refines a reference where its paths are rare (issue 24).
+  Scene s = furnace_scene(1.0f, 0.5f);
+  EmbreeScene es(s, 2);
+  LightSampler lights(s);
+  PathTraceOptions po;
+  po.width = po.height = 12;
+  po.spp = 4;
+  po.threads = 2;
+  PathTraceStats st, sw;
+  const Image full = path_trace(es, lights, po, st);
+  po.window_x0 = 3;
+  po.window_y0 = 5;
+  po.window_x1 = 7;
+  po.window_y1 = 6;
+  const Image win = path_trace(es, lights, po, sw);
+  CHECK(sw.paths == 4 * 1 * 4);
+  std::size_t same = 0, zero = 0;
+  for (int y = 0; y < 12; ++y)
+    for (int x = 0; x < 12; ++x) {
+      const std::size_t i = static_cast<std::size_t>(y) * 12 + x;
+      const bool in = x >= 3 && x < 7 && y == 5;
+      const Vec3 a = win.at(i), b = full.at(i);
+      if (in) same += a.x == b.x && a.y == b.y && a.z == b.z;
+      else zero += a.x == 0 && a.y == 0 && a.z == 0;
+    }
+  CHECK(same == 4);
+  CHECK(zero == 140);
+  po.window_x1 = 13;
+  CHECK_THROWS_AS(path_trace(es, lights, po, sw), Error);
+}
+
+TEST_CASE("render: photons and queries inside glass are kept apart from those outside it") {
+  // A glass block open at the bottom stands on a lit floor (the shipped specular scene's glass
+  // block): the floor under it is lit through the glass, the floor beside it directly. Photons
+  // on the floor inside are flagged and keyed away by medium_key, so a disc at the floor just
+  // inside the wall holds only photons from inside, and one just outside only photons from outside.
+  Scene s;
+  s.name = "glass on a floor";
+  Material white;
+  white.name = "white";
+  white.kd = {0.5f, 0.5f, 0.5f};
+  Material light;
+  light.name = "light";
+  light.kd = {0, 0, 0};
+  light.emission = {10, 10, 10};
+  auto w = s.add_material(white), l = s.add_material(light), g = s.add_material(glass_material(1.5f));
+  s.add_quad({-100, 0, -100}, {-100, 0, 100}, {100, 0, 100}, {100, 0, -100}, w);  // faces up
+  s.add_quad({-60, 100, -60}, {60, 100, -60}, {60, 100, 60}, {-60, 100, 60}, l);   // faces down
+  add_glass_box(s, {-20, 0, -20}, {20, 30, 20}, g, false);
+  s.camera.position = {0, 60, -150};
+  s.camera.direction = normalize(Vec3{0, -0.4f, 1});
+  EmbreeScene es(s, 2);
+  LightSampler lights(s);
+  CHECK(!es.inside_glass({0, 50, 0}));
+  CHECK(es.inside_glass({0, 1, 0}));
+  CHECK(!es.inside_glass({30, 1, 0}));
+  PhotonTraceOptions po;
+  po.photons = 30000;
+  po.threads = 2;
+  PhotonMaps maps = build_photon_maps(es, lights, po);
+  const float sep = medium_separation(s.diagonal());
+  std::size_t inside = 0, misplaced = 0;
+  for (const PhotonRecord& r : maps.global->records()) {
+    const bool flagged = (r.flags & PhotonRecord::kInGlass) != 0;
+    Vec3 x = r.get_position();
+    if (flagged) x.x -= sep;
+    const bool under = std::fabs(x.x) < 20 && std::fabs(x.z) < 20 && x.y < 1e-3f;
+    inside += flagged;
+    misplaced += flagged != under;
+  }
+  MESSAGE(inside << " of " << maps.global->size() << " photons inside the glass, " << misplaced << " misplaced");
+  CHECK(inside > 1000);
+  CHECK(misplaced == 0);
+  maps.global->build_index("bruteforce", test::runtime());
+  SearchParams sp;
+  sp.k = 50;
+  // 1 mm inside and outside the wall at x = 20, keyed as the renderer keys them.
+  const Vec3 in = medium_key({19, 0, 0}, true, sep), out = medium_key({21, 0, 0}, false, sep);
+  const float q[6] = {in.x, in.y, in.z, out.x, out.y, out.z};
+  KnnResult res;
+  maps.global->query(q, 2, sp, res);
+  for (std::size_t row = 0; row < 2; ++row) {
+    REQUIRE(res.counts[row] == sp.k);
+    std::size_t wrong = 0;
+    for (int j = 0; j < res.counts[row]; ++j) {
+      const bool flagged = (maps.global->records()[res.id(row, j)].flags & PhotonRecord::kInGlass) != 0;
+      wrong += flagged != (row == 0);
+    }
+    CHECK(wrong == 0);
+  }
 }
 
 // ---- Density estimators (the talk's future work) and the traced-once comparison ----------------
@@ -777,6 +921,27 @@ TEST_CASE("render: the path tracer: a white furnace converges to Le over 1 - rho
   CHECK(test::run_bhcl("pathtrace --out " + test::tmp_path("pt.exr") + " --size 0x4", &out) == 2);
   CHECK(test::run_bhcl("pathtrace --out " + test::tmp_path("pt.exr") + " --spp 0", &out) == 2);
   CHECK(test::run_bhcl("pathtrace --out " + test::tmp_path("pt.exr") + " --scene /no/such.obj", &out) == 1);
+  // --window / --base: the window's pixels traced, the others the base image's.
+  const std::string base = test::tmp_path("pt_base.exr"), win = test::tmp_path("pt_win.exr");
+  REQUIRE(test::run_bhcl("pathtrace --scene cornell --size 8x8 --spp 2 --quiet --out " + base, &out) == 0);
+  REQUIRE(test::run_bhcl("pathtrace --scene cornell --size 8x8 --spp 8 --window 2,2,4,3 --base " + base +
+                             " --quiet --out " + win, &out) == 0);
+  const Image b = read_exr(base), w = read_exr(win);
+  std::size_t kept = 0, changed = 0;
+  for (int y = 0; y < 8; ++y)
+    for (int x = 0; x < 8; ++x) {
+      const std::size_t i = static_cast<std::size_t>(y) * 8 + x;
+      const bool same = b.at(i).x == w.at(i).x && b.at(i).y == w.at(i).y && b.at(i).z == w.at(i).z;
+      if (x >= 2 && x < 4 && y == 2) changed += !same;
+      else kept += same;
+    }
+  CHECK(kept == 62);
+  CHECK(changed == 2);
+  CHECK(test::run_bhcl("pathtrace --size 8x8 --window 2,2,9,3 --out " + win, &out) == 2);
+  CHECK(out.find("--window") != std::string::npos);
+  CHECK(test::run_bhcl("pathtrace --size 8x8 --base " + base + " --out " + win, &out) == 2);
+  CHECK(test::run_bhcl("pathtrace --size 4x4 --window 0,0,2,2 --base " + base + " --out " + win, &out) == 2);
+  CHECK(out.find("is 8x8") != std::string::npos);
 }
 
 TEST_CASE("render: progressive photon mapping: the radius sequence, one pass equals the plain render") {

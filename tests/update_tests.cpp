@@ -4,6 +4,9 @@
 // bit, the block layouts equal to a fresh build of theirs; removed ids never returned; the errors
 // for bad input; queries concurrent with updates; save and load after updates.
 #include <atomic>
+#include <cstring>
+#include <fstream>
+#include <iterator>
 #include <map>
 #include <random>
 #include <thread>
@@ -11,6 +14,7 @@
 #include "blockhash/build.hpp"
 #include "blockhash_cl/blockhash.hpp"
 #include "blockhash_cl/bruteforce.hpp"
+#include "blockhash_cl/factory.hpp"
 #include "blockhash_cl/kdtree.hpp"
 #include "blockhash_cl/multi_device.hpp"
 #include "test_util.hpp"
@@ -344,23 +348,342 @@ TEST_CASE("updates: the multi-device index updates every replica") {
   test::require_identical(r, fresh_answer(m, qs, sp), "multi-device after updates");
 }
 
-TEST_CASE("updates: block hashing saved and loaded after inserts, a save after removes refused") {
-  std::mt19937_64 rng(13);
+namespace {
+
+// A row per id issued (the point set a saved index is loaded against after updates): the live
+// points at their ids, a removed id's row some other finite point (it is not compared).
+std::vector<float> rows_of(const Model& m) {
+  std::vector<float> rows(3 * std::size_t(m.next), 0.25f);
+  for (const auto& [id, p] : m.live)
+    for (int a = 0; a < 3; ++a) rows[3 * std::size_t(id) + a] = p[a];
+  return rows;
+}
+
+std::vector<std::int32_t> removed_of(const Model& m) {
+  std::vector<std::int32_t> out;
+  for (std::int32_t id = 0; id < m.next; ++id)
+    if (!m.live.count(id)) out.push_back(id);
+  return out;
+}
+
+// Both indexes hold the same ids and answer alike: every id's liveness, the counts, and the rows
+// of kNN (at each A given, 0: exact) and radius queries bit for bit.
+void require_same_index(const Index& a, const Index& b, const Model& m, std::mt19937_64& rng,
+                        std::initializer_list<double> As, const std::string& what) {
+  REQUIRE(a.size() == b.size());
+  REQUIRE(a.id_bound() == b.id_bound());
+  REQUIRE(a.removed_count() == b.removed_count());
+  REQUIRE(a.size() == m.live.size());
+  for (std::int32_t id = -1; id <= m.next; ++id) REQUIRE(a.contains(id) == b.contains(id));
+  std::vector<float> qs = uniform(rng, 200, -0.4f, 1.7f);
+  for (double A : As)
+    for (int k : {1, 10}) {
+      SearchParams sp;
+      sp.k = k;
+      sp.A = A;
+      KnnResult ra = a.query(qs, sp), rb = b.query(qs, sp);
+      require_no_removed(rb, m);
+      test::require_identical(rb, ra, what + " A " + std::to_string(A) + " k " + std::to_string(k));
+    }
+  RadiusResult x, y;
+  a.radius_search(qs.data(), qs.size() / 3, 0.12f, RadiusParams{}, x);
+  b.radius_search(qs.data(), qs.size() / 3, 0.12f, RadiusParams{}, y);
+  REQUIRE(x.offsets == y.offsets);
+  REQUIRE(x.ids == y.ids);
+  REQUIRE(x.dist2 == y.dist2);
+}
+
+std::string slurp_file(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
+void spit_file(const std::string& path, const std::string& d) {
+  std::ofstream(path, std::ios::binary).write(d.data(), std::streamsize(d.size()));
+}
+std::uint64_t fnv(const std::string& d, std::size_t from, std::size_t to, std::uint64_t h = 0xcbf29ce484222325ull) {
+  for (std::size_t i = from; i < to; ++i) {
+    h ^= static_cast<unsigned char>(d[i]);
+    h *= 0x100000001b3ull;
+  }
+  return h;
+}
+template <typename T>
+void poke(std::string& d, std::size_t at, T v) { std::memcpy(&d[at], &v, sizeof v); }
+template <typename T>
+T peek(const std::string& d, std::size_t at) {
+  T v;
+  std::memcpy(&v, &d[at], sizeof v);
+  return v;
+}
+// The grid file (grid_io.cpp): version 3's header is 132 bytes, then the checksum, then the
+// payload; version 2's was 84 bytes.
+constexpr std::size_t kGridHeaderV3 = 132, kGridHeaderV2 = 84;
+void grid_reseal(std::string& d, std::size_t header) {
+  poke(d, header, fnv(d, header + 8, d.size(), fnv(d, 0, header)));
+}
+
+// The configurations of block hashing that save: the grid (direct and two-level directory), the
+// cell-aligned block layout and the paper preset.
+std::vector<std::pair<std::string, BlockHashBuildParams>> blockhash_configs() {
+  BlockHashBuildParams grid, two, cells, paper;
+  two.grid_directory = 1;
+  cells.cell_aligned = 1;
+  paper.preset = BlockHashBuildParams::Preset::Paper;
+  return {{"grid", grid}, {"grid two-level", two}, {"cell-aligned blocks", cells}, {"paper", paper}};
+}
+
+}  // namespace
+
+TEST_CASE("updates: block hashing saved and loaded after random inserts and removes, every layout") {
+  for (const auto& [name, bp] : blockhash_configs()) {
+    CAPTURE(name);
+    for (std::uint64_t seed : {21u, 22u}) {
+      CAPTURE(seed);
+      std::mt19937_64 rng(seed);
+      Model m;
+      std::vector<float> p0 = uniform(rng, 1500, 0.0f, 1.0f);
+      BlockHashIndex ix(test::runtime(), p0.data(), 1500, bp);
+      m.add(p0);
+      const std::size_t steps = bp.preset == BlockHashBuildParams::Preset::Paper ? 3 : 6;
+      for (std::size_t step = 0; step < steps; ++step) random_step(ix, m, rng, step + seed);
+      // A few removes the grid keeps as holes in place (below 1/8: no compaction).
+      std::vector<std::int32_t> few;
+      for (const auto& kv : m.live)
+        if (few.size() < 7 && rng() % 5 == 0) few.push_back(kv.first);
+      ix.remove(few.data(), few.size());
+      for (std::int32_t id : few) m.live.erase(id);
+      REQUIRE(ix.removed_count() > 0);
+      if (name == std::string("grid")) REQUIRE(ix.info().holes > 0);
+      const std::string path = test::tmp_path("update_saved_" + std::to_string(seed) + ".bhi");
+      ix.save(path);
+      // Through the registry as bhcl --load-index and Python load it: a row per id issued.
+      std::vector<float> rows = rows_of(m);
+      MethodOptions lo;
+      lo.set("load-index", path);
+      auto loaded_any = make_index("blockhash", test::runtime(), rows.data(), std::size_t(m.next), lo);
+      auto& loaded = dynamic_cast<BlockHashIndex&>(*loaded_any);
+      REQUIRE(loaded.info().grid == ix.info().grid);
+      if (ix.info().grid) {  // the grid file keeps the update state and counters
+        REQUIRE(loaded.info().holes == ix.info().holes);
+        REQUIRE(loaded.info().merges == ix.info().merges);
+        REQUIRE(loaded.info().compactions == ix.info().compactions);
+        REQUIRE(loaded.info().update_rebuilds == ix.info().update_rebuilds);
+        REQUIRE(loaded.info().retunes == ix.info().retunes);
+      }
+      require_same_index(ix, loaded, m, rng, {0.0, 2.0, 5.0}, name + " loaded");
+      // The next update continues where the saved index stopped, on both alike.
+      std::vector<float> more = uniform(rng, 120, 0.0f, 1.0f);
+      const std::int32_t f1 = ix.insert(more.data(), 120), f2 = loaded.insert(more.data(), 120);
+      REQUIRE(f1 == m.next);
+      REQUIRE(f2 == f1);
+      m.add(more);
+      std::vector<std::int32_t> drop;
+      for (const auto& kv : m.live)
+        if (drop.size() < 30 && rng() % 7 == 0) drop.push_back(kv.first);
+      ix.remove(drop.data(), drop.size());
+      loaded.remove(drop.data(), drop.size());
+      for (std::int32_t id : drop) m.live.erase(id);
+      require_same_index(ix, loaded, m, rng, {0.0, 2.0}, name + " loaded, then updated");
+      // A live point that differs is refused; a removed id's row is not read.
+      std::vector<float> wrong = rows;
+      const std::int32_t live_id = m.live.begin()->first;
+      wrong[3 * std::size_t(live_id)] += 0.5f;
+      CHECK_THROWS_WITH_AS(make_index("blockhash", test::runtime(), wrong.data(), rows.size() / 3, lo),
+                           doctest::Contains("differs"), Error);
+      CHECK_THROWS_WITH_AS(make_index("blockhash", test::runtime(), rows.data(), rows.size() / 3 - 1, lo),
+                           doctest::Contains("give a row for every id"), Error);
+    }
+  }
+}
+
+TEST_CASE("updates: a saved grid after removes: damage refused, version 2 files still load") {
+  std::mt19937_64 rng(31);
+  Model m;
   std::vector<float> p0 = uniform(rng, 1000, 0.0f, 1.0f);
   BlockHashIndex ix(test::runtime(), p0.data(), 1000);
-  std::vector<float> add = uniform(rng, 300, 0.0f, 1.0f);
-  ix.insert(add.data(), 300);
-  const std::string path = test::tmp_path("update_grid.bhcl");
+  m.add(p0);
+  std::vector<float> add = uniform(rng, 200, 0.0f, 1.0f);
+  ix.insert(add.data(), 200);
+  m.add(add);
+  std::int32_t drop[] = {3, 500, 1100, 1199};
+  ix.remove(drop, 4);
+  for (std::int32_t id : drop) m.live.erase(id);
+  REQUIRE(ix.info().holes == 4);
+  const std::string path = test::tmp_path("update_grid_v3.bhi"), bad = test::tmp_path("update_grid_bad.bhi");
   ix.save(path);
-  auto loaded = BlockHashIndex::load(test::runtime(), path);
-  REQUIRE(loaded->size() == 1300);
-  REQUIRE(loaded->id_bound() == 1300);
+  const std::string good = slurp_file(path);
+  REQUIRE(peek<std::uint32_t>(good, 8) == 3u);
+  const std::uint64_t slots = peek<std::uint64_t>(good, 16);
+  REQUIRE(slots == 1200);  // holes included
+  const std::uint64_t entries = peek<std::uint64_t>(good, 76);
+  const std::size_t ids_at = kGridHeaderV3 + 8 + std::size_t(entries) * 4 + std::size_t(slots) * 12;
+  std::size_t hole = 0, live_at = 0;
+  for (std::size_t i = 0; i < slots; ++i) {
+    const auto id = peek<std::int32_t>(good, ids_at + 4 * i);
+    if (id == 0x7fffffff) hole = i;
+    else if (id == 7) live_at = i;
+  }
+  auto refused = [&](std::string d, const char* why) {
+    grid_reseal(d, kGridHeaderV3);
+    spit_file(bad, d);
+    CHECK_THROWS_WITH_AS(BlockHashIndex::load(test::runtime(), bad), doctest::Contains(why), Error);
+  };
+  {  // an id twice
+    std::string d = good;
+    poke(d, ids_at + 4 * live_at, std::int32_t(8));
+    refused(d, "appears twice");
+  }
+  {  // an id past the bound
+    std::string d = good;
+    poke(d, ids_at + 4 * live_at, std::int32_t(1200));
+    refused(d, "outside [0, id bound");
+  }
+  {  // a hole with a finite point: it could be returned
+    std::string d = good;
+    poke(d, kGridHeaderV3 + 8 + std::size_t(entries) * 4 + 4 * hole, 0.5f);
+    refused(d, "not at +inf");
+  }
+  {  // an id bound below the live ids
+    std::string d = good;
+    poke(d, kGridHeaderV2, std::uint64_t(1100));
+    refused(d, "id bound");
+  }
+  {  // an id bound out of range
+    std::string d = good;
+    poke(d, kGridHeaderV2, std::uint64_t(0));
+    refused(d, "id bound 0 out of range");
+  }
+  {  // unresealed damage: the checksum
+    std::string d = good;
+    d[ids_at + 4 * live_at] ^= 1;
+    spit_file(bad, d);
+    CHECK_THROWS_WITH_AS(BlockHashIndex::load(test::runtime(), bad), doctest::Contains("checksum"), Error);
+    spit_file(bad, good.substr(0, good.size() - 3));
+    CHECK_THROWS_WITH_AS(BlockHashIndex::load(test::runtime(), bad), doctest::Contains("truncated"), Error);
+  }
+  // A version 2 file (written before the id state existed) of an index never updated loads.
+  BlockHashIndex plain(test::runtime(), p0.data(), 1000);
+  plain.save(path);
+  const std::string v3 = slurp_file(path);
+  std::string v2 = v3.substr(0, kGridHeaderV2) + std::string(8, '\0') + v3.substr(kGridHeaderV3 + 8);
+  poke(v2, 8, std::uint32_t(2));
+  grid_reseal(v2, kGridHeaderV2);
+  spit_file(bad, v2);
+  auto old = BlockHashIndex::load(test::runtime(), bad);
+  REQUIRE(old->size() == 1000);
+  REQUIRE(old->id_bound() == 1000);
   std::vector<float> qs = uniform(rng, 100, 0.0f, 1.0f);
   SearchParams sp;
   sp.k = 10;
-  sp.A = 3;
-  test::require_identical(loaded->query(qs, sp), ix.query(qs, sp), "loaded after inserts");
-  std::int32_t drop[] = {2, 1200};
-  ix.remove(drop, 2);
-  CHECK_THROWS_WITH_AS(ix.save(path), doctest::Contains("had points removed"), Error);
+  sp.A = 2;
+  test::require_identical(old->query(qs, sp), plain.query(qs, sp), "version 2 grid file");
+  REQUIRE(old->insert(add.data(), 200) == 1000);
+}
+
+TEST_CASE("updates: block layouts saved after removes: sparse ids checked, version 4 files still load") {
+  std::mt19937_64 rng(41);
+  std::vector<float> p0 = uniform(rng, 900, 0.0f, 1.0f);
+  BlockHashBuildParams bp;
+  bp.cell_aligned = 1;
+  BlockHashIndex ix(test::runtime(), p0.data(), 900, bp);
+  const std::string path = test::tmp_path("update_blocks_v5.bhi"), bad = test::tmp_path("update_blocks_bad.bhi");
+  ix.save(path);
+  const std::string fresh = slurp_file(path);
+  // The block layouts' header (io.cpp): version 5 is 168 bytes, the id bound at 152, the checksum
+  // at 160; version 4's is 160 bytes, its checksum at 152.
+  REQUIRE(peek<std::uint32_t>(fresh, 8) == 5u);
+  REQUIRE(peek<std::uint64_t>(fresh, 152) == 900u);
+  std::string v4 = fresh.substr(0, 152) + std::string(8, '\0') + fresh.substr(168);
+  poke(v4, 8, std::uint32_t(4));
+  poke(v4, 16, std::uint32_t(160));
+  poke(v4, 152, fnv(v4, 160, v4.size(), fnv(v4, 0, 152)));
+  spit_file(bad, v4);
+  auto old = BlockHashIndex::load(test::runtime(), bad);
+  std::vector<float> qs = uniform(rng, 100, 0.0f, 1.0f);
+  SearchParams sp;
+  sp.k = 10;
+  test::require_identical(old->query(qs, sp), ix.query(qs, sp), "version 4 block file");
+  // After removes: the order holds sparse ids; one out of the bound or twice is refused.
+  std::int32_t drop[] = {0, 450, 899};
+  ix.remove(drop, 3);
+  ix.save(path);
+  const std::string good = slurp_file(path);
+  REQUIRE(peek<std::uint64_t>(good, 152) == 900u);
+  REQUIRE(peek<std::uint64_t>(good, 72) == 897u);
+  auto loaded = BlockHashIndex::load(test::runtime(), path);
+  REQUIRE(loaded->id_bound() == 900);
+  REQUIRE(loaded->size() == 897);
+  REQUIRE(!loaded->contains(450));
+  REQUIRE(loaded->contains(451));
+  test::require_identical(loaded->query(qs, sp), ix.query(qs, sp), "block file after removes");
+  auto reseal = [&](std::string d) {
+    poke(d, 160, fnv(d, 168, d.size(), fnv(d, 0, 160)));
+    return d;
+  };
+  {
+    std::string d = good;
+    poke(d, 168, std::int32_t(450));  // order[0]: a removed id, now twice or out of place
+    spit_file(bad, reseal(d));
+    CHECK_THROWS_AS(BlockHashIndex::load(test::runtime(), bad), Error);
+    poke(d, 168, std::int32_t(900));
+    spit_file(bad, reseal(d));
+    CHECK_THROWS_WITH_AS(BlockHashIndex::load(test::runtime(), bad), doctest::Contains("outside [0, id bound)"), Error);
+    d = good;
+    poke(d, 152, std::uint64_t(800));
+    spit_file(bad, reseal(d));
+    CHECK_THROWS_WITH_AS(BlockHashIndex::load(test::runtime(), bad), doctest::Contains("id bound"), Error);
+  }
+}
+
+TEST_CASE("updates: exact methods restored after updates (a row per id built, the removed removed) answer as before") {
+  // The way the Python package saves and pickles a kd-tree, brute force or FLANN index after
+  // updates (their structures rebuild faster than they read): the rows of every id issued, a
+  // removed id's row a live point, built and the removed ids removed again.
+  for (const auto& method : exact_method_names()) {
+    CAPTURE(method);
+    std::mt19937_64 rng(51);
+    Model m;
+    std::vector<float> p0 = uniform(rng, 1200, 0.0f, 1.0f);
+    auto ix = make_index(method, test::runtime(), p0.data(), 1200);
+    m.add(p0);
+    for (std::size_t step = 0; step < 7; ++step) random_step(*ix, m, rng, step);
+    std::vector<float> rows = rows_of(m);
+    const std::vector<std::int32_t> removed = removed_of(m);
+    const auto& first_live = m.live.begin()->second;
+    for (std::int32_t id : removed)
+      for (int a = 0; a < 3; ++a) rows[3 * std::size_t(id) + a] = first_live[a];
+    auto back = make_index(method, test::runtime(), rows.data(), std::size_t(m.next));
+    back->remove(removed.data(), removed.size());
+    require_same_index(*ix, *back, m, rng, {0.0}, method + " restored");
+    std::vector<float> more = uniform(rng, 50, 0.0f, 1.3f);
+    REQUIRE(back->insert(more.data(), 50) == ix->insert(more.data(), 50));
+    m.add(more);
+    require_same_index(*ix, *back, m, rng, {0.0}, method + " restored, then updated");
+  }
+}
+
+TEST_CASE("updates: the build stats report holes, merges and rebuilds after updates") {
+  std::mt19937_64 rng(61);
+  std::vector<float> p0 = uniform(rng, 2000, 0.0f, 1.0f), more = uniform(rng, 100, 0.0f, 1.0f);
+  std::int32_t drop[] = {1, 2, 3};
+  auto field = [](const MethodInfo::Used& u, const std::string& name) {
+    for (const auto& [n, v] : u)
+      if (n == name) return v;
+    return std::string("absent");
+  };
+  for (const char* method : {"kdtree", "blockhash"}) {
+    CAPTURE(method);
+    const MethodInfo& mi = method_info(method);
+    REQUIRE(static_cast<bool>(mi.used_build));
+    auto ix = make_index(method, test::runtime(), p0.data(), 2000);
+    REQUIRE(field(mi.used_build(*ix), "holes") == "absent");  // never updated: nothing more
+    ix->insert(more.data(), 100);
+    ix->remove(drop, 3);
+    const MethodInfo::Used u = mi.used_build(*ix);
+    CHECK(field(u, "holes") == "3");
+    CHECK(field(u, "id_bound") == "2100");
+    CHECK(field(u, "removed") == "3");
+    CHECK(field(u, method == std::string("kdtree") ? "update_merges" : "merges") == "1");
+    CHECK(field(u, "update_rebuilds") == "0");
+  }
 }

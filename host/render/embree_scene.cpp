@@ -90,6 +90,19 @@ bool EmbreeScene::intersect(Vec3 org, Vec3 dir, float tnear, float tfar, Hit& hi
   return true;
 }
 
+bool EmbreeScene::inside_glass(Vec3 p) const {
+  const Vec3 up{0, 1, 0};
+  int depth = 0;
+  float t = 0;
+  Hit hit;
+  for (int n = 0; n < 4096 && intersect(p, up, t, INFINITY, hit); ++n) {
+    if (scene_.material_of(hit.prim).type == MaterialType::Glass)
+      depth += dot(scene_.geometric_normal(hit.prim), up) < 0 ? -1 : 1;  // front: entering
+    t = hit.t + epsilon_;
+  }
+  return depth > 0;
+}
+
 void EmbreeScene::intersect_stream(RTCRayHit* rays, std::size_t n, bool coherent) const {
   if (n == 0) return;
   RTCIntersectContext ctx;

@@ -32,6 +32,11 @@ class EmbreeScene {
   };
   // Closest hit of one ray within (tnear, tfar); false on a miss.
   bool intersect(Vec3 org, Vec3 dir, float tnear, float tfar, Hit& hit) const;
+  // Whether p lies inside glass: the glass surfaces a ray from p straight up (+y) crosses from
+  // their back (inside) minus those it crosses from their front, > 0. Glass faces face outwards,
+  // so this holds for closed glass and for glass open at the bottom (a block standing on the
+  // floor). Paths start in the medium this gives (camera, emitters) and track it across refractions.
+  bool inside_glass(Vec3 p) const;
   // Streams (rtcIntersect1M / rtcOccluded1M); coherent for camera-like ray sets.
   void intersect_stream(RTCRayHit* rays, std::size_t n, bool coherent) const;
   void occluded_stream(RTCRay* rays, std::size_t n) const;

@@ -27,11 +27,11 @@ std::size_t vec_bytes(const std::vector<T>& v) {
 // the ray leaves the scene or the depth runs out; else `hit` is that surface, `beta` the
 // specular throughput, org/dir the last ray.
 bool follow_specular(const EmbreeScene& es, Rng& rng, Vec3& org, Vec3& dir, EmbreeScene::Hit& hit,
-                     Vec3& beta, int max_depth) {
+                     Vec3& beta, int max_depth, int& glass_depth) {
   for (int depth = 0;; ++depth) {
     if (!es.scene().material_of(hit.prim).is_specular()) return true;
     if (depth >= max_depth) return false;
-    if (!specular_bounce(es, rng, org, dir, hit, beta)) return false;
+    if (!specular_bounce(es, rng, org, dir, hit, beta, &glass_depth)) return false;
     if (!es.intersect(org, dir, 0.0f, INFINITY, hit)) return false;
   }
 }
@@ -39,7 +39,7 @@ bool follow_specular(const EmbreeScene& es, Rng& rng, Vec3& org, Vec3& dir, Embr
 }  // namespace
 
 bool specular_bounce(const EmbreeScene& es, Rng& rng, Vec3& org, Vec3& dir,
-                     const EmbreeScene::Hit& hit, Vec3& beta) {
+                     const EmbreeScene::Hit& hit, Vec3& beta, int* glass_depth) {
   const Scene& scene = es.scene();
   const float eps = es.ray_epsilon();
   const Material& m = scene.material_of(hit.prim);
@@ -54,6 +54,7 @@ bool specular_bounce(const EmbreeScene& es, Rng& rng, Vec3& org, Vec3& dir,
   } else {
     // Camera and gather paths carry radiance: scaled by (n_from / n_to)^2 when refracted.
     beta *= glass_scatter(dir, org, x, n, front, m.ior, rng.uniform(), eps);
+    if (glass_depth && dot(dir, n) < 0) *glass_depth = std::max(0, *glass_depth + (front ? 1 : -1));
   }
   return !is_black(beta);
 }
@@ -119,10 +120,12 @@ void FinalGatherRenderer::trace_points(const std::vector<SurfacePoint>& pts, con
   pass.vis_kd.resize(n);
   pass.vis_weight.resize(n);
   pass.q_begin.assign(n + 1, 0);
+  const float separation = medium_separation(scene.diagonal());
   for (std::size_t i = 0; i < n; ++i) {
-    pass.vis_xyz[3 * i] = pts[i].x.x;
-    pass.vis_xyz[3 * i + 1] = pts[i].x.y;
-    pass.vis_xyz[3 * i + 2] = pts[i].x.z;
+    const Vec3 key = medium_key(pts[i].x, pts[i].in_glass, separation);  // the caustic query
+    pass.vis_xyz[3 * i] = key.x;
+    pass.vis_xyz[3 * i + 1] = key.y;
+    pass.vis_xyz[3 * i + 2] = key.z;
     pass.vis_n[i] = pts[i].n;
     pass.vis_kd[i] = pts[i].kd;
     pass.vis_weight[i] = pts[i].weight;
@@ -191,7 +194,8 @@ void FinalGatherRenderer::trace_points(const std::vector<SurfacePoint>& pts, con
         }
         EmbreeScene::Hit hit{r.ray.tfar, r.hit.primID};
         Vec3 ro = org, rd{r.ray.dir_x, r.ray.dir_y, r.ray.dir_z}, beta{1, 1, 1};
-        if (!follow_specular(es_, rng, ro, rd, hit, beta, opt_.max_specular_depth)) {
+        int glass = p.in_glass ? 1 : 0;
+        if (!follow_specular(es_, rng, ro, rd, hit, beta, opt_.max_specular_depth, glass)) {
           ++o.escaped;
           continue;
         }
@@ -200,7 +204,7 @@ void FinalGatherRenderer::trace_points(const std::vector<SurfacePoint>& pts, con
           ++o.no_query;
           continue;
         }
-        Vec3 y = ro + rd * hit.t;
+        const Vec3 y = medium_key(ro + rd * hit.t, glass > 0, separation);
         const bool back = dot(scene.geometric_normal(hit.prim), rd) >= 0;
         o.xyz.insert(o.xyz.end(), {y.x, y.y, y.z});
         o.q.push_back({hit.prim | (back ? kBackSide : 0u), w0 * beta});
@@ -344,6 +348,7 @@ TracedPass FinalGatherRenderer::trace_pass(int y0, int y1, RenderStats& stats) c
   auto t0 = Clock::now();
   constexpr std::size_t kChunk = 64;
   const std::size_t chunks = (nslots + kChunk - 1) / kChunk;
+  const int camera_glass = es_.inside_glass(cam.origin()) ? 1 : 0;
   std::vector<std::vector<SurfacePoint>> vis_chunks(chunks);
   std::vector<std::vector<std::uint32_t>> vis_slot_chunks(chunks);
   parallel_chunks(nslots, kChunk, opt_.threads, [&](std::size_t c, std::size_t b, std::size_t e) {
@@ -384,6 +389,7 @@ TracedPass FinalGatherRenderer::trace_pass(int y0, int y1, RenderStats& stats) c
         Vec3 org = o, dir{packet.ray.dir_x[l], packet.ray.dir_y[l], packet.ray.dir_z[l]};
         EmbreeScene::Hit hit{packet.ray.tfar[l], packet.hit.primID[l]};
         Vec3 beta{1, 1, 1};
+        int glass = camera_glass;
         Rng& rng = rngs[l];
         // Emitters seen directly or through mirrors/glass; the chain stops at a diffuse surface.
         for (int depth = 0;; ++depth) {
@@ -398,6 +404,7 @@ TracedPass FinalGatherRenderer::trace_pass(int y0, int y1, RenderStats& stats) c
               sp.n = front ? ng : -ng;
               sp.kd = m.kd;
               sp.weight = beta;
+              sp.in_glass = glass > 0;
               sp.rng_index = slot0 + s;
               vis_chunks[c].push_back(sp);
               vis_slot_chunks[c].push_back(static_cast<std::uint32_t>(s));
@@ -405,7 +412,7 @@ TracedPass FinalGatherRenderer::trace_pass(int y0, int y1, RenderStats& stats) c
             break;
           }
           if (depth >= opt_.max_specular_depth) break;
-          if (!specular_bounce(es_, rng, org, dir, hit, beta)) break;
+          if (!specular_bounce(es_, rng, org, dir, hit, beta, &glass)) break;
           if (!es_.intersect(org, dir, 0.0f, INFINITY, hit)) break;
         }
       }

@@ -39,7 +39,12 @@ struct RenderOptions {
   DensityEstimator estimator;  // render() and shade(points): the disc and filter of the estimates
   int caustic_k = 0;         // caustic map: k (0: search.k)
   float caustic_radius = 0;  // caustic map: maximum radius in scene units (0: 2% of the diagonal)
-  int max_specular_depth = 8;
+  // Specular vertices a camera or gather chain may have before it ends (its light then lost). As
+  // deep as the path tracer's paths (PathTraceOptions::max_depth): a ray that enters the glass
+  // block through a side face at a grazing angle is trapped by total internal reflection and
+  // circles the block 10 to 20 times before it reaches the floor inside; 8 cut those chains off
+  // and the block's right face came out 3x too dark (issue 24).
+  int max_specular_depth = 64;
   std::uint64_t seed = 1;
   int threads = 0;           // 0: hardware threads; the image does not depend on it
   std::size_t batch_queries = 262144;  // target gather queries per index call (sets the pass size)
@@ -103,15 +108,17 @@ struct SurfacePoint {
   Vec3 x, n;                  // position; unit normal on the side the light is gathered from
   Vec3 kd;                    // albedo
   Vec3 weight{1, 1, 1};       // path throughput up to x
+  bool in_glass = false;      // x lies inside glass (its queries are keyed by medium_key)
   std::uint64_t rng_index = 0;
 };
 
 // One bounce off the specular surface `hit` of the ray (org, dir): a mirror reflects; glass reflects
 // or refracts with the Fresnel probabilities, so that the weight stays ks, times (n_from / n_to)^2
 // on refraction (radiance, see glass_scatter). Updates org, dir and beta; false when beta became
-// black. Camera, gather and path-traced rays all bounce through it.
+// black. Camera, gather and path-traced rays all bounce through it. glass_depth (when given) counts
+// glass entered minus left: +1 on a refraction into glass, -1 out of it (never below 0).
 bool specular_bounce(const EmbreeScene& es, Rng& rng, Vec3& org, Vec3& dir, const EmbreeScene::Hit& hit,
-                     Vec3& beta);
+                     Vec3& beta, int* glass_depth = nullptr);
 
 class FinalGatherRenderer {
  public:

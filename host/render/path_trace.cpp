@@ -23,6 +23,10 @@ Image path_trace(const EmbreeScene& es, const LightSampler& lights, const PathTr
   const Scene& scene = es.scene();
   const float eps = es.ray_epsilon();
   const int W = opt.width, H = opt.height, spp = opt.spp;
+  const int wx0 = opt.window_x0, wy0 = opt.window_y0, wx1 = opt.window_x1 > 0 ? opt.window_x1 : W,
+            wy1 = opt.window_y1 > 0 ? opt.window_y1 : H;
+  if (wx0 < 0 || wy0 < 0 || wx1 > W || wy1 > H || wx0 >= wx1 || wy0 >= wy1)
+    throw Error("path trace: the window must be a non-empty part of the image");
   const PinholeCamera cam(scene.camera, W, H);
   Image img(W, H);
   std::atomic<std::size_t> vertices{0}, shadow_rays{0};
@@ -30,13 +34,14 @@ Image path_trace(const EmbreeScene& es, const LightSampler& lights, const PathTr
   // Bands of rows so that progress is drawn from this thread; pixels within a band in parallel.
   const int band = static_cast<int>(
       std::clamp<std::size_t>(65536 / (static_cast<std::size_t>(W) * spp), 1, static_cast<std::size_t>(H)));
-  for (int y0 = 0; y0 < H; y0 += band) {
-    const int y1 = std::min(H, y0 + band);
+  for (int y0 = wy0; y0 < wy1; y0 += band) {
+    const int y1 = std::min(wy1, y0 + band);
     const std::size_t npx = static_cast<std::size_t>(y1 - y0) * W;
     parallel_chunks(npx, 16, opt.threads, [&](std::size_t, std::size_t b, std::size_t e) {
       std::size_t nv = 0, ns = 0;
       for (std::size_t i = b; i < e; ++i) {
         const std::size_t pixel = static_cast<std::size_t>(y0) * W + i;
+        if (static_cast<int>(pixel % W) < wx0 || static_cast<int>(pixel % W) >= wx1) continue;
         Vec3 sum{0, 0, 0};
         for (int s = 0; s < spp; ++s) {
           Rng rng(opt.seed, kPathStream, pixel * spp + s);
@@ -97,9 +102,9 @@ Image path_trace(const EmbreeScene& es, const LightSampler& lights, const PathTr
       shadow_rays += ns;
     });
     es.check("path trace");
-    if (progress) progress->update(static_cast<double>(y1) / H);
+    if (progress) progress->update(static_cast<double>(y1 - wy0) / (wy1 - wy0));
   }
-  stats.paths += static_cast<std::size_t>(W) * H * spp;
+  stats.paths += static_cast<std::size_t>(wx1 - wx0) * (wy1 - wy0) * spp;
   stats.vertices += vertices;
   stats.shadow_rays += shadow_rays;
   stats.seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();

@@ -24,6 +24,10 @@ struct PathTraceOptions {
   int min_depth = 3;        // vertices before Russian roulette
   std::uint64_t seed = 1;
   int threads = 0;          // 0: hardware threads; the image does not depend on it
+  // Only the pixels x0 <= x < x1, y0 <= y < y1 are traced (the others stay 0); x1, y1 <= 0: to
+  // the image's edge. For refining a reference where its paths are rare (light reaching a surface
+  // only through glass, seen in a mirror) at many more samples than the whole image can afford.
+  int window_x0 = 0, window_y0 = 0, window_x1 = 0, window_y1 = 0;
 };
 
 struct PathTraceStats {

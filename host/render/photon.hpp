@@ -18,9 +18,11 @@ struct PhotonRecord {
   float position[3];
   std::uint16_t power[3];  // Imath::half bits
   std::int16_t direction[2];
-  std::uint16_t flags;     // bits 0-7: diffuse/specular bounces before this hit; bit 8: caustic
+  std::uint16_t flags;     // bits 0-7: diffuse/specular bounces before this hit; bit 8: caustic;
+                           // bit 9: stored inside glass (position keyed by medium_key)
 
   static constexpr std::uint16_t kCaustic = 0x100;
+  static constexpr std::uint16_t kInGlass = 0x200;
 
   void set_power(Vec3 p) {
     power[0] = Imath::half(p.x).bits();
@@ -60,5 +62,19 @@ struct PhotonRecord {
   Vec3 get_position() const { return {position[0], position[1], position[2]}; }
 };
 static_assert(sizeof(PhotonRecord) == 24, "the talk's photon record is 24 bytes");
+
+// Light on a surface inside glass and light on the same surface outside it are separate: a glass
+// block with no bottom face stands on the floor, and the floor under it is lit only through the
+// glass while the floor beside it is lit directly or lies in the block's shadow. A density
+// estimate whose disc straddles the glass wall would mix the two (light leaking through the wall:
+// the floor in the shadow beside the block brightened by the caustic under it, the floor under
+// the block darkened). So photons and queries are keyed by their medium: the kNN search sees the
+// points inside glass moved by `separation` along x, at least one scene diagonal away from every
+// point outside (separation = medium_separation of the scene), and the two media never meet in
+// one estimate. Distances within a medium are unchanged (a translation).
+inline float medium_separation(float scene_diagonal) { return 2.0f * scene_diagonal; }
+inline Vec3 medium_key(Vec3 x, bool in_glass, float separation) {
+  return in_glass ? Vec3{x.x + separation, x.y, x.z} : x;
+}
 
 }  // namespace bhcl::render

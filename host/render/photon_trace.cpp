@@ -19,7 +19,7 @@ struct ChunkOut {
 };
 
 void trace_one(const EmbreeScene& es, const LightSampler& lights, const PhotonTraceOptions& opt,
-               float inv_lum_power, std::uint64_t index, ChunkOut& out) {
+               float inv_lum_power, float separation, std::uint64_t index, ChunkOut& out) {
   const Scene& scene = es.scene();
   const float eps = es.ray_epsilon();
   Rng rng(opt.seed, kPhotonStream, index);
@@ -31,6 +31,9 @@ void trace_one(const EmbreeScene& es, const LightSampler& lights, const PhotonTr
   Vec3 power = ls.emission * (kPi / ls.pdf_area) * inv_lum_power;
   Vec3 org = ls.position + ls.normal * eps;
   bool only_specular = true, had_specular = false;
+  // Glass entries minus exits along the path, from the emitter's own medium: > 0 inside glass
+  // (photon.hpp, medium_key).
+  int glass = es.inside_glass(org) ? 1 : 0;
   for (int depth = 0; depth < opt.max_depth; ++depth) {
     EmbreeScene::Hit hit;
     if (!es.intersect(org, dir, 0.0f, INFINITY, hit)) return;
@@ -41,14 +44,16 @@ void trace_one(const EmbreeScene& es, const LightSampler& lights, const PhotonTr
     Vec3 n = front ? ng : -ng;  // faces the incoming photon
     if (m.is_diffuse()) {
       PhotonRecord r;
-      r.position[0] = x.x;
-      r.position[1] = x.y;
-      r.position[2] = x.z;
+      const Vec3 key = medium_key(x, glass > 0, separation);
+      r.position[0] = key.x;
+      r.position[1] = key.y;
+      r.position[2] = key.z;
       r.set_power(power);
       r.set_direction(-dir);
       r.flags = static_cast<std::uint16_t>(std::min(depth, 255));
       bool caustic = only_specular && had_specular;
       if (caustic) r.flags |= PhotonRecord::kCaustic;
+      if (glass > 0) r.flags |= PhotonRecord::kInGlass;
       out.global.push_back(r);
       out.stored += power;
       if (caustic) out.caustic.push_back(r);
@@ -75,6 +80,7 @@ void trace_one(const EmbreeScene& es, const LightSampler& lights, const PhotonTr
       // radiance, i.e. of flux per solid angle, as Snell's law narrows or widens the solid angle;
       // it does not apply to a photon's power.
       (void)glass_scatter(dir, org, x, n, front, m.ior, rng.uniform(), eps);
+      if (dot(dir, n) < 0) glass = std::max(0, glass + (front ? 1 : -1));  // refracted: crossed the surface
       had_specular = true;
     } else {
       return;  // black diffuse (e.g. a light without reflectance): absorbed
@@ -94,6 +100,7 @@ PhotonTraceResult trace_photons(const EmbreeScene& es, const LightSampler& light
   const float lum_power = luminance(res.total_power) > 0 ? luminance(res.total_power)
                                                           : max_component(res.total_power);
   const float inv_lum = 1.0f / lum_power;
+  const float separation = medium_separation(es.scene().diagonal());
   // The chunk size depends only on the target, so the photon set does not depend on threads.
   const std::size_t chunk = std::clamp<std::size_t>(opt.photons / 16, 64, 4096);
   const std::size_t max_emitted = opt.max_emitted ? opt.max_emitted : 64 * opt.photons + 1000000;
@@ -107,7 +114,7 @@ PhotonTraceResult trace_photons(const EmbreeScene& es, const LightSampler& light
     // One chunk of photons per task; a throw reaches the caller (parallel.hpp).
     parallel_chunks(round_chunks, 1, threads, [&](std::size_t c, std::size_t, std::size_t) {
       std::uint64_t first = static_cast<std::uint64_t>(next_chunk + c) * chunk;
-      for (std::uint64_t i = first; i < first + chunk; ++i) trace_one(es, lights, opt, inv_lum, i, outs[c]);
+      for (std::uint64_t i = first; i < first + chunk; ++i) trace_one(es, lights, opt, inv_lum, separation, i, outs[c]);
     });
     es.check("photon tracing");
     for (auto& o : outs) {

@@ -134,7 +134,11 @@ class RadiusResultWithStats(NamedTuple):
 # (their build takes well under the time of reading a structure back): the method, its build
 # options and the points, rebuilt by load(). A zip (numpy's npz), told from a block-hash file by
 # its first bytes.
-_NPZ_FORMAT = "blockhash_cl.index/1"
+# Format 2 adds "removed" (the ids removed by Index.remove, ascending; their rows of "points" hold a
+# live point's coordinates, not the removed ones): load() builds over every row and removes them
+# again, so the ids, id_bound and the answers are the saved index's. Format 1 (no removals) reads.
+_NPZ_FORMAT = "blockhash_cl.index/2"
+_NPZ_FORMATS = ("blockhash_cl.index/1", _NPZ_FORMAT)
 
 
 class Index:
@@ -149,14 +153,19 @@ class Index:
     travels as its saved structure plus its points, the others as their points and build options
     (rebuilt on arrival, the same answers). An unpickled index is built on the default device
     (BHCL_DEVICE, else PoCL). The index keeps a host copy of its points for this (12 bytes per
-    point, counted in memory_bytes).
+    point, counted in memory_bytes). After add() and remove() the copy holds a row per id issued
+    and the removed ids travel with it: the arrival has the same ids, the same id_bound (its next
+    add continues there) and the same answers.
     """
 
-    __slots__ = ("_impl", "last_stats", "_origin", "_points", "_options", "_coords")
+    __slots__ = ("_impl", "last_stats", "_origin", "_points", "_options", "_coords", "_removed")
 
     def __init__(self, impl: "_core.Index", origin: Optional[np.ndarray] = None,
-                 points: Optional[np.ndarray] = None, options: Optional[Dict[str, Any]] = None) -> None:
+                 points: Optional[np.ndarray] = None, options: Optional[Dict[str, Any]] = None,
+                 removed: Optional[np.ndarray] = None) -> None:
         self._impl = impl
+        # The ids removed so far (ascending int32): their rows of _points are not live.
+        self._removed = np.zeros(0, np.int32) if removed is None else np.asarray(removed, np.int32)
         self.last_stats: Optional[Dict[str, Any]] = None
         self._origin = np.zeros(3, np.float64) if origin is None else np.asarray(origin, np.float64)
         self._points = points
@@ -366,9 +375,12 @@ class Index:
         int32 array id_bound, id_bound + 1, ... (ids are stable: never reused after a remove).
         Waits for queries in progress on this index (updates are exclusive with queries).
         float64 points are stored relative to the index's origin, as the build's were."""
-        ids = self._impl.insert(self._to_index(points, "points"))
-        if self._points is not None:  # the copy pickling and save rebuild from: ids stay in step
-            self._points = np.concatenate([self._points, np.asarray(points, dtype=self._points.dtype).reshape(-1, 3)])
+        stored = self._to_index(points, "points")
+        ids = self._impl.insert(stored)
+        if self._points is not None:  # the copy pickling and save rebuild from: a row per id issued
+            grown = np.concatenate([self._points, stored.reshape(-1, 3)])
+            grown.flags.writeable = False
+            self._points = grown
         return ids
 
     def remove(self, ids: Any) -> None:
@@ -380,8 +392,8 @@ class Index:
         if arr.size and (arr.min() < -2**31 or arr.max() >= 2**31):
             raise ValueError("remove: an id is outside the int32 range")
         self._impl.remove(np.ascontiguousarray(arr, dtype=np.int32))
-        # A rebuild from the points would renumber the ids after a hole: no copy to travel with.
-        self._points = None
+        # The rows stay (ids are never reused); the removed ids travel with them (see the class).
+        self._removed = np.union1d(self._removed, arr.astype(np.int32)).astype(np.int32)
 
     @property
     def id_bound(self) -> int:
@@ -415,24 +427,50 @@ class Index:
             return
         if self._points is None:
             raise Error(f"save: this {self.method} index holds no copy of its points")
-        with open(path, "wb") as f:
-            np.savez(f, format=np.array(_NPZ_FORMAT), method=np.array(self.method),
-                     options=np.array(json.dumps(self._options)), origin=self._origin, points=self._points)
+        # Written to a temporary beside the file and renamed when complete (as the library's files).
+        fd, tmp = tempfile.mkstemp(dir=os.path.dirname(os.path.abspath(path)), prefix=".bhcl-", suffix=".tmp")
+        try:
+            with os.fdopen(fd, "wb") as f:
+                np.savez(f, format=np.array(_NPZ_FORMAT), method=np.array(self.method),
+                         options=np.array(json.dumps(self._options)), origin=self._origin,
+                         points=self._travelling_points(), removed=self._removed)
+            os.replace(tmp, path)
+        except BaseException:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+            raise
+
+    def _travelling_points(self) -> np.ndarray:
+        """The host copy as it travels: a row per id issued, a removed id's row overwritten by the
+        first live point (a removed point's coordinates do not leave the process; the row is
+        built over and removed again on arrival)."""
+        assert self._points is not None
+        if not self._removed.size:
+            return self._points
+        pts = np.array(self._points, np.float32)
+        live = np.ones(len(pts), bool)
+        live[self._removed] = False
+        pts[self._removed] = pts[int(np.flatnonzero(live)[0])]
+        return pts
 
     def __getstate__(self) -> Dict[str, Any]:
         if self._points is None:
             raise Error(f"pickle: this {self.method} index holds no copy of its points")
         state: Dict[str, Any] = {"format": _NPZ_FORMAT, "method": self.method, "options": dict(self._options),
-                                 "origin": self._origin.copy(), "points": self._points, "structure": None}
+                                 "origin": self._origin.copy(), "points": self._travelling_points(),
+                                 "removed": self._removed.copy(), "structure": None}
         if self.method == "blockhash":
             state["structure"] = self._structure_bytes()
         return state
 
     def __setstate__(self, state: Dict[str, Any]) -> None:
-        if not isinstance(state, dict) or state.get("format") != _NPZ_FORMAT:
+        if not isinstance(state, dict) or state.get("format") not in _NPZ_FORMATS:
             raise Error("unpickle: not a blockhash_cl index state (format "
                         f"{state.get('format') if isinstance(state, dict) else type(state).__name__!r})")
-        other = _rebuild(state["method"], state["points"], state["origin"], state["options"], state["structure"], None)
+        other = _rebuild(state["method"], state["points"], state["origin"], state["options"], state["structure"], None,
+                         state.get("removed"))
         for name in Index.__slots__:
             setattr(self, name, getattr(other, name))
 
@@ -447,10 +485,16 @@ def _own_copy(pts: np.ndarray, given: Any) -> np.ndarray:
 
 
 def _rebuild(method: str, pts: np.ndarray, origin: np.ndarray, options: Dict[str, Any],
-             structure: Optional[bytes], device: Union[None, str, Runtime]) -> Index:
-    """An index over stored (relative, float32) points: rebuilt from its build options, or for
-    block hashing read from its saved structure."""
+             structure: Optional[bytes], device: Union[None, str, Runtime],
+             removed: Optional[np.ndarray] = None) -> Index:
+    """An index over stored (relative, float32) points, a row per id issued: rebuilt from its
+    build options and the removed ids removed again, or for block hashing read from its saved
+    structure (which holds the ids itself)."""
     pts = np.ascontiguousarray(pts, dtype=np.float32)
+    removed = np.zeros(0, np.int32) if removed is None else np.ascontiguousarray(removed, dtype=np.int32)
+    if removed.size and (removed.ndim != 1 or removed.min() < 0 or removed.max() >= len(pts)
+                         or np.any(np.diff(removed) <= 0)):
+        raise Error(f"load: the removed ids are not ascending ids of the {len(pts)} rows")
     opts = _core.MethodOptions()
     if structure is not None:
         fd, tmp = tempfile.mkstemp(suffix=".bhi")
@@ -466,8 +510,13 @@ def _rebuild(method: str, pts: np.ndarray, origin: np.ndarray, options: Dict[str
         _refuse_unknown(method, options, tuple(table), "build option")
         _set_table_options(_core.set_build_option, opts, method, table, options)
         impl = _core.make_index(method, get_runtime(device), pts, opts)
+        if removed.size:
+            impl.remove(removed)
+    if impl.id_bound != len(pts) or impl.size != len(pts) - removed.size:
+        raise Error(f"load: the {method} index holds {impl.size} points of ids 0 .. {impl.id_bound - 1}; the "
+                    f"state has {len(pts)} rows of which {removed.size} removed")
     pts.flags.writeable = False
-    return Index(impl, origin, pts, options)
+    return Index(impl, origin, pts, options, removed)
 
 
 def make_index(method: str, points: Any, *, device: Union[None, str, Runtime] = None,
@@ -513,7 +562,8 @@ def _check_count(a: np.ndarray, method: str) -> None:
 def load(path: Union[str, "os.PathLike[str]"], points: Any = None, *,
          device: Union[None, str, Runtime] = None) -> Index:
     """Reads an index Index.save() wrote. A block-hash file needs the (N, 3) points it was built
-    from (the index refers to them by index; as bhcl --load-index); a file that does not match
+    from (the index refers to them by index; as bhcl --load-index; after add() and remove(), a row
+    per id issued, id_bound rows: a removed id's row is not compared); a file that does not match
     them, or is missing, truncated or corrupt, raises Error naming the file and what differs. A
     file of another method holds its points: `points`, when given, must equal them."""
     path = os.fspath(path)
@@ -528,19 +578,23 @@ def load(path: Union[str, "os.PathLike[str]"], points: Any = None, *,
                 fmt = str(z["format"])
                 method, options = str(z["method"]), json.loads(str(z["options"]))
                 origin, stored = np.array(z["origin"], np.float64), np.array(z["points"], np.float32)
+                removed = np.array(z["removed"], np.int32) if "removed" in z.files else None
         except (KeyError, ValueError, OSError) as e:
             raise Error(f"load: {path} is not a readable blockhash_cl index ({e})") from None
-        if fmt != _NPZ_FORMAT:
-            raise Error(f"load: {path} has format {fmt!r}, this version reads {_NPZ_FORMAT!r}")
+        if fmt not in _NPZ_FORMATS:
+            raise Error(f"load: {path} has format {fmt!r}, this version reads {' and '.join(map(repr, _NPZ_FORMATS))}")
         if points is not None:
             a, _ = _checked(points, "points")
             mine = _relative(a, origin, "points") if np.any(origin) else _xyz(a, "points")
             if mine.shape != stored.shape:
                 raise Error(f"load: {path} holds {len(stored)} points, {len(mine)} given")
-            diff = np.flatnonzero(np.any(mine != stored, axis=1))
+            differs = np.any(mine != stored, axis=1)
+            if removed is not None and removed.size:
+                differs[removed[(removed >= 0) & (removed < len(differs))]] = False  # not stored
+            diff = np.flatnonzero(differs)
             if diff.size:
                 raise Error(f"load: {path}: point {int(diff[0])} differs from the one it was built from")
-        return _rebuild(method, stored, origin, options, None, device)
+        return _rebuild(method, stored, origin, options, None, device, removed)
     if points is None:
         raise Error(f"load: {path} is a block-hash index file: give the points it was built from")
     a, _ = _checked(points, "points")
@@ -549,7 +603,8 @@ def load(path: Union[str, "os.PathLike[str]"], points: Any = None, *,
     opts = _core.MethodOptions()
     opts.set("load-index", path)
     impl = _core.make_index("blockhash", get_runtime(device), pts, opts)
-    return Index(impl, origin, _own_copy(pts, points), {})
+    removed = impl.removed_ids() if impl.removed_count else None  # a file saved after removals
+    return Index(impl, origin, _own_copy(pts, points), {}, removed)
 
 
 # The docstrings list what the option tables hold.

@@ -489,3 +489,54 @@ def test_add_and_remove_keep_stable_ids(method):
     with pytest.raises(ValueError, match="inserted points"):
         index.add(np.array([[0.5, np.nan, 0.5]], dtype=np.float32))
     assert index.add(pts[:2]).tolist() == [3500, 3501]  # never reused
+
+
+_TRAVEL_CASES = [(m, {}) for m in EXACT] + [("blockhash", {}), ("blockhash", {"grid_directory": 1}),
+                                             ("blockhash", {"grid": 0}), ("blockhash", {"preset": "paper"})]
+
+
+@pytest.mark.parametrize("method, options", _TRAVEL_CASES)
+def test_pickle_and_save_after_add_and_remove(tmp_path, method, options):
+    """Issue 23: a pickled or saved copy after random adds and removes has the same ids (removed
+    ones absent, id_bound kept, the next add continues there) and answers as the index did."""
+    import pickle
+
+    rng = np.random.default_rng(29)
+    pts = rng.random((2500, 3)) + 1e6 * (method == "kdtree")  # float64; kd-tree's re-centred
+    index = bh.make_index(method, pts, **options)
+    for step in range(6):
+        if step % 3 != 2:
+            index.add(rng.random((int(rng.integers(1, 400)), 3)) * 1.3 - 0.1 + 1e6 * (method == "kdtree"))
+        else:
+            live = np.flatnonzero([index.contains(i) for i in range(index.id_bound)])
+            index.remove(rng.choice(live, size=int(rng.integers(1, 300)), replace=False))
+    live = np.array([index.contains(i) for i in range(index.id_bound)])
+    removed = np.flatnonzero(~live)
+    assert removed.size and len(index) == live.sum()
+    q = rng.random((300, 3)) * 1.4 - 0.2 + 1e6 * (method == "kdtree")
+    search = [{}] if method != "blockhash" else [{"A": 2}, {"A": 6}]
+    path = tmp_path / "updated.idx"
+    index.save(path)
+    copies = [pickle.loads(pickle.dumps(index))]
+    if method == "blockhash":  # the library's file: a row per id issued, a removed row not read
+        rows = index._points.copy()
+        rows[removed] = 7.0
+        copies.append(bh.load(path, rows + index._origin))
+    else:
+        copies.append(bh.load(path))
+    for back in copies:
+        assert back.method == method and back.id_bound == index.id_bound and len(back) == len(index)
+        assert [back.contains(int(i)) for i in removed[:50]] == [False] * min(50, removed.size)
+        assert back.contains(int(np.flatnonzero(live)[0]))
+        for kw in search:
+            a, b = index.query(q, k=10, **kw), back.query(q, k=10, **kw)
+            np.testing.assert_array_equal(a[1], b[1])
+            np.testing.assert_array_equal(a[0], b[0])
+            assert not np.isin(b[1], removed).any()
+        more = rng.random((20, 3)) + 1e6 * (method == "kdtree")
+        assert back.add(more).tolist() == list(range(index.id_bound, index.id_bound + 20))
+    # The removed points' coordinates do not travel.
+    state = index.__getstate__()
+    first_live = int(np.flatnonzero(live)[0])
+    assert (state["points"][removed] == index._points[first_live]).all()
+    assert state["removed"].tolist() == removed.tolist()

@@ -7,7 +7,7 @@ import sys
 for path in sys.argv[1:]:
     j = json.load(open(path))
     print(f"\n{j['scene']}, {j['method']}, {j['width']}x{j['height']}, {j['photons_requested']} photons a pass, "
-          f"{j['gather']} gather rays, k = {j['k']}, alpha = {j['alpha']:.4g}\n")
+          f"{j.get('spp', 1)} spp, {j['gather']} gather rays, k = {j['k']}, alpha = {j['alpha']:.4g}\n")
     print("| pass | wall s | r_i/r_1 | block RMSE | worst block | bias |")
     print("|-----:|-------:|--------:|-----------:|------------:|-----:|")
     for p in j["pass_reports"]:

@@ -42,6 +42,7 @@ class KernelArgs;
 }
 namespace blockhash {
 struct Structure;  // the host copy of every built array (lib/src/blockhash/build.hpp)
+struct GridIdState;  // a grid file's ids and update state (lib/src/blockhash/grid_io.hpp)
 }
 
 struct BlockHashBuildParams {
@@ -161,8 +162,9 @@ class BlockHashIndex : public Index {
   void rebuild(const float* points, std::size_t n_points);
 
   // The first caller index whose point differs from the indexed one (bit for bit), -1 when the
-  // index holds exactly these n points, -2 when n is not size() (no point compared). A loaded
-  // index is checked against the caller's points.
+  // index holds exactly these n points, -2 when n is not id_bound() (no point compared). points
+  // holds a row per id issued; after removals a removed id's row is not compared. A loaded index
+  // is checked against the caller's points.
   long first_mismatch(const float* points, std::size_t n) const;
 
   std::string method() const override { return "blockhash"; }
@@ -263,6 +265,11 @@ class BlockHashIndex : public Index {
   void blocks_update(const float* scaled, std::size_t n, std::int32_t first, const std::int32_t* ids,
                      std::size_t n_removed);
   void live_points(std::vector<float>& caller_xyz, std::vector<std::int32_t>& ids) const;
+  // Save / load after updates (grid_update.cpp): the state a grid file keeps, and the id state
+  // (and for the grid its holes and counters) of a loaded file.
+  blockhash::GridIdState grid_update_state() const;
+  void loaded_update_state(const blockhash::GridIdState& st);
+  void loaded_update_state(std::int64_t id_bound);
   std::vector<std::int32_t> id_pos_;  // grid after updates: id -> sorted position (-1: none)
   double grid_build_mean_ = 0;        // the mean cell population of the last full grid build
 

@@ -35,7 +35,11 @@
 // --distributed` tool reads both files on rank 0 and writes the results there.
 //
 // Collective calls: the constructor and query() must be called by every rank of the communicator
-// (with the same k, maximum radius and count_examined). A failure on any rank (bad points, an
+// with the same parameters: every field of DistributedBuildParams (the method options included),
+// SearchParams and RadiusParams is checked against rank 0's (one allreduce of a hash), and a
+// difference makes the call throw on every rank naming the first differing rank, the parameter
+// and both values. Every collective step has a deadline (DistributedBuildParams::deadline_s): a
+// rank that stops answering ends the job with a message naming it, never a hang. A failure on any rank (bad points, an
 // index that cannot be built, a query that throws) makes the call throw bhcl::Error on EVERY rank,
 // with the first failing rank's message; no rank is left waiting in a collective. The index works
 // on its own duplicate of the communicator, so its messages never meet the caller's.
@@ -72,6 +76,12 @@ struct DistributedBuildParams {
   // on exactly these queries (docs/DISTRIBUTED.md measures it); 1 turns the second answer off.
   // Exact methods ignore it. [1, 1024].
   float border_factor = 2;
+  // The deadline of every collective step, in seconds: a rank that has not reached a step this
+  // long after rank 0 (or rank 0, for the others) ends the job with MPI_Abort and a message on
+  // stderr naming it, instead of a hang. It bounds the skew of local work between two steps (a
+  // shard's build, a batch's local queries), so it must exceed the slowest rank's. 0: no
+  // deadline; negative: the environment variable BHCL_MPI_DEADLINE_S, else 600 s.
+  double deadline_s = -1;
 };
 
 // What the sharding did, as seen from one rank (the *_all vectors are the same on every rank).
@@ -181,6 +191,7 @@ class DistributedIndex {
 // every rank, "<what>: rank R: <message>" with the first failing rank's message (and how many
 // others failed). For callers that do their own per-rank work between collective steps (the bhcl
 // tool reads the files on rank 0 and shares the outcome with it).
+// Every rank first checks in within comm's deadline (the job ends naming a rank that does not).
 void mpi_agree(MPI_Comm comm, const std::string& local_error, const std::string& what);
 
 }  // namespace bhcl

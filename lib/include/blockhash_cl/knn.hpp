@@ -225,6 +225,17 @@ struct QueryStats {
 // -v / -d limits, the cgroup's memory.max, the machine's available memory and free swap). The
 // host-array query calls it before any search.
 void check_result_memory(std::size_t n, int k, bool examined, int copies, const std::string& method);
+// The same for a radius search (Index::radius_search calls it twice): before any search with
+// entries = 0, for what n queries need whatever they find (offsets, found and examined counts,
+// `copies` of them when the rows are reordered, and `device_bytes` of device buffers); then, once
+// the count pass has counted the `entries` points within the radius and before any of them is
+// fetched, for those too (8 bytes each, twice: the reordered or re-checked copy). Throws
+// bhcl::Error "the radius result needs 7.2 GB (...)" naming what bounds the memory.
+void check_radius_memory(std::size_t n, std::size_t entries, bool examined, int copies,
+                         std::size_t device_bytes, const std::string& method);
+// The memory this process can still allocate (UINT64_MAX: nothing known) and, in `bound`, what
+// bounds it (the ulimit -v / -d limits, the cgroup's memory.max, the machine's available memory).
+std::uint64_t allocatable_memory(std::string* bound);
 
 // Validates a point array (n x 3 float): finite everywhere. Throws bhcl::Error naming the first
 // bad point, its coordinates and `what` (e.g. "points").

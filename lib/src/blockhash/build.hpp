@@ -235,11 +235,16 @@ inline std::uint32_t keep_blocks(std::uint32_t budget, int kmax, int X) {
 }
 
 // Save / load (blockhash/io.cpp).
+// id_bound: one past the largest id issued (an index after Index::insert/remove: the ids in
+// order and the blocks are sparse in [0, id_bound)); -1 on save: n_points. Loaded: the file's
+// (version 4 files: n_points).
 void save_structure(const Structure& s, const std::string& path);
+void save_structure(const Structure& s, const std::string& path, std::int64_t id_bound);
 std::unique_ptr<Structure> load_structure(const std::string& path);
+std::unique_ptr<Structure> load_structure(const std::string& path, std::int64_t* id_bound);
 // The parse behind load_structure, on the file's bytes; `what` names the source in errors. The
 // fuzz target turns the checksum test off so that its inputs reach the structural checks.
 std::unique_ptr<Structure> parse_structure(const std::string& data, const std::string& what,
-                                           bool verify_checksum = true);
+                                           bool verify_checksum = true, std::int64_t* id_bound = nullptr);
 
 }  // namespace bhcl::blockhash

@@ -29,6 +29,7 @@
 
 #include "bhcl_shared.h"
 #include "blockhash/build.hpp"
+#include "blockhash/grid_io.hpp"
 #include "blockhash_cl/error.hpp"
 #include "core/device_util.hpp"
 
@@ -387,6 +388,44 @@ void BlockHashIndex::blocks_update(const float* points, std::size_t n, std::int3
   keep.put(info_);
   ++info_.update_rebuilds;
   s.info = info_;
+}
+
+// Saved and loaded after updates (grid_io.cpp's version 3, io.cpp's version 5): the ids issued,
+// the holes where they are, the population the retune band is measured from and the counters, so
+// that a loaded index answers as the saved one and its next updates continue where it stopped.
+blockhash::GridIdState BlockHashIndex::grid_update_state() const {
+  blockhash::GridIdState st;
+  st.id_bound = id_bound();
+  st.tuned_mean = grid_build_mean_ > 0 ? grid_build_mean_ : 0.0;
+  st.merges = info_.merges;
+  st.compactions = info_.compactions;
+  st.update_rebuilds = info_.update_rebuilds;
+  st.retunes = info_.retunes;
+  return st;
+}
+
+void BlockHashIndex::loaded_update_state(const blockhash::GridIdState& st) {
+  info_.merges = st.merges;
+  info_.compactions = st.compactions;
+  info_.update_rebuilds = st.update_rebuilds;
+  info_.retunes = st.retunes;
+  info_.holes = st.holes;
+  if (st.tuned_mean > 0) grid_build_mean_ = st.tuned_mean;
+  s_->info = info_;
+  const blockhash::Grid& g = *s_->grid;
+  if (st.holes == 0 && std::size_t(st.id_bound) == g.n_points) return;  // ids 0 .. N - 1
+  std::vector<std::int32_t> live;
+  live.reserve(st.live);
+  for (std::size_t i = 0; i < g.n_points; ++i)
+    if (g.ids[i] != kHoleId) live.push_back(g.ids[i]);
+  std::sort(live.begin(), live.end());
+  set_id_state(static_cast<std::int32_t>(st.id_bound), live);
+}
+
+void BlockHashIndex::loaded_update_state(std::int64_t bound) {
+  std::vector<std::int32_t> live(s_->order.begin(), s_->order.end());
+  std::sort(live.begin(), live.end());
+  set_id_state(static_cast<std::int32_t>(bound), live);
 }
 
 }  // namespace bhcl

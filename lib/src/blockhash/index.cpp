@@ -8,7 +8,9 @@
 #include <cstring>
 #include <sstream>
 
+#include "bhcl_shared.h"
 #include "blockhash/build.hpp"
+#include "blockhash/grid_io.hpp"
 #include "blockhash/options.hpp"
 #include "blockhash_cl/error.hpp"
 #include "core/device_util.hpp"
@@ -318,38 +320,44 @@ BlockHashIndex::~BlockHashIndex() = default;
 std::unique_ptr<BlockHashIndex> BlockHashIndex::load(std::shared_ptr<Runtime> runtime,
                                                      const std::string& path) {
   if (blockhash::is_grid_file(path)) {
-    blockhash::GridFile f = blockhash::load_grid(path);
+    blockhash::GridIdState st;
+    blockhash::GridFile f = blockhash::load_grid(path, &st);
     auto s = std::make_unique<blockhash::Structure>();
     s->n_points = f.grid.n_points;
     s->scale_exp = f.scale_exp;
     s->grid = std::make_shared<blockhash::Grid>(std::move(f.grid));
-    BlockHashIndex* bh = new BlockHashIndex(std::move(runtime), std::move(s));
+    std::unique_ptr<BlockHashIndex> bh(new BlockHashIndex(std::move(runtime), std::move(s)));
     bh->params_.target_cell_points = f.target_cell_points;
-    return std::unique_ptr<BlockHashIndex>(bh);
+    bh->loaded_update_state(st);  // grid_update.cpp
+    return bh;
   }
-  auto s = blockhash::load_structure(path);
-  return std::unique_ptr<BlockHashIndex>(new BlockHashIndex(std::move(runtime), std::move(s)));
+  std::int64_t bound = -1;
+  auto s = blockhash::load_structure(path, &bound);
+  std::unique_ptr<BlockHashIndex> bh(new BlockHashIndex(std::move(runtime), std::move(s)));
+  if (bound != std::int64_t(bh->size())) bh->loaded_update_state(bound);  // sparse ids after removals
+  // An update rebuilds a block layout (blocks_update) from the build parameters: the saved
+  // layout's preset and kind (the others as their defaults derive them).
+  bh->params_.preset = bh->info_.preset;
+  if (bh->info_.preset == BlockHashBuildParams::Preset::Auto) {
+    bh->params_.cell_aligned = bh->info_.cell_aligned ? 1 : 0;
+    if (!bh->info_.cell_aligned) bh->params_.L = bh->info_.L;
+  }
+  return bh;
 }
 
 void BlockHashIndex::save(const std::string& path) const {
-  // Both file formats hold ids 0 .. N - 1 (a load checks they are a permutation): an index after
-  // inserts only saves as it is; after removals its ids are sparse, which the formats cannot
-  // say yet (a format change: the id bound and sparse ids), so the save refuses rather than
-  // renumber the caller's ids.
-  if (removed_count() > 0)
-    throw Error("blockhash: save: this index had points removed (" + std::to_string(removed_count()) +
-                " of " + std::to_string(id_bound()) + " ids): the index file formats hold ids 0 .. N - 1 "
-                "only; save a fresh index over the live points instead");
+  // After updates the files hold the id bound and the live ids as they are (the grid its holes
+  // too: grid_io.cpp, io.cpp): a load answers as this index, with the same ids.
   ReadLock lock(*this);
   if (info_.grid) {
     blockhash::GridFile f;
     f.grid = *s_->grid;
     f.scale_exp = s_->scale_exp;
     f.target_cell_points = params_.target_cell_points;
-    blockhash::save_grid(f, path);
+    blockhash::save_grid(f, grid_update_state(), path);  // grid_update.cpp
     return;
   }
-  blockhash::save_structure(*s_, path);
+  blockhash::save_structure(*s_, path, id_bound());
 }
 
 std::vector<float> BlockHashIndex::indexed_points(std::vector<std::int32_t>* ids) const {
@@ -386,12 +394,12 @@ std::vector<float> BlockHashIndex::indexed_points(std::vector<std::int32_t>* ids
 }
 
 long BlockHashIndex::first_mismatch(const float* points, std::size_t n) const {
-  if (n != s_->n_points) return -2;  // not an index: the sizes differ
-  // After removals the ids are not the caller's indexes 0 .. n - 1: nothing to compare by index.
-  if (removed_count() > 0 || std::size_t(id_bound()) != n) return -2;
+  // points[id] for every id issued (after removals the removed ids' rows are not compared).
+  if (n != std::size_t(id_bound())) return -2;  // not an index: the sizes differ
   if (s_->grid) {
     const blockhash::Grid& g = *s_->grid;
-    for (std::size_t i = 0; i < n; ++i) {
+    for (std::size_t i = 0; i < g.n_points; ++i) {
+      if (g.ids[i] == BHCL_EMPTY_SLOT_ID) continue;  // a hole
       const float* u = points + 3 * static_cast<std::size_t>(g.ids[i]);
       const float c[3] = {std::ldexp(u[0], -s_->scale_exp), std::ldexp(u[1], -s_->scale_exp),
                           std::ldexp(u[2], -s_->scale_exp)};
@@ -400,7 +408,7 @@ long BlockHashIndex::first_mismatch(const float* points, std::size_t n) const {
     }
     return -1;
   }
-  for (std::size_t i = 0; i < n; ++i) {
+  for (std::size_t i = 0; i < s_->n_points; ++i) {
     float p[3];
     s_->point(i, p);
     const float* u = points + 3 * static_cast<std::size_t>(s_->order[i]);

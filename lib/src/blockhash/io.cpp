@@ -1,10 +1,12 @@
 // Save and load of a built block-hash index, and the structure's invariant check.
 //
-// File format (little-endian), version 4:
+// File format (little-endian), version 5:
 //   "BHCLIDX\0" magic, u32 version, u32 0x01020304 (byte-order check), u32 header bytes,
 //   u32 preset, L, P, B, X, flags (guard, top count, direct, box skip, probes, box order, cell-aligned: new in 3),
 //   u64 n_points, n_blocks, n_thresholds, n_table_starts, n_keys, n_buckets, n_refs,
 //   f64 median cell points, median cell blocks, p90 cell blocks,
+//   u64 id bound (one past the largest id issued; new in 5: after Index::remove the ids in order
+//   and the blocks are the live ones, sparse in [0, id bound); version 4 held ids 0 .. N - 1),
 //   u64 FNV-1a 64 checksum of every other byte of the file (the header before it, then the
 //   payload; new in 4: version 3 covered the payload only, so a corrupt header passed),
 //   payload: order (i32 x N), blocks (256 B each), boxes (32 B each), thresholds (f32),
@@ -29,8 +31,10 @@ namespace bhcl::blockhash {
 namespace {
 
 constexpr char kMagic[8] = {'B', 'H', 'C', 'L', 'I', 'D', 'X', '\0'};
-constexpr std::uint32_t kVersion = 4;
-constexpr std::uint32_t kHeaderBytes = 8 + 4 * 3 + 4 * 6 + 4 * 7 + 8 * 7 + 8 * 3 + 8;
+constexpr std::uint32_t kVersion = 5;
+constexpr std::uint32_t kHeaderBytesV4 = 8 + 4 * 3 + 4 * 6 + 4 * 7 + 8 * 7 + 8 * 3 + 8;
+constexpr std::uint32_t kHeaderBytes = kHeaderBytesV4 + 8;
+std::uint32_t header_bytes(std::uint32_t version) { return version == 4 ? kHeaderBytesV4 : kHeaderBytes; }
 
 std::uint64_t fnv1a(const unsigned char* p, std::size_t n, std::uint64_t h = 0xcbf29ce484222325ull) {
   for (std::size_t i = 0; i < n; ++i) {
@@ -94,8 +98,8 @@ std::uint64_t header_payload_bytes(const std::string& header, const std::string&
   if (std::memcmp(header.data(), kMagic, 8) != 0) throw Error(path + ": not a block-hash index (bad magic)");
   std::uint32_t version = 0;
   std::memcpy(&version, header.data() + 8, 4);
-  if (version != kVersion)
-    throw Error(path + ": block-hash index version " + std::to_string(version) + ", this library reads version " +
+  if (version != 4 && version != kVersion)
+    throw Error(path + ": block-hash index version " + std::to_string(version) + ", this library reads versions 4 and " +
                 std::to_string(kVersion) + " (rebuild the index)");
   std::uint64_t n[7];
   std::memcpy(n, header.data() + 72, sizeof n);  // after the 72 bytes of identity, parameters and quantiser
@@ -203,7 +207,9 @@ void Structure::validate(const std::string& what) const {
   }
 }
 
-void save_structure(const Structure& s, const std::string& path) {
+void save_structure(const Structure& s, const std::string& path) { save_structure(s, path, -1); }
+
+void save_structure(const Structure& s, const std::string& path, std::int64_t id_bound) {
   const BlockHashBuildInfo& in = s.info;
   Writer payload;
   payload.put_vec(s.order);
@@ -238,42 +244,50 @@ void save_structure(const Structure& s, const std::string& path) {
                           std::uint64_t(s.refs.size())})
     h.put(v);
   for (double v : {in.median_cell_points, in.median_cell_blocks, in.p90_cell_blocks}) h.put(v);
+  h.put(std::uint64_t(id_bound < 0 ? std::int64_t(s.n_points) : id_bound));
   const std::uint64_t head = fnv1a(reinterpret_cast<const unsigned char*>(h.buf.data()), h.buf.size());
   h.put(fnv1a(reinterpret_cast<const unsigned char*>(payload.buf.data()), payload.buf.size(), head));
   write_file(path, {h.buf, payload.buf}, "the block-hash index");
 }
 
-std::unique_ptr<Structure> load_structure(const std::string& path) {
+std::unique_ptr<Structure> load_structure(const std::string& path) { return load_structure(path, nullptr); }
+
+std::unique_ptr<Structure> load_structure(const std::string& path, std::int64_t* id_bound) {
   const std::uint64_t size = regular_file_size(path, "a block-hash index");
   std::ifstream in(path, std::ios::binary);
   if (!in) throw Error(path + ": cannot open the block-hash index");
   // The header first; the payload only when the file is as long as the header says (a large
   // foreign file is never read whole).
+  // The header's length depends on the version (at byte 8): read as much as the longest.
   std::string data(static_cast<std::size_t>(std::min<std::uint64_t>(size, kHeaderBytes)), '\0');
   in.read(data.data(), static_cast<std::streamsize>(data.size()));
-  if (data.size() == kHeaderBytes) {
-    const std::uint64_t need = kHeaderBytes + header_payload_bytes(data, path);
+  std::uint32_t version = kVersion;
+  if (data.size() >= 12) std::memcpy(&version, data.data() + 8, 4);
+  const std::uint32_t hb = header_bytes(version);
+  if (data.size() >= hb) {
+    const std::uint64_t need = hb + header_payload_bytes(data, path);
     if (size != need)
       throw Error(path + ": block-hash index is " + std::to_string(size) + " bytes, its header says " +
                   std::to_string(need) + (size < need ? " (truncated)" : " (trailing bytes)"));
+    const std::size_t had = data.size();
     data.resize(static_cast<std::size_t>(size));
-    in.read(data.data() + kHeaderBytes, static_cast<std::streamsize>(size - kHeaderBytes));
+    in.read(data.data() + had, static_cast<std::streamsize>(size - had));
   }
   if (!in) throw Error(path + ": reading the block-hash index failed");
-  return parse_structure(data, path);
+  return parse_structure(data, path, true, id_bound);
 }
 
 std::unique_ptr<Structure> parse_structure(const std::string& data, const std::string& path,
-                                           bool verify_checksum) {
+                                           bool verify_checksum, std::int64_t* id_bound) {
   Reader r{data, 0, path};
   char magic[8];
   for (char& c : magic) c = r.get<char>("magic");
   if (std::memcmp(magic, kMagic, 8) != 0) throw Error(path + ": not a block-hash index (bad magic)");
   std::uint32_t version = r.get<std::uint32_t>("version");
-  if (version != kVersion)
-    throw Error(path + ": block-hash index version " + std::to_string(version) + ", this library reads version " + std::to_string(kVersion));
+  if (version != 4 && version != kVersion)
+    throw Error(path + ": block-hash index version " + std::to_string(version) + ", this library reads versions 4 and " + std::to_string(kVersion));
   if (r.get<std::uint32_t>("byte order") != 0x01020304u) throw Error(path + ": block-hash index of another byte order");
-  if (r.get<std::uint32_t>("header bytes") != kHeaderBytes) throw Error(path + ": block-hash index header size differs");
+  if (r.get<std::uint32_t>("header bytes") != header_bytes(version)) throw Error(path + ": block-hash index header size differs");
   auto s = std::make_unique<Structure>();
   BlockHashBuildInfo& info = s->info;
   std::uint32_t preset = r.get<std::uint32_t>("preset");
@@ -317,6 +331,13 @@ std::unique_ptr<Structure> parse_structure(const std::string& data, const std::s
   info.median_cell_points = r.get<double>("median_cell_points");
   info.median_cell_blocks = r.get<double>("median_cell_blocks");
   info.p90_cell_blocks = r.get<double>("p90_cell_blocks");
+  std::uint64_t bound = n[0];
+  if (version >= 5) {
+    bound = r.get<std::uint64_t>("id bound");
+    if (bound < n[0] || bound > 0x7ffffffeull)
+      throw Error(path + ": block-hash index field 'id bound' = " + std::to_string(bound) + " is out of range [" +
+                  std::to_string(n[0]) + ", 2^31 - 2]");
+  }
   std::uint64_t checksum = r.get<std::uint64_t>("checksum");
   const std::uint64_t need = payload_bytes(n, path);
   const std::uint64_t have = data.size() - r.pos;
@@ -339,7 +360,36 @@ std::unique_ptr<Structure> parse_structure(const std::string& data, const std::s
   r.get_vec(s->block_keys, n[1], "block_keys");
   info.n_points = s->n_points;
   info.n_blocks = s->blocks.size();
-  s->validate(path);
+  if (bound == n[0]) {
+    s->validate(path);
+  } else {
+    // Sparse ids (an index saved after removals): each id in [0, bound) at most once; validate
+    // sees them replaced by their ranks (0 .. N - 1, the invariants it checks), then they return.
+    auto fail = [&](const std::string& why) { throw Error(path + ": invalid block-hash index: " + why); };
+    std::vector<std::int32_t> rank(static_cast<std::size_t>(bound), -1), live;
+    for (std::size_t i = 0; i < s->order.size(); ++i) {
+      const std::int32_t o = s->order[i];
+      if (o < 0 || std::uint64_t(o) >= bound) fail("order entry " + std::to_string(i) + " = " + std::to_string(o) + " is outside [0, id bound)");
+      if (rank[std::size_t(o)] >= 0) fail("order is not a set of distinct ids (entry " + std::to_string(i) + ")");
+      rank[std::size_t(o)] = 0;
+    }
+    live.reserve(s->order.size());
+    for (std::size_t id = 0; id < rank.size(); ++id)
+      if (rank[id] >= 0) {
+        rank[id] = static_cast<std::int32_t>(live.size());
+        live.push_back(static_cast<std::int32_t>(id));
+      }
+    auto to_rank = [&](std::int32_t id) { return id >= 0 && std::uint64_t(id) < bound ? rank[std::size_t(id)] : -1; };
+    for (auto& o : s->order) o = to_rank(o);
+    for (std::size_t b = 0; b < s->blocks.size(); ++b)
+      for (std::int32_t j = 0; j < std::min<std::int32_t>(s->boxes[b].count, BHCL_BH_BLOCK_SLOTS); ++j)
+        s->blocks[b].id[j] = to_rank(s->blocks[b].id[j]);
+    s->validate(path);
+    for (auto& o : s->order) o = live[std::size_t(o)];
+    for (std::size_t b = 0; b < s->blocks.size(); ++b)
+      for (std::int32_t j = 0; j < s->boxes[b].count; ++j) s->blocks[b].id[j] = live[std::size_t(s->blocks[b].id[j])];
+  }
+  if (id_bound) *id_bound = static_cast<std::int64_t>(bound);
   return s;
 }
 

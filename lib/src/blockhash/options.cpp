@@ -101,9 +101,14 @@ std::unique_ptr<Index> make(std::shared_ptr<Runtime> runtime, const float* point
   const std::string load = options.load_index(), save = options.save_index();
   if (!load.empty()) {
     bh = BlockHashIndex::load(std::move(runtime), load);
-    if (bh->size() != n_points)
-      throw Error(load + ": the saved index holds " + std::to_string(bh->size()) + " points, the point set " +
-                  std::to_string(n_points));
+    // The point set gives the point of every id issued (after removals, a removed id's row is
+    // not read): id_bound() rows, size() of them live.
+    if (std::size_t(bh->id_bound()) != n_points)
+      throw Error(load + ": the saved index holds " + std::to_string(bh->size()) + " points" +
+                  (bh->removed_count() ? " of ids 0 .. " + std::to_string(bh->id_bound() - 1) +
+                                             " (give a row for every id, removed ones included)"
+                                       : std::string()) +
+                  ", the point set " + std::to_string(n_points));
     if (long i = bh->first_mismatch(points, n_points); i >= 0)
       throw Error(load + ": the saved index was built from other points (point " + std::to_string(i) + " differs)");
   } else {
@@ -142,7 +147,9 @@ MethodInfo::Used used_build(const Index& index) {
                            {"compactions", std::to_string(i.compactions)},
                            {"update_rebuilds", std::to_string(i.update_rebuilds)},
                            {"retunes", std::to_string(i.retunes)},
-                           {"update_seconds", json_real(i.t_update)}});
+                           {"update_seconds", json_real(i.t_update)},
+                           {"id_bound", std::to_string(index.id_bound())},
+                           {"removed", std::to_string(index.removed_count())}});
   }
   return u;
 }

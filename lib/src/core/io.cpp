@@ -11,6 +11,7 @@
 
 #include <sys/stat.h>
 
+#include "blockhash_cl/atomic_file.hpp"
 #include "blockhash_cl/error.hpp"
 
 #include "core/io_formats.hpp"

@@ -71,6 +71,13 @@ std::uint64_t allocatable_bytes(std::string* bound) {
 
 }  // namespace
 
+std::uint64_t allocatable_memory(std::string* bound) {
+  std::string b;
+  const std::uint64_t v = allocatable_bytes(&b);
+  if (bound) *bound = b;
+  return v;
+}
+
 void check_result_memory(std::size_t n, int k, bool examined, int copies, const std::string& method) {
   const double bytes = (double(n) * k * 8.0 + double(n) * (examined ? 8.0 : 4.0)) * copies + (copies > 1 ? 20.0 * n : 0.0);
   if (bytes < double(std::size_t(64) << 20)) return;  // small results: not worth the /proc reads

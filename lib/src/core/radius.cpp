@@ -69,7 +69,48 @@ void finish_slices(RadiusResult& r, std::size_t cap, bool sorted) {
   r.dist2.resize(static_cast<std::size_t>(w));
 }
 
+// The device buffers radius_on_device allocates for n queries (before the fill buffers grow
+// past their default size for one very full query).
+std::size_t radius_device_bytes(std::size_t n, const RadiusParams& p, std::size_t max_alloc) {
+  if (n == 0) return 0;
+  const std::size_t chunk = std::min<std::size_t>(n, std::size_t(1) << 20);
+  std::size_t cap = p.max_batch_results ? p.max_batch_results : (std::size_t(1) << 24);
+  cap = std::max<std::size_t>(1, std::min(cap, max_alloc / 4));
+  return chunk * (12 + 4 + 8 + (p.count_examined ? 4 : 0)) + cap * 8;
+}
+
+std::string gb(double bytes) {
+  std::ostringstream os;
+  os.setf(std::ios::fixed);
+  os.precision(1);
+  os << bytes / 1e9 << " GB";
+  return os.str();
+}
+
 }  // namespace
+
+void check_radius_memory(std::size_t n, std::size_t entries, bool examined, int copies, std::size_t device_bytes,
+                         const std::string& method) {
+  const double per_query = double(n) * (16.0 + (examined ? 4.0 : 0.0)) + 8.0;
+  const double bytes = per_query * copies + (copies > 1 ? 20.0 * double(n) : 0.0) + double(entries) * 16.0 +
+                       double(device_bytes);
+  if (bytes < double(std::size_t(64) << 20)) return;  // small: not worth the /proc reads
+  std::string bound;
+  const std::uint64_t can = allocatable_memory(&bound);
+  if (bytes > double(std::numeric_limits<std::size_t>::max() / 2) || bytes > double(can)) {
+    std::ostringstream os;
+    os << method << " radius search: the radius result needs " << gb(bytes) << " (n = " << n << " queries";
+    if (entries) os << ", " << entries << " points within the radius counted by the count pass (ids and squared "
+                    << "distances, twice: the reordered or re-checked copy)";
+    else os << ": offsets and counts" << (copies > 1 ? ", twice for the Hilbert order" : "");
+    if (device_bytes) os << ", " << gb(double(device_bytes)) << " of device buffers";
+    os << ")";
+    if (can != std::numeric_limits<std::uint64_t>::max()) os << ", more than the " << gb(double(can)) << " that " << bound << " leaves";
+    os << (entries ? ": refused before any of them is fetched" : ": refused before the search")
+       << " (query in smaller batches, with a smaller radius or with max_results)";
+    throw Error(os.str());
+  }
+}
 
 cl::Event Index::enqueue_radius_batch(const cl::CommandQueue&, const cl::Buffer&, std::size_t,
                                       std::size_t, float, int, const RadiusBuffers&,
@@ -118,6 +159,13 @@ QueryStats Index::radius_impl(const float* queries, std::size_t n, float r, bool
   check_radius_params(params);
   if (n > 0 && !queries) throw Error("radius_search: queries is null with n = " + std::to_string(n));
   const bool sort = params.sort_queries > 0 || (params.sort_queries < 0 && n >= kAutoSortQueries);
+  // Sizes before allocation: what the n queries need whatever they find, before any search (the
+  // points found are checked by the count pass, radius_on_device, before they are fetched).
+  check_radius_memory(n, 0, params.count_examined, sort && n > 1 ? 2 : 1,
+                        answers_on_host() ? 0 : radius_device_bytes(n, params, runtime().info().max_alloc_bytes
+                                                                                  ? runtime().info().max_alloc_bytes
+                                                                                  : (std::size_t(1) << 30)),
+                        method());
   if (sort && n > 1) {
     // Dispatch in Hilbert order, return the slices in the caller's order.
     std::vector<std::size_t> order = detail::hilbert_query_order(queries, n);
@@ -313,6 +361,8 @@ void Index::radius_on_device(const float* queries, std::size_t n, float r2,
       out.offsets[first + i] = static_cast<std::int64_t>(base + total);
       total += static_cast<std::size_t>(counts[i]);
     }
+    // Counted, not yet fetched: refused here when the points found cannot be held.
+    check_radius_memory(n, base + total, params.count_examined, 1, 0, method());
     out.offsets[first + m] = static_cast<std::int64_t>(base + total);
     out.ids.resize(base + total);
     out.dist2.resize(base + total);

@@ -12,6 +12,7 @@
 #include "blockhash_cl/blockhash.hpp"
 #include "blockhash_cl/distributed.hpp"
 #include "blockhash_cl/error.hpp"
+#include "distributed/agreement.hpp"
 #include "distributed/mpi_util.hpp"
 #include "distributed/shard.hpp"
 #include "distributed/wire.hpp"
@@ -78,6 +79,7 @@ DistributedIndex::DistributedIndex(MPI_Comm comm, std::shared_ptr<Runtime> runti
                                    std::size_t n, const DistributedBuildParams& params) {
   Stopwatch wall;
   MPI_Comm_dup(comm, &comm_);
+  if (params.deadline_s >= 0 && std::isfinite(params.deadline_s)) distributed::set_deadline(comm_, params.deadline_s);
   try {
     MPI_Comm_rank(comm_, &rank_);
     MPI_Comm_size(comm_, &ranks_);
@@ -96,10 +98,16 @@ DistributedIndex::DistributedIndex(MPI_Comm comm, std::shared_ptr<Runtime> runti
         throw Error("boxes_per_rank must be in [1, 1024], got " + std::to_string(params.boxes_per_rank));
       if (n > 0 && points == nullptr) throw Error("points is null with n = " + std::to_string(n));
       if (!runtime) throw Error("runtime is null");
+      if (std::isnan(params.deadline_s) || std::isinf(params.deadline_s))
+        throw Error("deadline_s must be finite (0: no deadline, negative: BHCL_MPI_DEADLINE_S), got " +
+                    std::to_string(params.deadline_s));
+      if (params.deadline_s < 0)
+        if (const std::string e = distributed::deadline_env_error(); !e.empty()) throw Error(e);
     } catch (const std::exception& e) {
       err = what_of(e);
     }
     mpi_agree(comm_, err, kWhat);
+    distributed::agree_parameters(comm_, distributed::build_parameters(params), kWhat);
     method_ = info->name;
     exact_ = info->exact;
     border_factor_ = params.border_factor;
@@ -364,18 +372,9 @@ QueryStats DistributedIndex::query(const float* queries, std::size_t n, const Se
     err = what_of(e);
   }
   mpi_agree(comm_, err, std::string(kWhat) + "::query");
-  {
-    // k, the radius and count_examined shape the rows every rank sends: they must agree.
-    std::uint32_t rbits;
-    std::memcpy(&rbits, &params.max_radius, 4);
-    long long v[6] = {params.k, rbits, params.count_examined, -params.k, -(long long)rbits,
-                      -(long long)params.count_examined};
-    long long g[6];
-    MPI_Allreduce(v, g, 6, MPI_LONG_LONG, MPI_MIN, comm_);
-    if (g[0] != -g[3] || g[1] != -g[4] || g[2] != -g[5])
-      throw Error(std::string(kWhat) +
-                  "::query: the ranks passed different k, max_radius or count_examined");
-  }
+  // Every search parameter as rank 0's (k, the radius and count_examined shape the rows every
+  // rank sends; the others what each rank's rows mean).
+  distributed::agree_parameters(comm_, distributed::search_parameters(params), std::string(kWhat) + "::query");
   const int k = params.k;
   const std::size_t kk = static_cast<std::size_t>(k);
   const std::size_t rb = row_bytes(k);

@@ -1,5 +1,7 @@
 #include "distributed/mpi_util.hpp"
 
+#include "distributed/agreement.hpp"
+
 #include <algorithm>
 #include <climits>
 #include <cstring>
@@ -12,6 +14,7 @@ namespace bhcl {
 void mpi_agree(MPI_Comm comm, const std::string& local_error, const std::string& what) {
   int rank = 0;
   MPI_Comm_rank(comm, &rank);
+  distributed::gate(comm, what);  // a rank that stops answering ends the job, named (issue 22)
   // One allreduce when every rank succeeded (the common case); the failure path adds a count and
   // the first failing rank's message, which every rank reaches because every rank saw the flag.
   int mine = local_error.empty() ? INT_MAX : rank;

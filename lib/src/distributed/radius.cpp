@@ -10,6 +10,7 @@
 #include "blockhash_cl/blockhash.hpp"
 #include "blockhash_cl/distributed.hpp"
 #include "blockhash_cl/error.hpp"
+#include "distributed/agreement.hpp"
 #include "distributed/mpi_util.hpp"
 #include "distributed/shard.hpp"
 #include "distributed/wire.hpp"
@@ -40,19 +41,10 @@ QueryStats DistributedIndex::radius_search(const float* queries, std::size_t n, 
     err = what_of(e);
   }
   mpi_agree(comm_, err, std::string(kWhat) + "::radius_search");
-  {
-    // The radius, the cap and count_examined shape every rank's answer: they must agree.
-    std::uint32_t rbits;
-    std::memcpy(&rbits, &r, 4);
-    const long long cap = static_cast<long long>(params.max_results);
-    long long v[6] = {rbits, cap, params.count_examined, -(long long)rbits, -cap,
-                      -(long long)params.count_examined};
-    long long g[6];
-    MPI_Allreduce(v, g, 6, MPI_LONG_LONG, MPI_MIN, comm_);
-    if (g[0] != -g[3] || g[1] != -g[4] || g[2] != -g[5])
-      throw Error(std::string(kWhat) +
-                  "::radius_search: the ranks passed different radius, max_results or count_examined");
-  }
+  // Every radius parameter as rank 0's (the radius, the cap and count_examined shape every
+  // rank's answer).
+  distributed::agree_parameters(comm_, distributed::radius_parameters(r, params),
+                                std::string(kWhat) + "::radius_search");
   ds.ranks_visited.assign(n, 0);
   ds.owner.assign(n, -1);
   // Each finite query to its owner and to every other rank with a box meeting the ball.

@@ -1,0 +1,117 @@
+#include "result_files.hpp"
+
+#include <cctype>
+#include <vector>
+
+#include "blockhash_cl/error.hpp"
+#include "cli.hpp"
+
+namespace bhcl::cli {
+
+namespace {
+bool is_npy(const std::string& path) {
+  if (path.size() < 4) return false;
+  std::string e = path.substr(path.size() - 4);
+  for (char& c : e) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  return e == ".npy";
+}
+}  // namespace
+
+ArrayOutput::ArrayOutput(const std::string& path, const char* descr, std::size_t item, std::int64_t rows,
+                         std::size_t cols)
+    : file_(path, is_npy(path) ? "the NPY array" : "the raw array"), descr_(descr), item_(item), cols_(cols),
+      rows_(rows), npy_(is_npy(path)) {
+  if (!npy_) return;
+  // An unknown length: the header of the longest one (20 digits) now, rewritten at the end.
+  const std::string h = header(rows_ >= 0 ? static_cast<std::uint64_t>(rows_) : ~std::uint64_t(0));
+  header_bytes_ = h.size();
+  file_.write(h.data(), h.size());
+}
+
+std::string ArrayOutput::header(std::uint64_t rows) const {
+  std::string dict = std::string("{'descr': '") + descr_ + "', 'fortran_order': False, 'shape': (" +
+                     std::to_string(rows) + (cols_ ? ", " + std::to_string(cols_) + ")" : ",)") + ", }";
+  // Magic (6) + version (2) + length (2) + dict + '\n', padded with spaces to 64 bytes (or to the
+  // length of the header written first, when this one replaces it).
+  const std::size_t want = header_bytes_ ? header_bytes_ : (10 + dict.size() + 1 + 63) / 64 * 64;
+  dict.append(want - 10 - dict.size() - 1, ' ');
+  dict += '\n';
+  std::string out = "\x93NUMPY";
+  out += '\x01';
+  out += '\x00';
+  out += static_cast<char>(dict.size() & 0xff);
+  out += static_cast<char>((dict.size() >> 8) & 0xff);
+  return out + dict;
+}
+
+void ArrayOutput::append(const void* data, std::size_t items) {
+  file_.write(data, items * item_);
+  items_ += items;
+}
+
+void ArrayOutput::commit() {
+  const std::uint64_t per = cols_ ? cols_ : 1;
+  const std::uint64_t rows = items_ / per;
+  if (rows_ >= 0 && rows != static_cast<std::uint64_t>(rows_))
+    throw Error(file_.path() + ": internal error: " + std::to_string(rows) + " rows written of " + std::to_string(rows_));
+  if (npy_ && rows_ < 0) {
+    const std::string h = header(rows);
+    file_.write_at(0, h.data(), h.size());
+  }
+  file_.commit();
+}
+
+KnnOutputs::KnnOutputs(const Args& args, std::size_t n, int k) {
+  const std::int64_t rows = static_cast<std::int64_t>(n);
+  const std::size_t cols = static_cast<std::size_t>(k);
+  ids_ = std::make_unique<ArrayOutput>(args.str("out-ids"), "<i4", 4, rows, cols);
+  dist2_ = std::make_unique<ArrayOutput>(args.str("out-dist2"), "<f4", 4, rows, cols);
+  if (args.has("out-counts")) counts_ = std::make_unique<ArrayOutput>(args.str("out-counts"), "<i4", 4, rows, 0);
+}
+
+void KnnOutputs::append(const KnnResult& part) {
+  ids_->append(part.ids.data(), part.ids.size());
+  dist2_->append(part.dist2.data(), part.dist2.size());
+  if (counts_) counts_->append(part.counts.data(), part.counts.size());
+  for (auto c : part.counts) found_ += static_cast<std::size_t>(c);
+}
+
+void KnnOutputs::commit() {
+  ids_->commit();
+  dist2_->commit();
+  if (counts_) counts_->commit();
+}
+
+RadiusOutputs::RadiusOutputs(const Args& args, std::size_t n) {
+  offsets_ = std::make_unique<ArrayOutput>(args.str("out-offsets"), "<i8", 8, static_cast<std::int64_t>(n + 1), 0);
+  ids_ = std::make_unique<ArrayOutput>(args.str("out-ids"), "<i4", 4, -1, 0);
+  dist2_ = std::make_unique<ArrayOutput>(args.str("out-dist2"), "<f4", 4, -1, 0);
+  if (args.has("out-counts"))
+    counts_ = std::make_unique<ArrayOutput>(args.str("out-counts"), "<i4", 4, static_cast<std::int64_t>(n), 0);
+  const std::int64_t zero = 0;
+  offsets_->append(&zero, 1);
+}
+
+void RadiusOutputs::append(const RadiusResult& part) {
+  std::vector<std::int64_t> offs(part.n);
+  std::vector<std::int32_t> counts(counts_ ? part.n : 0);
+  for (std::size_t i = 0; i < part.n; ++i) {
+    offs[i] = base_ + part.offsets[i + 1];
+    if (counts_) counts[i] = static_cast<std::int32_t>(part.count(i));
+  }
+  offsets_->append(offs.data(), offs.size());
+  ids_->append(part.ids.data(), part.total());
+  dist2_->append(part.dist2.data(), part.total());
+  if (counts_) counts_->append(counts.data(), counts.size());
+  base_ += static_cast<std::int64_t>(part.total());
+  truncated_ += part.truncated_queries;
+}
+
+void RadiusOutputs::commit() {
+  offsets_->commit();
+  ids_->commit();
+  dist2_->commit();
+  if (counts_) counts_->commit();
+}
+
+}  // namespace bhcl::cli

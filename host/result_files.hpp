@@ -1,0 +1,67 @@
+// bhcl knn's output files written as the slices of a query call finish (issue 22): each array
+// goes to its own AtomicFile (a temporary beside the target, renamed over it at commit), so that
+// the tool never holds a second copy of the whole result, and a failure anywhere (a full disk, a
+// search that throws) removes every temporary: no partial output, the old files intact, and the
+// error names the file and the system's reason. NPY files get their header first; a radius
+// result's length is known only at the end, so its header is rewritten then (same length).
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <string>
+
+#include "blockhash_cl/atomic_file.hpp"
+#include "blockhash_cl/knn.hpp"
+
+namespace bhcl::cli {
+
+class Args;
+
+// One array: NPY when the path ends in .npy ('<f4', '<i4', '<i8'), raw bytes otherwise. rows < 0:
+// not known until commit (NPY: the header is rewritten then).
+class ArrayOutput {
+ public:
+  ArrayOutput(const std::string& path, const char* descr, std::size_t item, std::int64_t rows, std::size_t cols);
+  void append(const void* data, std::size_t items);
+  void commit();
+
+ private:
+  std::string header(std::uint64_t rows) const;
+  AtomicFile file_;
+  std::string descr_;
+  std::size_t item_, cols_;
+  std::int64_t rows_;
+  std::uint64_t items_ = 0;
+  bool npy_;
+  std::size_t header_bytes_ = 0;
+};
+
+// --out-ids, --out-dist2 and --out-counts of a kNN call of n queries and k.
+class KnnOutputs {
+ public:
+  KnnOutputs(const Args& args, std::size_t n, int k);
+  void append(const KnnResult& part);  // the next rows, in order
+  void commit();
+  std::size_t found() const { return found_; }
+
+ private:
+  std::unique_ptr<ArrayOutput> ids_, dist2_, counts_;
+  std::size_t found_ = 0;
+};
+
+// --out-offsets, --out-ids, --out-dist2 and --out-counts of a radius call of n queries.
+class RadiusOutputs {
+ public:
+  RadiusOutputs(const Args& args, std::size_t n);
+  void append(const RadiusResult& part);  // the next queries' slices, in order
+  void commit();
+  std::size_t total() const { return static_cast<std::size_t>(base_); }
+  std::size_t truncated_queries() const { return truncated_; }
+
+ private:
+  std::unique_ptr<ArrayOutput> offsets_, ids_, dist2_, counts_;
+  std::int64_t base_ = 0;
+  std::size_t truncated_ = 0;
+};
+
+}  // namespace bhcl::cli

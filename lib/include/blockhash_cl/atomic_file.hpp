@@ -1,0 +1,41 @@
+// A file replaced atomically, written in pieces (issue 22): the bytes go to a temporary beside
+// the target (".NAME.tmp.PID.N" in the same directory), and commit() flushes it to the disk
+// (fsync), closes it and renames it over the target. Until then the old file is intact; a failure
+// anywhere (a full disk, a size limit, no permission) is a bhcl::Error naming the file, what it
+// held and the system's reason (strerror), and the temporary is removed, as is the temporary of
+// an AtomicFile destroyed without commit(): no partial output ever stands under the target's
+// name. A path through a symbolic link replaces the file it names; a path that names a device or
+// FIFO (/dev/stdout) is written in place (nothing to replace; write_at is refused there).
+// write_file (io.hpp) is the one-shot form.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <string>
+
+namespace bhcl {
+
+class AtomicFile {
+ public:
+  AtomicFile(const std::string& path, const std::string& what);
+  ~AtomicFile();  // without commit(): the temporary removed, the target untouched
+  AtomicFile(const AtomicFile&) = delete;
+  AtomicFile& operator=(const AtomicFile&) = delete;
+
+  void write(const void* data, std::size_t bytes);  // appends
+  // Overwrites bytes already written (a header whose sizes are known only at the end).
+  void write_at(std::uint64_t offset, const void* data, std::size_t bytes);
+  std::uint64_t size() const { return size_; }
+  bool in_place() const { return in_place_; }  // a device or FIFO: written directly
+  void commit();
+  const std::string& path() const { return path_; }
+
+ private:
+  [[noreturn]] void fail(const std::string& step, int err);
+  std::string path_, what_, target_, tmp_;
+  int fd_ = -1;
+  bool in_place_ = false, done_ = false;
+  std::uint64_t size_ = 0;
+};
+
+}  // namespace bhcl
