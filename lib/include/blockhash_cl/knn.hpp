@@ -233,9 +233,6 @@ void check_result_memory(std::size_t n, int k, bool examined, int copies, const 
 // bhcl::Error "the radius result needs 7.2 GB (...)" naming what bounds the memory.
 void check_radius_memory(std::size_t n, std::size_t entries, bool examined, int copies,
                          std::size_t device_bytes, const std::string& method);
-// The memory this process can still allocate (UINT64_MAX: nothing known) and, in `bound`, what
-// bounds it (the ulimit -v / -d limits, the cgroup's memory.max, the machine's available memory).
-std::uint64_t allocatable_memory(std::string* bound);
 
 // Validates a point array (n x 3 float): finite everywhere. Throws bhcl::Error naming the first
 // bad point, its coordinates and `what` (e.g. "points").

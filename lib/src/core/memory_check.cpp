@@ -71,13 +71,6 @@ std::uint64_t allocatable_bytes(std::string* bound) {
 
 }  // namespace
 
-std::uint64_t allocatable_memory(std::string* bound) {
-  std::string b;
-  const std::uint64_t v = allocatable_bytes(&b);
-  if (bound) *bound = b;
-  return v;
-}
-
 void check_result_memory(std::size_t n, int k, bool examined, int copies, const std::string& method) {
   const double bytes = (double(n) * k * 8.0 + double(n) * (examined ? 8.0 : 4.0)) * copies + (copies > 1 ? 20.0 * n : 0.0);
   if (bytes < double(std::size_t(64) << 20)) return;  // small results: not worth the /proc reads
@@ -92,4 +85,28 @@ void check_result_memory(std::size_t n, int k, bool examined, int copies, const 
     throw Error(os.str());
   }
 }
+
+void check_radius_memory(std::size_t n, std::size_t entries, bool examined, int copies, std::size_t device_bytes,
+                         const std::string& method) {
+  const double per_query = double(n) * (16.0 + (examined ? 4.0 : 0.0)) + 8.0;
+  const double bytes = per_query * copies + (copies > 1 ? 20.0 * double(n) : 0.0) + double(entries) * 16.0 +
+                       double(device_bytes);
+  if (bytes < double(std::size_t(64) << 20)) return;  // small: not worth the /proc reads
+  std::string bound;
+  const std::uint64_t can = allocatable_bytes(&bound);
+  if (bytes > double(std::numeric_limits<std::size_t>::max() / 2) || bytes > double(can)) {
+    std::ostringstream os;
+    os << method << " radius search: the radius result needs " << gigabytes(bytes) << " (n = " << n << " queries";
+    if (entries) os << ", " << entries << " points within the radius counted by the count pass (ids and squared "
+                    << "distances, twice: the reordered or re-checked copy)";
+    else os << ": offsets and counts" << (copies > 1 ? ", twice for the Hilbert order" : "");
+    if (device_bytes) os << ", " << gigabytes(double(device_bytes)) << " of device buffers";
+    os << ")";
+    if (can != std::numeric_limits<std::uint64_t>::max()) os << ", more than the " << gigabytes(double(can)) << " that " << bound << " leaves";
+    os << (entries ? ": refused before any of them is fetched" : ": refused before the search")
+       << " (query in smaller batches, with a smaller radius or with max_results)";
+    throw Error(os.str());
+  }
+}
+
 }  // namespace bhcl

@@ -79,38 +79,7 @@ std::size_t radius_device_bytes(std::size_t n, const RadiusParams& p, std::size_
   return chunk * (12 + 4 + 8 + (p.count_examined ? 4 : 0)) + cap * 8;
 }
 
-std::string gb(double bytes) {
-  std::ostringstream os;
-  os.setf(std::ios::fixed);
-  os.precision(1);
-  os << bytes / 1e9 << " GB";
-  return os.str();
-}
-
 }  // namespace
-
-void check_radius_memory(std::size_t n, std::size_t entries, bool examined, int copies, std::size_t device_bytes,
-                         const std::string& method) {
-  const double per_query = double(n) * (16.0 + (examined ? 4.0 : 0.0)) + 8.0;
-  const double bytes = per_query * copies + (copies > 1 ? 20.0 * double(n) : 0.0) + double(entries) * 16.0 +
-                       double(device_bytes);
-  if (bytes < double(std::size_t(64) << 20)) return;  // small: not worth the /proc reads
-  std::string bound;
-  const std::uint64_t can = allocatable_memory(&bound);
-  if (bytes > double(std::numeric_limits<std::size_t>::max() / 2) || bytes > double(can)) {
-    std::ostringstream os;
-    os << method << " radius search: the radius result needs " << gb(bytes) << " (n = " << n << " queries";
-    if (entries) os << ", " << entries << " points within the radius counted by the count pass (ids and squared "
-                    << "distances, twice: the reordered or re-checked copy)";
-    else os << ": offsets and counts" << (copies > 1 ? ", twice for the Hilbert order" : "");
-    if (device_bytes) os << ", " << gb(double(device_bytes)) << " of device buffers";
-    os << ")";
-    if (can != std::numeric_limits<std::uint64_t>::max()) os << ", more than the " << gb(double(can)) << " that " << bound << " leaves";
-    os << (entries ? ": refused before any of them is fetched" : ": refused before the search")
-       << " (query in smaller batches, with a smaller radius or with max_results)";
-    throw Error(os.str());
-  }
-}
 
 cl::Event Index::enqueue_radius_batch(const cl::CommandQueue&, const cl::Buffer&, std::size_t,
                                       std::size_t, float, int, const RadiusBuffers&,
