@@ -4,6 +4,7 @@
 #include <vector>
 
 #include "blockhash_cl/error.hpp"
+#include "blockhash_cl/io.hpp"
 #include "cli.hpp"
 
 namespace bhcl::cli {
@@ -29,19 +30,8 @@ ArrayOutput::ArrayOutput(const std::string& path, const char* descr, std::size_t
 }
 
 std::string ArrayOutput::header(std::uint64_t rows) const {
-  std::string dict = std::string("{'descr': '") + descr_ + "', 'fortran_order': False, 'shape': (" +
-                     std::to_string(rows) + (cols_ ? ", " + std::to_string(cols_) + ")" : ",)") + ", }";
-  // Magic (6) + version (2) + length (2) + dict + '\n', padded with spaces to 64 bytes (or to the
-  // length of the header written first, when this one replaces it).
-  const std::size_t want = header_bytes_ ? header_bytes_ : (10 + dict.size() + 1 + 63) / 64 * 64;
-  dict.append(want - 10 - dict.size() - 1, ' ');
-  dict += '\n';
-  std::string out = "\x93NUMPY";
-  out += '\x01';
-  out += '\x00';
-  out += static_cast<char>(dict.size() & 0xff);
-  out += static_cast<char>((dict.size() >> 8) & 0xff);
-  return out + dict;
+  // Padded to the length of the header written first, when this one replaces it.
+  return npy_header(descr_.c_str(), rows, cols_, header_bytes_);
 }
 
 void ArrayOutput::append(const void* data, std::size_t items) {

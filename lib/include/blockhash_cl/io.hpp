@@ -94,6 +94,11 @@ void write_points_file(const std::string& path, const std::vector<float>& xyz);
 void write_raw_file(const std::string& path, const void* data, std::size_t bytes);
 
 // Writes a rows x cols array (C order) as NPY version 1.0 ('<f4', '<i4', '<i8').
+// The header of an NPY (version 1.0) file of a C-order array of `rows` x `cols` (cols 0: a
+// vector) items of numpy type `descr` ("<f4", "<i4", ...): magic, version, length and the dict,
+// padded with spaces to a multiple of 64 bytes, or to `pad_to` bytes when given (a header that
+// replaces one written before; it must fit).
+std::string npy_header(const char* descr, std::uint64_t rows, std::size_t cols, std::size_t pad_to = 0);
 void write_npy_file(const std::string& path, const float* data, std::size_t rows, std::size_t cols);
 void write_npy_file(const std::string& path, const std::int32_t* data, std::size_t rows,
                     std::size_t cols);

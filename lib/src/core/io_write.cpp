@@ -18,22 +18,28 @@
 
 namespace bhcl {
 
+std::string npy_header(const char* descr, std::uint64_t rows, std::size_t cols, std::size_t pad_to) {
+  std::string dict = std::string("{'descr': '") + descr + "', 'fortran_order': False, 'shape': (" +
+                     std::to_string(rows) + (cols ? ", " + std::to_string(cols) + ")" : ",)") + ", }";
+  // Magic (6) + version (2) + length (2) + dict + '\n', padded with spaces.
+  const std::size_t want = pad_to ? pad_to : (10 + dict.size() + 1 + 63) / 64 * 64;
+  if (want < 10 + dict.size() + 1 || want - 10 > 0xffff)
+    throw Error("npy header: " + std::to_string(10 + dict.size() + 1) + " bytes do not fit in " + std::to_string(want));
+  dict.append(want - 10 - dict.size() - 1, ' ');
+  dict += '\n';
+  std::string out = "\x93NUMPY";
+  out += '\x01';
+  out += '\x00';
+  out += static_cast<char>(dict.size() & 0xff);
+  out += static_cast<char>((dict.size() >> 8) & 0xff);
+  return out + dict;
+}
+
 namespace io_detail {
 
 void write_npy(const std::string& path, const void* data, const char* descr, std::size_t item,
                std::size_t rows, std::size_t cols) {
-  std::string header = std::string("{'descr': '") + descr + "', 'fortran_order': False, 'shape': (" +
-                       std::to_string(rows) + (cols ? ", " + std::to_string(cols) + ")" : ",)") + ", }";
-  // Magic (6) + version (2) + length (2) + header + '\n', padded with spaces to 64 bytes.
-  const std::size_t unpadded = 10 + header.size() + 1;
-  header.append((64 - unpadded % 64) % 64, ' ');
-  header += '\n';
-  std::string out = "\x93NUMPY";
-  out += '\x01';
-  out += '\x00';
-  out += static_cast<char>(header.size() & 0xff);
-  out += static_cast<char>((header.size() >> 8) & 0xff);
-  out += header;
+  const std::string out = npy_header(descr, rows, cols);
   write_file(path, {out, std::string_view(static_cast<const char*>(data), rows * (cols ? cols : 1) * item)},
              "the NPY array");
 }
