@@ -283,6 +283,10 @@ class BlockHashIndex : public Index {
   void build_blocks(const float* points, std::size_t n_points);  // the block layouts' stages
   void build_grid_layout(const float* points, std::size_t n_points, double cell_size);
   void upload_grid();
+  // Host-in-place devices (Quirks::host_ptr_in_place): the grid's buffers are views of its host
+  // arrays, dropped before the host changes those arrays (a build, an update) and made again after.
+  bool grid_in_place() const;
+  void release_grid_views();
   void add_grid_args(detail::KernelArgs& args) const;
   std::uint32_t row_cap_for(const SearchParams& params) const;  // the kernel's BHCL_GRID_ROWCAP
   // The indexed points in ascending id order and the caller's coordinates; ids (optional) gets

@@ -54,7 +54,8 @@ using GridVec = std::vector<T, NoInitAllocator<T>>;
 struct GridScratch {
   GridVec<std::uint32_t> cell;     // each input point's cell
   GridVec<float> rec;              // (x, y, z, index bits) per point, bucketed by cell range
-  GridVec<std::uint32_t> rec_cell; // the cell of each record
+  GridVec<float> x, y, z;          // an insert's merged arrays (grid_update.cpp), then swapped
+  GridVec<std::int32_t> ids;       //   with the grid's
 };
 
 struct Grid {

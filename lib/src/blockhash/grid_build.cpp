@@ -16,6 +16,7 @@
 #include "blockhash/grid.hpp"
 #include "blockhash_cl/error.hpp"
 #include "core/parallel.hpp"
+#include "core/point_scan.hpp"
 
 #ifndef BHCL_GRID_BUCKETS
 #define BHCL_GRID_BUCKETS 256
@@ -34,28 +35,9 @@ struct Box {
 };
 
 Box bounding_box(const float* xyz, std::size_t n, unsigned threads) {
-  const unsigned t = threads ? threads : detail::default_threads();
-  std::vector<Box> part(t);
-  const std::size_t per = (n + t - 1) / t;
-  detail::parallel_for(
-      t,
-      [&](std::size_t b, std::size_t e) {
-        for (std::size_t c = b; c < e; ++c) {
-          Box& x = part[c];
-          for (std::size_t i = c * per; i < std::min(n, (c + 1) * per); ++i)
-            for (int d = 0; d < 3; ++d) {
-              x.lo[d] = std::min(x.lo[d], xyz[3 * i + d]);
-              x.hi[d] = std::max(x.hi[d], xyz[3 * i + d]);
-            }
-        }
-      },
-      t, 1);
+  const detail::PointScan ps = detail::scan_points(xyz, n, threads);
   Box out;
-  for (const Box& x : part)
-    for (int d = 0; d < 3; ++d) {
-      out.lo[d] = std::min(out.lo[d], x.lo[d]);
-      out.hi[d] = std::max(out.hi[d], x.hi[d]);
-    }
+  for (int d = 0; d < 3; ++d) out.lo[d] = ps.lo[d], out.hi[d] = ps.hi[d];
   return out;
 }
 
@@ -232,14 +214,19 @@ void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid&
   detail::parallel_for(
       T,
       [&](std::size_t tb, std::size_t te) {
+        // The geometry and the arrays in locals: the stores below (to uint32_t) would otherwise
+        // make the compiler reload them through `geom` and the vectors on every point.
+        const bhcl_grid_geom gg = geom;
+        std::uint32_t* const cell = sc.cell.data();
         for (std::size_t j = tb; j < te; ++j) {
-          std::uint32_t* hj = hist.data() + j * nb;
-          for (std::size_t i = j * per; i < std::min(n, (j + 1) * per); ++i) {
-            const std::uint32_t cx = bhcl_grid_cell(xyz[3 * i], geom.ox, geom.inv_h, geom.nx);
-            const std::uint32_t cy = bhcl_grid_cell(xyz[3 * i + 1], geom.oy, geom.inv_h, geom.ny);
-            const std::uint32_t cz = bhcl_grid_cell(xyz[3 * i + 2], geom.oz, geom.inv_h, geom.nz);
-            const std::uint32_t c = (cz * geom.ny + cy) * geom.nx + cx;
-            sc.cell[i] = c;
+          std::uint32_t* const hj = hist.data() + j * nb;
+          const std::size_t e = std::min(n, (j + 1) * per);
+          for (std::size_t i = j * per; i < e; ++i) {
+            const std::uint32_t cx = bhcl_grid_cell(xyz[3 * i], gg.ox, gg.inv_h, gg.nx);
+            const std::uint32_t cy = bhcl_grid_cell(xyz[3 * i + 1], gg.oy, gg.inv_h, gg.ny);
+            const std::uint32_t cz = bhcl_grid_cell(xyz[3 * i + 2], gg.oz, gg.inv_h, gg.nz);
+            const std::uint32_t c = (cz * gg.ny + cy) * gg.nx + cx;
+            cell[i] = c;
             ++hj[c >> shift];
           }
         }
@@ -261,22 +248,31 @@ void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid&
     bstart[b + 1] = s;
   }
   sc.rec.resize(4 * n);
-  sc.rec_cell.resize(n);
   detail::parallel_for(
       T,
       [&](std::size_t tb, std::size_t te) {
+        // Pointers in locals and the id stored as a float's bits: a memcpy store may alias
+        // anything, and made the compiler reload every pointer on every record (35 % of a
+        // rebuild's time went to this loop). The record's cell is not stored beside it: pass 3
+        // computes it again from the record (in cache there), where a second scattered store
+        // stream was 70 % of this loop's samples.
+        const std::uint32_t* const cell = sc.cell.data();
+        float* const rec = sc.rec.data();
         for (std::size_t j = tb; j < te; ++j) {
-          std::uint32_t* pos = hist.data() + j * nb;
-          for (std::size_t i = j * per; i < std::min(n, (j + 1) * per); ++i) {
-            const std::uint32_t c = sc.cell[i];
+          std::uint32_t* const pos = hist.data() + j * nb;
+          const std::size_t e = std::min(n, (j + 1) * per);
+          for (std::size_t i = j * per; i < e; ++i) {
+            const std::uint32_t c = cell[i];
             const std::uint32_t k = pos[c >> shift]++;
-            float* r = sc.rec.data() + 4 * std::size_t(k);
-            r[0] = xyz[3 * i];
-            r[1] = xyz[3 * i + 1];
-            r[2] = xyz[3 * i + 2];
+            float* const r = rec + 4 * std::size_t(k);
+            const float x = xyz[3 * i], y = xyz[3 * i + 1], z = xyz[3 * i + 2];
+            float idf;
             const std::uint32_t id = static_cast<std::uint32_t>(i);
-            std::memcpy(r + 3, &id, 4);
-            sc.rec_cell[k] = c;
+            std::memcpy(&idf, &id, 4);
+            r[0] = x;
+            r[1] = y;
+            r[2] = z;
+            r[3] = idf;
           }
         }
       },
@@ -292,6 +288,16 @@ void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid&
   const std::size_t top = Grid::top_entries(ncells);
   const std::size_t seg_per_bucket = std::size_t(1) << (shift - (sparse ? BHCL_GRID_SEG_BITS : 0));
   std::vector<std::uint32_t> seg_base(nb + 1, 0);
+  const float* const rec_all = sc.rec.data();
+  const bhcl_grid_geom gq = geom;
+  // A record's cell, as pass 1 computed it (the same function of the same coordinates).
+  auto rec_cell = [rec_all, gq](std::uint32_t r) -> std::uint32_t {
+    const float* p = rec_all + 4 * std::size_t(r);
+    const std::uint32_t cx = bhcl_grid_cell(p[0], gq.ox, gq.inv_h, gq.nx);
+    const std::uint32_t cy = bhcl_grid_cell(p[1], gq.oy, gq.inv_h, gq.ny);
+    const std::uint32_t cz = bhcl_grid_cell(p[2], gq.oz, gq.inv_h, gq.nz);
+    return (cz * gq.ny + cy) * gq.nx + cx;
+  };
   if (sparse) {
     detail::parallel_chunks(nb, 1, threads, [&](std::size_t b, std::size_t, std::size_t) {
       static thread_local BucketScratch ws;
@@ -299,11 +305,11 @@ void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid&
       const std::size_t s0 = (b << shift) >> BHCL_GRID_SEG_BITS;
       std::uint32_t occ = 0;
       for (std::uint32_t r = bstart[b]; r < bstart[b + 1]; ++r) {
-        std::uint8_t& m = ws.seg[(sc.rec_cell[r] >> BHCL_GRID_SEG_BITS) - s0];
+        std::uint8_t& m = ws.seg[(rec_cell(r) >> BHCL_GRID_SEG_BITS) - s0];
         occ += m ? 0 : 1;
         m = 1;
       }
-      for (std::uint32_t r = bstart[b]; r < bstart[b + 1]; ++r) ws.seg[(sc.rec_cell[r] >> BHCL_GRID_SEG_BITS) - s0] = 0;
+      for (std::uint32_t r = bstart[b]; r < bstart[b + 1]; ++r) ws.seg[(rec_cell(r) >> BHCL_GRID_SEG_BITS) - s0] = 0;
       seg_base[b + 1] = occ;
     });
     for (std::size_t b = 0; b < nb; ++b) seg_base[b + 1] += seg_base[b];
@@ -340,7 +346,7 @@ void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid&
     const std::size_t s1 = sparse ? std::min(((c1 - 1) >> BHCL_GRID_SEG_BITS) + 1, top) : 0;
     std::uint32_t nocc = 0;
     if (sparse) {
-      for (std::uint32_t r = rb; r < re; ++r) ws.seg[(sc.rec_cell[r] - c0) >> BHCL_GRID_SEG_BITS] = 1;
+      for (std::uint32_t r = rb; r < re; ++r) ws.seg[(rec_cell(r) - c0) >> BHCL_GRID_SEG_BITS] = 1;
       for (std::size_t sg = s0; sg < s1; ++sg)
         if (ws.seg[sg - s0]) ws.rank[sg - s0] = nocc++;
     }
@@ -348,7 +354,7 @@ void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid&
       if (!sparse) return c - static_cast<std::uint32_t>(c0);
       return (ws.rank[(c - c0) >> BHCL_GRID_SEG_BITS] << BHCL_GRID_SEG_BITS) | (c & (kSeg - 1u));
     };
-    for (std::uint32_t r = rb; r < re; ++r) ++cnt[local(sc.rec_cell[r])];
+    for (std::uint32_t r = rb; r < re; ++r) ++cnt[local(rec_cell(r))];
     std::uint32_t run = rb, occ = 0;
     double sum2 = 0;
     if (!sparse) {
@@ -388,19 +394,20 @@ void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid&
       float* const Y = g.y.data();
       float* const Z = g.z.data();
       std::int32_t* const I = g.ids.data();
-      const std::uint32_t* const rc = sc.rec_cell.data();
       const float* const rec = sc.rec.data();
       const std::uint32_t* const rank = sparse ? ws.rank.data() : nullptr;
       for (std::uint32_t r = rb; r < re; ++r) {
-        const std::uint32_t c = rc[r];
+        const std::uint32_t c = rec_cell(r);
         const std::uint32_t lc = sparse ? (rank[(c - c0) >> BHCL_GRID_SEG_BITS] << BHCL_GRID_SEG_BITS) | (c & (kSeg - 1u))
                                         : c - static_cast<std::uint32_t>(c0);
         const std::uint32_t k = cnt[lc]++;
         const float* rr = rec + 4 * std::size_t(r);
+        std::int32_t id;
+        std::memcpy(&id, rr + 3, 4);
         X[k] = rr[0];
         Y[k] = rr[1];
         Z[k] = rr[2];
-        std::memcpy(I + k, rr + 3, 4);
+        I[k] = id;
       }
     }
     // Clear what this bucket touched: every count it used became a write position.

@@ -143,6 +143,7 @@ void BlockHashIndex::build_grid_layout(const float* points, std::size_t n_points
   s.n_points = n_points;
   s.scale_exp = scale_exponent();
   if (!s.grid) s.grid = std::make_shared<Grid>();
+  release_grid_views();  // the build rewrites the arrays a device view may still show
   GridBuildParams gp;
   // The cell side is kept in the caller's units; the grid is built in the index's coordinates.
   gp.cell_size = cell_size > 0 ? std::ldexp(cell_size, -s.scale_exp) : -1.0;
@@ -187,9 +188,36 @@ void BlockHashIndex::rebuild(const float* points, std::size_t n_points) {
   build_blocks(points, n_points);
 }
 
+bool BlockHashIndex::grid_in_place() const { return runtime_ptr()->quirks().host_ptr_in_place; }
+
+void BlockHashIndex::release_grid_views() {
+  if (!grid_in_place()) return;
+  g_starts_ = g_x_ = g_y_ = g_z_ = g_ids_ = cl::Buffer();
+  g_starts_cap_ = g_points_cap_ = 0;
+}
+
 void BlockHashIndex::upload_grid() {
   const auto& rt = runtime_ptr();
   const blockhash::Grid& g = *s_->grid;
+  if (grid_in_place()) {
+    // Views of the host arrays, no copy: the kernels only read them, and the host writes them
+    // only after release_grid_views (every build and update calls it first).
+    auto view = [&](cl::Buffer& buf, const void* data, std::size_t bytes, const char* what) {
+      cl_int err = CL_SUCCESS;
+      buf = cl::Buffer(rt->context(), CL_MEM_READ_ONLY | CL_MEM_USE_HOST_PTR, std::max<std::size_t>(bytes, 4),
+                       const_cast<void*>(data), &err);
+      check_cl(err, "clCreateBuffer", std::string(what) + " (in place), " + std::to_string(bytes) + " bytes");
+    };
+    view(g_starts_, g.starts.data(), g.starts.size() * 4, "blockhash grid cells");
+    view(g_x_, g.x.data(), g.x.size() * 4, "blockhash grid x");
+    view(g_y_, g.y.data(), g.y.size() * 4, "blockhash grid y");
+    view(g_z_, g.z.data(), g.z.size() * 4, "blockhash grid z");
+    view(g_ids_, g.ids.data(), g.ids.size() * 4, "blockhash grid ids");
+    g_starts_cap_ = g.starts.size() * 4;
+    g_points_cap_ = g.x.size() * 4;
+    if (!dummy_()) dummy_ = detail::upload_vector(rt, std::vector<std::int32_t>(1, 0), "blockhash dummy");
+    return;
+  }
   // Rebuilds write into the buffers they have when the arrays fit (no reallocation).
   auto put = [&](cl::Buffer& buf, std::size_t& cap, const void* data, std::size_t bytes, std::size_t want_cap,
                  const char* what) {
@@ -448,12 +476,18 @@ std::size_t BlockHashIndex::memory_bytes() const {
 std::size_t BlockHashIndex::host_bytes() const {
   // The grid's host vectors mirror its device arrays one for one; a block layout keeps its
   // structure's arrays and the Hilbert order (the cell table lives on the device only).
-  // The grid also keeps its build scratch (cells, records: 24 B per point) for rebuilds.
+  // The grid also keeps its build scratch (cells, records: 20 B per point) for rebuilds, and an
+  // insert's merge arrays (16 B per point) once it has had one.
   if (s_->grid) {
     const blockhash::Grid& g = *s_->grid;
     std::size_t scratch = 0;
-    if (g.scratch) scratch = g.scratch->cell.capacity() * 4 + g.scratch->rec.capacity() * 4 + g.scratch->rec_cell.capacity() * 4;
-    return g.device_bytes() + scratch;
+    if (g.scratch) {
+      const blockhash::GridScratch& sc = *g.scratch;
+      scratch = (sc.cell.capacity() + sc.rec.capacity()) * 4 +
+                (sc.x.capacity() + sc.y.capacity() + sc.z.capacity() + sc.ids.capacity()) * 4;
+    }
+    // Read in place by the device (Quirks::host_ptr_in_place): the arrays are memory_bytes().
+    return (grid_in_place() ? 0 : g.device_bytes()) + scratch;
   }
   return s_->device_bytes() + s_->order.size() * sizeof(std::int32_t);
 }

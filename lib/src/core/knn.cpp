@@ -14,6 +14,7 @@
 #include "blockhash_cl/error.hpp"
 #include "core/device_util.hpp"
 #include "core/parallel.hpp"
+#include "core/point_scan.hpp"
 #include "core/query_order.hpp"
 
 namespace bhcl {
@@ -88,18 +89,15 @@ void refuse_in_forked_child(const std::string& method) {
 
 }  // namespace
 
-int Index::choose_scale_exponent(const float* points, std::size_t n) {
-  double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-  double maxabs = 0;
-  for (std::size_t i = 0; i < n; ++i)
-    for (int d = 0; d < 3; ++d) {
-      const double v = points[3 * i + d];
-      lo[d] = std::min(lo[d], v);
-      hi[d] = std::max(hi[d], v);
-      maxabs = std::max(maxabs, std::fabs(v));
-    }
-  double extent = 0;
-  for (int d = 0; d < 3 && n; ++d) extent = std::max(extent, hi[d] - lo[d]);
+namespace {
+// The exponent for points whose box (one scan_points pass) is known.
+int scale_exponent_of(const detail::PointScan& box, const float* points, std::size_t n) {
+  double extent = 0, maxabs = 0;
+  for (int d = 0; d < 3 && n; ++d) {
+    extent = std::max(extent, double(box.hi[d]) - double(box.lo[d]));
+    // The largest magnitude is at one end of the box.
+    maxabs = std::max({maxabs, std::fabs(double(box.lo[d])), std::fabs(double(box.hi[d]))});
+  }
   // Squared distances stay normal floats with room to spare inside [2^-40, 2^40].
   auto in_range = [](double x) { return x >= std::ldexp(1.0, -40) && x <= std::ldexp(1.0, 40); };
   if (extent == 0 || in_range(extent)) return 0;
@@ -124,15 +122,23 @@ int Index::choose_scale_exponent(const float* points, std::size_t n) {
   if (maxabs > 0) e = std::max(e, std::ilogb(maxabs) - 125);
   return e;
 }
+}  // namespace
+
+int Index::choose_scale_exponent(const float* points, std::size_t n) {
+  return scale_exponent_of(detail::scan_points(points, n), points, n);
+}
 
 const float* Index::prepare_points(const float* points, std::size_t n, std::vector<float>& storage) {
   if (n == 0) throw Error(method() + ": the point set is empty (N = 0)");
   if (n > 0x7ffffffeu)
     throw Error(method() + ": N = " + std::to_string(n) + " exceeds the int32 index range");
-  validate_points(points, n, "points");
+  // One parallel pass for the validation and the scale; the serial check only to name the
+  // first non-finite point.
+  const detail::PointScan box = detail::scan_points(points, n);
+  if (!box.finite) validate_points(points, n, "points");
   if (!answers_on_host()) refuse_in_forked_child(method());
   if (exact()) caller_points_.assign(points, points + 3 * n);
-  scale_exp_ = choose_scale_exponent(points, n);
+  scale_exp_ = scale_exponent_of(box, points, n);
   if (scale_exp_ == 0) return points;
   storage.resize(3 * n);
   ldexp_all(points, storage.data(), 3 * n, -scale_exp_);

@@ -40,6 +40,10 @@ Quirks quirks_for(const DeviceInfo& device) {
   // CPU devices (PoCL's pthread device, Intel's CPU runtime) vectorise explicit float16 scans.
   q.vector_scan = (info.type & CL_DEVICE_TYPE_CPU) != 0;
   if (q.vector_scan) q.description += "; cpu: float16 block scans";
+  // PoCL's CPU device keeps a CL_MEM_USE_HOST_PTR buffer in the host's memory (measured: a
+  // kernel's writes show in the host array before any map, and the map returns the host pointer).
+  q.host_ptr_in_place = info.is_pocl && (info.type & CL_DEVICE_TYPE_CPU) != 0;
+  if (q.host_ptr_in_place) q.description += "; pocl cpu: host arrays read in place";
   if (info.max_work_group_size && q.default_local_size > info.max_work_group_size)
     q.default_local_size = info.max_work_group_size;
   return q;

@@ -129,15 +129,33 @@ void Index::remove(const std::int32_t* ids, std::size_t n) {
       throw Error(method() + ": remove: id " + std::to_string(id) + " (entry " + std::to_string(i) +
                   ") was already removed");
   }
-  std::vector<std::int32_t> sorted(ids, ids + n);
-  std::sort(sorted.begin(), sorted.end());
-  for (std::size_t i = 1; i < n; ++i)
-    if (sorted[i] == sorted[i - 1]) {
-      const std::size_t at = std::size_t(std::find(ids, ids + n, sorted[i]) - ids);
-      const std::size_t again = std::size_t(std::find(ids + at + 1, ids + n, sorted[i]) - ids);
-      throw Error(method() + ": remove: id " + std::to_string(sorted[i]) + " appears twice (entries " +
-                  std::to_string(at) + " and " + std::to_string(again) + ")");
+  // The ids ascending, each once. Many ids (a share of the issued ones): marks over the id range,
+  // O(n + range), where a sort of 100k ids took as long as the rest of a grid remove.
+  std::vector<std::int32_t> sorted;
+  auto twice = [&](std::int32_t id) {
+    const std::size_t at = std::size_t(std::find(ids, ids + n, id) - ids);
+    const std::size_t again = std::size_t(std::find(ids + at + 1, ids + n, id) - ids);
+    throw Error(method() + ": remove: id " + std::to_string(id) + " appears twice (entries " +
+                std::to_string(at) + " and " + std::to_string(again) + ")");
+  };
+  if (n * 16 >= std::size_t(id_bound_)) {
+    std::vector<std::uint8_t> mark(std::size_t(id_bound_), 0);
+    std::int32_t dup = -1;
+    for (std::size_t i = 0; i < n; ++i) {
+      std::uint8_t& m = mark[std::size_t(ids[i])];
+      if (m && (dup < 0 || ids[i] < dup)) dup = ids[i];  // the smallest, as the sort reported
+      m = 1;
     }
+    if (dup >= 0) twice(dup);
+    sorted.reserve(n);
+    for (std::size_t id = 0; id < mark.size(); ++id)
+      if (mark[id]) sorted.push_back(static_cast<std::int32_t>(id));
+  } else {
+    sorted.assign(ids, ids + n);
+    std::sort(sorted.begin(), sorted.end());
+    for (std::size_t i = 1; i < n; ++i)
+      if (sorted[i] == sorted[i - 1]) twice(sorted[i]);
+  }
   if (n >= n_points_)
     throw Error(method() + ": remove: removing all " + std::to_string(n_points_) +
                 " live points would leave the index empty (an index holds at least one point)");
