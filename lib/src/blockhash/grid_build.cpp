@@ -42,22 +42,32 @@ Box bounding_box(const float* xyz, std::size_t n, unsigned threads) {
 }
 
 // The geometry for cell side h over the box (dims from the extents, margin from the magnitudes).
-bhcl_grid_geom geometry(const Box& b, double h) {
+// `slack`: one cell more along every axis the points extend over, the box centred in it, so that
+// at least half a cell lies beyond the points on each side: an insert of points from the same
+// distribution (a new point a little past the old extremes) then merges into the cells instead
+// of forcing a full build (grid_update.cpp). The tuning's estimates use the plain box.
+bhcl_grid_geom geometry(const Box& b, double h, bool slack = false) {
   bhcl_grid_geom g{};
-  g.ox = b.lo[0];
-  g.oy = b.lo[1];
-  g.oz = b.lo[2];
   g.h = static_cast<float>(h);
   g.inv_h = 1.0f / g.h;
   double mag = 0, ext = 0;
+  for (int d = 0; d < 3; ++d) ext = std::max(ext, double(b.hi[d]) - double(b.lo[d]));
   std::uint32_t* dims[3] = {&g.nx, &g.ny, &g.nz};
+  float* origin[3] = {&g.ox, &g.oy, &g.oz};
   for (int d = 0; d < 3; ++d) {
     double e = double(b.hi[d]) - double(b.lo[d]);
-    ext = std::max(ext, e);
-    mag = std::max({mag, std::fabs(double(b.lo[d])), std::fabs(double(b.hi[d]))});
     double c = std::ceil(e / double(g.h));
+    double o = b.lo[d];
+    if (slack && e > ext * 1e-6 && c + 1 <= 2097152.0) {
+      c += 1;
+      o = double(b.lo[d]) - (c * double(g.h) - e) / 2;
+    }
+    *origin[d] = std::min(static_cast<float>(o), b.lo[d]);  // never above the lowest point
     *dims[d] = static_cast<std::uint32_t>(std::clamp(c, 1.0, 2097152.0));
+    mag = std::max({mag, std::fabs(double(*origin[d])), std::fabs(double(b.hi[d])),
+                    std::fabs(double(*origin[d]) + double(*dims[d]) * h)});
   }
+  if (slack) ext += 2 * h;
   // The cell assignment (t - o) * inv_h and the slab edges o + i h each round by a few units in
   // the last place of the magnitudes involved: 2^-20 of them is a safe lower bound's slack.
   g.margin = static_cast<float>((mag + ext + double(g.h)) * std::ldexp(1.0, -20));
@@ -180,7 +190,7 @@ void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid&
   double h = p.cell_size > 0 ? p.cell_size : choose_cell_side(xyz, n, box, p);
   if (!(h > 0) || !std::isfinite(h))
     throw Error("blockhash grid: the cell side came out as " + std::to_string(h) + " (internal error)");
-  bhcl_grid_geom geom = geometry(box, h);
+  bhcl_grid_geom geom = geometry(box, h, true);
   // A direct table of at most max_cells_per_point cells per point; past it a two-level directory
   // of up to 16x as many cells (its top level then holds as many entries as the direct table
   // would); past that (and 2^31 cells) the cells grow until the table fits.
@@ -190,7 +200,7 @@ void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid&
   const double cap = sparse ? std::min(direct_cap * double(1u << BHCL_GRID_SEG_BITS), 2147483000.0) : direct_cap;
   while (cells_of(geom) > cap) {
     h *= 1.05;
-    geom = geometry(box, h);
+    geom = geometry(box, h, true);
     st.capped = true;
   }
   if (p.directory == -1 && sparse && cells_of(geom) <= direct_cap) sparse = false;

@@ -124,8 +124,13 @@ void BlockHashIndex::remove_points(const std::int32_t* ids, std::size_t n) {
 void BlockHashIndex::grid_positions() {
   const blockhash::Grid& g = *s_->grid;
   id_pos_.assign(std::size_t(id_bound()), -1);
-  for (std::size_t i = 0; i < g.n_points; ++i)
-    if (g.ids[i] != kHoleId) id_pos_[std::size_t(g.ids[i])] = static_cast<std::int32_t>(i);
+  std::int32_t* const pos = id_pos_.data();
+  const std::int32_t* const ids = g.ids.data();
+  // In parallel: the ids are distinct, so no two writes meet.
+  detail::parallel_for(g.n_points, [&](std::size_t b, std::size_t e) {
+    for (std::size_t i = b; i < e; ++i)
+      if (ids[i] != kHoleId) pos[std::size_t(ids[i])] = static_cast<std::int32_t>(i);
+  });
 }
 
 void BlockHashIndex::grid_upload_from(std::size_t point_from, std::size_t cell_from) {
@@ -201,10 +206,10 @@ void BlockHashIndex::grid_insert(const float* scaled, std::size_t m, std::int32_
   sc.y.resize(n1 + blockhash::kGridPad);
   sc.z.resize(n1 + blockhash::kGridPad);
   sc.ids.resize(n1 + blockhash::kGridPad);
-  if (id_pos_.size() != std::size_t(id_bound())) {
-    if (id_pos_.empty()) grid_positions();
-    else id_pos_.resize(std::size_t(id_bound()), -1);
-  }
+  // An insert moves nearly every point: the id -> position map is dropped, and the next remove
+  // (the one reader) makes it again in one parallel pass. Kept up to date here, its random
+  // writes cost more than the merge itself.
+  id_pos_.clear();
   const unsigned T = static_cast<unsigned>(std::min<std::size_t>(detail::default_threads(), std::max<std::size_t>(1, n1 / 65536)));
   // Cell ranges of about equal output: thread t starts at the first cell whose new start passes
   // t n1 / T.
@@ -223,14 +228,13 @@ void BlockHashIndex::grid_insert(const float* scaled, std::size_t m, std::int32_
     const std::int32_t* const I = g.ids.data();
     float *const X2 = sc.x.data(), *const Y2 = sc.y.data(), *const Z2 = sc.z.data();
     std::int32_t* const I2 = sc.ids.data();
-    std::int32_t* const pos = id_pos_.data();
     detail::parallel_for(
         T,
         [&](std::size_t tb, std::size_t te) {
           for (std::size_t t = tb; t < te; ++t) {
             const std::size_t c0 = cut[t], c1 = cut[t + 1];
             if (c0 >= c1) continue;
-            // The cells before the first receiving one keep their places (and their id_pos_).
+            // The cells before the first receiving one keep their places.
             const std::size_t s0 = st[c0], s1 = st[c1];
             const std::size_t keep = c1 <= first_cell ? s1 : c0 < first_cell ? st[first_cell] : s0;
             std::memcpy(X2 + s0, X + s0, (keep - s0) * 4);
@@ -243,7 +247,6 @@ void BlockHashIndex::grid_insert(const float* scaled, std::size_t m, std::int32_
               std::memcpy(Y2 + dst, Y + a, len * 4);
               std::memcpy(Z2 + dst, Z + a, len * 4);
               std::memcpy(I2 + dst, I + a, len * 4);
-              for (std::size_t j = 0; j < len; ++j) pos[I[a + j]] = static_cast<std::int32_t>(dst + j);
               for (std::size_t j = 0; j < k; ++j) {
                 const std::uint32_t i = ord[ad[c] + j];
                 const std::size_t p = dst + len + j;
@@ -251,7 +254,6 @@ void BlockHashIndex::grid_insert(const float* scaled, std::size_t m, std::int32_
                 Y2[p] = scaled[3 * i + 1];
                 Z2[p] = scaled[3 * i + 2];
                 I2[p] = first + static_cast<std::int32_t>(i);
-                pos[I2[p]] = static_cast<std::int32_t>(p);
               }
             }
           }
