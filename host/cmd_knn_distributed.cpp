@@ -3,6 +3,7 @@
 // the index, which shards the points by Hilbert-key range and routes the queries; rank 0 gets
 // every row back and writes the outputs. MPI is initialised here, only in this mode.
 #include <algorithm>
+#include <cstdint>
 #include <cstdio>
 #include <cstdlib>
 #include <memory>
@@ -34,6 +35,9 @@ void declare_knn_distributed(Args& a) {
                 1024, "16");
   a.add_number("border-factor", "with --distributed, blockhash: a query meeting other ranks is answered "
                                 "again by its owner with this times A (1: not again)", "2");
+  a.add_integer("id-base", "with --distributed: the global id of the first point (ids are this plus the "
+                           "point's place); ids past 2^31 - 1 are written as int64 (NPY '<i8', 8 bytes raw)",
+                0, std::int64_t(1) << 62, "0");
   a.group("");
 }
 
@@ -42,7 +46,7 @@ RadiusParams radius_options(const Args& args, float& radius);  // cmd_knn.cpp: -
 #if !BHCL_HAVE_MPI
 
 int run_knn_distributed(const Args& args) {
-  for (const char* o : {"boxes-per-rank", "border-factor"})
+  for (const char* o : {"boxes-per-rank", "border-factor", "id-base"})
     if (args.has(o)) throw UsageError(std::string("--") + o + " needs --distributed");
   if (!args.flag("distributed")) return -1;
   throw Error("--distributed: this bhcl was built without MPI (install libopenmpi-dev and configure "
@@ -128,7 +132,7 @@ void add_distributed_stats(QueryStats& st, DistributedQueryStats& ds, const Quer
 }  // namespace
 
 int run_knn_distributed(const Args& args) {
-  for (const char* o : {"boxes-per-rank", "border-factor"})
+  for (const char* o : {"boxes-per-rank", "border-factor", "id-base"})
     if (args.has(o) && !args.flag("distributed")) throw UsageError(std::string("--") + o + " needs --distributed");
   if (!args.flag("distributed")) return -1;
 
@@ -154,6 +158,7 @@ int run_knn_distributed(const Args& args) {
   bp.options = mopt;
   bp.boxes_per_rank = static_cast<int>(args.integer("boxes-per-rank", 16));
   bp.border_factor = static_cast<float>(args.number("border-factor", 2.0));
+  bp.id_base = static_cast<std::int64_t>(args.integer("id-base", 0));
   if (args.has("border-factor") && method_info(method).exact)
     throw UsageError("--border-factor does not apply to method " + method + " (only to approximate methods)");
   if (!(bp.border_factor >= 1 && bp.border_factor <= 1024))
@@ -205,7 +210,7 @@ int run_knn_distributed(const Args& args) {
     QueryStats rst;
     std::unique_ptr<RadiusOutputs> files;
     if (rank == 0) try {
-        files = std::make_unique<RadiusOutputs>(args, n);
+        files = std::make_unique<RadiusOutputs>(args, n, !index.ids_fit_int32());
       } catch (const std::exception& e) {
         err = e.what();
       }
@@ -213,7 +218,7 @@ int run_knn_distributed(const Args& args) {
     const std::size_t slices = slice_count();
     for (std::size_t s = 0; s < slices; ++s) {
       const auto [first, m] = slice_of(s, n, rank);
-      RadiusResult part;
+      RadiusResult64 part;
       DistributedQueryStats pds;
       const QueryStats ps = index.radius_search(queries.data() + 3 * first, m, radius, rparams, part, &pds);
       add_distributed_stats(rst, rds, ps, pds);
@@ -267,7 +272,7 @@ int run_knn_distributed(const Args& args) {
   QueryStats st;
   std::unique_ptr<KnnOutputs> files;
   if (rank == 0) try {
-      files = std::make_unique<KnnOutputs>(args, n, params.k);
+      files = std::make_unique<KnnOutputs>(args, n, params.k, !index.ids_fit_int32());
     } catch (const std::exception& e) {
       err = e.what();
     }
@@ -277,7 +282,7 @@ int run_knn_distributed(const Args& args) {
     const std::size_t slices = slice_count();
     for (std::size_t s = 0; s < slices; ++s) {
       const auto [first, m] = slice_of(s, n, rank);
-      KnnResult part;
+      KnnResult64 part;
       DistributedQueryStats pds;
       const QueryStats ps = index.query(queries.data() + 3 * first, m, params, part, &pds);
       add_distributed_stats(st, ds, ps, pds);

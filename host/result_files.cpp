@@ -1,6 +1,7 @@
 #include "result_files.hpp"
 
 #include <cctype>
+#include <type_traits>
 #include <vector>
 
 #include "blockhash_cl/error.hpp"
@@ -10,6 +11,18 @@
 namespace bhcl::cli {
 
 namespace {
+// The ids of a part in the file's width: as they are when it matches, else converted (int64 ids
+// written as int32 fit: the caller chose the width from the largest id).
+template <typename Out, typename In>
+const Out* ids_as(const std::vector<In>& ids, std::size_t count, std::vector<Out>& tmp) {
+  if constexpr (std::is_same_v<Out, In>) {
+    return ids.data();
+  } else {
+    tmp.assign(ids.begin(), ids.begin() + static_cast<std::ptrdiff_t>(count));
+    return tmp.data();
+  }
+}
+
 bool is_npy(const std::string& path) {
   if (path.size() < 4) return false;
   std::string e = path.substr(path.size() - 4);
@@ -51,16 +64,26 @@ void ArrayOutput::commit() {
   file_.commit();
 }
 
-KnnOutputs::KnnOutputs(const Args& args, std::size_t n, int k) {
+KnnOutputs::KnnOutputs(const Args& args, std::size_t n, int k, bool ids64) : ids64_(ids64) {
   const std::int64_t rows = static_cast<std::int64_t>(n);
   const std::size_t cols = static_cast<std::size_t>(k);
-  ids_ = std::make_unique<ArrayOutput>(args.str("out-ids"), "<i4", 4, rows, cols);
+  ids_ = std::make_unique<ArrayOutput>(args.str("out-ids"), ids64 ? "<i8" : "<i4", ids64 ? 8 : 4, rows, cols);
   dist2_ = std::make_unique<ArrayOutput>(args.str("out-dist2"), "<f4", 4, rows, cols);
   if (args.has("out-counts")) counts_ = std::make_unique<ArrayOutput>(args.str("out-counts"), "<i4", 4, rows, 0);
 }
 
-void KnnOutputs::append(const KnnResult& part) {
-  ids_->append(part.ids.data(), part.ids.size());
+void KnnOutputs::append(const KnnResult& part) { append_part(part); }
+void KnnOutputs::append(const KnnResult64& part) { append_part(part); }
+
+template <typename Part>
+void KnnOutputs::append_part(const Part& part) {
+  if (ids64_) {
+    std::vector<std::int64_t> tmp;
+    ids_->append(ids_as(part.ids, part.ids.size(), tmp), part.ids.size());
+  } else {
+    std::vector<std::int32_t> tmp;
+    ids_->append(ids_as(part.ids, part.ids.size(), tmp), part.ids.size());
+  }
   dist2_->append(part.dist2.data(), part.dist2.size());
   if (counts_) counts_->append(part.counts.data(), part.counts.size());
   for (auto c : part.counts) found_ += static_cast<std::size_t>(c);
@@ -72,9 +95,9 @@ void KnnOutputs::commit() {
   if (counts_) counts_->commit();
 }
 
-RadiusOutputs::RadiusOutputs(const Args& args, std::size_t n) {
+RadiusOutputs::RadiusOutputs(const Args& args, std::size_t n, bool ids64) : ids64_(ids64) {
   offsets_ = std::make_unique<ArrayOutput>(args.str("out-offsets"), "<i8", 8, static_cast<std::int64_t>(n + 1), 0);
-  ids_ = std::make_unique<ArrayOutput>(args.str("out-ids"), "<i4", 4, -1, 0);
+  ids_ = std::make_unique<ArrayOutput>(args.str("out-ids"), ids64 ? "<i8" : "<i4", ids64 ? 8 : 4, -1, 0);
   dist2_ = std::make_unique<ArrayOutput>(args.str("out-dist2"), "<f4", 4, -1, 0);
   if (args.has("out-counts"))
     counts_ = std::make_unique<ArrayOutput>(args.str("out-counts"), "<i4", 4, static_cast<std::int64_t>(n), 0);
@@ -82,7 +105,11 @@ RadiusOutputs::RadiusOutputs(const Args& args, std::size_t n) {
   offsets_->append(&zero, 1);
 }
 
-void RadiusOutputs::append(const RadiusResult& part) {
+void RadiusOutputs::append(const RadiusResult& part) { append_part(part); }
+void RadiusOutputs::append(const RadiusResult64& part) { append_part(part); }
+
+template <typename Part>
+void RadiusOutputs::append_part(const Part& part) {
   std::vector<std::int64_t> offs(part.n);
   std::vector<std::int32_t> counts(counts_ ? part.n : 0);
   for (std::size_t i = 0; i < part.n; ++i) {
@@ -90,7 +117,13 @@ void RadiusOutputs::append(const RadiusResult& part) {
     if (counts_) counts[i] = static_cast<std::int32_t>(part.count(i));
   }
   offsets_->append(offs.data(), offs.size());
-  ids_->append(part.ids.data(), part.total());
+  if (ids64_) {
+    std::vector<std::int64_t> tmp;
+    ids_->append(ids_as(part.ids, part.total(), tmp), part.total());
+  } else {
+    std::vector<std::int32_t> tmp;
+    ids_->append(ids_as(part.ids, part.total(), tmp), part.total());
+  }
   dist2_->append(part.dist2.data(), part.total());
   if (counts_) counts_->append(counts.data(), counts.size());
   base_ += static_cast<std::int64_t>(part.total());

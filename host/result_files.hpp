@@ -36,30 +36,39 @@ class ArrayOutput {
   std::size_t header_bytes_ = 0;
 };
 
-// --out-ids, --out-dist2 and --out-counts of a kNN call of n queries and k.
+// --out-ids, --out-dist2 and --out-counts of a kNN call of n queries and k. ids64: the ids are
+// written as int64 ('<i8', 8 bytes raw), for ids past 2^31 (bhcl knn --distributed); else int32.
 class KnnOutputs {
  public:
-  KnnOutputs(const Args& args, std::size_t n, int k);
+  KnnOutputs(const Args& args, std::size_t n, int k, bool ids64 = false);
   void append(const KnnResult& part);  // the next rows, in order
+  void append(const KnnResult64& part);  // the same with int64 ids (each fits when !ids64)
   void commit();
   std::size_t found() const { return found_; }
 
  private:
+  template <typename Part>
+  void append_part(const Part& part);
   std::unique_ptr<ArrayOutput> ids_, dist2_, counts_;
+  bool ids64_ = false;
   std::size_t found_ = 0;
 };
 
 // --out-offsets, --out-ids, --out-dist2 and --out-counts of a radius call of n queries.
 class RadiusOutputs {
  public:
-  RadiusOutputs(const Args& args, std::size_t n);
+  RadiusOutputs(const Args& args, std::size_t n, bool ids64 = false);  // ids64 as KnnOutputs'
   void append(const RadiusResult& part);  // the next queries' slices, in order
+  void append(const RadiusResult64& part);
   void commit();
   std::size_t total() const { return static_cast<std::size_t>(base_); }
   std::size_t truncated_queries() const { return truncated_; }
 
  private:
+  template <typename Part>
+  void append_part(const Part& part);
   std::unique_ptr<ArrayOutput> offsets_, ids_, dist2_, counts_;
+  bool ids64_ = false;
   std::int64_t base_ = 0;
   std::size_t truncated_ = 0;
 };

@@ -1,7 +1,8 @@
 #!/bin/sh
 # bhcl knn --distributed under mpirun writes the same files as bhcl knn in one process, byte for
 # byte, for the exact methods (a flat point set, k 20, a radius that cuts rows short), and for
-# radius search (--radius, capped); a missing
+# radius search (--radius, capped); with --id-base 2^32, int64 ids that are the one-process ids
+# plus the base; a missing
 # input file fails every rank with one message naming it.
 # Usage: distributed_cli.sh BHCL MPIEXEC NP WORKDIR [mpiexec options...]
 set -eu
@@ -25,6 +26,16 @@ BHCL_SLICE_ROWS=700 "$mpiexec" -np "$np" "$@" "$bhcl" knn $args --out-ids iS --o
 "$bhcl" knn $args --out-ids i1 --out-dist2 d1 --out-counts c1
 cmp i1 iS && cmp d1 dS && cmp c1 cS
 echo "kdtree in slices: $np rank(s) wrote the one-process files"
+# Issue 25: an id base of 2^32: the ids are written as int64, each the one-process id plus the
+# base (-1 stays -1); distances as one process's; NPY gets '<i8'.
+"$mpiexec" -np "$np" "$@" "$bhcl" knn $args --out-ids iB --out-dist2 dB --distributed --id-base 4294967296
+cmp d1 dB
+od -An -v -t d4 i1 | tr -s ' ' '\n' | sed '/^$/d' | awk '{ printf "%.0f\n", $1 < 0 ? -1 : $1 + 4294967296 }' > want.txt
+od -An -v -t d8 iB | tr -s ' ' '\n' | sed '/^$/d' | awk '{ printf "%.0f\n", $1 }' > got.txt
+cmp want.txt got.txt
+"$mpiexec" -np "$np" "$@" "$bhcl" knn $args --out-ids iB.npy --out-dist2 dB.npy --distributed --id-base 4294967296
+head -c 128 iB.npy | grep -q "'descr': '<i8'"
+echo "id base 2^32: $np rank(s) wrote int64 ids, the one-process ids plus the base"
 # Radius search: the same three arrays as one process (an exact method, a cap).
 rargs="--points p.txt --queries q.txt --method kdtree --radius 0.02 --max-results 30 --quiet"
 "$bhcl" knn $rargs --out-offsets o1 --out-ids ri1 --out-dist2 rd1

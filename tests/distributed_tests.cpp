@@ -17,6 +17,9 @@
 //    the call throw on every rank with a message naming the failing rank;
 //  - ranks passing different build or search parameters (method, an option, boxes, A, the
 //    recall target, the radius, the cap) are refused on every rank naming rank and parameter;
+//  - global ids are int64: with an id base past 2^32 the answers are the base-0 ones plus the
+//    base, the int32 calls refuse such an index, and too many points per rank are refused from
+//    the counts alone;
 //  - with --hang-rank R (its own CTest case): a rank that stops answering ends the job within
 //    the deadline with a message naming it, never a hang.
 #include <mpi.h>
@@ -540,6 +543,125 @@ void parameters_must_agree() {
   EXPECT(r.counts[0] == 3 && r.ids[0] == 0 && r.dist2[0] == 0.0f, "row 0: %d %d %g", r.counts[0], r.ids[0], r.dist2[0]);
 }
 
+// Issue 25: global ids are int64. With an id base past 2^32 every id of the answer is the base
+// plus the single-process id (kNN and radius, exact methods and block hashing, ids spread over
+// every rank's shard); the int32 calls refuse such an index on every rank before any work and
+// answer one whose largest id is exactly 2^31 - 1; a bad id base, one differing between ranks,
+// and more points than the ranks' shards can hold (2^31 - 2 each) are refused on every rank
+// before any point is read or allocated.
+void ids_past_int32() {
+  const std::vector<float> pts = bhcl::datasets::uniform(2500, 31);
+  const std::vector<float> qs = queries_for(pts, 32, 40);
+  const std::size_t N = pts.size() / 3, n = qs.size() / 3;
+  auto [pf, pl] = slice(N, g_rank, g_ranks, 0);
+  auto [qf, ql] = slice(n, g_rank, g_ranks, 1);
+  const std::int64_t base = (std::int64_t(1) << 32) + 5;
+  for (const std::string method : {"kdtree", "blockhash"}) {
+    bhcl::DistributedBuildParams b0, bp;
+    b0.method = bp.method = method;
+    bp.id_base = base;
+    bhcl::DistributedIndex d0(MPI_COMM_WORLD, runtime(), pts.data() + 3 * pf, pl, b0);
+    bhcl::DistributedIndex dist(MPI_COMM_WORLD, runtime(), pts.data() + 3 * pf, pl, bp);
+    EXPECT(dist.id_base() == base && dist.id_bound() == base + std::int64_t(N) && !dist.ids_fit_int32() &&
+               d0.ids_fit_int32(),
+           "%s: id_base %lld id_bound %lld", method.c_str(), (long long)dist.id_base(), (long long)dist.id_bound());
+    bool shard_ok = dist.shard_ids().size() == d0.shard_ids().size();
+    for (std::size_t i = 0; shard_ok && i < dist.shard_ids().size(); ++i)
+      shard_ok = dist.shard_ids()[i] == d0.shard_ids()[i] + base;
+    EXPECT(shard_ok, "%s: shard ids are not the base plus base 0's", method.c_str());
+    // The reference: exact methods one process, block hashing the same distributed build at base 0.
+    std::unique_ptr<bhcl::Index> single = bhcl::make_index(method, runtime(), pts.data(), N);
+    for (int k : {1, 10}) {
+      bhcl::SearchParams p;
+      p.k = k;
+      if (method == "blockhash") p.A = 2;  // a budget: the approximate path (border re-answers)
+      bhcl::KnnResult ref32;
+      bhcl::KnnResult64 got, ref;
+      if (method == "kdtree") {
+        single->query(qs.data(), n, p, ref32);
+        ref.resize(ql, k);
+        for (std::size_t i = 0; i < ql * std::size_t(k); ++i) {
+          ref.ids[i] = ref32.ids[qf * std::size_t(k) + i];
+          ref.dist2[i] = ref32.dist2[qf * std::size_t(k) + i];
+        }
+        for (std::size_t i = 0; i < ql; ++i) ref.counts[i] = ref32.counts[qf + i];
+      } else {
+        d0.query(qs.data() + 3 * qf, ql, p, ref);
+      }
+      dist.query(qs.data() + 3 * qf, ql, p, got);
+      std::size_t bad = 0, past = 0;
+      for (std::size_t i = 0; i < ql * std::size_t(k); ++i) {
+        const std::int64_t want = ref.ids[i] < 0 ? -1 : ref.ids[i] + base;
+        bad += got.ids[i] != want || std::memcmp(&got.dist2[i], &ref.dist2[i], 4) != 0;
+        past += got.ids[i] > std::int64_t(0x7fffffff);
+      }
+      for (std::size_t i = 0; i < ql; ++i) bad += got.counts[i] != ref.counts[i];
+      EXPECT(bad == 0 && (ql == 0 || past > 0), "%s k=%d: %zu entries differ from the reference + base, %zu past 2^31",
+             method.c_str(), k, bad, past);
+    }
+    // Radius search, int64 slices: the base plus the reference's ids.
+    {
+      const float r = 0.06f;
+      bhcl::RadiusResult64 got, ref;
+      bhcl::RadiusParams rp;
+      d0.radius_search(qs.data() + 3 * qf, ql, r, rp, ref);
+      dist.radius_search(qs.data() + 3 * qf, ql, r, rp, got);
+      bool same = got.offsets == ref.offsets && got.found == ref.found && got.dist2 == ref.dist2;
+      for (std::size_t j = 0; same && j < got.ids.size(); ++j) same = got.ids[j] == ref.ids[j] + base;
+      EXPECT(same, "%s radius: the slices are not base 0's plus the base", method.c_str());
+    }
+    // The int32 calls: refused on every rank, naming the way out.
+    bhcl::SearchParams p;
+    p.k = 3;
+    bhcl::KnnResult r32;
+    expect_collective_error("int32 kNN ids past 2^31", [&] { dist.query(qs.data(), g_rank == 0 ? 5 : 0, p, r32); },
+                            {"the global ids reach 4294969800", "past int32: pass a KnnResult64"});
+    bhcl::RadiusResult rr32;
+    expect_collective_error("int32 radius ids past 2^31",
+                            [&] { dist.radius_search(qs.data(), g_rank == 0 ? 5 : 0, 0.1f, {}, rr32); },
+                            {"past int32: pass a RadiusResult64"});
+  }
+  {
+    // The largest id exactly 2^31 - 1: the int32 call answers, ids as the int64 call's.
+    bhcl::DistributedBuildParams bp;
+    bp.id_base = std::int64_t(0x7fffffff) - std::int64_t(N) + 1;
+    bhcl::DistributedIndex dist(MPI_COMM_WORLD, runtime(), pts.data() + 3 * pf, pl, bp);
+    bhcl::SearchParams p;
+    p.k = 4;
+    bhcl::KnnResult r32;
+    bhcl::KnnResult64 r64;
+    dist.query(qs.data() + 3 * qf, ql, p, r32);
+    dist.query(qs.data() + 3 * qf, ql, p, r64);
+    bool same = r32.ids.size() == r64.ids.size() && dist.ids_fit_int32();
+    for (std::size_t i = 0; same && i < r32.ids.size(); ++i) same = std::int64_t(r32.ids[i]) == r64.ids[i];
+    EXPECT(same, "int32 ids at the edge differ from the int64 call's");
+  }
+  {
+    bhcl::DistributedBuildParams bp;
+    bp.id_base = -1;
+    expect_collective_error("a negative id base",
+                            [&] { bhcl::DistributedIndex d(MPI_COMM_WORLD, runtime(), pts.data() + 3 * pf, pl, bp); },
+                            {"id_base must be in [0, 2^62], got -1"});
+  }
+  if (g_ranks > 1) {
+    bhcl::DistributedBuildParams bp;
+    bp.id_base = g_rank == g_ranks - 1 ? 7 : 0;
+    expect_collective_error("a different id base on one rank",
+                            [&] { bhcl::DistributedIndex d(MPI_COMM_WORLD, runtime(), pts.data() + 3 * pf, pl, bp); },
+                            {"rank " + std::to_string(g_ranks - 1) + " has id_base = 7 where rank 0 has 0"});
+  }
+  {
+    // 2^31 points per rank, from a 16-point buffer: more than one shard per rank can hold. Refused
+    // from the counts alone (the points are never read: a read would fault).
+    const std::size_t huge = std::size_t(1) << 31;
+    const std::vector<float> tiny(48, 0.5f);
+    expect_collective_error(
+        "2^31 points per rank", [&] { bhcl::DistributedIndex d(MPI_COMM_WORLD, runtime(), tiny.data(), huge); },
+        {"points over " + std::to_string(g_ranks) + " ranks make shards of up to 2147483648 points",
+         "past one index's int32 id range (2^31 - 2 points): use at least " + std::to_string(g_ranks + 1) + " ranks"});
+  }
+}
+
 // Issue 22: `--hang-rank R` (a CTest case of its own, BHCL_MPI_DEADLINE_S set short): rank R stops
 // answering before a query (it sleeps); the other ranks must not wait forever: the query's first
 // step ends the job (MPI_Abort) with a message naming rank R. Returns only if nobody noticed.
@@ -595,6 +717,7 @@ int main(int argc, char** argv) {
   run("block hashing recall as one process", blockhash_recall_as_one_process);
   run("a failing rank fails the call on every rank", failures_reach_every_rank);
   run("ranks passing different parameters are refused on every rank", parameters_must_agree);
+  run("64-bit global ids past 2^31", ids_past_int32);
   int all = 0;
   MPI_Allreduce(&g_failures, &all, 1, MPI_INT, MPI_SUM, MPI_COMM_WORLD);
   if (g_rank == 0) std::printf("%s: %d failed check(s) over %d rank(s)\n", all ? "FAILED" : "passed", all, g_ranks);

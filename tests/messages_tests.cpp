@@ -56,6 +56,23 @@ TEST_CASE("messages: a UTF-8 byte order mark is accepted, and UTF-16 text is nam
   }
 }
 
+TEST_CASE("sizes: a single index of more than 2^31 - 2 points is refused before anything is read or allocated") {
+  // 2^31 - 1 points behind a 4-point buffer: every method refuses from N alone (a read past the
+  // buffer would fault, an allocation of the points' copies would take 25 GB).
+  const std::vector<float> tiny(12, 0.5f);
+  for (const std::string& method : method_names()) {
+    std::string msg;
+    try {
+      make_index(method, test::runtime(), tiny.data(), std::size_t(0x7fffffff));
+    } catch (const Error& e) {
+      msg = e.what();
+    }
+    CHECK_MESSAGE(msg.find(method + ": N = 2147483647 points exceeds one index's int32 id range (at most 2^31 - 2 "
+                           "points") != std::string::npos,
+                  method << ": " << msg);
+  }
+}
+
 TEST_CASE("sizes: point files past the index range are refused before they are read") {
   // A sparse raw file of 2^31 - 1 points (25.8 GB on paper, nothing on disk).
   const std::string raw = test::tmp_path("huge.f32");

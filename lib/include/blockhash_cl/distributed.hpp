@@ -29,8 +29,12 @@
 //    process within about half a point at 4 ranks (measured in docs/DISTRIBUTED.md).
 //
 // Input and output: every rank passes ITS part of the points (any split, including all on rank 0
-// and none elsewhere); the global index of a point is its position in the concatenation of the
-// ranks' parts in rank order. Queries are likewise per rank: each rank passes its own (possibly
+// and none elsewhere); the global id of a point is DistributedBuildParams::id_base (0 by default)
+// plus its position in the concatenation of the ranks' parts in rank order. Global ids are 64-bit:
+// the points over all ranks may pass 2^31 (each shard holds at most 2^31 - 2, one local index's
+// int32 range), and the results that carry them (KnnResult64, RadiusResult64) hold int64 ids;
+// the KnnResult / RadiusResult calls (int32 ids) remain for an index whose ids all fit, and
+// refuse one whose ids do not, before any work. Queries are likewise per rank: each rank passes its own (possibly
 // none) and gets their rows, and per-query statistics, back in its order. The `bhcl knn
 // --distributed` tool reads both files on rank 0 and writes the results there.
 //
@@ -82,6 +86,10 @@ struct DistributedBuildParams {
   // shard's build, a batch's local queries), so it must exceed the slowest rank's. 0: no
   // deadline; negative: the environment variable BHCL_MPI_DEADLINE_S, else 600 s.
   double deadline_s = -1;
+  // The global id of the first point (rank 0's first): ids are id_base + the point's place over
+  // all ranks. For points that are one part of a larger numbering (a tile of a survey, a batch
+  // of a stream), and for checking ids past 2^31 at small scale. [0, 2^62].
+  std::int64_t id_base = 0;
 };
 
 // What the sharding did, as seen from one rank (the *_all vectors are the same on every rank).
@@ -122,7 +130,9 @@ class DistributedIndex {
   // Collective over `comm`. `points`: this rank's part, n x 3 floats (n may be 0 on some ranks,
   // not on all). `runtime`: this rank's OpenCL device (each rank opens its own). Throws
   // bhcl::Error on every rank when any rank fails: a NaN/Inf point (named by its global index and
-  // rank), more than 2^31 - 2 points in all, an unknown method, bad build options.
+  // rank), a shard of more than 2^31 - 2 points (more points than 2^31 - 2 per rank: use more
+  // ranks), an id_base outside [0, 2^62], an unknown method, bad build options. Nothing is
+  // allocated for the points before the counts are checked.
   DistributedIndex(MPI_Comm comm, std::shared_ptr<Runtime> runtime, const float* points,
                    std::size_t n, const DistributedBuildParams& params = {});
   ~DistributedIndex();
@@ -133,6 +143,10 @@ class DistributedIndex {
   // under the library's contract (knn.hpp): global ids, squared distances, counts, and per query
   // the points examined summed over the ranks visited when params.count_examined is set. Returns
   // this rank's QueryStats (see DistributedQueryStats); `stats`, when given, gets the rest.
+  QueryStats query(const float* queries, std::size_t n, const SearchParams& params, KnnResult64& out,
+                   DistributedQueryStats* stats = nullptr) const;
+  // The same with int32 ids: throws bhcl::Error on every rank, before any work, when the ids do
+  // not all fit (!ids_fit_int32(); the KnnResult64 call answers there).
   QueryStats query(const float* queries, std::size_t n, const SearchParams& params, KnnResult& out,
                    DistributedQueryStats* stats = nullptr) const;
 
@@ -144,16 +158,25 @@ class DistributedIndex {
   // must pass the same r and max_results. `stats` gets ranks_visited, owner, the moved counts
   // (in owner_sent/received) and bytes.
   QueryStats radius_search(const float* queries, std::size_t n, float r, const RadiusParams& params,
+                           RadiusResult64& out, DistributedQueryStats* stats = nullptr) const;
+  // The same with int32 ids (refused as query()'s when the ids do not fit).
+  QueryStats radius_search(const float* queries, std::size_t n, float r, const RadiusParams& params,
                            RadiusResult& out, DistributedQueryStats* stats = nullptr) const;
 
   std::string method() const { return method_; }
   bool exact() const { return exact_; }
   std::size_t size() const { return n_global_; }  // points over all ranks
+  std::int64_t id_base() const { return id_base_; }
+  // One past the largest global id: id_base() + size().
+  std::int64_t id_bound() const { return id_base_ + static_cast<std::int64_t>(n_global_); }
+  // True when every global id fits an int32, the largest (id_bound() - 1) <= 2^31 - 1: the
+  // KnnResult / RadiusResult calls answer.
+  bool ids_fit_int32() const { return id_bound() <= (std::int64_t(1) << 31); }
   int rank() const { return rank_; }
   int ranks() const { return ranks_; }
   std::size_t shard_size() const { return shard_ids_.size(); }
-  // The global indices of this rank's shard, ascending: local index i is global shard_ids()[i].
-  const std::vector<std::int32_t>& shard_ids() const { return shard_ids_; }
+  // The global ids of this rank's shard, ascending: local index i is global id shard_ids()[i].
+  const std::vector<std::int64_t>& shard_ids() const { return shard_ids_; }
   // This rank's local index (nullptr when its shard is empty: fewer points than ranks).
   const Index* local_index() const { return local_.get(); }
   const DistributedBuildStats& build_stats() const { return build_stats_; }
@@ -167,6 +190,7 @@ class DistributedIndex {
   std::uint64_t key_of(const float xyz[3]) const;
   // The ranks other than `skip` with a box within squared distance `bound` of q (conservative).
   void ranks_meeting(const float q[3], double bound, int skip, std::vector<int>& out) const;
+  void require_int32_ids(const char* call) const;
 
   MPI_Comm comm_ = MPI_COMM_NULL;
   int rank_ = 0, ranks_ = 1;
@@ -177,7 +201,8 @@ class DistributedIndex {
   // The global quantiser (block hashing's: origin, one scale for all axes, 21 bits).
   double origin_[3] = {0, 0, 0};
   double scale_ = 0;
-  std::vector<std::int32_t> shard_ids_;
+  std::int64_t id_base_ = 0;
+  std::vector<std::int64_t> shard_ids_;
   std::unique_ptr<Index> local_;
   // Per rank: shard size, first key, the union box and the boxes of its sub-runs.
   std::vector<std::uint64_t> shard_sizes_, first_keys_;

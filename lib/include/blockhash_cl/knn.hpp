@@ -191,6 +191,42 @@ struct RadiusResult {
   }
 };
 
+// The same results with 64-bit ids, for an index whose ids can pass 2^31 (DistributedIndex: its
+// global ids are DistributedBuildParams::id_base plus a point's place over all ranks, and the
+// points over all ranks may number more than an int32 holds). Same layout and contract, id -1 for
+// an empty entry.
+struct KnnResult64 {
+  std::size_t n = 0;
+  int k = 0;
+  std::vector<std::int64_t> ids;
+  std::vector<float> dist2;
+  std::vector<std::int32_t> counts;
+  std::vector<std::int32_t> examined;
+
+  void resize(std::size_t n_queries, int k_) {
+    n = n_queries;
+    k = k_;
+    ids.assign(n * static_cast<std::size_t>(k), -1);
+    dist2.assign(n * static_cast<std::size_t>(k), std::numeric_limits<float>::infinity());
+    counts.assign(n, 0);
+    examined.clear();
+  }
+  std::int64_t id(std::size_t q, int j) const { return ids[q * static_cast<std::size_t>(k) + j]; }
+  float d2(std::size_t q, int j) const { return dist2[q * static_cast<std::size_t>(k) + j]; }
+};
+struct RadiusResult64 {
+  std::size_t n = 0;
+  std::vector<std::int64_t> offsets;
+  std::vector<std::int64_t> ids;
+  std::vector<float> dist2;
+  std::vector<std::int64_t> found;
+  std::size_t truncated_queries = 0;
+  std::vector<std::int32_t> examined;
+
+  std::size_t count(std::size_t q) const { return static_cast<std::size_t>(offsets[q + 1] - offsets[q]); }
+  std::size_t total() const { return offsets.empty() ? 0 : static_cast<std::size_t>(offsets.back()); }
+};
+
 // The device buffers of one radius dispatch (Index::enqueue_radius_batch): counts and examined
 // per query row, offsets (ulong) per query of the dispatch, ids/dist2 the fill pass's slices.
 struct RadiusBuffers {

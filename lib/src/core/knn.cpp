@@ -131,7 +131,9 @@ int Index::choose_scale_exponent(const float* points, std::size_t n) {
 const float* Index::prepare_points(const float* points, std::size_t n, std::vector<float>& storage) {
   if (n == 0) throw Error(method() + ": the point set is empty (N = 0)");
   if (n > 0x7ffffffeu)
-    throw Error(method() + ": N = " + std::to_string(n) + " exceeds the int32 index range");
+    throw Error(method() + ": N = " + std::to_string(n) +
+                " points exceeds one index's int32 id range (at most 2^31 - 2 points; a DistributedIndex "
+                "over enough ranks holds more, with int64 ids)");
   // One parallel pass for the validation and the scale; the serial check only to name the
   // first non-finite point.
   const detail::PointScan box = detail::scan_points(points, n);

@@ -145,7 +145,8 @@ Parameters build_parameters(const DistributedBuildParams& p) {
   Parameters ps = {{"method", p.method},
                    {"boxes_per_rank", std::to_string(p.boxes_per_rank)},
                    {"border_factor", f32(p.border_factor)},
-                   {"deadline_s", f64(p.deadline_s)}};
+                   {"deadline_s", f64(p.deadline_s)},
+                   {"id_base", std::to_string(p.id_base)}};
   for (const auto& [n, v] : p.options.values) ps.emplace_back("option " + n, v);
   return ps;
 }

@@ -26,37 +26,43 @@ using namespace distributed::wire;
 
 namespace {
 
-// A result row on the wire: k ids, k squared distances, the count and the points examined.
-std::size_t row_bytes(int k) { return static_cast<std::size_t>(k) * 8 + 8; }
+// A result row on the wire: k global ids (int64), k squared distances, the count and the points
+// examined.
+std::size_t row_bytes(int k) { return static_cast<std::size_t>(k) * 12 + 8; }
 
-void pack_row(unsigned char* dst, const KnnResult& r, std::size_t q, int k) {
+// Row q of a local answer (local ids) packed with the shard's global ids.
+void pack_row(unsigned char* dst, const KnnResult& r, std::size_t q, int k, const std::vector<std::int64_t>& global) {
   const std::size_t kk = static_cast<std::size_t>(k);
-  std::memcpy(dst, &r.ids[q * kk], kk * 4);
-  std::memcpy(dst + kk * 4, &r.dist2[q * kk], kk * 4);
+  for (std::size_t j = 0; j < kk; ++j) {
+    const std::int32_t id = r.ids[q * kk + j];
+    const std::int64_t g = id >= 0 ? global[static_cast<std::size_t>(id)] : -1;
+    std::memcpy(dst + 8 * j, &g, 8);
+  }
+  std::memcpy(dst + kk * 8, &r.dist2[q * kk], kk * 4);
   const std::int32_t tail[2] = {r.counts[q], r.examined.empty() ? 0 : r.examined[q]};
-  std::memcpy(dst + kk * 8, tail, 8);
+  std::memcpy(dst + kk * 12, tail, 8);
 }
 
 // Merges the row `src` (on the wire) into row q of `out` (both sorted by (distance, id)): the k
 // best of both. An id in both (the owner's second answer repeats points of its first) is the same
 // point with the same distance and is taken once. The order of merging does not matter: (distance,
 // id) is a total order.
-void merge_row(KnnResult& out, std::size_t q, const unsigned char* src, int k,
-               std::vector<std::int32_t>& ids_tmp, std::vector<float>& d2_tmp) {
+void merge_row(KnnResult64& out, std::size_t q, const unsigned char* src, int k,
+               std::vector<std::int64_t>& ids_tmp, std::vector<float>& d2_tmp) {
   const std::size_t kk = static_cast<std::size_t>(k);
   std::int32_t tail[2];
-  std::memcpy(tail, src + kk * 8, 8);
+  std::memcpy(tail, src + kk * 12, 8);
   const int cb = tail[0];
   if (!out.examined.empty()) out.examined[q] += tail[1];
   if (cb <= 0) return;
-  std::int32_t* ia = &out.ids[q * kk];
+  std::int64_t* ia = &out.ids[q * kk];
   float* da = &out.dist2[q * kk];
   const int ca = out.counts[q];
   ids_tmp.resize(kk);
   d2_tmp.resize(kk);
-  std::memcpy(ids_tmp.data(), src, kk * 4);
-  std::memcpy(d2_tmp.data(), src + kk * 4, kk * 4);
-  std::vector<std::int32_t> mi(kk, -1);
+  std::memcpy(ids_tmp.data(), src, kk * 8);
+  std::memcpy(d2_tmp.data(), src + kk * 8, kk * 4);
+  std::vector<std::int64_t> mi(kk, -1);
   std::vector<float> md(kk, std::numeric_limits<float>::infinity());
   int a = 0, b = 0, m = 0;
   while (m < k && (a < ca || b < cb)) {
@@ -103,6 +109,8 @@ DistributedIndex::DistributedIndex(MPI_Comm comm, std::shared_ptr<Runtime> runti
                     std::to_string(params.deadline_s));
       if (params.deadline_s < 0)
         if (const std::string e = distributed::deadline_env_error(); !e.empty()) throw Error(e);
+      if (params.id_base < 0 || params.id_base > (std::int64_t(1) << 62))
+        throw Error("id_base must be in [0, 2^62], got " + std::to_string(params.id_base));
     } catch (const std::exception& e) {
       err = what_of(e);
     }
@@ -111,6 +119,7 @@ DistributedIndex::DistributedIndex(MPI_Comm comm, std::shared_ptr<Runtime> runti
     method_ = info->name;
     exact_ = info->exact;
     border_factor_ = params.border_factor;
+    id_base_ = params.id_base;
 
     // Global indices: this rank's part follows the parts of lower ranks.
     std::uint64_t n_local = n, offset = 0, total = 0;
@@ -119,16 +128,21 @@ DistributedIndex::DistributedIndex(MPI_Comm comm, std::shared_ptr<Runtime> runti
     MPI_Allreduce(&n_local, &total, 1, MPI_UINT64_T, MPI_SUM, comm_);
     // The same totals on every rank, so every rank throws here or none does.
     if (total == 0) throw Error(std::string(kWhat) + ": no points on any rank");
-    if (total > 2147483646u)
-      throw Error(std::string(kWhat) + ": " + std::to_string(total) +
-                  " points in all: result ids are int32, at most 2^31 - 2 points");
+    // Global ids are int64; a shard is one local index, whose ids are int32 (2^31 - 2 points).
+    if (total > distributed::kMaxPoints)
+      throw Error(std::string(kWhat) + ": " + std::to_string(total) + " points in all: at most 2^40 - 1");
+    if (const std::uint64_t largest = (total + R - 1) / R; largest > 0x7ffffffeu)
+      throw Error(std::string(kWhat) + ": " + std::to_string(total) + " points over " + std::to_string(R) +
+                  " ranks make shards of up to " + std::to_string(largest) +
+                  " points, past one index's int32 id range (2^31 - 2 points): use at least " +
+                  std::to_string((total + 0x7ffffffdu) / 0x7ffffffeu) + " ranks");
     n_global_ = static_cast<std::size_t>(total);
 
     for (std::size_t i = 0; i < n && err.empty(); ++i) {
       const float* p = points + 3 * i;
       if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) {
         std::ostringstream os;
-        os << "points: point " << offset + i << " (this rank's point " << i
+        os << "points: point " << id_base_ + static_cast<std::int64_t>(offset + i) << " (this rank's point " << i
            << ") has a non-finite coordinate (" << p[0] << ", " << p[1] << ", " << p[2] << ")";
         err = os.str();
       }
@@ -142,8 +156,7 @@ DistributedIndex::DistributedIndex(MPI_Comm comm, std::shared_ptr<Runtime> runti
     scale_ = q.scale;
     std::vector<Composite> sorted(n);
     for (std::size_t i = 0; i < n; ++i)
-      sorted[i] = distributed::composite(distributed::hilbert_key(q, points + 3 * i),
-                                         static_cast<std::uint32_t>(offset + i));
+      sorted[i] = distributed::composite(distributed::hilbert_key(q, points + 3 * i), offset + i);
     std::sort(sorted.begin(), sorted.end());
     const std::vector<Composite> split = distributed::find_splitters(comm_, sorted, total);
 
@@ -168,9 +181,9 @@ DistributedIndex::DistributedIndex(MPI_Comm comm, std::shared_ptr<Runtime> runti
                       : n;
         send_counts[r] = end - pos;
         for (; pos < end; ++pos) {
-          const std::uint32_t g = distributed::index_of(sorted[pos]);
+          const std::uint64_t g = distributed::position_of(sorted[pos]);
           const float* p = points + 3 * (g - offset);
-          out_points[pos] = {{p[0], p[1], p[2]}, static_cast<std::int32_t>(g)};
+          out_points[pos] = {{p[0], p[1], p[2]}, 0, g};
         }
       }
     }
@@ -203,9 +216,7 @@ DistributedIndex::DistributedIndex(MPI_Comm comm, std::shared_ptr<Runtime> runti
     {
       std::vector<std::pair<Composite, std::size_t>> order(m);
       for (std::size_t i = 0; i < m; ++i)
-        order[i] = {distributed::composite(distributed::hilbert_key(q, shard[i].xyz),
-                                           static_cast<std::uint32_t>(shard[i].global)),
-                    i};
+        order[i] = {distributed::composite(distributed::hilbert_key(q, shard[i].xyz), shard[i].position), i};
       std::sort(order.begin(), order.end());
       for (std::size_t i = 0; i < m; ++i)
         std::memcpy(&xyz[3 * i], shard[order[i].second].xyz, 12);
@@ -238,10 +249,10 @@ DistributedIndex::DistributedIndex(MPI_Comm comm, std::shared_ptr<Runtime> runti
     // The local index over the shard in global-index order: a row's ties then go to the lower
     // local index, which is the lower global index, as in one process.
     std::sort(shard.begin(), shard.end(),
-              [](const PointRecord& a, const PointRecord& b) { return a.global < b.global; });
+              [](const PointRecord& a, const PointRecord& b) { return a.position < b.position; });
     shard_ids_.resize(m);
     for (std::size_t i = 0; i < m; ++i) {
-      shard_ids_[i] = shard[i].global;
+      shard_ids_[i] = id_base_ + static_cast<std::int64_t>(shard[i].position);
       std::memcpy(&xyz[3 * i], shard[i].xyz, 12);
     }
     std::vector<PointRecord>().swap(shard);
@@ -343,8 +354,31 @@ void DistributedIndex::ranks_meeting(const float q[3], double bound, int skip, s
   }
 }
 
+void DistributedIndex::require_int32_ids(const char* call) const {
+  // id_bound() is the same on every rank: every rank throws here or none does.
+  if (!ids_fit_int32())
+    throw Error(std::string(kWhat) + "::" + call + ": the global ids reach " + std::to_string(id_bound() - 1) +
+                " (id_base " + std::to_string(id_base_) + " + " + std::to_string(n_global_) +
+                " points), past int32: pass a " + (call[0] == 'q' ? "KnnResult64" : "RadiusResult64") +
+                " (int64 ids)");
+}
+
 QueryStats DistributedIndex::query(const float* queries, std::size_t n, const SearchParams& params,
                                    KnnResult& out, DistributedQueryStats* stats) const {
+  require_int32_ids("query");
+  KnnResult64 wide;
+  const QueryStats st = query(queries, n, params, wide, stats);
+  out.n = wide.n;
+  out.k = wide.k;
+  out.ids.assign(wide.ids.begin(), wide.ids.end());  // every id fits: checked above
+  out.dist2 = std::move(wide.dist2);
+  out.counts = std::move(wide.counts);
+  out.examined = std::move(wide.examined);
+  return st;
+}
+
+QueryStats DistributedIndex::query(const float* queries, std::size_t n, const SearchParams& params,
+                                   KnnResult64& out, DistributedQueryStats* stats) const {
   Stopwatch wall;
   QueryStats st;
   st.n_queries = n;
@@ -409,9 +443,7 @@ QueryStats DistributedIndex::query(const float* queries, std::size_t n, const Se
         if (cls == 1) p.A = border_A, p.recall_target = 0;
         KnnResult r;
         add_stats(st, local_->query(xyz.data(), which.size(), p, r));
-        for (auto& id : r.ids)
-          if (id >= 0) id = shard_ids_[static_cast<std::size_t>(id)];
-        for (std::size_t j = 0; j < which.size(); ++j) pack_row(&rows[which[j] * rb], r, j, k);
+        for (std::size_t j = 0; j < which.size(); ++j) pack_row(&rows[which[j] * rb], r, j, k, shard_ids_);
       }
     } catch (const std::exception& ex) {
       e = std::string(phase) + ": " + what_of(ex);
@@ -463,10 +495,10 @@ QueryStats DistributedIndex::query(const float* queries, std::size_t n, const Se
     for (std::size_t j = 0; j < sent.size(); ++j) {
       const std::size_t i = sent[j];
       const unsigned char* src = &back[j * rb];
-      std::memcpy(&out.ids[i * kk], src, kk * 4);
-      std::memcpy(&out.dist2[i * kk], src + kk * 4, kk * 4);
+      std::memcpy(&out.ids[i * kk], src, kk * 8);
+      std::memcpy(&out.dist2[i * kk], src + kk * 8, kk * 4);
       std::int32_t tail[2];
-      std::memcpy(tail, src + kk * 8, 8);
+      std::memcpy(tail, src + kk * 12, 8);
       out.counts[i] = tail[0];
       if (params.count_examined) out.examined[i] = tail[1];
     }
@@ -514,7 +546,7 @@ QueryStats DistributedIndex::query(const float* queries, std::size_t n, const Se
     auto [back, moved] = round_trip(records, send_counts, "phase 2 (ball)");
     ds.extra_sent = moved.first;
     ds.extra_received = moved.second;
-    std::vector<std::int32_t> ids_tmp;
+    std::vector<std::int64_t> ids_tmp;
     std::vector<float> d2_tmp;
     for (std::size_t j = 0; j < extra.size(); ++j)
       merge_row(out, extra[j].query, &back[j * rb], k, ids_tmp, d2_tmp);

@@ -25,6 +25,22 @@ using namespace distributed::wire;
 QueryStats DistributedIndex::radius_search(const float* queries, std::size_t n, float r,
                                            const RadiusParams& params, RadiusResult& out,
                                            DistributedQueryStats* stats) const {
+  require_int32_ids("radius_search");
+  RadiusResult64 wide;
+  const QueryStats st = radius_search(queries, n, r, params, wide, stats);
+  out.n = wide.n;
+  out.offsets = std::move(wide.offsets);
+  out.ids.assign(wide.ids.begin(), wide.ids.end());  // every id fits: checked above
+  out.dist2 = std::move(wide.dist2);
+  out.found = std::move(wide.found);
+  out.truncated_queries = wide.truncated_queries;
+  out.examined = std::move(wide.examined);
+  return st;
+}
+
+QueryStats DistributedIndex::radius_search(const float* queries, std::size_t n, float r,
+                                           const RadiusParams& params, RadiusResult64& out,
+                                           DistributedQueryStats* stats) const {
   Stopwatch wall;
   QueryStats st;
   st.n_queries = n;
@@ -86,10 +102,11 @@ QueryStats DistributedIndex::radius_search(const float* queries, std::size_t n, 
     std::int64_t count, found, examined;
   };
   struct Entry {
-    std::int32_t id;
+    std::int64_t id;  // global
     float d2;
+    std::uint32_t pad;
   };
-  static_assert(sizeof(Counts) == 24 && sizeof(Entry) == 8, "sent as raw bytes");
+  static_assert(sizeof(Counts) == 24 && sizeof(Entry) == 16, "sent as raw bytes");
   std::vector<Counts> counts(m);
   std::vector<Entry> entries;
   std::vector<std::size_t> entries_to(R, 0);
@@ -105,7 +122,7 @@ QueryStats DistributedIndex::radius_search(const float* queries, std::size_t n, 
       add_stats(st, local_->radius_search(xyz.data(), m, r, p, rr));
       entries.resize(rr.total());
       for (std::size_t j = 0; j < rr.total(); ++j)
-        entries[j] = Entry{shard_ids_[static_cast<std::size_t>(rr.ids[j])], rr.dist2[j]};
+        entries[j] = Entry{shard_ids_[static_cast<std::size_t>(rr.ids[j])], rr.dist2[j], 0};
       std::size_t rec = 0;
       for (std::size_t src = 0; src < R; ++src)
         for (std::size_t c = 0; c < recv_counts[src]; ++c, ++rec) {
@@ -136,7 +153,7 @@ QueryStats DistributedIndex::radius_search(const float* queries, std::size_t n, 
     ds.bytes_received = from_others * sizeof(QueryRecord) + to_others * sizeof(Counts) + entries_in * sizeof(Entry);
   }
   // Merge: the answers come back in the order the records were sent (by destination rank).
-  std::vector<std::vector<std::pair<float, std::int32_t>>> rows(n);
+  std::vector<std::vector<std::pair<float, std::int64_t>>> rows(n);
   std::vector<std::int64_t> found(n, 0), examined(n, 0);
   {
     std::size_t at = 0;

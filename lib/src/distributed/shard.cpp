@@ -38,7 +38,7 @@ std::vector<Composite> find_splitters(MPI_Comm comm, const std::vector<Composite
   // splitter r: the smallest v with #{elements <= v} >= t_r + 1, t_r = floor(r N / R).
   std::vector<std::uint64_t> target(R);
   for (std::size_t r = 0; r < R; ++r) target[r] = (n_global * r) / R + 1;
-  const Composite top = (Composite(1) << 95) - 1;  // every composite is <= top
+  const Composite top = (Composite(1) << (3 * kKeyBits + kPositionBits)) - 1;  // every composite is <= top
   std::vector<Composite> lo(R, 0), hi(R, top), mid(R);
   std::vector<std::uint64_t> local(R), global(R);
   for (;;) {

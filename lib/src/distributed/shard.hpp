@@ -14,14 +14,17 @@
 namespace bhcl::distributed {
 
 // Hilbert keys take 3 x 21 = 63 bits; a point's place in the global order is the composite
-// (key << 32) | global index, unique per point (global indices are below 2^31).
+// (key << 40) | position, unique per point (positions over all ranks, from 0, are below 2^40:
+// kMaxPoints; global ids add DistributedBuildParams::id_base only on the way out).
 using Composite = unsigned __int128;
 inline constexpr int kKeyBits = 21;
-inline Composite composite(std::uint64_t key, std::uint32_t global_index) {
-  return (Composite(key) << 32) | global_index;
+inline constexpr int kPositionBits = 40;
+inline constexpr std::uint64_t kMaxPoints = (std::uint64_t(1) << kPositionBits) - 1;
+inline Composite composite(std::uint64_t key, std::uint64_t position) {
+  return (Composite(key) << kPositionBits) | position;
 }
-inline std::uint64_t key_of(Composite c) { return static_cast<std::uint64_t>(c >> 32); }
-inline std::uint32_t index_of(Composite c) { return static_cast<std::uint32_t>(c & 0xffffffffu); }
+inline std::uint64_t key_of(Composite c) { return static_cast<std::uint64_t>(c >> kPositionBits); }
+inline std::uint64_t position_of(Composite c) { return static_cast<std::uint64_t>(c) & kMaxPoints; }
 
 // The quantiser of the block-hash build over the bounding box of every rank's points (collective:
 // one allreduce). Every rank gets the same one, so a position has the same key everywhere.
@@ -35,7 +38,7 @@ inline std::uint64_t hilbert_key(const blockhash::Quantiser& q, const float* p) 
 // is the element of global rank floor(r * n_global / R) in the order of all composites, so that
 // rank r's shard, [splitter[r], splitter[r + 1]), holds floor((r+1) N / R) - floor(r N / R)
 // points (an empty shard where two splitters coincide). Found by bisection on the composite's
-// value with one allreduce of R counts per step (95 steps), so it is exact and deterministic and
+// value with one allreduce of R counts per step (103 steps), so it is exact and deterministic and
 // moves no points.
 std::vector<Composite> find_splitters(MPI_Comm comm, const std::vector<Composite>& sorted_local,
                                       std::uint64_t n_global);

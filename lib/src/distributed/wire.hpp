@@ -12,12 +12,13 @@ namespace bhcl::distributed::wire {
 
 inline constexpr const char* kWhat = "DistributedIndex";
 
-// A point on its way to its shard.
+// A point on its way to its shard: its position over all ranks (its global id less id_base).
 struct PointRecord {
   float xyz[3];
-  std::int32_t global;
+  std::uint32_t pad;
+  std::uint64_t position;
 };
-static_assert(sizeof(PointRecord) == 16, "PointRecord is sent as 16 raw bytes");
+static_assert(sizeof(PointRecord) == 24, "PointRecord is sent as 24 raw bytes");
 
 // A query on its way to a rank; budget_class 1 asks for the border budget (approximate methods).
 struct QueryRecord {
