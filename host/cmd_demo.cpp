@@ -97,8 +97,8 @@ int run_demo(const Args& args) {
   return 0;
 }
 
-RegisterCommand reg("demo", "the README's main job: the Cornell Box render and a benchmark table",
-                    declare_demo, run_demo);
+RegisterCommand reg_demo("demo", "the README's main job: the Cornell Box render and a benchmark table",
+                         declare_demo, run_demo);
 
 }  // namespace
 }  // namespace bhcl::cli

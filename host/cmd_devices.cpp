@@ -42,8 +42,8 @@ int run_devices(const Args& args) {
   return 0;
 }
 
-RegisterCommand reg("devices", "the OpenCL platforms and devices, and which one is picked",
-                    declare_devices, run_devices);
+RegisterCommand reg_devices("devices", "the OpenCL platforms and devices, and which one is picked",
+                            declare_devices, run_devices);
 
 }  // namespace
 }  // namespace bhcl::cli

@@ -213,8 +213,8 @@ int run_eval(const Args& args) {
   return 0;
 }
 
-RegisterCommand reg("eval", "a method against an exact one: accuracy metrics and timings",
-                    declare_eval, run_eval);
+RegisterCommand reg_eval("eval", "a method against an exact one: accuracy metrics and timings",
+                         declare_eval, run_eval);
 
 }  // namespace
 }  // namespace bhcl::cli

@@ -238,8 +238,8 @@ int run_knn(const Args& args) {
   return 0;
 }
 
-RegisterCommand reg("knn", "k nearest neighbours of every query, written as raw arrays", declare_knn,
-                    run_knn);
+RegisterCommand reg_knn("knn", "k nearest neighbours of every query, written as raw arrays", declare_knn,
+                        run_knn);
 
 }  // namespace
 }  // namespace bhcl::cli

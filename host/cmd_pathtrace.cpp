@@ -116,8 +116,8 @@ int run_pathtrace(const Args& args) {
   return 0;
 }
 
-RegisterCommand reg("pathtrace", "a path-traced reference image of a render scene (no photon map)",
-                    declare_pathtrace, run_pathtrace);
+RegisterCommand reg_pathtrace("pathtrace", "a path-traced reference image of a render scene (no photon map)",
+                              declare_pathtrace, run_pathtrace);
 
 }  // namespace
 }  // namespace bhcl::cli

@@ -226,8 +226,8 @@ int run_render(const Args& args) {
                       rt, device, exposure_opt});
 }
 
-RegisterCommand reg("render", "the photon-mapping renderer, final gather answered by a kNN method",
-                    declare_render, run_render);
+RegisterCommand reg_render("render", "the photon-mapping renderer, final gather answered by a kNN method",
+                           declare_render, run_render);
 
 }  // namespace
 }  // namespace bhcl::cli
