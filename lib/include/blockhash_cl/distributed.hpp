@@ -117,7 +117,7 @@ struct DistributedQueryStats {
   double phase1_s = 0, phase2_s = 0;  // wall time of each phase on this rank (routing included)
 };
 
-class DistributedIndex {
+class DistributedIndex final : public SearchIndex {
  public:
   // Collective over `comm`. `points`: this rank's part, n x 3 floats (n may be 0 on some ranks,
   // not on all). `runtime`: this rank's OpenCL device (each rank opens its own). Throws
@@ -134,7 +134,11 @@ class DistributedIndex {
   // the points examined summed over the ranks visited when params.count_examined is set. Returns
   // this rank's QueryStats (see DistributedQueryStats); `stats`, when given, gets the rest.
   QueryStats query(const float* queries, std::size_t n, const SearchParams& params, KnnResult& out,
-                   DistributedQueryStats* stats = nullptr) const;
+                   DistributedQueryStats* stats) const;
+  QueryStats query(const float* queries, std::size_t n, const SearchParams& params,
+                   KnnResult& out) const override {
+    return query(queries, n, params, out, nullptr);
+  }
 
   // Collective radius search (knn.hpp's Index::radius_search, same contract and layout): each
   // finite query goes to its owner and to every rank whose boxes meet the ball of radius r (the
@@ -144,11 +148,15 @@ class DistributedIndex {
   // must pass the same r and max_results. `stats` gets ranks_visited, owner, the moved counts
   // (in owner_sent/received) and bytes.
   QueryStats radius_search(const float* queries, std::size_t n, float r, const RadiusParams& params,
-                           RadiusResult& out, DistributedQueryStats* stats = nullptr) const;
+                           RadiusResult& out, DistributedQueryStats* stats) const;
+  QueryStats radius_search(const float* queries, std::size_t n, float r, const RadiusParams& params,
+                           RadiusResult& out) const override {
+    return radius_search(queries, n, r, params, out, nullptr);
+  }
 
-  std::string method() const { return method_; }
-  bool exact() const { return exact_; }
-  std::size_t size() const { return n_global_; }  // points over all ranks
+  std::string method() const override { return method_; }
+  bool exact() const override { return exact_; }
+  std::size_t size() const override { return n_global_; }  // points over all ranks
   int rank() const { return rank_; }
   int ranks() const { return ranks_; }
   std::size_t shard_size() const { return shard_ids_.size(); }
