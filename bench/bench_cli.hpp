@@ -9,6 +9,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <functional>
 #include <map>
 #include <set>
 #include <string>
@@ -36,17 +37,21 @@ class BenchCli {
     for (const OptionInfo* o : options_in(method_info(method).options, scope)) {
       if (skip.count(o->name) || o->kind == OptionInfo::Kind::File || app_.get_option_no_throw("--" + o->name)) continue;
       app_.add_option("--" + o->name, given[o->name], method + ": " + o->help + " (" + o->range_text() + ")")
-          ->check([o](const std::string& v) {
-            try {
-              o->parse(v);
-              return std::string();
-            } catch (const std::exception& e) {
-              return std::string(e.what());
-            }
-          })
+          ->check(table_check(o))
           ->default_str(o->def)
           ->type_name(o->kind == OptionInfo::Kind::Integer ? "INT" : o->kind == OptionInfo::Kind::Number ? "NUM" : "NAME");
     }
+  }
+  // A CLI11 check by the table's own parser: its message for a value it refuses, else none.
+  static std::function<std::string(const std::string&)> table_check(const OptionInfo* o) {
+    return [o](const std::string& v) {
+      try {
+        o->parse(v);
+        return std::string();
+      } catch (const std::exception& e) {
+        return std::string(e.what());
+      }
+    };
   }
   // The given search options (table_options) into p.
   static void apply_search(const std::string& method, const std::map<std::string, std::string>& given,

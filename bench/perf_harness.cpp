@@ -196,14 +196,7 @@ Options parse(int argc, char** argv) {
     cli.app()
         .add_option("--" + s->name, o.sweep_values[i], "blockhash: " + s->help + " (" + s->range_text() + "), comma separated")
         ->delimiter(',')
-        ->check([s](const std::string& v) {
-          try {
-            s->parse(v);
-            return std::string();
-          } catch (const std::exception& e) {
-            return std::string(e.what());
-          }
-        })
+        ->check(bench::BenchCli::table_check(s))
         ->type_name("LIST");
   }
   std::string keys;  // block hashing's build options, from its table

@@ -378,7 +378,25 @@ std::size_t knn_slice_rows(std::size_t n, int k, bool count_examined, bool bar) 
   return std::max<std::size_t>(1, std::min(rows, n));
 }
 
-QueryStats radius_in_slices(const Index& index, const std::vector<float>& queries, float radius,
+// The slice loop under both runners: answer(first, m) answers queries [first, first + m) and
+// returns its stats (no queries: one empty slice); the stats summed, the bar drawn, the wall time.
+static QueryStats in_slices(std::size_t n, std::size_t slice, render::Progress& bar,
+                            const std::function<QueryStats(std::size_t, std::size_t)>& answer) {
+  auto t0 = std::chrono::steady_clock::now();
+  QueryStats total;
+  for (std::size_t first = 0; first < n || first == 0; first += slice) {
+    const std::size_t m = std::min(slice, n - first);
+    total.add_slice(answer(first, m));
+    bar.update(double(first + m) / double(std::max<std::size_t>(n, 1)));
+    if (n == 0) break;
+  }
+  bar.finish();
+  total.n_queries = n;
+  total.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return total;
+}
+
+QueryStats radius_in_slices(const SearchIndex& index, const std::vector<float>& queries, float radius,
                             const RadiusParams& params, bool quiet, const RadiusSink& sink) {
   const std::size_t n = queries.size() / 3;
   render::Progress bar("radius " + index.method() + " (" + std::to_string(n) + " queries)", !quiet);
@@ -387,24 +405,15 @@ QueryStats radius_in_slices(const Index& index, const std::vector<float>& querie
   std::size_t slice = std::size_t(1) << 18;
   if (bar.enabled()) slice = std::min(slice, std::max<std::size_t>(std::size_t(1) << 15, n / 100));
   if (const std::size_t o = slice_rows_override()) slice = o;
-  auto t0 = std::chrono::steady_clock::now();
   RadiusResult part;
-  QueryStats st;
-  for (std::size_t first = 0; first < n || first == 0; first += slice) {
-    const std::size_t m = std::min(slice, n - first);
-    QueryStats s = index.radius_search(queries.data() + 3 * first, m, radius, params, part);
+  return in_slices(n, slice, bar, [&](std::size_t first, std::size_t m) {
+    const QueryStats st = index.radius_search(queries.data() + 3 * first, m, radius, params, part);
     sink(first, part);
-    st.add_slice(s);
-    bar.update(double(first + m) / double(std::max<std::size_t>(n, 1)));
-    if (n == 0) break;
-  }
-  bar.finish();
-  st.n_queries = n;
-  st.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  return st;
+    return st;
+  });
 }
 
-QueryStats radius_with_progress(const Index& index, const std::vector<float>& queries, float radius,
+QueryStats radius_with_progress(const SearchIndex& index, const std::vector<float>& queries, float radius,
                                 const RadiusParams& params, RadiusResult& all, bool quiet) {
   all = RadiusResult{};
   all.offsets.assign(1, 0);
@@ -434,29 +443,20 @@ std::unique_ptr<Index> build_with_progress(const std::string& method, std::share
   return index;
 }
 
-QueryStats query_in_slices(const Index& index, const std::vector<float>& queries, const SearchParams& params,
+QueryStats query_in_slices(const SearchIndex& index, const std::vector<float>& queries, const SearchParams& params,
                            bool quiet, const KnnSink& sink) {
   const std::size_t n = queries.size() / 3;
   render::Progress bar("query " + index.method() + " (" + std::to_string(n) + " queries)", !quiet);
   const std::size_t slice = knn_slice_rows(n, params.k, params.count_examined, bar.enabled());
-  auto t0 = std::chrono::steady_clock::now();
-  QueryStats total;
   KnnResult part;
-  for (std::size_t first = 0; first < n || first == 0; first += slice) {
-    const std::size_t m = std::min(slice, n - first);
-    QueryStats st = index.query(queries.data() + 3 * first, m, params, part);
+  return in_slices(n, slice, bar, [&](std::size_t first, std::size_t m) {
+    const QueryStats st = index.query(queries.data() + 3 * first, m, params, part);
     sink(first, part);
-    total.add_slice(st);
-    bar.update(double(first + m) / double(std::max<std::size_t>(n, 1)));
-    if (n == 0) break;
-  }
-  bar.finish();
-  total.n_queries = n;
-  total.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  return total;
+    return st;
+  });
 }
 
-QueryStats query_with_progress(const Index& index, const std::vector<float>& queries,
+QueryStats query_with_progress(const SearchIndex& index, const std::vector<float>& queries,
                                const SearchParams& params, KnnResult& out, bool quiet) {
   const std::size_t n = queries.size() / 3, k = static_cast<std::size_t>(params.k);
   out.resize(n, params.k);

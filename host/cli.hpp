@@ -118,10 +118,10 @@ void check_method_options(const Args& args, const std::vector<std::string>& meth
 std::unique_ptr<Index> build_with_progress(const std::string& method, std::shared_ptr<Runtime> rt,
                                            const std::vector<float>& points,
                                            const MethodOptions& options, bool quiet);
-QueryStats query_with_progress(const Index& index, const std::vector<float>& queries,
+QueryStats query_with_progress(const SearchIndex& index, const std::vector<float>& queries,
                                const SearchParams& params, KnnResult& out, bool quiet);
 // The same for a radius search (Index::radius_search; the slices concatenated).
-QueryStats radius_with_progress(const Index& index, const std::vector<float>& queries, float radius,
+QueryStats radius_with_progress(const SearchIndex& index, const std::vector<float>& queries, float radius,
                                 const RadiusParams& params, RadiusResult& out, bool quiet);
 // The same, each slice handed to `sink` as it finishes (first query, its rows) and then dropped,
 // so that the whole result is never held (bhcl knn writes the slices as they come, ResultFiles).
@@ -129,9 +129,9 @@ QueryStats radius_with_progress(const Index& index, const std::vector<float>& qu
 // progress bar also about a hundredth of the batch each.
 using KnnSink = std::function<void(std::size_t first, const KnnResult& part)>;
 using RadiusSink = std::function<void(std::size_t first, const RadiusResult& part)>;
-QueryStats query_in_slices(const Index& index, const std::vector<float>& queries, const SearchParams& params,
+QueryStats query_in_slices(const SearchIndex& index, const std::vector<float>& queries, const SearchParams& params,
                            bool quiet, const KnnSink& sink);
-QueryStats radius_in_slices(const Index& index, const std::vector<float>& queries, float radius,
+QueryStats radius_in_slices(const SearchIndex& index, const std::vector<float>& queries, float radius,
                             const RadiusParams& params, bool quiet, const RadiusSink& sink);
 std::size_t knn_slice_rows(std::size_t n, int k, bool count_examined, bool bar);
 // --radius and the tables' radius options, checked for `methods`: --k, --max-radius and the

@@ -4,7 +4,6 @@
 #include <cmath>
 #include <cstdio>
 
-#include "blockhash_cl/blockhash.hpp"
 #include "blockhash_cl/error.hpp"
 #include "blockhash_cl/factory.hpp"
 #include "blockhash_cl/io.hpp"
@@ -53,6 +52,84 @@ RadiusParams radius_options(const Args& args, float& radius) {
 
 namespace {
 
+// What bhcl knn's runner did.
+struct Answered {
+  QueryStats st;
+  SearchParams params;  // kNN: the parameters the batch ran with (SearchIndex::params_for_batch)
+  BatchTuning bt;       // kNN: what params_for_batch did
+  std::size_t found = 0;      // neighbours found, or radius results
+  std::size_t truncated = 0;  // radius: queries cut at --max-results
+};
+
+// bhcl knn's one runner, over any SearchIndex (an Index, or the copies of a MultiDeviceIndex):
+// kNN with the batch's parameters (block hashing: a recall target, or the block layouts' default
+// one, tuned on a sample of these queries, not on the index's own points) or, with
+// `radius_params`, radius search; in slices (a progress bar on a terminal), each slice's rows
+// written as it finishes (no second copy of the result), renamed in place at the end: a failure
+// leaves the old files and no temporary. Results do not depend on the slicing.
+Answered answer(const Args& args, const SearchIndex& index, const std::vector<float>& queries,
+                const SearchParams& params, const RadiusParams* radius_params, float radius) {
+  const std::size_t n = queries.size() / 3;
+  const bool quiet = args.flag("quiet");
+  Answered a;
+  if (radius_params) {
+    RadiusOutputs files(args, n);
+    a.st = radius_in_slices(index, queries, radius, *radius_params, quiet,
+                            [&](std::size_t, const RadiusResult& part) { files.append(part); });
+    files.commit();
+    a.found = files.total();
+    a.truncated = files.truncated_queries();
+  } else {
+    a.params = index.params_for_batch(queries.data(), n, params, &a.bt);
+    KnnOutputs files(args, n, a.params.k);
+    a.st = query_in_slices(index, queries, a.params, quiet,
+                           [&](std::size_t, const KnnResult& part) { files.append(part); });
+    files.commit();
+    a.found = files.found();
+  }
+  return a;
+}
+
+// A MultiDeviceIndex as the runner queries it: each device's share summed over the slices.
+class SharesSummed final : public SearchIndex {
+ public:
+  explicit SharesSummed(const MultiDeviceIndex& index) : index_(index) {}
+  std::string method() const override { return index_.method(); }
+  bool exact() const override { return index_.exact(); }
+  std::size_t size() const override { return index_.size(); }
+  QueryStats query(const float* queries, std::size_t n, const SearchParams& params,
+                   KnnResult& out) const override {
+    std::vector<DeviceShare> s;
+    const QueryStats st = index_.query(queries, n, params, out, &s);
+    add(s);
+    return st;
+  }
+  QueryStats radius_search(const float* queries, std::size_t n, float r, const RadiusParams& params,
+                           RadiusResult& out) const override {
+    std::vector<DeviceShare> s;
+    const QueryStats st = index_.radius_search(queries, n, r, params, out, &s);
+    add(s);
+    return st;
+  }
+  const std::vector<DeviceShare>& shares() const { return shares_; }
+
+ private:
+  void add(const std::vector<DeviceShare>& s) const {
+    if (shares_.empty()) {
+      shares_ = s;
+      return;
+    }
+    for (std::size_t d = 0; d < s.size() && d < shares_.size(); ++d) {
+      shares_[d].queries += s[d].queries;
+      shares_[d].weight = s[d].weight;  // the latest split
+      shares_[d].stats.add_slice(s[d].stats);
+      shares_[d].stats.wall_s += s[d].stats.wall_s;
+    }
+  }
+  const MultiDeviceIndex& index_;
+  mutable std::vector<DeviceShare> shares_;
+};
+
 // bhcl knn --radius: Index::radius_search in slices (a progress bar on a terminal), the slices
 // concatenated (results do not depend on the slicing).
 int run_radius(const Args& args) {
@@ -67,13 +144,9 @@ int run_radius(const Args& args) {
   const auto& [mopt, points, queries, N, n, rt] = in;
   const bool quiet = args.flag("quiet");
   auto index = build_with_progress(method, rt, points, mopt, quiet);
-
-  // Each slice written as it finishes (no second copy of the result), renamed in place at the end.
-  RadiusOutputs files(args, n);
-  QueryStats st = radius_in_slices(*index, queries, radius, rp, quiet,
-                                   [&](std::size_t, const RadiusResult& part) { files.append(part); });
-  files.commit();
-  const std::size_t total = files.total(), truncated = files.truncated_queries();
+  const Answered a = answer(args, *index, queries, {}, &rp, radius);
+  const QueryStats& st = a.st;
+  const std::size_t total = a.found, truncated = a.truncated;
   std::fprintf(stderr,
                "bhcl knn --radius: %s on %s: N=%zu n=%zu r=%g  build %.3f s  compile %.3f s  query %.4f s "
                "(%.0f q/s)  results %zu (%.2f per query)  truncated queries %zu\n",
@@ -133,27 +206,11 @@ int run_knn_multi(const Args& args, const std::vector<std::string>& devices) {
   render::Progress build_bar("build " + method + " on " + std::to_string(devices.size()) + " devices", !quiet);
   MultiDeviceIndex index(rts, method, points.data(), N, mopt);
   build_bar.finish();
-  std::vector<DeviceShare> shares;
-  QueryStats st;
-  std::size_t found = 0;
-  std::vector<std::int32_t> counts(n);
-  if (radius_mode) {
-    RadiusResult rr;
-    st = index.radius_search(queries.data(), n, radius, rp, rr, &shares);
-    write_array_file(args.str("out-offsets"), rr.offsets.data(), n + 1, 0);
-    write_array_file(out_ids, rr.ids.data(), rr.total(), 0);
-    write_array_file(out_dist2, rr.dist2.data(), rr.total(), 0);
-    for (std::size_t i = 0; i < n; ++i) counts[i] = static_cast<std::int32_t>(rr.count(i));
-    found = rr.total();
-  } else {
-    KnnResult r;
-    st = index.query(queries.data(), n, params, r, &shares);
-    write_array_file(out_ids, r.ids.data(), n, static_cast<std::size_t>(params.k));
-    write_array_file(out_dist2, r.dist2.data(), n, static_cast<std::size_t>(params.k));
-    counts = r.counts;
-    for (auto c : r.counts) found += static_cast<std::size_t>(c);
-  }
-  if (args.has("out-counts")) write_array_file(args.str("out-counts"), counts.data(), n, 0);
+  const SharesSummed summed(index);
+  const Answered a = answer(args, summed, queries, params, radius_mode ? &rp : nullptr, radius);
+  const QueryStats& st = a.st;
+  const std::size_t found = a.found;
+  const std::vector<DeviceShare>& shares = summed.shares();
   std::fprintf(stderr, "bhcl knn%s: %s on %zu devices: N=%zu n=%zu  query %.4f s (slowest part)  %s %zu\n",
                radius_mode ? " --radius" : "", method.c_str(), devices.size(), N, n, st.query_s,
                radius_mode ? "results" : "neighbours found", found);
@@ -200,18 +257,11 @@ int run_knn(const Args& args) {
   const auto& [mopt, points, queries, N, n, rt] = in;
   const bool quiet = args.flag("quiet");
   auto index = build_with_progress(method, rt, points, mopt, quiet);
-  // Block hashing: a recall target (or the block layouts' default one) tuned on a sample of these
-  // queries, not on the index's own points (BlockHashIndex::params_for_batch).
-  BlockHashIndex::BatchTuning bt;
-  if (const auto* bh = dynamic_cast<const BlockHashIndex*>(index.get()))
-    params = bh->params_for_batch(queries.data(), n, params, &bt);
-  // Each slice of rows written as it finishes (no second copy of the result), renamed in place at
-  // the end; a failure leaves the old files and no temporary.
-  KnnOutputs files(args, n, params.k);
-  QueryStats st = query_in_slices(*index, queries, params, quiet,
-                                  [&](std::size_t, const KnnResult& part) { files.append(part); });
-  files.commit();
-  const std::size_t found = files.found();
+  const Answered a = answer(args, *index, queries, params, nullptr, 0);
+  params = a.params;
+  const BatchTuning& bt = a.bt;
+  const QueryStats& st = a.st;
+  const std::size_t found = a.found;
   std::fprintf(stderr,
                "bhcl knn: %s on %s: N=%zu n=%zu k=%d  build %.3f s  compile %.3f s  query %.4f s "
                "(%.0f q/s)  neighbours found %zu\n",

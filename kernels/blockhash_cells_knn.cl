@@ -36,7 +36,6 @@
 #ifndef BHCL_BH_MAXKEEP
 #define BHCL_BH_MAXKEEP 64
 #endif
-#define BHCL_BH_MAXCELLS (BHCL_BH_AXIS_CELLS * BHCL_BH_AXIS_CELLS * BHCL_BH_AXIS_CELLS)
 
 
 /* Scans one block into the top-k list (n entries held); returns its point count. */
@@ -77,27 +76,14 @@ inline uint bh_cells_scan(float3 q, __global const bhcl_bh_block* blk, int cnt, 
   return (uint)cnt;
 }
 
-__kernel void blockhash_cells_knn(__global const bhcl_bh_block* blocks,
-                                  __global const bhcl_bh_box* boxes,
-                                  __global const float* thresholds, uint P,
-                                  __global const uint* keys, uint n_keys,
-                                  __global const bhcl_bh_bucket* buckets,
-                                  __global const uint2* direct, uint dir_dy, uint dir_dz,
-                                  uint probes,
-                                  __global const ulong* block_keys, uint n_blocks, uint cell_bits,
-                                  uint seeds, BHCL_KNN_QUERY_PARAMS, uint budget, uint keep,
-                                  BHCL_KNN_RESULT_PARAMS, __global int* out_examined,
-                                  uint want_examined) {
+__kernel void blockhash_cells_knn(BHCL_BH_CELLS_PARAMS, __global const ulong* block_keys,
+                                  uint n_blocks, uint cell_bits, uint seeds, BHCL_BH_KNN_PARAMS) {
   BHCL_KNN_BEGIN;
   uint examined = 0;
 
   if (bhcl_query_is_finite(q)) {
-    uint cx[BHCL_BH_AXIS_CELLS], cy[BHCL_BH_AXIS_CELLS], cz[BHCL_BH_AXIS_CELLS];
-    float dx[BHCL_BH_AXIS_CELLS], dy[BHCL_BH_AXIS_CELLS], dz[BHCL_BH_AXIS_CELLS];
-    bh_axis_cells(thresholds, P, q.x, probes, cx, dx);
-    bh_axis_cells(thresholds + P, P, q.y, probes, cy, dy);
-    bh_axis_cells(thresholds + 2 * P, P, q.z, probes, cz, dz);
-    const uint side = P + 1;
+    bh_axes ax;
+    bh_query_axes(thresholds, P, q, probes, &ax);
     uint run_first[BHCL_BH_MAXCELLS], run_end[BHCL_BH_MAXCELLS]; /* the runs entered, in order */
     uint nruns = 0;
     int stop = 0;
@@ -114,7 +100,8 @@ __kernel void blockhash_cells_knn(__global const bhcl_bh_block* blocks,
       if (phase == 1 && probes < 1) break;
       if (phase == 2) {
         if (probes < 2) break;
-        float nearest = fmin(fmin(fmin(dx[2], dx[3]), fmin(dy[2], dy[3])), fmin(dz[2], dz[3]));
+        float nearest =
+            fmin(fmin(fmin(ax.dx[2], ax.dx[3]), fmin(ax.dy[2], ax.dy[3])), fmin(ax.dz[2], ax.dz[3]));
         if (!(nearest <= bound0)) break;
       }
       for (uint a = 0; a < span; ++a)
@@ -122,7 +109,7 @@ __kernel void blockhash_cells_knn(__global const bhcl_bh_block* blocks,
           for (uint c = 0; c < span; ++c) {
             if (BHCL_BH_HOMEFIRST && phase == 1 && a == 0 && b == 0 && c == 0) continue;
             if (phase == 2 && a < 2 && b < 2 && c < 2) continue;
-            float cd = (dx[a] + dy[b]) + dz[c];
+            float cd = bh_slot_dist(&ax, a, b, c);
             if (!(cd < INFINITY) || cd > bound0) continue;
             /* axis slots, not the key: no divisions later */
             ncell = bh_insert_by_distance(ccd, cid, ncell, cd, (a << 4) | (b << 2) | c);
@@ -136,10 +123,8 @@ __kernel void blockhash_cells_knn(__global const bhcl_bh_block* blocks,
       uint no = 0;
       for (uint i = 0; i < ncell; ++i) {
         if (ccd[i] > bound0) break;
-        uint sa = cid[i] >> 4, sb = (cid[i] >> 2) & 3u, sc = cid[i] & 3u, rf, rn;
-        if (bh_cell_run(direct, dir_dy, dir_dz, keys, n_keys, buckets, side, cx[sa], cy[sb], cz[sc],
-                        &rf, &rn) < 0)
-          continue;
+        uint rf, rn;
+        if (BH_SLOT_RUN(&ax, cid[i], &rf, &rn) < 0) continue;
         run_first[nruns] = rf;
         run_end[nruns] = rf + rn;
         ++nruns;
@@ -168,7 +153,7 @@ __kernel void blockhash_cells_knn(__global const bhcl_bh_block* blocks,
     if (nfound < k && seeds > 0) {
       /* Fallback: the blocks around the home cell's position in the block order, except those of
        * the runs already entered. */
-      ulong key = bh_hilbert_encode(cx[0], cy[0], cz[0], cell_bits);
+      ulong key = bh_hilbert_encode(ax.cx[0], ax.cy[0], ax.cz[0], cell_bits);
       long j = (long)bh_block_at_key(block_keys, n_blocks, key);
       long wa = j - (long)seeds, we = j + (long)seeds;
       if (wa < 0) {
@@ -191,6 +176,5 @@ __kernel void blockhash_cells_knn(__global const bhcl_bh_block* blocks,
       }
     }
   }
-  bhcl_write_row(out_ids, out_d2, out_counts, row, k, best_d, best_i);
-  if (want_examined) out_examined[row] = (int)examined;
+  BHCL_BH_KNN_END(examined);
 }

@@ -11,24 +11,12 @@
 #include "blockhash_layout.h"
 #include "blockhash_common.h"
 
-#define BHCL_BH_MAXCELLS (BHCL_BH_AXIS_CELLS * BHCL_BH_AXIS_CELLS * BHCL_BH_AXIS_CELLS)
-
-__kernel void blockhash_cells_radius(__global const bhcl_bh_block* blocks,
-                                     __global const bhcl_bh_box* boxes,
-                                     __global const float* thresholds, uint P,
-                                     __global const uint* keys, uint n_keys,
-                                     __global const bhcl_bh_bucket* buckets,
-                                     __global const uint2* direct, uint dir_dy, uint dir_dz,
-                                     uint probes, uint budget, BHCL_RADIUS_PARAMS) {
+__kernel void blockhash_cells_radius(BHCL_BH_CELLS_PARAMS, uint budget, BHCL_RADIUS_PARAMS) {
   BHCL_RADIUS_BEGIN;
   uint examined = 0;
   if (bhcl_query_is_finite(q)) {
-    uint cx[BHCL_BH_AXIS_CELLS], cy[BHCL_BH_AXIS_CELLS], cz[BHCL_BH_AXIS_CELLS];
-    float dx[BHCL_BH_AXIS_CELLS], dy[BHCL_BH_AXIS_CELLS], dz[BHCL_BH_AXIS_CELLS];
-    bh_axis_cells(thresholds, P, q.x, probes, cx, dx);
-    bh_axis_cells(thresholds + P, P, q.y, probes, cy, dy);
-    bh_axis_cells(thresholds + 2 * P, P, q.z, probes, cz, dz);
-    const uint side = P + 1;
+    bh_axes ax;
+    bh_query_axes(thresholds, P, q, probes, &ax);
     const uint span = probes == 0 ? 1u : (probes == 1 ? 2u : (uint)BHCL_BH_AXIS_CELLS);
     float ccd[BHCL_BH_MAXCELLS];
     uint cid[BHCL_BH_MAXCELLS];
@@ -36,16 +24,14 @@ __kernel void blockhash_cells_radius(__global const bhcl_bh_block* blocks,
     for (uint a = 0; a < span; ++a)
       for (uint b = 0; b < span; ++b)
         for (uint c = 0; c < span; ++c) {
-          float cd = (dx[a] + dy[b]) + dz[c];
+          float cd = bh_slot_dist(&ax, a, b, c);
           if (!(cd <= r2)) continue;
           ncell = bh_insert_by_distance(ccd, cid, ncell, cd, (a << 4) | (b << 2) | c);
         }
     int stop = 0;
     for (uint i = 0; i < ncell && !stop; ++i) {
-      uint sa = cid[i] >> 4, sb = (cid[i] >> 2) & 3u, sc = cid[i] & 3u, rf, rn;
-      if (bh_cell_run(direct, dir_dy, dir_dz, keys, n_keys, buckets, side, cx[sa], cy[sb],
-                             cz[sc], &rf, &rn) < 0)
-        continue;
+      uint rf, rn;
+      if (BH_SLOT_RUN(&ax, cid[i], &rf, &rn) < 0) continue;
       for (uint r = 0; r < rn; ++r) {
         if (budget && examined >= budget) {
           stop = 1;

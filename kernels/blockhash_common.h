@@ -65,6 +65,48 @@ inline int bh_cell_run(__global const uint2* direct, uint dy, uint dz, __global 
   return 0;
 }
 
+/* The kNN kernels' closing parameters (after each layout's own) and their close: the row and
+ * the points examined (when want_examined). */
+#define BHCL_BH_KNN_PARAMS                                                               \
+  BHCL_KNN_QUERY_PARAMS, uint budget, uint keep, BHCL_KNN_RESULT_PARAMS,                 \
+      __global int *out_examined, uint want_examined
+#define BHCL_BH_KNN_END(examined)                                         \
+  bhcl_write_row(out_ids, out_d2, out_counts, row, k, best_d, best_i);    \
+  if (want_examined) out_examined[row] = (int)(examined)
+
+/* The cell-aligned layout's kernel parameters (blockhash_cells_knn.cl, blockhash_cells_radius.cl;
+ * the order lib/src/blockhash/cells.cpp sets them in). */
+#define BHCL_BH_CELLS_PARAMS                                                                      \
+  __global const bhcl_bh_block *blocks, __global const bhcl_bh_box *boxes,                        \
+      __global const float *thresholds, uint P, __global const uint *keys, uint n_keys,           \
+      __global const bhcl_bh_bucket *buckets, __global const uint2 *direct, uint dir_dy,          \
+      uint dir_dz, uint probes
+
+/* A query's cells along each axis (bh_axis_cells) and their slab distances: cell (a, b, c) of
+ * the 4 x 4 x 4 block around the query is (cx[a], cy[b], cz[c]) at slab distance
+ * (dx[a] + dy[b]) + dz[c]; a cell is named by its slots, id = (a << 4) | (b << 2) | c. */
+#define BHCL_BH_MAXCELLS (BHCL_BH_AXIS_CELLS * BHCL_BH_AXIS_CELLS * BHCL_BH_AXIS_CELLS)
+typedef struct bh_axes {
+  uint cx[BHCL_BH_AXIS_CELLS], cy[BHCL_BH_AXIS_CELLS], cz[BHCL_BH_AXIS_CELLS];
+  float dx[BHCL_BH_AXIS_CELLS], dy[BHCL_BH_AXIS_CELLS], dz[BHCL_BH_AXIS_CELLS];
+} bh_axes;
+
+inline void bh_query_axes(__global const float* thresholds, uint P, float3 q, uint probes,
+                          bh_axes* ax) {
+  bh_axis_cells(thresholds, P, q.x, probes, ax->cx, ax->dx);
+  bh_axis_cells(thresholds + P, P, q.y, probes, ax->cy, ax->dy);
+  bh_axis_cells(thresholds + 2 * P, P, q.z, probes, ax->cz, ax->dz);
+}
+
+inline float bh_slot_dist(const bh_axes* ax, uint a, uint b, uint c) {
+  return (ax->dx[a] + ax->dy[b]) + ax->dz[c];
+}
+
+/* The run of the cell named `id` (bh_cell_run over the direct table or the directory). */
+#define BH_SLOT_RUN(ax, id, first, n)                                                         \
+  bh_cell_run(direct, dir_dy, dir_dz, keys, n_keys, buckets, P + 1, (ax)->cx[(id) >> 4],      \
+              (ax)->cy[((id) >> 2) & 3u], (ax)->cz[(id) & 3u], first, n)
+
 /* The L-table layout: the bucket of a cell in a table, or -1 (BHCL_BH_DIRECT: all (P+1)^3 cells
  * of a table addressed directly). */
 #ifndef BHCL_BH_DIRECT
@@ -127,6 +169,28 @@ inline uint bh_gather_buckets(float3 q, int L, __global const float* thresholds,
   }
   return ncand;
 }
+
+/* The L-table layout's kernel parameters (blockhash_knn.cl, blockhash_radius.cl; the order
+ * lib/src/blockhash/search.cpp sets them in), and a query's buckets in the order it visits them
+ * (bh_gather_buckets: at most 4 L). */
+#define BHCL_BH_TABLE_PARAMS                                                                      \
+  __global const bhcl_bh_block *blocks, __global const bhcl_bh_box *boxes,                        \
+      __global const float *thresholds, uint P, __global const uint *keys,                        \
+      __global const uint *table_starts, __global const bhcl_bh_bucket *buckets,                  \
+      __global const int *refs, uint probes
+
+#ifndef BHCL_BH_L
+#define BHCL_BH_L 4
+#endif
+#define BHCL_BH_MAXBUCKETS (4 * BHCL_BH_L)
+typedef struct bh_buckets {
+  uint q[BHCL_BH_MAXBUCKETS], b[BHCL_BH_MAXBUCKETS];
+  uint n;
+} bh_buckets;
+
+#define BH_QUERY_BUCKETS(q, out)                                                              \
+  ((out)->n = bh_gather_buckets(q, BHCL_BH_L, thresholds, P, keys, table_starts, buckets, probes, \
+                                (out)->q, (out)->b))
 
 /* Inserts (cd, id) into the list ccd/cid of n entries kept ascending by cd; equal distances keep
  * their insertion order. Returns the new length. */

@@ -4,24 +4,16 @@
  * exact; a budget stops after that many points examined, and the slice is then a subset. */
 #include "radius_common.h"
 
-typedef struct bhcl_grid_emit {
-  float r2;
-  uint fill, limit, found;
-  ulong base;
-  __global int* out_ids;
-  __global float* out_d2;
-} bhcl_grid_emit;
-
-inline void ge_scan(bhcl_grid_emit* e, float qx, float qy, float qz, __global const float* px,
+inline void ge_scan(bhcl_radius_slice* e, float qx, float qy, float qz, __global const float* px,
                     __global const float* py, __global const float* pz, __global const int* pid,
                     uint a, uint b) {
   for (uint p = a; p < b; ++p) {
     float d = bhcl_dist2_xyz(qx, qy, qz, px[p], py[p], pz[p]);
-    if (d <= e->r2) bhcl_radius_emit(e->fill, e->out_ids, e->out_d2, e->base, e->limit, &e->found, d, pid[p]);
+    if (d <= e->r2) bhcl_slice_emit(e, d, pid[p]);
   }
 }
 
-#define BHCL_GRID_STATE bhcl_grid_emit
+#define BHCL_GRID_STATE bhcl_radius_slice
 #define BHCL_GRID_BOUND(st) ((st)->r2)
 #define BHCL_GRID_SCAN(st, a, b) ge_scan(st, qx, qy, qz, px, py, pz, pid, a, b)
 #define BHCL_GRID_ROWBUF 1 /* runs scanned as met (cap 0): every run within r is scanned anyway */
@@ -36,14 +28,7 @@ __kernel void blockhash_grid_radius(__global const uint* starts, __global const 
   const bhcl_grid_geom g = bhcl_grid_geom_from(geo0, geo1, dims);
   if (bhcl_query_is_finite(q)) {
     const float qx = q.x, qy = q.y, qz = q.z;
-    bhcl_grid_emit e;
-    e.r2 = r2;
-    e.fill = fill;
-    e.limit = limit;
-    e.found = 0;
-    e.base = base;
-    e.out_ids = out_ids;
-    e.out_d2 = out_d2;
+    bhcl_radius_slice e = BHCL_RADIUS_SLICE;
     examined = bhcl_grid_search(starts, px, py, pz, pid, g, qx, qy, qz, budget ? budget : 0xffffffffu, 0u, &e);
     found = e.found;
   }

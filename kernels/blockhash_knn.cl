@@ -19,9 +19,6 @@
 #include "blockhash_layout.h"
 #include "blockhash_common.h"
 
-#ifndef BHCL_BH_L
-#define BHCL_BH_L 4
-#endif
 #ifndef BHCL_BH_DIRECT
 #define BHCL_BH_DIRECT 0
 #endif
@@ -37,7 +34,6 @@
 #ifndef BHCL_BH_MAXKEEP
 #define BHCL_BH_MAXKEEP 128
 #endif
-#define BHCL_BH_MAXBUCKETS (4 * BHCL_BH_L)
 
 /* Offers candidate block b at box distance d to the list of the `keep` nearest distinct blocks
  * (n held), ranked and inserted as the top-k list is: (box distance, block). Returns the new n. A
@@ -63,25 +59,15 @@ inline ulong bh_query_key(float3 q, float4 qq, uint bits) {
   return bh_hilbert_encode((uint)v0, (uint)v1, (uint)v2, bits);
 }
 
-__kernel void blockhash_knn(__global const bhcl_bh_block* blocks,
-                            __global const bhcl_bh_box* boxes,
-                            __global const float* thresholds, uint P,
-                            __global const uint* keys, __global const uint* table_starts,
-                            __global const bhcl_bh_bucket* buckets, __global const int* refs,
-                            uint probes, __global const ulong* block_keys, uint n_blocks,
-                            float4 qquant, uint qbits, uint seeds,
-                            BHCL_KNN_QUERY_PARAMS, uint budget, uint keep,
-                            BHCL_KNN_RESULT_PARAMS, __global int* out_examined,
-                            uint want_examined) {
+__kernel void blockhash_knn(BHCL_BH_TABLE_PARAMS, __global const ulong* block_keys, uint n_blocks,
+                            float4 qquant, uint qbits, uint seeds, BHCL_BH_KNN_PARAMS) {
   BHCL_KNN_BEGIN;
   uint examined = 0;
 
   if (bhcl_query_is_finite(q)) {
     /* 1. Buckets, sorted by |Q| with a stable insertion. */
-    uint cand_q[BHCL_BH_MAXBUCKETS];
-    uint cand_b[BHCL_BH_MAXBUCKETS];
-    const uint ncand =
-        bh_gather_buckets(q, BHCL_BH_L, thresholds, P, keys, table_starts, buckets, probes, cand_q, cand_b);
+    bh_buckets cand;
+    BH_QUERY_BUCKETS(q, &cand);
 
 #if BHCL_BH_BOXORDER
     /* 2. Box order (the CPU form of docs/DESIGN.md): of the blocks of those buckets (and the Hilbert
@@ -99,8 +85,8 @@ __kernel void blockhash_knn(__global const bhcl_bh_block* blocks,
       int a = max(0, j - (int)seeds), e = min((int)n_blocks - 1, j + (int)seeds);
       for (int b = a; b <= e; ++b) nc = bh_keep(cd, cb, nc, keep, bh_box_dist2(q, boxes + b), b, max_r2);
     }
-    for (uint s = 0; s < ncand; ++s) {
-      bhcl_bh_bucket bk = buckets[cand_b[s]];
+    for (uint s = 0; s < cand.n; ++s) {
+      bhcl_bh_bucket bk = buckets[cand.b[s]];
       for (uint r = 0; r < bk.n_refs; ++r) {
         int b = refs[bk.first_ref + r];
         nc = bh_keep(cd, cb, nc, keep, bh_box_dist2(q, boxes + b), b, max_r2);
@@ -118,8 +104,8 @@ __kernel void blockhash_knn(__global const bhcl_bh_block* blocks,
     int scanned[BHCL_BH_SCANCAP];
     uint nscanned = 0;
     ulong seen0 = 0, seen1 = 0;
-    for (uint s = 0; s < ncand; ++s) {
-      bhcl_bh_bucket bk = buckets[cand_b[s]];
+    for (uint s = 0; s < cand.n; ++s) {
+      bhcl_bh_bucket bk = buckets[cand.b[s]];
       int done = 0;
       for (uint r = 0; r < bk.n_refs; ++r) {
         if (examined >= budget || nscanned >= BHCL_BH_SCANCAP) {
@@ -149,6 +135,5 @@ __kernel void blockhash_knn(__global const bhcl_bh_block* blocks,
     }
 #endif
   }
-  bhcl_write_row(out_ids, out_d2, out_counts, row, k, best_d, best_i);
-  if (want_examined) out_examined[row] = (int)examined;
+  BHCL_BH_KNN_END(examined);
 }

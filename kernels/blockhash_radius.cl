@@ -12,32 +12,21 @@
 #include "blockhash_layout.h"
 #include "blockhash_common.h"
 
-#ifndef BHCL_BH_L
-#define BHCL_BH_L 4
-#endif
 #ifndef BHCL_BH_SCANCAP
 #define BHCL_BH_SCANCAP 128
 #endif
-#define BHCL_BH_MAXBUCKETS (4 * BHCL_BH_L)
 
-__kernel void blockhash_radius(__global const bhcl_bh_block* blocks,
-                               __global const bhcl_bh_box* boxes,
-                               __global const float* thresholds, uint P,
-                               __global const uint* keys, __global const uint* table_starts,
-                               __global const bhcl_bh_bucket* buckets, __global const int* refs,
-                               uint probes, uint budget, BHCL_RADIUS_PARAMS) {
+__kernel void blockhash_radius(BHCL_BH_TABLE_PARAMS, uint budget, BHCL_RADIUS_PARAMS) {
   BHCL_RADIUS_BEGIN;
   uint examined = 0;
   if (bhcl_query_is_finite(q)) {
-    uint cand_q[BHCL_BH_MAXBUCKETS];
-    uint cand_b[BHCL_BH_MAXBUCKETS];
-    const uint ncand =
-        bh_gather_buckets(q, BHCL_BH_L, thresholds, P, keys, table_starts, buckets, probes, cand_q, cand_b);
+    bh_buckets cand;
+    BH_QUERY_BUCKETS(q, &cand);
     int scanned[BHCL_BH_SCANCAP];
     uint nscanned = 0;
     int stop = 0;
-    for (uint s = 0; s < ncand && !stop; ++s) {
-      bhcl_bh_bucket bk = buckets[cand_b[s]];
+    for (uint s = 0; s < cand.n && !stop; ++s) {
+      bhcl_bh_bucket bk = buckets[cand.b[s]];
       for (uint r = 0; r < bk.n_refs; ++r) {
         if ((budget && examined >= budget) || nscanned >= BHCL_BH_SCANCAP) {
           stop = 1;

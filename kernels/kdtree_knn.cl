@@ -11,60 +11,45 @@
  *  - Candidates are ranked by (distance, caller's index) with the shared top-k list.
  *
  * BHCL_KMAX: top-k capacity. BHCL_KD_STACK: stack entries, at least the tree's inner depth. */
-#include "kdtree_common.h"
+#include "knn_common.h"
 
-#ifndef BHCL_KD_STACK
-#define BHCL_KD_STACK 32
-#endif
+/* The top-k list as the traversal's state. */
+typedef struct kd_topk {
+  float* d;
+  int* id;
+  uint k, nfound;
+  float max_r2;
+} kd_topk;
+
+/* An accepted point has d <= max_r2 and d <= the k-th distance: `bound` (kept in a register)
+ * rejects most points before the list is read. */
+inline __attribute__((always_inline)) void kd_topk_scan(kd_topk* t, __global const float4* points,
+                                                        float3 q, uint a, uint e) {
+  float bound = min(t->max_r2, bhcl_topk_bound(t->d, t->k));
+  for (uint i = a; i < e; ++i) {
+    float4 p = points[i];
+    float d = bhcl_dist2(q, p);
+    if (d <= bound) {
+      int idx = as_int(p.w);
+      if (bhcl_topk_accepts(t->d, t->id, t->k, d, idx)) {
+        t->nfound = bhcl_topk_push(t->d, t->id, t->k, t->nfound, d, idx);
+        bound = min(t->max_r2, bhcl_topk_bound(t->d, t->k));
+      }
+    }
+  }
+}
+
+#define BHCL_KD_STATE kd_topk
+#define BHCL_KD_BOUND(st) min((st)->max_r2, bhcl_topk_bound((st)->d, (st)->k))
+#define BHCL_KD_SCAN(st, a, e) kd_topk_scan(st, points, q, a, e)
+#include "kdtree_common.h"
 
 __kernel void kdtree_knn(__global const bhcl_kd_node* nodes, __global const float4* points,
                          BHCL_KNN_QUERY_PARAMS, BHCL_KNN_RESULT_PARAMS) {
   BHCL_KNN_BEGIN;
-
   if (bhcl_query_is_finite(q)) {
-    /* Deferred far children: xyz = offsets to the cell, w = its lower bound. */
-    float4 st_off[BHCL_KD_STACK];
-    uint st_node[BHCL_KD_STACK];
-    int sp = 0;
-    uint node = 0;
-    float4 off = (float4)(0.0f);
-    for (;;) {
-      bhcl_kd_node nd = nodes[node];
-      if (nd.dim != BHCL_KD_LEAF) {
-        uint far_child;
-        float4 far_off;
-        uint near_child = bhcl_kd_descend(nd, node, q, off, &far_child, &far_off);
-        float bound = min(max_r2, bhcl_topk_bound(best_d, k));
-        if (far_off.w <= bound) {
-          st_off[sp] = far_off;
-          st_node[sp] = far_child;
-          ++sp;
-        }
-        node = near_child;
-        continue;
-      }
-      /* An accepted point has d <= max_r2 and d <= the k-th distance: `bound` (kept in a
-       * register) rejects most points before the list is read. */
-      float bound = min(max_r2, bhcl_topk_bound(best_d, k));
-      uint end = nd.a + nd.b;
-      for (uint i = nd.a; i < end; ++i) {
-        float4 p = points[i];
-        float d = bhcl_dist2(q, p);
-        if (d <= bound) {
-          int idx = as_int(p.w);
-          if (bhcl_topk_accepts(best_d, best_i, k, d, idx)) {
-            nfound = bhcl_topk_push(best_d, best_i, k, nfound, d, idx);
-            bound = min(max_r2, bhcl_topk_bound(best_d, k));
-          }
-        }
-      }
-      /* Next deferred cell that can still hold a candidate. */
-      while (sp > 0 && st_off[sp - 1].w > bound) --sp;
-      if (sp == 0) break;
-      --sp;
-      node = st_node[sp];
-      off = st_off[sp];
-    }
+    kd_topk t = {best_d, best_i, k, nfound, max_r2};
+    bhcl_kd_search(nodes, points, q, &t);
   }
   bhcl_write_row(out_ids, out_d2, out_counts, row, k, best_d, best_i);
 }

@@ -4,48 +4,37 @@
  *
  * BHCL_KD_STACK: stack entries, at least the tree's inner depth. */
 #include "radius_common.h"
-#include "kdtree_common.h"
 
-#ifndef BHCL_KD_STACK
-#define BHCL_KD_STACK 32
-#endif
+/* The query's slice and the points examined, as the traversal's state. */
+typedef struct kd_emit {
+  bhcl_radius_slice out;
+  uint examined;
+} kd_emit;
+
+inline __attribute__((always_inline)) void kd_emit_scan(kd_emit* e, __global const float4* points,
+                                                        float3 q, uint a, uint end) {
+  e->examined += end - a;
+  for (uint i = a; i < end; ++i) {
+    float4 p = points[i];
+    float d = bhcl_dist2(q, p);
+    if (d <= e->out.r2) bhcl_slice_emit(&e->out, d, as_int(p.w));
+  }
+}
+
+#define BHCL_KD_STATE kd_emit
+#define BHCL_KD_BOUND(st) ((st)->out.r2)
+#define BHCL_KD_SCAN(st, a, e) kd_emit_scan(st, points, q, a, e)
+#include "kdtree_common.h"
 
 __kernel void kdtree_radius(__global const bhcl_kd_node* nodes, __global const float4* points,
                             BHCL_RADIUS_PARAMS) {
   BHCL_RADIUS_BEGIN;
   uint examined = 0;
   if (bhcl_query_is_finite(q)) {
-    float4 st_off[BHCL_KD_STACK];
-    uint st_node[BHCL_KD_STACK];
-    int sp = 0;
-    uint node = 0;
-    float4 off = (float4)(0.0f);
-    for (;;) {
-      bhcl_kd_node nd = nodes[node];
-      if (nd.dim != BHCL_KD_LEAF) {
-        uint far_child;
-        float4 far_off;
-        uint near_child = bhcl_kd_descend(nd, node, q, off, &far_child, &far_off);
-        if (far_off.w <= r2) {
-          st_off[sp] = far_off;
-          st_node[sp] = far_child;
-          ++sp;
-        }
-        node = near_child;
-        continue;
-      }
-      uint end = nd.a + nd.b;
-      examined += nd.b;
-      for (uint i = nd.a; i < end; ++i) {
-        float4 p = points[i];
-        float d = bhcl_dist2(q, p);
-        if (d <= r2) bhcl_radius_emit(fill, out_ids, out_d2, base, limit, &found, d, as_int(p.w));
-      }
-      if (sp == 0) break;
-      --sp;
-      node = st_node[sp];
-      off = st_off[sp];
-    }
+    kd_emit e = {BHCL_RADIUS_SLICE, 0u};
+    bhcl_kd_search(nodes, points, q, &e);
+    found = e.out.found;
+    examined = e.examined;
   }
   BHCL_RADIUS_END(examined);
 }

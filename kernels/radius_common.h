@@ -40,6 +40,23 @@ inline void bhcl_radius_emit(uint fill, __global int* out_ids, __global float* o
   ++*found;
 }
 
+/* A query's slice as one value, for the traversals that take a state (grid_search.h,
+ * kdtree_common.h): the squared radius, the pass, where the points within it go, and how many
+ * were found. BHCL_RADIUS_SLICE initializes it from BHCL_RADIUS_PARAMS and BHCL_RADIUS_BEGIN. */
+typedef struct bhcl_radius_slice {
+  float r2;
+  uint fill, limit, found;
+  ulong base;
+  __global int* out_ids;
+  __global float* out_d2;
+} bhcl_radius_slice;
+
+#define BHCL_RADIUS_SLICE {r2, fill, limit, 0u, base, out_ids, out_d2}
+
+inline void bhcl_slice_emit(bhcl_radius_slice* s, float d, int id) {
+  bhcl_radius_emit(s->fill, s->out_ids, s->out_d2, s->base, s->limit, &s->found, d, id);
+}
+
 /* The close of a radius kernel: the count (pass 0) and the examined points. */
 #define BHCL_RADIUS_END(examined)                            \
   if (!fill) {                                               \

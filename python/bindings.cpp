@@ -119,16 +119,16 @@ py::tuple knn_query(const bhcl::Index& index, const py::array_t<float, py::array
   const std::size_t n = rows_of(queries, "queries");
   bhcl::KnnResult r;
   bhcl::QueryStats st;
-  // Block hashing: a recall asked for (or the default one, on a layout where a budget applies) is
-  // tuned on a sample of this batch (BlockHashIndex::params_for_batch), not on the index's points.
-  const auto* bh = dynamic_cast<const bhcl::BlockHashIndex*>(&index);
-  bhcl::BlockHashIndex::BatchTuning bt;
+  // The batch's own parameters (SearchIndex::params_for_batch; block hashing: a recall asked for,
+  // or the default one on a layout where a budget applies, tuned on a sample of this batch, not on
+  // the index's points).
+  bhcl::BatchTuning bt;
   bhcl::SearchParams run = params;
   double wall = 0;
   {
     py::gil_scoped_release nogil;
     const auto t0 = std::chrono::steady_clock::now();
-    if (bh) run = bh->params_for_batch(queries.data(), n, params, &bt);
+    run = index.params_for_batch(queries.data(), n, params, &bt);
     st = index.query(queries.data(), n, run, r);
     wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   }

@@ -13,8 +13,7 @@ using namespace bhcl;
 namespace {
 
 SearchParams exact_params(int k, float r = INFINITY) {
-  SearchParams p;
-  p.k = k;
+  SearchParams p = test::knn_params(k);
   p.A = INFINITY;
   p.max_radius = r;
   return p;
@@ -75,8 +74,7 @@ TEST_CASE("blockhash_grid_vs_reference: kernel == host reference at every budget
     // The list forms' edges: one register (k <= 16), four (<= 64), the scalar list past them.
     for (int k : {1, 16, 17, 64, 65})
       for (float A : {1.0f, 2.0f, 8.0f, INFINITY}) {
-        SearchParams p;
-        p.k = k;
+        SearchParams p = test::knn_params(k);
         p.A = A;
         CAPTURE(c.name);
         CAPTURE(k);
@@ -232,8 +230,7 @@ TEST_CASE("blockhash_grid_io: save and load answer identically, damage is refuse
   REQUIRE(loaded->info().grid);
   REQUIRE(loaded->first_mismatch(pts.data(), pts.size() / 3) == -1);
   for (float A : {2.0f, INFINITY}) {
-    SearchParams p;
-    p.k = 10;
+    SearchParams p = test::knn_params(10);
     p.A = A;
     test::require_identical(loaded->query(qs, p), index.query(qs, p), "loaded grid");
   }
@@ -266,8 +263,7 @@ TEST_CASE("blockhash_grid_rebuild: the next frame equals a fresh build with the 
     bp.cell_size = h;
     BlockHashIndex fresh(test::runtime(), f->data(), f->size() / 3, bp);
     for (float A : {4.0f, INFINITY}) {
-      SearchParams p;
-      p.k = 12;
+      SearchParams p = test::knn_params(12);
       p.A = A;
       test::require_identical(index.query(qs, p), fresh.query(qs, p), "rebuild");
     }
@@ -294,15 +290,13 @@ TEST_CASE("blockhash_grid_params: the layouts and the checks") {
   p.A = -1;
   REQUIRE_THROWS_WITH_AS(def.query(pts, p), doctest::Contains("A must be positive"), Error);
   // The default search (A = 0) is the exact mode on the grid.
-  SearchParams d;
-  d.k = 7;
+  SearchParams d = test::knn_params(7);
   test::require_identical(def.query(pts, d), reference::knn_float(pts.data(), 5000, pts.data(), 5000, d),
                           "the default search");
   // One point, coincident points, k above N.
   std::vector<float> one = {0.5f, 0.5f, 0.5f};
   BlockHashIndex single(test::runtime(), one.data(), 1);
-  SearchParams p3;
-  p3.k = 3;
+  SearchParams p3 = test::knn_params(3);
   KnnResult r = single.query(std::vector<float>{0, 0, 0, 1, 1, 1}, p3);
   REQUIRE(r.counts == std::vector<std::int32_t>{1, 1});
   REQUIRE(r.id(0, 1) == -1);

@@ -36,8 +36,7 @@ TEST_CASE("blockhash io: save and load give the same index and the same answers"
     CHECK(b->info().occupied_cells == a.info().occupied_cells);
     CHECK(b->structure().refs == a.structure().refs);
     CHECK(b->structure().thresholds == a.structure().thresholds);
-    SearchParams p;
-    p.k = 10;
+    SearchParams p = test::knn_params(10);
     KnnResult ra = a.query(qs, p), rb = b->query(qs, p);
     CHECK(ra.ids == rb.ids);
     CHECK(ra.dist2 == rb.dist2);

@@ -73,8 +73,7 @@ TEST_CASE("blockhash_vs_reference: every distribution, both presets, kernel == h
       BlockHashIndex index(test::runtime(), c.pts.data(), c.pts.size() / 3, preset(pr));
       for (int k : {1, 10, 50}) {
         CAPTURE(k);
-        SearchParams p;
-        p.k = k;
+        SearchParams p = test::knn_params(k);
         p.A = k == 10 ? 8.0f : 2.5f;
         if (k == 1 && std::string(c.name) != "uniform") continue;  // a kernel variant of its own
         kernel_equals_reference(index, c.pts, c.qs, p);
@@ -87,8 +86,7 @@ TEST_CASE("blockhash_vs_reference: radius, k > N, probes on/off, box skip off, n
   auto pts = datasets::clustered(6000, 21, 5, 0.02f);
   auto qs = datasets::clustered(300, 22, 5, 0.02f);
   BlockHashIndex a(test::runtime(), pts.data(), 6000, preset("auto"));
-  SearchParams p;
-  p.k = 20;
+  SearchParams p = test::knn_params(20);
   p.max_radius = 0.01f;
   kernel_equals_reference(a, pts, qs, p);
   p.max_radius = INFINITY;
@@ -120,8 +118,7 @@ TEST_CASE("blockhash_vs_reference: radius, k > N, probes on/off, box skip off, n
   // k larger than N and a budget over everything: every point, -1/+inf after them.
   auto few = datasets::uniform(7, 3);
   BlockHashIndex tiny(test::runtime(), few.data(), 7, preset("auto"));
-  SearchParams big;
-  big.k = 12;
+  SearchParams big = test::knn_params(12);
   big.A = 32;
   KnnResult r = tiny.query(qs, big);
   for (std::size_t q = 0; q < 300; ++q) {
@@ -149,8 +146,7 @@ TEST_CASE("blockhash: with unlimited budget and buckets the answer is exact") {
   bp.P = 3;  // big cells: 64 cells of ~80 points
   bp.hilbert_seed = 0;
   BlockHashIndex index(test::runtime(), pts.data(), 5000, bp);
-  SearchParams p;
-  p.k = 5;
+  SearchParams p = test::knn_params(5);
   p.A = 1000;
   KnnResult r = index.query(qs, p);
   KnnResult truth = reference::knn_float(pts.data(), 5000, qs.data(), 200, p);
@@ -172,8 +168,7 @@ TEST_CASE("blockhash: recall does not fall as A grows, at a fixed build") {
     CAPTURE(pr);
     BlockHashIndex index(test::runtime(), pts.data(), 20000, preset(pr));
     for (int k : {10, 50}) {
-      SearchParams p;
-      p.k = k;
+      SearchParams p = test::knn_params(k);
       KnnResult truth = reference::knn_float(pts.data(), 20000, qs.data(), 500, p);
       double last = -1;
       for (float A : {1.0f, 2.0f, 4.0f, 8.0f, 16.0f, 32.0f}) {
@@ -193,8 +188,7 @@ TEST_CASE("blockhash: recall does not fall as A grows, at a fixed build") {
 TEST_CASE("blockhash: Cornell walls with queries just off the surface") {
   auto pts = datasets::cornell_photons(20000, 51);
   auto qs = datasets::cornell_queries(500, 52, 0.5f);
-  SearchParams p;
-  p.k = 10;
+  SearchParams p = test::knn_params(10);
   p.A = 8;
   KnnResult truth = reference::knn_float(pts.data(), 20000, qs.data(), 500, p);
   BlockHashIndex a(test::runtime(), pts.data(), 20000, preset("auto"));
@@ -235,8 +229,7 @@ TEST_CASE("blockhash: buffer-level call on the caller's queue and buffers") {
   auto pts = datasets::uniform(4000, 61);
   auto qs = datasets::uniform(100, 62);
   BlockHashIndex index(rt, pts.data(), 4000, preset("auto"));
-  SearchParams p;
-  p.k = 8;
+  SearchParams p = test::knn_params(8);
   cl_int err = CL_SUCCESS;
   cl::Buffer qb(rt->context(), CL_MEM_READ_ONLY | CL_MEM_COPY_HOST_PTR, qs.size() * 4, qs.data(), &err);
   REQUIRE(err == CL_SUCCESS);
@@ -317,8 +310,7 @@ TEST_CASE("blockhash: a recall target is met on held-out queries") {
       BlockHashIndex index(test::runtime(), set.pts.data(), set.pts.size() / 3, preset(pr));
       for (double target : {0.9, 0.95, 0.99}) {
         CAPTURE(target);
-        SearchParams p;
-        p.k = 10;
+        SearchParams p = test::knn_params(10);
         p.recall_target = target;
         BlockHashIndex::RecallTuning t = index.tune_for_recall(target, p);
         MESSAGE(std::string(set.name) << " " << std::string(pr) << " target " << target << ": A " << t.A << " sample recall "
@@ -355,8 +347,7 @@ TEST_CASE("blockhash: sorted dispatch equals the caller's order, both presets, e
       CAPTURE(scale);
       CAPTURE(name);
       BlockHashIndex index(rt, pts.data(), 6000, preset(name));
-      SearchParams p;
-      p.k = 9;
+      SearchParams p = test::knn_params(9);
       p.count_examined = true;
       p.sort_queries = 0;
       KnnResult plain = index.query(qs, p);
@@ -379,8 +370,7 @@ TEST_CASE("blockhash: examined counts are an option of every query path (sorted,
   auto pts = datasets::clustered(5000, 61, 6, 0.02f);
   auto qs = datasets::clustered(300, 62, 6, 0.02f);
   BlockHashIndex index(rt, pts.data(), 5000, preset("auto"));
-  SearchParams p;
-  p.k = 10;
+  SearchParams p = test::knn_params(10);
   p.count_examined = true;
   p.sort_queries = 0;
   KnnResult plain = index.query(qs, p);

@@ -29,15 +29,13 @@ TEST_CASE("bruteforce_vs_reference: uniform, k from 1 to 256") {
   auto qs = datasets::uniform(300, 12);
   for (int k : {1, 7, 8, 10, 33, 64, 100, 256}) {
     CAPTURE(k);
-    SearchParams p;
-    p.k = k;
+    SearchParams p = test::knn_params(k);
     run_case(pts, qs, p);
   }
 }
 
 TEST_CASE("bruteforce_vs_reference: clustered and offset data") {
-  SearchParams p;
-  p.k = 16;
+  SearchParams p = test::knn_params(16);
   run_case(datasets::clustered(4000, 3, 8, 0.002f), datasets::clustered(400, 4, 8, 0.002f), p);
   auto pts = datasets::uniform(2000, 5, -50.0f, 50.0f);
   auto qs = datasets::uniform(200, 6, -50.0f, 50.0f);
@@ -50,8 +48,7 @@ TEST_CASE("bruteforce_vs_reference: duplicates keep the lower index first") {
   auto pts = datasets::with_duplicates(2000, 7, 0.5);
   // Queries exactly on points: many zero distances that tie.
   std::vector<float> qs(pts.begin(), pts.begin() + 3 * 200);
-  SearchParams p;
-  p.k = 12;
+  SearchParams p = test::knn_params(12);
   run_case(pts, qs, p);
   // All points identical: the answer is ids 0..k-1 at distance d.
   std::vector<float> same(3 * 100, 0.25f);
@@ -67,8 +64,7 @@ TEST_CASE("bruteforce_vs_reference: duplicates keep the lower index first") {
 TEST_CASE("bruteforce_vs_reference: k > N fills the row with -1 / +inf") {
   auto pts = datasets::uniform(5, 8);
   auto qs = datasets::uniform(10, 9);
-  SearchParams p;
-  p.k = 32;
+  SearchParams p = test::knn_params(32);
   run_case(pts, qs, p);
   BruteForceIndex index(test::runtime(), pts.data(), 5);
   KnnResult r = index.query(qs, p);
@@ -82,8 +78,7 @@ TEST_CASE("bruteforce_vs_reference: k > N fills the row with -1 / +inf") {
 TEST_CASE("bruteforce_vs_reference: maximum radius cuts the rows") {
   auto pts = datasets::uniform(3000, 21);
   auto qs = datasets::uniform(300, 22);
-  SearchParams p;
-  p.k = 40;
+  SearchParams p = test::knn_params(40);
   p.max_radius = 0.05f;
   run_case(pts, qs, p);
   p.max_radius = 0.0f;  // only exact hits

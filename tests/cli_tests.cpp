@@ -14,24 +14,17 @@ using test::write_points;
 }  // namespace
 
 TEST_CASE("cli: knn bruteforce writes ids, distances and stats") {
-  auto pts = datasets::uniform(2000, 61);
-  auto qs = datasets::uniform(50, 62);
-  std::string P = write_points("cli_p.f32", pts), Q = write_points("cli_q.f32", qs);
+  auto [pts, qs, P, Q] = test::cli_inputs("cli", 2000, 61, 50, 62);
   std::string I = test::tmp_path("cli_ids.i32"), D = test::tmp_path("cli_d2.f32"),
               S = test::tmp_path("cli_stats.json");
-  std::string out;
-  int rc = test::run_bhcl("knn --points " + P + " --queries " + Q +
+  std::string out = test::run_bhcl_ok("knn --points " + P + " --queries " + Q +
                               " --k 7 --method bruteforce --out-ids " + I + " --out-dist2 " + D +
-                              " --stats " + S,
-                          &out);
-  INFO(out);
-  REQUIRE(rc == 0);
+                              " --stats " + S);
   auto ids = test::read_raw<std::int32_t>(I);
   auto d2 = test::read_raw<float>(D);
   REQUIRE(ids.size() == 50 * 7);
   REQUIRE(d2.size() == 50 * 7);
-  SearchParams p;
-  p.k = 7;
+  SearchParams p = test::knn_params(7);
   KnnResult ref = reference::knn_float(pts.data(), 2000, qs.data(), 50, p);
   CHECK(ids == ref.ids);
   CHECK(d2 == ref.dist2);
@@ -63,12 +56,9 @@ TEST_CASE("cli: the stats of a block-hash run carry the build and search paramet
   std::string P = write_points("clibh_p.f32", pts);
   std::string I = test::tmp_path("clibh_ids.i32"), D = test::tmp_path("clibh_d2.f32"),
               S = test::tmp_path("clibh_stats.json");
-  std::string out;
-  int rc = test::run_bhcl("knn --points " + P + " --queries " + P + " --k 5 --method blockhash --A 3 --X 8 "
+  std::string out = test::run_bhcl_ok("knn --points " + P + " --queries " + P + " --k 5 --method blockhash --A 3 --X 8 "
                           "--preset paper --seed 7 --max-radius 0.5 --out-ids " + I + " --out-dist2 " + D +
-                          " --stats " + S, &out);
-  INFO(out);
-  REQUIRE(rc == 0);
+                          " --stats " + S);
   std::ifstream s(S);
   const nlohmann::json j = nlohmann::json::parse(s);
   INFO(j.dump(2));
@@ -235,19 +225,14 @@ TEST_CASE("cli: knn bruteforce on the Stanford bunny agrees with the exact refer
     for (int d = 0; d < 3; ++d) qs.push_back(pts[3 * i + d] + 1e-4f * float(d + 1));
   std::string Q = write_points("bunny_q.f32", qs);
   std::string I = test::tmp_path("bunny_ids"), D = test::tmp_path("bunny_d2");
-  std::string out;
-  int rc = test::run_bhcl("knn --points " + bunny + " --queries " + Q +
-                              " --k 16 --method bruteforce --out-ids " + I + " --out-dist2 " + D,
-                          &out);
-  INFO(out);
-  REQUIRE(rc == 0);
+  std::string out = test::run_bhcl_ok("knn --points " + bunny + " --queries " + Q +
+                              " --k 16 --method bruteforce --out-ids " + I + " --out-dist2 " + D);
   KnnResult r;
   r.resize(qs.size() / 3, 16);
   r.ids = test::read_raw<std::int32_t>(I);
   r.dist2 = test::read_raw<float>(D);
   for (std::size_t q = 0; q < r.n; ++q) r.counts[q] = 16;
-  SearchParams p;
-  p.k = 16;
+  SearchParams p = test::knn_params(16);
   test::check_exact_vs_double(r, pts.data(), N, qs.data(), r.n, p);
 }
 

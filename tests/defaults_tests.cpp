@@ -147,8 +147,7 @@ TEST_CASE("defaults: a block layout's default meets 0.95 on the caller's queries
     for (int k : {1, 10}) {
       const std::string where = qs == &on ? "on the data" : "over the box";
       INFO("k = " << k << ", " << where);
-      SearchParams p;
-      p.k = k;
+      SearchParams p = test::knn_params(k);
       BlockHashIndex::BatchTuning bt;
       const SearchParams run = index.params_for_batch(qs->data(), qs->size() / 3, p, &bt);
       REQUIRE(bt.tuned);

@@ -26,12 +26,8 @@ TEST_CASE("eval_cli: kdtree against the flann truth prints one table and writes 
   auto qs = datasets::uniform(150, 402);
   std::string P = write_points("eval_p.f32", pts), Q = write_points("eval_q.f32", qs);
   std::string S = test::tmp_path("eval_stats.json");
-  std::string out;
-  int rc = test::run_bhcl("eval --points " + P + " --queries " + Q +
-                              " --k 12 --method kdtree --threads 2 --stats " + S,
-                          &out);
-  INFO(out);
-  REQUIRE(rc == 0);
+  std::string out = test::run_bhcl_ok("eval --points " + P + " --queries " + Q +
+                              " --k 12 --method kdtree --threads 2 --stats " + S);
   for (const char* row : {"kdtree", "flann (truth)", "build s", "compile s", "query s", "queries/s",
                           "recall", "false negatives", "dilation max", "dilation mean",
                           "mean rel. dist. error", "identical rows", "N=3000 n=150 k=12"})
@@ -59,21 +55,14 @@ TEST_CASE("eval_cli: kdtree against the flann truth prints one table and writes 
 }
 
 TEST_CASE("eval_cli: flann against the brute-force truth with a radius: rows cut short are compared") {
-  auto pts = datasets::uniform(2000, 411);
-  auto qs = datasets::uniform(100, 412);
-  std::string P = write_points("eval2_p.f32", pts), Q = write_points("eval2_q.f32", qs);
+  auto [pts, qs, P, Q] = test::cli_inputs("eval2", 2000, 411, 100, 412);
   std::string S = test::tmp_path("eval2_stats.json");
-  std::string out;
-  int rc = test::run_bhcl("eval --points " + P + " --queries " + Q +
-                              " --k 20 --max-radius 0.08 --method flann --truth bruteforce --stats " + S,
-                          &out);
-  INFO(out);
-  REQUIRE(rc == 0);
+  std::string out = test::run_bhcl_ok("eval --points " + P + " --queries " + Q +
+                              " --k 20 --max-radius 0.08 --method flann --truth bruteforce --stats " + S);
   CHECK(out.find("bruteforce (truth)") != std::string::npos);
   const nlohmann::json json = read_json(S);
   INFO(json.dump(2));
-  SearchParams p;
-  p.k = 20;
+  SearchParams p = test::knn_params(20);
   p.max_radius = 0.08f;
   KnnResult ref = reference::knn_float(pts.data(), 2000, qs.data(), 100, p);
   std::size_t nonempty = 0;
@@ -155,18 +144,13 @@ TEST_CASE("eval_cli: bhcl knn --method kdtree and --method flann --threads T wri
   auto pts = datasets::with_duplicates(2000, 431, 0.3);
   std::vector<float> qs(pts.begin(), pts.begin() + 3 * 60);
   std::string P = write_points("knnkd_p.f32", pts), Q = write_points("knnkd_q.f32", qs);
-  SearchParams p;
-  p.k = 9;
+  SearchParams p = test::knn_params(9);
   KnnResult ref = reference::knn_float(pts.data(), 2000, qs.data(), 60, p);
   for (std::string m : {"kdtree", "flann --threads 2"}) {
     CAPTURE(m);
     std::string I = test::tmp_path("knnkd_ids.i32"), D = test::tmp_path("knnkd_d2.f32");
-    std::string out;
-    int rc = test::run_bhcl("knn --points " + P + " --queries " + Q + " --k 9 --method " + m +
-                                " --out-ids " + I + " --out-dist2 " + D,
-                            &out);
-    INFO(out);
-    REQUIRE(rc == 0);
+    std::string out = test::run_bhcl_ok("knn --points " + P + " --queries " + Q + " --k 9 --method " + m +
+                                " --out-ids " + I + " --out-dist2 " + D);
     CHECK(test::read_raw<std::int32_t>(I) == ref.ids);
     CHECK(test::read_raw<float>(D) == ref.dist2);
   }
@@ -198,8 +182,7 @@ TEST_CASE("eval_cli: an approximate method's metrics are those of its own knn ou
   approx.ids = test::read_raw<std::int32_t>(I);
   approx.dist2 = test::read_raw<float>(D);
   approx.counts = test::read_raw<std::int32_t>(C);
-  SearchParams p;
-  p.k = 10;
+  SearchParams p = test::knn_params(10);
   Accuracy a = evaluate_accuracy(approx, reference::knn_float(pts.data(), 5000, qs.data(), 300, p));
   const nlohmann::json json = read_json(S);
   INFO(json.dump(2));
@@ -214,16 +197,10 @@ TEST_CASE("eval_cli: an approximate method's metrics are those of its own knn ou
 }
 
 TEST_CASE("eval_cli: blockhash with --recall reaches the target and records the tuned A") {
-  auto pts = datasets::uniform(30000, 411);
-  auto qs = datasets::uniform(1000, 412);
-  std::string P = write_points("eval_recall_p.f32", pts), Q = write_points("eval_recall_q.f32", qs);
+  auto [pts, qs, P, Q] = test::cli_inputs("eval_recall", 30000, 411, 1000, 412);
   std::string S = test::tmp_path("eval_recall_stats.json");
-  std::string out;
-  int rc = test::run_bhcl("eval --points " + P + " --queries " + Q +
-                              " --k 10 --method blockhash --recall 0.95 --truth kdtree --stats " + S,
-                          &out);
-  INFO(out);
-  REQUIRE(rc == 0);
+  std::string out = test::run_bhcl_ok("eval --points " + P + " --queries " + Q +
+                              " --k 10 --method blockhash --recall 0.95 --truth kdtree --stats " + S);
   const nlohmann::json json = read_json(S);
   INFO(json.dump(2));
   CHECK(json.at("search").at("recall_target") == 0.95);

@@ -114,8 +114,7 @@ void run_case(const std::vector<float>& pts, const std::vector<float>& qs, const
   for (const auto& index : exact_indexes(pts)) {
     for (int k : {1, 10}) {
       for (float r : {INFINITY, 0.05f}) {
-        SearchParams p;
-        p.k = k;
+        SearchParams p = test::knn_params(k);
         p.max_radius = r;
         const double r2 = std::isinf(r) ? INFINITY : double(r) * double(r);
         const Ref ref = double_knn(pts, qs, k, r2);
@@ -186,8 +185,7 @@ TEST_CASE("bounded work: coincident points, FLANN within 3x brute force and iden
   }
   for (std::size_t i = 0; i < 1000; ++i) pts[3 * (i * 397)] = 0.25f + float(i) * 1e-3f;  // a few apart
   const std::vector<float> qs = unit_points(n, 11);
-  SearchParams p;
-  p.k = 16;
+  SearchParams p = test::knn_params(16);
   auto timed = [&](auto make) {
     auto t0 = std::chrono::steady_clock::now();
     auto index = make();

@@ -43,8 +43,7 @@ TEST_CASE("exact_methods_vs_bruteforce: k > N, radius 0, distances that overflow
       CAPTURE(N);
       auto pts = datasets::uniform(N, 120 + N);
       auto qs = datasets::uniform(20, 121);
-      SearchParams p;
-      p.k = 32;
+      SearchParams p = test::knn_params(32);
       KnnResult r = make_index(method, rt, pts.data(), N)->query(qs, p);
       test::require_identical(r, reference::knn_float(pts.data(), N, qs.data(), 20, p), "k > N");
       for (std::size_t q = 0; q < 20; ++q) CHECK(r.counts[q] == static_cast<int>(N));
@@ -55,8 +54,7 @@ TEST_CASE("exact_methods_vs_bruteforce: k > N, radius 0, distances that overflow
       std::vector<float> on(pts.begin(), pts.begin() + 3 * 50);
       auto off = datasets::uniform(50, 132);
       on.insert(on.end(), off.begin(), off.end());
-      SearchParams p;
-      p.k = 16;
+      SearchParams p = test::knn_params(16);
       p.max_radius = 0.0f;
       KnnResult r = make_index(method, rt, pts.data(), 2000)->query(on, p);
       test::require_identical(r, reference::knn_float(pts.data(), 2000, on.data(), 100, p), "radius 0");
@@ -69,8 +67,7 @@ TEST_CASE("exact_methods_vs_bruteforce: k > N, radius 0, distances that overflow
       std::vector<float> pts = {0.0f, 0.0f, 0.0f, 3e19f, 0.0f, 0.0f, -3e19f, 1e19f, 0.0f,
                                 1.0f, 1.0f, 1.0f, 0.0f, -3e19f, 2e19f};
       std::vector<float> qs = {0.5f, 0.5f, 0.5f, -3e19f, -3e19f, 0.0f};
-      SearchParams p;
-      p.k = 5;
+      SearchParams p = test::knn_params(5);
       KnnResult r = make_index(method, rt, pts.data(), 5)->query(qs, p);
       test::require_identical(r, make_index("bruteforce", rt, pts.data(), 5)->query(qs, p),
                               "overflowing distances");
@@ -88,8 +85,7 @@ TEST_CASE("every method: the buffer-level call on caller-owned buffers equals th
     auto index = make_index(method, rt, pts.data(), 1500);
     CHECK(index->method() == method);
     CHECK(index->exact() == method_info(method).exact);
-    SearchParams p;
-    p.k = 8;
+    SearchParams p = test::knn_params(8);
     p.max_batch = 30;  // several dispatches (or host round trips), each on its own rows
     // Warm-up is separate from queries: the second warm-up and the query compile nothing.
     index->warm_up(p);
@@ -123,8 +119,7 @@ TEST_CASE("every method: bad search parameters and ragged query arrays are refus
   for (const auto& method : method_names()) {
     CAPTURE(method);
     auto index = make_index(method, rt, pts.data(), 10);
-    SearchParams p;
-    p.k = 0;
+    SearchParams p = test::knn_params(0);
     CHECK_THROWS_WITH_AS(index->query(qs, p), doctest::Contains("k = 0"), Error);
     p.k = kMaxK + 1;
     CHECK_THROWS_WITH_AS(index->query(qs, p), doctest::Contains("out of range"), Error);

@@ -7,8 +7,7 @@ using namespace bhcl;
 TEST_CASE("flann: results do not depend on the thread count") {
   auto pts = datasets::clustered(3000, 221, 6, 0.01f);
   auto qs = datasets::uniform(2000, 222);  // > one 256-query chunk per thread
-  SearchParams p;
-  p.k = 12;
+  SearchParams p = test::knn_params(12);
   FlannParams one;
   one.threads = 1;
   FlannIndex base(test::runtime(), pts.data(), 3000, one);

@@ -104,8 +104,7 @@ TEST_CASE("kdtree: the parallel build gives the serial build's arrays, byte for 
   KdTreeIndex a(test::runtime(), pts.data(), 50000, one), b(test::runtime(), pts.data(), 50000, many);
   CHECK(a.node_count() == b.node_count());
   CHECK(a.depth() == b.depth());
-  SearchParams p;
-  p.k = 10;
+  SearchParams p = test::knn_params(10);
   test::require_identical(a.query(qs, p), b.query(qs, p), "build_threads 1 vs 4");
 }
 
@@ -116,8 +115,7 @@ TEST_CASE("kdtree: the leaf size changes the tree, not the answer") {
     KdTreeParams one;
     one.leaf_size = 1;
     KdTreeIndex fine(test::runtime(), s.points.data(), s.points.size() / 3, one);
-    SearchParams p;
-    p.k = 10;
+    SearchParams p = test::knn_params(10);
     test::require_identical(fine.query(s.queries, p), index.query(s.queries, p), "leaf_size 1");
   }
 }
@@ -138,8 +136,7 @@ TEST_CASE("kdtree: balanced tree, iterative build, quick on degenerate data") {
   CHECK(deg.depth() == static_cast<int>(std::ceil(std::log2(200000.0 / deg.leaf_size()))));
   CHECK(s < 5.0);
   std::vector<float> q = {1.5f, 1.5f, 1.5f, 0.0f, 0.0f, 0.0f};
-  SearchParams p;
-  p.k = 256;
+  SearchParams p = test::knn_params(256);
   KnnResult r = deg.query(q, p);
   for (int j = 0; j < 256; ++j) {
     CHECK(r.id(0, j) == j);

@@ -107,8 +107,7 @@ TEST_CASE("sizes: point files past the index range are refused before they are r
 TEST_CASE("sizes: a kNN result that cannot fit is refused with what it needs, before any search") {
   const std::vector<float> pts = datasets::uniform(1000, 5);
   BruteForceIndex index(test::runtime(), pts.data(), 1000);
-  SearchParams p;
-  p.k = 256;
+  SearchParams p = test::knn_params(256);
   p.sort_queries = 0;
   KnnResult out;
   // 2^40 queries x k = 256: 2.3 PB of results; the queries are never read.
@@ -153,8 +152,7 @@ TEST_CASE("sizes: a radius call that cannot fit is refused with what it needs, b
 TEST_CASE("fork: an index queried in a forked child gets a clear error, never a hang") {
   const std::vector<float> pts = datasets::uniform(2000, 6);
   KdTreeIndex index(test::runtime(), pts.data(), 2000);
-  SearchParams p;
-  p.k = 4;
+  SearchParams p = test::knn_params(4);
   KnnResult out;
   index.query(pts.data(), 100, p, out);
   const std::string msg_path = test::tmp_path("fork_msg_" + std::to_string(getpid()) + ".txt");
@@ -194,15 +192,10 @@ TEST_CASE("messages: MTL illum outside the illumination models is refused at fil
   for (const char* value : {"99999999999", "-1", "11", "2.5", "x"}) {
     write_bytes("illum.mtl", std::string("newmtl m\nKd 0.5 0.5 0.5\nillum ") + value + "\n");
     INFO(value);
-    try {
-      render::load_scene(test::tmp_path("illum_ok.obj"));
-      FAIL("loaded");
-    } catch (const Error& e) {
-      const std::string msg = e.what();
-      INFO(msg);
-      CHECK(msg.find("illum.mtl:3: ") != std::string::npos);
-      CHECK(msg.find("must be an integer in [0, 10]") != std::string::npos);
-    }
+    const std::string msg = test::error_of([&] { render::load_scene(test::tmp_path("illum_ok.obj")); });
+    INFO(msg);
+    CHECK(msg.find("illum.mtl:3: ") != std::string::npos);
+    CHECK(msg.find("must be an integer in [0, 10]") != std::string::npos);
   }
   write_bytes("illum.mtl", "newmtl m\nKd 0.5 0.5 0.5\nKe 1 1 1\nillum 3\n");
   CHECK_NOTHROW(render::load_scene(test::tmp_path("illum_ok.obj")));

@@ -132,8 +132,7 @@ TEST_CASE("metrics: an all-empty truth gives perfect scores over zero queries") 
 TEST_CASE("metrics: on real results, an exact method scores perfectly") {
   auto pts = datasets::clustered(2000, 301, 5, 0.02f);
   auto qs = datasets::uniform(200, 302);
-  SearchParams p;
-  p.k = 10;
+  SearchParams p = test::knn_params(10);
   KnnResult truth = reference::knn_float(pts.data(), 2000, qs.data(), 200, p);
   Accuracy a = evaluate_accuracy(truth, truth);
   CHECK(a.identical_rows == 200);

@@ -24,8 +24,7 @@ TEST_CASE("multi-device: every method equals one device, whatever the split") {
     MultiDeviceIndex multi(two_runtimes(), m, pts.data(), pts.size() / 3);
     REQUIRE(multi.devices() == 2);
     auto single = make_index(m, runtime(), pts.data(), pts.size() / 3);
-    SearchParams p;
-    p.k = 12;
+    SearchParams p = test::knn_params(12);
     p.count_examined = single->counts_examined();
     const KnnResult ref = single->query(qs, p);
     for (const std::vector<double>& w : {std::vector<double>{1, 1}, {1, 3}, {0, 1}, {5, 0}}) {
@@ -65,8 +64,7 @@ TEST_CASE("multi-device: the split adapts to measured throughput, and bad input 
   const auto pts = datasets::uniform(20000, 33);
   const auto qs = datasets::uniform(40000, 34);
   MultiDeviceIndex multi(two_runtimes(), "kdtree", pts.data(), pts.size() / 3);
-  SearchParams p;
-  p.k = 8;
+  SearchParams p = test::knn_params(8);
   KnnResult r;
   multi.set_weights({0.9, 0.1});
   multi.query(qs.data(), qs.size() / 3, p, r);
@@ -92,9 +90,7 @@ TEST_CASE("multi-device: the split adapts to measured throughput, and bad input 
 namespace bhcl::test {
 
 TEST_CASE("multi-device: bhcl knn --device pocl,pocl writes the one-device files") {
-  auto pts = datasets::uniform(3000, 41);
-  auto qs = datasets::uniform(500, 42);
-  std::string P = write_points("md_p.f32", pts), Q = write_points("md_q.f32", qs);
+  auto [pts, qs, P, Q] = test::cli_inputs("md", 3000, 41, 500, 42);
   for (const std::string& extra : {std::string(" --k 9"), std::string(" --radius 0.07 --out-offsets ")}) {
     const bool radius = extra.find("radius") != std::string::npos;
     std::string base = "knn --points " + P + " --queries " + Q + " --method kdtree --quiet" + extra;

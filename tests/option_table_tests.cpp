@@ -139,8 +139,7 @@ TEST_CASE("option tables: block hashing answers at every bound of a search optio
     for (const std::string& v : bounds_of(*o).inside) {
       if (o->name == "recall" && v != "0") continue;  // a tuning run per target: covered elsewhere
       INFO(o->name << " = " << v);
-      SearchParams p;
-      p.k = 8;
+      SearchParams p = test::knn_params(8);
       o->set_search(&p, o->parse(v));
       CHECK_NOTHROW(index->query(qs, p));
     }

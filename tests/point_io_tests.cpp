@@ -57,16 +57,11 @@ const std::vector<float> kPts = {1.5f, -2.25f, 3.0f, 0.1f, 0.2f, 0.3f, -1e-3f, 4
 
 void check_refused(const std::string& path, const std::string& expect) {
   INFO(path << " (expect '" << expect << "')");
-  try {
-    read_points_file(path);
-    FAIL("accepted");
-  } catch (const Error& e) {
-    const std::string m = e.what();
-    INFO(m);
-    CHECK(m.rfind(path + ": ", 0) == 0);  // names the file first
-    CHECK(m.find(expect) != std::string::npos);
-    CHECK(m.find('\n') == std::string::npos);  // one line
-  }
+  const std::string m = test::error_of([&] { read_points_file(path); });
+  INFO(m);
+  CHECK(m.rfind(path + ": ", 0) == 0);  // names the file first
+  CHECK(m.find(expect) != std::string::npos);
+  CHECK(m.find('\n') == std::string::npos);  // one line
 }
 
 }  // namespace
@@ -197,20 +192,15 @@ TEST_CASE("point_io: bhcl knn reads PLY and text, writes NPY results, refuses a 
   for (std::size_t i = 0; i < qs.size(); i += 3) txt << qs[i] << ", " << qs[i + 1] << ", " << qs[i + 2] << "\n";
   std::string Q = write_bytes("knn_q.txt", txt.str());
   std::string I = test::tmp_path("knn_ids.npy"), D = test::tmp_path("knn_d2.npy"), C = test::tmp_path("knn_c.npy");
-  std::string out;
-  int rc = test::run_bhcl("knn --points " + P + " --queries " + Q + " --k 4 --method bruteforce --out-ids " + I +
-                              " --out-dist2 " + D + " --out-counts " + C,
-                          &out);
-  INFO(out);
-  REQUIRE(rc == 0);
-  SearchParams p;
-  p.k = 4;
+  std::string out = test::run_bhcl_ok("knn --points " + P + " --queries " + Q + " --k 4 --method bruteforce --out-ids " + I +
+                              " --out-dist2 " + D + " --out-counts " + C);
+  SearchParams p = test::knn_params(4);
   KnnResult ref = reference::knn_float(pts.data(), 500, qs.data(), 20, p);
   CHECK(npy_body<std::int32_t>(I) == ref.ids);
   CHECK(npy_body<float>(D) == ref.dist2);
   CHECK(npy_body<std::int32_t>(C) == ref.counts);
   std::string bad = write_bytes("knn_text_as.f32", "1 2 3\n4 5 6\n");
-  rc = test::run_bhcl("knn --points " + bad + " --queries " + Q + " --k 4 --method bruteforce --out-ids " + I +
+  int rc = test::run_bhcl("knn --points " + bad + " --queries " + Q + " --k 4 --method bruteforce --out-ids " + I +
                           " --out-dist2 " + D,
                       &out);
   CHECK(rc == 1);

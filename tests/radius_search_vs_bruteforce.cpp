@@ -285,9 +285,7 @@ TEST_CASE("radius: extreme scales give the unscaled answer") {
 namespace bhcl::test {
 
 TEST_CASE("radius: bhcl knn --radius writes the library's three arrays, and refuses misuse") {
-  auto pts = datasets::uniform(3000, 71);
-  auto qs = datasets::uniform(80, 72);
-  std::string P = write_points("rad_p.f32", pts), Q = write_points("rad_q.f32", qs);
+  auto [pts, qs, P, Q] = test::cli_inputs("rad", 3000, 71, 80, 72);
   std::string O = tmp_path("rad_o.i64"), I = tmp_path("rad_i.i32"), D = tmp_path("rad_d.f32"),
               C = tmp_path("rad_c.i32"), S = tmp_path("rad_s.json");
   const float r = 0.08f;

@@ -274,17 +274,12 @@ TEST_CASE("render: hostile scenes are refused naming the file and line: overflow
   for (const auto& c : cases) {
     const std::string path = write_text("h" + std::to_string(++i) + ".obj", c.text);
     INFO(c.text);
-    try {
-      load_scene(path);
-      FAIL("loaded");
-    } catch (const Error& e) {
-      const std::string msg = e.what();
-      INFO(msg);
-      CHECK(msg.find(c.expect) != std::string::npos);
-      if (!c.never.empty()) CHECK(msg.find(c.never) == std::string::npos);
-      const bool names_file = msg.find(path) != std::string::npos || msg.find("secret.txt") != std::string::npos;
-      CHECK(names_file);
-    }
+    const std::string msg = test::error_of([&] { load_scene(path); });
+    INFO(msg);
+    CHECK(msg.find(c.expect) != std::string::npos);
+    if (!c.never.empty()) CHECK(msg.find(c.never) == std::string::npos);
+    const bool names_file = msg.find(path) != std::string::npos || msg.find("secret.txt") != std::string::npos;
+    CHECK(names_file);
   }
   // A FIFO or a directory as the scene is refused before it is opened (an open would wait).
   const std::string fifo = test::tmp_path("scene_fifo.obj");
@@ -330,11 +325,8 @@ TEST_CASE("render: bad scene files give errors naming the file and the line") {
 
 TEST_CASE("render: bhcl render writes the EXR and the PNG and the stats") {
   std::string exr = test::tmp_path("cli_render.exr"), json = test::tmp_path("cli_render.json");
-  std::string out;
-  int rc = test::run_bhcl("render --scene cornell --method bruteforce --photons 2000 --gather 4 --k 8 "
-                          "--size 24x16 --quiet --out " + exr + " --stats " + json, &out);
-  INFO(out);
-  REQUIRE(rc == 0);
+  std::string out = test::run_bhcl_ok("render --scene cornell --method bruteforce --photons 2000 --gather 4 --k 8 "
+                          "--size 24x16 --quiet --out " + exr + " --stats " + json);
   CHECK(out.find("no caustic map built") != std::string::npos);
   Image img = read_exr(exr);
   CHECK(img.width == 24);
@@ -486,6 +478,15 @@ Image path_traced(const Scene& scene, int size, int spp, int threads, PathTraceS
   return path_trace(es, lights, po, st);
 }
 
+Material glass_material(float ior) {
+  Material g;
+  g.name = "glass";
+  g.type = MaterialType::Glass;
+  g.ks = {1, 1, 1};
+  g.ior = ior;
+  return g;
+}
+
 }  // namespace
 
 TEST_CASE("render: an emitter inside glass seen through one interface has radiance T Le / ior^2") {
@@ -496,11 +497,7 @@ TEST_CASE("render: an emitter inside glass seen through one interface has radian
   const float Le = 1.0f, ior = 1.5f;
   Scene s;
   s.name = "slab";
-  Material glass;
-  glass.name = "glass";
-  glass.type = MaterialType::Glass;
-  glass.ks = {1, 1, 1};
-  glass.ior = ior;
+  const Material glass = glass_material(ior);
   Material light;
   light.name = "light";
   light.kd = {0, 0, 0};
@@ -588,15 +585,6 @@ TEST_CASE("render: a white furnace half filled with glass keeps radiance / n^2 u
                                           << " (expected " << expect << " everywhere)");
   CHECK(mean == doctest::Approx(expect).epsilon(0.05));
   CHECK(centre_mean == doctest::Approx(expect).epsilon(0.06));
-}
-
-Material glass_material(float ior) {
-  Material g;
-  g.name = "glass";
-  g.type = MaterialType::Glass;
-  g.ks = {1, 1, 1};
-  g.ior = ior;
-  return g;
 }
 
 // A box of glass faces (outward fronts) from lo to hi; the bottom face (y = lo.y) only if asked.
@@ -715,8 +703,7 @@ TEST_CASE("render: photons and queries inside glass are kept apart from those ou
   CHECK(inside > 1000);
   CHECK(misplaced == 0);
   maps.global->build_index("bruteforce", test::runtime());
-  SearchParams sp;
-  sp.k = 50;
+  SearchParams sp = test::knn_params(50);
   // 1 mm inside and outside the wall at x = 20, keyed as the renderer keys them.
   const Vec3 in = medium_key({19, 0, 0}, true, sep), out = medium_key({21, 0, 0}, false, sep);
   const float q[6] = {in.x, in.y, in.z, out.x, out.y, out.z};
@@ -797,8 +784,7 @@ TEST_CASE("render: every density estimator gives the analytic radiance of a unif
   map.build_index("bruteforce", test::runtime());
   std::vector<float> q;
   for (int i = 0; i < 64; ++i) q.insert(q.end(), {25 + rng.uniform() * 50, 0, 25 + rng.uniform() * 50});
-  SearchParams sp;
-  sp.k = 100;
+  SearchParams sp = test::knn_params(100);
   KnnResult res;
   map.query(q.data(), 64, sp, res);
   const Vec3 kd{0.5f, 0.5f, 0.5f};
@@ -1016,11 +1002,8 @@ TEST_CASE("render: progressive photon mapping: more passes come closer to the pa
 
 TEST_CASE("render: bhcl render --passes: progress, periodic EXR, stats and argument errors") {
   std::string exr = test::tmp_path("cli_ppm.exr"), json = test::tmp_path("cli_ppm.json");
-  std::string out;
-  int rc = test::run_bhcl("render --scene cornell --method bruteforce --photons 1500 --gather 2 --k 8 "
-                          "--size 12x8 --passes 3 --exr-every 2 --quiet --out " + exr + " --stats " + json, &out);
-  INFO(out);
-  REQUIRE(rc == 0);
+  std::string out = test::run_bhcl_ok("render --scene cornell --method bruteforce --photons 1500 --gather 2 --k 8 "
+                          "--size 12x8 --passes 3 --exr-every 2 --quiet --out " + exr + " --stats " + json);
   CHECK(out.find("pass 2/3") != std::string::npos);
   CHECK(out.find("(mean of 2 passes)") != std::string::npos);
   CHECK(read_exr(exr).width == 12);
@@ -1088,8 +1071,7 @@ TEST_CASE("render: the density estimate inside the query equals the host estimat
           for (DensityFilter f : {DensityFilter::Box, DensityFilter::Cone, DensityFilter::Epanechnikov}) {
             const DensityEstimator est{re, f};
             INFO(m << " " << estimator_name(est) << " max_radius " << max_r << " scale2 " << scale2);
-            SearchParams sp;
-            sp.k = 24;
+            SearchParams sp = test::knn_params(24);
             sp.max_radius = max_r;
             KnnResult lists;
             map.query(qs.data(), n, sp, lists);

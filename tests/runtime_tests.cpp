@@ -104,8 +104,7 @@ TEST_CASE("runtime: a caller's queue: out of order refused, without profiling an
   for (const auto& method : method_names()) {
     CAPTURE(method);
     auto index = make_index(method, rt, pts.data(), 2000);
-    SearchParams p;
-    p.k = 7;
+    SearchParams p = test::knn_params(7);
     QueryStats st;
     KnnResult r;
     REQUIRE_NOTHROW(r = index->query(qs, p, &st));
@@ -124,8 +123,7 @@ TEST_CASE("runtime: enqueue_query behind a user event on the runtime's own queue
     CAPTURE(method);
     auto rt = std::make_shared<Runtime>();  // its own queue, cold kernels
     std::shared_ptr<Index> index = make_index(method, rt, pts.data(), 3000);
-    SearchParams p;
-    p.k = 6;
+    SearchParams p = test::knn_params(6);
     p.max_batch = 50;  // 8 batches: the returned event must cover them all
     cl::UserEvent gate(rt->context());
     std::vector<cl::Event> gated{gate};
@@ -167,8 +165,7 @@ TEST_CASE("runtime: enqueue_query on an out-of-order queue: every batch after th
     if (!method_info(method).on_device) continue;
     CAPTURE(method);
     auto index = make_index(method, rt, pts.data(), 3000);
-    SearchParams p;
-    p.k = 6;
+    SearchParams p = test::knn_params(6);
     p.max_batch = 50;
     index->warm_up(p);
     // The queries arrive after a user event: batches not ordered after it would read garbage.

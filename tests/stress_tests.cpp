@@ -104,8 +104,7 @@ TEST_SUITE("stress") {
         BlockHashIndex index(rt, c.pts.data(), N, bp);
         for (int k : c.ks) {
           CAPTURE(k);
-          SearchParams p;
-          p.k = k;
+          SearchParams p = test::knn_params(k);
           p.max_radius = c.max_radius;
           p.sort_queries = 0;
           KnnResult r = index.query(c.qs, p);
@@ -141,8 +140,7 @@ TEST_SUITE("stress") {
         REQUIRE_NOTHROW(index = make_index(method, rt, c.pts.data(), N));
         for (int k : c.ks) {
           CAPTURE(k);
-          SearchParams p;
-          p.k = k;
+          SearchParams p = test::knn_params(k);
           p.max_radius = c.max_radius;
           KnnResult r;
           REQUIRE_NOTHROW(index->query(c.qs.data(), n, p, r));
@@ -183,8 +181,7 @@ TEST_SUITE("stress") {
     for (const auto& method : method_names()) {
       CAPTURE(method);
       auto index = make_index(method, rt, pts.data(), 1000);
-      SearchParams p;
-      p.k = 10;
+      SearchParams p = test::knn_params(10);
       QueryStats st;
       KnnResult r = index->query(qs, p, &st);
       CHECK(st.nonfinite_queries == 2);
@@ -231,8 +228,7 @@ TEST_CASE("stress: extreme scales through the buffer-level call equal the host-a
     for (const auto& method : method_names()) {
       CAPTURE(method);
       auto index = make_index(method, rt, pts.data(), 1500);
-      SearchParams p;
-      p.k = 9;
+      SearchParams p = test::knn_params(9);
       KnnResult host = index->query(qs, p);
       KnnResult buf = test::buffer_query(*index, qs, p);
       CHECK(buf.ids == host.ids);
@@ -250,8 +246,7 @@ TEST_CASE("stress: results do not depend on batch size, work-group size or query
   for (const auto& method : method_names()) {
     CAPTURE(method);
     auto index = make_index(method, rt, pts.data(), 5000);
-    SearchParams p;
-    p.k = 12;
+    SearchParams p = test::knn_params(12);
     KnnResult base = index->query(qs, p);
     struct Variant { std::size_t local, batch; bool sort; };
     for (Variant v : {Variant{16, 0, false}, Variant{128, 0, false}, Variant{0, 97, false},
@@ -306,8 +301,7 @@ TEST_CASE("stress: n x k that overflows the index type is refused, never wrapped
   auto pts = datasets::uniform(100, 61);
   cl::Buffer small(rt->context(), CL_MEM_READ_WRITE, 64);
   ResultBuffers out{small, small, small};
-  SearchParams p;
-  p.k = 256;
+  SearchParams p = test::knn_params(256);
   for (const auto& method : method_names()) {
     CAPTURE(method);
     auto index = make_index(method, rt, pts.data(), 100);

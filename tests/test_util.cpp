@@ -81,8 +81,7 @@ std::vector<PointSet> exact_point_sets() {
 
 // A radius that cuts many rows short: the median distance to the 8th neighbour.
 float cutting_radius(const PointSet& s) {
-  SearchParams p;
-  p.k = 8;
+  SearchParams p = test::knn_params(8);
   const std::size_t N = s.points.size() / 3, n = s.queries.size() / 3;
   KnnResult r = reference::knn_float(s.points.data(), N, s.queries.data(), n, p);
   std::vector<float> d;
@@ -112,8 +111,7 @@ void check_index_on_set(const Index& index, const PointSet& s) {
   const float radius = cutting_radius(s);
   for (float r : {INFINITY, radius}) {
     for (int k : {1, 8, 10, 50, 100, 256}) {
-      SearchParams p;
-      p.k = k;
+      SearchParams p = test::knn_params(k);
       p.max_radius = r;
       CAPTURE(k);
       CAPTURE(r);

@@ -29,6 +29,13 @@ namespace bhcl::test {
 
 inline std::shared_ptr<Runtime> runtime() { return default_runtime(); }
 
+// Search parameters asking for the k nearest (the rest the defaults).
+inline SearchParams knn_params(int k) {
+  SearchParams p;
+  p.k = k;
+  return p;
+}
+
 // A named point set with its queries.
 struct PointSet {
   std::string name;
@@ -142,6 +149,28 @@ inline int run_bhcl(const std::string& args, std::string* output = nullptr, cons
   return WIFEXITED(status) ? WEXITSTATUS(status) : 128;
 }
 
+// Runs `bhcl ARGS` as run_bhcl does and requires it to succeed (the output shown when it does
+// not); returns the output.
+inline std::string run_bhcl_ok(const std::string& args, const std::string& env = "") {
+  std::string out;
+  const int rc = run_bhcl(args, &out, env);
+  INFO(out);
+  REQUIRE(rc == 0);
+  return out;
+}
+
+// The message of the bhcl::Error that f() throws; a test failure when it throws none.
+template <typename F>
+std::string error_of(F&& f) {
+  try {
+    f();
+  } catch (const Error& e) {
+    return e.what();
+  }
+  FAIL("no bhcl::Error thrown");
+  return {};
+}
+
 // The contract's exact radius answer: every point with dist2_float <= r2[q] (r2: one squared
 // radius per query, or one for all), each slice sorted by (distance, id).
 RadiusResult reference_radius_slices(const std::vector<float>& pts, const std::vector<float>& qs,
@@ -161,6 +190,20 @@ inline std::string write_points(const std::string& name, const std::vector<float
 }
 
 // A file's bytes (empty when it cannot be read), and a file written with `data`.
+// A bhcl run's inputs: N uniform points and n uniform queries (datasets::uniform with the seeds)
+// written to the point files STEM_p.f32 and STEM_q.f32 (P, Q).
+struct CliInputs {
+  std::vector<float> pts, qs;
+  std::string P, Q;
+};
+inline CliInputs cli_inputs(const std::string& stem, std::size_t N, std::uint64_t seed, std::size_t n,
+                            std::uint64_t query_seed) {
+  CliInputs in{datasets::uniform(N, seed), datasets::uniform(n, query_seed), "", ""};
+  in.P = write_points(stem + "_p.f32", in.pts);
+  in.Q = write_points(stem + "_q.f32", in.qs);
+  return in;
+}
+
 inline std::string slurp(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   std::stringstream ss;

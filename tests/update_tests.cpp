@@ -92,8 +92,7 @@ void check_exact(const Index& ix, const Model& m, std::mt19937_64& rng) {
     if (rng() % 64 == 0) qs.insert(qs.end(), kv.second.begin(), kv.second.end());
   for (int k : {1, 10, 33}) {
     for (float r : {INFINITY, 0.08f}) {
-      SearchParams sp;
-      sp.k = k;
+      SearchParams sp = test::knn_params(k);
       sp.max_radius = r;
       KnnResult got = ix.query(qs, sp);
       require_no_removed(got, m);
@@ -142,8 +141,7 @@ TEST_CASE("updates: exact methods after random inserts and removes equal a fresh
 template <typename Rng>
 void budget_kernel_equals_reference(const BlockHashIndex& ix, const Model& m, Rng& rng, const char* what) {
   std::vector<float> qs = uniform(rng, 64, 0.0f, 1.0f);
-  SearchParams sp;
-  sp.k = 8;
+  SearchParams sp = test::knn_params(8);
   sp.A = 2;
   KnnResult dev = ix.query(qs, sp), ref = ix.reference_query(qs.data(), 64, sp);
   require_no_removed(dev, m);
@@ -224,8 +222,7 @@ TEST_CASE("updates: block hashing's block layouts equal a fresh build over the l
       std::vector<float> pts = m.points(ids);
       BlockHashIndex fresh(test::runtime(), pts.data(), ids.size(), bp);
       std::vector<float> qs = uniform(rng, 100, 0.0f, 1.0f);
-      SearchParams sp;
-      sp.k = 10;
+      SearchParams sp = test::knn_params(10);
       KnnResult want = fresh.query(qs, sp), got = ix.query(qs, sp);
       for (auto& id : want.ids)
         if (id >= 0) id = ids[std::size_t(id)];
@@ -276,8 +273,7 @@ TEST_CASE("updates: queries concurrent with inserts and removes see one state or
     auto ix = make_index(method, test::runtime(), p0.data(), 3000);
     m.add(p0);
     const std::vector<float> qs = uniform(rng, 200, 0.0f, 1.0f);
-    SearchParams sp;
-    sp.k = 5;
+    SearchParams sp = test::knn_params(5);
     // The answers of every state the sequence passes through, computed beforehand.
     struct Step {
       std::vector<float> add;
@@ -341,8 +337,7 @@ TEST_CASE("updates: the multi-device index updates every replica") {
   for (std::int32_t id : drop) m.live.erase(id);
   REQUIRE(md.size() == m.live.size());
   std::vector<float> qs = uniform(rng, 300, 0.0f, 1.0f);
-  SearchParams sp;
-  sp.k = 7;
+  SearchParams sp = test::knn_params(7);
   KnnResult r;
   md.query(qs.data(), 300, sp, r);
   test::require_identical(r, fresh_answer(m, qs, sp), "multi-device after updates");
@@ -378,8 +373,7 @@ void require_same_index(const Index& a, const Index& b, const Model& m, std::mt1
   std::vector<float> qs = uniform(rng, 200, -0.4f, 1.7f);
   for (double A : As)
     for (int k : {1, 10}) {
-      SearchParams sp;
-      sp.k = k;
+      SearchParams sp = test::knn_params(k);
       sp.A = A;
       KnnResult ra = a.query(qs, sp), rb = b.query(qs, sp);
       require_no_removed(rb, m);
@@ -573,8 +567,7 @@ TEST_CASE("updates: a saved grid after removes: damage refused, version 2 files 
   REQUIRE(old->size() == 1000);
   REQUIRE(old->id_bound() == 1000);
   std::vector<float> qs = uniform(rng, 100, 0.0f, 1.0f);
-  SearchParams sp;
-  sp.k = 10;
+  SearchParams sp = test::knn_params(10);
   sp.A = 2;
   test::require_identical(old->query(qs, sp), plain.query(qs, sp), "version 2 grid file");
   REQUIRE(old->insert(add.data(), 200) == 1000);
@@ -600,8 +593,7 @@ TEST_CASE("updates: block layouts saved after removes: sparse ids checked, versi
   spit_file(bad, v4);
   auto old = BlockHashIndex::load(test::runtime(), bad);
   std::vector<float> qs = uniform(rng, 100, 0.0f, 1.0f);
-  SearchParams sp;
-  sp.k = 10;
+  SearchParams sp = test::knn_params(10);
   test::require_identical(old->query(qs, sp), ix.query(qs, sp), "version 4 block file");
   // After removes: the order holds sparse ids; one out of the bound or twice is refused.
   std::int32_t drop[] = {0, 450, 899};

@@ -18,6 +18,15 @@ struct ChunkOut {
   Vec3 stored{0, 0, 0};
 };
 
+// Russian roulette at a specular bounce, on the specular colour's largest channel: false when the
+// photon ends there, else its power reweighted (the surviving power never grows).
+bool specular_survives(const Vec3& ks, Rng& rng, Vec3& power) {
+  float p = std::fmin(1.0f, max_component(ks));
+  if (!(p > 0) || rng.uniform() >= p) return false;
+  power = power * ks / p;
+  return true;
+}
+
 void trace_one(const EmbreeScene& es, const LightSampler& lights, const PhotonTraceOptions& opt,
                float inv_lum_power, float separation, std::uint64_t index, ChunkOut& out) {
   const Scene& scene = es.scene();
@@ -65,16 +74,12 @@ void trace_one(const EmbreeScene& es, const LightSampler& lights, const PhotonTr
       org = x + n * eps;
       only_specular = false;
     } else if (m.type == MaterialType::Mirror) {
-      float p = std::fmin(1.0f, max_component(m.ks));
-      if (!(p > 0) || rng.uniform() >= p) return;
-      power = power * m.ks / p;
+      if (!specular_survives(m.ks, rng, power)) return;
       dir = reflect(dir, n);
       org = x + n * eps;
       had_specular = true;
     } else if (m.type == MaterialType::Glass) {
-      float p = std::fmin(1.0f, max_component(m.ks));
-      if (!(p > 0) || rng.uniform() >= p) return;
-      power = power * m.ks / p;
+      if (!specular_survives(m.ks, rng, power)) return;
       // A photon carries flux, which crossing the interface conserves (apart from the Fresnel
       // split, sampled here): the (n_from / n_to)^2 that glass_scatter returns is the change of
       // radiance, i.e. of flux per solid angle, as Snell's law narrows or widens the solid angle;

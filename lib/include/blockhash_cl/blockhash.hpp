@@ -199,13 +199,7 @@ class BlockHashIndex : public Index {
   // its own answer), their exact k nearest (the kd-tree kernel) and the block-hash answers for
   // A in {1, 1.5, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64, 128}, picks the smallest A whose recall@k
   // on the sample reaches target. reached is false (and A the largest) when none does.
-  struct RecallTuning {
-    float A = 0;
-    double recall = 0;       // measured on the sample at that A
-    std::size_t sample = 0;  // queries in the sample
-    bool reached = false;
-    double seconds = 0;      // the tuning's own time (exact answers included)
-  };
+  using RecallTuning = bhcl::RecallTuning;
   RecallTuning tune_for_recall(double target, const SearchParams& params,
                                std::size_t sample = 2000) const;
   // The tuning a query with params.recall_target > 0 uses: computed on first use per (k, probes,
@@ -229,18 +223,9 @@ class BlockHashIndex : public Index {
   // come back as they are. Index::query itself keeps A = 0 as 8 on the block layouts (its
   // callers' parameters are not changed under them): the Python package and bhcl call this.
   static constexpr double kDefaultRecallTarget = 0.95;
-  struct BatchTuning {
-    bool tuned = false;       // A was chosen for a target (false: params came back as given)
-    bool cached = false;      // from the cache (no sample answered now)
-    double target = 0;
-    RecallTuning tuning;      // the A, the recall measured on the sample, its size and time
-    std::string distribution; // the cache key's distribution part, for the stats
-    double seconds = 0;       // this call's own cost (signature and, unless cached, the tuning),
-                              // first-launch kernel compiles excluded (they are compile_s)
-    double compile_s = 0;     // kernel compiles the tuning's first launches triggered
-  };
+  using BatchTuning = bhcl::BatchTuning;
   SearchParams params_for_batch(const float* queries, std::size_t n, const SearchParams& params,
-                                BatchTuning* info = nullptr) const;
+                                BatchTuning* info = nullptr) const override;
 
   // ceil(A k): the points a query may examine.
   static std::uint32_t budget(const SearchParams& params);
@@ -280,6 +265,9 @@ class BlockHashIndex : public Index {
   bool table_probes(int neighbour_probes) const;                // the L-table layout: 0 or 1
   // The arguments both block layouts' kernels (kNN and radius) begin with, up to the probes.
   void add_layout_args(detail::KernelArgs& args, int neighbour_probes) const;
+  // The opening of both layouts' builds: the points validated (extreme scales: a rescaled copy in
+  // `scaled`), the structure's size and scale set; returns the points to build from.
+  const float* begin_build(const float* points, std::size_t n_points, std::vector<float>& scaled);
   void build_blocks(const float* points, std::size_t n_points);  // the block layouts' stages
   void build_grid_layout(const float* points, std::size_t n_points, double cell_size);
   void upload_grid();

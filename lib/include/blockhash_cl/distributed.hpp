@@ -125,7 +125,7 @@ struct DistributedQueryStats {
   double phase1_s = 0, phase2_s = 0;  // wall time of each phase on this rank (routing included)
 };
 
-class DistributedIndex {
+class DistributedIndex final : public SearchIndex {
  public:
   // Collective over `comm`. `points`: this rank's part, n x 3 floats (n may be 0 on some ranks,
   // not on all). `runtime`: this rank's OpenCL device (each rank opens its own). Throws
@@ -148,7 +148,11 @@ class DistributedIndex {
   // The same with int32 ids: throws bhcl::Error on every rank, before any work, when the ids do
   // not all fit (!ids_fit_int32(); the KnnResult64 call answers there).
   QueryStats query(const float* queries, std::size_t n, const SearchParams& params, KnnResult& out,
-                   DistributedQueryStats* stats = nullptr) const;
+                   DistributedQueryStats* stats) const;
+  QueryStats query(const float* queries, std::size_t n, const SearchParams& params,
+                   KnnResult& out) const override {
+    return query(queries, n, params, out, nullptr);
+  }
 
   // Collective radius search (knn.hpp's Index::radius_search, same contract and layout): each
   // finite query goes to its owner and to every rank whose boxes meet the ball of radius r (the
@@ -161,11 +165,15 @@ class DistributedIndex {
                            RadiusResult64& out, DistributedQueryStats* stats = nullptr) const;
   // The same with int32 ids (refused as query()'s when the ids do not fit).
   QueryStats radius_search(const float* queries, std::size_t n, float r, const RadiusParams& params,
-                           RadiusResult& out, DistributedQueryStats* stats = nullptr) const;
+                           RadiusResult& out, DistributedQueryStats* stats) const;
+  QueryStats radius_search(const float* queries, std::size_t n, float r, const RadiusParams& params,
+                           RadiusResult& out) const override {
+    return radius_search(queries, n, r, params, out, nullptr);
+  }
 
-  std::string method() const { return method_; }
-  bool exact() const { return exact_; }
-  std::size_t size() const { return n_global_; }  // points over all ranks
+  std::string method() const override { return method_; }
+  bool exact() const override { return exact_; }
+  std::size_t size() const override { return n_global_; }  // points over all ranks
   std::int64_t id_base() const { return id_base_; }
   // One past the largest global id: id_base() + size().
   std::int64_t id_bound() const { return id_base_ + static_cast<std::int64_t>(n_global_); }

@@ -274,27 +274,84 @@ void check_radius_memory(std::size_t n, std::size_t entries, bool examined, int 
 // bad point, its coordinates and `what` (e.g. "points").
 void validate_points(const float* xyz, std::size_t n, const char* what);
 
+// A recall target turned into a budget (BlockHashIndex::tune_for_recall): the A picked, the
+// recall measured on the sample at that A, the sample's size, whether the target was reached.
+struct RecallTuning {
+  float A = 0;
+  double recall = 0;       // measured on the sample at that A
+  std::size_t sample = 0;  // queries in the sample
+  bool reached = false;
+  double seconds = 0;      // the tuning's own time (exact answers included)
+};
+
+// What SearchIndex::params_for_batch did for a batch.
+struct BatchTuning {
+  bool tuned = false;       // A was chosen for a target (false: params came back as given)
+  bool cached = false;      // from the cache (no sample answered now)
+  double target = 0;
+  RecallTuning tuning;      // the A, the recall measured on the sample, its size and time
+  std::string distribution; // the cache key's distribution part, for the stats
+  double seconds = 0;       // this call's own cost (signature and, unless cached, the tuning),
+                            // first-launch kernel compiles excluded (they are compile_s)
+  double compile_s = 0;     // kernel compiles the tuning's first launches triggered
+};
+
+// The one interface a front end queries, whatever answers: an Index (one method on one device),
+// a MultiDeviceIndex (copies on several devices, multi_device.hpp) or a DistributedIndex (shards
+// over MPI ranks, distributed.hpp: its calls are collective). Front ends hold a SearchIndex and
+// run kNN and radius batches through it (bhcl's query_in_slices / radius_in_slices), so a kind
+// of index needs no runner of its own. Rows follow the result contract above (int32 ids): an
+// index whose own ids are wider converts in its override, or offers its wider call beside it.
+class SearchIndex {
+ public:
+  virtual ~SearchIndex() = default;
+  virtual std::string method() const = 0;  // "bruteforce", "kdtree", "blockhash", ...
+  virtual bool exact() const = 0;          // true for exact methods
+  virtual std::size_t size() const = 0;    // the live points indexed (over every rank)
+  // Host arrays: queries n x 3 floats; out gets n rows (resized). Returns the call's stats.
+  virtual QueryStats query(const float* queries, std::size_t n, const SearchParams& params,
+                           KnnResult& out) const = 0;
+  // Every point within `radius` of each query (Index::radius_search's contract and layout).
+  virtual QueryStats radius_search(const float* queries, std::size_t n, float radius,
+                                   const RadiusParams& params, RadiusResult& out) const = 0;
+  // The search parameters a host-array batch of these queries should run with: params as given,
+  // unless the method tunes them to the batch (block hashing: A for a recall target on a sample
+  // of the batch, BlockHashIndex::params_for_batch). `info` (optional) says what was done.
+  virtual SearchParams params_for_batch(const float* queries, std::size_t n, const SearchParams& params,
+                                        BatchTuning* info = nullptr) const {
+    (void)queries;
+    (void)n;
+    if (info) *info = BatchTuning{};
+    return params;
+  }
+
+ protected:
+  SearchIndex() = default;
+  SearchIndex(const SearchIndex&) = default;
+  SearchIndex& operator=(const SearchIndex&) = default;
+};
+
 // Base of every method. Subclasses build their structure on construction and implement
 // enqueue_batch(); the base does validation, batching, warm-up and timing.
-class Index {
+class Index : public SearchIndex {
  public:
   virtual ~Index() = default;
   Index(const Index&) = delete;
   Index& operator=(const Index&) = delete;
 
-  virtual std::string method() const = 0;      // "bruteforce", "kdtree", "blockhash", ...
-  virtual bool exact() const = 0;              // true for exact methods
+  std::string method() const override = 0;     // "bruteforce", "kdtree", "blockhash", ...
+  bool exact() const override = 0;             // true for exact methods
   virtual std::size_t memory_bytes() const = 0;  // device structure size, points included
   // True when the method counts the points each query examines (SearchParams::count_examined).
   virtual bool counts_examined() const { return false; }
-  std::size_t size() const { return n_points_; }
+  std::size_t size() const override { return n_points_; }
   double build_seconds() const { return build_seconds_; }
   Runtime& runtime() const { return *runtime_; }
   const std::shared_ptr<Runtime>& runtime_ptr() const { return runtime_; }
 
   // Host arrays. queries: n x 3 floats. Fills out (resized to n x k). Returns the call's stats.
   QueryStats query(const float* queries, std::size_t n, const SearchParams& params,
-                   KnnResult& out) const;
+                   KnnResult& out) const override;
   // Convenience overload (std::vector of n*3 floats).
   KnnResult query(const std::vector<float>& queries, const SearchParams& params,
                   QueryStats* stats = nullptr) const;
@@ -322,7 +379,7 @@ class Index {
   // (scipy's query_ball_point accepts it too). Sizes are found by a count pass, then a fill pass
   // writes them; batches are split to bound device memory (RadiusParams::max_batch_results).
   QueryStats radius_search(const float* queries, std::size_t n, float radius,
-                           const RadiusParams& params, RadiusResult& out) const;
+                           const RadiusParams& params, RadiusResult& out) const override;
   // The same with the squared radius r2 (nanoflann's and FLANN's convention): p is within when
   // its squared distance <= r2.
   QueryStats radius_search_squared(const float* queries, std::size_t n, float r2,

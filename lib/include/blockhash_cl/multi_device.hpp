@@ -29,7 +29,7 @@ struct DeviceShare {
   QueryStats stats;         // its own call's stats (query_s: its kernels)
 };
 
-class MultiDeviceIndex {
+class MultiDeviceIndex final : public SearchIndex {
  public:
   // Builds `method` over the points on every runtime (one copy each, built concurrently: block
   // hashing builds its structure on the host once per device). Throws bhcl::Error for an empty
@@ -44,10 +44,18 @@ class MultiDeviceIndex {
   // parts, except query_s: the slowest part's wall time (compiles excluded), the batch's critical
   // path; `shares` gets each device's part with its own stats. A device that fails makes the call throw, naming it.
   QueryStats query(const float* queries, std::size_t n, const SearchParams& params, KnnResult& out,
-                   std::vector<DeviceShare>* shares = nullptr) const;
+                   std::vector<DeviceShare>* shares) const;
+  QueryStats query(const float* queries, std::size_t n, const SearchParams& params,
+                   KnnResult& out) const override {
+    return query(queries, n, params, out, nullptr);
+  }
   // Radius search, split and merged the same way (RadiusResult's slices in the caller's order).
   QueryStats radius_search(const float* queries, std::size_t n, float r, const RadiusParams& params,
-                           RadiusResult& out, std::vector<DeviceShare>* shares = nullptr) const;
+                           RadiusResult& out, std::vector<DeviceShare>* shares) const;
+  QueryStats radius_search(const float* queries, std::size_t n, float r, const RadiusParams& params,
+                           RadiusResult& out) const override {
+    return radius_search(queries, n, r, params, out, nullptr);
+  }
 
   // Updates (Index::insert/remove, same ids and errors) applied to every device's copy; exclusive
   // with this index's queries (a std::shared_mutex), so a query never sees the copies differ.
@@ -59,9 +67,9 @@ class MultiDeviceIndex {
 
   std::size_t devices() const { return indexes_.size(); }
   const Index& index(std::size_t device) const { return *indexes_.at(device); }
-  std::string method() const { return indexes_.front()->method(); }
-  bool exact() const { return indexes_.front()->exact(); }
-  std::size_t size() const { return indexes_.front()->size(); }
+  std::string method() const override { return indexes_.front()->method(); }
+  bool exact() const override { return indexes_.front()->exact(); }
+  std::size_t size() const override { return indexes_.front()->size(); }
   // The current split: one weight per device, summing to 1.
   std::vector<double> weights() const;
   // Fixes the split (e.g. from a known device ratio); the weights are normalised. Later calls

@@ -134,14 +134,19 @@ BlockHashIndex::BlockHashIndex(std::shared_ptr<Runtime> runtime, const float* po
   }
 }
 
+const float* BlockHashIndex::begin_build(const float* points, std::size_t n_points, std::vector<float>& scaled) {
+  points = prepare_points(points, n_points, scaled);  // validates; extreme scales
+  s_->n_points = n_points;
+  s_->scale_exp = scale_exponent();
+  return points;
+}
+
 void BlockHashIndex::build_grid_layout(const float* points, std::size_t n_points, double cell_size) {
   using namespace blockhash;
   auto t0 = std::chrono::steady_clock::now();
   std::vector<float> scaled;
-  points = prepare_points(points, n_points, scaled);  // validates; extreme scales
+  points = begin_build(points, n_points, scaled);
   Structure& s = *s_;
-  s.n_points = n_points;
-  s.scale_exp = scale_exponent();
   if (!s.grid) s.grid = std::make_shared<Grid>();
   release_grid_views();  // the build rewrites the arrays a device view may still show
   GridBuildParams gp;
@@ -255,10 +260,8 @@ void BlockHashIndex::build_blocks(const float* points, std::size_t n_points) {
   using namespace blockhash;
   auto t0 = std::chrono::steady_clock::now();
   std::vector<float> scaled;
-  points = prepare_points(points, n_points, scaled);  // validates; extreme scales
+  points = begin_build(points, n_points, scaled);
   Structure& s = *s_;
-  s.n_points = n_points;
-  s.scale_exp = scale_exponent();
   s.info.preset = params.preset;
   s.info.n_points = n_points;
   s.info.X = derive_x(params);

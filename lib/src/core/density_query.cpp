@@ -97,11 +97,8 @@ QueryStats density_estimate(const Index& index, const DensityWeights& weights, c
   const std::size_t max_alloc = rt.info().max_alloc_bytes ? rt.info().max_alloc_bytes : (std::size_t(1) << 30);
   std::size_t chunk = params.chunk ? params.chunk : 65536;
   chunk = std::max<std::size_t>(1, std::min({chunk, n, max_alloc / (4 * std::max<std::size_t>(k, 1))}));
-  cl_int err = CL_SUCCESS;
   auto make = [&](std::size_t bytes, const char* what) {
-    cl::Buffer b(rt.context(), CL_MEM_READ_WRITE, std::max<std::size_t>(bytes, 4), nullptr, &err);
-    check_cl(err, "clCreateBuffer", std::string("density_estimate ") + what + ", " + std::to_string(bytes) + " bytes");
-    return b;
+    return detail::device_buffer(rt, bytes, std::string("density_estimate ") + what);
   };
   // Reused by every chunk: the lists never leave the device.
   cl::Buffer qbuf = make(chunk * 3 * sizeof(float), "queries");

@@ -13,6 +13,13 @@ cl::Buffer upload_bytes(const std::shared_ptr<Runtime>& rt, const void* data, st
   return b;
 }
 
+cl::Buffer device_buffer(const Runtime& rt, std::size_t bytes, const std::string& what) {
+  cl_int err = CL_SUCCESS;
+  cl::Buffer b(rt.context(), CL_MEM_READ_WRITE, std::max<std::size_t>(bytes, 4), nullptr, &err);
+  check_cl(err, "clCreateBuffer", what + ", " + std::to_string(bytes) + " bytes");
+  return b;
+}
+
 cl::Buffer upload_points4(const std::shared_ptr<Runtime>& rt, const float* xyz, std::size_t n,
                           const std::string& what) {
   std::vector<cl_float4> p(std::max<std::size_t>(n, 1));

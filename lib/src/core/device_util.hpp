@@ -24,6 +24,10 @@ cl::Buffer upload_points4(const std::shared_ptr<Runtime>& rt, const float* xyz, 
 cl::Buffer upload_bytes(const std::shared_ptr<Runtime>& rt, const void* data, std::size_t bytes,
                         const std::string& what);
 
+// A read-write device buffer of `bytes` bytes (at least 4: a zero-size buffer is invalid in
+// OpenCL); a failure names `what` and the size asked for.
+cl::Buffer device_buffer(const Runtime& rt, std::size_t bytes, const std::string& what);
+
 template <typename T>
 cl::Buffer upload_vector(const std::shared_ptr<Runtime>& rt, const std::vector<T>& v,
                          const std::string& what) {

@@ -479,12 +479,7 @@ QueryStats Index::query(const float* queries, std::size_t n, const SearchParams&
   if (rt.info().max_alloc_bytes)
     chunk = std::min<std::size_t>(chunk, std::max<std::size_t>(1, rt.info().max_alloc_bytes / (4 * k)));
   chunk = std::min(chunk, n);
-  cl_int err = CL_SUCCESS;
-  auto make = [&](std::size_t bytes, const char* what) {
-    cl::Buffer b(rt.context(), CL_MEM_READ_WRITE, bytes, nullptr, &err);
-    check_cl(err, "clCreateBuffer", std::string(what) + ", " + std::to_string(bytes) + " bytes");
-    return b;
-  };
+  auto make = [&](std::size_t bytes, const char* what) { return detail::device_buffer(rt, bytes, what); };
   cl::Buffer qbuf = make(chunk * 3 * sizeof(float), "queries");
   ResultBuffers rb{make(chunk * k * sizeof(std::int32_t), "ids"), make(chunk * k * sizeof(float), "dist2"),
                    make(chunk * sizeof(std::int32_t), "counts")};

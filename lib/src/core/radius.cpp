@@ -278,11 +278,8 @@ void Index::radius_on_device(const float* queries, std::size_t n, float r2,
   const std::size_t max_alloc = rt.info().max_alloc_bytes ? rt.info().max_alloc_bytes : (std::size_t(1) << 30);
   std::size_t cap_results = params.max_batch_results ? params.max_batch_results : (std::size_t(1) << 24);
   cap_results = std::max<std::size_t>(1, std::min(cap_results, max_alloc / 4));
-  cl_int err = CL_SUCCESS;
   auto make = [&](std::size_t bytes, const char* what) {
-    cl::Buffer b(rt.context(), CL_MEM_READ_WRITE, std::max<std::size_t>(bytes, 4), nullptr, &err);
-    check_cl(err, "clCreateBuffer", std::string("radius search ") + what + ", " + std::to_string(bytes) + " bytes");
-    return b;
+    return detail::device_buffer(rt, bytes, std::string("radius search ") + what);
   };
   cl::Buffer qbuf = make(chunk * 3 * sizeof(float), "queries");
   RadiusBuffers rb;

@@ -35,12 +35,9 @@ double part_seconds(const QueryStats& s) { return std::max(0.0, s.wall_s - s.com
 // Adds one device's part to a call's stats: counts and transfer times sum; query_s and wall_s are
 // the slowest part's (the batch's critical path).
 void add_part(QueryStats& total, const QueryStats& part) {
-  total.nonfinite_queries += part.nonfinite_queries;
-  total.batches += part.batches;
-  total.compile_s += part.compile_s;
-  total.upload_s += part.upload_s;
-  total.download_s += part.download_s;
-  total.query_s = std::max(total.query_s, part_seconds(part));
+  const double query_s = std::max(total.query_s, part_seconds(part));
+  total.add_slice(part);
+  total.query_s = query_s;
   total.wall_s = std::max(total.wall_s, part.wall_s);
 }
 
