@@ -43,6 +43,7 @@ from ._checks import (  # noqa: F401
     _TABLE, _scoped, _BUILD_OPTIONS, _SEARCH_OPTIONS, _RADIUS_OPTIONS, _SEARCH_COMMON, _INT32_MAX,
     _F32, _I32, method_names, build_options, _search_options, _option_text, _set_table_options,
     _options_doc, _refuse_unknown, _int, _float, _checked, _origin_for, _precision, _relative, _xyz,
+    _own_copy, _MAX_POINTS, _check_count,
 )
 
 __all__ = [
@@ -475,15 +476,6 @@ class Index:
             setattr(self, name, getattr(other, name))
 
 
-def _own_copy(pts: np.ndarray, given: Any) -> np.ndarray:
-    """The index's host copy of its stored points: `pts` itself when it is already a private
-    conversion, else a copy (the caller's array may change after the build). Read-only."""
-    if isinstance(given, np.ndarray) and np.shares_memory(pts, given):
-        pts = pts.copy()
-    pts.flags.writeable = False
-    return pts
-
-
 def _rebuild(method: str, pts: np.ndarray, origin: np.ndarray, options: Dict[str, Any],
              structure: Optional[bytes], device: Union[None, str, Runtime],
              removed: Optional[np.ndarray] = None) -> Index:
@@ -546,17 +538,6 @@ def make_index(method: str, points: Any, *, device: Union[None, str, Runtime] = 
     pts = _relative(a, origin, "points") if np.any(origin) else _xyz(a, "points")
     impl = _core.make_index(method, get_runtime(device), pts, opts)
     return Index(impl, origin, _own_copy(pts, points), {k: v for k, v in options.items() if v is not None})
-
-
-_MAX_POINTS = 2**31 - 2  # one index's ids are int32 (the library's limit, knn.cpp)
-
-
-def _check_count(a: np.ndarray, method: str) -> None:
-    """Refuses a point set one index cannot hold before anything is converted or allocated (a
-    broadcast view of 2^31 rows costs nothing until it is copied)."""
-    if a.shape[0] > _MAX_POINTS:
-        raise Error(f"{method}: N = {a.shape[0]} points exceeds one index's int32 id range "
-                    f"(N <= 2^31 - 2 = {_MAX_POINTS}); nothing was allocated")
 
 
 def load(path: Union[str, "os.PathLike[str]"], points: Any = None, *,

@@ -193,3 +193,23 @@ def _xyz(array: Any, what: str) -> "npt.NDArray[np.float32]":
                              f"range (|x| <= {float(np.finfo(np.float32).max)!r}); the library stores float32")
         return a32
     return np.ascontiguousarray(a, dtype=np.float32)
+
+
+def _own_copy(pts: np.ndarray, given: Any) -> np.ndarray:
+    """The index's host copy of its stored points: `pts` itself when it is already a private
+    conversion, else a copy (the caller's array may change after the build). Read-only."""
+    if isinstance(given, np.ndarray) and np.shares_memory(pts, given):
+        pts = pts.copy()
+    pts.flags.writeable = False
+    return pts
+
+
+_MAX_POINTS = 2**31 - 2  # one index's ids are int32 (the library's limit, knn.cpp)
+
+
+def _check_count(a: np.ndarray, method: str) -> None:
+    """Refuses a point set one index cannot hold before anything is converted or allocated (a
+    broadcast view of 2^31 rows costs nothing until it is copied)."""
+    if a.shape[0] > _MAX_POINTS:
+        raise Error(f"{method}: N = {a.shape[0]} points exceeds one index's int32 id range "
+                    f"(N <= 2^31 - 2 = {_MAX_POINTS}); nothing was allocated")
