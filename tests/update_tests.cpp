@@ -3,7 +3,9 @@
 // points (ids mapped to the stable ones): exact methods and block hashing's exact grid mode bit for
 // bit, the block layouts equal to a fresh build of theirs; removed ids never returned; the errors
 // for bad input; queries concurrent with updates; save and load after updates.
+#include <algorithm>
 #include <atomic>
+#include <cmath>
 #include <cstring>
 #include <fstream>
 #include <iterator>
@@ -184,6 +186,63 @@ TEST_CASE("updates: block hashing's grid (exact mode) after random inserts and r
   CHECK(ix.info().holes == 5);
   CHECK(ix.info().compactions == compactions);
   check_exact(ix, m, rng);
+}
+
+TEST_CASE("updates: the grid's budget counts live points, and thinned cells retune before the holes compact") {
+  std::mt19937_64 rng(5);
+  Model m;
+  std::vector<float> p0 = uniform(rng, 20000, 0.0f, 1.0f);
+  BlockHashIndex ix(test::runtime(), p0.data(), 20000);
+  REQUIRE(ix.info().grid);
+  m.add(p0);
+  std::vector<std::int32_t> all(20000);
+  for (std::int32_t i = 0; i < 20000; ++i) all[std::size_t(i)] = i;
+  std::shuffle(all.begin(), all.end(), rng);
+  // 7.5 % removed: holes in place (fewer than the 1/8 that compacts; the cells thinned to about
+  // 0.93x of the tuned population, inside the band).
+  std::vector<std::int32_t> drop(all.begin(), all.begin() + 1500);
+  ix.remove(drop.data(), drop.size());
+  for (std::int32_t id : drop) m.live.erase(id);
+  REQUIRE(ix.info().holes == 1500);
+  REQUIRE(ix.info().retunes == 0);
+  // The kernel's budget is A k live points: over the stored slots, A k stored / live. The host
+  // reference given that budget examines exactly the slots the kernel did, and the plain A k
+  // examines fewer.
+  const blockhash::Grid& g = *ix.structure().grid;
+  REQUIRE(g.n_points == 20000);
+  CHECK(blockhash::grid_budget(16, 20000, 1500) == 18);  // ceil(16 * 20000 / 18500)
+  CHECK(blockhash::grid_budget(16, 20000, 0) == 16);
+  CHECK(blockhash::grid_budget(0xffffffffu, 20000, 1500) == 0xffffffffu);  // exact stays exact
+  std::vector<float> qs = uniform(rng, 256, 0.0f, 1.0f);
+  SearchParams sp = test::knn_params(8);
+  sp.A = 2;
+  sp.count_examined = true;
+  KnnResult dev = ix.query(qs, sp);
+  require_no_removed(dev, m);
+  const bool cpu = test::runtime()->quirks().vector_scan;  // the row cap the kernel was built with
+  KnnResult widened, plain;
+  std::vector<std::int32_t> ex_widened, ex_plain;
+  blockhash::reference_query_grid(g, qs.data(), 256, 8, INFINITY, 18, blockhash::grid_row_cap(cpu), widened,
+                                  &ex_widened, 0);
+  blockhash::reference_query_grid(g, qs.data(), 256, 8, INFINITY, 16, blockhash::grid_row_cap(cpu), plain,
+                                  &ex_plain, 0);
+  CHECK(dev.examined == ex_widened);
+  std::size_t sum_widened = 0, sum_plain = 0;
+  for (std::size_t i = 0; i < 256; ++i) sum_widened += std::size_t(ex_widened[i]), sum_plain += std::size_t(ex_plain[i]);
+  CHECK(sum_widened > sum_plain);
+  // Another 4 % removed: 11.5 % holes, still short of a compaction, but the cells' estimated
+  // population (1 + (p - 1) 0.885) is below 0.9x of the tuned one: the side is retuned over the
+  // live points, and the holes are gone.
+  std::vector<std::int32_t> more(all.begin() + 1500, all.begin() + 2300);
+  const std::size_t compactions = ix.info().compactions;
+  ix.remove(more.data(), more.size());
+  for (std::int32_t id : more) m.live.erase(id);
+  CHECK(ix.info().retunes == 1);
+  CHECK(ix.info().holes == 0);
+  CHECK(ix.info().compactions == compactions);
+  CHECK(ix.size() == 17700);
+  check_exact(ix, m, rng);
+  budget_kernel_equals_reference(ix, m, rng, "grid budget A = 2 after the retune, kernel vs reference");
 }
 
 TEST_CASE("updates: block hashing's two-level grid directory after random inserts and removes") {

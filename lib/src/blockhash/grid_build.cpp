@@ -172,6 +172,7 @@ struct BucketScratch {
   std::vector<std::uint32_t> cnt;
   std::vector<std::uint8_t> seg;
   std::vector<std::uint32_t> rank;
+  std::vector<std::uint32_t> lcell;  // each record's cell in the bucket's counts, computed once
 };
 
 }  // namespace
@@ -340,43 +341,63 @@ void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid&
   std::vector<std::uint32_t> occ_b(nb, 0);
   std::vector<double> sum2_b(nb, 0.0);
   const std::size_t cells_per_bucket = std::size_t(1) << shift;
+  if (!sparse) g.starts[0] = 0;
   detail::parallel_chunks(nb, 1, threads, [&](std::size_t b, std::size_t, std::size_t) {
     static thread_local BucketScratch ws;
     if (ws.cnt.size() < cells_per_bucket) ws.cnt.assign(cells_per_bucket, 0);
     if (sparse && ws.seg.size() < seg_per_bucket) ws.seg.assign(seg_per_bucket, 0);
     if (sparse && ws.rank.size() < seg_per_bucket) ws.rank.resize(seg_per_bucket);
-    std::uint32_t* cnt = ws.cnt.data();
+    std::uint32_t* const cnt = ws.cnt.data();
     const std::size_t c0 = b << shift, c1 = std::min(ncells, c0 + cells_per_bucket);
     const std::uint32_t rb = bstart[b], re = bstart[b + 1];
+    if (ws.lcell.size() < re - rb) ws.lcell.resize(re - rb);
+    // The record's cell once per record (the count and the placement both read it): computed
+    // twice, the cell took a third of this pass.
+    std::uint32_t* const lcell = ws.lcell.data();
     constexpr std::uint32_t kSeg = 1u << BHCL_GRID_SEG_BITS;
-    // Two-level: the bucket's occupied segments ranked in order, and each cell counted at
-    // (rank, cell in segment): the counts of a sparse bucket stay a few KiB, not a count per
-    // cell of its range (1.5 MiB per bucket for the Cornell box at 10M points).
     const std::size_t s0 = c0 >> BHCL_GRID_SEG_BITS;
     const std::size_t s1 = sparse ? std::min(((c1 - 1) >> BHCL_GRID_SEG_BITS) + 1, top) : 0;
-    std::uint32_t nocc = 0;
-    if (sparse) {
-      for (std::uint32_t r = rb; r < re; ++r) ws.seg[(rec_cell(r) - c0) >> BHCL_GRID_SEG_BITS] = 1;
-      for (std::size_t sg = s0; sg < s1; ++sg)
-        if (ws.seg[sg - s0]) ws.rank[sg - s0] = nocc++;
-    }
-    auto local = [&](std::uint32_t c) -> std::uint32_t {
-      if (!sparse) return c - static_cast<std::uint32_t>(c0);
-      return (ws.rank[(c - c0) >> BHCL_GRID_SEG_BITS] << BHCL_GRID_SEG_BITS) | (c & (kSeg - 1u));
-    };
-    for (std::uint32_t r = rb; r < re; ++r) ++cnt[local(rec_cell(r))];
-    std::uint32_t run = rb, occ = 0;
-    double sum2 = 0;
+    std::uint32_t nocc = 0, occ = 0;
+    std::uint64_t sum2 = 0;  // in integers: a double's add chain was the prefix loop's bound
+    std::uint32_t run = rb;
     if (!sparse) {
-      for (std::size_t c = c0; c < c1; ++c) {
-        const std::uint32_t v = cnt[c - c0];
-        g.starts[c] = run;
-        cnt[c - c0] = run;  // now the cell's write position
+      const std::uint32_t cb = static_cast<std::uint32_t>(c0);
+      for (std::uint32_t r = rb; r < re; ++r) {
+        const std::uint32_t lc = rec_cell(r) - cb;
+        lcell[r - rb] = lc;
+        ++cnt[lc];
+      }
+      // The write position of cell c is kept at starts[c + 1]: after the placement it has moved
+      // to the cell's end, which is where cell c + 1 starts. No second table of positions, and
+      // the counts are cleared as they are read. Buckets write disjoint entries (c0, c1].
+      std::uint32_t* const next = g.starts.data() + c0 + 1;
+      for (std::size_t i = 0, m = c1 - c0; i < m; ++i) {
+        const std::uint32_t v = cnt[i];
+        cnt[i] = 0;
+        next[i] = run;
         run += v;
         occ += v ? 1 : 0;
-        sum2 += double(v) * v;
+        sum2 += std::uint64_t(v) * v;
       }
     } else {
+      // Two-level: the bucket's occupied segments ranked in order, and each cell counted at
+      // (rank, cell in segment): the counts of a sparse bucket stay a few KiB, not a count per
+      // cell of its range (1.5 MiB per bucket for the Cornell box at 10M points).
+      const std::uint32_t cb = static_cast<std::uint32_t>(c0);
+      for (std::uint32_t r = rb; r < re; ++r) {
+        const std::uint32_t rel = rec_cell(r) - cb;
+        lcell[r - rb] = rel;
+        ws.seg[rel >> BHCL_GRID_SEG_BITS] = 1;
+      }
+      for (std::size_t sg = s0; sg < s1; ++sg)
+        if (ws.seg[sg - s0]) ws.rank[sg - s0] = nocc++;
+      // c0 is a whole number of segments: a cell's place in its segment is rel's low bits.
+      for (std::uint32_t r = rb; r < re; ++r) {
+        const std::uint32_t rel = lcell[r - rb];
+        const std::uint32_t lc = (ws.rank[rel >> BHCL_GRID_SEG_BITS] << BHCL_GRID_SEG_BITS) | (rel & (kSeg - 1u));
+        lcell[r - rb] = lc;
+        ++cnt[lc];
+      }
       const std::uint32_t slot0 = static_cast<std::uint32_t>(top) + (seg_base[b] << BHCL_GRID_SEG_BITS);
       for (std::size_t sg = s0; sg < s1; ++sg) {
         if (!ws.seg[sg - s0]) {
@@ -390,27 +411,24 @@ void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid&
           const std::uint32_t lc = (rk << BHCL_GRID_SEG_BITS) | j;
           const std::uint32_t v = cnt[lc];
           g.starts[slot + j] = run;
-          cnt[lc] = run;
+          cnt[lc] = run;  // now the cell's write position
           run += v;
           occ += v ? 1 : 0;
-          sum2 += double(v) * v;
+          sum2 += std::uint64_t(v) * v;
         }
       }
     }
     // The arrays' pointers in locals: through the vectors, every store (which may alias them, as
-    // far as the compiler knows) reloaded the four data pointers and the thread-local ranks.
+    // far as the compiler knows) reloaded the four data pointers.
     {
       float* const X = g.x.data();
       float* const Y = g.y.data();
       float* const Z = g.z.data();
       std::int32_t* const I = g.ids.data();
       const float* const rec = sc.rec.data();
-      const std::uint32_t* const rank = sparse ? ws.rank.data() : nullptr;
+      std::uint32_t* const pos = sparse ? cnt : g.starts.data() + c0 + 1;
       for (std::uint32_t r = rb; r < re; ++r) {
-        const std::uint32_t c = rec_cell(r);
-        const std::uint32_t lc = sparse ? (rank[(c - c0) >> BHCL_GRID_SEG_BITS] << BHCL_GRID_SEG_BITS) | (c & (kSeg - 1u))
-                                        : c - static_cast<std::uint32_t>(c0);
-        const std::uint32_t k = cnt[lc]++;
+        const std::uint32_t k = pos[lcell[r - rb]]++;
         const float* rr = rec + 4 * std::size_t(r);
         std::int32_t id;
         std::memcpy(&id, rr + 3, 4);
@@ -420,10 +438,10 @@ void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid&
         I[k] = id;
       }
     }
-    // Clear what this bucket touched: every count it used became a write position.
-    std::fill(cnt, cnt + (sparse ? std::size_t(nocc) * kSeg : c1 - c0), 0u);
+    // Two-level: clear the counts this bucket used (they became write positions).
+    if (sparse) std::fill(cnt, cnt + std::size_t(nocc) * kSeg, 0u);
     occ_b[b] = occ;
-    sum2_b[b] = sum2;
+    sum2_b[b] = double(sum2);
   });
   // The top entry past the last segment (a run ending at the last cell reads it).
   if (sparse && (ncells & ((std::size_t(1) << BHCL_GRID_SEG_BITS) - 1)) == 0)

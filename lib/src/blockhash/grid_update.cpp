@@ -15,8 +15,8 @@
 //    insert). Ids stay ascending inside a cell (new ids are larger), as a fresh build's stable
 //    scatter gives them.
 //  - the leaf split: a cell side tuned for a population (target_cell_points) stops fitting when
-//    the set grows or shrinks; once the point-weighted mean cell population drifts past 1.25x (or
-//    below 0.8x) of the last tuned build's, the grid is rebuilt over the live points with a freshly
+//    the set grows or shrinks; once the point-weighted mean cell population drifts past 1.1x (or
+//    below 0.9x) of the last tuned build's, the grid is rebuilt over the live points with a freshly
 //    tuned side. Growth by doubling keeps the amortised cost per point O(1).
 //  - points outside the grid's box: a full build over the live points with the previous cell side
 //    (the slab bounds, and so the exact mode, rely on every point lying inside its cell).
@@ -42,11 +42,14 @@ namespace {
 
 constexpr std::int32_t kHoleId = BHCL_EMPTY_SLOT_ID;
 // The band of mean cell populations (relative to the tuned side's) an update keeps the cells in:
-// outside it the side is retuned by a full build. Recall at a given A and the query time follow
-// the population (bench/update_bench: 10x the population gave +0.15 recall at A = 2, k = 10, and
-// 0.88x the speed), so the band is narrow; growth by 1.25x per retune still amortises the rebuilds
-// to O(1) per point (10 full builds over a 10x growth).
-constexpr double kRetuneAbove = 1.25, kRetuneBelow = 0.8;
+// outside it the side is retuned by a full build. Recall at a given A follows the population
+// (uniform 1M, k = 10, fresh builds tuned for 19 .. 30 points per cell: at A = 8 recall 0.941 ..
+// 0.897, at A = 16 0.995 .. 0.980; at A = 2, where the budget is about one cell, 0.71 .. 0.59),
+// so the band is narrow: +-10 % keeps A >= 4 within about 0.01 of a fresh build. It is just wide
+// enough that inserting or removing a tenth of the points from the same distribution (the
+// point-weighted mean moves by (0.1 lambda) / (lambda + 1), 9.6 % at 24) merges instead of
+// rebuilding; growth by 1.1x per retune still amortises the rebuilds to O(1) per point.
+constexpr double kRetuneAbove = 1.10, kRetuneBelow = 0.90;
 
 double since(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -297,9 +300,19 @@ void BlockHashIndex::grid_remove(const std::int32_t* ids, std::size_t n) {
     hi = std::max(hi, p);
   }
   info_.holes += n;
+  // The live points' mean cell population, estimated as for a random thinning of the stored
+  // ones (a Poisson cell of mean l thinned to f keeps a point-weighted mean of f l + 1); exact
+  // again at the next compaction, merge or build. Without it the population could drift by the
+  // 1/8 of holes a compaction waits for before the band below was looked at.
+  const double f = double(g.n_points - info_.holes) / double(g.n_points);
+  const double live_mean = 1.0 + (std::max(info_.mean_cell_points, 1.0) - 1.0) * f;
+  // Too few points per cell for the tuned side: the leaf merge, a rebuild with a fresh side.
+  if (live_mean < kRetuneBelow * grid_build_mean_) {
+    grid_rebuild_live(nullptr, 0, 0, true);
+    return;
+  }
   if (8 * info_.holes > g.n_points) {
     grid_compact();
-    // Too few points per cell for the tuned side: the leaf merge, a rebuild with a fresh side.
     if (info_.mean_cell_points < kRetuneBelow * grid_build_mean_) grid_rebuild_live(nullptr, 0, 0, true);
     return;
   }

@@ -10,7 +10,6 @@
 #include "core/device_util.hpp"
 
 namespace bhcl {
-
 std::uint32_t BlockHashIndex::cells_probes(const SearchParams& p) const {
   if (p.neighbour_probes >= 0) return static_cast<std::uint32_t>(p.neighbour_probes);
   // The octant, then the rest of the 4 x 4 x 4 block only for queries whose k-th distance still
@@ -147,7 +146,7 @@ cl::Event BlockHashIndex::enqueue_batch(const cl::CommandQueue& queue, const cl:
     detail::KernelArgs args(kernel, gname);
     add_grid_args(args);
     args.add_queries(queries, first, count, params)
-        .add(cl_uint(budget(params)))
+        .add(cl_uint(blockhash::grid_budget(budget(params), s_->grid->n_points, info_.holes)))
         .add_results(out)
         .add(examined ? *examined : dummy_)
         .add(cl_uint(examined ? 1 : 0));
@@ -235,7 +234,8 @@ KnnResult BlockHashIndex::reference_query(const float* queries, std::size_t n,
   KnnResult out;
   if (info_.grid) {
     blockhash::reference_query_grid(*s_->grid, queries, n, params.k, detail::squared_radius(params.max_radius),
-                                    budget(params), row_cap_for(params), out, examined, threads);
+                                    blockhash::grid_budget(budget(params), s_->grid->n_points, info_.holes),
+                                    row_cap_for(params), out, examined, threads);
   } else if (info_.cell_aligned) {
     blockhash::reference_query_cells(*s_, queries, n, params, cells_probes(params), out, examined, threads);
   } else {
