@@ -261,6 +261,22 @@ TEST_CASE("updates: block hashing's two-level grid directory after random insert
     check_exact(ix, m, rng);
     budget_kernel_equals_reference(ix, m, rng, "two-level grid A = 2, kernel vs reference");
   }
+  // Its inserts rebuild with the side kept, inside the retune band: grown 3x in steps of a tenth,
+  // the cells stay within 1.1x of the tuned population (before, the side was never retuned there).
+  const std::size_t retunes = ix.info().retunes;
+  BlockHashIndex fresh_of_first(test::runtime(), p0.data(), 2000, bp);
+  const double tuned = fresh_of_first.info().mean_cell_points;  // what the tuning aims at here
+  for (std::size_t step = 0; step < 12; ++step) {
+    CAPTURE(step);
+    std::vector<float> more = uniform(rng, ix.size() / 10, 0.0f, 1.0f);
+    ix.insert(more.data(), more.size() / 3);
+    m.add(more);
+    // Without the band on this path the population grows with the set (3x by the end).
+    CHECK(ix.info().mean_cell_points <= 1.35 * tuned);
+  }
+  CHECK(ix.info().retunes > retunes);
+  REQUIRE(ix.info().grid_two_level);
+  check_exact(ix, m, rng);
 }
 
 TEST_CASE("updates: block hashing's block layouts equal a fresh build over the live points") {
