@@ -44,6 +44,14 @@
 #endif
 #define BHCL_GRID_ROWBUF (BHCL_GRID_ROWCAP > 0 ? BHCL_GRID_ROWCAP : 1)
 
+/* 1: the register list's first k entries are appended unordered and sorted once by a bitonic
+ * network (vt_sort), instead of k insertions of 4 VR register steps each: at k = 50 the
+ * insertions that fill the list are most of a query's list work. Same (distance, index) order,
+ * so the rows are unchanged. */
+#ifndef BHCL_GRID_FILLSORT
+#define BHCL_GRID_FILLSORT 1
+#endif
+
 #if BHCL_GRID_VTOPK
 #if BHCL_KMAX > 64
 #error "the register top-k holds at most 64 entries"
@@ -63,6 +71,14 @@ typedef struct bhcl_vtopk {
   int16 i1, i2, i3;
 #endif
   float max_r2;
+#if BHCL_GRID_FILLSORT
+  /* The first k candidates (d <= max_r2) are only appended here, at lanes first.. of the list's
+   * layout, and sorted once when the k-th arrives (vt_sort); the registers keep vt_init's
+   * pattern meanwhile, so vt_bound is max_r2 as it is for a list not yet full. */
+  uint n, first, k;
+  float fd[16 * VR];
+  int fi[16 * VR];
+#endif
 } bhcl_vtopk;
 
 #define VT_SHIFT ((uint16)(31, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14))
@@ -94,6 +110,21 @@ inline __attribute__((always_inline)) void vt_init(bhcl_vtopk* t, uint k, float 
   t->i1 = t->i2 = t->i3 = (int16)(BHCL_EMPTY_SLOT_ID);
 #endif
   t->max_r2 = max_r2;
+#if BHCL_GRID_FILLSORT
+  t->n = 0;
+  t->first = (uint)first;
+  t->k = k;
+  vstore16(t->d0, 0, t->fd);
+  vstore16(t->i0, 0, t->fi);
+#if VR > 1
+  vstore16(t->d1, 1, t->fd);
+  vstore16(t->d2, 2, t->fd);
+  vstore16(t->d3, 3, t->fd);
+  vstore16(t->i1, 1, t->fi);
+  vstore16(t->i2, 2, t->fi);
+  vstore16(t->i3, 3, t->fi);
+#endif
+#endif
 }
 
 inline __attribute__((always_inline)) float vt_bound(const bhcl_vtopk* t) {
@@ -129,6 +160,103 @@ inline __attribute__((always_inline)) void vt_insert(bhcl_vtopk* t, float d, int
   }
 }
 
+#if BHCL_GRID_FILLSORT
+/* Bitonic sort of the 16 VR lanes ascending by (distance, index). A compare-exchange of lanes g
+ * and g ^ J within a register: each lane takes the lesser of itself and its partner where it is
+ * the lower lane of an ascending block (or the upper of a descending one), else the greater. */
+#define VT_LT(A, AI, B, BI) ((A < B) | ((A == B) & (AI < BI)))
+#define VT_CE_IN(D, I, R, SIZE, J)                                                  \
+  {                                                                                 \
+    const int16 g = lane + (int16)(16 * (R));                                       \
+    const int16 tm = ((g & (int16)(J)) == (int16)(0)) == ((g & (int16)(SIZE)) == (int16)(0)); \
+    const uint16 pm = as_uint16(lane ^ (int16)(J));                                 \
+    float16 pd = shuffle(D, pm);                                                    \
+    int16 pi = shuffle(I, pm);                                                      \
+    int16 keep = VT_LT(D, I, pd, pi) == tm;                                         \
+    D = select(pd, D, keep);                                                        \
+    I = select(pi, I, keep);                                                        \
+  }
+/* Registers A (lower) and B (upper) exchanged lane by lane; ASC: A takes the lesser. */
+#define VT_CE_X(A, AI, B, BI, ASC)                \
+  {                                               \
+    int16 lt = VT_LT(A, AI, B, BI);               \
+    if (!(ASC)) lt = ~lt;                         \
+    float16 na = select(B, A, lt);                \
+    int16 nai = select(BI, AI, lt);               \
+    B = select(A, B, lt);                         \
+    BI = select(AI, BI, lt);                      \
+    A = na;                                       \
+    AI = nai;                                     \
+  }
+/* The intra-register stages J = 8, 4, 2, 1 of a merge of blocks of SIZE, on every register. */
+#if VR > 1
+#define VT_CE_ALL(SIZE, J)                  \
+  VT_CE_IN(t->d0, t->i0, 0, SIZE, J);       \
+  VT_CE_IN(t->d1, t->i1, 1, SIZE, J);       \
+  VT_CE_IN(t->d2, t->i2, 2, SIZE, J);       \
+  VT_CE_IN(t->d3, t->i3, 3, SIZE, J)
+#else
+#define VT_CE_ALL(SIZE, J) VT_CE_IN(t->d0, t->i0, 0, SIZE, J)
+#endif
+#define VT_MERGE_IN(SIZE) \
+  VT_CE_ALL(SIZE, 8);     \
+  VT_CE_ALL(SIZE, 4);     \
+  VT_CE_ALL(SIZE, 2);     \
+  VT_CE_ALL(SIZE, 1)
+
+inline __attribute__((always_inline)) void vt_sort(bhcl_vtopk* t) {
+  const int16 lane = (int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+  t->d0 = vload16(0, t->fd);
+  t->i0 = vload16(0, t->fi);
+#if VR > 1
+  t->d1 = vload16(1, t->fd);
+  t->d2 = vload16(2, t->fd);
+  t->d3 = vload16(3, t->fd);
+  t->i1 = vload16(1, t->fi);
+  t->i2 = vload16(2, t->fi);
+  t->i3 = vload16(3, t->fi);
+#endif
+  VT_CE_ALL(2, 1);
+  VT_CE_ALL(4, 2);
+  VT_CE_ALL(4, 1);
+  VT_CE_ALL(8, 4);
+  VT_CE_ALL(8, 2);
+  VT_CE_ALL(8, 1);
+  VT_MERGE_IN(16);
+#if VR > 1
+  /* blocks of 32: registers 0-1 ascending, 2-3 descending */
+  VT_CE_X(t->d0, t->i0, t->d1, t->i1, 1);
+  VT_CE_X(t->d2, t->i2, t->d3, t->i3, 0);
+  VT_MERGE_IN(32);
+  /* the whole list, ascending */
+  VT_CE_X(t->d0, t->i0, t->d2, t->i2, 1);
+  VT_CE_X(t->d1, t->i1, t->d3, t->i3, 1);
+  VT_CE_X(t->d0, t->i0, t->d1, t->i1, 1);
+  VT_CE_X(t->d2, t->i2, t->d3, t->i3, 1);
+  VT_MERGE_IN(64);
+#endif
+  t->n = t->k + 1; /* sorted: the registers hold the list from now on */
+}
+
+/* A candidate within the bound: appended while the list fills, then inserted. */
+#define VT_OFFER(t, d, id)                     \
+  {                                            \
+    if ((t)->n < (t)->k) {                     \
+      (t)->fd[(t)->first + (t)->n] = (d);      \
+      (t)->fi[(t)->first + (t)->n] = (id);     \
+      if (++(t)->n == (t)->k) vt_sort(t);      \
+    } else {                                   \
+      vt_insert((t), (d), (id));               \
+    }                                          \
+  }
+/* After the search: a list that did not fill is sorted now. */
+#define VT_FINISH(t) \
+  if ((t)->n <= (t)->k) vt_sort(t)
+#else
+#define VT_OFFER(t, d, id) vt_insert((t), (d), (id))
+#define VT_FINISH(t)
+#endif
+
 /* Points [a, b) of the sorted arrays, 16 at a time (the arrays are padded by 16 entries). */
 inline __attribute__((always_inline)) void vt_scan(bhcl_vtopk* t, float3 q, __global const float* px,
                                                    __global const float* py, __global const float* pz,
@@ -156,7 +284,7 @@ inline __attribute__((always_inline)) void vt_scan(bhcl_vtopk* t, float3 q, __gl
     while (mask) {
       int j = 31 - (int)clz(mask & (0u - mask));
       mask &= mask - 1u;
-      if (dd[j] <= vt_bound(t)) vt_insert(t, dd[j], pid[p + (uint)j]);
+      if (dd[j] <= vt_bound(t)) VT_OFFER(t, dd[j], pid[p + (uint)j]);
     }
   }
 }
@@ -259,6 +387,7 @@ __kernel void blockhash_grid_knn(__global const uint* starts, __global const flo
   bhcl_vtopk t;
   vt_init(&t, k, max_r2);
   if (bhcl_query_is_finite(q)) examined = bhcl_grid_search(starts, px, py, pz, pid, g, qx, qy, qz, budget, BHCL_GRID_ROWCAP, &t);
+  VT_FINISH(&t);
   float td[16 * VR];
   int ti[16 * VR];
   vstore16(t.d0, 0, td);
