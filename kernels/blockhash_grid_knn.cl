@@ -51,6 +51,9 @@
 #ifndef BHCL_GRID_FILLSORT
 #define BHCL_GRID_FILLSORT 1
 #endif
+#ifndef BHCL_GRID_SORT_CALL /* 1: the network in one function (not inlined) over the list in memory */
+#define BHCL_GRID_SORT_CALL 1
+#endif
 
 #if BHCL_GRID_VTOPK
 #if BHCL_KMAX > 64
@@ -76,8 +79,8 @@ typedef struct bhcl_vtopk {
    * layout, and sorted once when the k-th arrives (vt_sort); the registers keep vt_init's
    * pattern meanwhile, so vt_bound is max_r2 as it is for a list not yet full. */
   uint n, first, k;
-  float fd[16 * VR];
-  int fi[16 * VR];
+  float* fd; /* 16 VR entries each, the kernel's (so the struct stays in registers) */
+  int* fi;
 #endif
 } bhcl_vtopk;
 
@@ -98,7 +101,8 @@ typedef struct bhcl_vtopk {
     I = select(I, select(iv, si, ms), m);                       \
   }
 
-inline __attribute__((always_inline)) void vt_init(bhcl_vtopk* t, uint k, float max_r2) {
+inline __attribute__((always_inline)) void vt_init(bhcl_vtopk* t, uint k, float max_r2, float* fd,
+                                                   int* fi) {
   const int16 lane = (int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
   const int first = 16 * VR - (int)k;
   t->d0 = select((float16)(INFINITY), (float16)(-INFINITY), lane < (int16)(first));
@@ -114,6 +118,8 @@ inline __attribute__((always_inline)) void vt_init(bhcl_vtopk* t, uint k, float 
   t->n = 0;
   t->first = (uint)first;
   t->k = k;
+  t->fd = fd;
+  t->fi = fi;
   vstore16(t->d0, 0, t->fd);
   vstore16(t->i0, 0, t->fi);
 #if VR > 1
@@ -190,22 +196,82 @@ inline __attribute__((always_inline)) void vt_insert(bhcl_vtopk* t, float d, int
   }
 /* The intra-register stages J = 8, 4, 2, 1 of a merge of blocks of SIZE, on every register. */
 #if VR > 1
-#define VT_CE_ALL(SIZE, J)                  \
-  VT_CE_IN(t->d0, t->i0, 0, SIZE, J);       \
-  VT_CE_IN(t->d1, t->i1, 1, SIZE, J);       \
-  VT_CE_IN(t->d2, t->i2, 2, SIZE, J);       \
-  VT_CE_IN(t->d3, t->i3, 3, SIZE, J)
+#define VT_CE_ALL(P, SIZE, J)             \
+  VT_CE_IN(P d0, P i0, 0, SIZE, J);       \
+  VT_CE_IN(P d1, P i1, 1, SIZE, J);       \
+  VT_CE_IN(P d2, P i2, 2, SIZE, J);       \
+  VT_CE_IN(P d3, P i3, 3, SIZE, J)
 #else
-#define VT_CE_ALL(SIZE, J) VT_CE_IN(t->d0, t->i0, 0, SIZE, J)
+#define VT_CE_ALL(P, SIZE, J) VT_CE_IN(P d0, P i0, 0, SIZE, J)
 #endif
-#define VT_MERGE_IN(SIZE) \
-  VT_CE_ALL(SIZE, 8);     \
-  VT_CE_ALL(SIZE, 4);     \
-  VT_CE_ALL(SIZE, 2);     \
-  VT_CE_ALL(SIZE, 1)
+#define VT_MERGE_IN(P, SIZE) \
+  VT_CE_ALL(P, SIZE, 8);     \
+  VT_CE_ALL(P, SIZE, 4);     \
+  VT_CE_ALL(P, SIZE, 2);     \
+  VT_CE_ALL(P, SIZE, 1)
+/* The whole network on registers P d0.. P d3 (P: "t->" or nothing). */
+#if VR > 1
+#define VT_SORT_REGS(P)                          \
+  {                                              \
+    VT_CE_ALL(P, 2, 1);                          \
+    VT_CE_ALL(P, 4, 2);                          \
+    VT_CE_ALL(P, 4, 1);                          \
+    VT_CE_ALL(P, 8, 4);                          \
+    VT_CE_ALL(P, 8, 2);                          \
+    VT_CE_ALL(P, 8, 1);                          \
+    VT_MERGE_IN(P, 16);                          \
+    /* blocks of 32: 0-1 ascending, 2-3 descending */ \
+    VT_CE_X(P d0, P i0, P d1, P i1, 1);          \
+    VT_CE_X(P d2, P i2, P d3, P i3, 0);          \
+    VT_MERGE_IN(P, 32);                          \
+    /* the whole list, ascending */              \
+    VT_CE_X(P d0, P i0, P d2, P i2, 1);          \
+    VT_CE_X(P d1, P i1, P d3, P i3, 1);          \
+    VT_CE_X(P d0, P i0, P d1, P i1, 1);          \
+    VT_CE_X(P d2, P i2, P d3, P i3, 1);          \
+    VT_MERGE_IN(P, 64);                          \
+  }
+#else
+#define VT_SORT_REGS(P)     \
+  {                         \
+    VT_CE_ALL(P, 2, 1);     \
+    VT_CE_ALL(P, 4, 2);     \
+    VT_CE_ALL(P, 4, 1);     \
+    VT_CE_ALL(P, 8, 4);     \
+    VT_CE_ALL(P, 8, 2);     \
+    VT_CE_ALL(P, 8, 1);     \
+    VT_MERGE_IN(P, 16);     \
+  }
+#endif
+
+#if BHCL_GRID_SORT_CALL
+/* The network once, in memory: called from every scan site, instead of a copy at each. */
+__attribute__((noinline)) void vt_sort_mem(float* fd, int* fi) {
+  const int16 lane = (int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+  float16 d0 = vload16(0, fd);
+  int16 i0 = vload16(0, fi);
+#if VR > 1
+  float16 d1 = vload16(1, fd), d2 = vload16(2, fd), d3 = vload16(3, fd);
+  int16 i1 = vload16(1, fi), i2 = vload16(2, fi), i3 = vload16(3, fi);
+#endif
+  VT_SORT_REGS()
+  vstore16(d0, 0, fd);
+  vstore16(i0, 0, fi);
+#if VR > 1
+  vstore16(d1, 1, fd);
+  vstore16(d2, 2, fd);
+  vstore16(d3, 3, fd);
+  vstore16(i1, 1, fi);
+  vstore16(i2, 2, fi);
+  vstore16(i3, 3, fi);
+#endif
+}
+#endif
 
 inline __attribute__((always_inline)) void vt_sort(bhcl_vtopk* t) {
-  const int16 lane = (int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+#if BHCL_GRID_SORT_CALL
+  vt_sort_mem(t->fd, t->fi);
+#endif
   t->d0 = vload16(0, t->fd);
   t->i0 = vload16(0, t->fi);
 #if VR > 1
@@ -216,24 +282,9 @@ inline __attribute__((always_inline)) void vt_sort(bhcl_vtopk* t) {
   t->i2 = vload16(2, t->fi);
   t->i3 = vload16(3, t->fi);
 #endif
-  VT_CE_ALL(2, 1);
-  VT_CE_ALL(4, 2);
-  VT_CE_ALL(4, 1);
-  VT_CE_ALL(8, 4);
-  VT_CE_ALL(8, 2);
-  VT_CE_ALL(8, 1);
-  VT_MERGE_IN(16);
-#if VR > 1
-  /* blocks of 32: registers 0-1 ascending, 2-3 descending */
-  VT_CE_X(t->d0, t->i0, t->d1, t->i1, 1);
-  VT_CE_X(t->d2, t->i2, t->d3, t->i3, 0);
-  VT_MERGE_IN(32);
-  /* the whole list, ascending */
-  VT_CE_X(t->d0, t->i0, t->d2, t->i2, 1);
-  VT_CE_X(t->d1, t->i1, t->d3, t->i3, 1);
-  VT_CE_X(t->d0, t->i0, t->d1, t->i1, 1);
-  VT_CE_X(t->d2, t->i2, t->d3, t->i3, 1);
-  VT_MERGE_IN(64);
+#if !BHCL_GRID_SORT_CALL
+  const int16 lane = (int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+  VT_SORT_REGS(t->)
 #endif
   t->n = t->k + 1; /* sorted: the registers hold the list from now on */
 }
@@ -385,7 +436,9 @@ __kernel void blockhash_grid_knn(__global const uint* starts, __global const flo
   int found = 0;
 #if BHCL_GRID_VTOPK
   bhcl_vtopk t;
-  vt_init(&t, k, max_r2);
+  float fill_d[16 * VR];
+  int fill_i[16 * VR];
+  vt_init(&t, k, max_r2, fill_d, fill_i);
   if (bhcl_query_is_finite(q)) examined = bhcl_grid_search(starts, px, py, pz, pid, g, qx, qy, qz, budget, BHCL_GRID_ROWCAP, &t);
   VT_FINISH(&t);
   float td[16 * VR];
