@@ -8,13 +8,15 @@
  *    lane 15 of the last register); an insertion is, per register, one shuffle by a lane, two
  *    compares and two selects, no data-dependent loop. A run is scanned 16 points at a time as
  *    float16 distances; only the lanes within the bound are offered. Everything force-inlined,
- *    or clang keeps the list in memory (../shared/limit/NOTES.md section 7).
+ *    or clang keeps the list in memory (../shared/limit/NOTES.md section 7). With four registers
+ *    the first k candidates are appended unordered and sorted once (BHCL_GRID_FILLSORT).
  *  - BHCL_GRID_VTOPK 0 (GPUs, and k above 64): the sorted list in private arrays, one point at a
  *    time (bhcl_arith.h's insertion).
  * Both keep the k nearest of the same points by (distance, index), so their rows are identical.
  *
  * Defines: BHCL_KMAX (the list's capacity), BHCL_GRID_VTOPK, BHCL_GRID_ROWCAP (the runs of a ring
- * sorted nearest first before they are scanned; 0: none), BHCL_GRID_PREFETCH (d > 0: prefetch
+ * sorted nearest first before they are scanned; 0: none), BHCL_GRID_FILLSORT and
+ * BHCL_GRID_SORT_CALL (below), BHCL_GRID_PREFETCH (d > 0: prefetch
  * the home cell of the query d work-items ahead with clang's __builtin_prefetch; PoCL's
  * prefetch() emits nothing). */
 #include "knn_common.h"
@@ -44,17 +46,6 @@
 #endif
 #define BHCL_GRID_ROWBUF (BHCL_GRID_ROWCAP > 0 ? BHCL_GRID_ROWCAP : 1)
 
-/* 1: the register list's first k entries are appended unordered and sorted once by a bitonic
- * network (vt_sort), instead of k insertions of 4 VR register steps each: at k = 50 the
- * insertions that fill the list are most of a query's list work. Same (distance, index) order,
- * so the rows are unchanged. */
-#ifndef BHCL_GRID_FILLSORT
-#define BHCL_GRID_FILLSORT 1
-#endif
-#ifndef BHCL_GRID_SORT_CALL /* 1: the network in one function (not inlined) over the list in memory */
-#define BHCL_GRID_SORT_CALL 1
-#endif
-
 #if BHCL_GRID_VTOPK
 #if BHCL_KMAX > 64
 #error "the register top-k holds at most 64 entries"
@@ -64,6 +55,18 @@
 #define VR 1
 #else
 #define VR 4
+#endif
+
+/* 1: the register list's first k entries are appended unordered and sorted once by a bitonic
+ * network (vt_sort), instead of k insertions of VR register steps each: at k = 50 the insertions
+ * that fill the list were most of a query's list work (1.4x the queries per second, Cornell 1M).
+ * Same (distance, index) order, so the rows are unchanged. Default for four registers only: with
+ * one (k <= 16) an insertion is one step and the sort's call and stores cost 3-5 % more. */
+#ifndef BHCL_GRID_FILLSORT
+#define BHCL_GRID_FILLSORT (VR > 1)
+#endif
+#ifndef BHCL_GRID_SORT_CALL /* 1: the network in one function (not inlined) over the list in memory */
+#define BHCL_GRID_SORT_CALL 1
 #endif
 
 typedef struct bhcl_vtopk {
