@@ -39,6 +39,10 @@
 #ifndef BHCL_GRID_PREFETCH_IDS
 #define BHCL_GRID_PREFETCH_IDS 1
 #endif
+/* The 64-byte lines of each row's first points asked for, per array (16 points a line). */
+#ifndef BHCL_GRID_PREFETCH_LINES
+#define BHCL_GRID_PREFETCH_LINES 2
+#endif
 
 /* The runs of a ring gathered and scanned nearest first (0: scanned as met; grid_search.h). */
 #ifndef BHCL_GRID_ROWCAP
@@ -426,10 +430,12 @@ __kernel void blockhash_grid_knn(__global const uint* starts, __global const flo
                                         : bhcl_grid_near_cell(g, nq, -1, j % 3 - 1, j / 3 - 1);
         if (c == 0xffffffffu) continue;
         uint s = bhcl_grid_start(starts, g.sparse, c);
-        __builtin_prefetch(px + s);
-        __builtin_prefetch(py + s);
-        __builtin_prefetch(pz + s);
-        if (BHCL_GRID_PREFETCH_IDS) __builtin_prefetch(pid + s);
+        for (int l = 0; l < BHCL_GRID_PREFETCH_LINES; ++l, s += 16) {
+          __builtin_prefetch(px + s);
+          __builtin_prefetch(py + s);
+          __builtin_prefetch(pz + s);
+          if (BHCL_GRID_PREFETCH_IDS) __builtin_prefetch(pid + s);
+        }
       }
   }
 #undef BHCL_GRID_PF_ROWS
