@@ -216,30 +216,9 @@ inline __attribute__((always_inline)) void vt_insert(bhcl_vtopk* t, float d, int
   VT_CE_ALL(P, SIZE, 4);     \
   VT_CE_ALL(P, SIZE, 2);     \
   VT_CE_ALL(P, SIZE, 1)
-/* The whole network on registers P d0.. P d3 (P: "t->" or nothing). */
-#if VR > 1
-#define VT_SORT_REGS(P)                          \
-  {                                              \
-    VT_CE_ALL(P, 2, 1);                          \
-    VT_CE_ALL(P, 4, 2);                          \
-    VT_CE_ALL(P, 4, 1);                          \
-    VT_CE_ALL(P, 8, 4);                          \
-    VT_CE_ALL(P, 8, 2);                          \
-    VT_CE_ALL(P, 8, 1);                          \
-    VT_MERGE_IN(P, 16);                          \
-    /* blocks of 32: 0-1 ascending, 2-3 descending */ \
-    VT_CE_X(P d0, P i0, P d1, P i1, 1);          \
-    VT_CE_X(P d2, P i2, P d3, P i3, 0);          \
-    VT_MERGE_IN(P, 32);                          \
-    /* the whole list, ascending */              \
-    VT_CE_X(P d0, P i0, P d2, P i2, 1);          \
-    VT_CE_X(P d1, P i1, P d3, P i3, 1);          \
-    VT_CE_X(P d0, P i0, P d1, P i1, 1);          \
-    VT_CE_X(P d2, P i2, P d3, P i3, 1);          \
-    VT_MERGE_IN(P, 64);                          \
-  }
-#else
-#define VT_SORT_REGS(P)     \
+/* The whole network on registers P d0.. P d3 (P: "t->" or nothing): blocks of 2, 4, 8, 16 within
+ * each register, then (four registers) of 32 and 64 across them. */
+#define VT_SORT16(P)        \
   {                         \
     VT_CE_ALL(P, 2, 1);     \
     VT_CE_ALL(P, 4, 2);     \
@@ -249,6 +228,23 @@ inline __attribute__((always_inline)) void vt_insert(bhcl_vtopk* t, float d, int
     VT_CE_ALL(P, 8, 1);     \
     VT_MERGE_IN(P, 16);     \
   }
+#if VR > 1
+#define VT_SORT_REGS(P)                                   \
+  {                                                       \
+    VT_SORT16(P);                                         \
+    /* blocks of 32: 0-1 ascending, 2-3 descending */     \
+    VT_CE_X(P d0, P i0, P d1, P i1, 1);                   \
+    VT_CE_X(P d2, P i2, P d3, P i3, 0);                   \
+    VT_MERGE_IN(P, 32);                                   \
+    /* the whole list, ascending */                       \
+    VT_CE_X(P d0, P i0, P d2, P i2, 1);                   \
+    VT_CE_X(P d1, P i1, P d3, P i3, 1);                   \
+    VT_CE_X(P d0, P i0, P d1, P i1, 1);                   \
+    VT_CE_X(P d2, P i2, P d3, P i3, 1);                   \
+    VT_MERGE_IN(P, 64);                                   \
+  }
+#else
+#define VT_SORT_REGS(P) VT_SORT16(P)
 #endif
 
 #if BHCL_GRID_SORT_CALL
