@@ -8,13 +8,15 @@
  *    lane 15 of the last register); an insertion is, per register, one shuffle by a lane, two
  *    compares and two selects, no data-dependent loop. A run is scanned 16 points at a time as
  *    float16 distances; only the lanes within the bound are offered. Everything force-inlined,
- *    or clang keeps the list in memory (../shared/limit/NOTES.md section 7).
+ *    or clang keeps the list in memory (../shared/limit/NOTES.md section 7). With four registers
+ *    the first k candidates are appended unordered and sorted once (BHCL_GRID_FILLSORT).
  *  - BHCL_GRID_VTOPK 0 (GPUs, and k above 64): the sorted list in private arrays, one point at a
  *    time (bhcl_arith.h's insertion).
  * Both keep the k nearest of the same points by (distance, index), so their rows are identical.
  *
  * Defines: BHCL_KMAX (the list's capacity), BHCL_GRID_VTOPK, BHCL_GRID_ROWCAP (the runs of a ring
- * sorted nearest first before they are scanned; 0: none), BHCL_GRID_PREFETCH (d > 0: prefetch
+ * sorted nearest first before they are scanned; 0: none), BHCL_GRID_FILLSORT and
+ * BHCL_GRID_SORT_CALL (below), BHCL_GRID_PREFETCH (d > 0: prefetch
  * the home cell of the query d work-items ahead with clang's __builtin_prefetch; PoCL's
  * prefetch() emits nothing). */
 #include "knn_common.h"
@@ -37,6 +39,10 @@
 #ifndef BHCL_GRID_PREFETCH_IDS
 #define BHCL_GRID_PREFETCH_IDS 1
 #endif
+/* The 64-byte lines of each row's first points asked for, per array (16 points a line). */
+#ifndef BHCL_GRID_PREFETCH_LINES
+#define BHCL_GRID_PREFETCH_LINES 2
+#endif
 
 /* The runs of a ring gathered and scanned nearest first (0: scanned as met; grid_search.h). */
 #ifndef BHCL_GRID_ROWCAP
@@ -55,6 +61,18 @@
 #define VR 4
 #endif
 
+/* 1: the register list's first k entries are appended unordered and sorted once by a bitonic
+ * network (vt_sort), instead of k insertions of VR register steps each: at k = 50 the insertions
+ * that fill the list were most of a query's list work (1.4x the queries per second, Cornell 1M).
+ * Same (distance, index) order, so the rows are unchanged. Default for four registers only: with
+ * one (k <= 16) an insertion is one step and the sort's call and stores cost 3-5 % more. */
+#ifndef BHCL_GRID_FILLSORT
+#define BHCL_GRID_FILLSORT (VR > 1)
+#endif
+#ifndef BHCL_GRID_SORT_CALL /* 1: the network in one function (not inlined) over the list in memory */
+#define BHCL_GRID_SORT_CALL 1
+#endif
+
 typedef struct bhcl_vtopk {
   float16 d0;
   int16 i0;
@@ -63,6 +81,14 @@ typedef struct bhcl_vtopk {
   int16 i1, i2, i3;
 #endif
   float max_r2;
+#if BHCL_GRID_FILLSORT
+  /* The first k candidates (d <= max_r2) are only appended here, at lanes first.. of the list's
+   * layout, and sorted once when the k-th arrives (vt_sort); the registers keep vt_init's
+   * pattern meanwhile, so vt_bound is max_r2 as it is for a list not yet full. */
+  uint n, first, k;
+  float* fd; /* 16 VR entries each, the kernel's (so the struct stays in registers) */
+  int* fi;
+#endif
 } bhcl_vtopk;
 
 #define VT_SHIFT ((uint16)(31, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14))
@@ -82,7 +108,8 @@ typedef struct bhcl_vtopk {
     I = select(I, select(iv, si, ms), m);                       \
   }
 
-inline __attribute__((always_inline)) void vt_init(bhcl_vtopk* t, uint k, float max_r2) {
+inline __attribute__((always_inline)) void vt_init(bhcl_vtopk* t, uint k, float max_r2, float* fd,
+                                                   int* fi) {
   const int16 lane = (int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
   const int first = 16 * VR - (int)k;
   t->d0 = select((float16)(INFINITY), (float16)(-INFINITY), lane < (int16)(first));
@@ -94,6 +121,23 @@ inline __attribute__((always_inline)) void vt_init(bhcl_vtopk* t, uint k, float 
   t->i1 = t->i2 = t->i3 = (int16)(BHCL_EMPTY_SLOT_ID);
 #endif
   t->max_r2 = max_r2;
+#if BHCL_GRID_FILLSORT
+  t->n = 0;
+  t->first = (uint)first;
+  t->k = k;
+  t->fd = fd;
+  t->fi = fi;
+  vstore16(t->d0, 0, t->fd);
+  vstore16(t->i0, 0, t->fi);
+#if VR > 1
+  vstore16(t->d1, 1, t->fd);
+  vstore16(t->d2, 2, t->fd);
+  vstore16(t->d3, 3, t->fd);
+  vstore16(t->i1, 1, t->fi);
+  vstore16(t->i2, 2, t->fi);
+  vstore16(t->i3, 3, t->fi);
+#endif
+#endif
 }
 
 inline __attribute__((always_inline)) float vt_bound(const bhcl_vtopk* t) {
@@ -129,6 +173,144 @@ inline __attribute__((always_inline)) void vt_insert(bhcl_vtopk* t, float d, int
   }
 }
 
+#if BHCL_GRID_FILLSORT
+/* Bitonic sort of the 16 VR lanes ascending by (distance, index). A compare-exchange of lanes g
+ * and g ^ J within a register: each lane takes the lesser of itself and its partner where it is
+ * the lower lane of an ascending block (or the upper of a descending one), else the greater. */
+#define VT_LT(A, AI, B, BI) ((A < B) | ((A == B) & (AI < BI)))
+#define VT_CE_IN(D, I, R, SIZE, J)                                                  \
+  {                                                                                 \
+    const int16 g = lane + (int16)(16 * (R));                                       \
+    const int16 tm = ((g & (int16)(J)) == (int16)(0)) == ((g & (int16)(SIZE)) == (int16)(0)); \
+    const uint16 pm = as_uint16(lane ^ (int16)(J));                                 \
+    float16 pd = shuffle(D, pm);                                                    \
+    int16 pi = shuffle(I, pm);                                                      \
+    int16 keep = VT_LT(D, I, pd, pi) == tm;                                         \
+    D = select(pd, D, keep);                                                        \
+    I = select(pi, I, keep);                                                        \
+  }
+/* Registers A (lower) and B (upper) exchanged lane by lane; ASC: A takes the lesser. */
+#define VT_CE_X(A, AI, B, BI, ASC)                \
+  {                                               \
+    int16 lt = VT_LT(A, AI, B, BI);               \
+    if (!(ASC)) lt = ~lt;                         \
+    float16 na = select(B, A, lt);                \
+    int16 nai = select(BI, AI, lt);               \
+    B = select(A, B, lt);                         \
+    BI = select(AI, BI, lt);                      \
+    A = na;                                       \
+    AI = nai;                                     \
+  }
+/* The intra-register stages J = 8, 4, 2, 1 of a merge of blocks of SIZE, on every register. */
+#if VR > 1
+#define VT_CE_ALL(P, SIZE, J)             \
+  VT_CE_IN(P d0, P i0, 0, SIZE, J);       \
+  VT_CE_IN(P d1, P i1, 1, SIZE, J);       \
+  VT_CE_IN(P d2, P i2, 2, SIZE, J);       \
+  VT_CE_IN(P d3, P i3, 3, SIZE, J)
+#else
+#define VT_CE_ALL(P, SIZE, J) VT_CE_IN(P d0, P i0, 0, SIZE, J)
+#endif
+#define VT_MERGE_IN(P, SIZE) \
+  VT_CE_ALL(P, SIZE, 8);     \
+  VT_CE_ALL(P, SIZE, 4);     \
+  VT_CE_ALL(P, SIZE, 2);     \
+  VT_CE_ALL(P, SIZE, 1)
+/* The whole network on registers P d0.. P d3 (P: "t->" or nothing): blocks of 2, 4, 8, 16 within
+ * each register, then (four registers) of 32 and 64 across them. */
+#define VT_SORT16(P)        \
+  {                         \
+    VT_CE_ALL(P, 2, 1);     \
+    VT_CE_ALL(P, 4, 2);     \
+    VT_CE_ALL(P, 4, 1);     \
+    VT_CE_ALL(P, 8, 4);     \
+    VT_CE_ALL(P, 8, 2);     \
+    VT_CE_ALL(P, 8, 1);     \
+    VT_MERGE_IN(P, 16);     \
+  }
+#if VR > 1
+#define VT_SORT_REGS(P)                                   \
+  {                                                       \
+    VT_SORT16(P);                                         \
+    /* blocks of 32: 0-1 ascending, 2-3 descending */     \
+    VT_CE_X(P d0, P i0, P d1, P i1, 1);                   \
+    VT_CE_X(P d2, P i2, P d3, P i3, 0);                   \
+    VT_MERGE_IN(P, 32);                                   \
+    /* the whole list, ascending */                       \
+    VT_CE_X(P d0, P i0, P d2, P i2, 1);                   \
+    VT_CE_X(P d1, P i1, P d3, P i3, 1);                   \
+    VT_CE_X(P d0, P i0, P d1, P i1, 1);                   \
+    VT_CE_X(P d2, P i2, P d3, P i3, 1);                   \
+    VT_MERGE_IN(P, 64);                                   \
+  }
+#else
+#define VT_SORT_REGS(P) VT_SORT16(P)
+#endif
+
+#if BHCL_GRID_SORT_CALL
+/* The network once, in memory: called from every scan site, instead of a copy at each. */
+__attribute__((noinline)) void vt_sort_mem(float* fd, int* fi) {
+  const int16 lane = (int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+  float16 d0 = vload16(0, fd);
+  int16 i0 = vload16(0, fi);
+#if VR > 1
+  float16 d1 = vload16(1, fd), d2 = vload16(2, fd), d3 = vload16(3, fd);
+  int16 i1 = vload16(1, fi), i2 = vload16(2, fi), i3 = vload16(3, fi);
+#endif
+  VT_SORT_REGS()
+  vstore16(d0, 0, fd);
+  vstore16(i0, 0, fi);
+#if VR > 1
+  vstore16(d1, 1, fd);
+  vstore16(d2, 2, fd);
+  vstore16(d3, 3, fd);
+  vstore16(i1, 1, fi);
+  vstore16(i2, 2, fi);
+  vstore16(i3, 3, fi);
+#endif
+}
+#endif
+
+inline __attribute__((always_inline)) void vt_sort(bhcl_vtopk* t) {
+#if BHCL_GRID_SORT_CALL
+  vt_sort_mem(t->fd, t->fi);
+#endif
+  t->d0 = vload16(0, t->fd);
+  t->i0 = vload16(0, t->fi);
+#if VR > 1
+  t->d1 = vload16(1, t->fd);
+  t->d2 = vload16(2, t->fd);
+  t->d3 = vload16(3, t->fd);
+  t->i1 = vload16(1, t->fi);
+  t->i2 = vload16(2, t->fi);
+  t->i3 = vload16(3, t->fi);
+#endif
+#if !BHCL_GRID_SORT_CALL
+  const int16 lane = (int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+  VT_SORT_REGS(t->)
+#endif
+  t->n = t->k + 1; /* sorted: the registers hold the list from now on */
+}
+
+/* A candidate within the bound: appended while the list fills, then inserted. */
+#define VT_OFFER(t, d, id)                     \
+  {                                            \
+    if ((t)->n < (t)->k) {                     \
+      (t)->fd[(t)->first + (t)->n] = (d);      \
+      (t)->fi[(t)->first + (t)->n] = (id);     \
+      if (++(t)->n == (t)->k) vt_sort(t);      \
+    } else {                                   \
+      vt_insert((t), (d), (id));               \
+    }                                          \
+  }
+/* After the search: a list that did not fill is sorted now. */
+#define VT_FINISH(t) \
+  if ((t)->n <= (t)->k) vt_sort(t)
+#else
+#define VT_OFFER(t, d, id) vt_insert((t), (d), (id))
+#define VT_FINISH(t)
+#endif
+
 /* Points [a, b) of the sorted arrays, 16 at a time (the arrays are padded by 16 entries). */
 inline __attribute__((always_inline)) void vt_scan(bhcl_vtopk* t, float3 q, __global const float* px,
                                                    __global const float* py, __global const float* pz,
@@ -156,7 +338,7 @@ inline __attribute__((always_inline)) void vt_scan(bhcl_vtopk* t, float3 q, __gl
     while (mask) {
       int j = 31 - (int)clz(mask & (0u - mask));
       mask &= mask - 1u;
-      if (dd[j] <= vt_bound(t)) vt_insert(t, dd[j], pid[p + (uint)j]);
+      if (dd[j] <= vt_bound(t)) VT_OFFER(t, dd[j], pid[p + (uint)j]);
     }
   }
 }
@@ -244,10 +426,12 @@ __kernel void blockhash_grid_knn(__global const uint* starts, __global const flo
                                         : bhcl_grid_near_cell(g, nq, -1, j % 3 - 1, j / 3 - 1);
         if (c == 0xffffffffu) continue;
         uint s = bhcl_grid_start(starts, g.sparse, c);
-        __builtin_prefetch(px + s);
-        __builtin_prefetch(py + s);
-        __builtin_prefetch(pz + s);
-        if (BHCL_GRID_PREFETCH_IDS) __builtin_prefetch(pid + s);
+        for (int l = 0; l < BHCL_GRID_PREFETCH_LINES; ++l, s += 16) {
+          __builtin_prefetch(px + s);
+          __builtin_prefetch(py + s);
+          __builtin_prefetch(pz + s);
+          if (BHCL_GRID_PREFETCH_IDS) __builtin_prefetch(pid + s);
+        }
       }
   }
 #undef BHCL_GRID_PF_ROWS
@@ -257,8 +441,11 @@ __kernel void blockhash_grid_knn(__global const uint* starts, __global const flo
   int found = 0;
 #if BHCL_GRID_VTOPK
   bhcl_vtopk t;
-  vt_init(&t, k, max_r2);
+  float fill_d[16 * VR];
+  int fill_i[16 * VR];
+  vt_init(&t, k, max_r2, fill_d, fill_i);
   if (bhcl_query_is_finite(q)) examined = bhcl_grid_search(starts, px, py, pz, pid, g, qx, qy, qz, budget, BHCL_GRID_ROWCAP, &t);
+  VT_FINISH(&t);
   float td[16 * VR];
   int ti[16 * VR];
   vstore16(t.d0, 0, td);

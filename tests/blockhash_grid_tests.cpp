@@ -59,7 +59,7 @@ TEST_CASE("blockhash_grid_vs_bruteforce: the exact mode equals brute force on ev
   }
 }
 
-TEST_CASE("blockhash_grid_vs_reference: kernel == host reference at every budget, both list forms") {
+TEST_CASE("blockhash_grid_vs_reference: kernel == host reference at every budget, every list form") {
   using Case = test::NamedCase;
   std::vector<Case> cases;
   cases.push_back({"uniform", datasets::uniform(20000, 1), datasets::uniform(500, 2)});
@@ -84,6 +84,16 @@ TEST_CASE("blockhash_grid_vs_reference: kernel == host reference at every budget
         SearchParams ps = p;
         ps.kernel_defines = "-DBHCL_GRID_VTOPK=0 -DBHCL_GRID_PREFETCH=0 -DBHCL_GRID_ROWCAP=0";
         if (k <= 16 || A == 8.0f) kernel_equals_reference(index, c.qs, ps, std::string(c.name) + " scalar list");
+        // The register list's other fills give the same rows as the default: k insertions, or
+        // appended then sorted once (the default past 16), the sort in a function or inlined.
+        const char* const fills_one[] = {"-DBHCL_GRID_FILLSORT=1", "-DBHCL_GRID_FILLSORT=1 -DBHCL_GRID_SORT_CALL=0"};
+        const char* const fills_four[] = {"-DBHCL_GRID_FILLSORT=0", "-DBHCL_GRID_SORT_CALL=0"};
+        if (k <= 64 && (A == 8.0f || !std::isfinite(A)))
+          for (const char* fill : k <= 16 ? fills_one : fills_four) {
+            SearchParams pf = p;
+            pf.kernel_defines = fill;
+            kernel_equals_reference(index, c.qs, pf, std::string(c.name) + " " + fill);
+          }
         // The budget bounds the points examined to within one run.
         if (std::isfinite(A)) {
           SearchParams pe = p;
