@@ -82,16 +82,41 @@ typedef struct bhcl_vtopk {
 #endif
   float max_r2;
 #if BHCL_GRID_FILLSORT
-  /* The first k candidates (d <= max_r2) are only appended here, at lanes first.. of the list's
-   * layout, and sorted once when the k-th arrives (vt_sort); the registers keep vt_init's
-   * pattern meanwhile, so vt_bound is max_r2 as it is for a list not yet full. */
-  uint n, first, k;
+  /* The first k candidates (d <= max_r2) are only appended here, at lanes 16 VR - k.. of the
+   * list's layout, and sorted once when the k-th arrives (vt_sort); the registers keep vt_init's
+   * pattern meanwhile, so vt_bound is max_r2 as it is for a list not yet full. n: the entries
+   * appended (n == k: sorted, the registers hold the list). */
+  uint n, k;
   float* fd; /* 16 VR entries each, the kernel's (so the struct stays in registers) */
   int* fi;
 #endif
 } bhcl_vtopk;
 
 #define VT_SHIFT ((uint16)(31, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14))
+/* The list's registers P d0.. / P i0.. (P: "t->", "t." or nothing) to and from 16 VR floats / ints. */
+#if VR > 1
+#define VT_STORE(P, FD, FI)                                                          \
+  {                                                                                  \
+    vstore16(P d0, 0, FD), vstore16(P d1, 1, FD), vstore16(P d2, 2, FD), vstore16(P d3, 3, FD); \
+    vstore16(P i0, 0, FI), vstore16(P i1, 1, FI), vstore16(P i2, 2, FI), vstore16(P i3, 3, FI); \
+  }
+#define VT_LOAD(P, FD, FI)                                                                    \
+  {                                                                                           \
+    P d0 = vload16(0, FD), P d1 = vload16(1, FD), P d2 = vload16(2, FD), P d3 = vload16(3, FD); \
+    P i0 = vload16(0, FI), P i1 = vload16(1, FI), P i2 = vload16(2, FI), P i3 = vload16(3, FI); \
+  }
+#else
+#define VT_STORE(P, FD, FI) \
+  {                         \
+    vstore16(P d0, 0, FD);  \
+    vstore16(P i0, 0, FI);  \
+  }
+#define VT_LOAD(P, FD, FI) \
+  {                        \
+    P d0 = vload16(0, FD); \
+    P i0 = vload16(0, FI); \
+  }
+#endif
 /* One register: lanes ranking after the candidate take their left neighbour (PD/PI's lane 15 for
  * lane 0) or the candidate, whichever ranks after it; the rest stay. GT(A, AI) is "(A, AI) ranks
  * after the candidate": by distance alone when no lane ties the candidate's distance (the common
@@ -123,20 +148,10 @@ inline __attribute__((always_inline)) void vt_init(bhcl_vtopk* t, uint k, float 
   t->max_r2 = max_r2;
 #if BHCL_GRID_FILLSORT
   t->n = 0;
-  t->first = (uint)first;
   t->k = k;
   t->fd = fd;
   t->fi = fi;
-  vstore16(t->d0, 0, t->fd);
-  vstore16(t->i0, 0, t->fi);
-#if VR > 1
-  vstore16(t->d1, 1, t->fd);
-  vstore16(t->d2, 2, t->fd);
-  vstore16(t->d3, 3, t->fd);
-  vstore16(t->i1, 1, t->fi);
-  vstore16(t->i2, 2, t->fi);
-  vstore16(t->i3, 3, t->fi);
-#endif
+  VT_STORE(t->, fd, fi);
 #endif
 }
 
@@ -251,23 +266,11 @@ inline __attribute__((always_inline)) void vt_insert(bhcl_vtopk* t, float d, int
 /* The network once, in memory: called from every scan site, instead of a copy at each. */
 __attribute__((noinline)) void vt_sort_mem(float* fd, int* fi) {
   const int16 lane = (int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
-  float16 d0 = vload16(0, fd);
-  int16 i0 = vload16(0, fi);
-#if VR > 1
-  float16 d1 = vload16(1, fd), d2 = vload16(2, fd), d3 = vload16(3, fd);
-  int16 i1 = vload16(1, fi), i2 = vload16(2, fi), i3 = vload16(3, fi);
-#endif
+  float16 d0, d1, d2, d3;
+  int16 i0, i1, i2, i3;
+  VT_LOAD(, fd, fi);
   VT_SORT_REGS()
-  vstore16(d0, 0, fd);
-  vstore16(i0, 0, fi);
-#if VR > 1
-  vstore16(d1, 1, fd);
-  vstore16(d2, 2, fd);
-  vstore16(d3, 3, fd);
-  vstore16(i1, 1, fi);
-  vstore16(i2, 2, fi);
-  vstore16(i3, 3, fi);
-#endif
+  VT_STORE(, fd, fi);
 }
 #endif
 
@@ -275,37 +278,29 @@ inline __attribute__((always_inline)) void vt_sort(bhcl_vtopk* t) {
 #if BHCL_GRID_SORT_CALL
   vt_sort_mem(t->fd, t->fi);
 #endif
-  t->d0 = vload16(0, t->fd);
-  t->i0 = vload16(0, t->fi);
-#if VR > 1
-  t->d1 = vload16(1, t->fd);
-  t->d2 = vload16(2, t->fd);
-  t->d3 = vload16(3, t->fd);
-  t->i1 = vload16(1, t->fi);
-  t->i2 = vload16(2, t->fi);
-  t->i3 = vload16(3, t->fi);
-#endif
+  VT_LOAD(t->, t->fd, t->fi);
 #if !BHCL_GRID_SORT_CALL
   const int16 lane = (int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
   VT_SORT_REGS(t->)
 #endif
-  t->n = t->k + 1; /* sorted: the registers hold the list from now on */
 }
 
-/* A candidate within the bound: appended while the list fills, then inserted. */
-#define VT_OFFER(t, d, id)                     \
-  {                                            \
-    if ((t)->n < (t)->k) {                     \
-      (t)->fd[(t)->first + (t)->n] = (d);      \
-      (t)->fi[(t)->first + (t)->n] = (id);     \
-      if (++(t)->n == (t)->k) vt_sort(t);      \
-    } else {                                   \
-      vt_insert((t), (d), (id));               \
-    }                                          \
+/* A candidate within the bound: appended while the list fills (sorted when the k-th arrives),
+ * then inserted. */
+#define VT_OFFER(t, d, id)                                 \
+  {                                                        \
+    if ((t)->n < (t)->k) {                                 \
+      const uint at = 16u * VR - (t)->k + (t)->n;          \
+      (t)->fd[at] = (d);                                   \
+      (t)->fi[at] = (id);                                  \
+      if (++(t)->n == (t)->k) vt_sort(t);                  \
+    } else {                                               \
+      vt_insert((t), (d), (id));                           \
+    }                                                      \
   }
 /* After the search: a list that did not fill is sorted now. */
 #define VT_FINISH(t) \
-  if ((t)->n <= (t)->k) vt_sort(t)
+  if ((t)->n < (t)->k) vt_sort(t)
 #else
 #define VT_OFFER(t, d, id) vt_insert((t), (d), (id))
 #define VT_FINISH(t)
@@ -448,16 +443,7 @@ __kernel void blockhash_grid_knn(__global const uint* starts, __global const flo
   VT_FINISH(&t);
   float td[16 * VR];
   int ti[16 * VR];
-  vstore16(t.d0, 0, td);
-  vstore16(t.i0, 0, ti);
-#if VR > 1
-  vstore16(t.d1, 1, td);
-  vstore16(t.d2, 2, td);
-  vstore16(t.d3, 3, td);
-  vstore16(t.i1, 1, ti);
-  vstore16(t.i2, 2, ti);
-  vstore16(t.i3, 3, ti);
-#endif
+  VT_STORE(t., td, ti);
   const uint off = 16u * VR - k;
   for (uint j = 0; j < k; ++j) {
     int id = ti[off + j];
