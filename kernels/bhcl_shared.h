@@ -8,11 +8,13 @@
 typedef uint bhcl_u32;
 typedef int bhcl_i32;
 typedef float bhcl_f32;
+typedef uchar bhcl_u8;
 #else
 #include <cstdint>
 typedef std::uint32_t bhcl_u32;
 typedef std::int32_t bhcl_i32;
 typedef float bhcl_f32;
+typedef std::uint8_t bhcl_u8;
 #endif
 
 /* The largest k any kernel variant is compiled for (BHCL_KMAX <= BHCL_MAX_K). */

@@ -383,7 +383,8 @@ inline uint bhcl_grid_near_cell(const bhcl_grid_geom g, float3 q, int dx, int dy
 
 __kernel void blockhash_grid_knn(__global const uint* starts, __global const float* px,
                                  __global const float* py, __global const float* pz,
-                                 __global const int* pid, float4 geo0, float4 geo1, uint4 dims,
+                                 __global const int* pid, __global const uchar* occ, float4 geo0, float4 geo1, uint4 dims,
+                                 float4 box_lo, float4 box_hi,
                                  BHCL_KNN_QUERY_PARAMS, uint budget, BHCL_KNN_RESULT_PARAMS,
                                  __global int* out_examined, uint want_examined) {
   uint gid = get_global_id(0);
@@ -392,6 +393,7 @@ __kernel void blockhash_grid_knn(__global const uint* starts, __global const flo
   float3 q = bhcl_load_query(queries, row);
   const float qx = q.x, qy = q.y, qz = q.z;
   const bhcl_grid_geom g = bhcl_grid_geom_from(geo0, geo1, dims);
+  const bhcl_grid_dbox db = bhcl_grid_dbox_from(box_lo, box_hi);
 #if BHCL_GRID_PREFETCH > 0
   /* Two stages, so that neither load waits: the directory entries of the query 2d work-items
    * ahead, the points of the query d ahead (its entries fetched d items ago). Either the home
@@ -439,7 +441,7 @@ __kernel void blockhash_grid_knn(__global const uint* starts, __global const flo
   float fill_d[16 * VR];
   int fill_i[16 * VR];
   vt_init(&t, k, max_r2, fill_d, fill_i);
-  if (bhcl_query_is_finite(q)) examined = bhcl_grid_search(starts, px, py, pz, pid, g, qx, qy, qz, budget, BHCL_GRID_ROWCAP, &t);
+  if (bhcl_query_is_finite(q)) examined = bhcl_grid_search(starts, px, py, pz, pid, occ, g, db, qx, qy, qz, budget, BHCL_GRID_ROWCAP, BHCL_GRID_FINE_RINGS, &t);
   VT_FINISH(&t);
   float td[16 * VR];
   int ti[16 * VR];
@@ -458,7 +460,7 @@ __kernel void blockhash_grid_knn(__global const uint* starts, __global const flo
   t.n = 0;
   t.max_r2 = max_r2;
   bhcl_topk_init(t.d, t.i, k);
-  if (bhcl_query_is_finite(q)) examined = bhcl_grid_search(starts, px, py, pz, pid, g, qx, qy, qz, budget, BHCL_GRID_ROWCAP, &t);
+  if (bhcl_query_is_finite(q)) examined = bhcl_grid_search(starts, px, py, pz, pid, occ, g, db, qx, qy, qz, budget, BHCL_GRID_ROWCAP, BHCL_GRID_FINE_RINGS, &t);
   for (uint j = 0; j < k; ++j) {
     int empty = t.i[j] == BHCL_EMPTY_SLOT_ID;
     out_ids[base + j] = empty ? BHCL_MISSING_ID : t.i[j];

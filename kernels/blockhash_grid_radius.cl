@@ -21,15 +21,18 @@ inline void ge_scan(bhcl_radius_slice* e, float qx, float qy, float qz, __global
 
 __kernel void blockhash_grid_radius(__global const uint* starts, __global const float* px,
                                     __global const float* py, __global const float* pz,
-                                    __global const int* pid, float4 geo0, float4 geo1, uint4 dims,
+                                    __global const int* pid, __global const uchar* occ, float4 geo0, float4 geo1, uint4 dims,
+                                    float4 box_lo, float4 box_hi,
                                     uint budget, BHCL_RADIUS_PARAMS) {
   BHCL_RADIUS_BEGIN;
   uint examined = 0;
   const bhcl_grid_geom g = bhcl_grid_geom_from(geo0, geo1, dims);
+  const bhcl_grid_dbox db = bhcl_grid_dbox_from(box_lo, box_hi);
   if (bhcl_query_is_finite(q)) {
     const float qx = q.x, qy = q.y, qz = q.z;
     bhcl_radius_slice e = BHCL_RADIUS_SLICE;
-    examined = bhcl_grid_search(starts, px, py, pz, pid, g, qx, qy, qz, budget ? budget : 0xffffffffu, 0u, &e);
+    examined = bhcl_grid_search(starts, px, py, pz, pid, occ, g, db, qx, qy, qz, budget ? budget : 0xffffffffu, 0u,
+                                BHCL_GRID_FINE_RINGS, &e);
     found = e.found;
   }
   BHCL_RADIUS_END(examined);

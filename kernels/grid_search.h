@@ -48,6 +48,14 @@ typedef struct bhcl_grid_geom {
   bhcl_u32 sparse; /* 0: starts is the direct table; BHCL_GRID_SEG_BITS: the two-level directory */
 } bhcl_grid_geom;
 
+/* The box of the stored points (each side exactly a point's coordinate; loose after removes).
+ * The walk's slab distances are taken to the part of a slab inside it: a cell is a whole side h
+ * thick even where every point lies on one plane, and a query far above that plane would
+ * otherwise see every cell within sqrt(2 D h) of its foot as within reach. */
+typedef struct bhcl_grid_dbox {
+  float lx, ly, lz, hx, hy, hz;
+} bhcl_grid_dbox;
+
 /* The directory of the cells. Direct: starts[c] for every cell c (ncells + 1 entries). Where that
  * table would be too large (points on surfaces in a large box: 10M points of the Cornell box make
  * 72M cells, 4 % of them occupied) it is two-level over segments of 2^BHCL_GRID_SEG_BITS cells of
@@ -74,6 +82,16 @@ inline bhcl_grid_geom bhcl_grid_geom_from(float4 geo0, float4 geo1, uint4 dims) 
   g.sparse = dims.w;
   return g;
 }
+inline bhcl_grid_dbox bhcl_grid_dbox_from(float4 lo, float4 hi) {
+  bhcl_grid_dbox b;
+  b.lx = lo.x;
+  b.ly = lo.y;
+  b.lz = lo.z;
+  b.hx = hi.x;
+  b.hy = hi.y;
+  b.hz = hi.z;
+  return b;
+}
 #endif
 
 /* The cell of coordinate t along an axis of n cells from origin o: floor((t - o) / h), clamped. */
@@ -84,12 +102,31 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_cell(float t, float o, float inv_h, bhcl_u32
   return (bhcl_u32)f;
 }
 
-/* Distance from t to the slab of cell i (lowered by the margin, never negative). */
-BHCL_GRID_INLINE float bhcl_grid_slab(float t, float o, float h, float margin, bhcl_u32 i) {
-  float lo = o + (float)i * h;
-  float hi = o + (float)(i + 1u) * h;
+/* Distance from t to the slab of cells i0..i1 (lowered by the margin, never negative). The ends
+ * are cell i0's low side and cell i1's high side computed as for those cells alone, so the range's
+ * distance never exceeds any of its cells' (o + i h is monotone in i in floats too). */
+BHCL_GRID_INLINE float bhcl_grid_slabs(float t, float o, float h, float margin, bhcl_u32 i0, bhcl_u32 i1) {
+  float lo = o + (float)i0 * h;
+  float hi = o + (float)(i1 + 1u) * h;
   float e = BHCL_FMAX(BHCL_FMAX(lo - t, t - hi), 0.0f) - margin;
   return BHCL_FMAX(e, 0.0f);
+}
+
+/* As bhcl_grid_slabs, the slab clipped to [dl, dh] (the points' box along the axis). A side
+ * that is the box's needs no margin: every point p has p >= dl, so fl(p - t) >= fl(dl - t)
+ * (rounding is monotone), and the distance stays a lower bound of every point's to the bit. */
+BHCL_GRID_INLINE float bhcl_grid_slabs_in(float t, float o, float h, float margin, bhcl_u32 i0, bhcl_u32 i1,
+                                          float dl, float dh) {
+  float lo = o + (float)i0 * h, hi = o + (float)(i1 + 1u) * h;
+  float mlo = margin, mhi = margin;
+  if (dl >= lo) lo = dl, mlo = 0.0f;
+  if (dh <= hi) hi = dh, mhi = 0.0f;
+  return BHCL_FMAX(BHCL_FMAX((lo - t) - mlo, (t - hi) - mhi), 0.0f);
+}
+
+/* Distance from t to the slab of cell i (lowered by the margin, never negative). */
+BHCL_GRID_INLINE float bhcl_grid_slab(float t, float o, float h, float margin, bhcl_u32 i) {
+  return bhcl_grid_slabs(t, o, h, margin, i, i);
 }
 
 /* The distance from t to the outside of cells [c - r, c + r] of an axis of n cells (lowered by
@@ -112,6 +149,41 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_start(BHCL_GLOBAL const bhcl_u32* starts, bh
 
 /* Row offset j of a ring (0, -1, +1, -2, +2, ...). */
 BHCL_GRID_INLINE int bhcl_grid_offset(int j) { return (j & 1) ? -((j + 1) >> 1) : (j >> 1); }
+
+/* The occupancy pyramid: the empty space a far query skips. Level l >= 1 has
+ * ((n - 1) >> l) + 1 nodes along an axis of n cells; node (X, Y, Z) of level l covers the fine
+ * cells [X << l, (X + 1) << l) of each axis (clipped to the grid), and its byte has bit
+ * bx | by << 1 | bz << 2 set when its child (2X + bx, 2Y + by, 2Z + bz) of level l - 1 (level 0:
+ * the fine cells) holds a stored point (a cell whose run is not empty). The levels are stored one
+ * after the other from level 1, each x fastest; the top is the first level with a single node.
+ * About ncells / 7 bytes in all. Built on the host (lib/src/blockhash/grid_occupancy.cpp). */
+BHCL_GRID_INLINE bhcl_u32 bhcl_grid_occ_dim(bhcl_u32 n, bhcl_u32 l) { return ((n - 1u) >> l) + 1u; }
+
+/* The bytes of level l. */
+BHCL_GRID_INLINE bhcl_u32 bhcl_grid_occ_size(const bhcl_grid_geom g, bhcl_u32 l) {
+  return bhcl_grid_occ_dim(g.nx, l) * bhcl_grid_occ_dim(g.ny, l) * bhcl_grid_occ_dim(g.nz, l);
+}
+
+/* The top level; *top_off: its node's byte, *total: the pyramid's bytes. */
+BHCL_GRID_INLINE bhcl_u32 bhcl_grid_occ_top(const bhcl_grid_geom g, bhcl_u32* top_off, bhcl_u32* total) {
+  bhcl_u32 l = 1u, off = 0u;
+  while (bhcl_grid_occ_size(g, l) > 1u) off += bhcl_grid_occ_size(g, l++);
+  *top_off = off;
+  *total = off + 1u;
+  return l;
+}
+
+/* The rings around the home cell searched before the walk down the pyramid takes over (the
+ * kernels' define; the host reference is passed the same value; 0xffffffff: the rings alone). */
+#ifndef BHCL_GRID_FINE_RINGS
+#define BHCL_GRID_FINE_RINGS 2u
+#endif
+
+/* The order in which the walk visits a node's 8 children: child BHCL_GRID_OCC_ORDER(p) ^ near
+ * (near: the child on the query's side along each axis) at position p, i.e. the near child, the
+ * three across one face, across an edge, the far one. The order is its own inverse (it swaps 3
+ * and 4 only), so the position of child o is BHCL_GRID_OCC_ORDER(o ^ near). */
+#define BHCL_GRID_OCC_ORDER(p) ((0x76534210u >> (4u * (p))) & 15u)
 
 #endif /* BHCL_GRID_SEARCH_H */
 
@@ -154,11 +226,87 @@ typedef struct bhcl_grid_rows {
 /* The search of one query (finite q): returns the points examined. cap (<= BHCL_GRID_ROWBUF):
  * the runs of a ring gathered and scanned nearest first (0: each run scanned as it is met, the
  * GPU form, no private array); the kernel and the reference must use the same cap. */
+/* The search past the first rings: every fine cell outside the cube of cells [c - r0, c + r0]
+ * around the home cell c (which the rings have accounted for) that the pyramid shows occupied and
+ * whose slabs come within the bound, found by a depth-first walk down the pyramid from its top,
+ * the children of a node in BHCL_GRID_OCC_ORDER and each tested against the bound as it is met
+ * (a node of empty space costs one bit test, however large). Stackless: on the way up, a child's
+ * position in its parent's order is recomputed from its coordinates. Returns the points examined
+ * (`examined` on entry: the rings'). */
+BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search_far(BHCL_GLOBAL const bhcl_u32* starts,
+                                               BHCL_GLOBAL const float* px, BHCL_GLOBAL const float* py,
+                                               BHCL_GLOBAL const float* pz, BHCL_GLOBAL const bhcl_i32* pid,
+                                               BHCL_GLOBAL const bhcl_u8* occ, const bhcl_grid_geom g,
+                                               const bhcl_grid_dbox db, float qx, float qy, float qz, bhcl_u32 cx, bhcl_u32 cy,
+                                               bhcl_u32 cz, bhcl_u32 r0, bhcl_u32 examined,
+                                               bhcl_u32 budget, BHCL_GRID_STATE* st) {
+  bhcl_u32 off, total;
+  const bhcl_u32 top = bhcl_grid_occ_top(g, &off, &total);
+  /* r0 0xffffffff: no ring was searched (the cube is empty) */
+  const bhcl_u32 vx0 = r0 == 0xffffffffu ? 1u : cx > r0 ? cx - r0 : 0u, vy0 = cy > r0 ? cy - r0 : 0u,
+                 vz0 = cz > r0 ? cz - r0 : 0u;
+  const bhcl_u32 vx1 = r0 == 0xffffffffu ? 0u : cx + r0, vy1 = cy + r0, vz1 = cz + r0;
+  bhcl_u32 l = top, X = 0u, Y = 0u, Z = 0u, p = 0u;
+  for (;;) {
+    const bhcl_u32 m = l - 1u; /* the children's level */
+    const bhcl_u32 near = (cx >= ((2u * X + 1u) << m) ? 1u : 0u) | (cy >= ((2u * Y + 1u) << m) ? 2u : 0u) |
+                          (cz >= ((2u * Z + 1u) << m) ? 4u : 0u);
+    if (p == 8u) { /* this node is done: up to its parent, at the position after it */
+      if (l == top) break;
+      const bhcl_u32 o = (X & 1u) | ((Y & 1u) << 1) | ((Z & 1u) << 2);
+      off += bhcl_grid_occ_size(g, l);
+      ++l;
+      X >>= 1;
+      Y >>= 1;
+      Z >>= 1;
+      const bhcl_u32 pm = l - 1u;
+      const bhcl_u32 pnear = (cx >= ((2u * X + 1u) << pm) ? 1u : 0u) | (cy >= ((2u * Y + 1u) << pm) ? 2u : 0u) |
+                             (cz >= ((2u * Z + 1u) << pm) ? 4u : 0u);
+      p = BHCL_GRID_OCC_ORDER(o ^ pnear) + 1u;
+      continue;
+    }
+    const bhcl_u32 o = BHCL_GRID_OCC_ORDER(p) ^ near;
+    ++p;
+    const bhcl_u32 mask = occ[off + (Z * bhcl_grid_occ_dim(g.ny, l) + Y) * bhcl_grid_occ_dim(g.nx, l) + X];
+    if (!((mask >> o) & 1u)) continue;
+    const bhcl_u32 ux = 2u * X + (o & 1u), uy = 2u * Y + ((o >> 1) & 1u), uz = 2u * Z + (o >> 2);
+    const bhcl_u32 x0 = ux << m, y0 = uy << m, z0 = uz << m;
+    bhcl_u32 x1 = ((ux + 1u) << m) - 1u, y1 = ((uy + 1u) << m) - 1u, z1 = ((uz + 1u) << m) - 1u;
+    if (x1 >= g.nx) x1 = g.nx - 1u;
+    if (y1 >= g.ny) y1 = g.ny - 1u;
+    if (z1 >= g.nz) z1 = g.nz - 1u;
+    if (x0 >= vx0 && x1 <= vx1 && y0 >= vy0 && y1 <= vy1 && z0 >= vz0 && z1 <= vz1) continue;
+    const float ex = bhcl_grid_slabs_in(qx, g.ox, g.h, g.margin, x0, x1, db.lx, db.hx);
+    const float ey = bhcl_grid_slabs_in(qy, g.oy, g.h, g.margin, y0, y1, db.ly, db.hy);
+    const float ez = bhcl_grid_slabs_in(qz, g.oz, g.h, g.margin, z0, z1, db.lz, db.hz);
+    if (ex * ex + ey * ey + ez * ez > BHCL_GRID_BOUND(st)) continue;
+    if (m == 0u) { /* a fine cell: its run */
+      if (examined >= budget) return examined;
+      const bhcl_u32 c = (z0 * g.ny + y0) * g.nx + x0;
+      const bhcl_u32 a = bhcl_grid_start(starts, g.sparse, c);
+      const bhcl_u32 b = bhcl_grid_start(starts, g.sparse, c + 1u);
+      BHCL_GRID_SCAN(st, a, b);
+      examined += b - a;
+      continue;
+    }
+    off -= bhcl_grid_occ_size(g, m);
+    l = m;
+    X = ux;
+    Y = uy;
+    Z = uz;
+    p = 0u;
+  }
+  return examined;
+}
+
+/* fine_rings: the rings searched before the pyramid walk takes over (0xffffffff: rings only). */
 BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search(BHCL_GLOBAL const bhcl_u32* starts,
                                            BHCL_GLOBAL const float* px, BHCL_GLOBAL const float* py,
                                            BHCL_GLOBAL const float* pz, BHCL_GLOBAL const bhcl_i32* pid,
-                                           const bhcl_grid_geom g, float qx, float qy, float qz,
-                                           bhcl_u32 budget, bhcl_u32 cap, BHCL_GRID_STATE* st) {
+                                           BHCL_GLOBAL const bhcl_u8* occ, const bhcl_grid_geom g,
+                                           const bhcl_grid_dbox db, float qx, float qy, float qz,
+                                           bhcl_u32 budget, bhcl_u32 cap,
+                                           bhcl_u32 fine_rings, BHCL_GRID_STATE* st) {
   const bhcl_u32 cx = bhcl_grid_cell(qx, g.ox, g.inv_h, g.nx);
   const bhcl_u32 cy = bhcl_grid_cell(qy, g.oy, g.inv_h, g.ny);
   const bhcl_u32 cz = bhcl_grid_cell(qz, g.oz, g.inv_h, g.nz);
@@ -168,8 +316,18 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search(BHCL_GLOBAL const bhcl_u32* starts,
   t = cz > g.nz - 1u - cz ? cz : g.nz - 1u - cz;
   rmax = rmax > t ? rmax : t;
   bhcl_u32 examined = 0;
+  /* No point within the home cell's 4^3 block of the pyramid's level 2 (nor, then, within a ring
+   * of it in most cases): the walk alone, the rings would only look up empty rows. */
+  if (fine_rings != 0xffffffffu && rmax > fine_rings && (g.nx > 2u || g.ny > 2u || g.nz > 2u)) {
+    const bhcl_u32 at = bhcl_grid_occ_size(g, 1u) +
+                        ((cz >> 2) * bhcl_grid_occ_dim(g.ny, 2u) + (cy >> 2)) * bhcl_grid_occ_dim(g.nx, 2u) + (cx >> 2);
+    if (occ[at] == 0u)
+      return bhcl_grid_search_far(starts, px, py, pz, pid, occ, g, db, qx, qy, qz, cx, cy, cz, 0xffffffffu, 0u,
+                                  budget, st);
+  }
   bhcl_grid_rows rows;
-  for (bhcl_u32 r = 0; r <= rmax; ++r) {
+  const bhcl_u32 rlast = rmax < fine_rings ? rmax : fine_rings;
+  for (bhcl_u32 r = 0; r <= rlast; ++r) {
     const int side = 2 * (int)r + 1;
     bhcl_u32 nr = 0;
     for (int jz = 0; jz < side; ++jz) {
@@ -232,8 +390,11 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search(BHCL_GLOBAL const bhcl_u32* starts,
     float w = bhcl_grid_reach(qx, g.ox, g.h, g.margin, cx, r, g.nx);
     w = BHCL_FMIN(w, bhcl_grid_reach(qy, g.oy, g.h, g.margin, cy, r, g.ny));
     w = BHCL_FMIN(w, bhcl_grid_reach(qz, g.oz, g.h, g.margin, cz, r, g.nz));
-    if (w > 0.0f && BHCL_GRID_BOUND(st) < w * w) break;
+    if (w > 0.0f && BHCL_GRID_BOUND(st) < w * w) return examined;
   }
+  if (rlast < rmax)
+    examined = bhcl_grid_search_far(starts, px, py, pz, pid, occ, g, db, qx, qy, qz, cx, cy, cz, rlast, examined,
+                                    budget, st);
   return examined;
 }
 #undef BHCL_GRID_RUN

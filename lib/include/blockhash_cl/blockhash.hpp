@@ -121,6 +121,7 @@ struct BlockHashBuildInfo {
   bool grid_two_level = false;           // the two-level directory (grid_search.h)
   std::size_t grid_directory_bytes = 0;  // the directory's size
   double t_tune = 0, t_cells = 0, t_count = 0, t_scatter = 0;
+  double t_occupancy = 0;                // the grid's occupancy pyramid (the far-query skip)
   std::size_t n_points = 0, n_blocks = 0;
   std::size_t occupied_cells = 0;      // over all tables
   std::size_t overflowed_buckets = 0;  // over all tables
@@ -276,6 +277,7 @@ class BlockHashIndex : public Index {
   bool grid_in_place() const;
   void release_grid_views();
   void add_grid_args(detail::KernelArgs& args) const;
+  std::uint32_t fine_rings_for(const SearchParams& p) const;
   std::uint32_t row_cap_for(const SearchParams& params) const;  // the kernel's BHCL_GRID_ROWCAP
   // The indexed points in ascending id order and the caller's coordinates; ids (optional) gets
   // their ids (0 .. N - 1 unless updates removed some).
@@ -298,9 +300,10 @@ class BlockHashIndex : public Index {
   cl::Buffer cell_table_;                      // cell-aligned: the direct table, or one dummy entry
   std::uint32_t cell_dy_ = 0, cell_dz_ = 0;    // its dimensions (dz = 0: none, use the directory)
   std::size_t cell_table_bytes_ = 0;
-  // Grid layout: starts, x, y, z, ids (grid_search.h), and the build parameters a rebuild reuses.
-  cl::Buffer g_starts_, g_x_, g_y_, g_z_, g_ids_;
-  std::size_t g_starts_cap_ = 0, g_points_cap_ = 0;
+  // Grid layout: starts, x, y, z, ids, the occupancy pyramid (grid_search.h), and the build
+  // parameters a rebuild reuses.
+  cl::Buffer g_starts_, g_x_, g_y_, g_z_, g_ids_, g_occ_;
+  std::size_t g_starts_cap_ = 0, g_points_cap_ = 0, g_occ_cap_ = 0;
   BlockHashBuildParams params_;
 };
 

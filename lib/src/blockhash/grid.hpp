@@ -67,6 +67,11 @@ struct Grid {
   GridVec<std::uint32_t> starts;
   GridVec<float> x, y, z;          // n + kGridPad, sorted by cell (ties by caller index)
   GridVec<std::int32_t> ids;       // n + kGridPad: the caller's index of each sorted point
+  // The occupancy pyramid (grid_search.h): rebuilt from the directory by build_grid_occupancy
+  // whenever cells may have gained points (build, load, insert); not saved.
+  GridVec<std::uint8_t> occ;
+  // The box of the stored points (grid_search.h), with the pyramid; no clipping until built.
+  bhcl_grid_dbox dbox{-INFINITY, -INFINITY, -INFINITY, INFINITY, INFINITY, INFINITY};
   std::shared_ptr<GridScratch> scratch;  // build only; not saved, not uploaded
   std::size_t ncells() const { return std::size_t(geom.nx) * geom.ny * geom.nz; }
   // The first sorted point of cell c (c = ncells: n_points), through the directory.
@@ -76,7 +81,7 @@ struct Grid {
   // The directory's entry count for this geometry and, when two-level, its occupied segments.
   static std::size_t top_entries(std::size_t ncells) { return (ncells >> BHCL_GRID_SEG_BITS) + 1; }
   std::size_t device_bytes() const {
-    return starts.size() * 4 + (x.size() + y.size() + z.size()) * 4 + ids.size() * 4;
+    return starts.size() * 4 + (x.size() + y.size() + z.size()) * 4 + ids.size() * 4 + occ.size();
   }
   // Every invariant the kernel relies on; throws bhcl::Error naming `what` and the first violation.
   void validate(const std::string& what) const;
@@ -94,7 +99,7 @@ struct GridBuildParams {
 };
 
 struct GridBuildStats {
-  double t_tune = 0, t_cells = 0, t_count = 0, t_scatter = 0;
+  double t_tune = 0, t_cells = 0, t_count = 0, t_scatter = 0, t_occupancy = 0;
   std::size_t occupied = 0;     // cells holding at least one point
   std::size_t occupied_segments = 0;  // two-level directory: segments holding a point
   double mean_cell_points = 0;  // point-weighted mean population (each point's cell, averaged)
@@ -106,11 +111,18 @@ struct GridBuildStats {
 void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid& g,
                 GridBuildStats* stats);
 
+// The occupancy pyramid's bytes for a geometry, and its build from g's directory (all of it, in
+// parallel over `threads`: 0 all); every path that adds points to cells calls it.
+std::size_t grid_occupancy_bytes(const bhcl_grid_geom& g);
+void build_grid_occupancy(Grid& g, unsigned threads);  // also sets g.dbox
+// The box of g's live points (holes left out): g.dbox after a remove that took a point on it.
+bhcl_grid_dbox grid_points_box(const Grid& g, unsigned threads);
+
 // The host reference of blockhash_grid_knn.cl (the same traversal, grid_search.h): rows equal
 // to the kernel's bit for bit. budget as the kernel's (0xffffffff: exact); row_cap the kernel's
-// BHCL_GRID_ROWCAP (at most BHCL_GRID_ROWBUF).
+// BHCL_GRID_ROWCAP (at most BHCL_GRID_ROWBUF), fine_rings its BHCL_GRID_FINE_RINGS.
 void reference_query_grid(const Grid& g, const float* queries, std::size_t n, int k, float max_r2,
-                          std::uint32_t budget, std::uint32_t row_cap, KnnResult& out,
+                          std::uint32_t budget, std::uint32_t row_cap, std::uint32_t fine_rings, KnnResult& out,
                           std::vector<std::int32_t>* examined, unsigned threads);
 // The grid's budget over its stored slots, for a budget b of live points. A removed point stays
 // a hole (examined, never returned) until the compaction at 1/8 holes, so the budget grows by

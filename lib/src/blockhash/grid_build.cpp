@@ -465,6 +465,9 @@ void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid&
     g.ids[i] = -1;
   }
   st.t_scatter = since(t0);
+  t0 = std::chrono::steady_clock::now();
+  build_grid_occupancy(g, p.threads);
+  st.t_occupancy = since(t0);
   if (stats) *stats = st;
 }
 

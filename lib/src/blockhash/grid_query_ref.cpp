@@ -38,10 +38,12 @@ inline void ref_scan(RefTopK* t, float qx, float qy, float qz, const float* px, 
 namespace bhcl::blockhash {
 
 void reference_query_grid(const Grid& g, const float* queries, std::size_t n, int k, float max_r2,
-                          std::uint32_t budget, std::uint32_t row_cap, KnnResult& out,
+                          std::uint32_t budget, std::uint32_t row_cap, std::uint32_t fine_rings, KnnResult& out,
                           std::vector<std::int32_t>* examined, unsigned threads) {
   if (row_cap > BHCL_GRID_ROWBUF)
     throw Error("blockhash grid reference: row_cap " + std::to_string(row_cap) + " above " + std::to_string(BHCL_GRID_ROWBUF));
+  if (g.occ.size() != grid_occupancy_bytes(g.geom))
+    throw Error("blockhash grid reference: the occupancy pyramid is not built");
   out.resize(n, k);
   if (examined) examined->assign(n, 0);
   detail::parallel_for(
@@ -60,7 +62,7 @@ void reference_query_grid(const Grid& g, const float* queries, std::size_t n, in
           std::uint32_t ex = 0;
           if (std::isfinite(qx) && std::isfinite(qy) && std::isfinite(qz))
             ex = bhcl_grid_search(g.starts.data(), g.x.data(), g.y.data(), g.z.data(), g.ids.data(),
-                                  g.geom, qx, qy, qz, budget, row_cap, &t);
+                                  g.occ.data(), g.geom, g.dbox, qx, qy, qz, budget, row_cap, fine_rings, &t);
           std::int32_t found = 0;
           for (int j = 0; j < k; ++j) {
             const std::size_t o = q * std::size_t(k) + std::size_t(j);

@@ -139,7 +139,7 @@ void BlockHashIndex::grid_positions() {
 void BlockHashIndex::grid_upload_from(std::size_t point_from, std::size_t cell_from) {
   const blockhash::Grid& g = *s_->grid;
   const std::size_t pb = g.x.size() * 4, sb = g.starts.size() * 4;
-  if (grid_in_place() || pb > g_points_cap_ || sb > g_starts_cap_ || !g_x_()) {
+  if (grid_in_place() || pb > g_points_cap_ || sb > g_starts_cap_ || g.occ.size() > g_occ_cap_ || !g_x_()) {
     upload_grid();  // reallocates what no longer fits, capacity grown by half
     return;
   }
@@ -154,6 +154,8 @@ void BlockHashIndex::grid_upload_from(std::size_t point_from, std::size_t cell_f
   if (cell_from * 4 < sb)
     check_cl(q.enqueueWriteBuffer(g_starts_, CL_FALSE, cell_from * 4, sb - cell_from * 4, g.starts.data() + cell_from),
              "clEnqueueWriteBuffer", "blockhash grid cells");
+  check_cl(q.enqueueWriteBuffer(g_occ_, CL_FALSE, 0, g.occ.size(), g.occ.data()), "clEnqueueWriteBuffer",
+           "blockhash grid occupancy");
   check_cl(q.finish(), "clFinish", "blockhash grid update");
 }
 
@@ -277,6 +279,7 @@ void BlockHashIndex::grid_insert(const float* scaled, std::size_t m, std::int32_
   g.n_points = n1;
   s_->n_points = n1;
   const std::size_t p_from = first_cell < nc ? g.starts[first_cell] : n0;
+  blockhash::build_grid_occupancy(g, params_.threads);
   grid_upload_from(p_from, first_cell);
   info_.n_points = n1;
   info_.occupied_cells = occupied;
@@ -291,8 +294,14 @@ void BlockHashIndex::grid_remove(const std::int32_t* ids, std::size_t n) {
   for (std::size_t i = 0; i < n; ++i)
     if (id_pos_[std::size_t(ids[i])] < 0)
       throw Error("blockhash: remove: id " + std::to_string(ids[i]) + " is not stored (internal)");
+  // The points' box (grid_search.h) stays the live points' own, as a load of the saved index
+  // computes it: recomputed only when a removed point lies on it.
+  bool on_box = false;
   for (std::size_t i = 0; i < n; ++i) {
     const std::size_t p = std::size_t(id_pos_[std::size_t(ids[i])]);
+    const bhcl_grid_dbox& b = g.dbox;
+    on_box = on_box || g.x[p] == b.lx || g.x[p] == b.hx || g.y[p] == b.ly || g.y[p] == b.hy || g.z[p] == b.lz ||
+             g.z[p] == b.hz;
     g.x[p] = g.y[p] = g.z[p] = INFINITY;
     g.ids[p] = kHoleId;
     id_pos_[std::size_t(ids[i])] = -1;
@@ -300,6 +309,7 @@ void BlockHashIndex::grid_remove(const std::int32_t* ids, std::size_t n) {
     hi = std::max(hi, p);
   }
   info_.holes += n;
+  if (on_box) g.dbox = blockhash::grid_points_box(g, params_.threads);
   // The live points' mean cell population, estimated as for a random thinning of the stored
   // ones (a Poisson cell of mean l thinned to f keeps a point-weighted mean of f l + 1); exact
   // again at the next compaction, merge or build. Without it the population could drift by the
@@ -383,6 +393,7 @@ void BlockHashIndex::grid_compact() {
   else
     for (std::size_t i = std::min(first_moved, w); i < w; ++i) id_pos_[std::size_t(g.ids[i])] = static_cast<std::int32_t>(i);
   // The cell table changes from the first cell holding a hole on; simplest to write it whole.
+  blockhash::build_grid_occupancy(g, params_.threads);  // cells emptied by the compaction
   grid_upload_from(std::min(first_moved, w), 0);
 }
 

@@ -64,10 +64,10 @@ std::string BlockHashBuildInfo::summary() const {
   if (grid) {
     std::snprintf(buf, sizeof buf,
                   "preset auto (grid)  cells %d x %d x %d of side %.4g  occupied %zu  mean cell %.1f points%s  "
-                  "%s directory %.1f MB  build %.3f s (tune %.3f, cells %.3f, bucket %.3f, sort %.3f, upload %.3f)",
+                  "%s directory %.1f MB  build %.3f s (tune %.3f, cells %.3f, bucket %.3f, sort %.3f, occupancy %.3f, upload %.3f)",
                   grid_dims[0], grid_dims[1], grid_dims[2], cell_size, occupied_cells, mean_cell_points,
                   grid_capped ? " (cells grown to fit the table)" : "", grid_two_level ? "two-level" : "direct",
-                  double(grid_directory_bytes) / 1e6, t_total, t_tune, t_cells, t_count, t_scatter, t_upload);
+                  double(grid_directory_bytes) / 1e6, t_total, t_tune, t_cells, t_count, t_scatter, t_occupancy, t_upload);
     return buf;
   }
   std::snprintf(buf, sizeof buf,
@@ -170,6 +170,7 @@ void BlockHashIndex::build_grid_layout(const float* points, std::size_t n_points
   in.t_cells = st.t_cells;
   in.t_count = st.t_count;
   in.t_scatter = st.t_scatter;
+  in.t_occupancy = st.t_occupancy;
   auto t = std::chrono::steady_clock::now();
   upload_grid();
   in.t_upload = seconds_since(t);
@@ -197,8 +198,8 @@ bool BlockHashIndex::grid_in_place() const { return runtime_ptr()->quirks().host
 
 void BlockHashIndex::release_grid_views() {
   if (!grid_in_place()) return;
-  g_starts_ = g_x_ = g_y_ = g_z_ = g_ids_ = cl::Buffer();
-  g_starts_cap_ = g_points_cap_ = 0;
+  g_starts_ = g_x_ = g_y_ = g_z_ = g_ids_ = g_occ_ = cl::Buffer();
+  g_starts_cap_ = g_points_cap_ = g_occ_cap_ = 0;
 }
 
 void BlockHashIndex::upload_grid() {
@@ -218,7 +219,9 @@ void BlockHashIndex::upload_grid() {
     view(g_y_, g.y.data(), g.y.size() * 4, "blockhash grid y");
     view(g_z_, g.z.data(), g.z.size() * 4, "blockhash grid z");
     view(g_ids_, g.ids.data(), g.ids.size() * 4, "blockhash grid ids");
+    view(g_occ_, g.occ.data(), g.occ.size(), "blockhash grid occupancy");
     g_starts_cap_ = g.starts.size() * 4;
+    g_occ_cap_ = g.occ.size();
     g_points_cap_ = g.x.size() * 4;
     if (!dummy_()) dummy_ = detail::upload_vector(rt, std::vector<std::int32_t>(1, 0), "blockhash dummy");
     return;
@@ -252,6 +255,9 @@ void BlockHashIndex::upload_grid() {
   put(g_ids_, c, g.ids.data(), pb, pw, "blockhash grid ids");
   g_starts_cap_ = scap;
   g_points_cap_ = c;
+  std::size_t ocap = g_occ_cap_;
+  put(g_occ_, ocap, g.occ.data(), g.occ.size(), grow(ocap, g.occ.size()), "blockhash grid occupancy");
+  g_occ_cap_ = ocap;
   if (!dummy_()) dummy_ = detail::upload_vector(rt, std::vector<std::int32_t>(1, 0), "blockhash dummy");
 }
 

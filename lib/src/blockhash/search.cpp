@@ -211,12 +211,23 @@ std::uint32_t BlockHashIndex::row_cap_for(const SearchParams& p) const {
   return cap;
 }
 
+std::uint32_t BlockHashIndex::fine_rings_for(const SearchParams& p) const {
+  // The kernel's BHCL_GRID_FINE_RINGS: grid_search.h's default unless the caller's defines set it.
+  std::uint32_t rings = BHCL_GRID_FINE_RINGS;
+  const std::string key = "-DBHCL_GRID_FINE_RINGS=";
+  for (std::size_t at = p.kernel_defines.find(key); at != std::string::npos; at = p.kernel_defines.find(key, at + 1))
+    rings = static_cast<std::uint32_t>(std::strtoul(p.kernel_defines.c_str() + at + key.size(), nullptr, 0));
+  return rings;
+}
+
 void BlockHashIndex::add_grid_args(detail::KernelArgs& args) const {
   const bhcl_grid_geom& g = s_->grid->geom;
-  args.add(g_starts_).add(g_x_).add(g_y_).add(g_z_).add(g_ids_)
+  args.add(g_starts_).add(g_x_).add(g_y_).add(g_z_).add(g_ids_).add(g_occ_)
       .add(cl_float4{{g.ox, g.oy, g.oz, g.h}})
       .add(cl_float4{{g.inv_h, g.margin, 0.0f, 0.0f}})
-      .add(cl_uint4{{g.nx, g.ny, g.nz, g.sparse}});
+      .add(cl_uint4{{g.nx, g.ny, g.nz, g.sparse}})
+      .add(cl_float4{{s_->grid->dbox.lx, s_->grid->dbox.ly, s_->grid->dbox.lz, 0.0f}})
+      .add(cl_float4{{s_->grid->dbox.hx, s_->grid->dbox.hy, s_->grid->dbox.hz, 0.0f}});
 }
 
 KnnResult BlockHashIndex::reference_query(const float* queries, std::size_t n,
@@ -235,7 +246,7 @@ KnnResult BlockHashIndex::reference_query(const float* queries, std::size_t n,
   if (info_.grid) {
     blockhash::reference_query_grid(*s_->grid, queries, n, params.k, detail::squared_radius(params.max_radius),
                                     blockhash::grid_budget(budget(params), s_->grid->n_points, info_.holes),
-                                    row_cap_for(params), out, examined, threads);
+                                    row_cap_for(params), fine_rings_for(params), out, examined, threads);
   } else if (info_.cell_aligned) {
     blockhash::reference_query_cells(*s_, queries, n, params, cells_probes(params), out, examined, threads);
   } else {

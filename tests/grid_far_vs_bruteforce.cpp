@@ -1,0 +1,170 @@
+// Block hashing's grid where the query is not among the points (the occupancy pyramid's walk,
+// kernels/grid_search.h): the exact default equal to brute force bit for bit on far queries, two
+// clusters queried between them, a line, a plane, a shell queried from inside, both directories,
+// after inserts and removes; kNN at every list form and radius; the kernel equal to its host
+// reference with the walk from the first ring, after the default rings, and never (rings alone).
+#include <cmath>
+#include <random>
+
+#include "test_util.hpp"
+
+using namespace bhcl;
+
+namespace {
+
+struct FarCase {
+  std::string name;
+  std::vector<float> pts, qs;
+};
+
+std::vector<FarCase> far_cases() {
+  std::vector<FarCase> cs;
+  std::mt19937_64 rng(21);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  std::normal_distribution<float> g(0.0f, 0.01f);
+  auto uq = [&](std::size_t n, float lo, float hi) {
+    std::uniform_real_distribution<float> v(lo, hi);
+    std::vector<float> q(3 * n);
+    for (float& x : q) x = v(rng);
+    return q;
+  };
+  {  // far queries: a unit cube of points, queries up to 20 boxes away
+    FarCase c{"far queries", datasets::uniform(6000, 31), uq(300, -20.0f, 21.0f)};
+    cs.push_back(std::move(c));
+  }
+  {  // two tight clusters 1 apart, queried between them
+    FarCase c{"two clusters", {}, {}};
+    for (int i = 0; i < 6000; ++i) c.pts.insert(c.pts.end(), {g(rng) + float(i % 2), g(rng), g(rng)});
+    for (int i = 0; i < 300; ++i) c.qs.insert(c.qs.end(), {0.1f + 0.8f * u(rng), 0.1f * u(rng) - 0.05f, 0.1f * u(rng) - 0.05f});
+    cs.push_back(std::move(c));
+  }
+  {  // points on a line (a grid one cell thick), queries off it
+    FarCase c{"line", {}, {}};
+    for (int i = 0; i < 20000; ++i) c.pts.insert(c.pts.end(), {u(rng), 0.0f, 0.0f});
+    for (int i = 0; i < 300; ++i) c.qs.insert(c.qs.end(), {1.4f * u(rng) - 0.2f, 0.5f * u(rng), 0.5f * u(rng) - 0.25f});
+    cs.push_back(std::move(c));
+  }
+  {  // points on a plane, queries above and below it
+    FarCase c{"plane", {}, {}};
+    for (int i = 0; i < 20000; ++i) c.pts.insert(c.pts.end(), {u(rng), u(rng), 0.0f});
+    for (int i = 0; i < 300; ++i) c.qs.insert(c.qs.end(), {u(rng), u(rng), u(rng) - 0.5f});
+    cs.push_back(std::move(c));
+  }
+  {  // a spherical shell queried from inside (and a few at its centre: many ties)
+    FarCase c{"shell from inside", {}, {}};
+    for (int i = 0; i < 12000; ++i) {
+      float x = g(rng), y = g(rng), z = g(rng);
+      const float n = std::sqrt(x * x + y * y + z * z);
+      c.pts.insert(c.pts.end(), {x / n, y / n, z / n});
+    }
+    for (int i = 0; i < 300; ++i) c.qs.insert(c.qs.end(), {0.6f * u(rng) - 0.3f, 0.6f * u(rng) - 0.3f, 0.6f * u(rng) - 0.3f});
+    for (int i = 0; i < 4; ++i) c.qs.insert(c.qs.end(), {0.0f, 0.0f, 0.0f});
+    cs.push_back(std::move(c));
+  }
+  return cs;
+}
+
+SearchParams exact(int k, const std::string& defines = "") {
+  SearchParams p = test::knn_params(k);
+  p.A = INFINITY;
+  p.kernel_defines = defines;
+  return p;
+}
+
+void knn_equals_bruteforce(const BlockHashIndex& index, const std::vector<float>& pts, const std::vector<float>& qs,
+                           const std::string& what) {
+  const std::size_t N = pts.size() / 3, n = qs.size() / 3;
+  for (int k : {1, 10, 17, 50, 100}) {  // one register, four, the scalar list past 64
+    CAPTURE(k);
+    const SearchParams p = exact(k);
+    KnnResult got;
+    index.query(qs.data(), n, p, got);
+    const KnnResult ref = reference::knn_float(pts.data(), N, qs.data(), n, p);
+    test::require_identical(got, ref, what + ", k = " + std::to_string(k));
+  }
+}
+
+}  // namespace
+
+TEST_CASE("grid_far_vs_bruteforce: the exact default equals brute force wherever the query is") {
+  for (const FarCase& c : far_cases())
+    for (int directory : {0, 1}) {  // direct and two-level directories
+      CAPTURE(c.name);
+      CAPTURE(directory);
+      BlockHashBuildParams bp;
+      bp.grid_directory = directory;
+      BlockHashIndex index(test::runtime(), c.pts.data(), c.pts.size() / 3, bp);
+      REQUIRE(index.info().grid);
+      knn_equals_bruteforce(index, c.pts, c.qs, c.name);
+    }
+}
+
+TEST_CASE("grid_far_vs_reference: kernel == host reference, walk from ring 0, after the rings, or never") {
+  for (const FarCase& c : far_cases()) {
+    BlockHashIndex index(test::runtime(), c.pts.data(), c.pts.size() / 3);
+    const std::size_t N = c.pts.size() / 3, n = c.qs.size() / 3;
+    for (const char* d : {"-DBHCL_GRID_FINE_RINGS=0", "-DBHCL_GRID_FINE_RINGS=1", "-DBHCL_GRID_FINE_RINGS=0xffffffff",
+                          "-DBHCL_GRID_VTOPK=0 -DBHCL_GRID_PREFETCH=0 -DBHCL_GRID_ROWCAP=0"})
+      for (int k : {1, 16, 17, 65})
+        for (float A : {2.0f, INFINITY}) {
+          CAPTURE(c.name);
+          CAPTURE(d);
+          CAPTURE(k);
+          CAPTURE(A);
+          SearchParams p = exact(k, d);
+          p.A = A;
+          SearchParams pe = p;
+          pe.count_examined = true;
+          const KnnResult r = index.query(c.qs, pe);
+          std::vector<std::int32_t> ex_ref;
+          const KnnResult ref = index.reference_query(c.qs.data(), n, p, &ex_ref);
+          test::require_identical(r, ref, c.name + " " + d);
+          REQUIRE(r.examined == ex_ref);
+          if (std::isinf(A))
+            test::require_identical(r, reference::knn_float(c.pts.data(), N, c.qs.data(), n, p), c.name + " exact");
+        }
+  }
+}
+
+TEST_CASE("grid_far_radius_vs_bruteforce: radius search exact where the query is far") {
+  for (const FarCase& c : far_cases()) {
+    CAPTURE(c.name);
+    BlockHashIndex index(test::runtime(), c.pts.data(), c.pts.size() / 3);
+    for (float r : {0.05f, 0.3f, 1.5f}) {
+      CAPTURE(r);
+      RadiusResult got;
+      index.radius_search(c.qs.data(), c.qs.size() / 3, r, RadiusParams{}, got);
+      test::require_same_slices(got, test::reference_radius_slices(c.pts, c.qs, {r * r}), c.name);
+    }
+  }
+}
+
+TEST_CASE("grid_far_after_updates: exact after inserts and removes, queried far and between") {
+  // Two clusters; a third inserted far from both (new occupied cells the pyramid must show), then
+  // part of the first removed (cells emptied, holes) and compacted.
+  std::mt19937_64 rng(5);
+  std::normal_distribution<float> g(0.0f, 0.01f);
+  std::uniform_real_distribution<float> u(-1.0f, 3.0f);
+  std::vector<float> pts;
+  for (int i = 0; i < 8000; ++i) pts.insert(pts.end(), {g(rng) + float(i % 2), g(rng), g(rng)});
+  std::vector<float> qs;
+  for (int i = 0; i < 300; ++i) qs.insert(qs.end(), {u(rng), u(rng) * 0.3f, u(rng) * 0.3f});
+  BlockHashIndex index(test::runtime(), pts.data(), pts.size() / 3);
+  // Inside the box (a merge into the cells) and outside it (a rebuild).
+  std::vector<float> add;
+  for (int i = 0; i < 2000; ++i) add.insert(add.end(), {g(rng) + 0.5f, g(rng) + 0.005f, g(rng)});
+  index.insert(add.data(), add.size() / 3);
+  pts.insert(pts.end(), add.begin(), add.end());
+  knn_equals_bruteforce(index, pts, qs, "after an insert inside the box");
+  // Removed: the first cluster's first 3000; their brute-force stand-ins are moved out of reach.
+  std::vector<std::int32_t> gone;
+  for (std::int32_t i = 0; i < 6000; i += 2) gone.push_back(i);
+  index.remove(gone.data(), gone.size());
+  for (std::int32_t i : gone) pts[3 * i] = pts[3 * i + 1] = pts[3 * i + 2] = 1e6f;
+  knn_equals_bruteforce(index, pts, qs, "after a remove");
+  std::vector<float> off;
+  for (int i = 0; i < 500; ++i) off.insert(off.end(), {g(rng) + 4.0f, g(rng) + 2.0f, g(rng)});
+  index.insert(off.data(), off.size() / 3);
+  pts.insert(pts.end(), off.begin(), off.end());
+  knn_equals_bruteforce(index, pts, qs, "after an insert off the box");
+}
