@@ -178,6 +178,14 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_occ_top(const bhcl_grid_geom g, bhcl_u32* to
 #ifndef BHCL_GRID_FINE_RINGS
 #define BHCL_GRID_FINE_RINGS 2u
 #endif
+/* Past them, the rings continue while the bound is within this many more rings of the stop, */
+#ifndef BHCL_GRID_RING_SLACK
+#define BHCL_GRID_RING_SLACK 2u
+#endif
+/* for at most this many more rings. */
+#ifndef BHCL_GRID_RING_CAP
+#define BHCL_GRID_RING_CAP 6u
+#endif
 
 /* The order in which the walk visits a node's 8 children: child BHCL_GRID_OCC_ORDER(p) ^ near
  * (near: the child on the query's side along each axis) at position p, i.e. the near child, the
@@ -326,8 +334,7 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search(BHCL_GLOBAL const bhcl_u32* starts,
                                   budget, st);
   }
   bhcl_grid_rows rows;
-  const bhcl_u32 rlast = rmax < fine_rings ? rmax : fine_rings;
-  for (bhcl_u32 r = 0; r <= rlast; ++r) {
+  for (bhcl_u32 r = 0; r <= rmax; ++r) {
     const int side = 2 * (int)r + 1;
     bhcl_u32 nr = 0;
     for (int jz = 0; jz < side; ++jz) {
@@ -391,10 +398,17 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search(BHCL_GLOBAL const bhcl_u32* starts,
     w = BHCL_FMIN(w, bhcl_grid_reach(qy, g.oy, g.h, g.margin, cy, r, g.ny));
     w = BHCL_FMIN(w, bhcl_grid_reach(qz, g.oz, g.h, g.margin, cz, r, g.nz));
     if (w > 0.0f && BHCL_GRID_BOUND(st) < w * w) return examined;
-  }
-  if (rlast < rmax)
-    examined = bhcl_grid_search_far(starts, px, py, pz, pid, occ, g, db, qx, qy, qz, cx, cy, cz, rlast, examined,
+    /* Past fine_rings, the rings go on only while the stop is near (the bound within
+     * BHCL_GRID_RING_SLACK more rings' reach, at most BHCL_GRID_RING_CAP rings past fine_rings):
+     * a query among the points at a large k keeps its nearest-first rings, one far from them (no
+     * bound yet, or a large radius) goes to the walk. */
+    if (fine_rings != 0xffffffffu && r >= fine_rings && r < rmax) {
+      const float reach = w + (float)BHCL_GRID_RING_SLACK * g.h;
+      if (!(BHCL_GRID_BOUND(st) < reach * reach) || r >= fine_rings + BHCL_GRID_RING_CAP)
+        return bhcl_grid_search_far(starts, px, py, pz, pid, occ, g, db, qx, qy, qz, cx, cy, cz, r, examined,
                                     budget, st);
+    }
+  }
   return examined;
 }
 #undef BHCL_GRID_RUN
