@@ -7,13 +7,49 @@
 #include <fstream>
 #include <map>
 #include <random>
+#include <cstdlib>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "blockhash_cl/datasets.hpp"
 #include "blockhash_cl/io.hpp"
+#include "blockhash_cl/runtime.hpp"
 
 namespace bhcl::bench {
+
+// The bounding box of n x 3 points.
+struct Bounds {
+  float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+  explicit Bounds(const std::vector<float>& p) {
+    for (std::size_t i = 0; i < p.size() / 3; ++i)
+      for (int d = 0; d < 3; ++d) lo[d] = std::min(lo[d], p[3 * i + d]), hi[d] = std::max(hi[d], p[3 * i + d]);
+  }
+  float diag() const {
+    float s = 0;
+    for (int d = 0; d < 3; ++d) s += (hi[d] - lo[d]) * (hi[d] - lo[d]);
+    return std::sqrt(s);
+  }
+};
+
+// n queries uniform over the points' bounding box (seeded).
+inline std::vector<float> box_queries(const std::vector<float>& pts, std::size_t n, unsigned long long seed) {
+  const Bounds b(pts);
+  std::mt19937_64 rng(seed);
+  std::vector<float> q(3 * n);
+  for (std::size_t i = 0; i < n; ++i)
+    for (int d = 0; d < 3; ++d) q[3 * i + d] = std::uniform_real_distribution<float>(b.lo[d], b.hi[d])(rng);
+  return q;
+}
+
+// The first lines of a run's output: the command line, the device and the threads.
+inline void print_run_header(int argc, char** argv, const Runtime& rt) {
+  const char* pt = std::getenv("POCL_MAX_PTHREAD_COUNT");
+  std::string command = "#";
+  for (int i = 0; i < argc; ++i) command += std::string(" ") + argv[i];
+  std::printf("%s\n# device: %s; host threads %u (POCL_MAX_PTHREAD_COUNT=%s)\n", command.c_str(),
+              rt.info().summary().c_str(), std::thread::hardware_concurrency(), pt ? pt : "unset");
+}
 
 // The median of timings (the mean of the two middle values for an even count; 0 for none).
 inline double median(std::vector<double> v) {
@@ -49,11 +85,7 @@ inline bool load_set(const std::string& data_dir, const std::string& name, std::
   if (N && N < pts.size() / 3) pts.resize(3 * N);
   std::size_t n_pts = pts.size() / 3;
   // Jitter scale: 1e-4 of the bounding box diagonal.
-  float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-  for (std::size_t i = 0; i < n_pts; ++i)
-    for (int d = 0; d < 3; ++d) lo[d] = std::min(lo[d], pts[3 * i + d]), hi[d] = std::max(hi[d], pts[3 * i + d]);
-  float diag = std::sqrt((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) +
-                         (hi[2] - lo[2]) * (hi[2] - lo[2]));
+  const float diag = Bounds(pts).diag();
   std::mt19937_64 rng(2);
   std::uniform_int_distribution<std::size_t> pick(0, n_pts - 1);
   std::normal_distribution<float> g(0.0f, 1e-4f * diag);

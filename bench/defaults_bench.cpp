@@ -37,17 +37,6 @@ double now_s() {
   return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
 }
 
-std::vector<float> box_queries(const std::vector<float>& pts, std::size_t n, unsigned long long seed) {
-  float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-  for (std::size_t i = 0; i < pts.size() / 3; ++i)
-    for (int d = 0; d < 3; ++d) lo[d] = std::min(lo[d], pts[3 * i + d]), hi[d] = std::max(hi[d], pts[3 * i + d]);
-  std::mt19937_64 rng(seed);
-  std::vector<float> q(3 * n);
-  for (std::size_t i = 0; i < n; ++i)
-    for (int d = 0; d < 3; ++d) q[3 * i + d] = std::uniform_real_distribution<float>(lo[d], hi[d])(rng);
-  return q;
-}
-
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -81,11 +70,7 @@ int main(int argc, char** argv) {
     if (d != "on" && d != "box") cli.fail("--dist: unknown distribution '" + d + "' (on, box)");
   try {
     auto rt = std::make_shared<Runtime>(device);
-    const char* pt = std::getenv("POCL_MAX_PTHREAD_COUNT");
-    std::string command = "#";
-    for (int i = 0; i < argc; ++i) command += std::string(" ") + argv[i];
-    std::printf("%s\n# device: %s; host threads %u (POCL_MAX_PTHREAD_COUNT=%s)\n", command.c_str(),
-                rt->info().summary().c_str(), std::thread::hardware_concurrency(), pt ? pt : "unset");
+    bench::print_run_header(argc, argv, *rt);
     std::printf("# first: the first call on a fresh index (tuning done there); tune_s its tuning, share = tune_s / "
                 "first call's wall; t_bh, t_kd: median wall of %d later calls (host-array query, sorting and "
                 "transfers included); vs_kd = t_kd / t_bh\n",
@@ -99,7 +84,7 @@ int main(int argc, char** argv) {
       std::vector<float> pts, on;
       if (!bench::load_set(data_dir, name, N, n_queries, pts, on)) continue;
       const std::size_t n_pts = pts.size() / 3;
-      const std::vector<float> box = box_queries(pts, n_box ? n_box : on.size() / 3, 7);
+      const std::vector<float> box = bench::box_queries(pts, n_box ? n_box : on.size() / 3, 7);
       auto kd = make_index("kdtree", rt, pts.data(), n_pts);
       std::printf("\n# %s: N = %zu, %zu queries on the data, %zu over its box; kdtree build %.3f s\n", name.c_str(),
                   n_pts, on.size() / 3, box.size() / 3, kd->build_seconds());

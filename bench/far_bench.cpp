@@ -35,31 +35,9 @@ double now_s() {
   return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
 }
 
-struct Box3 {
-  float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-  explicit Box3(const std::vector<float>& p) {
-    for (std::size_t i = 0; i < p.size() / 3; ++i)
-      for (int d = 0; d < 3; ++d) lo[d] = std::min(lo[d], p[3 * i + d]), hi[d] = std::max(hi[d], p[3 * i + d]);
-  }
-  float diag() const {
-    float s = 0;
-    for (int d = 0; d < 3; ++d) s += (hi[d] - lo[d]) * (hi[d] - lo[d]);
-    return std::sqrt(s);
-  }
-};
-
-std::vector<float> box_queries(const std::vector<float>& pts, std::size_t n, unsigned long long seed) {
-  const Box3 b(pts);
-  std::mt19937_64 rng(seed);
-  std::vector<float> q(3 * n);
-  for (std::size_t i = 0; i < n; ++i)
-    for (int d = 0; d < 3; ++d) q[3 * i + d] = std::uniform_real_distribution<float>(b.lo[d], b.hi[d])(rng);
-  return q;
-}
-
 // Every voxel centre of a res^3 grid over the points' box padded by `pad` of its extent per side.
 std::vector<float> field_queries(const std::vector<float>& pts, int res, float pad) {
-  const Box3 b(pts);
+  const bench::Bounds b(pts);
   std::vector<float> q;
   q.reserve(3 * std::size_t(res) * res * res);
   float lo[3], step[3];
@@ -80,7 +58,7 @@ std::vector<float> field_queries(const std::vector<float>& pts, int res, float p
 
 // The scan turned by `deg` about z through its centroid and moved by `shift` of its diagonal.
 std::vector<float> icp_queries(const std::vector<float>& pts, float deg, float shift) {
-  const Box3 b(pts);
+  const bench::Bounds b(pts);
   double c[3] = {0, 0, 0};
   const std::size_t n = pts.size() / 3;
   for (std::size_t i = 0; i < n; ++i)
@@ -198,11 +176,7 @@ int main(int argc, char** argv) {
   }
   try {
     auto rt = std::make_shared<Runtime>(device);
-    const char* pt = std::getenv("POCL_MAX_PTHREAD_COUNT");
-    std::string command = "#";
-    for (int i = 0; i < argc; ++i) command += std::string(" ") + argv[i];
-    std::printf("%s\n# device: %s; host threads %u (POCL_MAX_PTHREAD_COUNT=%s)\n", command.c_str(),
-                rt->info().summary().c_str(), std::thread::hardware_concurrency(), pt ? pt : "unset");
+    bench::print_run_header(argc, argv, *rt);
     std::printf("# vs_kd, vs_flann, vs_bf: median over %d rounds of t_other / t_method (> 1: this method faster); "
                 "t_s: median wall of a call; first_s: the first call (compiles); accuracy against the kd-tree's "
                 "exact rows; rows_diff: rows not bit-identical\n",
@@ -229,7 +203,7 @@ int main(int argc, char** argv) {
       } else if (kind == "on" || kind == "box") {
         std::vector<float> on;
         if (!bench::load_set(data_dir, base, N, n_queries, w.pts, on)) continue;
-        w.q = kind == "on" ? on : box_queries(w.pts, n_queries, 7);
+        w.q = kind == "on" ? on : bench::box_queries(w.pts, n_queries, 7);
       } else {
         cli.fail("--sets: unknown workload '" + set + "'");
       }

@@ -173,6 +173,20 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_occ_top(const bhcl_grid_geom g, bhcl_u32* to
   return l;
 }
 
+/* The byte of node (X, Y, Z) of level l, whose level starts at byte off. */
+BHCL_GRID_INLINE bhcl_u32 bhcl_grid_occ_index(const bhcl_grid_geom g, bhcl_u32 off, bhcl_u32 l, bhcl_u32 X,
+                                              bhcl_u32 Y, bhcl_u32 Z) {
+  return off + (Z * bhcl_grid_occ_dim(g.ny, l) + Y) * bhcl_grid_occ_dim(g.nx, l) + X;
+}
+
+/* The child (bx | by << 1 | bz << 2) of node (X, Y, Z) of level m + 1 on the side of the query's
+ * (clamped) cell (cx, cy, cz) along each axis: the near child of BHCL_GRID_OCC_ORDER. */
+BHCL_GRID_INLINE bhcl_u32 bhcl_grid_occ_near(bhcl_u32 cx, bhcl_u32 cy, bhcl_u32 cz, bhcl_u32 X, bhcl_u32 Y,
+                                             bhcl_u32 Z, bhcl_u32 m) {
+  return (cx >= ((2u * X + 1u) << m) ? 1u : 0u) | (cy >= ((2u * Y + 1u) << m) ? 2u : 0u) |
+         (cz >= ((2u * Z + 1u) << m) ? 4u : 0u);
+}
+
 /* The rings around the home cell searched before the walk down the pyramid takes over (the
  * kernels' define; the host reference is passed the same value; 0xffffffff: the rings alone). */
 #ifndef BHCL_GRID_FINE_RINGS
@@ -257,8 +271,6 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search_far(BHCL_GLOBAL const bhcl_u32* start
   bhcl_u32 l = top, X = 0u, Y = 0u, Z = 0u, p = 0u;
   for (;;) {
     const bhcl_u32 m = l - 1u; /* the children's level */
-    const bhcl_u32 near = (cx >= ((2u * X + 1u) << m) ? 1u : 0u) | (cy >= ((2u * Y + 1u) << m) ? 2u : 0u) |
-                          (cz >= ((2u * Z + 1u) << m) ? 4u : 0u);
     if (p == 8u) { /* this node is done: up to its parent, at the position after it */
       if (l == top) break;
       const bhcl_u32 o = (X & 1u) | ((Y & 1u) << 1) | ((Z & 1u) << 2);
@@ -267,15 +279,12 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search_far(BHCL_GLOBAL const bhcl_u32* start
       X >>= 1;
       Y >>= 1;
       Z >>= 1;
-      const bhcl_u32 pm = l - 1u;
-      const bhcl_u32 pnear = (cx >= ((2u * X + 1u) << pm) ? 1u : 0u) | (cy >= ((2u * Y + 1u) << pm) ? 2u : 0u) |
-                             (cz >= ((2u * Z + 1u) << pm) ? 4u : 0u);
-      p = BHCL_GRID_OCC_ORDER(o ^ pnear) + 1u;
+      p = BHCL_GRID_OCC_ORDER(o ^ bhcl_grid_occ_near(cx, cy, cz, X, Y, Z, l - 1u)) + 1u;
       continue;
     }
-    const bhcl_u32 o = BHCL_GRID_OCC_ORDER(p) ^ near;
+    const bhcl_u32 o = BHCL_GRID_OCC_ORDER(p) ^ bhcl_grid_occ_near(cx, cy, cz, X, Y, Z, m);
     ++p;
-    const bhcl_u32 mask = occ[off + (Z * bhcl_grid_occ_dim(g.ny, l) + Y) * bhcl_grid_occ_dim(g.nx, l) + X];
+    const bhcl_u32 mask = occ[bhcl_grid_occ_index(g, off, l, X, Y, Z)];
     if (!((mask >> o) & 1u)) continue;
     const bhcl_u32 ux = 2u * X + (o & 1u), uy = 2u * Y + ((o >> 1) & 1u), uz = 2u * Z + (o >> 2);
     const bhcl_u32 x0 = ux << m, y0 = uy << m, z0 = uz << m;
@@ -327,9 +336,7 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search(BHCL_GLOBAL const bhcl_u32* starts,
   /* No point within the home cell's 4^3 block of the pyramid's level 2 (nor, then, within a ring
    * of it in most cases): the walk alone, the rings would only look up empty rows. */
   if (fine_rings != 0xffffffffu && rmax > fine_rings && (g.nx > 2u || g.ny > 2u || g.nz > 2u)) {
-    const bhcl_u32 at = bhcl_grid_occ_size(g, 1u) +
-                        ((cz >> 2) * bhcl_grid_occ_dim(g.ny, 2u) + (cy >> 2)) * bhcl_grid_occ_dim(g.nx, 2u) + (cx >> 2);
-    if (occ[at] == 0u)
+    if (occ[bhcl_grid_occ_index(g, bhcl_grid_occ_size(g, 1u), 2u, cx >> 2, cy >> 2, cz >> 2)] == 0u)
       return bhcl_grid_search_far(starts, px, py, pz, pid, occ, g, db, qx, qy, qz, cx, cy, cz, 0xffffffffu, 0u,
                                   budget, st);
   }

@@ -201,23 +201,27 @@ cl::Event BlockHashIndex::enqueue_radius_batch(const cl::CommandQueue& queue,
   return detail::launch_1d(queue, kernel, count, local_size, wait, name);
 }
 
+namespace {
+
+// The value the kernel sees for `name` under the caller's defines: `fallback` unless a
+// -Dname=value sets it (the last one wins, as in the OpenCL compiler; decimal, 0x hex or 0 octal,
+// as C reads a literal).
+std::uint32_t define_value(const std::string& defines, const std::string& name, std::uint32_t fallback) {
+  const std::string key = "-D" + name + "=";
+  std::uint32_t v = fallback;
+  for (std::size_t at = defines.find(key); at != std::string::npos; at = defines.find(key, at + 1))
+    v = static_cast<std::uint32_t>(std::strtoul(defines.c_str() + at + key.size(), nullptr, 0));
+  return v;
+}
+
+}  // namespace
+
 std::uint32_t BlockHashIndex::row_cap_for(const SearchParams& p) const {
-  // The kernel's BHCL_GRID_ROWCAP: the device's, unless the caller's defines override it (the last
-  // -D of a name wins, as in the OpenCL compiler).
-  std::uint32_t cap = blockhash::grid_row_cap(runtime().quirks().vector_scan);
-  const std::string key = "-DBHCL_GRID_ROWCAP=";
-  for (std::size_t at = p.kernel_defines.find(key); at != std::string::npos; at = p.kernel_defines.find(key, at + 1))
-    cap = static_cast<std::uint32_t>(std::strtoul(p.kernel_defines.c_str() + at + key.size(), nullptr, 10));
-  return cap;
+  return define_value(p.kernel_defines, "BHCL_GRID_ROWCAP", blockhash::grid_row_cap(runtime().quirks().vector_scan));
 }
 
 std::uint32_t BlockHashIndex::fine_rings_for(const SearchParams& p) const {
-  // The kernel's BHCL_GRID_FINE_RINGS: grid_search.h's default unless the caller's defines set it.
-  std::uint32_t rings = BHCL_GRID_FINE_RINGS;
-  const std::string key = "-DBHCL_GRID_FINE_RINGS=";
-  for (std::size_t at = p.kernel_defines.find(key); at != std::string::npos; at = p.kernel_defines.find(key, at + 1))
-    rings = static_cast<std::uint32_t>(std::strtoul(p.kernel_defines.c_str() + at + key.size(), nullptr, 0));
-  return rings;
+  return define_value(p.kernel_defines, "BHCL_GRID_FINE_RINGS", BHCL_GRID_FINE_RINGS);
 }
 
 void BlockHashIndex::add_grid_args(detail::KernelArgs& args) const {
