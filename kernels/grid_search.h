@@ -335,7 +335,7 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search(BHCL_GLOBAL const bhcl_u32* starts,
   bhcl_u32 examined = 0;
   /* No point within the home cell's 4^3 block of the pyramid's level 2 (nor, then, within a ring
    * of it in most cases): the walk alone, the rings would only look up empty rows. */
-  if (fine_rings != 0xffffffffu && rmax > fine_rings && (g.nx > 2u || g.ny > 2u || g.nz > 2u)) {
+  if (fine_rings != 0xffffffffu && rmax > fine_rings && bhcl_grid_occ_size(g, 1u) > 1u) { /* level 2 exists */
     if (occ[bhcl_grid_occ_index(g, bhcl_grid_occ_size(g, 1u), 2u, cx >> 2, cy >> 2, cz >> 2)] == 0u)
       return bhcl_grid_search_far(starts, px, py, pz, pid, occ, g, db, qx, qy, qz, cx, cy, cz, 0xffffffffu, 0u,
                                   budget, st);

@@ -68,7 +68,7 @@ struct Grid {
   GridVec<float> x, y, z;          // n + kGridPad, sorted by cell (ties by caller index)
   GridVec<std::int32_t> ids;       // n + kGridPad: the caller's index of each sorted point
   // The occupancy pyramid (grid_search.h): rebuilt from the directory by build_grid_occupancy
-  // whenever cells may have gained points (build, load, insert); not saved.
+  // whenever the cells change (build, load, insert, compaction); not saved.
   GridVec<std::uint8_t> occ;
   // The box of the stored points (grid_search.h), with the pyramid; no clipping until built.
   bhcl_grid_dbox dbox{-INFINITY, -INFINITY, -INFINITY, INFINITY, INFINITY, INFINITY};

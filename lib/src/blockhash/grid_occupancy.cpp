@@ -1,6 +1,7 @@
 // Block hashing, grid layout: the occupancy pyramid (kernels/grid_search.h) from the directory.
 // Built from the cells' runs rather than from the points, so it holds after inserts, removes and
-// loads alike; a cell emptied by a compaction may stay marked, which costs a look, never a point.
+// loads alike; a cell whose points were all removed stays marked until the compaction (its holes
+// still fill its run), which costs a look, never a point.
 #include <algorithm>
 
 #include "blockhash/grid.hpp"
@@ -79,6 +80,7 @@ std::size_t grid_occupancy_bytes(const bhcl_grid_geom& g) {
 // The box of the live points (holes, at +inf, left out).
 bhcl_grid_dbox grid_points_box(const Grid& g, unsigned threads) {
   const std::size_t n = g.n_points;
+  if (n == 0) return bhcl_grid_dbox{-INFINITY, -INFINITY, -INFINITY, INFINITY, INFINITY, INFINITY};
   const unsigned parts = std::max(1u, std::min(threads ? threads : detail::default_threads(), 64u));
   std::vector<bhcl_grid_dbox> part(parts, bhcl_grid_dbox{INFINITY, INFINITY, INFINITY, -INFINITY, -INFINITY, -INFINITY});
   detail::parallel_for(
@@ -101,7 +103,6 @@ bhcl_grid_dbox grid_points_box(const Grid& g, unsigned threads) {
     b.lx = std::min(b.lx, p.lx), b.ly = std::min(b.ly, p.ly), b.lz = std::min(b.lz, p.lz);
     b.hx = std::max(b.hx, p.hx), b.hy = std::max(b.hy, p.hy), b.hz = std::max(b.hz, p.hz);
   }
-  if (n == 0) b = bhcl_grid_dbox{-INFINITY, -INFINITY, -INFINITY, INFINITY, INFINITY, INFINITY};
   return b;
 }
 
