@@ -70,7 +70,7 @@ struct Grid {
   // The occupancy pyramid (grid_search.h): rebuilt from the directory by build_grid_occupancy
   // whenever the cells change (build, load, insert, compaction); not saved.
   GridVec<std::uint8_t> occ;
-  // The box of the stored points (grid_search.h), with the pyramid; no clipping until built.
+  // The box of the live points (grid_search.h); no clipping until set.
   bhcl_grid_dbox dbox{-INFINITY, -INFINITY, -INFINITY, INFINITY, INFINITY, INFINITY};
   std::shared_ptr<GridScratch> scratch;  // build only; not saved, not uploaded
   std::size_t ncells() const { return std::size_t(geom.nx) * geom.ny * geom.nz; }
@@ -114,8 +114,9 @@ void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid&
 // The occupancy pyramid's bytes for a geometry, and its build from g's directory (all of it, in
 // parallel over `threads`: 0 all); every path that adds points to cells calls it.
 std::size_t grid_occupancy_bytes(const bhcl_grid_geom& g);
-void build_grid_occupancy(Grid& g, unsigned threads);  // also sets g.dbox
-// The box of g's live points (holes left out): g.dbox after a remove that took a point on it.
+void build_grid_occupancy(Grid& g, unsigned threads);
+// The box of g's live points (holes left out): g.dbox on a load and after a remove that took a
+// point on it (a build takes its own box, an insert widens g.dbox by the new points').
 bhcl_grid_dbox grid_points_box(const Grid& g, unsigned threads);
 
 // The host reference of blockhash_grid_knn.cl (the same traversal, grid_search.h): rows equal

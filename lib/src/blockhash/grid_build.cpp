@@ -466,6 +466,7 @@ void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid&
   }
   st.t_scatter = since(t0);
   t0 = std::chrono::steady_clock::now();
+  g.dbox = bhcl_grid_dbox{box.lo[0], box.lo[1], box.lo[2], box.hi[0], box.hi[1], box.hi[2]};  // the points stored
   build_grid_occupancy(g, p.threads);
   st.t_occupancy = since(t0);
   if (stats) *stats = st;

@@ -278,6 +278,7 @@ GridFile parse_grid(const std::string& data, const std::string& what, GridIdStat
   g.z.resize(g.n_points + kGridPad, INFINITY);
   g.ids.resize(g.n_points + kGridPad, -1);
   validate_ids(g, st, what);
+  g.dbox = grid_points_box(g, 0);
   build_grid_occupancy(g, 0);
   if (ids) *ids = st;
   return f;

@@ -10,38 +10,42 @@
 namespace bhcl::blockhash {
 namespace {
 
-// Level 1 from the fine cells: one task per level-1 z index, which owns those bytes.
+// Level 1 from the fine cells, row by row: one task per level-1 z index, which owns those bytes.
 void occupancy_level1(const Grid& g, std::uint8_t* occ, unsigned threads) {
   const bhcl_grid_geom& gm = g.geom;
-  const std::size_t nx = gm.nx, nxy = std::size_t(gm.nx) * gm.ny;
+  const std::size_t nx = gm.nx, ny = gm.ny, nz = gm.nz;
   const std::size_t dx = bhcl_grid_occ_dim(gm.nx, 1), dy = bhcl_grid_occ_dim(gm.ny, 1);
-  const std::size_t dz = bhcl_grid_occ_dim(gm.nz, 1);
   const std::uint32_t* const st = g.starts.data();
   const bool sparse = gm.sparse != 0;
   constexpr std::size_t kSeg = std::size_t(1) << BHCL_GRID_SEG_BITS;
   detail::parallel_for(
-      dz,
+      bhcl_grid_occ_dim(gm.nz, 1),
       [&](std::size_t zb, std::size_t ze) {
         std::fill(occ + zb * dx * dy, occ + ze * dx * dy, std::uint8_t(0));
-        const std::size_t c1 = std::min<std::size_t>(2 * ze, gm.nz) * nxy;
-        std::size_t c = 2 * zb * nxy;
-        std::uint32_t a = g.start(c);
-        while (c < c1) {
-          // A two-level directory's empty segment: 16 empty cells at once.
-          if (sparse && (c & (kSeg - 1)) == 0 && c + kSeg <= c1 && (st[c >> BHCL_GRID_SEG_BITS] & BHCL_GRID_EMPTY_SEG)) {
-            c += kSeg;
-            a = g.start(c);
-            continue;
+        for (std::size_t z = 2 * zb; z < std::min(2 * ze, nz); ++z)
+          for (std::size_t y = 0; y < ny; ++y) {
+            std::uint8_t* const row = occ + ((z >> 1) * dy + (y >> 1)) * dx;
+            const unsigned yz = unsigned(((y & 1) << 1) | ((z & 1) << 2));
+            std::size_t c = (z * ny + y) * nx;
+            if (!sparse) {
+              for (std::size_t x = 0; x < nx; ++x, ++c)
+                if (st[c + 1] > st[c]) row[x >> 1] |= std::uint8_t(1u << ((x & 1) | yz));
+              continue;
+            }
+            std::uint32_t a = g.start(c);
+            for (std::size_t x = 0; x < nx;) {
+              // A two-level directory's empty segment: 16 empty cells at once.
+              if ((c & (kSeg - 1)) == 0 && x + kSeg <= nx && (st[c >> BHCL_GRID_SEG_BITS] & BHCL_GRID_EMPTY_SEG)) {
+                x += kSeg, c += kSeg;
+                a = g.start(c);
+                continue;
+              }
+              const std::uint32_t b = g.start(c + 1);
+              if (b > a) row[x >> 1] |= std::uint8_t(1u << ((x & 1) | yz));
+              a = b;
+              ++x, ++c;
+            }
           }
-          const std::uint32_t b = g.start(c + 1);
-          if (b > a) {
-            const std::size_t z = c / nxy, y = (c / nx) % gm.ny, x = c % nx;
-            occ[((z >> 1) * dy + (y >> 1)) * dx + (x >> 1)] |=
-                std::uint8_t(1u << ((x & 1) | ((y & 1) << 1) | ((z & 1) << 2)));
-          }
-          a = b;
-          ++c;
-        }
       },
       threads, 8);
 }
@@ -108,7 +112,6 @@ bhcl_grid_dbox grid_points_box(const Grid& g, unsigned threads) {
 
 void build_grid_occupancy(Grid& g, unsigned threads) {
   const bhcl_grid_geom& gm = g.geom;
-  g.dbox = grid_points_box(g, threads);
   std::uint32_t top_off = 0, total = 0;
   const std::uint32_t top = bhcl_grid_occ_top(gm, &top_off, &total);
   g.occ.resize(total);

@@ -279,6 +279,12 @@ void BlockHashIndex::grid_insert(const float* scaled, std::size_t m, std::int32_
   g.n_points = n1;
   s_->n_points = n1;
   const std::size_t p_from = first_cell < nc ? g.starts[first_cell] : n0;
+  for (std::size_t i = 0; i < m; ++i) {  // the live points' box widened by the new ones
+    bhcl_grid_dbox& b = g.dbox;
+    const float* p = scaled + 3 * i;
+    b.lx = std::min(b.lx, p[0]), b.ly = std::min(b.ly, p[1]), b.lz = std::min(b.lz, p[2]);
+    b.hx = std::max(b.hx, p[0]), b.hy = std::max(b.hy, p[1]), b.hz = std::max(b.hz, p[2]);
+  }
   blockhash::build_grid_occupancy(g, params_.threads);
   grid_upload_from(p_from, first_cell);
   info_.n_points = n1;
@@ -393,7 +399,7 @@ void BlockHashIndex::grid_compact() {
   else
     for (std::size_t i = std::min(first_moved, w); i < w; ++i) id_pos_[std::size_t(g.ids[i])] = static_cast<std::int32_t>(i);
   // The cell table changes from the first cell holding a hole on; simplest to write it whole.
-  blockhash::build_grid_occupancy(g, params_.threads);  // cells emptied by the compaction
+  blockhash::build_grid_occupancy(g, params_.threads);  // cells emptied (the live box is as it was)
   grid_upload_from(std::min(first_moved, w), 0);
 }
 
