@@ -75,7 +75,7 @@ int main(int argc, char** argv) try {
             detail[i] = frame->info().summary();
           } else {
             auto index = make_index(methods[i], rt, pts.data(), n);
-            if (auto* bh = dynamic_cast<BlockHashIndex*>(index.get())) detail[i] = bh->info().summary();
+            detail[i] = index->build_summary();
           }
           t[i].push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
           cpu[i].push_back(cpu_seconds() - c0);

@@ -100,15 +100,14 @@ int main(int argc, char** argv) {
             MethodOptions mo;
             if (layout == "blocks") mo.set("grid", "0");
             auto idx = make_index("blockhash", rt, pts.data(), n_pts, mo);
-            auto* bh = dynamic_cast<BlockHashIndex*>(idx.get());
             SearchParams p;
             p.k = k;
             KnnResult truth, got;
             kd->query(q.data(), nq, p, truth);  // warm-up (compiles) and the exact answer
             auto call = [&](BlockHashIndex::BatchTuning* bt) {
               const double t0 = now_s();
-              const SearchParams run = bh->params_for_batch(q.data(), nq, p, bt);
-              bh->query(q.data(), nq, run, got);
+              const SearchParams run = idx->params_for_batch(q.data(), nq, p, bt);
+              idx->query(q.data(), nq, run, got);
               return std::make_pair(now_s() - t0, run.A);
             };
             BlockHashIndex::BatchTuning bt;

@@ -371,15 +371,10 @@ void run_set(const Options& o, const std::shared_ptr<Runtime>& rt, const std::st
       SearchParams p = v.params;
       p.k = k;
       v.compile_s += v.index->warm_up(p);  // a recall-target variant tunes its A here, untimed
-      if (p.recall_target > 0) {
-        auto* b = dynamic_cast<const BlockHashIndex*>(v.index);
-        if (b) {
-          BlockHashIndex::RecallTuning t = b->tune_for_recall(p.recall_target, p);
-          std::printf("# %s k=%d: recall target %.3g -> A %g (sample recall %.4f on %zu queries%s, %.2f s)\n",
-                      v.name.c_str(), k, p.recall_target, double(t.A), t.recall, t.sample,
-                      t.reached ? "" : ", not reached", t.seconds);
-        }
-      }
+      if (const auto t = v.index->recall_tuning(p))  // the tuning warm_up cached
+        std::printf("# %s k=%d: recall target %.3g -> A %g (sample recall %.4f on %zu queries%s, %.2f s)\n",
+                    v.name.c_str(), k, p.recall_target, double(t->A), t->recall, t->sample,
+                    t->reached ? "" : ", not reached", t->seconds);
     }
   for (const auto& v : vars) {
     const std::string label = v.method == "blockhash" ? v.build + "/" + v.defines_name : v.name;

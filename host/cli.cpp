@@ -194,10 +194,8 @@ Json inputs_json(const Args& args, std::size_t N, std::size_t n, const SearchPar
 
 Json build_json(const Index& index, const MethodOptions& options) {
   Json b = Json::object();
-  const MethodInfo& m = method_info(index.method());
-  if (m.used_build)
-    for (const auto& [name, value] : m.used_build(index)) b[name] = Json::parse(value);
-  if (m.saves) {
+  for (const auto& [name, value] : index.build_used()) b[name] = Json::parse(value);
+  if (index.saves()) {
     // A loaded index carries its own jitter; the seed given only matters for a build.
     if (options.load_index().empty()) b["seed"] = options.integer("seed", 1);
     if (!options.load_index().empty()) b["load_index"] = options.load_index();
@@ -210,10 +208,8 @@ Json search_json(const Index& index, const SearchParams& p) {
   Json s;
   s["k"] = p.k;
   s["max_radius"] = p.max_radius;  // null: unbounded
-  const MethodInfo& m = method_info(index.method());
-  if (m.used_search)
-    for (const auto& [name, value] : m.used_search(index, p)) s[name] = Json::parse(value);
-  if (m.on_device) {
+  for (const auto& [name, value] : index.search_used(p)) s[name] = Json::parse(value);
+  if (method_info(index.method()).on_device) {
     s["local_size"] = p.local_size ? p.local_size : index.runtime().quirks().default_local_size;
     s["max_batch"] = p.max_batch;  // 0: automatic
   }

@@ -86,9 +86,9 @@ void add_image_fields(Json& j, const Args& args, const std::string& scene, int w
 void add_query_stats(Json& j, const Index& index, const QueryStats& st);
 // The inputs of a knn or eval run: the point and query files, N, n, k and the radius.
 Json inputs_json(const Args& args, std::size_t N, std::size_t n, const SearchParams& p);
-// The build parameters an index actually used (its method's MethodInfo::used_build: derived ones
+// The build parameters an index actually used (SearchIndex::build_used: derived ones
 // filled in) and the search parameters of a query with `p` (defaults resolved: the work-group
-// size, MethodInfo::used_search), so that a run can be reproduced.
+// size, SearchIndex::search_used), so that a run can be reproduced.
 Json build_json(const Index& index, const MethodOptions& options);
 Json search_json(const Index& index, const SearchParams& p);
 

@@ -97,6 +97,10 @@ class SharesSummed final : public SearchIndex {
   std::string method() const override { return index_.method(); }
   bool exact() const override { return index_.exact(); }
   std::size_t size() const override { return index_.size(); }
+  SearchParams params_for_batch(const float* queries, std::size_t n, const SearchParams& params,
+                                BatchTuning* info = nullptr) const override {
+    return index_.params_for_batch(queries, n, params, info);
+  }
   QueryStats query(const float* queries, std::size_t n, const SearchParams& params,
                    KnnResult& out) const override {
     std::vector<DeviceShare> s;

@@ -101,14 +101,12 @@ void add_used(py::dict& o, const bhcl::MethodInfo::Used& used) {
 }
 
 // What the search actually used beyond the caller's parameters (as `bhcl knn --stats` writes it):
-// the method's MethodInfo::used_search.
+// SearchIndex::search_used.
 void add_resolved(py::dict& o, const bhcl::Index& index, const bhcl::SearchParams& p) {
-  const bhcl::MethodInfo& m = bhcl::method_info(index.method());
-  if (!m.used_search) return;
-  bhcl::MethodInfo::Used used;
+  bhcl::UsedFields used;
   {
     py::gil_scoped_release nogil;
-    used = m.used_search(index, p);  // a recall tuning is cached by the query that just ran
+    used = index.search_used(p);  // a recall tuning is cached by the query that just ran
   }
   add_used(o, used);
 }
@@ -191,8 +189,7 @@ std::unique_ptr<bhcl::Index> make_index(const std::string& method,
 
 py::dict build_info(const bhcl::Index& index) {
   py::dict o;
-  const bhcl::MethodInfo& m = bhcl::method_info(index.method());
-  if (m.used_build) add_used(o, m.used_build(index));
+  add_used(o, index.build_used());
   return o;
 }
 
@@ -262,26 +259,9 @@ void set_radius_option(bhcl::RadiusParams& p, const std::string& method, const s
   o.set_radius(&p, o.parse(text, o.keyword_name()));
 }
 
-// Host memory an index keeps beyond Index::memory_bytes (the device structure of a device
-// method; all of a host method's memory): block hashing's host copy of its structure, and an
-// exact device method's copy of the caller's points (the contract's double-precision fallback
-// reads it, 12 B per point) and its host mirror of the device arrays. On PoCL both are the process's memory, which is what a Python user
-// measures.
-std::size_t host_bytes(const bhcl::Index& index) {
-  if (const auto* bh = dynamic_cast<const bhcl::BlockHashIndex*>(&index)) return bh->host_bytes();
-  // An exact device method also keeps a host mirror of its device arrays, for insert/remove
-  // (KdTreeIndex::host_points_ and host_nodes_, BruteForceIndex::host_): memory_bytes() again.
-  if (index.exact() && bhcl::method_info(index.method()).on_device)
-    return index.size() * 3 * sizeof(float) + index.memory_bytes();
-  return 0;
-}
-
 void save(const bhcl::Index& index, const std::string& path) {
-  const auto* bh = dynamic_cast<const bhcl::BlockHashIndex*>(&index);
-  if (!bh)
-    throw bhcl::Error("save: only block-hash indexes are saved (method '" + index.method() + "')");
   py::gil_scoped_release nogil;
-  bh->save(path);
+  index.save(path);  // a method that does not save throws, naming itself
 }
 
 }  // namespace
@@ -375,7 +355,8 @@ PYBIND11_MODULE(_core, m) {
       .def_property_readonly("exact", &bhcl::Index::exact)
       .def_property_readonly("size", &bhcl::Index::size)
       .def_property_readonly("memory_bytes", &bhcl::Index::memory_bytes)
-      .def_property_readonly("host_bytes", &host_bytes)
+      .def_property_readonly("host_bytes", &bhcl::Index::host_bytes)
+      .def_property_readonly("saves", &bhcl::Index::saves)
       .def_property_readonly("build_seconds", &bhcl::Index::build_seconds)
       .def_property_readonly("runtime", &bhcl::Index::runtime_ptr)
       .def_property_readonly("build_info", &build_info)

@@ -733,20 +733,18 @@ TEST_CASE("updates: the build stats report holes, merges and rebuilds after upda
   std::mt19937_64 rng(61);
   std::vector<float> p0 = uniform(rng, 2000, 0.0f, 1.0f), more = uniform(rng, 100, 0.0f, 1.0f);
   std::int32_t drop[] = {1, 2, 3};
-  auto field = [](const MethodInfo::Used& u, const std::string& name) {
+  auto field = [](const UsedFields& u, const std::string& name) {
     for (const auto& [n, v] : u)
       if (n == name) return v;
     return std::string("absent");
   };
   for (const char* method : {"kdtree", "blockhash"}) {
     CAPTURE(method);
-    const MethodInfo& mi = method_info(method);
-    REQUIRE(static_cast<bool>(mi.used_build));
     auto ix = make_index(method, test::runtime(), p0.data(), 2000);
-    REQUIRE(field(mi.used_build(*ix), "holes") == "absent");  // never updated: nothing more
+    REQUIRE(field(ix->build_used(), "holes") == "absent");  // never updated: nothing more
     ix->insert(more.data(), 100);
     ix->remove(drop, 3);
-    const MethodInfo::Used u = mi.used_build(*ix);
+    const UsedFields u = ix->build_used();
     CHECK(field(u, "holes") == "3");
     CHECK(field(u, "id_bound") == "2100");
     CHECK(field(u, "removed") == "3");

@@ -51,14 +51,14 @@ QueryStats PhotonMap::query(const float* xyz, std::size_t n, const SearchParams&
 
 void PhotonMap::rebuild_index_from(PhotonMap& previous, const std::string& method,
                                    std::shared_ptr<Runtime> runtime, const MethodOptions& options) {
-  auto* bh = dynamic_cast<BlockHashIndex*>(previous.index_.get());
-  if (!bh || records_.empty()) {
+  Index* prev = previous.index_.get();
+  if (!prev || !prev->rebuilds_in_place() || records_.empty()) {
     build_index(method, std::move(runtime), options);
     return;
   }
   weights_.reset();
   auto t0 = std::chrono::steady_clock::now();
-  bh->rebuild(positions_.data(), records_.size());
+  prev->rebuild(positions_.data(), records_.size());
   index_ = std::move(previous.index_);
   build_seconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }

@@ -72,7 +72,7 @@ ProgressiveResult render_progressive(const EmbreeScene& es, const LightSampler& 
     // Its index: the previous pass's rebuilt in place where the method can, else a fresh build.
     t0 = Clock::now();
     if (prev.global && prev.global->index()) {
-      rep.rebuilt = dynamic_cast<const BlockHashIndex*>(prev.global->index()) != nullptr;
+      rep.rebuilt = prev.global->index()->rebuilds_in_place();
       maps.global->rebuild_index_from(*prev.global, opt.method, opt.runtime, opt.index_options);
     } else {
       maps.global->build_index(opt.method, opt.runtime, opt.index_options);

@@ -423,7 +423,7 @@ class Index:
         --load-index). Other methods: a container of the method, its build options and its points
         (load() rebuilds the structure from them; the points are then optional)."""
         path = os.fspath(path)
-        if self.method == "blockhash":
+        if self._impl.saves:
             self._impl.save(path)
             return
         if self._points is None:
@@ -462,7 +462,7 @@ class Index:
         state: Dict[str, Any] = {"format": _NPZ_FORMAT, "method": self.method, "options": dict(self._options),
                                  "origin": self._origin.copy(), "points": self._travelling_points(),
                                  "removed": self._removed.copy(), "structure": None}
-        if self.method == "blockhash":
+        if self._impl.saves:
             state["structure"] = self._structure_bytes()
         return state
 

@@ -1,14 +1,16 @@
 // Block Hashing (Ma & McCool, Graphics Hardware 2002): approximate kNN through locality-sensitive
 // hash tables of 256-byte blocks of points, answered by an OpenCL kernel, one work-item per query.
 // Presets of one index (docs/DESIGN.md, "Block hashing, as we build it"):
-//   auto   (default) the grid layout, the talk's "alternative clustering" future work as measured
-//          in ../shared/limit/NOTES.md: the blocks are the cells of one grid of equal cubic cells
+//   auto   (default) the grid layout, the talk's "alternative clustering" future work
+//          (docs/DESIGN.md, "The grid"): the blocks are the cells of one grid of equal cubic cells
 //          (side from a sample, so that a point's cell holds ~24 points), the points sorted by
 //          cell with a parallel counting sort (no Hilbert sort), the cells of a row adjacent in
 //          memory. A query scans the rings of rows around its cell, each row one contiguous run
 //          clipped to the current k-th distance, and stops exactly once the k-th sphere lies
 //          inside the rings visited, or once A k points are examined (kernels/grid_search.h,
-//          kernels/blockhash_grid_knn.cl). A = +inf (or recall_target = 1) is an exact mode.
+//          kernels/blockhash_grid_knn.cl). Past the first rings, a query far from the points
+//          walks an occupancy pyramid over the cells instead (one bit test per empty node).
+//          A = +inf (or recall_target = 1) is an exact mode.
 //   paper  the talk's scheme and defaults: L = P = round(ln N), X = 10, B = ceil(A k / (X ln N)) + 1
 //          for the design A and k, direct addressing of all (P+1)^3 cells, a full bucket drops
 //          new blocks, no neighbour probes, no bounding-box skipping (kernels/blockhash_knn.cl).
@@ -155,12 +157,14 @@ class BlockHashIndex : public Index {
   // missing, truncated, corrupt or foreign file.
   static std::unique_ptr<BlockHashIndex> load(std::shared_ptr<Runtime> runtime,
                                               const std::string& path);
-  void save(const std::string& path) const;
+  bool saves() const override { return true; }
+  void save(const std::string& path) const override;
   // The next frame's points with this build's parameters (the grid keeps its cell side), the
   // host and device arrays reused (no reallocation when n and the cell count do not grow): the
   // same answers as a fresh build with those parameters. Block layouts: a fresh build with the
   // same build parameters. Not safe concurrently with queries on this index.
-  void rebuild(const float* points, std::size_t n_points);
+  bool rebuilds_in_place() const override { return true; }
+  void rebuild(const float* points, std::size_t n_points) override;
 
   // The first caller index whose point differs from the indexed one (bit for bit), -1 when the
   // index holds exactly these n points, -2 when n is not id_bound() (no point compared). points
@@ -174,7 +178,10 @@ class BlockHashIndex : public Index {
   // Host memory the index keeps besides its device arrays: the host copy of the structure (its
   // reference search, save() and first_mismatch() read it). On PoCL both are the process's memory;
   // the Python package's memory_bytes reports their sum.
-  std::size_t host_bytes() const;
+  std::size_t host_bytes() const override;
+  std::string build_summary() const override { return info_.summary(); }
+  UsedFields build_used() const override;          // blockhash/options.cpp
+  UsedFields search_used(const SearchParams& params) const override;
   double memory_per_point() const { return double(memory_bytes()) / double(size()); }
   // The talk's memory overhead (4 (Ak/X)(ln N)^3 + 12 (ln N)^2 + 1.6 N) / 24N, and ours measured
   // the same way: bytes beyond the points' own (24 B per talk photon) over 24 N.
@@ -205,7 +212,7 @@ class BlockHashIndex : public Index {
                                std::size_t sample = 2000) const;
   // The tuning a query with params.recall_target > 0 uses: computed on first use per (k, probes,
   // target), without the radius, and cached.
-  RecallTuning recall_tuning(const SearchParams& params) const;
+  std::optional<RecallTuning> recall_tuning(const SearchParams& params) const override;
 
   // Recall on the caller's queries. The search parameters a host-array batch should run with:
   // when a recall is asked (params.recall_target in (0, 1)), or when neither A nor a target is
@@ -261,7 +268,8 @@ class BlockHashIndex : public Index {
 
   BlockHashIndex(std::shared_ptr<Runtime> runtime, std::unique_ptr<blockhash::Structure> s);
   void upload();
-  std::string kernel_options(int kmax) const;
+  // The library's defines of the kNN kernel variant of at most kmax (kernel_defines.hpp).
+  std::vector<std::pair<const char*, long long>> kernel_options(int kmax) const;
   std::uint32_t cells_probes(const SearchParams& params) const;  // cell-aligned: 0, 1 or 2
   bool table_probes(int neighbour_probes) const;                // the L-table layout: 0 or 1
   // The arguments both block layouts' kernels (kNN and radius) begin with, up to the probes.

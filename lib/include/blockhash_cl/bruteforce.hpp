@@ -20,6 +20,8 @@ class BruteForceIndex : public Index {
   std::string method() const override { return "bruteforce"; }
   bool exact() const override { return true; }
   std::size_t memory_bytes() const override { return host_.size() * 16; }
+  // The caller's points (the double-precision fallback) and the host mirror host_.
+  std::size_t host_bytes() const override { return size() * 3 * sizeof(float) + memory_bytes(); }
 
  protected:
   BHCL_INDEX_DEVICE_HOOKS

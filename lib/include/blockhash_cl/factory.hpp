@@ -33,12 +33,9 @@ struct MethodInfo {
   // Builds (or loads) the index; throws bhcl::Error for bad points or options.
   std::unique_ptr<Index> (*make)(std::shared_ptr<Runtime> runtime, const float* points,
                                  std::size_t n_points, const MethodOptions& options) = nullptr;
-  // What a built index used (derived values filled in), and what a query with `p` resolves to
-  // (block hashing: the A tuned for a recall target, the probes): (name, value as JSON text)
-  // pairs that every front end's stats carry. nullptr: nothing beyond the options given.
-  using Used = std::vector<std::pair<std::string, std::string>>;
-  Used (*used_build)(const Index& index) = nullptr;
-  Used (*used_search)(const Index& index, const SearchParams& p) = nullptr;
+  // What a built index used and what a query resolves to: SearchIndex::build_used and
+  // search_used, overridden by the method's class (MethodInfo only describes, it holds no hooks).
+  using Used = UsedFields;
 };
 
 // The maker of a method whose index is built from (runtime, points, n, Params): the options its

@@ -43,6 +43,7 @@ class FlannIndex : public Index {
   // Host memory: FLANN's tree, its reordered copy of the points and our copy.
   std::size_t memory_bytes() const override;
   int threads() const { return threads_; }
+  UsedFields build_used() const override;  // flann/options.cpp: the threads
 
   // Answers on the host (Index::query and enqueue_query call host_search). QueryStats: query_s =
   // wall time of the search itself (all threads), no compile, upload or download; batches = 0.

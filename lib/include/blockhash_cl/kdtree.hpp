@@ -33,6 +33,10 @@ class KdTreeIndex : public Index {
   std::string method() const override { return "kdtree"; }
   bool exact() const override { return true; }
   std::size_t memory_bytes() const override { return n_nodes_ * 16 + size() * 16; }
+  // The caller's points (the double-precision fallback reads them) and the host mirror of the
+  // device arrays (insert and remove update it): memory_bytes() again.
+  std::size_t host_bytes() const override { return size() * 3 * sizeof(float) + memory_bytes(); }
+  UsedFields build_used() const override;  // kdtree/options.cpp: the update counters
 
   std::size_t node_count() const { return n_nodes_; }
   std::size_t leaf_count() const { return n_leaves_; }

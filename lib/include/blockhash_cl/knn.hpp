@@ -42,6 +42,7 @@
 #include <limits>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <set>
 #include <shared_mutex>
 #include <string>
@@ -91,8 +92,10 @@ struct SearchParams {
   // QueryStats::wall_s, not in query_s).
   int sort_queries = -1;
   // Kernel exploration (the benchmark's variants): extra "-DNAME=VALUE" defines appended to the
-  // kernel's build options, e.g. "-DBHCL_VEC_SCAN=0". Only -D tokens are accepted. Results of an
-  // exact method do not depend on them; the block-hash kernel's may (the defines are its knobs).
+  // kernel's build options, e.g. "-DBHCL_GRID_VTOPK=0". Only the tuning and experiment defines of
+  // the kernel being built are accepted, each in its range (lib/src/core/kernel_defines.cpp's
+  // table); any other name, or a structural one, throws bhcl::Error. Results of an exact method
+  // do not depend on them; the block-hash kernel's may (the defines are its knobs).
   std::string kernel_defines;
   // Per query, the points examined (block hashing's cost measure) into KnnResult::examined (the
   // host-array call) or ResultBuffers::examined (the buffer-level call). Only methods whose
@@ -296,6 +299,10 @@ struct BatchTuning {
   double compile_s = 0;     // kernel compiles the tuning's first launches triggered
 };
 
+// What a build used (derived values filled in) or what a query resolves to (block hashing: the A
+// tuned for a recall target): (name, value as JSON text) pairs that every front end's stats carry.
+using UsedFields = std::vector<std::pair<std::string, std::string>>;
+
 // The one interface a front end queries, whatever answers: an Index (one method on one device),
 // a MultiDeviceIndex (copies on several devices, multi_device.hpp) or a DistributedIndex (shards
 // over MPI ranks, distributed.hpp: its calls are collective). Front ends hold a SearchIndex and
@@ -323,6 +330,19 @@ class SearchIndex {
     (void)n;
     if (info) *info = BatchTuning{};
     return params;
+  }
+  // The recall tuning a query with params.recall_target > 0 runs at (computed on first use and
+  // cached), nullopt for a method with no budget to tune.
+  virtual std::optional<RecallTuning> recall_tuning(const SearchParams& params) const {
+    (void)params;
+    return std::nullopt;
+  }
+  // What the build used and what a query with `params` resolves to (UsedFields; empty: nothing
+  // beyond the options given). The stats of bhcl and the Python package carry them.
+  virtual UsedFields build_used() const { return {}; }
+  virtual UsedFields search_used(const SearchParams& params) const {
+    (void)params;
+    return {};
   }
 
  protected:
@@ -384,6 +404,22 @@ class Index : public SearchIndex {
   // its squared distance <= r2.
   QueryStats radius_search_squared(const float* queries, std::size_t n, float r2,
                                    const RadiusParams& params, RadiusResult& out) const;
+
+  // Capabilities a method may have, virtual so that callers need no cast to a method's class.
+  // Host memory the index keeps besides its device arrays (host copies of its structure or of the
+  // caller's points); on PoCL both are the process's memory.
+  virtual std::size_t host_bytes() const { return 0; }
+  // One line on what the build did (block hashing: BlockHashBuildInfo::summary), "" when nothing.
+  virtual std::string build_summary() const { return {}; }
+  // save (a file the method's loader reads back; MethodInfo::saves says which methods do): the
+  // default throws bhcl::Error naming the method.
+  virtual bool saves() const { return false; }
+  virtual void save(const std::string& path) const;
+  // rebuild: the next frame's points with this build's parameters, the arrays reused (the same
+  // answers as a fresh build). The default throws bhcl::Error; rebuilds_in_place() says whether
+  // a method has it. Not safe concurrently with queries on this index.
+  virtual bool rebuilds_in_place() const { return false; }
+  virtual void rebuild(const float* points, std::size_t n_points);
 
   // Compiles the kernel variant for params (k, local size) and does the first launch, so that
   // later query timings exclude compilation. Returns the seconds it took (0 if already done).

@@ -70,6 +70,18 @@ class MultiDeviceIndex final : public SearchIndex {
   std::string method() const override { return indexes_.front()->method(); }
   bool exact() const override { return indexes_.front()->exact(); }
   std::size_t size() const override { return indexes_.front()->size(); }
+  // The copies are built alike, so the first one answers for all: the batch's parameters (block
+  // hashing tunes A on a sample of the batch, as one device would), the recall tuning and the
+  // build's and a query's reports.
+  SearchParams params_for_batch(const float* queries, std::size_t n, const SearchParams& params,
+                                BatchTuning* info = nullptr) const override {
+    return indexes_.front()->params_for_batch(queries, n, params, info);
+  }
+  std::optional<RecallTuning> recall_tuning(const SearchParams& params) const override {
+    return indexes_.front()->recall_tuning(params);
+  }
+  UsedFields build_used() const override { return indexes_.front()->build_used(); }
+  UsedFields search_used(const SearchParams& params) const override { return indexes_.front()->search_used(params); }
   // The current split: one weight per device, summing to 1.
   std::vector<double> weights() const;
   // Fixes the split (e.g. from a known device ratio); the weights are normalised. Later calls

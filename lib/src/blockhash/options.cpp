@@ -134,13 +134,13 @@ std::string json_text(const std::string& t) {
   return s + "\"";
 }
 
-MethodInfo::Used used_build_fields(const Index& index);
+MethodInfo::Used used_build_fields(const BlockHashBuildInfo& i);
 
 // The build's figures, and after updates (Index::insert/remove) their statistics too (only then:
 // an index never updated reports what it did before).
-MethodInfo::Used used_build(const Index& index) {
-  MethodInfo::Used u = used_build_fields(index);
-  const BlockHashBuildInfo& i = dynamic_cast<const BlockHashIndex&>(index).info();
+MethodInfo::Used used_build(const BlockHashIndex& index) {
+  const BlockHashBuildInfo& i = index.info();
+  MethodInfo::Used u = used_build_fields(i);
   if (i.holes || i.merges || i.compactions || i.update_rebuilds) {
     u.insert(u.end() - 1, {{"holes", std::to_string(i.holes)},
                            {"merges", std::to_string(i.merges)},
@@ -154,8 +154,7 @@ MethodInfo::Used used_build(const Index& index) {
   return u;
 }
 
-MethodInfo::Used used_build_fields(const Index& index) {
-  const BlockHashBuildInfo& i = dynamic_cast<const BlockHashIndex&>(index).info();
+MethodInfo::Used used_build_fields(const BlockHashBuildInfo& i) {
   const std::string axis = "[" + std::to_string(i.axis_P[0]) + ", " + std::to_string(i.axis_P[1]) + ", " +
                            std::to_string(i.axis_P[2]) + "]";
   if (i.grid)
@@ -192,14 +191,13 @@ MethodInfo::Used used_build_fields(const Index& index) {
           {"summary", json_text(i.summary())}};
 }
 
-MethodInfo::Used used_search(const Index& index, const SearchParams& p) {
-  const auto& bh = dynamic_cast<const BlockHashIndex&>(index);
+MethodInfo::Used used_search(const BlockHashIndex& bh, const SearchParams& p) {
   MethodInfo::Used u;
   if (p.recall_target > 0) {
     // The A the index tuned for this target (cached by the query that ran: no second tuning).
-    const BlockHashIndex::RecallTuning t = bh.recall_tuning(p);
+    const BlockHashIndex::RecallTuning t = *bh.recall_tuning(p);
     u = {{"recall_target", json_real(p.recall_target)},
-         {"A", json_real(t.A)},
+         {"A", std::isinf(t.A) ? json_text("inf") : json_real(t.A)},
          {"tuned_sample_recall", json_real(t.recall)},
          {"tuned_reached", json_bool(t.reached)}};
   } else if (p.A == 0) {
@@ -229,10 +227,17 @@ const std::vector<OptionInfo>& option_table() {
   return table;
 }
 
-// name, summary, exact, on a device, saves, options, maker, what a build and a search used.
+// name, summary, exact, on a device, saves, options, maker.
 MethodInfo describe() {
   return {"blockhash", "block hashing (Ma & McCool 2002): exact by default on auto's grid; examines at most A*k points per query with A",
-          false, true, true, option_table(), make, used_build, used_search};
+          false, true, true, option_table(), make};
 }
 
 }  // namespace bhcl::blockhash
+
+namespace bhcl {
+
+UsedFields BlockHashIndex::build_used() const { return blockhash::used_build(*this); }
+UsedFields BlockHashIndex::search_used(const SearchParams& p) const { return blockhash::used_search(*this, p); }
+
+}  // namespace bhcl

@@ -8,6 +8,7 @@
 #include "blockhash/build.hpp"
 #include "blockhash_cl/error.hpp"
 #include "core/device_util.hpp"
+#include "core/kernel_defines.hpp"
 
 namespace bhcl {
 std::uint32_t BlockHashIndex::cells_probes(const SearchParams& p) const {
@@ -73,7 +74,15 @@ void BlockHashIndex::check_params(const SearchParams& p) const {
     throw Error("blockhash: A must be a positive finite number (0: the default, 8), got " + std::to_string(p.A));
 }
 
-BlockHashIndex::RecallTuning BlockHashIndex::recall_tuning(const SearchParams& p) const {
+std::optional<BlockHashIndex::RecallTuning> BlockHashIndex::recall_tuning(const SearchParams& p) const {
+  if (!(p.recall_target > 0)) return std::nullopt;
+  if (info_.grid && p.recall_target >= 1) {  // the grid's exact mode: nothing to tune
+    RecallTuning exact;
+    exact.A = INFINITY;
+    exact.recall = 1;
+    exact.reached = true;
+    return exact;
+  }
   // Tuned without the radius (in whichever coordinates the caller's path holds it): the budget
   // a recall needs does not depend on it.
   auto key = std::make_tuple(p.k, p.neighbour_probes, p.recall_target);
@@ -89,34 +98,31 @@ BlockHashIndex::RecallTuning BlockHashIndex::recall_tuning(const SearchParams& p
 
 float BlockHashIndex::resolved_A(const SearchParams& p) const {
   if (info_.grid && p.recall_target >= 1) return INFINITY;  // the exact mode
-  if (p.recall_target > 0) return recall_tuning(p).A;
+  if (p.recall_target > 0) return recall_tuning(p)->A;
   if (p.A == 0) return info_.grid ? INFINITY : 8.0f;  // the index's default (SearchParams::A)
   return p.A;
 }
 
-std::string BlockHashIndex::kernel_options(int kmax) const {
-  std::ostringstream os;
+detail::DefineValues BlockHashIndex::kernel_options(int kmax) const {
   if (info_.grid) {
     // The register list and the prefetch where the compiler vectorises (CPU devices: the quirks
     // list); the scalar list on GPUs and past 64 entries.
     const bool cpu = runtime().quirks().vector_scan;
-    os << "-DBHCL_KMAX=" << kmax << " -DBHCL_GRID_VTOPK=" << (cpu && kmax <= 64 ? 1 : 0)
-       << " -DBHCL_GRID_PREFETCH=" << (cpu ? 2 : 0) << " -DBHCL_GRID_ROWCAP=" << blockhash::grid_row_cap(cpu);
-    return os.str();
+    return {{"BHCL_KMAX", kmax},
+            {"BHCL_GRID_VTOPK", cpu && kmax <= 64 ? 1 : 0},
+            {"BHCL_GRID_PREFETCH", cpu ? 2 : 0},
+            {"BHCL_GRID_ROWCAP", blockhash::grid_row_cap(cpu)}};
   }
-  if (info_.cell_aligned) {
-    os << "-DBHCL_KMAX=" << kmax << " -DBHCL_BH_MAXKEEP=" << blockhash::scan_cap(kmax, info_.X)
-       << " -DBHCL_BH_VECSCAN=" << (runtime().quirks().vector_scan ? 1 : 0);
-    return os.str();
-  }
-  os << "-DBHCL_KMAX=" << kmax << " -DBHCL_BH_L=" << info_.L
-     << " -DBHCL_BH_DIRECT=" << (info_.direct_addressing ? 1 : 0)
-     << " -DBHCL_BH_BOXSKIP=" << (info_.box_skip && !info_.box_order ? 1 : 0)
-     << " -DBHCL_BH_BOXORDER=" << (info_.box_order ? 1 : 0);
+  const long long cap = blockhash::scan_cap(kmax, info_.X);
+  if (info_.cell_aligned)
+    return {{"BHCL_KMAX", kmax}, {"BHCL_BH_MAXKEEP", cap}, {"BHCL_BH_VECSCAN", runtime().quirks().vector_scan ? 1 : 0}};
   // Only the defines the variant uses, so that indexes differing elsewhere share a program.
-  if (info_.box_order) os << " -DBHCL_BH_MAXKEEP=" << blockhash::scan_cap(kmax, info_.X);
-  else os << " -DBHCL_BH_SCANCAP=" << blockhash::scan_cap(kmax, info_.X);
-  return os.str();
+  return {{"BHCL_KMAX", kmax},
+          {"BHCL_BH_L", info_.L},
+          {"BHCL_BH_DIRECT", info_.direct_addressing ? 1 : 0},
+          {"BHCL_BH_BOXSKIP", info_.box_skip && !info_.box_order ? 1 : 0},
+          {"BHCL_BH_BOXORDER", info_.box_order ? 1 : 0},
+          {info_.box_order ? "BHCL_BH_MAXKEEP" : "BHCL_BH_SCANCAP", cap}};
 }
 
 cl::Event BlockHashIndex::enqueue_batch(const cl::CommandQueue& queue, const cl::Buffer& queries,
@@ -141,8 +147,9 @@ cl::Event BlockHashIndex::enqueue_batch(const cl::CommandQueue& queue, const cl:
   };
   if (info_.grid) {
     const char* gname = "blockhash_grid_knn";
-    cl::Kernel kernel = runtime().kernel(std::string(gname) + ".cl", gname,
-                                         detail::with_defines(kernel_options(kmax), params));
+    const std::string file = std::string(gname) + ".cl";
+    cl::Kernel kernel =
+        runtime().kernel(file, gname, detail::kernel_build_options(file, kernel_options(kmax), params.kernel_defines));
     detail::KernelArgs args(kernel, gname);
     add_grid_args(args);
     args.add_queries(queries, first, count, params)
@@ -154,8 +161,9 @@ cl::Event BlockHashIndex::enqueue_batch(const cl::CommandQueue& queue, const cl:
   }
   // The two layouts' kernels share their first and last arguments.
   const char* name = info_.cell_aligned ? "blockhash_cells_knn" : "blockhash_knn";
-  cl::Kernel kernel = runtime().kernel(std::string(name) + ".cl", name,
-                                       detail::with_defines(kernel_options(kmax), params));
+  const std::string file = std::string(name) + ".cl";
+  cl::Kernel kernel =
+      runtime().kernel(file, name, detail::kernel_build_options(file, kernel_options(kmax), params.kernel_defines));
   detail::KernelArgs args(kernel, name);
   add_layout_args(args, params.neighbour_probes);
   if (info_.cell_aligned) {
@@ -182,46 +190,33 @@ cl::Event BlockHashIndex::enqueue_radius_batch(const cl::CommandQueue& queue,
                                                const std::vector<cl::Event>* wait) const {
   if (info_.grid) {
     const char* gname = "blockhash_grid_radius";
-    cl::Kernel kernel = runtime().kernel(std::string(gname) + ".cl", gname, params.kernel_defines);
+    const std::string file = std::string(gname) + ".cl";
+    cl::Kernel kernel = runtime().kernel(file, gname, detail::kernel_build_options(file, {}, params.kernel_defines));
     detail::KernelArgs args(kernel, gname);
     add_grid_args(args);
     args.add(cl_uint(params.budget)).add_radius(queries, first, count, r2, pass, out, params.count_examined);
     return detail::launch_1d(queue, kernel, count, local_size, wait, gname);
   }
   const char* name = info_.cell_aligned ? "blockhash_cells_radius" : "blockhash_radius";
-  std::ostringstream options;
+  detail::DefineValues values;
   if (!info_.cell_aligned)
-    options << "-DBHCL_BH_L=" << info_.L << " -DBHCL_BH_DIRECT=" << (info_.direct_addressing ? 1 : 0)
-            << " -DBHCL_BH_SCANCAP=" << blockhash::scan_cap(kMaxK, info_.X);
-  if (!params.kernel_defines.empty()) options << " " << params.kernel_defines;
-  cl::Kernel kernel = runtime().kernel(std::string(name) + ".cl", name, options.str());
+    values = {{"BHCL_BH_L", info_.L},
+              {"BHCL_BH_DIRECT", info_.direct_addressing ? 1 : 0},
+              {"BHCL_BH_SCANCAP", static_cast<long long>(blockhash::scan_cap(kMaxK, info_.X))}};
+  const std::string file = std::string(name) + ".cl";
+  cl::Kernel kernel = runtime().kernel(file, name, detail::kernel_build_options(file, values, params.kernel_defines));
   detail::KernelArgs args(kernel, name);
   add_layout_args(args, params.neighbour_probes);
   args.add(cl_uint(params.budget)).add_radius(queries, first, count, r2, pass, out, params.count_examined);
   return detail::launch_1d(queue, kernel, count, local_size, wait, name);
 }
 
-namespace {
-
-// The value the kernel sees for `name` under the caller's defines: `fallback` unless a
-// -Dname=value sets it (the last one wins, as in the OpenCL compiler; decimal, 0x hex or 0 octal,
-// as C reads a literal).
-std::uint32_t define_value(const std::string& defines, const std::string& name, std::uint32_t fallback) {
-  const std::string key = "-D" + name + "=";
-  std::uint32_t v = fallback;
-  for (std::size_t at = defines.find(key); at != std::string::npos; at = defines.find(key, at + 1))
-    v = static_cast<std::uint32_t>(std::strtoul(defines.c_str() + at + key.size(), nullptr, 0));
-  return v;
-}
-
-}  // namespace
-
 std::uint32_t BlockHashIndex::row_cap_for(const SearchParams& p) const {
-  return define_value(p.kernel_defines, "BHCL_GRID_ROWCAP", blockhash::grid_row_cap(runtime().quirks().vector_scan));
+  return detail::caller_define_value(p.kernel_defines, "BHCL_GRID_ROWCAP", blockhash::grid_row_cap(runtime().quirks().vector_scan));
 }
 
 std::uint32_t BlockHashIndex::fine_rings_for(const SearchParams& p) const {
-  return define_value(p.kernel_defines, "BHCL_GRID_FINE_RINGS", BHCL_GRID_FINE_RINGS);
+  return detail::caller_define_value(p.kernel_defines, "BHCL_GRID_FINE_RINGS", BHCL_GRID_FINE_RINGS);
 }
 
 void BlockHashIndex::add_grid_args(detail::KernelArgs& args) const {

@@ -7,6 +7,7 @@
 
 #include "blockhash_cl/error.hpp"
 #include "core/device_util.hpp"
+#include "core/kernel_defines.hpp"
 
 namespace bhcl {
 
@@ -85,8 +86,9 @@ cl::Event BruteForceIndex::enqueue_batch(const cl::CommandQueue& queue, const cl
                                          std::size_t local_size,
                                          const std::vector<cl::Event>* wait) const {
   int kmax = kmax_variant(params.k);
-  cl::Kernel kernel = runtime().kernel("bruteforce_knn.cl", "bruteforce_knn",
-                                       detail::with_defines("-DBHCL_KMAX=" + std::to_string(kmax), params));
+  cl::Kernel kernel = runtime().kernel(
+      "bruteforce_knn.cl", "bruteforce_knn",
+      detail::kernel_build_options("bruteforce_knn.cl", {{"BHCL_KMAX", kmax}}, params.kernel_defines));
   detail::KernelArgs args(kernel, "bruteforce_knn");
   args.add(points_)
       .add(cl_uint(host_.size()))
@@ -102,7 +104,8 @@ cl::Event BruteForceIndex::enqueue_radius_batch(const cl::CommandQueue& queue,
                                                 const RadiusBuffers& out, const RadiusParams& params,
                                                 std::size_t local_size,
                                                 const std::vector<cl::Event>* wait) const {
-  cl::Kernel kernel = runtime().kernel("bruteforce_radius.cl", "bruteforce_radius", params.kernel_defines);
+  cl::Kernel kernel = runtime().kernel("bruteforce_radius.cl", "bruteforce_radius",
+                                       detail::kernel_build_options("bruteforce_radius.cl", {}, params.kernel_defines));
   detail::KernelArgs args(kernel, "bruteforce_radius");
   args.add(points_).add(cl_uint(host_.size())).add_radius(queries, first, count, r2, pass, out, params.count_examined);
   return detail::launch_1d(queue, kernel, count, local_size, wait, "bruteforce_radius");

@@ -41,12 +41,6 @@ inline float squared_radius(float r) {
   return std::isinf(r) ? std::numeric_limits<float>::infinity() : r * r;
 }
 
-// Build options plus the caller's extra -D defines (SearchParams::kernel_defines, validated by
-// Index::check_params).
-inline std::string with_defines(const std::string& options, const SearchParams& p) {
-  return p.kernel_defines.empty() ? options : options + " " + p.kernel_defines;
-}
-
 // Sets kernel arguments in order; a failure names the kernel and the argument index.
 class KernelArgs {
  public:

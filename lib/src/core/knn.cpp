@@ -13,6 +13,7 @@
 
 #include "blockhash_cl/error.hpp"
 #include "core/device_util.hpp"
+#include "core/kernel_defines.hpp"
 #include "core/parallel.hpp"
 #include "core/point_scan.hpp"
 #include "core/query_order.hpp"
@@ -253,19 +254,7 @@ void Index::check_params(const SearchParams& p) const {
     throw Error("count_examined: method " + method() + " does not count the points it examines");
   if (std::isnan(p.max_radius) || p.max_radius < 0)
     throw Error("max_radius must be >= 0 (or +inf), got " + std::to_string(p.max_radius));
-  {
-    // kernel_defines: whitespace-separated -DNAME or -DNAME=VALUE tokens, nothing else.
-    std::istringstream is(p.kernel_defines);
-    std::string tok;
-    while (is >> tok) {
-      bool ok = tok.size() > 2 && tok.compare(0, 2, "-D") == 0;
-      for (std::size_t i = 2; ok && i < tok.size(); ++i) {
-        char c = tok[i];
-        ok = std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '=' || c == '.' || c == '-';
-      }
-      if (!ok) throw Error("kernel_defines: '" + tok + "' is not a -DNAME[=VALUE] define");
-    }
-  }
+  detail::parse_kernel_defines(p.kernel_defines);  // names the kernels read, values in range
   if (p.local_size > runtime_->info().max_work_group_size && runtime_->info().max_work_group_size)
     throw Error("local_size " + std::to_string(p.local_size) + " exceeds the device maximum " +
                 std::to_string(runtime_->info().max_work_group_size));
@@ -273,6 +262,14 @@ void Index::check_params(const SearchParams& p) const {
 
 std::size_t Index::local_size_for(const SearchParams& p) const {
   return p.local_size ? p.local_size : runtime_->quirks().default_local_size;
+}
+
+void Index::save(const std::string& path) const {
+  throw Error("save " + path + ": method '" + method() + "' does not save its index (block hashing does)");
+}
+
+void Index::rebuild(const float*, std::size_t) {
+  throw Error("rebuild: method '" + method() + "' has no rebuild in place (build a new index)");
 }
 
 double Index::warm_up(const SearchParams& params) const {

@@ -4,12 +4,12 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <limits>
 #include <numeric>
 #include <sstream>
 
-#include "blockhash_cl/blockhash.hpp"
 #include "blockhash_cl/distributed.hpp"
 #include "blockhash_cl/error.hpp"
 #include "distributed/agreement.hpp"
@@ -78,6 +78,14 @@ void merge_row(KnnResult64& out, std::size_t q, const unsigned char* src, int k,
   out.counts[q] = m;
 }
 
+// The cell side a grid build reports (block hashing's build_used "cell_size", written with 17
+// digits: it reads back exactly), 0 for an index that reports none.
+double reported_cell_side(const Index* index) {
+  if (!index) return 0;
+  for (const auto& [name, value] : index->build_used())
+    if (name == "cell_size") return std::strtod(value.c_str(), nullptr);
+  return 0;
+}
 
 }  // namespace
 
@@ -272,8 +280,8 @@ DistributedIndex::DistributedIndex(MPI_Comm comm, std::shared_ptr<Runtime> runti
     // sharding's cost), so that a budget A means on every shard what it means in one process.
     // Not done when the caller set cell-size, or where a shard's extent is outside
     // [2^-40, 2^40] (its index coordinates are then rescaled, knn.hpp, and sides do not compare).
-    if (method_ == "blockhash" && !params.options.has("cell-size")) {
-      const auto* bh = dynamic_cast<const BlockHashIndex*>(local_.get());
+    if (!params.options.has("cell-size")) {
+      const double side = reported_cell_side(local_.get());
       double extent = 0;
       for (int d = 0; d < 3 && m > 0; ++d) {
         float lo = xyz[static_cast<std::size_t>(d)], hi = lo;
@@ -285,8 +293,8 @@ DistributedIndex::DistributedIndex(MPI_Comm comm, std::shared_ptr<Runtime> runti
       }
       const bool comparable = extent == 0 || (extent >= std::ldexp(1.0, -40) && extent <= std::ldexp(1.0, 40));
       double mine[3] = {0, 0, 0}, sum[3] = {0, 0, 0};  // sum of m h^-3, of m, shards that cannot join
-      if (bh && bh->info().grid && bh->info().cell_size > 0 && comparable)
-        mine[0] = double(m) / std::pow(bh->info().cell_size, 3.0), mine[1] = double(m);
+      if (side > 0 && comparable)
+        mine[0] = double(m) / std::pow(side, 3.0), mine[1] = double(m);
       else if (m > 0)
         mine[2] = 1;
       MPI_Allreduce(mine, sum, 3, MPI_DOUBLE, MPI_SUM, comm_);
@@ -294,7 +302,7 @@ DistributedIndex::DistributedIndex(MPI_Comm comm, std::shared_ptr<Runtime> runti
         const double h = std::cbrt(sum[1] / sum[0]);
         err.clear();
         try {
-          if (m > 0 && std::fabs(h / bh->info().cell_size - 1.0) > 1e-9) {
+          if (m > 0 && std::fabs(h / side - 1.0) > 1e-9) {
             char text[40];
             std::snprintf(text, sizeof text, "%.17g", h);
             MethodOptions o = params.options;
@@ -398,8 +406,7 @@ QueryStats DistributedIndex::query(const float* queries, std::size_t n, const Se
     if (!exact_ && border_factor_ > 1 && local_) {
       // The A this rank's index answers with (the tuned one under a recall target), scaled.
       float A = params.A;
-      if (params.recall_target > 0)
-        if (auto* bh = dynamic_cast<const BlockHashIndex*>(local_.get())) A = bh->recall_tuning(params).A;
+      if (const auto t = local_->recall_tuning(params)) A = t->A;
       border_A = A * border_factor_;
     }
   } catch (const std::exception& e) {

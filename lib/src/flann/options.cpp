@@ -16,16 +16,17 @@ std::unique_ptr<Index> make(std::shared_ptr<Runtime> rt, const float* p, std::si
   return make_from_table<FlannIndex, FlannParams>(table(), "flann", std::move(rt), p, n, o);
 }
 
-MethodInfo::Used used_build(const Index& index) {
-  return {{"threads", std::to_string(dynamic_cast<const FlannIndex&>(index).threads())}};
-}
-
 }  // namespace
 
-// name, summary, exact, on a device, saves, options, maker, what a build used.
+// name, summary, exact, on a device, saves, options, maker.
 MethodInfo describe() {
-  return {"flann", "exact: FLANN's single kd-tree searched exactly on host threads", true, false, false, table(), make,
-          used_build};
+  return {"flann", "exact: FLANN's single kd-tree searched exactly on host threads", true, false, false, table(), make};
 }
 
 }  // namespace bhcl::flann
+
+namespace bhcl {
+
+UsedFields FlannIndex::build_used() const { return {{"threads", std::to_string(threads())}}; }
+
+}  // namespace bhcl

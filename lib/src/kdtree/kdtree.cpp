@@ -13,6 +13,7 @@
 
 #include "blockhash_cl/error.hpp"
 #include "core/device_util.hpp"
+#include "core/kernel_defines.hpp"
 #include "core/parallel.hpp"
 #include "kdtree/build.hpp"
 #include "kdtree_layout.h"
@@ -353,7 +354,7 @@ cl::Event KdTreeIndex::enqueue_batch(const cl::CommandQueue& queue, const cl::Bu
   const int stack = std::max(8, (depth_ + 7) / 8 * 8);
   cl::Kernel kernel = runtime().kernel(
       "kdtree_knn.cl", "kdtree_knn",
-      detail::with_defines("-DBHCL_KMAX=" + std::to_string(kmax) + " -DBHCL_KD_STACK=" + std::to_string(stack), params));
+      detail::kernel_build_options("kdtree_knn.cl", {{"BHCL_KMAX", kmax}, {"BHCL_KD_STACK", stack}}, params.kernel_defines));
   detail::KernelArgs args(kernel, "kdtree_knn");
   args.add(nodes_)
       .add(points_)
@@ -368,9 +369,9 @@ cl::Event KdTreeIndex::enqueue_radius_batch(const cl::CommandQueue& queue, const
                                             std::size_t local_size,
                                             const std::vector<cl::Event>* wait) const {
   const int stack = std::max(8, (depth_ + 7) / 8 * 8);  // as enqueue_batch
-  std::string options = "-DBHCL_KD_STACK=" + std::to_string(stack);
-  if (!params.kernel_defines.empty()) options += " " + params.kernel_defines;
-  cl::Kernel kernel = runtime().kernel("kdtree_radius.cl", "kdtree_radius", options);
+  cl::Kernel kernel = runtime().kernel(
+      "kdtree_radius.cl", "kdtree_radius",
+      detail::kernel_build_options("kdtree_radius.cl", {{"BHCL_KD_STACK", stack}}, params.kernel_defines));
   detail::KernelArgs args(kernel, "kdtree_radius");
   args.add(nodes_).add(points_).add_radius(queries, first, count, r2, pass, out, params.count_examined);
   return detail::launch_1d(queue, kernel, count, local_size, wait, "kdtree_radius");

@@ -25,25 +25,28 @@ std::unique_ptr<Index> make(std::shared_ptr<Runtime> rt, const float* p, std::si
   return make_from_table<KdTreeIndex, KdTreeParams>(table(), "kdtree", std::move(rt), p, n, o);
 }
 
-// After updates (Index::insert/remove): the holes removed points left in the leaves, the inserts
-// merged into the leaves, the rebuilds (a leaf past 4x the leaf size, the set grown by half, holes
-// past a quarter), the ids issued and removed. An index never updated reports nothing more.
-MethodInfo::Used used_build(const Index& index) {
-  const auto& kd = dynamic_cast<const KdTreeIndex&>(index);
-  if (!kd.holes() && !kd.update_merges() && !kd.update_rebuilds()) return {};
-  return {{"holes", std::to_string(kd.holes())},
-          {"update_merges", std::to_string(kd.update_merges())},
-          {"update_rebuilds", std::to_string(kd.update_rebuilds())},
-          {"id_bound", std::to_string(kd.id_bound())},
-          {"removed", std::to_string(kd.removed_count())}};
-}
-
 }  // namespace
 
-// name, summary, exact, on a device, saves, options, maker, what a build used.
+// name, summary, exact, on a device, saves, options, maker.
 MethodInfo describe() {
   return {"kdtree", "exact: a balanced kd-tree built on the host, searched by a stackful kernel", true, true,
-          false, table(), make, used_build};
+          false, table(), make};
 }
 
 }  // namespace bhcl::kdtree
+
+namespace bhcl {
+
+// After updates (Index::insert/remove): the holes removed points left in the leaves, the inserts
+// merged into the leaves, the rebuilds (a leaf past 4x the leaf size, the set grown by half, holes
+// past a quarter), the ids issued and removed. An index never updated reports nothing more.
+UsedFields KdTreeIndex::build_used() const {
+  if (!holes() && !update_merges() && !update_rebuilds()) return {};
+  return {{"holes", std::to_string(holes())},
+          {"update_merges", std::to_string(update_merges())},
+          {"update_rebuilds", std::to_string(update_rebuilds())},
+          {"id_bound", std::to_string(id_bound())},
+          {"removed", std::to_string(removed_count())}};
+}
+
+}  // namespace bhcl

@@ -58,7 +58,7 @@ std::unique_ptr<Index> make_index(const std::string& method, std::shared_ptr<Run
                                   const MethodOptions& options) {
   const MethodInfo& m = method_info(method);
   if ((!options.load_index().empty() || !options.save_index().empty()) && !m.saves)
-    throw Error("--save-index / --load-index: only block-hash indexes are saved (method '" + method + "')");
+    throw Error("--save-index / --load-index: method '" + method + "' does not save its index (block hashing does)");
   return m.make(std::move(runtime), points, n_points, options);
 }
 
