@@ -8,7 +8,7 @@
  *    lane 15 of the last register); an insertion is, per register, one shuffle by a lane, two
  *    compares and two selects, no data-dependent loop. A run is scanned 16 points at a time as
  *    float16 distances; only the lanes within the bound are offered. Everything force-inlined,
- *    or clang keeps the list in memory (../shared/limit/NOTES.md section 7). With four registers
+ *    or clang keeps the list in memory (docs/DESIGN.md, "The grid"). With four registers
  *    the first k candidates are appended unordered and sorted once (BHCL_GRID_FILLSORT).
  *  - BHCL_GRID_VTOPK 0 (GPUs, and k above 64): the sorted list in private arrays, one point at a
  *    time (bhcl_arith.h's insertion).

@@ -7,12 +7,14 @@ using namespace bhcl;
 
 namespace {
 
-// The block layouts (auto's grid has its own tests: blockhash_grid_tests.cpp): "auto" here is
-// the cell-aligned layout that was auto's default before the grid.
-BlockHashBuildParams preset(const char* name) {
+// The two block layouts (auto's grid has its own tests: blockhash_grid_tests.cpp and
+// grid_far_vs_bruteforce.cpp): "cells", the cell-aligned layout (auto with cell_aligned = 1,
+// auto's default before the grid), and "paper", the talk's L tables.
+BlockHashBuildParams layout(const char* name) {
   BlockHashBuildParams p;
-  p.preset = BlockHashBuildParams::parse_preset(name);
-  if (p.preset == BlockHashBuildParams::Preset::Auto) p.cell_aligned = 1;
+  const bool cells = std::string(name) == "cells";
+  p.preset = BlockHashBuildParams::parse_preset(cells ? "auto" : name);
+  if (cells) p.cell_aligned = 1;
   return p;
 }
 
@@ -50,7 +52,7 @@ void kernel_equals_reference(const BlockHashIndex& index, const std::vector<floa
 
 }  // namespace
 
-TEST_CASE("blockhash_vs_reference: every distribution, both presets, kernel == host reference") {
+TEST_CASE("blockhash_vs_reference: every distribution, both block layouts, kernel == host reference") {
   using Case = test::NamedCase;
   std::vector<Case> cases;
   cases.push_back({"uniform", datasets::uniform(12000, 1), datasets::uniform(400, 2)});
@@ -67,10 +69,10 @@ TEST_CASE("blockhash_vs_reference: every distribution, both presets, kernel == h
   cases.push_back({"plane", plane, datasets::uniform(300, 9)});
   cases.push_back({"cornell", datasets::cornell_photons(15000, 10), datasets::cornell_queries(400, 11, 0.5f)});
   for (const auto& c : cases) {
-    for (const char* pr : {"paper", "auto"}) {
+    for (const char* pr : {"paper", "cells"}) {
       CAPTURE(c.name);
       CAPTURE(pr);
-      BlockHashIndex index(test::runtime(), c.pts.data(), c.pts.size() / 3, preset(pr));
+      BlockHashIndex index(test::runtime(), c.pts.data(), c.pts.size() / 3, layout(pr));
       for (int k : {1, 10, 50}) {
         CAPTURE(k);
         SearchParams p = test::knn_params(k);
@@ -85,14 +87,14 @@ TEST_CASE("blockhash_vs_reference: every distribution, both presets, kernel == h
 TEST_CASE("blockhash_vs_reference: radius, k > N, probes on/off, box skip off, non-finite queries") {
   auto pts = datasets::clustered(6000, 21, 5, 0.02f);
   auto qs = datasets::clustered(300, 22, 5, 0.02f);
-  BlockHashIndex a(test::runtime(), pts.data(), 6000, preset("auto"));
+  BlockHashIndex a(test::runtime(), pts.data(), 6000, layout("cells"));
   SearchParams p = test::knn_params(20);
   p.max_radius = 0.01f;
   kernel_equals_reference(a, pts, qs, p);
   p.max_radius = INFINITY;
   p.neighbour_probes = 0;
   kernel_equals_reference(a, pts, qs, p);
-  BlockHashIndex paper(test::runtime(), pts.data(), 6000, preset("paper"));
+  BlockHashIndex paper(test::runtime(), pts.data(), 6000, layout("paper"));
   p.neighbour_probes = 1;  // a paper index probes neighbours when asked
   kernel_equals_reference(paper, pts, qs, p);
   for (int probes : {1, 2}) {  // cell-aligned: the octant, and the 4 x 4 x 4 block of cells
@@ -106,7 +108,7 @@ TEST_CASE("blockhash_vs_reference: radius, k > N, probes on/off, box skip off, n
     kernel_equals_reference(a, pts, qs, scalar);
     p.max_radius = INFINITY;
   }
-  BlockHashBuildParams nb = preset("auto");
+  BlockHashBuildParams nb = layout("cells");
   nb.box_skip = 0;
   nb.cell_aligned = 0;  // the L-table layout of auto, with and without box skipping
   BlockHashIndex noskip(test::runtime(), pts.data(), 6000, nb);
@@ -117,7 +119,7 @@ TEST_CASE("blockhash_vs_reference: radius, k > N, probes on/off, box skip off, n
   kernel_equals_reference(ltables, pts, qs, p);
   // k larger than N and a budget over everything: every point, -1/+inf after them.
   auto few = datasets::uniform(7, 3);
-  BlockHashIndex tiny(test::runtime(), few.data(), 7, preset("auto"));
+  BlockHashIndex tiny(test::runtime(), few.data(), 7, layout("cells"));
   SearchParams big = test::knn_params(12);
   big.A = 32;
   KnnResult r = tiny.query(qs, big);
@@ -141,7 +143,7 @@ TEST_CASE("blockhash: with unlimited budget and buckets the answer is exact") {
   // neighbours; on uniform data that contains the k nearest for nearly all queries.
   auto pts = datasets::uniform(5000, 31);
   auto qs = datasets::uniform(200, 32);
-  BlockHashBuildParams bp = preset("auto");
+  BlockHashBuildParams bp = layout("cells");
   bp.B = 1000;
   bp.P = 3;  // big cells: 64 cells of ~80 points
   bp.hilbert_seed = 0;
@@ -154,7 +156,7 @@ TEST_CASE("blockhash: with unlimited budget and buckets the answer is exact") {
   CHECK(acc.recall > 0.97);
   // Far from the data every cell is empty: the Hilbert seed still gives k answers.
   std::vector<float> far = {5.0f, 5.0f, 5.0f, -3.0f, 0.5f, 0.5f};
-  BlockHashIndex seeded(test::runtime(), pts.data(), 5000, preset("auto"));
+  BlockHashIndex seeded(test::runtime(), pts.data(), 5000, layout("cells"));
   KnnResult rf = seeded.query(far, p);
   CHECK(rf.counts[0] == 5);
   CHECK(rf.counts[1] == 5);
@@ -164,9 +166,9 @@ TEST_CASE("blockhash: recall does not fall as A grows, at a fixed build") {
   // Queries from the same clusters as the points (the first 20000 are the points).
   auto all = datasets::clustered(20500, 41, 10, 0.03f);
   std::vector<float> pts(all.begin(), all.begin() + 3 * 20000), qs(all.begin() + 3 * 20000, all.end());
-  for (const char* pr : {"paper", "auto"}) {
+  for (const char* pr : {"paper", "cells"}) {
     CAPTURE(pr);
-    BlockHashIndex index(test::runtime(), pts.data(), 20000, preset(pr));
+    BlockHashIndex index(test::runtime(), pts.data(), 20000, layout(pr));
     for (int k : {10, 50}) {
       SearchParams p = test::knn_params(k);
       KnnResult truth = reference::knn_float(pts.data(), 20000, qs.data(), 500, p);
@@ -180,7 +182,7 @@ TEST_CASE("blockhash: recall does not fall as A grows, at a fixed build") {
         CHECK(rec >= last);
         last = rec;
       }
-      if (std::string(pr) == "auto") CHECK(last > 0.99);
+      if (std::string(pr) == "cells") CHECK(last > 0.99);
     }
   }
 }
@@ -191,7 +193,7 @@ TEST_CASE("blockhash: Cornell walls with queries just off the surface") {
   SearchParams p = test::knn_params(10);
   p.A = 8;
   KnnResult truth = reference::knn_float(pts.data(), 20000, qs.data(), 500, p);
-  BlockHashIndex a(test::runtime(), pts.data(), 20000, preset("auto"));
+  BlockHashIndex a(test::runtime(), pts.data(), 20000, layout("cells"));
   KnnResult r = a.query(qs, p);
   Accuracy acc = evaluate_accuracy(r, truth);
   MESSAGE("auto on Cornell 20k, k=10 A=8: " << acc.summary() << "  " << a.info().summary());
@@ -209,7 +211,7 @@ TEST_CASE("blockhash: Cornell walls with queries just off the surface") {
     }
     return empty / 500.0;
   };
-  BlockHashBuildParams g = preset("auto");
+  BlockHashBuildParams g = layout("cells");
   g.P = 40;
   g.B = 16;
   g.hilbert_seed = 0;
@@ -228,7 +230,7 @@ TEST_CASE("blockhash: buffer-level call on the caller's queue and buffers") {
   auto rt = test::runtime();
   auto pts = datasets::uniform(4000, 61);
   auto qs = datasets::uniform(100, 62);
-  BlockHashIndex index(rt, pts.data(), 4000, preset("auto"));
+  BlockHashIndex index(rt, pts.data(), 4000, layout("cells"));
   SearchParams p = test::knn_params(8);
   cl_int err = CL_SUCCESS;
   cl::Buffer qb(rt->context(), CL_MEM_READ_ONLY | CL_MEM_COPY_HOST_PTR, qs.size() * 4, qs.data(), &err);
@@ -259,7 +261,7 @@ TEST_CASE("blockhash: buffer-level call on the caller's queue and buffers") {
 
 TEST_CASE("blockhash: memory reporting and the talk's formula") {
   auto pts = datasets::uniform(20000, 71);
-  BlockHashIndex paper(test::runtime(), pts.data(), 20000, preset("paper"));
+  BlockHashIndex paper(test::runtime(), pts.data(), 20000, layout("paper"));
   const auto& s = paper.structure();
   CHECK(paper.memory_bytes() == s.device_bytes());
   CHECK(paper.memory_bytes() >= s.blocks.size() * 256 + s.refs.size() * 4);
@@ -304,10 +306,10 @@ TEST_CASE("blockhash: a recall target is met on held-out queries") {
   sets.push_back({"uniform", datasets::uniform(40000, 61), datasets::uniform(2000, 62)});
   sets.push_back({"cornell", datasets::cornell_photons(40000, 63), datasets::cornell_queries(2000, 64, 0.5f)});
   for (const auto& set : sets)
-    for (const char* pr : {"auto", "paper"}) {
+    for (const char* pr : {"cells", "paper"}) {
       CAPTURE(set.name);
       CAPTURE(pr);
-      BlockHashIndex index(test::runtime(), set.pts.data(), set.pts.size() / 3, preset(pr));
+      BlockHashIndex index(test::runtime(), set.pts.data(), set.pts.size() / 3, layout(pr));
       for (double target : {0.9, 0.95, 0.99}) {
         CAPTURE(target);
         SearchParams p = test::knn_params(10);
@@ -326,7 +328,7 @@ TEST_CASE("blockhash: a recall target is met on held-out queries") {
         a.A = t.A;
         CHECK(index.query(set.qs, a).ids == r.ids);
       }
-      if (std::string(pr) == "auto") CHECK(index.tune_for_recall(0.95, SearchParams{}).reached);
+      if (std::string(pr) == "cells") CHECK(index.tune_for_recall(0.95, SearchParams{}).reached);
     }
   SearchParams bad;
   bad.recall_target = 1.5;
@@ -335,7 +337,7 @@ TEST_CASE("blockhash: a recall target is met on held-out queries") {
   CHECK_THROWS_WITH_AS(index.query(pts, bad), doctest::Contains("recall_target"), Error);
 }
 
-TEST_CASE("blockhash: sorted dispatch equals the caller's order, both presets, extreme scales, several dispatches") {
+TEST_CASE("blockhash: sorted dispatch equals the caller's order, both block layouts, extreme scales, several dispatches") {
   auto rt = test::runtime();
   for (double scale : {1.0, 0x1p-70, 0x1p70}) {
     auto pts = datasets::clustered(6000, 71, 6, 0.02f);
@@ -343,10 +345,10 @@ TEST_CASE("blockhash: sorted dispatch equals the caller's order, both presets, e
     for (auto& v : pts) v = static_cast<float>(v * scale);
     for (auto& v : qs) v = static_cast<float>(v * scale);
     qs[3 * 7 + 2] = INFINITY;  // a non-finite query keeps its row
-    for (const char* name : {"auto", "paper"}) {
+    for (const char* name : {"cells", "paper"}) {
       CAPTURE(scale);
       CAPTURE(name);
-      BlockHashIndex index(rt, pts.data(), 6000, preset(name));
+      BlockHashIndex index(rt, pts.data(), 6000, layout(name));
       SearchParams p = test::knn_params(9);
       p.count_examined = true;
       p.sort_queries = 0;
@@ -369,7 +371,7 @@ TEST_CASE("blockhash: examined counts are an option of every query path (sorted,
   auto rt = test::runtime();
   auto pts = datasets::clustered(5000, 61, 6, 0.02f);
   auto qs = datasets::clustered(300, 62, 6, 0.02f);
-  BlockHashIndex index(rt, pts.data(), 5000, preset("auto"));
+  BlockHashIndex index(rt, pts.data(), 5000, layout("cells"));
   SearchParams p = test::knn_params(10);
   p.count_examined = true;
   p.sort_queries = 0;

@@ -212,9 +212,9 @@ TEST_CASE("cli: devices lists the OpenCL devices and the pick") {
 }
 
 TEST_CASE("cli: knn bruteforce on the Stanford bunny agrees with the exact reference") {
-  std::string bunny = std::string(BHCL_SHARED_DATA_DIR) + "/bunny.xyz.f32";
-  if (!std::ifstream(bunny).good()) {
-    MESSAGE("skipped: " << bunny << " not present (../shared/data is not on this machine)");
+  const std::string bunny = test::data_file("bunny.xyz.f32");
+  if (bunny.empty()) {
+    test::report_skip("bunny.xyz.f32 is not in BHCL_DATA_DIR (unset, or the file absent)");
     return;
   }
   auto pts = read_points_file(bunny);

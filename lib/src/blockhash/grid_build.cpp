@@ -2,7 +2,7 @@
 //   1. the box (parallel), 2. the cell side from a sample (the point-weighted mean population near
 //   the target), 3. every point's cell (parallel), 4. the counts (relaxed atomics), the prefix,
 //   5. a stable scatter into structure-of-arrays (parallel over disjoint cell ranges).
-// No sort of the points: 15-35 ms for 1M points on 2 cores (../shared/limit/NOTES.md section 3).
+// No sort of the points: 15-35 ms for 1M points on 2 cores (docs/PERFORMANCE.md, the build).
 #include <sys/mman.h>
 
 #include <algorithm>
