@@ -184,26 +184,18 @@ struct BucketScratch {
   std::vector<std::uint32_t> lcell;  // each record's cell in the bucket's counts, computed once
 };
 
-}  // namespace
+std::size_t cell_count(const bhcl_grid_geom& g) { return std::size_t(g.nx) * g.ny * g.nz; }
 
-void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid& g,
-                GridBuildStats* stats) {
-  if (n == 0 || n >= (std::size_t(1) << 31) - 1)
-    throw Error("blockhash grid: the point count must be in [1, 2^31 - 2], got " + std::to_string(n));
-  if (p.directory < -1 || p.directory > 1)
-    throw Error("blockhash grid: directory must be -1 (by size), 0 (direct) or 1 (two-level), got " +
-                std::to_string(p.directory));
-  const unsigned threads = p.threads ? p.threads : detail::default_threads();
-  GridBuildStats st;
-  auto t0 = std::chrono::steady_clock::now();
-  const Box box = bounding_box(xyz, n, threads);
+// The cells a build uses: side h (the caller's or from a sample), grown by 5 % steps until the
+// directory fits. A direct table of at most max_cells_per_point cells per point; past it a
+// two-level directory of up to 16x as many cells (its top level then holds as many entries as
+// the direct table would); past that (and 2^31 cells) the cells grow until the table fits.
+bhcl_grid_geom grid_shape(const float* xyz, std::size_t n, const Box& box, const GridBuildParams& p,
+                          GridBuildStats& st) {
   double h = p.cell_size > 0 ? p.cell_size : choose_cell_side(xyz, n, box, p);
   if (!(h > 0) || !std::isfinite(h))
     throw Error("blockhash grid: the cell side came out as " + std::to_string(h) + " (internal error)");
   bhcl_grid_geom geom = geometry(box, h, true);
-  // A direct table of at most max_cells_per_point cells per point; past it a two-level directory
-  // of up to 16x as many cells (its top level then holds as many entries as the direct table
-  // would); past that (and 2^31 cells) the cells grow until the table fits.
   const double direct_cap = std::min(std::max(p.max_cells_per_point * double(n), 65536.0), 2147483000.0);
   auto cells_of = [](const bhcl_grid_geom& gg) { return double(gg.nx) * gg.ny * gg.nz; };
   bool sparse = p.directory == 1 || (p.directory == -1 && cells_of(geom) > direct_cap);
@@ -215,22 +207,47 @@ void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid&
   }
   if (p.directory == -1 && sparse && cells_of(geom) <= direct_cap) sparse = false;
   geom.sparse = sparse ? BHCL_GRID_SEG_BITS : 0u;
-  st.t_tune = since(t0);
+  return geom;
+}
 
-  // Buckets: ranges of 2^shift cells (whole segments), at most kBuckets of them, so that a bucket's
-  // counts and records stay in cache while its cells are sorted.
-  t0 = std::chrono::steady_clock::now();
-  const std::size_t ncells = std::size_t(geom.nx) * geom.ny * geom.nz;
-  unsigned shift = sparse ? BHCL_GRID_SEG_BITS : 0;
-  while ((ncells >> shift) > kBuckets) ++shift;
-  const std::size_t nb = ((ncells - 1) >> shift) + 1;
+// Buckets: ranges of 2^shift cells (whole segments), at most kBuckets of them, so that a bucket's
+// counts and records stay in cache while its cells are sorted. start[b] .. start[b + 1]: bucket
+// b's records in the scratch's rec.
+struct Buckets {
+  std::size_t ncells = 0, nb = 0;
+  unsigned shift = 0;
+  std::vector<std::uint32_t> start;
+};
+
+// A record's cell, as pass 1 computed it (the same function of the same coordinates).
+struct RecordCell {
+  const float* rec;
+  bhcl_grid_geom g;
+  std::uint32_t operator()(std::uint32_t r) const {
+    const float* p = rec + 4 * std::size_t(r);
+    const std::uint32_t cx = bhcl_grid_cell(p[0], g.ox, g.inv_h, g.nx);
+    const std::uint32_t cy = bhcl_grid_cell(p[1], g.oy, g.inv_h, g.ny);
+    const std::uint32_t cz = bhcl_grid_cell(p[2], g.oz, g.inv_h, g.nz);
+    return (cz * g.ny + cy) * g.nx + cx;
+  }
+};
+
+// Passes 1 and 2: every point's cell and, per thread, the points of each bucket; then each
+// bucket's records, thread by thread in input order (so the sort is stable whatever the thread
+// count): 16-byte (x, y, z, index) records, written in one pass.
+Buckets bucket_records(const float* xyz, std::size_t n, const bhcl_grid_geom& geom, unsigned threads,
+                       GridScratch& sc, GridBuildStats& st) {
+  auto t0 = std::chrono::steady_clock::now();
+  Buckets bk;
+  bk.ncells = cell_count(geom);
+  bk.shift = geom.sparse ? BHCL_GRID_SEG_BITS : 0;
+  while ((bk.ncells >> bk.shift) > kBuckets) ++bk.shift;
+  const unsigned shift = bk.shift;
+  const std::size_t nb = bk.nb = ((bk.ncells - 1) >> shift) + 1;
   const unsigned T = static_cast<unsigned>(std::min<std::size_t>(threads, std::max<std::size_t>(1, n / 65536)));
   const std::size_t per = (n + T - 1) / T;
-  if (!g.scratch) g.scratch = std::make_shared<GridScratch>();
-  GridScratch& sc = *g.scratch;
   sc.cell.resize(n);
   std::vector<std::uint32_t> hist(std::size_t(T) * nb, 0);
-  // 1. Every point's cell and, per thread, the points of each bucket.
   detail::parallel_for(
       T,
       [&](std::size_t tb, std::size_t te) {
@@ -254,10 +271,9 @@ void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid&
       T, 1);
   st.t_cells = since(t0);
 
-  // 2. Each bucket's records, thread by thread in input order (so the sort is stable whatever
-  // the thread count): 16-byte (x, y, z, index) records, written in one pass.
   t0 = std::chrono::steady_clock::now();
-  std::vector<std::uint32_t> bstart(nb + 1, 0);
+  std::vector<std::uint32_t>& bstart = bk.start;
+  bstart.assign(nb + 1, 0);
   for (std::size_t b = 0; b < nb; ++b) {
     std::uint32_t s = bstart[b];
     for (unsigned j = 0; j < T; ++j) {
@@ -299,167 +315,238 @@ void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid&
       T, 1);
   st.t_count = since(t0);
 
-  // 3. Each bucket on its own: its cells' counts, its part of the directory, its points placed
-  // (stable), in parallel over buckets. The two-level directory first numbers the occupied
-  // segments of every bucket, so that each bucket knows where its segment tables go.
-  t0 = std::chrono::steady_clock::now();
-  g.geom = geom;
-  g.n_points = n;
-  const std::size_t top = Grid::top_entries(ncells);
-  const std::size_t seg_per_bucket = std::size_t(1) << (shift - (sparse ? BHCL_GRID_SEG_BITS : 0));
+  return bk;
+}
+
+// The two-level directory: the occupied segments before each bucket (seg_base[b]; seg_base[nb]:
+// all of them), so that each bucket knows where its segment tables go.
+std::vector<std::uint32_t> number_segments(const Buckets& bk, const RecordCell& rec_cell, unsigned threads) {
+  const std::size_t nb = bk.nb;
+  const std::size_t seg_per_bucket = std::size_t(1) << (bk.shift - BHCL_GRID_SEG_BITS);
   std::vector<std::uint32_t> seg_base(nb + 1, 0);
-  const float* const rec_all = sc.rec.data();
-  const bhcl_grid_geom gq = geom;
-  // A record's cell, as pass 1 computed it (the same function of the same coordinates).
-  auto rec_cell = [rec_all, gq](std::uint32_t r) -> std::uint32_t {
-    const float* p = rec_all + 4 * std::size_t(r);
-    const std::uint32_t cx = bhcl_grid_cell(p[0], gq.ox, gq.inv_h, gq.nx);
-    const std::uint32_t cy = bhcl_grid_cell(p[1], gq.oy, gq.inv_h, gq.ny);
-    const std::uint32_t cz = bhcl_grid_cell(p[2], gq.oz, gq.inv_h, gq.nz);
-    return (cz * gq.ny + cy) * gq.nx + cx;
-  };
+  const std::vector<std::uint32_t>& bstart = bk.start;
+  const unsigned shift = bk.shift;
+  detail::parallel_chunks(nb, 1, threads, [&](std::size_t b, std::size_t, std::size_t) {
+    static thread_local BucketScratch ws;
+    if (ws.seg.size() < seg_per_bucket) ws.seg.assign(seg_per_bucket, 0);
+    const std::size_t s0 = (b << shift) >> BHCL_GRID_SEG_BITS;
+    std::uint32_t occ = 0;
+    for (std::uint32_t r = bstart[b]; r < bstart[b + 1]; ++r) {
+      std::uint8_t& m = ws.seg[(rec_cell(r) >> BHCL_GRID_SEG_BITS) - s0];
+      occ += m ? 0 : 1;
+      m = 1;
+    }
+    for (std::uint32_t r = bstart[b]; r < bstart[b + 1]; ++r) ws.seg[(rec_cell(r) >> BHCL_GRID_SEG_BITS) - s0] = 0;
+    seg_base[b + 1] = occ;
+  });
+  for (std::size_t b = 0; b < nb; ++b) seg_base[b + 1] += seg_base[b];
+  return seg_base;
+}
+
+// What pass 3 found in one bucket: its occupied cells and the sum of its cells' squared counts.
+struct BucketCounts {
+  std::uint32_t occupied = 0;
+  std::uint64_t sum2 = 0;
+};
+
+// Direct table: the bucket's cells counted, and their starts written. The write position of cell
+// c is kept at starts[c + 1]: after the placement it has moved to the cell's end, which is where
+// cell c + 1 starts. No second table of positions, and the counts are cleared as they are read.
+// Buckets write disjoint entries (c0, c1].
+BucketCounts count_direct(std::size_t c0, std::size_t c1, std::uint32_t rb, std::uint32_t re,
+                          const RecordCell& rec_cell, BucketScratch& ws, Grid& g) {
+  BucketCounts bc;
+  std::uint32_t* const cnt = ws.cnt.data();
+  std::uint32_t* const lcell = ws.lcell.data();
+  std::uint32_t run = rb;
+  const std::uint32_t cb = static_cast<std::uint32_t>(c0);
+  for (std::uint32_t r = rb; r < re; ++r) {
+    const std::uint32_t lc = rec_cell(r) - cb;
+    lcell[r - rb] = lc;
+    ++cnt[lc];
+  }
+  std::uint32_t* const next = g.starts.data() + c0 + 1;
+  std::uint32_t occ = 0;
+  std::uint64_t sum2 = 0;  // in integers: a double's add chain was the prefix loop's bound
+  for (std::size_t i = 0, m = c1 - c0; i < m; ++i) {
+    const std::uint32_t v = cnt[i];
+    cnt[i] = 0;
+    next[i] = run;
+    run += v;
+    occ += v ? 1 : 0;
+    sum2 += std::uint64_t(v) * v;
+  }
+  bc.occupied = occ;
+  bc.sum2 = sum2;
+  return bc;
+}
+
+// Two-level: the bucket's occupied segments ranked in order, and each cell counted at (rank,
+// cell in segment): the counts of a sparse bucket stay a few KiB, not a count per cell of its
+// range (1.5 MiB per bucket for the Cornell box at 10M points). The counts become the cells'
+// write positions; *nocc gets the bucket's occupied segments.
+BucketCounts count_two_level(std::size_t c0, std::size_t c1, std::uint32_t rb, std::uint32_t re,
+                             std::uint32_t seg_base, std::size_t top, const RecordCell& rec_cell,
+                             BucketScratch& ws, Grid& g, std::uint32_t* nocc_out) {
+  constexpr std::uint32_t kSeg = 1u << BHCL_GRID_SEG_BITS;
+  std::uint32_t* const cnt = ws.cnt.data();
+  std::uint32_t* const lcell = ws.lcell.data();
+  const std::size_t s0 = c0 >> BHCL_GRID_SEG_BITS;
+  const std::size_t s1 = std::min(((c1 - 1) >> BHCL_GRID_SEG_BITS) + 1, top);
+  std::uint32_t nocc = 0, occ = 0, run = rb;
+  std::uint64_t sum2 = 0;
+  const std::uint32_t cb = static_cast<std::uint32_t>(c0);
+  for (std::uint32_t r = rb; r < re; ++r) {
+    const std::uint32_t rel = rec_cell(r) - cb;
+    lcell[r - rb] = rel;
+    ws.seg[rel >> BHCL_GRID_SEG_BITS] = 1;
+  }
+  for (std::size_t sg = s0; sg < s1; ++sg)
+    if (ws.seg[sg - s0]) ws.rank[sg - s0] = nocc++;
+  // c0 is a whole number of segments: a cell's place in its segment is rel's low bits.
+  for (std::uint32_t r = rb; r < re; ++r) {
+    const std::uint32_t rel = lcell[r - rb];
+    const std::uint32_t lc = (ws.rank[rel >> BHCL_GRID_SEG_BITS] << BHCL_GRID_SEG_BITS) | (rel & (kSeg - 1u));
+    lcell[r - rb] = lc;
+    ++cnt[lc];
+  }
+  const std::uint32_t slot0 = static_cast<std::uint32_t>(top) + (seg_base << BHCL_GRID_SEG_BITS);
+  for (std::size_t sg = s0; sg < s1; ++sg) {
+    if (!ws.seg[sg - s0]) {
+      g.starts[sg] = BHCL_GRID_EMPTY_SEG | run;
+      continue;
+    }
+    ws.seg[sg - s0] = 0;
+    const std::uint32_t rk = ws.rank[sg - s0], slot = slot0 + (rk << BHCL_GRID_SEG_BITS);
+    g.starts[sg] = slot;
+    for (std::uint32_t j = 0; j < kSeg; ++j) {
+      const std::uint32_t lc = (rk << BHCL_GRID_SEG_BITS) | j;
+      const std::uint32_t v = cnt[lc];
+      g.starts[slot + j] = run;
+      cnt[lc] = run;  // now the cell's write position
+      run += v;
+      occ += v ? 1 : 0;
+      sum2 += std::uint64_t(v) * v;
+    }
+  }
+  *nocc_out = nocc;
+  return {occ, sum2};
+}
+
+// The bucket's records placed at their cells' write positions (pos[local cell]++), stable.
+void place_records(std::uint32_t rb, std::uint32_t re, const std::uint32_t* lcell, std::uint32_t* pos,
+                   const float* rec, Grid& g) {
+  // The arrays' pointers in locals: through the vectors, every store (which may alias them, as
+  // far as the compiler knows) reloaded the four data pointers.
+  float* const X = g.x.data();
+  float* const Y = g.y.data();
+  float* const Z = g.z.data();
+  std::int32_t* const I = g.ids.data();
+  for (std::uint32_t r = rb; r < re; ++r) {
+    const std::uint32_t k = pos[lcell[r - rb]]++;
+    const float* rr = rec + 4 * std::size_t(r);
+    std::int32_t id;
+    std::memcpy(&id, rr + 3, 4);
+    X[k] = rr[0];
+    Y[k] = rr[1];
+    Z[k] = rr[2];
+    I[k] = id;
+  }
+}
+
+// Sizes the directory and the point arrays (the two-level directory from its segment count).
+void size_arrays(const Buckets& bk, const std::vector<std::uint32_t>& seg_base, bool sparse, std::size_t n,
+                 Grid& g, GridBuildStats& st) {
+  const std::size_t top = Grid::top_entries(bk.ncells);
   if (sparse) {
-    detail::parallel_chunks(nb, 1, threads, [&](std::size_t b, std::size_t, std::size_t) {
-      static thread_local BucketScratch ws;
-      if (ws.seg.size() < seg_per_bucket) ws.seg.assign(seg_per_bucket, 0);
-      const std::size_t s0 = (b << shift) >> BHCL_GRID_SEG_BITS;
-      std::uint32_t occ = 0;
-      for (std::uint32_t r = bstart[b]; r < bstart[b + 1]; ++r) {
-        std::uint8_t& m = ws.seg[(rec_cell(r) >> BHCL_GRID_SEG_BITS) - s0];
-        occ += m ? 0 : 1;
-        m = 1;
-      }
-      for (std::uint32_t r = bstart[b]; r < bstart[b + 1]; ++r) ws.seg[(rec_cell(r) >> BHCL_GRID_SEG_BITS) - s0] = 0;
-      seg_base[b + 1] = occ;
-    });
-    for (std::size_t b = 0; b < nb; ++b) seg_base[b + 1] += seg_base[b];
-    const double entries = double(top) + double(seg_base[nb]) * double(1u << BHCL_GRID_SEG_BITS);
+    const double entries = double(top) + double(seg_base[bk.nb]) * double(1u << BHCL_GRID_SEG_BITS);
     if (entries >= double(BHCL_GRID_EMPTY_SEG))
       throw Error("blockhash grid: the two-level directory would need " + std::to_string(entries) +
                   " entries (at most 2^31): give a larger cell_size");
     g.starts.resize(static_cast<std::size_t>(entries));
-    st.occupied_segments = seg_base[nb];
+    st.occupied_segments = seg_base[bk.nb];
   } else {
-    g.starts.resize(ncells + 1);
-    g.starts[ncells] = static_cast<std::uint32_t>(n);
+    g.starts.resize(bk.ncells + 1);
+    g.starts[bk.ncells] = static_cast<std::uint32_t>(n);
+    g.starts[0] = 0;
   }
   g.x.resize(n + kGridPad);
   g.y.resize(n + kGridPad);
   g.z.resize(n + kGridPad);
   g.ids.resize(n + kGridPad);
-  std::vector<std::uint32_t> occ_b(nb, 0);
-  std::vector<double> sum2_b(nb, 0.0);
-  const std::size_t cells_per_bucket = std::size_t(1) << shift;
-  if (!sparse) g.starts[0] = 0;
+}
+
+// Pass 3: each bucket on its own, in parallel over buckets: its cells' counts, its part of the
+// directory, its points placed (stable). Returns the occupied cells and the sum of squared counts.
+BucketCounts place_buckets(const Buckets& bk, const std::vector<std::uint32_t>& seg_base, bool sparse,
+                           const RecordCell& rec_cell, const float* rec, unsigned threads, Grid& g) {
+  const std::size_t nb = bk.nb, ncells = bk.ncells, top = Grid::top_entries(ncells);
+  const std::size_t cells_per_bucket = std::size_t(1) << bk.shift;
+  const std::size_t seg_per_bucket = std::size_t(1) << (bk.shift - (sparse ? BHCL_GRID_SEG_BITS : 0));
+  std::vector<BucketCounts> per(nb);
   detail::parallel_chunks(nb, 1, threads, [&](std::size_t b, std::size_t, std::size_t) {
     static thread_local BucketScratch ws;
     if (ws.cnt.size() < cells_per_bucket) ws.cnt.assign(cells_per_bucket, 0);
     if (sparse && ws.seg.size() < seg_per_bucket) ws.seg.assign(seg_per_bucket, 0);
     if (sparse && ws.rank.size() < seg_per_bucket) ws.rank.resize(seg_per_bucket);
-    std::uint32_t* const cnt = ws.cnt.data();
-    const std::size_t c0 = b << shift, c1 = std::min(ncells, c0 + cells_per_bucket);
-    const std::uint32_t rb = bstart[b], re = bstart[b + 1];
-    if (ws.lcell.size() < re - rb) ws.lcell.resize(re - rb);
+    const std::size_t c0 = b << bk.shift, c1 = std::min(ncells, c0 + cells_per_bucket);
+    const std::uint32_t rb = bk.start[b], re = bk.start[b + 1];
     // The record's cell once per record (the count and the placement both read it): computed
     // twice, the cell took a third of this pass.
-    std::uint32_t* const lcell = ws.lcell.data();
-    constexpr std::uint32_t kSeg = 1u << BHCL_GRID_SEG_BITS;
-    const std::size_t s0 = c0 >> BHCL_GRID_SEG_BITS;
-    const std::size_t s1 = sparse ? std::min(((c1 - 1) >> BHCL_GRID_SEG_BITS) + 1, top) : 0;
-    std::uint32_t nocc = 0, occ = 0;
-    std::uint64_t sum2 = 0;  // in integers: a double's add chain was the prefix loop's bound
-    std::uint32_t run = rb;
+    if (ws.lcell.size() < re - rb) ws.lcell.resize(re - rb);
     if (!sparse) {
-      const std::uint32_t cb = static_cast<std::uint32_t>(c0);
-      for (std::uint32_t r = rb; r < re; ++r) {
-        const std::uint32_t lc = rec_cell(r) - cb;
-        lcell[r - rb] = lc;
-        ++cnt[lc];
-      }
-      // The write position of cell c is kept at starts[c + 1]: after the placement it has moved
-      // to the cell's end, which is where cell c + 1 starts. No second table of positions, and
-      // the counts are cleared as they are read. Buckets write disjoint entries (c0, c1].
-      std::uint32_t* const next = g.starts.data() + c0 + 1;
-      for (std::size_t i = 0, m = c1 - c0; i < m; ++i) {
-        const std::uint32_t v = cnt[i];
-        cnt[i] = 0;
-        next[i] = run;
-        run += v;
-        occ += v ? 1 : 0;
-        sum2 += std::uint64_t(v) * v;
-      }
-    } else {
-      // Two-level: the bucket's occupied segments ranked in order, and each cell counted at
-      // (rank, cell in segment): the counts of a sparse bucket stay a few KiB, not a count per
-      // cell of its range (1.5 MiB per bucket for the Cornell box at 10M points).
-      const std::uint32_t cb = static_cast<std::uint32_t>(c0);
-      for (std::uint32_t r = rb; r < re; ++r) {
-        const std::uint32_t rel = rec_cell(r) - cb;
-        lcell[r - rb] = rel;
-        ws.seg[rel >> BHCL_GRID_SEG_BITS] = 1;
-      }
-      for (std::size_t sg = s0; sg < s1; ++sg)
-        if (ws.seg[sg - s0]) ws.rank[sg - s0] = nocc++;
-      // c0 is a whole number of segments: a cell's place in its segment is rel's low bits.
-      for (std::uint32_t r = rb; r < re; ++r) {
-        const std::uint32_t rel = lcell[r - rb];
-        const std::uint32_t lc = (ws.rank[rel >> BHCL_GRID_SEG_BITS] << BHCL_GRID_SEG_BITS) | (rel & (kSeg - 1u));
-        lcell[r - rb] = lc;
-        ++cnt[lc];
-      }
-      const std::uint32_t slot0 = static_cast<std::uint32_t>(top) + (seg_base[b] << BHCL_GRID_SEG_BITS);
-      for (std::size_t sg = s0; sg < s1; ++sg) {
-        if (!ws.seg[sg - s0]) {
-          g.starts[sg] = BHCL_GRID_EMPTY_SEG | run;
-          continue;
-        }
-        ws.seg[sg - s0] = 0;
-        const std::uint32_t rk = ws.rank[sg - s0], slot = slot0 + (rk << BHCL_GRID_SEG_BITS);
-        g.starts[sg] = slot;
-        for (std::uint32_t j = 0; j < kSeg; ++j) {
-          const std::uint32_t lc = (rk << BHCL_GRID_SEG_BITS) | j;
-          const std::uint32_t v = cnt[lc];
-          g.starts[slot + j] = run;
-          cnt[lc] = run;  // now the cell's write position
-          run += v;
-          occ += v ? 1 : 0;
-          sum2 += std::uint64_t(v) * v;
-        }
-      }
+      per[b] = count_direct(c0, c1, rb, re, rec_cell, ws, g);
+      place_records(rb, re, ws.lcell.data(), g.starts.data() + c0 + 1, rec, g);
+      return;
     }
-    // The arrays' pointers in locals: through the vectors, every store (which may alias them, as
-    // far as the compiler knows) reloaded the four data pointers.
-    {
-      float* const X = g.x.data();
-      float* const Y = g.y.data();
-      float* const Z = g.z.data();
-      std::int32_t* const I = g.ids.data();
-      const float* const rec = sc.rec.data();
-      std::uint32_t* const pos = sparse ? cnt : g.starts.data() + c0 + 1;
-      for (std::uint32_t r = rb; r < re; ++r) {
-        const std::uint32_t k = pos[lcell[r - rb]]++;
-        const float* rr = rec + 4 * std::size_t(r);
-        std::int32_t id;
-        std::memcpy(&id, rr + 3, 4);
-        X[k] = rr[0];
-        Y[k] = rr[1];
-        Z[k] = rr[2];
-        I[k] = id;
-      }
-    }
-    // Two-level: clear the counts this bucket used (they became write positions).
-    if (sparse) std::fill(cnt, cnt + std::size_t(nocc) * kSeg, 0u);
-    occ_b[b] = occ;
-    sum2_b[b] = double(sum2);
+    std::uint32_t nocc = 0;
+    per[b] = count_two_level(c0, c1, rb, re, seg_base[b], top, rec_cell, ws, g, &nocc);
+    place_records(rb, re, ws.lcell.data(), ws.cnt.data(), rec, g);
+    // Clear the counts this bucket used (they became write positions).
+    std::fill(ws.cnt.data(), ws.cnt.data() + std::size_t(nocc) * (1u << BHCL_GRID_SEG_BITS), 0u);
   });
   // The top entry past the last segment (a run ending at the last cell reads it).
   if (sparse && (ncells & ((std::size_t(1) << BHCL_GRID_SEG_BITS) - 1)) == 0)
-    g.starts[top - 1] = BHCL_GRID_EMPTY_SEG | static_cast<std::uint32_t>(n);
-  for (std::size_t b = 0; b < nb; ++b) {
-    st.occupied += occ_b[b];
-    st.mean_cell_points += sum2_b[b];
+    g.starts[top - 1] = BHCL_GRID_EMPTY_SEG | static_cast<std::uint32_t>(g.n_points);
+  BucketCounts all;
+  for (const BucketCounts& c : per) {
+    all.occupied += c.occupied;
+    all.sum2 += c.sum2;
   }
-  st.mean_cell_points /= double(n);
+  return all;
+}
+
+}  // namespace
+
+void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid& g,
+                GridBuildStats* stats) {
+  if (n == 0 || n >= (std::size_t(1) << 31) - 1)
+    throw Error("blockhash grid: the point count must be in [1, 2^31 - 2], got " + std::to_string(n));
+  if (p.directory < -1 || p.directory > 1)
+    throw Error("blockhash grid: directory must be -1 (by size), 0 (direct) or 1 (two-level), got " +
+                std::to_string(p.directory));
+  const unsigned threads = p.threads ? p.threads : detail::default_threads();
+  GridBuildStats st;
+  auto t0 = std::chrono::steady_clock::now();
+  const Box box = bounding_box(xyz, n, threads);
+  const bhcl_grid_geom geom = grid_shape(xyz, n, box, p, st);
+  const bool sparse = geom.sparse != 0;
+  st.t_tune = since(t0);
+
+  if (!g.scratch) g.scratch = std::make_shared<GridScratch>();
+  GridScratch& sc = *g.scratch;
+  const Buckets bk = bucket_records(xyz, n, geom, threads, sc, st);
+
+  t0 = std::chrono::steady_clock::now();
+  g.geom = geom;
+  g.n_points = n;
+  const RecordCell rec_cell{sc.rec.data(), geom};
+  const std::vector<std::uint32_t> seg_base =
+      sparse ? number_segments(bk, rec_cell, threads) : std::vector<std::uint32_t>(bk.nb + 1, 0);
+  size_arrays(bk, seg_base, sparse, n, g, st);
+  const BucketCounts counts = place_buckets(bk, seg_base, sparse, rec_cell, sc.rec.data(), threads, g);
+  st.occupied = counts.occupied;
+  st.mean_cell_points = double(counts.sum2) / double(n);
   for (std::size_t i = n; i < n + kGridPad; ++i) {
     g.x[i] = g.y[i] = g.z[i] = INFINITY;
     g.ids[i] = -1;
