@@ -66,20 +66,12 @@ inline constexpr std::size_t kAutoSortQueries = 8192;
 inline constexpr std::size_t kSortScratchBytes = std::size_t(256) << 20;
 int kmax_variant(int k);  // smallest variant >= k; throws for k outside [1, kMaxK]
 
-// Search parameters: everything that can change from one query batch to the next. Build
-// parameters live in each method's own struct.
-struct SearchParams {
-  int k = 10;
-  float max_radius = std::numeric_limits<float>::infinity();  // Euclidean (not squared)
-  // Approximate methods (block hashing): examine at most A*k points per query; +inf examines
-  // what the search needs (block hashing's grid: exact). 0 (the default) is the index's own
-  // default: exact for block hashing's auto (grid) layout, 8 for its block layouts.
-  float A = 0.0f;
-  // Approximate methods: a recall@k to reach instead of a budget (e.g. 0.95). When > 0 the index
-  // picks A for this k from a sample of its own points (BlockHashIndex::tune_for_recall, done once
-  // per (k, target) and cached) and A above is ignored. 0 = use A.
-  double recall_target = 0.0;
-  // Block hashing: probe the near-side neighbour cells as well (-1: the index preset decides).
+// What both kinds of query (kNN: SearchParams, radius: RadiusParams) take the same way: how a
+// batch is dispatched, and block hashing's probes. Build parameters live in each method's own
+// struct.
+struct DispatchParams {
+  // Block hashing's block layouts: probe the near-side neighbour cells as well (-1: the index
+  // preset decides).
   int neighbour_probes = -1;
   // Dispatch: 0 picks the device default (Quirks::default_local_size).
   std::size_t local_size = 0;
@@ -97,29 +89,51 @@ struct SearchParams {
   // table); any other name, or a structural one, throws bhcl::Error. Results of an exact method
   // do not depend on them; the block-hash kernel's may (the defines are its knobs).
   std::string kernel_defines;
-  // Per query, the points examined (block hashing's cost measure) into KnnResult::examined (the
-  // host-array call) or ResultBuffers::examined (the buffer-level call). Only methods whose
+  // Per query, the points examined (block hashing's cost measure) into the result's examined
+  // (host-array calls) or ResultBuffers::examined (the buffer-level call). Only methods whose
   // Index::counts_examined() is true accept it; the others throw.
   bool count_examined = false;
 };
 
-// Host-side results. ids/dist2 are n*k, counts is n.
-struct KnnResult {
+// Search parameters of a kNN batch: everything that can change from one batch to the next.
+struct SearchParams : DispatchParams {
+  int k = 10;
+  float max_radius = std::numeric_limits<float>::infinity();  // Euclidean (not squared)
+  // Approximate methods (block hashing): examine at most A*k points per query; +inf examines
+  // what the search needs (block hashing's grid: exact). 0 (the default) is the index's own
+  // default: exact for block hashing's auto (grid) layout, 8 for its block layouts.
+  float A = 0.0f;
+  // Approximate methods: a recall@k to reach instead of a budget (e.g. 0.95). When > 0 the index
+  // picks A for this k from a sample of its own points (BlockHashIndex::tune_for_recall, done once
+  // per (k, target) and cached) and A above is ignored. 0 = use A.
+  double recall_target = 0.0;
+};
+
+// Host-side kNN results, rows of k: ids/dist2 are n*k, counts is n. Id is the id type: int32 for
+// an Index (KnnResult), int64 for an index whose ids can pass 2^31 (KnnResult64: DistributedIndex,
+// whose global ids are DistributedBuildParams::id_base plus a point's place over all ranks). Same
+// layout and contract for both, id -1 for an empty entry.
+template <class Id>
+struct KnnRows {
   std::size_t n = 0;
   int k = 0;
-  std::vector<std::int32_t> ids;
+  std::vector<Id> ids;
   std::vector<float> dist2;
   std::vector<std::int32_t> counts;
   // n entries when SearchParams::count_examined was set: the points query i examined. Else empty.
   std::vector<std::int32_t> examined;
 
-  void resize(std::size_t n_queries, int k_);
+  void resize(std::size_t n_queries, int k_);  // every entry empty: id -1, distance +inf, count 0
   // The first k_ columns of every row (k_ <= k): the exact answer for k_ when this one is exact,
   // since rows are sorted by (distance, index).
-  KnnResult leading_columns(int k_) const;
-  std::int32_t id(std::size_t q, int j) const { return ids[q * static_cast<std::size_t>(k) + j]; }
+  KnnRows leading_columns(int k_) const;
+  Id id(std::size_t q, int j) const { return ids[q * static_cast<std::size_t>(k) + j]; }
   float d2(std::size_t q, int j) const { return dist2[q * static_cast<std::size_t>(k) + j]; }
 };
+using KnnResult = KnnRows<std::int32_t>;
+using KnnResult64 = KnnRows<std::int64_t>;
+extern template struct KnnRows<std::int32_t>;  // lib/src/core/knn.cpp
+extern template struct KnnRows<std::int64_t>;
 
 // Caller-owned device buffers for the buffer-level call: ids (n*k int32), dist2 (n*k float),
 // counts (n int32), and examined (n int32) only with SearchParams::count_examined.
@@ -137,13 +151,11 @@ struct ResultBuffers {
 // Radius search (Index::radius_search): every point within a radius of each query, a variable
 // count per query, as nanoflann's radiusSearch, FLANN's radiusSearch, Open3D's
 // fixed_radius_search, scipy's query_ball_point and FAISS's range_search give.
-struct RadiusParams {
+struct RadiusParams : DispatchParams {
   // Approximate methods (block hashing): examine at most this many points per query, the blocks
   // of the cells nearest the query first; 0 = no budget (every block within r in the cells the
   // probes reach). Exact methods ignore it.
   std::uint32_t budget = 0;
-  // Block hashing: as SearchParams::neighbour_probes (-1: the index preset decides).
-  int neighbour_probes = -1;
   // At most this many results per query, the nearest by (distance, index); 0 = no cap. A query
   // with more points within r is truncated: RadiusResult::found keeps its full count. The cap
   // bounds the output, not the work: the device still counts and writes every point within r.
@@ -152,12 +164,6 @@ struct RadiusParams {
   // found the points (scipy's return_sorted=False, Open3D's sort=False), which spares the host's
   // sort of every slice; with a cap, a truncated slice still holds the nearest max_results.
   bool sorted = true;
-  // As in SearchParams.
-  std::size_t local_size = 0;
-  std::size_t max_batch = 0;  // queries per dispatch (0: automatic)
-  int sort_queries = -1;
-  std::string kernel_defines;
-  bool count_examined = false;
   // Device memory: results (8 bytes each) written by one fill dispatch; a batch of queries is
   // split so that its results fit (0: automatic, 2^24 results or less where the device's largest
   // buffer is smaller). A single query with more results than this gets a dispatch of its own.
@@ -167,10 +173,11 @@ struct RadiusParams {
 // Radius search results in the compressed layout of FAISS's range_search: query i's results are
 // ids[offsets[i] .. offsets[i+1]) and the same slice of dist2 (SQUARED distances), sorted by
 // (distance, index) unless RadiusParams::sorted is false. offsets has n + 1 entries, offsets[0] = 0.
-struct RadiusResult {
+template <class Id>
+struct RadiusRows {
   std::size_t n = 0;
   std::vector<std::int64_t> offsets;
-  std::vector<std::int32_t> ids;
+  std::vector<Id> ids;
   std::vector<float> dist2;
   // n entries: the points found within r per query before RadiusParams::max_results applied
   // (equal to the slice's length unless truncated).
@@ -183,7 +190,7 @@ struct RadiusResult {
   std::size_t total() const { return offsets.empty() ? 0 : static_cast<std::size_t>(offsets.back()); }
   // The queries of `part` (a later slice of the same call) after these: offsets shifted, slices,
   // counts and examined appended. Starts from offsets = {0}.
-  void append(const RadiusResult& part) {
+  void append(const RadiusRows& part) {
     const std::int64_t base = offsets.back();
     for (std::size_t i = 1; i < part.offsets.size(); ++i) offsets.push_back(base + part.offsets[i]);
     ids.insert(ids.end(), part.ids.begin(), part.ids.end());
@@ -193,42 +200,8 @@ struct RadiusResult {
     truncated_queries += part.truncated_queries;
   }
 };
-
-// The same results with 64-bit ids, for an index whose ids can pass 2^31 (DistributedIndex: its
-// global ids are DistributedBuildParams::id_base plus a point's place over all ranks, and the
-// points over all ranks may number more than an int32 holds). Same layout and contract, id -1 for
-// an empty entry.
-struct KnnResult64 {
-  std::size_t n = 0;
-  int k = 0;
-  std::vector<std::int64_t> ids;
-  std::vector<float> dist2;
-  std::vector<std::int32_t> counts;
-  std::vector<std::int32_t> examined;
-
-  void resize(std::size_t n_queries, int k_) {
-    n = n_queries;
-    k = k_;
-    ids.assign(n * static_cast<std::size_t>(k), -1);
-    dist2.assign(n * static_cast<std::size_t>(k), std::numeric_limits<float>::infinity());
-    counts.assign(n, 0);
-    examined.clear();
-  }
-  std::int64_t id(std::size_t q, int j) const { return ids[q * static_cast<std::size_t>(k) + j]; }
-  float d2(std::size_t q, int j) const { return dist2[q * static_cast<std::size_t>(k) + j]; }
-};
-struct RadiusResult64 {
-  std::size_t n = 0;
-  std::vector<std::int64_t> offsets;
-  std::vector<std::int64_t> ids;
-  std::vector<float> dist2;
-  std::vector<std::int64_t> found;
-  std::size_t truncated_queries = 0;
-  std::vector<std::int32_t> examined;
-
-  std::size_t count(std::size_t q) const { return static_cast<std::size_t>(offsets[q + 1] - offsets[q]); }
-  std::size_t total() const { return offsets.empty() ? 0 : static_cast<std::size_t>(offsets.back()); }
-};
+using RadiusResult = RadiusRows<std::int32_t>;
+using RadiusResult64 = RadiusRows<std::int64_t>;  // as KnnResult64
 
 // The device buffers of one radius dispatch (Index::enqueue_radius_batch): counts and examined
 // per query row, offsets (ulong) per query of the dispatch, ids/dist2 the fill pass's slices.
@@ -546,6 +519,10 @@ class Index : public SearchIndex {
                          const RadiusParams& params, RadiusResult& out) const;
   void radius_on_device(const float* queries, std::size_t n, float r2, const RadiusParams& params,
                         RadiusResult& out, QueryStats& st) const;
+  // The radius kernels' first launches (both passes), once per (local size, defines), as warm_up
+  // does for kNN; returns the seconds (0 when already done).
+  double warm_up_radius(const cl::Buffer& queries, const RadiusBuffers& rb, float r2,
+                        const RadiusParams& params, std::size_t local) const;
   cl::Event enqueue_impl(const cl::CommandQueue& queue, const cl::Buffer& queries, std::size_t n,
                          const ResultBuffers& out, const SearchParams& params,
                          const std::vector<cl::Event>* wait, std::vector<cl::Event>* kernels,
@@ -575,7 +552,8 @@ class Index : public SearchIndex {
   std::vector<bool> removed_;
   std::size_t removed_n_ = 0;
   mutable std::mutex warm_mutex_;
-  mutable std::set<std::tuple<int, std::size_t, std::string>> warmed_;  // (kmax, local size, defines)
+  // (kmax, local size, defines); kmax 0: the radius kernels.
+  mutable std::set<std::tuple<int, std::size_t, std::string>> warmed_;
 };
 
 // What a method's class declares of the Index hooks above, in one line each (under protected:):

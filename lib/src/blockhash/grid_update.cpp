@@ -88,6 +88,75 @@ struct UpdateCounters {
   }
 };
 
+// The live points' box widened by m new points.
+void widen_box(bhcl_grid_dbox& b, const float* scaled, std::size_t m) {
+  for (std::size_t i = 0; i < m; ++i) {
+    const float* p = scaled + 3 * i;
+    b.lx = std::min(b.lx, p[0]), b.ly = std::min(b.ly, p[1]), b.lz = std::min(b.lz, p[2]);
+    b.hx = std::max(b.hx, p[0]), b.hy = std::max(b.hy, p[1]), b.hz = std::max(b.hz, p[2]);
+  }
+}
+
+// The merge of an insert, out of place, in parallel over ranges of cells: each cell's run copied
+// to its new start (the old start plus the new points of the cells before it, add[c]) with its
+// new points (order[add[c] ..], ids first + i) behind it, into the scratch arrays (sized n1 + pad).
+// Cells before first_cell keep their places.
+void merge_into_scratch(const blockhash::Grid& g, const float* scaled, std::size_t m, std::int32_t first,
+                        const std::vector<std::uint32_t>& add, const std::vector<std::uint32_t>& order,
+                        std::size_t first_cell, blockhash::GridScratch& sc) {
+  const std::size_t nc = g.ncells(), n1 = g.n_points + m;
+  const unsigned T = static_cast<unsigned>(std::min<std::size_t>(detail::default_threads(), std::max<std::size_t>(1, n1 / 65536)));
+  // Cell ranges of about equal output: thread t starts at the first cell whose new start passes
+  // t n1 / T.
+  std::vector<std::size_t> cut(T + 1, nc);
+  cut[0] = 0;
+  for (unsigned t = 1, c = 0; t < T; ++t) {
+    const std::size_t want = std::size_t(t) * n1 / T;
+    while (c < nc && std::size_t(g.starts[c]) + add[c] < want) ++c;
+    cut[t] = c;
+  }
+  {
+    const std::uint32_t* const st = g.starts.data();
+    const std::uint32_t* const ad = add.data();
+    const std::uint32_t* const ord = order.data();
+    const float *const X = g.x.data(), *const Y = g.y.data(), *const Z = g.z.data();
+    const std::int32_t* const I = g.ids.data();
+    float *const X2 = sc.x.data(), *const Y2 = sc.y.data(), *const Z2 = sc.z.data();
+    std::int32_t* const I2 = sc.ids.data();
+    detail::parallel_for(
+        T,
+        [&](std::size_t tb, std::size_t te) {
+          for (std::size_t t = tb; t < te; ++t) {
+            const std::size_t c0 = cut[t], c1 = cut[t + 1];
+            if (c0 >= c1) continue;
+            // The cells before the first receiving one keep their places.
+            const std::size_t s0 = st[c0], s1 = st[c1];
+            const std::size_t keep = c1 <= first_cell ? s1 : c0 < first_cell ? st[first_cell] : s0;
+            std::memcpy(X2 + s0, X + s0, (keep - s0) * 4);
+            std::memcpy(Y2 + s0, Y + s0, (keep - s0) * 4);
+            std::memcpy(Z2 + s0, Z + s0, (keep - s0) * 4);
+            std::memcpy(I2 + s0, I + s0, (keep - s0) * 4);
+            for (std::size_t c = std::max(c0, first_cell); c < c1; ++c) {
+              const std::size_t a = st[c], len = st[c + 1] - a, dst = a + ad[c], k = ad[c + 1] - ad[c];
+              std::memcpy(X2 + dst, X + a, len * 4);
+              std::memcpy(Y2 + dst, Y + a, len * 4);
+              std::memcpy(Z2 + dst, Z + a, len * 4);
+              std::memcpy(I2 + dst, I + a, len * 4);
+              for (std::size_t j = 0; j < k; ++j) {
+                const std::uint32_t i = ord[ad[c] + j];
+                const std::size_t p = dst + len + j;
+                X2[p] = scaled[3 * i];
+                Y2[p] = scaled[3 * i + 1];
+                Z2[p] = scaled[3 * i + 2];
+                I2[p] = first + static_cast<std::int32_t>(i);
+              }
+            }
+          }
+        },
+        T, 1);
+  }
+}
+
 }  // namespace
 
 void BlockHashIndex::insert_points(const float* points, const float* scaled, std::size_t n, std::int32_t first) {
@@ -215,56 +284,7 @@ void BlockHashIndex::grid_insert(const float* scaled, std::size_t m, std::int32_
   // (the one reader) makes it again in one parallel pass. Kept up to date here, its random
   // writes cost more than the merge itself.
   id_pos_.clear();
-  const unsigned T = static_cast<unsigned>(std::min<std::size_t>(detail::default_threads(), std::max<std::size_t>(1, n1 / 65536)));
-  // Cell ranges of about equal output: thread t starts at the first cell whose new start passes
-  // t n1 / T.
-  std::vector<std::size_t> cut(T + 1, nc);
-  cut[0] = 0;
-  for (unsigned t = 1, c = 0; t < T; ++t) {
-    const std::size_t want = std::size_t(t) * n1 / T;
-    while (c < nc && std::size_t(g.starts[c]) + add[c] < want) ++c;
-    cut[t] = c;
-  }
-  {
-    const std::uint32_t* const st = g.starts.data();
-    const std::uint32_t* const ad = add.data();
-    const std::uint32_t* const ord = order.data();
-    const float *const X = g.x.data(), *const Y = g.y.data(), *const Z = g.z.data();
-    const std::int32_t* const I = g.ids.data();
-    float *const X2 = sc.x.data(), *const Y2 = sc.y.data(), *const Z2 = sc.z.data();
-    std::int32_t* const I2 = sc.ids.data();
-    detail::parallel_for(
-        T,
-        [&](std::size_t tb, std::size_t te) {
-          for (std::size_t t = tb; t < te; ++t) {
-            const std::size_t c0 = cut[t], c1 = cut[t + 1];
-            if (c0 >= c1) continue;
-            // The cells before the first receiving one keep their places.
-            const std::size_t s0 = st[c0], s1 = st[c1];
-            const std::size_t keep = c1 <= first_cell ? s1 : c0 < first_cell ? st[first_cell] : s0;
-            std::memcpy(X2 + s0, X + s0, (keep - s0) * 4);
-            std::memcpy(Y2 + s0, Y + s0, (keep - s0) * 4);
-            std::memcpy(Z2 + s0, Z + s0, (keep - s0) * 4);
-            std::memcpy(I2 + s0, I + s0, (keep - s0) * 4);
-            for (std::size_t c = std::max(c0, first_cell); c < c1; ++c) {
-              const std::size_t a = st[c], len = st[c + 1] - a, dst = a + ad[c], k = ad[c + 1] - ad[c];
-              std::memcpy(X2 + dst, X + a, len * 4);
-              std::memcpy(Y2 + dst, Y + a, len * 4);
-              std::memcpy(Z2 + dst, Z + a, len * 4);
-              std::memcpy(I2 + dst, I + a, len * 4);
-              for (std::size_t j = 0; j < k; ++j) {
-                const std::uint32_t i = ord[ad[c] + j];
-                const std::size_t p = dst + len + j;
-                X2[p] = scaled[3 * i];
-                Y2[p] = scaled[3 * i + 1];
-                Z2[p] = scaled[3 * i + 2];
-                I2[p] = first + static_cast<std::int32_t>(i);
-              }
-            }
-          }
-        },
-        T, 1);
-  }
+  merge_into_scratch(g, scaled, m, first, add, order, first_cell, sc);
   // The new starts, once every range has read the old ones.
   for (std::size_t c = first_cell; c < nc; ++c) g.starts[c] += add[c];
   g.starts[nc] = static_cast<std::uint32_t>(n1);
@@ -279,12 +299,7 @@ void BlockHashIndex::grid_insert(const float* scaled, std::size_t m, std::int32_
   g.n_points = n1;
   s_->n_points = n1;
   const std::size_t p_from = first_cell < nc ? g.starts[first_cell] : n0;
-  for (std::size_t i = 0; i < m; ++i) {  // the live points' box widened by the new ones
-    bhcl_grid_dbox& b = g.dbox;
-    const float* p = scaled + 3 * i;
-    b.lx = std::min(b.lx, p[0]), b.ly = std::min(b.ly, p[1]), b.lz = std::min(b.lz, p[2]);
-    b.hx = std::max(b.hx, p[0]), b.hy = std::max(b.hy, p[1]), b.hz = std::max(b.hz, p[2]);
-  }
+  widen_box(g.dbox, scaled, m);  // the live points' box
   blockhash::build_grid_occupancy(g, params_.threads);
   grid_upload_from(p_from, first_cell);
   info_.n_points = n1;

@@ -86,6 +86,136 @@ int eighth(double v, double lo, double ext, bool up) {
   return static_cast<int>(std::max(-64.0, std::min(72.0, r)));  // far outside: one bucket
 }
 
+// The sample: the batch's finite queries, evenly spread over it; at most 2000 and an eighth of
+// them, so that tuning (about 5 block-hash passes and one exact pass over the sample) stays within
+// about twice the batch's own cost even for a small batch; at least 256 (or all of them).
+std::vector<float> batch_sample(const float* queries, std::size_t n) {
+  std::vector<std::size_t> finite;
+  finite.reserve(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    const float* q = queries + 3 * i;
+    if (std::isfinite(q[0]) && std::isfinite(q[1]) && std::isfinite(q[2])) finite.push_back(i);
+  }
+  const std::size_t nf = finite.size();
+  const std::size_t m =
+      std::min<std::size_t>(nf, std::max<std::size_t>(std::min<std::size_t>(nf, 256), std::min<std::size_t>(2000, nf / 8)));
+  std::vector<float> qs(3 * m);
+  for (std::size_t i = 0; i < m; ++i) std::copy_n(queries + 3 * finite[(i * nf) / m], 3, qs.data() + 3 * i);
+  return qs;
+}
+
+// The indexed points' box (lo, hi) and mean spacing (box measure / N)^(1/d) over the axes of
+// nonzero extent.
+void points_box(const std::vector<float>& pts, double box[6], double* spacing) {
+  const std::size_t N = pts.size() / 3;
+  for (int d = 0; d < 3; ++d) {
+    box[d] = INFINITY;
+    box[3 + d] = -INFINITY;
+  }
+  for (std::size_t i = 0; i < N; ++i)
+    for (int d = 0; d < 3; ++d) {
+      box[d] = std::min(box[d], double(pts[3 * i + d]));
+      box[3 + d] = std::max(box[3 + d], double(pts[3 * i + d]));
+    }
+  double measure = 1;
+  int dims = 0;
+  for (int d = 0; d < 3; ++d) {
+    const double e = box[3 + d] - box[d];
+    if (e > 0) {
+      measure *= e;
+      ++dims;
+    }
+  }
+  *spacing = dims ? std::pow(measure / double(N), 1.0 / dims) : 0.0;
+}
+
+// The distribution: the sample's box within the index's box, in eighths of its extent, and the
+// median distance of the first 256 sampled queries to their nearest indexed point over the mean
+// spacing, in half octaves. Queries on the data (median ~ 0.5 spacing) and queries spread over
+// the box (larger in sparse regions) get different keys; so do a batch inside a corner and one
+// over the whole box. exact: the kd-tree over the indexed points.
+std::string batch_distribution(const std::vector<float>& qs, const Index& exact, const double box[6],
+                               double spacing, double* compile_s) {
+  const std::size_t m = qs.size() / 3;
+  double qlo[3] = {INFINITY, INFINITY, INFINITY}, qhi[3] = {-INFINITY, -INFINITY, -INFINITY};
+  for (std::size_t i = 0; i < m; ++i)
+    for (int d = 0; d < 3; ++d) {
+      qlo[d] = std::min(qlo[d], double(qs[3 * i + d]));
+      qhi[d] = std::max(qhi[d], double(qs[3 * i + d]));
+    }
+  const std::size_t ms = std::min<std::size_t>(m, 256);
+  SearchParams nn;
+  nn.k = 1;
+  nn.sort_queries = 0;
+  KnnResult near;
+  *compile_s += exact.query(qs.data(), ms, nn, near).compile_s;
+  std::vector<double> nd(ms);
+  for (std::size_t i = 0; i < ms; ++i) nd[i] = std::sqrt(double(near.dist2[i]));
+  std::nth_element(nd.begin(), nd.begin() + ms / 2, nd.end());
+  const double med = nd[ms / 2];
+  const int octaves = (med > 0 && spacing > 0) ? static_cast<int>(std::lround(2.0 * std::log2(med / spacing))) : -99;
+  std::string dist = "box";
+  for (int d = 0; d < 3; ++d) {
+    const double lo = box[d], ext = box[3 + d] - box[d];
+    dist += " " + std::to_string(eighth(qlo[d], lo, ext, false)) + ":" + std::to_string(eighth(qhi[d], lo, ext, true));
+  }
+  return dist + "/8, nn 2^(" + std::to_string(octaves) + "/2) spacing";
+}
+
+// The smallest A of the ladder whose recall@k on the sample clears target by 1.5 standard errors
+// (about sqrt(t (1 - t) / (m k)), neighbours counted as independent, so that the whole batch meets
+// it rather than half the time), by bisection: recall grows with A, so 1 + log2(17) ~ 5 passes
+// over the sample answer it (a linear scan took up to 17). Not reached: the largest A, or on the
+// grid its exact mode, which reaches any target.
+RecallTuning tune_on_sample(const Index& index, const Index& exact, const std::vector<float>& qs,
+                            const SearchParams& params, double target, bool grid, double* compile_s) {
+  const auto t1 = std::chrono::steady_clock::now();
+  const double compile0 = *compile_s;
+  const std::size_t m = qs.size() / 3;
+  SearchParams tp = params;
+  tp.recall_target = 0;
+  tp.sort_queries = 0;
+  tp.max_radius = INFINITY;  // the budget a recall needs does not depend on the radius
+  tp.count_examined = false;
+  KnnResult truth;
+  *compile_s += exact.query(qs.data(), m, tp, truth).compile_s;
+  RecallTuning t;
+  t.sample = m;
+  const double margin = std::min(1.0 - target, 1.5 * std::sqrt(target * (1.0 - target) / (double(m) * params.k)));
+  constexpr int kRungs = static_cast<int>(sizeof kLadder / sizeof kLadder[0]);
+  std::vector<double> seen(kRungs, -1.0);
+  auto recall_at = [&](int i) {
+    if (seen[i] < 0) {
+      tp.A = kLadder[i];
+      KnnResult r;
+      *compile_s += index.query(qs.data(), m, tp, r).compile_s;
+      seen[i] = evaluate_accuracy(r, truth).recall;
+    }
+    return seen[i];
+  };
+  int lo = 0, hi = kRungs - 1;
+  if (recall_at(hi) < target + margin) {
+    lo = hi;  // not reached: the largest A
+  } else {
+    while (lo < hi) {
+      const int mid = (lo + hi) / 2;
+      if (recall_at(mid) >= target + margin) hi = mid;
+      else lo = mid + 1;
+    }
+  }
+  t.A = kLadder[lo];
+  t.recall = recall_at(lo);
+  t.reached = t.recall >= target + margin;
+  if (!t.reached && grid) {
+    t.A = std::numeric_limits<float>::infinity();
+    t.recall = 1.0;
+    t.reached = true;
+  }
+  const double spent = std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
+  t.seconds = std::max(0.0, spent - (*compile_s - compile0));
+  return t;
+}
+
 }  // namespace
 
 SearchParams BlockHashIndex::params_for_batch(const float* queries, std::size_t n, const SearchParams& params,
@@ -98,143 +228,28 @@ SearchParams BlockHashIndex::params_for_batch(const float* queries, std::size_t 
   else if (params.recall_target == 0 && params.A == 0 && !info_.grid) target = kDefaultRecallTarget;
   // Nothing to tune (an explicit A, the grid's exact default or exact target, no queries): the
   // parameters as given, which the query validates.
-  if (target == 0 || n == 0 || queries == nullptr) {
-    if (info) *info = bt;
-    return p;
-  }
+  if (info) *info = bt;
+  if (target == 0 || n == 0 || queries == nullptr) return p;
   kmax_variant(params.k);  // a bad k is the query's error, named before any work
-  std::vector<std::size_t> finite;
-  finite.reserve(n);
-  for (std::size_t i = 0; i < n; ++i) {
-    const float* q = queries + 3 * i;
-    if (std::isfinite(q[0]) && std::isfinite(q[1]) && std::isfinite(q[2])) finite.push_back(i);
-  }
-  if (finite.empty()) {
-    if (info) *info = bt;
-    return p;
-  }
-  // The sample: evenly spread over the batch; at most 2000 queries and an eighth of the batch,
-  // so that tuning (about 15 block-hash passes and one exact pass over the sample) stays within
-  // about twice the batch's own cost even for a small batch; at least 256 (or the batch).
-  const std::size_t nf = finite.size();
-  const std::size_t m = std::min<std::size_t>(nf, std::max<std::size_t>(std::min<std::size_t>(nf, 256), std::min<std::size_t>(2000, nf / 8)));
-  std::vector<float> qs(3 * m);
-  for (std::size_t i = 0; i < m; ++i) std::copy_n(queries + 3 * finite[(i * nf) / m], 3, qs.data() + 3 * i);
+  const std::vector<float> qs = batch_sample(queries, n);
+  if (qs.empty()) return p;
 
   std::lock_guard<std::mutex> lock(tune_mutex_);
   if (!exact_) {
     // The exact answers come from a kd-tree over the indexed points in the caller's coordinates
     // (what the batch's queries are in), kept for later tunings.
     const std::vector<float> pts = indexed_points();
-    const std::size_t N = size();
-    for (int d = 0; d < 3; ++d) {
-      exact_box_[d] = INFINITY;
-      exact_box_[3 + d] = -INFINITY;
-    }
-    for (std::size_t i = 0; i < N; ++i)
-      for (int d = 0; d < 3; ++d) {
-        exact_box_[d] = std::min(exact_box_[d], double(pts[3 * i + d]));
-        exact_box_[3 + d] = std::max(exact_box_[3 + d], double(pts[3 * i + d]));
-      }
-    double measure = 1;
-    int dims = 0;
-    for (int d = 0; d < 3; ++d) {
-      const double e = exact_box_[3 + d] - exact_box_[d];
-      if (e > 0) {
-        measure *= e;
-        ++dims;
-      }
-    }
-    exact_spacing_ = dims ? std::pow(measure / double(N), 1.0 / dims) : 0.0;
-    exact_ = std::make_shared<KdTreeIndex>(runtime_ptr(), pts.data(), N);
+    points_box(pts, exact_box_, &exact_spacing_);
+    exact_ = std::make_shared<KdTreeIndex>(runtime_ptr(), pts.data(), size());
   }
-  // The distribution: the sample's box within the index's box, in eighths of its extent, and the
-  // median distance of the first 256 sampled queries to their nearest indexed point over the mean
-  // spacing, in half octaves. Queries on the data (median ~ 0.5 spacing) and queries spread over
-  // the box (larger in sparse regions) get different keys; so do a batch inside a corner and one
-  // over the whole box.
-  double qlo[3] = {INFINITY, INFINITY, INFINITY}, qhi[3] = {-INFINITY, -INFINITY, -INFINITY};
-  for (std::size_t i = 0; i < m; ++i)
-    for (int d = 0; d < 3; ++d) {
-      qlo[d] = std::min(qlo[d], double(qs[3 * i + d]));
-      qhi[d] = std::max(qhi[d], double(qs[3 * i + d]));
-    }
-  const std::size_t ms = std::min<std::size_t>(m, 256);
-  SearchParams nn;
-  nn.k = 1;
-  nn.sort_queries = 0;
-  KnnResult near;
-  double compile_s = exact_->query(qs.data(), ms, nn, near).compile_s;
-  std::vector<double> nd(ms);
-  for (std::size_t i = 0; i < ms; ++i) nd[i] = std::sqrt(double(near.dist2[i]));
-  std::nth_element(nd.begin(), nd.begin() + ms / 2, nd.end());
-  const double med = nd[ms / 2];
-  const int octaves = (med > 0 && exact_spacing_ > 0) ? static_cast<int>(std::lround(2.0 * std::log2(med / exact_spacing_))) : -99;
-  std::string dist = "box";
-  for (int d = 0; d < 3; ++d) {
-    const double lo = exact_box_[d], ext = exact_box_[3 + d] - exact_box_[d];
-    dist += " " + std::to_string(eighth(qlo[d], lo, ext, false)) + ":" + std::to_string(eighth(qhi[d], lo, ext, true));
-  }
-  dist += "/8, nn 2^(" + std::to_string(octaves) + "/2) spacing";
-  bt.distribution = dist;
+  double compile_s = 0;
+  bt.distribution = batch_distribution(qs, *exact_, exact_box_, exact_spacing_, &compile_s);
   bt.target = target;
   bt.tuned = true;
-  const auto key = std::make_tuple(params.k, params.neighbour_probes, target, dist);
+  const auto key = std::make_tuple(params.k, params.neighbour_probes, target, bt.distribution);
   auto it = batch_tuned_.find(key);
-  if (it != batch_tuned_.end()) {
-    bt.cached = true;
-    bt.tuning = it->second;
-  } else {
-    const auto t1 = std::chrono::steady_clock::now();
-    SearchParams tp = params;
-    tp.recall_target = 0;
-    tp.sort_queries = 0;
-    tp.max_radius = INFINITY;  // the budget a recall needs does not depend on the radius
-    tp.count_examined = false;
-    KnnResult truth;
-    compile_s += exact_->query(qs.data(), m, tp, truth).compile_s;
-    RecallTuning t;
-    t.sample = m;
-    // The sample's recall estimates the batch's with a standard error of about
-    // sqrt(t (1 - t) / (m k)) (neighbours counted as independent): the sample must clear the
-    // target by 1.5 of them, so that the whole batch meets it rather than half the time.
-    const double margin = std::min(1.0 - target, 1.5 * std::sqrt(target * (1.0 - target) / (double(m) * params.k)));
-    // Bisection over the ladder for the smallest rung that clears the target: recall grows with
-    // A, so 1 + log2(17) ~ 5 passes over the sample answer it (a linear scan took up to 17).
-    constexpr int kRungs = static_cast<int>(sizeof kLadder / sizeof kLadder[0]);
-    std::vector<double> seen(kRungs, -1.0);
-    auto recall_at = [&](int i) {
-      if (seen[i] < 0) {
-        tp.A = kLadder[i];
-        KnnResult r;
-        const QueryStats qs_st = query(qs.data(), m, tp, r);
-        compile_s += qs_st.compile_s;
-        seen[i] = evaluate_accuracy(r, truth).recall;
-      }
-      return seen[i];
-    };
-    int lo = 0, hi = kRungs - 1;
-    if (recall_at(hi) < target + margin) {
-      lo = hi;  // not reached: the largest A
-    } else {
-      while (lo < hi) {
-        const int mid = (lo + hi) / 2;
-        if (recall_at(mid) >= target + margin) hi = mid;
-        else lo = mid + 1;
-      }
-    }
-    t.A = kLadder[lo];
-    t.recall = recall_at(lo);
-    t.reached = t.recall >= target + margin;
-    if (!t.reached && info_.grid) {  // the grid's exact mode reaches any target
-      t.A = std::numeric_limits<float>::infinity();
-      t.recall = 1.0;
-      t.reached = true;
-    }
-    t.seconds = std::max(0.0, std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count() - compile_s);
-    batch_tuned_[key] = t;
-    bt.tuning = t;
-  }
+  bt.cached = it != batch_tuned_.end();
+  bt.tuning = bt.cached ? it->second : (batch_tuned_[key] = tune_on_sample(*this, *exact_, qs, params, target, info_.grid, &compile_s));
   p.A = bt.tuning.A;
   p.recall_target = 0;
   bt.compile_s = compile_s;

@@ -29,7 +29,8 @@ int kmax_variant(int k) {
   return kMaxK;
 }
 
-void KnnResult::resize(std::size_t n_queries, int k_) {
+template <class Id>
+void KnnRows<Id>::resize(std::size_t n_queries, int k_) {
   n = n_queries;
   k = k_;
   ids.assign(n * static_cast<std::size_t>(k), -1);
@@ -38,10 +39,11 @@ void KnnResult::resize(std::size_t n_queries, int k_) {
   examined.clear();
 }
 
-KnnResult KnnResult::leading_columns(int k_) const {
+template <class Id>
+KnnRows<Id> KnnRows<Id>::leading_columns(int k_) const {
   if (k_ < 1 || k_ > k)
     throw Error("leading_columns: k = " + std::to_string(k_) + " outside [1, " + std::to_string(k) + "]");
-  KnnResult r;
+  KnnRows r;
   r.resize(n, k_);
   for (std::size_t q = 0; q < n; ++q) {
     std::copy_n(&ids[q * k], k_, &r.ids[q * k_]);
@@ -50,6 +52,9 @@ KnnResult KnnResult::leading_columns(int k_) const {
   }
   return r;
 }
+
+template struct KnnRows<std::int32_t>;
+template struct KnnRows<std::int64_t>;
 
 void validate_points(const float* xyz, std::size_t n, const char* what) {
   for (std::size_t i = 0; i < n; ++i) {

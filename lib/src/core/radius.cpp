@@ -96,11 +96,8 @@ double Index::host_radius_search(const float*, std::size_t, float, const RadiusP
 void Index::check_radius_params(const RadiusParams& p) const {
   // The options radius search shares with kNN are checked by the method's own kNN check.
   SearchParams s;
+  static_cast<DispatchParams&>(s) = p;
   s.k = 1;
-  s.neighbour_probes = p.neighbour_probes;
-  s.local_size = p.local_size;
-  s.kernel_defines = p.kernel_defines;
-  s.count_examined = p.count_examined;
   check_params(s);
   if (p.sort_queries < -1 || p.sort_queries > 1)
     throw Error("radius_search: sort_queries must be -1 (auto), 0 or 1, got " + std::to_string(p.sort_queries));
@@ -267,6 +264,23 @@ void Index::radius_exact_fallback(const float* caller_queries, std::size_t n, do
   out = std::move(r);
 }
 
+double Index::warm_up_radius(const cl::Buffer& queries, const RadiusBuffers& rb, float r2,
+                             const RadiusParams& params, std::size_t local) const {
+  // The first launch compiles the program; a zero-size launch of each pass keeps that out of the
+  // timed dispatches, once per (local size, defines), in warm_up's cache (kmax 0: the radius
+  // kernels, which have no k variants).
+  const auto key = std::make_tuple(0, local, params.kernel_defines);
+  std::lock_guard<std::mutex> lock(warm_mutex_);
+  if (warmed_.count(key)) return 0.0;
+  auto t0 = std::chrono::steady_clock::now();
+  for (int pass = 0; pass < 2; ++pass) {
+    cl::Event w = enqueue_radius_batch(runtime().warm_queue(), queries, 0, 0, r2, pass, rb, params, local, nullptr);
+    check_cl(w.wait(), "clWaitForEvents", method() + " radius warm-up");
+  }
+  warmed_.insert(key);
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
 void Index::radius_on_device(const float* queries, std::size_t n, float r2,
                              const RadiusParams& params, RadiusResult& out, QueryStats& st) const {
   const Runtime& rt = runtime();
@@ -289,16 +303,7 @@ void Index::radius_on_device(const float* queries, std::size_t n, float r2,
   std::size_t fill_capacity = 0;  // results the fill buffers hold
   rb.ids = rb.dist2 = make(4, "fill");
 
-  // The first launch compiles the program; a zero-size launch of each pass keeps that out of the
-  // timed dispatches (as Index::warm_up does for kNN).
-  {
-    auto tc = std::chrono::steady_clock::now();
-    for (int pass = 0; pass < 2; ++pass) {
-      cl::Event w = enqueue_radius_batch(rt.warm_queue(), qbuf, 0, 0, r2, pass, rb, params, local, nullptr);
-      check_cl(w.wait(), "clWaitForEvents", method() + " radius warm-up");
-    }
-    st.compile_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - tc).count();
-  }
+  st.compile_s += warm_up_radius(qbuf, rb, r2, params, local);
   std::vector<std::int32_t> counts(chunk);
   std::vector<cl_ulong> offs;
   for (std::size_t first = 0; first < n; first += chunk) {
