@@ -284,14 +284,28 @@ TEST_CASE("blockhash_grid_params: the layouts and the checks") {
   auto pts = datasets::uniform(5000, 41);
   BlockHashIndex def(test::runtime(), pts.data(), pts.size() / 3);
   CHECK(def.info().grid);
+  // A block-layout option on the auto preset is refused, never obeyed by switching layouts.
   BlockHashBuildParams old;
   old.P = 8;
+  REQUIRE_THROWS_WITH_AS(BlockHashIndex(test::runtime(), pts.data(), pts.size() / 3, old),
+                         doctest::Contains("P is an option of the block layouts"), Error);
+  old.grid = 0;
   BlockHashIndex blocks(test::runtime(), pts.data(), pts.size() / 3, old);
   CHECK_FALSE(blocks.info().grid);
   BlockHashBuildParams bad = old;
   bad.grid = 1;
   REQUIRE_THROWS_WITH_AS(BlockHashIndex(test::runtime(), pts.data(), pts.size() / 3, bad),
+                         doctest::Contains("P is an option of the block layouts"), Error);
+  BlockHashBuildParams paper_grid;
+  paper_grid.preset = BlockHashBuildParams::Preset::Paper;
+  paper_grid.grid = 1;
+  REQUIRE_THROWS_WITH_AS(BlockHashIndex(test::runtime(), pts.data(), pts.size() / 3, paper_grid),
                          doctest::Contains("grid = 1"), Error);
+  // And the grid's options on a block layout.
+  BlockHashBuildParams side = old;
+  side.cell_size = 0.1;
+  REQUIRE_THROWS_WITH_AS(BlockHashIndex(test::runtime(), pts.data(), pts.size() / 3, side),
+                         doctest::Contains("cell_size is an option of the grid"), Error);
   BlockHashBuildParams cs;
   cs.cell_size = -3;
   REQUIRE_THROWS_WITH_AS(BlockHashIndex(test::runtime(), pts.data(), pts.size() / 3, cs),

@@ -113,6 +113,7 @@ TEST_CASE("blockhash io: every header byte is covered: any change to it is refus
   // A version 3 file of the block layouts is refused naming both versions.
   BlockHashBuildParams blocks;
   blocks.cell_aligned = 1;
+  blocks.grid = 0;
   BlockHashIndex c(test::runtime(), pts.data(), 1200, blocks);
   c.save(path);
   std::string v3 = slurp(path);
@@ -150,6 +151,7 @@ TEST_CASE("blockhash io: a consistent file with broken invariants is refused by 
   auto pts = datasets::uniform(800, 4);
   BlockHashBuildParams bp;
   bp.P = 4;
+  bp.grid = 0;  // the block layouts
   {
     // Cell-aligned: a run past the last block, a block of no points.
     BlockHashIndex c(test::runtime(), pts.data(), 800, bp);

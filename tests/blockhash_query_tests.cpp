@@ -14,7 +14,7 @@ BlockHashBuildParams layout(const char* name) {
   BlockHashBuildParams p;
   const bool cells = std::string(name) == "cells";
   p.preset = BlockHashBuildParams::parse_preset(cells ? "auto" : name);
-  if (cells) p.cell_aligned = 1;
+  if (cells) p.cell_aligned = 1, p.grid = 0;
   return p;
 }
 

@@ -96,6 +96,8 @@ TEST_CASE("option tables: the library builds at every bound of a build option an
         INFO(m.name << " " << o->name << " = " << v);
         MethodOptions mo;
         mo.set(o->name, v);
+        std::istringstream needs(o->needs);  // the options this one needs, from the table
+        for (std::string w; needs >> w;) mo.set(w.substr(0, w.find('=')), w.substr(w.find('=') + 1));
         if (o->name == "L" && v != "1" && v != "-1") mo.set("cell-aligned", "0");  // L > 1: the L-table layout
         CHECK_NOTHROW(make_index(m.name, test::runtime(), pts.data(), 600, mo));
       }
@@ -103,6 +105,8 @@ TEST_CASE("option tables: the library builds at every bound of a build option an
         INFO(m.name << " " << o->name << " = " << v);
         MethodOptions mo;
         mo.set(o->name, v);
+        std::istringstream needs(o->needs);
+        for (std::string w; needs >> w;) mo.set(w.substr(0, w.find('=')), w.substr(w.find('=') + 1));
         CHECK_THROWS_WITH_AS(make_index(m.name, test::runtime(), pts.data(), 600, mo),
                              doctest::Contains((o->name + " must be").c_str()), Error);
       }
@@ -182,7 +186,9 @@ TEST_CASE("option tables: bhcl accepts block hashing's build options at their bo
     for (const std::string& v : bounds_of(*o).inside) {
       INFO("--" << o->name << " " << v);
       std::string out;
-      const std::string layout = o->name == "L" && v != "1" && v != "-1" ? " --cell-aligned 0" : "";
+      std::string layout = o->name == "L" && v != "1" && v != "-1" ? " --cell-aligned 0" : "";
+      std::istringstream needs(o->needs);  // the options this one needs, from the table
+      for (std::string w; needs >> w;) layout += " --" + w.substr(0, w.find('=')) + " " + w.substr(w.find('=') + 1);
       CHECK_MESSAGE(test::run_bhcl(base + layout + " --" + o->name + " " + v, &out) == 0, out);
     }
   }

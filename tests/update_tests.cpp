@@ -283,7 +283,7 @@ TEST_CASE("updates: block hashing's block layouts equal a fresh build over the l
   for (int preset = 0; preset < 2; ++preset) {
     CAPTURE(preset);
     BlockHashBuildParams bp;
-    if (preset == 0) bp.cell_aligned = 1;
+    if (preset == 0) bp.cell_aligned = 1, bp.grid = 0;
     else bp.preset = BlockHashBuildParams::Preset::Paper;
     std::mt19937_64 rng(5);
     Model m;
@@ -497,6 +497,7 @@ std::vector<std::pair<std::string, BlockHashBuildParams>> blockhash_configs() {
   BlockHashBuildParams grid, two, cells, paper;
   two.grid_directory = 1;
   cells.cell_aligned = 1;
+  cells.grid = 0;
   paper.preset = BlockHashBuildParams::Preset::Paper;
   return {{"grid", grid}, {"grid two-level", two}, {"cell-aligned blocks", cells}, {"paper", paper}};
 }
@@ -653,6 +654,7 @@ TEST_CASE("updates: block layouts saved after removes: sparse ids checked, versi
   std::vector<float> p0 = uniform(rng, 900, 0.0f, 1.0f);
   BlockHashBuildParams bp;
   bp.cell_aligned = 1;
+  bp.grid = 0;
   BlockHashIndex ix(test::runtime(), p0.data(), 900, bp);
   const std::string path = test::tmp_path("update_blocks_v5.bhi"), bad = test::tmp_path("update_blocks_bad.bhi");
   ix.save(path);

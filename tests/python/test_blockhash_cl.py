@@ -119,7 +119,7 @@ def test_blockhash_build_options_and_presets(data):
     assert "summary" in info
     d, i = paper.query(q[:100], k=5, A=16, probes=0)
     assert i.shape == (100, 5)
-    auto = bh.make_index("blockhash", pts, P=8)
+    auto = bh.make_index("blockhash", pts, P=8, grid=0)  # the block layouts: the grid refuses P
     assert auto.build_info["P"] == 8
 
 

@@ -44,6 +44,9 @@ struct OptionInfo {
   bool has_unset = false;
   long long unset = -1;
   std::vector<std::string> choices;  // Choice: the accepted values
+  // Other options a build with this one set must set too, as "NAME=VALUE" words (e.g. "grid=0":
+  // block hashing's block-layout options, which the grid refuses); "" = none.
+  std::string needs;
 
   // Build options: read and write the method's build-parameter struct (type-erased; the table
   // that holds the entry knows the struct). nullptr: the method's maker reads the value itself.
@@ -62,6 +65,7 @@ struct OptionInfo {
   OptionValue parse(const std::string& text, const std::string& shown = "") const;
   OptionInfo& or_unset(long long v = -1) { has_unset = true; unset = v; return *this; }
   OptionInfo& with_keyword(std::string k) { keyword = std::move(k); return *this; }
+  OptionInfo& needing(std::string n) { needs = std::move(n); return *this; }
 };
 
 // The build options given for a method, by table name, as text; make_index parses and

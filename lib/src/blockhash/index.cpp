@@ -98,21 +98,67 @@ void grid_geometry_info(const blockhash::Structure& s, BlockHashBuildInfo& in) {
   in.n_points = s.n_points;
 }
 
-// The grid unless the caller asked for a block layout (docs in blockhash.hpp).
+// The block-layout fields the caller set, by name ("" for none).
+std::string block_fields_set(const BlockHashBuildParams& p) {
+  std::string s;
+  auto add = [&](bool set, const char* name) {
+    if (set) s += (s.empty() ? "" : ", ") + std::string(name);
+  };
+  add(p.L > 0, "L");
+  add(p.P > 0, "P");
+  add(p.B > 0, "B");
+  add(p.X > 0, "X");
+  add(p.cell_aligned >= 0, "cell_aligned");
+  add(p.box_order >= 0, "box_order");
+  add(p.box_skip >= 0, "box_skip");
+  add(p.direct_addressing >= 0, "direct_addressing");
+  add(p.guard_thresholds >= 0, "guard_thresholds");
+  add(p.keep_top_count >= 0, "keep_top_count");
+  add(p.hilbert_seed >= 0, "hilbert_seed");
+  const BlockHashBuildParams d;
+  add(p.b_percentile != d.b_percentile, "b_percentile");
+  add(p.design_A != d.design_A, "design_A");
+  add(p.design_k != d.design_k, "design_k");
+  add(p.hist_bins != d.hist_bins, "hist_bins");
+  add(p.hilbert_bits != d.hilbert_bits, "hilbert_bits");
+  add(p.neighbour_probes >= 0, "neighbour_probes");
+  return s;
+}
+
+// The grid's own fields the caller set, by name ("" for none).
+std::string grid_fields_set(const BlockHashBuildParams& p) {
+  std::string s;
+  auto add = [&](bool set, const char* name) {
+    if (set) s += (s.empty() ? "" : ", ") + std::string(name);
+  };
+  add(p.cell_size != -1, "cell_size");
+  add(p.max_cells_per_point != BlockHashBuildParams{}.max_cells_per_point, "max_cells_per_point");
+  add(p.grid_directory != -1, "grid_directory");
+  return s;
+}
+
+// Which layout a build makes, chosen explicitly: the auto preset's grid (grid -1 or 1), the
+// block layouts with grid = 0 (cell-aligned, or the L tables with cell_aligned = 0 or L > 1), the
+// paper preset's L tables. An option of another layout is refused, never obeyed silently (a
+// block-layout field used to switch auto off the grid).
 bool wants_grid(const BlockHashBuildParams& p) {
-  const bool block_fields = p.L > 0 || p.P > 0 || p.B > 0 || p.X > 0 || p.cell_aligned >= 0 ||
-                            p.box_order >= 0 || p.box_skip >= 0 || p.direct_addressing >= 0 ||
-                            p.guard_thresholds >= 0 || p.keep_top_count >= 0 || p.hilbert_seed >= 0;
-  if (p.grid == 1) {
-    if (p.preset == BlockHashBuildParams::Preset::Paper)
-      throw Error("blockhash: grid = 1 is the auto preset's layout; the paper preset has its own");
-    if (block_fields)
-      throw Error("blockhash: grid = 1 takes none of L, P, B, X, cell_aligned, box_order, box_skip, "
-                  "direct_addressing, guard_thresholds, keep_top_count, hilbert_seed (block layouts)");
-    return true;
+  if (p.grid != -1 && p.grid != 0 && p.grid != 1)
+    throw Error("blockhash: grid must be -1 (preset), 0 or 1, got " + std::to_string(p.grid));
+  const bool paper = p.preset == BlockHashBuildParams::Preset::Paper;
+  if (paper && p.grid == 1)
+    throw Error("blockhash: grid = 1 is the auto preset's layout; the paper preset has its own");
+  const bool grid = !paper && p.grid != 0;
+  if (grid) {
+    if (const std::string f = block_fields_set(p); !f.empty())
+      throw Error("blockhash: " + f + (f.find(',') == std::string::npos ? " is an option" : " are options") +
+                  " of the block layouts; the auto preset builds the grid (set grid = 0 for the "
+                  "cell-aligned blocks, or preset = paper for the talk's tables)");
+  } else if (const std::string f = grid_fields_set(p); !f.empty()) {
+    throw Error("blockhash: " + f + (f.find(',') == std::string::npos ? " is an option" : " are options") +
+                " of the grid (the auto preset's layout), not of the " +
+                (paper ? std::string("paper preset's tables") : std::string("block layouts (grid = 0)")));
   }
-  if (p.grid != -1 && p.grid != 0) throw Error("blockhash: grid must be -1 (preset), 0 or 1, got " + std::to_string(p.grid));
-  return p.grid == -1 && p.preset == BlockHashBuildParams::Preset::Auto && !block_fields;
+  return grid;
 }
 
 }  // namespace

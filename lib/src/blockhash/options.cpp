@@ -40,6 +40,12 @@ OptionInfo seed() {
   return o;
 }
 
+// An option of the block layouts (grid = 0, or preset paper): the grid refuses it.
+OptionInfo block(OptionInfo o) {
+  o.help += " (block layouts: grid = 0 or preset paper)";
+  return o.needing("grid=0");
+}
+
 std::vector<OptionInfo> make_table() {
   OptionInfo preset = option::choice("preset", "parameter preset", {"auto", "paper"}, "auto");
   preset.field = "BlockHashBuildParams::preset";
@@ -47,29 +53,29 @@ std::vector<OptionInfo> make_table() {
   preset.set = [](void* p, const OptionValue& v) { static_cast<P*>(p)->preset = P::parse_preset(v.text); };
   return {
       preset,
-      BHCL_BUILD_OPTION(P, L, option::integer("L", "hash tables (-1: the preset decides)", 1, 64, "-1").or_unset()),
-      BHCL_BUILD_OPTION(P, P, option::integer("P", "thresholds per dimension (-1: the preset decides)", 1, BHCL_BH_MAX_P, "-1").or_unset()),
-      BHCL_BUILD_OPTION(P, B, option::integer("B", "block references per bucket (-1: the preset decides)", 1, 65535, "-1").or_unset()),
-      BHCL_BUILD_OPTION(P, X, option::integer("X", "points per block (-1: the preset decides)", 1, BHCL_BH_BLOCK_SLOTS, "-1").or_unset()),
+      block(BHCL_BUILD_OPTION(P, L, option::integer("L", "hash tables (-1: the preset decides)", 1, 64, "-1").or_unset())),
+      block(BHCL_BUILD_OPTION(P, P, option::integer("P", "thresholds per dimension (-1: the preset decides)", 1, BHCL_BH_MAX_P, "-1").or_unset())),
+      block(BHCL_BUILD_OPTION(P, B, option::integer("B", "block references per bucket (-1: the preset decides)", 1, 65535, "-1").or_unset())),
+      block(BHCL_BUILD_OPTION(P, X, option::integer("X", "points per block (-1: the preset decides)", 1, BHCL_BH_BLOCK_SLOTS, "-1").or_unset())),
       seed(),
-      BHCL_BUILD_OPTION(P, grid, option::integer("grid", "auto: the grid layout (cells scanned as rows; -1: on for auto unless a block-layout option is set, 0: the block layouts, 1: the grid)", 0, 1, "-1").or_unset()),
+      BHCL_BUILD_OPTION(P, grid, option::integer("grid", "the layout: -1 the preset's (auto: the grid, exact by default; paper: the talk's tables), 0 the block layouts (their options need it), 1 the grid", 0, 1, "-1").or_unset()),
       BHCL_BUILD_OPTION(P, cell_size, option::number("cell-size", "grid: the cells' side in the points' units (-1: chosen so a point's cell holds ~target-cell-points)", 0, 1e30, "-1", true).or_unset()),
       BHCL_BUILD_OPTION(P, max_cells_per_point, option::number("max-cells-per-point", "grid: the most cells per point of the direct table (past it a two-level directory of up to 16x as many, then the cells grow)", 0.01, 1024, "8")),
       BHCL_BUILD_OPTION(P, grid_directory, option::integer("grid-directory", "grid: the cell directory (-1: by max-cells-per-point, 0: direct, 1: two-level)", 0, 1, "-1").or_unset()),
       BHCL_BUILD_OPTION(P, target_cell_points, option::number("target-cell-points", "auto: the cell population aimed at (-1: 24; grid: a point's cell, block layouts: the median occupied cell, 100 for L tables)", 1, 1e6, "-1").or_unset()),
-      BHCL_BUILD_OPTION(P, cell_aligned, flag("cell-aligned", "auto: blocks aligned to the cells of one table")),
-      BHCL_BUILD_OPTION(P, b_percentile, option::number("b-percentile", "auto: B is this percentile of the distinct blocks per occupied cell", 0, 1, "0.9", true)),
-      BHCL_BUILD_OPTION(P, design_A, option::number("design-A", "paper: the A of the talk's rule for B", 0, kHuge, "8", true)),
-      BHCL_BUILD_OPTION(P, design_k, option::integer("design-k", "paper: the k of the talk's rule for B", 1, kIntMax, "10")),
-      BHCL_BUILD_OPTION(P, hist_bins, option::integer("hist-bins", "histogram bins per dimension of the threshold CDFs", 2, 1 << 22, "1024")),
-      BHCL_BUILD_OPTION(P, hilbert_bits, option::integer("hilbert-bits", "bits per dimension of the Hilbert keys", 1, 21, "21")),
-      BHCL_BUILD_OPTION(P, guard_thresholds, flag("guard-thresholds", "thresholds snapped to bin edges, de-duplicated, off heavy bins")),
-      BHCL_BUILD_OPTION(P, keep_top_count, flag("keep-top-count", "a full bucket keeps the blocks holding most of the cell's points")),
-      BHCL_BUILD_OPTION(P, direct_addressing, flag("direct-addressing", "all (P+1)^3 cells, not only the occupied ones")),
-      BHCL_BUILD_OPTION(P, box_skip, flag("box-skip", "skip blocks whose box is farther than the k-th distance")),
-      BHCL_BUILD_OPTION(P, box_order, flag("box-order", "scan blocks in order of box distance with an early stop")),
-      BHCL_BUILD_OPTION(P, hilbert_seed, option::integer("hilbert-seed", "box order: blocks gathered on each side of the query's Hilbert key (-1: the preset decides)", 0, 64, "-1").or_unset()),
-      BHCL_BUILD_OPTION(P, neighbour_probes, flag("default-probes", "the neighbour probes of a query that leaves them to the index")),
+      block(BHCL_BUILD_OPTION(P, cell_aligned, flag("cell-aligned", "auto: blocks aligned to the cells of one table"))),
+      block(BHCL_BUILD_OPTION(P, b_percentile, option::number("b-percentile", "auto: B is this percentile of the distinct blocks per occupied cell", 0, 1, "0.9", true))),
+      block(BHCL_BUILD_OPTION(P, design_A, option::number("design-A", "paper: the A of the talk's rule for B", 0, kHuge, "8", true))),
+      block(BHCL_BUILD_OPTION(P, design_k, option::integer("design-k", "paper: the k of the talk's rule for B", 1, kIntMax, "10"))),
+      block(BHCL_BUILD_OPTION(P, hist_bins, option::integer("hist-bins", "histogram bins per dimension of the threshold CDFs", 2, 1 << 22, "1024"))),
+      block(BHCL_BUILD_OPTION(P, hilbert_bits, option::integer("hilbert-bits", "bits per dimension of the Hilbert keys", 1, 21, "21"))),
+      block(BHCL_BUILD_OPTION(P, guard_thresholds, flag("guard-thresholds", "thresholds snapped to bin edges, de-duplicated, off heavy bins"))),
+      block(BHCL_BUILD_OPTION(P, keep_top_count, flag("keep-top-count", "a full bucket keeps the blocks holding most of the cell's points"))),
+      block(BHCL_BUILD_OPTION(P, direct_addressing, flag("direct-addressing", "all (P+1)^3 cells, not only the occupied ones"))),
+      block(BHCL_BUILD_OPTION(P, box_skip, flag("box-skip", "skip blocks whose box is farther than the k-th distance"))),
+      block(BHCL_BUILD_OPTION(P, box_order, flag("box-order", "scan blocks in order of box distance with an early stop"))),
+      block(BHCL_BUILD_OPTION(P, hilbert_seed, option::integer("hilbert-seed", "box order: blocks gathered on each side of the query's Hilbert key (-1: the preset decides)", 0, 64, "-1").or_unset())),
+      block(BHCL_BUILD_OPTION(P, neighbour_probes, flag("default-probes", "the neighbour probes of a query that leaves them to the index"))),
       option::file("load-index", "load this saved index instead of building"),
       option::file("save-index", "save the built index to this file"),
       option::search<&SearchParams::A, nullptr>(
