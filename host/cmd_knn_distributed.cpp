@@ -196,17 +196,11 @@ struct Totals {
     st.n_queries += ps.n_queries;
     st.wall_s += ps.wall_s;
     st.add_slice(ps);
-    ds.multi_rank_queries += pds.multi_rank_queries;
-    ds.owner_sent += pds.owner_sent;
-    ds.owner_received += pds.owner_received;
-    ds.extra_sent += pds.extra_sent;
-    ds.extra_received += pds.extra_received;
-    ds.reanswered += pds.reanswered;
-    ds.answered += pds.answered;
-    ds.bytes_sent += pds.bytes_sent;
-    ds.bytes_received += pds.bytes_received;
-    ds.phase1_s += pds.phase1_s;
-    ds.phase2_s += pds.phase2_s;
+    using D = DistributedQueryStats;
+    for (std::size_t D::*count : {&D::multi_rank_queries, &D::owner_sent, &D::owner_received, &D::extra_sent,
+                                  &D::extra_received, &D::reanswered, &D::answered, &D::bytes_sent, &D::bytes_received})
+      ds.*count += pds.*count;
+    for (double D::*seconds : {&D::phase1_s, &D::phase2_s}) ds.*seconds += pds.*seconds;
     for (auto v : pds.ranks_visited) visits += static_cast<std::size_t>(v);
   }
 };
