@@ -126,6 +126,15 @@ class BenchCli {
       fail(e.what());
     }
   }
+  // --csv's file, opened for writing with its header line; null when `path` is empty, a mistake
+  // (fail) when it cannot be written.
+  std::FILE* csv_file(const std::string& path, const char* header) const {
+    if (path.empty()) return nullptr;
+    std::FILE* out = std::fopen(path.c_str(), "w");
+    if (!out) fail("--csv: cannot write " + path);
+    std::fputs(header, out);
+    return out;
+  }
   // A mistake found after parsing (e.g. an unknown data set): one line, exit status 2.
   [[noreturn]] void fail(const std::string& why) const {
     std::fprintf(stderr, "%s: %s (see %s --help)\n", program_.c_str(), why.c_str(), program_.c_str());
