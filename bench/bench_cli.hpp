@@ -100,6 +100,11 @@ class BenchCli {
     v = env ? env : BHCL_DEFAULT_DATA_DIR;
     return text("data-dir", v, "folder of the file data sets (bunny, dragon, autzen); default: BHCL_DATA_DIR, then ../shared/data", "DIR");
   }
+  // --data-dir, then --data (the set names, `help` listing them).
+  CLI::Option* data_sets(std::string& dir, std::vector<std::string>& data, const std::string& help) {
+    data_dir(dir);
+    return names("data", data, help);
+  }
   CLI::Option* device(std::string& v) {
     return text("device", v, "OpenCL device: P:D, cpu, gpu or a name fragment (default: BHCL_DEVICE, then PoCL)", "SPEC");
   }
