@@ -136,7 +136,6 @@ BlockHashBuildParams build_params(const Options& o, const std::string& preset, s
   BlockHashBuildParams bp;
   bp.preset = BlockHashBuildParams::parse_preset(preset);
   bp.seed = o.seed;
-  bp.verbose = N >= 200000;
   if (bp.preset == BlockHashBuildParams::Preset::Auto) {
     bp.L = o.L;
     bp.X = o.X;
@@ -144,6 +143,7 @@ BlockHashBuildParams build_params(const Options& o, const std::string& preset, s
     bp.box_order = o.box_order;
     bp.target_cell_points = o.target;
   }
+  bp.verbose = N >= 200000;  // the build's own progress lines
   return bp;
 }
 

@@ -175,10 +175,10 @@ void print_table(const Options& o, const std::vector<Entry>& entries, const std:
 }  // namespace
 
 int main(int argc, char** argv) {
+  const Options o = parse(argc, argv);
 #ifdef BHCL_BUILD_TREE_POCL_CACHE
   setenv("POCL_CACHE_DIR", BHCL_BUILD_TREE_POCL_CACHE, 0);
 #endif
-  const Options o = parse(argc, argv);
   try {
     auto rt = std::make_shared<Runtime>(o.device);
     std::vector<float> pts, qs;
