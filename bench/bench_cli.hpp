@@ -100,6 +100,11 @@ class BenchCli {
     v = env ? env : BHCL_DEFAULT_DATA_DIR;
     return text("data-dir", v, "folder of the file data sets (bunny, dragon, autzen); default: BHCL_DATA_DIR, then ../shared/data", "DIR");
   }
+  // --data-dir, then --data (the set names, `help` listing them).
+  CLI::Option* data_sets(std::string& dir, std::vector<std::string>& data, const std::string& help) {
+    data_dir(dir);
+    return names("data", data, help);
+  }
   CLI::Option* device(std::string& v) {
     return text("device", v, "OpenCL device: P:D, cpu, gpu or a name fragment (default: BHCL_DEVICE, then PoCL)", "SPEC");
   }
@@ -125,6 +130,15 @@ class BenchCli {
     } catch (const CLI::ParseError& e) {
       fail(e.what());
     }
+  }
+  // --csv's file, opened for writing with its header line; null when `path` is empty, a mistake
+  // (fail) when it cannot be written.
+  std::FILE* csv_file(const std::string& path, const char* header) const {
+    if (path.empty()) return nullptr;
+    std::FILE* out = std::fopen(path.c_str(), "w");
+    if (!out) fail("--csv: cannot write " + path);
+    std::fputs(header, out);
+    return out;
   }
   // A mistake found after parsing (e.g. an unknown data set): one line, exit status 2.
   [[noreturn]] void fail(const std::string& why) const {

@@ -106,9 +106,7 @@ struct Row {
   double examined, query_us, compile_s;
 };
 
-}  // namespace
-
-int main(int argc, char** argv) {
+Options parse(int argc, char** argv) {
   Options o;
   bench::BenchCli cli("blockhash_accuracy", "Block hashing's accuracy and cost against exact kNN, both presets, the talk's A sweep");
   cli.names("data", o.data, "data sets: uniform, cornell, dragon");
@@ -130,126 +128,155 @@ int main(int argc, char** argv) {
   cli.table_options("blockhash", OptionInfo::Search, o.search, {"A", "recall"});
   cli.parse(argc, argv);
   if (o.data.empty() || o.A.empty() || o.k.empty() || o.presets.empty()) cli.fail("empty list");
+  return o;
+}
+
+// A preset's build parameters (auto: with the --L, --X, ... overrides).
+BlockHashBuildParams build_params(const Options& o, const std::string& preset, std::size_t N) {
+  BlockHashBuildParams bp;
+  bp.preset = BlockHashBuildParams::parse_preset(preset);
+  bp.seed = o.seed;
+  if (bp.preset == BlockHashBuildParams::Preset::Auto) {
+    bp.L = o.L;
+    bp.X = o.X;
+    bp.hilbert_seed = o.seed_blocks;
+    bp.box_order = o.box_order;
+    bp.target_cell_points = o.target;
+  }
+  bp.verbose = N >= 200000;  // the build's own progress lines
+  return bp;
+}
+
+// One preset's indexes on a data set: auto is built once; paper once per distinct B (its design
+// depends on A and k).
+struct PresetIndexes {
+  const std::shared_ptr<Runtime>& rt;
+  const DataSet& d;
+  BlockHashBuildParams bp;
+  std::map<int, std::unique_ptr<BlockHashIndex>> by_b;  // paper: one build per B
+  std::unique_ptr<BlockHashIndex> single;
+
+  BlockHashIndex* get(int k, float A) {
+    const std::size_t N = d.points.size() / 3;
+    if (bp.preset == BlockHashBuildParams::Preset::Paper) {
+      BlockHashBuildParams pb = bp;
+      pb.design_A = A;
+      pb.design_k = k;
+      double lnN = std::log(double(N));
+      int B = int(std::ceil(A * k / (10.0 * lnN))) + 1;
+      auto& slot = by_b[B];
+      if (!slot) {
+        std::fprintf(stderr, "  %s paper build (B = %d) ...\n", d.name.c_str(), B);
+        slot = std::make_unique<BlockHashIndex>(rt, d.points.data(), N, pb);
+        std::fprintf(stderr, "  %s\n", slot->info().summary().c_str());
+      }
+      return slot.get();
+    }
+    if (!single) {
+      std::fprintf(stderr, "  %s auto build ...\n", d.name.c_str());
+      single = std::make_unique<BlockHashIndex>(rt, d.points.data(), N, bp);
+      std::fprintf(stderr, "  %s\n", single->info().summary().c_str());
+    }
+    return single.get();
+  }
+};
+
+// One (preset, k, A): the accuracy against the truth, the mean points examined (the kernel's own
+// count) and the median query time of the repetitions (which must give the same rows).
+Row measure(const Options& o, const DataSet& d, const std::string& preset, BlockHashIndex& idx, int k, float A,
+            const KnnResult& truth) {
+  const std::size_t N = d.points.size() / 3, nq = d.queries.size() / 3;
+  SearchParams p;
+  p.k = k;
+  p.A = A;
+  p.local_size = o.local;
+  bench::BenchCli::apply_search("blockhash", o.search, p);
+  const double compile_s = idx.warm_up(p);
+  KnnResult r;
+  SearchParams pe = p;
+  pe.count_examined = true;
+  idx.query(d.queries.data(), nq, pe, r);
+  std::vector<double> times;
+  for (int rep = 0; rep < o.reps; ++rep) {
+    KnnResult r2;
+    QueryStats st = idx.query(d.queries.data(), nq, p, r2);
+    times.push_back(st.query_s);
+    if (r2.ids != r.ids) throw Error("results differ between repetitions");
+  }
+  double sum = 0;
+  for (auto e : r.examined) sum += e;
+  return Row{d.name, preset, N, k, A, idx.info(), idx.memory_per_point(), idx.measured_overhead(),
+             BlockHashIndex::talk_overhead(N, A, k, idx.X()), evaluate_accuracy(r, truth), sum / double(nq),
+             bench::median(times) / double(nq) * 1e6, compile_s};
+}
+
+// Every (preset, k, A) on one data set, against the brute-force kernel's exact rows.
+void run_set(const Options& o, const std::shared_ptr<Runtime>& rt, const DataSet& d, std::vector<Row>& rows) {
+  const std::string& name = d.name;
+  const std::size_t N = d.points.size() / 3, nq = d.queries.size() / 3;
+  const int kmax = *std::max_element(o.k.begin(), o.k.end());
+  std::fprintf(stderr, "%s: N = %zu, %zu queries; exact truth by the brute-force kernel ...\n",
+               name.c_str(), N, nq);
+  auto t0 = std::chrono::steady_clock::now();
+  BruteForceIndex bf(rt, d.points.data(), N);
+  SearchParams tp;
+  tp.k = kmax;
+  KnnResult truth_all = bf.query(d.queries, tp);
+  std::fprintf(stderr, "  truth in %.1f s\n",
+               std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+  for (const auto& pr : o.presets) {
+    PresetIndexes indexes{rt, d, build_params(o, pr, N), {}, {}};
+    for (int k : o.k) {
+      KnnResult truth = truth_all.leading_columns(k);
+      for (float A : o.A) {
+        const Row row = measure(o, d, pr, *indexes.get(k, A), k, A, truth);
+        rows.push_back(row);
+        std::fprintf(stderr, "  %-7s %-5s k=%-3d A=%-4g recall %.4f  FN %.4f  dil max %7.3f mean %.4f  incompl %4zu  examined %7.1f  %.2f us/query\n",
+                     name.c_str(), pr.c_str(), k, A, row.acc.recall, row.acc.false_negative_rate,
+                     row.acc.max_dilation, row.acc.mean_dilation, row.acc.incomplete_queries,
+                     row.examined, row.query_us);
+      }
+    }
+  }
+}
+
+// The table and the CSV.
+void write_rows(const Options& o, const std::vector<Row>& rows) {
+  std::printf("\n| data | preset | k | A | L | P | B | X | recall@k | FN | dil. max | dil. mean | incompl. | examined | us/query | build s | B/point |%s\n",
+              " talk ovh | our ovh |");
+  std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+  std::ofstream csv(o.csv);
+  csv << "data,preset,N,k,A,L,P,B,X,recall,false_negative_rate,max_dilation,mean_dilation,incomplete,examined_mean,query_us,build_s,memory_per_point,overhead,talk_overhead,median_cell_points,p90_cell_blocks,compile_s\n";
+  for (const auto& r : rows) {
+    std::printf("| %s | %s | %d | %g | %d | %d | %d | %d | %.4f | %.4f | %.3f | %.4f | %zu | %.1f | %.2f | %.2f | %.1f | %.3f | %.3f |\n",
+                r.data.c_str(), r.preset.c_str(), r.k, r.A, r.info.L, r.info.P, r.info.B, r.info.X,
+                r.acc.recall, r.acc.false_negative_rate, r.acc.max_dilation, r.acc.mean_dilation,
+                r.acc.incomplete_queries, r.examined, r.query_us, r.info.t_total, r.mem_per_point,
+                r.talk_overhead, r.overhead);
+    csv << r.data << "," << r.preset << "," << r.N << "," << r.k << "," << r.A << "," << r.info.L << ","
+        << r.info.P << "," << r.info.B << "," << r.info.X << "," << r.acc.recall << ","
+        << r.acc.false_negative_rate << "," << r.acc.max_dilation << "," << r.acc.mean_dilation << ","
+        << r.acc.incomplete_queries << "," << r.examined << "," << r.query_us << "," << r.info.t_total
+        << "," << r.mem_per_point << "," << r.overhead << "," << r.talk_overhead << ","
+        << r.info.median_cell_points << "," << r.info.p90_cell_blocks << "," << r.compile_s << "\n";
+  }
+  std::fprintf(stderr, "CSV: %s\n", o.csv.c_str());
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  const Options o = parse(argc, argv);
   if (!std::getenv("POCL_CACHE_DIR")) setenv("POCL_CACHE_DIR", BHCL_BUILD_TREE_POCL_CACHE, 0);
   try {
     auto rt = std::make_shared<Runtime>();
     std::fprintf(stderr, "device: %s\n", rt->info().summary().c_str());
     std::vector<Row> rows;
-    const int kmax = *std::max_element(o.k.begin(), o.k.end());
     for (const auto& name : o.data) {
       DataSet d;
-      if (!load_data(name, o, d)) continue;
-      const std::size_t N = d.points.size() / 3, nq = d.queries.size() / 3;
-      std::fprintf(stderr, "%s: N = %zu, %zu queries; exact truth by the brute-force kernel ...\n",
-                   name.c_str(), N, nq);
-      auto t0 = std::chrono::steady_clock::now();
-      BruteForceIndex bf(rt, d.points.data(), N);
-      SearchParams tp;
-      tp.k = kmax;
-      KnnResult truth_all = bf.query(d.queries, tp);
-      std::fprintf(stderr, "  truth in %.1f s\n",
-                   std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
-      for (const auto& pr : o.presets) {
-        BlockHashBuildParams bp;
-        bp.preset = BlockHashBuildParams::parse_preset(pr);
-        bp.seed = o.seed;
-        bp.verbose = N >= 200000;
-        if (bp.preset == BlockHashBuildParams::Preset::Auto) {
-          bp.L = o.L;
-          bp.X = o.X;
-          bp.hilbert_seed = o.seed_blocks;
-          bp.box_order = o.box_order;
-          bp.target_cell_points = o.target;
-        }
-        std::map<int, std::unique_ptr<BlockHashIndex>> by_b;  // paper: one build per B
-        std::unique_ptr<BlockHashIndex> single;
-        for (int k : o.k) {
-          KnnResult truth = truth_all.leading_columns(k);
-          for (float A : o.A) {
-            BlockHashIndex* idx = nullptr;
-            if (bp.preset == BlockHashBuildParams::Preset::Paper) {
-              BlockHashBuildParams pb = bp;
-              pb.design_A = A;
-              pb.design_k = k;
-              double lnN = std::log(double(N));
-              int B = int(std::ceil(A * k / (10.0 * lnN))) + 1;
-              auto& slot = by_b[B];
-              if (!slot) {
-                std::fprintf(stderr, "  %s paper build (B = %d) ...\n", name.c_str(), B);
-                slot = std::make_unique<BlockHashIndex>(rt, d.points.data(), N, pb);
-                std::fprintf(stderr, "  %s\n", slot->info().summary().c_str());
-              }
-              idx = slot.get();
-            } else {
-              if (!single) {
-                std::fprintf(stderr, "  %s auto build ...\n", name.c_str());
-                single = std::make_unique<BlockHashIndex>(rt, d.points.data(), N, bp);
-                std::fprintf(stderr, "  %s\n", single->info().summary().c_str());
-              }
-              idx = single.get();
-            }
-            SearchParams p;
-            p.k = k;
-            p.A = A;
-            p.local_size = o.local;
-            bench::BenchCli::apply_search("blockhash", o.search, p);
-            Row row;
-            row.compile_s = idx->warm_up(p);
-            KnnResult r;
-            SearchParams pe = p;
-            pe.count_examined = true;
-            idx->query(d.queries.data(), nq, pe, r);
-            const std::vector<std::int32_t>& ex = r.examined;
-            std::vector<double> times;
-            for (int rep = 0; rep < o.reps; ++rep) {
-              KnnResult r2;
-              QueryStats st = idx->query(d.queries.data(), nq, p, r2);
-              times.push_back(st.query_s);
-              if (r2.ids != r.ids) throw Error("results differ between repetitions");
-            }
-            row.data = name;
-            row.preset = pr;
-            row.N = N;
-            row.k = k;
-            row.A = A;
-            row.info = idx->info();
-            row.mem_per_point = idx->memory_per_point();
-            row.overhead = idx->measured_overhead();
-            row.talk_overhead = BlockHashIndex::talk_overhead(N, A, k, idx->X());
-            row.acc = evaluate_accuracy(r, truth);
-            double sum = 0;
-            for (auto e : ex) sum += e;
-            row.examined = sum / double(nq);
-            row.query_us = bench::median(times) / double(nq) * 1e6;
-            rows.push_back(row);
-            std::fprintf(stderr, "  %-7s %-5s k=%-3d A=%-4g recall %.4f  FN %.4f  dil max %7.3f mean %.4f  incompl %4zu  examined %7.1f  %.2f us/query\n",
-                         name.c_str(), pr.c_str(), k, A, row.acc.recall, row.acc.false_negative_rate,
-                         row.acc.max_dilation, row.acc.mean_dilation, row.acc.incomplete_queries,
-                         row.examined, row.query_us);
-          }
-        }
-      }
+      if (load_data(name, o, d)) run_set(o, rt, d, rows);
     }
-    // The table and the CSV.
-    std::printf("\n| data | preset | k | A | L | P | B | X | recall@k | FN | dil. max | dil. mean | incompl. | examined | us/query | build s | B/point |%s\n",
-                " talk ovh | our ovh |");
-    std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
-    std::ofstream csv(o.csv);
-    csv << "data,preset,N,k,A,L,P,B,X,recall,false_negative_rate,max_dilation,mean_dilation,incomplete,examined_mean,query_us,build_s,memory_per_point,overhead,talk_overhead,median_cell_points,p90_cell_blocks,compile_s\n";
-    for (const auto& r : rows) {
-      std::printf("| %s | %s | %d | %g | %d | %d | %d | %d | %.4f | %.4f | %.3f | %.4f | %zu | %.1f | %.2f | %.2f | %.1f | %.3f | %.3f |\n",
-                  r.data.c_str(), r.preset.c_str(), r.k, r.A, r.info.L, r.info.P, r.info.B, r.info.X,
-                  r.acc.recall, r.acc.false_negative_rate, r.acc.max_dilation, r.acc.mean_dilation,
-                  r.acc.incomplete_queries, r.examined, r.query_us, r.info.t_total, r.mem_per_point,
-                  r.talk_overhead, r.overhead);
-      csv << r.data << "," << r.preset << "," << r.N << "," << r.k << "," << r.A << "," << r.info.L << ","
-          << r.info.P << "," << r.info.B << "," << r.info.X << "," << r.acc.recall << ","
-          << r.acc.false_negative_rate << "," << r.acc.max_dilation << "," << r.acc.mean_dilation << ","
-          << r.acc.incomplete_queries << "," << r.examined << "," << r.query_us << "," << r.info.t_total
-          << "," << r.mem_per_point << "," << r.overhead << "," << r.talk_overhead << ","
-          << r.info.median_cell_points << "," << r.info.p90_cell_blocks << "," << r.compile_s << "\n";
-    }
-    std::fprintf(stderr, "CSV: %s\n", o.csv.c_str());
+    write_rows(o, rows);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "blockhash_accuracy: %s\n", e.what());
     return 1;

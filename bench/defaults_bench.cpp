@@ -75,11 +75,8 @@ int main(int argc, char** argv) {
                 "first call's wall; t_bh, t_kd: median wall of %d later calls (host-array query, sorting and "
                 "transfers included); vs_kd = t_kd / t_bh\n",
                 rounds);
-    std::FILE* out = csv.empty() ? nullptr : std::fopen(csv.c_str(), "w");
-    if (!csv.empty() && !out) cli.fail("--csv: cannot write " + csv);
-    if (out)
-      std::fprintf(out, "data,N,layout,dist,queries,k,A,tuned,sample,sample_recall,recall,fn,maxdil,meandil,"
-                        "incomplete,tune_s,first_wall_s,tune_share,t_bh_s,t_kd_s,vs_kd\n");
+    std::FILE* out = cli.csv_file(csv, "data,N,layout,dist,queries,k,A,tuned,sample,sample_recall,recall,fn,maxdil,"
+                                       "meandil,incomplete,tune_s,first_wall_s,tune_share,t_bh_s,t_kd_s,vs_kd\n");
     for (const std::string& name : data) {
       std::vector<float> pts, on;
       if (!bench::load_set(data_dir, name, N, n_queries, pts, on)) continue;

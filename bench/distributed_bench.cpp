@@ -82,14 +82,9 @@ struct Options {
   std::string data_dir, csv;
 };
 
-}  // namespace
-
-int main(int argc, char** argv) {
-  MPI_Init(&argc, &argv);
-  int rank = 0, R = 1;
-  MPI_Comm_rank(MPI_COMM_WORLD, &rank);
-  MPI_Comm_size(MPI_COMM_WORLD, &R);
-  Options o;
+// Parses on every rank (every rank sees the same line); rank 0 alone prints the help or the
+// mistake. Returns the exit status when the program is to end (0 after --help, 2), else -1.
+int parse(int argc, char** argv, int rank, Options& o) {
   bhcl::bench::BenchCli cli("distributed_bench",
                             "Scale-out figures of the MPI-distributed index (run under mpirun -np R)");
   cli.names("data", o.data, "data sets: autzen (../shared/data), cornell, uniform, clustered (generated)");
@@ -109,195 +104,266 @@ int main(int argc, char** argv) {
   try {
     cli.app().parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    // Every rank parses the same line; rank 0 alone prints the help or the mistake.
     const bool help = e.get_exit_code() == 0;
     if (rank == 0) {
       if (help) std::fputs(cli.app().help().c_str(), stdout);
       else std::fprintf(stderr, "distributed_bench: %s (see distributed_bench --help)\n", e.what());
     }
-    MPI_Finalize();
     return help ? 0 : 2;
   }
   if (o.input != "root") o.no_baseline = true;
+  return -1;
+}
 
+// Rank 0's CSV file with its header (null without --csv and on the other ranks).
+std::FILE* open_csv(const Options& o, int rank) {
+  if (rank != 0 || o.csv.empty()) return nullptr;
+  std::FILE* csv = std::fopen(o.csv.c_str(), "w");
+  if (!csv) throw bhcl::Error("cannot write " + o.csv);
+  std::fprintf(csv, "data,method,ranks,input,N,n,k,balance,points_moved_max,points_moved_mean,"
+                    "query_load_balance,queries_moved_max,queries_moved_mean,multi_rank_share,"
+                    "mean_ranks_visited,mb_moved_max,shard_s,build_s,query_s,e2e_s,single_e2e_s,"
+                    "e2e_ratio,query_ratio,check\n");
+  return csv;
+}
+
+void print_header(const Options& o, int R, const bhcl::Runtime& rt) {
+  std::printf("# distributed_bench: %d rank(s), input %s, k %d, %zu queries, boxes %d, device %s\n"
+              "# moved = received from other ranks, per rank (max / mean); MB = points, queries and rows in + out;\n"
+              "# times: medians over %d round(s), the slowest rank; ratios: median of per-round distributed / one process\n",
+              R, o.input.c_str(), o.k, o.queries, o.boxes, rt.info().summary().c_str(), o.reps);
+  std::printf("| data | method | ranks | shard max/mean | points moved/rank max / mean | queries moved/rank "
+              "max / mean | multi-rank %% | ranks/query | query load max/mean | MB/rank max | shard s | "
+              "build s | query s | end-to-end s | one process s | e2e ratio | query ratio | check |\n"
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+}
+
+// One data set: rank 0's whole set (every rank's with --input split), and this rank's part.
+struct SetData {
+  std::vector<float> pts, qs;
+  std::size_t Nall = 0, nall = 0;
+  const float* my_pts = nullptr;
+  const float* my_qs = nullptr;
+  std::size_t my_n = 0, my_q = 0;
+};
+
+// Loads the set (false on every rank when any rank could not) and cuts this rank's part.
+bool load_part(const Options& o, const std::string& set, int rank, int R, SetData& d) {
+  std::size_t N = o.N ? o.N : (set == "autzen" ? 0 : 1000000);
+  bool ok = true;
+  if (rank == 0 || o.input == "split") ok = bhcl::bench::load_set(o.data_dir, set, N, o.queries, d.pts, d.qs);
+  int okv = ok, all_ok = 0;
+  MPI_Allreduce(&okv, &all_ok, 1, MPI_INT, MPI_MIN, MPI_COMM_WORLD);
+  if (!all_ok) return false;
+  d.Nall = d.pts.size() / 3, d.nall = d.qs.size() / 3;
+  MPI_Bcast(&d.Nall, 1, MPI_UNSIGNED_LONG, 0, MPI_COMM_WORLD);
+  MPI_Bcast(&d.nall, 1, MPI_UNSIGNED_LONG, 0, MPI_COMM_WORLD);
+  d.my_pts = d.pts.data();
+  d.my_qs = d.qs.data();
+  d.my_n = d.pts.size() / 3, d.my_q = d.qs.size() / 3;
+  if (o.input == "split") {
+    const std::size_t pf = d.Nall * rank / R, pe = d.Nall * (rank + 1) / R;
+    const std::size_t qf = d.nall * rank / R, qe = d.nall * (rank + 1) / R;
+    d.my_pts += 3 * pf, d.my_n = pe - pf, d.my_qs += 3 * qf, d.my_q = qe - qf;
+  }
+  return true;
+}
+
+// The repetitions of one (method, border) on a set: per repetition the distributed build and
+// query, and the one-process baseline on rank 0.
+struct Reps {
+  std::vector<double> e2e_ratio, query_ratio, shard_s, build_s, query_s, e2e_s, single_s;
+  bhcl::DistributedBuildStats bs;
+  bhcl::DistributedQueryStats ds;
+  bhcl::KnnResult dist_rows, single_rows;
+};
+
+void run_reps(const Options& o, const std::shared_ptr<bhcl::Runtime>& rt, const SetData& d, int rank,
+              const bhcl::DistributedBuildParams& bp, const bhcl::SearchParams& p, Reps& t) {
+  for (int rep = 0; rep < o.reps; ++rep) {
+    // Distributed: build, warm up (compile excluded), query.
+    sleepy_barrier(MPI_COMM_WORLD);
+    auto t0 = Clock::now();
+    bhcl::DistributedIndex index(MPI_COMM_WORLD, rt, d.my_pts, d.my_n, bp);
+    const double tb = max_over_ranks(since(t0));
+    t.bs = index.build_stats();
+    if (index.local_index()) index.local_index()->warm_up(p);
+    sleepy_barrier(MPI_COMM_WORLD);
+    t0 = Clock::now();
+    index.query(d.my_qs, d.my_q, p, t.dist_rows, &t.ds);
+    const double tq = max_over_ranks(since(t0));
+    t.shard_s.push_back(max_over_ranks(t.bs.shard_s));
+    t.build_s.push_back(tb);
+    t.query_s.push_back(tq);
+    t.e2e_s.push_back(tb + tq);
+    // One process on rank 0 while the others sleep.
+    if (!o.no_baseline) {
+      double sb = 0, sq = 0;
+      if (rank == 0) {
+        auto t1 = Clock::now();
+        auto single = bhcl::make_index(bp.method, rt, d.pts.data(), d.Nall);
+        sb = since(t1);
+        single->warm_up(p);
+        t1 = Clock::now();
+        single->query(d.qs.data(), d.nall, p, t.single_rows);
+        sq = since(t1);
+      }
+      sleepy_barrier(MPI_COMM_WORLD);
+      MPI_Bcast(&sb, 1, MPI_DOUBLE, 0, MPI_COMM_WORLD);
+      MPI_Bcast(&sq, 1, MPI_DOUBLE, 0, MPI_COMM_WORLD);
+      t.single_s.push_back(sb + sq);
+      t.e2e_ratio.push_back((tb + tq) / (sb + sq));
+      t.query_ratio.push_back(tq / sq);
+    }
+  }
+}
+
+// The rows of r at the queries `rows`.
+bhcl::KnnResult rows_of(const bhcl::KnnResult& r, const std::vector<std::size_t>& rows) {
+  bhcl::KnnResult s;
+  s.resize(rows.size(), r.k);
+  for (std::size_t j = 0; j < rows.size(); ++j) {
+    const std::size_t kk = std::size_t(r.k);
+    std::copy_n(&r.ids[rows[j] * kk], kk, &s.ids[j * kk]);
+    std::copy_n(&r.dist2[rows[j] * kk], kk, &s.dist2[j * kk]);
+    s.counts[j] = r.counts[rows[j]];
+  }
+  return s;
+}
+
+// Rank 0's check against the one process: exact methods' identical rows (status 1 when any
+// differs); block hashing's recall against the exact kd-tree, also on the queries that visited
+// more than one rank, where sharding could cost.
+std::string check_rows(const Options& o, const std::shared_ptr<bhcl::Runtime>& rt, const SetData& d,
+                       const std::string& method, const bhcl::SearchParams& p, const Reps& t, int& status) {
+  const std::size_t nall = d.nall;
+  if (bhcl::method_info(method).exact) {
+    std::size_t same = 0;
+    for (std::size_t i = 0; i < nall; ++i) {
+      bool eq = t.dist_rows.counts[i] == t.single_rows.counts[i];
+      for (int j = 0; eq && j < o.k; ++j) {
+        const std::size_t at = i * std::size_t(o.k) + std::size_t(j);
+        eq = t.dist_rows.ids[at] == t.single_rows.ids[at] &&
+             std::memcmp(&t.dist_rows.dist2[at], &t.single_rows.dist2[at], 4) == 0;
+      }
+      same += eq;
+    }
+    if (same != nall) status = 1;
+    return "identical " + std::to_string(same) + "/" + std::to_string(nall);
+  }
+  bhcl::KnnResult truth;
+  bhcl::make_index("kdtree", rt, d.pts.data(), d.Nall)->query(d.qs.data(), nall, p, truth);
+  std::vector<std::size_t> multi_q;
+  for (std::size_t i = 0; i < nall; ++i)
+    if (t.ds.ranks_visited[i] > 1) multi_q.push_back(i);
+  char buf[200];
+  std::snprintf(buf, sizeof buf, "recall %.4f (one process %.4f; multi-rank queries %.4f vs %.4f)",
+                bhcl::evaluate_accuracy(t.dist_rows, truth).recall,
+                bhcl::evaluate_accuracy(t.single_rows, truth).recall,
+                multi_q.empty() ? 0.0 : bhcl::evaluate_accuracy(rows_of(t.dist_rows, multi_q), rows_of(truth, multi_q)).recall,
+                multi_q.empty() ? 0.0 : bhcl::evaluate_accuracy(rows_of(t.single_rows, multi_q), rows_of(truth, multi_q)).recall);
+  return buf;
+}
+
+// Volumes and balance over the ranks (the same in every repetition: the sharding is
+// deterministic); collective.
+struct Volumes {
+  std::pair<double, double> pm, qm, load, mb;  // (max, mean) over ranks
+  double multi = 0, visits = 0;                // sums over ranks
+};
+
+Volumes volumes(const Reps& t) {
+  Volumes v;
+  v.pm = spread(double(t.bs.points_received));
+  v.qm = spread(double(t.ds.owner_received + t.ds.extra_received));
+  v.load = spread(double(t.ds.answered));
+  const double bytes = double(t.ds.bytes_sent + t.ds.bytes_received) +
+                       16.0 * double(t.bs.points_sent + t.bs.points_received);
+  v.mb = spread(bytes / 1e6);
+  v.multi = sum_over_ranks(double(t.ds.multi_rank_queries));
+  double visits = 0;
+  for (auto x : t.ds.ranks_visited) visits += x;
+  v.visits = sum_over_ranks(visits);
+  return v;
+}
+
+// Rank 0's table row and CSV row.
+void print_row(const Options& o, const std::string& set, const std::string& method, float border, int R,
+               const SetData& d, const Reps& t, const Volumes& v, const std::string& check, std::FILE* csv) {
+  using bhcl::bench::median;
+  const std::size_t nall = d.nall;
+  const double e2e = median(t.e2e_s), single = median(t.single_s);
+  auto num = [](bool have, double x, const char* fmt) {
+    char b[32];
+    if (!have) return std::string("-");
+    std::snprintf(b, sizeof b, fmt, x);
+    return std::string(b);
+  };
+  const std::string label = bhcl::method_info(method).exact
+                                ? method
+                                : method + " A" + num(true, o.A, "%g") + " b" + num(true, border, "%g");
+  std::printf("| %s | %s | %d | %.4f | %.0f / %.0f | %.0f / %.0f | %.2f | %.3f | %.3f | %.1f | %.3f | %.3f "
+              "| %.3f | %.3f | %s | %s | %s | %s |\n",
+              set.c_str(), label.c_str(), R, t.bs.balance, v.pm.first, v.pm.second, v.qm.first, v.qm.second,
+              100.0 * v.multi / double(nall), v.visits / double(nall),
+              v.load.first / std::max(v.load.second, 1e-9), v.mb.first, median(t.shard_s),
+              median(t.build_s), median(t.query_s), e2e, num(!t.single_s.empty(), single, "%.3f").c_str(),
+              num(!t.e2e_ratio.empty(), median(t.e2e_ratio), "%.2f").c_str(),
+              num(!t.query_ratio.empty(), median(t.query_ratio), "%.2f").c_str(), check.c_str());
+  std::fflush(stdout);
+  if (csv)
+    std::fprintf(csv, "%s,%s,%d,%s,%zu,%zu,%d,%.5f,%.0f,%.1f,%.4f,%.0f,%.1f,%.5f,%.4f,%.2f,%.4f,%.4f,"
+                      "%.4f,%.4f,%.4f,%.4f,%.4f,%s\n",
+                 set.c_str(), label.c_str(), R, o.input.c_str(), d.Nall, nall, o.k, t.bs.balance,
+                 v.pm.first, v.pm.second, v.load.first / std::max(v.load.second, 1e-9), v.qm.first,
+                 v.qm.second, v.multi / double(nall), v.visits / double(nall), v.mb.first,
+                 median(t.shard_s), median(t.build_s), median(t.query_s), e2e, single,
+                 median(t.e2e_ratio), median(t.query_ratio), check.c_str());
+}
+
+// One set: each method (and, for approximate ones, each border factor) measured and reported.
+void run_set(const Options& o, const std::shared_ptr<bhcl::Runtime>& rt, const std::string& set, int rank, int R,
+             std::FILE* csv, int& status) {
+  SetData d;
+  if (!load_part(o, set, rank, R, d)) return;
+  for (const std::string& method : o.methods)
+    for (float border : o.border) {
+      if (bhcl::method_info(method).exact && border != o.border.front()) continue;
+      bhcl::SearchParams p;
+      p.k = o.k;
+      p.A = o.A;
+      bhcl::DistributedBuildParams bp;
+      bp.method = method;
+      bp.boxes_per_rank = o.boxes;
+      bp.border_factor = border;
+      Reps t;
+      run_reps(o, rt, d, rank, bp, p, t);
+      const Volumes v = volumes(t);
+      std::string check = "-";
+      if (!o.no_baseline && rank == 0) check = check_rows(o, rt, d, method, p, t, status);
+      sleepy_barrier(MPI_COMM_WORLD);
+      if (rank == 0) print_row(o, set, method, border, R, d, t, v, check, csv);
+    }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  MPI_Init(&argc, &argv);
+  int rank = 0, R = 1;
+  MPI_Comm_rank(MPI_COMM_WORLD, &rank);
+  MPI_Comm_size(MPI_COMM_WORLD, &R);
+  Options o;
+  if (const int rc = parse(argc, argv, rank, o); rc >= 0) {
+    MPI_Finalize();
+    return rc;
+  }
   int status = 0;
   try {
     auto rt = std::make_shared<bhcl::Runtime>();
-    std::FILE* csv = nullptr;
-    if (rank == 0 && !o.csv.empty()) {
-      csv = std::fopen(o.csv.c_str(), "w");
-      if (!csv) throw bhcl::Error("cannot write " + o.csv);
-      std::fprintf(csv, "data,method,ranks,input,N,n,k,balance,points_moved_max,points_moved_mean,"
-                        "query_load_balance,queries_moved_max,queries_moved_mean,multi_rank_share,"
-                        "mean_ranks_visited,mb_moved_max,shard_s,build_s,query_s,e2e_s,single_e2e_s,"
-                        "e2e_ratio,query_ratio,check\n");
-    }
-    if (rank == 0)
-      std::printf("# distributed_bench: %d rank(s), input %s, k %d, %zu queries, boxes %d, device %s\n"
-                  "# moved = received from other ranks, per rank (max / mean); MB = points, queries and rows in + out;\n"
-                  "# times: medians over %d round(s), the slowest rank; ratios: median of per-round distributed / one process\n",
-                  R, o.input.c_str(), o.k, o.queries, o.boxes, rt->info().summary().c_str(), o.reps);
-    if (rank == 0)
-      std::printf("| data | method | ranks | shard max/mean | points moved/rank max / mean | queries moved/rank "
-                  "max / mean | multi-rank %% | ranks/query | query load max/mean | MB/rank max | shard s | "
-                  "build s | query s | end-to-end s | one process s | e2e ratio | query ratio | check |\n"
-                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
-    for (const std::string& set : o.data) {
-      std::vector<float> pts, qs;
-      std::size_t N = o.N ? o.N : (set == "autzen" ? 0 : 1000000);
-      bool ok = true;
-      if (rank == 0 || o.input == "split") ok = bhcl::bench::load_set(o.data_dir, set, N, o.queries, pts, qs);
-      int okv = ok, all_ok = 0;
-      MPI_Allreduce(&okv, &all_ok, 1, MPI_INT, MPI_MIN, MPI_COMM_WORLD);
-      if (!all_ok) continue;
-      std::size_t Nall = pts.size() / 3, nall = qs.size() / 3;
-      MPI_Bcast(&Nall, 1, MPI_UNSIGNED_LONG, 0, MPI_COMM_WORLD);
-      MPI_Bcast(&nall, 1, MPI_UNSIGNED_LONG, 0, MPI_COMM_WORLD);
-      // This rank's part of the points and queries.
-      const float* my_pts = pts.data();
-      const float* my_qs = qs.data();
-      std::size_t my_n = pts.size() / 3, my_q = qs.size() / 3;
-      if (o.input == "split") {
-        const std::size_t pf = Nall * rank / R, pe = Nall * (rank + 1) / R;
-        const std::size_t qf = nall * rank / R, qe = nall * (rank + 1) / R;
-        my_pts += 3 * pf, my_n = pe - pf, my_qs += 3 * qf, my_q = qe - qf;
-      }
-      for (const std::string& method : o.methods)
-      for (float border : o.border) {
-        if (bhcl::method_info(method).exact && border != o.border.front()) continue;
-        bhcl::SearchParams p;
-        p.k = o.k;
-        p.A = o.A;
-        bhcl::DistributedBuildParams bp;
-        bp.method = method;
-        bp.boxes_per_rank = o.boxes;
-        bp.border_factor = border;
-        std::vector<double> e2e_ratio, query_ratio, shard_s, build_s, query_s, e2e_s, single_s;
-        bhcl::DistributedBuildStats bs;
-        bhcl::DistributedQueryStats ds;
-        bhcl::KnnResult dist_rows, single_rows;
-        for (int rep = 0; rep < o.reps; ++rep) {
-          // Distributed: build, warm up (compile excluded), query.
-          sleepy_barrier(MPI_COMM_WORLD);
-          auto t0 = Clock::now();
-          bhcl::DistributedIndex index(MPI_COMM_WORLD, rt, my_pts, my_n, bp);
-          const double tb = max_over_ranks(since(t0));
-          bs = index.build_stats();
-          if (index.local_index()) index.local_index()->warm_up(p);
-          sleepy_barrier(MPI_COMM_WORLD);
-          t0 = Clock::now();
-          index.query(my_qs, my_q, p, dist_rows, &ds);
-          const double tq = max_over_ranks(since(t0));
-          shard_s.push_back(max_over_ranks(bs.shard_s));
-          build_s.push_back(tb);
-          query_s.push_back(tq);
-          e2e_s.push_back(tb + tq);
-          // One process on rank 0 while the others sleep.
-          if (!o.no_baseline) {
-            double sb = 0, sq = 0;
-            if (rank == 0) {
-              auto t1 = Clock::now();
-              auto single = bhcl::make_index(method, rt, pts.data(), Nall);
-              sb = since(t1);
-              single->warm_up(p);
-              t1 = Clock::now();
-              single->query(qs.data(), nall, p, single_rows);
-              sq = since(t1);
-            }
-            sleepy_barrier(MPI_COMM_WORLD);
-            MPI_Bcast(&sb, 1, MPI_DOUBLE, 0, MPI_COMM_WORLD);
-            MPI_Bcast(&sq, 1, MPI_DOUBLE, 0, MPI_COMM_WORLD);
-            single_s.push_back(sb + sq);
-            e2e_ratio.push_back((tb + tq) / (sb + sq));
-            query_ratio.push_back(tq / sq);
-          }
-        }
-        // Volumes and balance (the same in every repetition: the sharding is deterministic).
-        auto pm = spread(double(bs.points_received));
-        auto qm = spread(double(ds.owner_received + ds.extra_received));
-        auto load = spread(double(ds.answered));
-        const double bytes = double(ds.bytes_sent + ds.bytes_received) +
-                             16.0 * double(bs.points_sent + bs.points_received);
-        auto mb = spread(bytes / 1e6);
-        const double multi = sum_over_ranks(double(ds.multi_rank_queries));
-        double visits = 0;
-        for (auto v : ds.ranks_visited) visits += v;
-        visits = sum_over_ranks(visits);
-        std::string check = "-";
-        if (!o.no_baseline && rank == 0) {
-          if (bhcl::method_info(method).exact) {
-            std::size_t same = 0;
-            for (std::size_t i = 0; i < nall; ++i) {
-              bool eq = dist_rows.counts[i] == single_rows.counts[i];
-              for (int j = 0; eq && j < o.k; ++j) {
-                const std::size_t at = i * std::size_t(o.k) + std::size_t(j);
-                eq = dist_rows.ids[at] == single_rows.ids[at] &&
-                     std::memcmp(&dist_rows.dist2[at], &single_rows.dist2[at], 4) == 0;
-              }
-              same += eq;
-            }
-            check = "identical " + std::to_string(same) + "/" + std::to_string(nall);
-            if (same != nall) status = 1;
-          } else {
-            bhcl::KnnResult truth;
-            bhcl::make_index("kdtree", rt, pts.data(), Nall)->query(qs.data(), nall, p, truth);
-            // Also on the queries that visited more than one rank, where sharding could cost.
-            std::vector<std::size_t> multi_q;
-            for (std::size_t i = 0; i < nall; ++i)
-              if (ds.ranks_visited[i] > 1) multi_q.push_back(i);
-            auto rows = [&](const bhcl::KnnResult& r) {
-              bhcl::KnnResult s;
-              s.resize(multi_q.size(), r.k);
-              for (std::size_t j = 0; j < multi_q.size(); ++j) {
-                const std::size_t kk = std::size_t(r.k);
-                std::copy_n(&r.ids[multi_q[j] * kk], kk, &s.ids[j * kk]);
-                std::copy_n(&r.dist2[multi_q[j] * kk], kk, &s.dist2[j * kk]);
-                s.counts[j] = r.counts[multi_q[j]];
-              }
-              return s;
-            };
-            char buf[200];
-            std::snprintf(buf, sizeof buf, "recall %.4f (one process %.4f; multi-rank queries %.4f vs %.4f)",
-                          bhcl::evaluate_accuracy(dist_rows, truth).recall,
-                          bhcl::evaluate_accuracy(single_rows, truth).recall,
-                          multi_q.empty() ? 0.0 : bhcl::evaluate_accuracy(rows(dist_rows), rows(truth)).recall,
-                          multi_q.empty() ? 0.0 : bhcl::evaluate_accuracy(rows(single_rows), rows(truth)).recall);
-            check = buf;
-          }
-        }
-        sleepy_barrier(MPI_COMM_WORLD);
-        if (rank == 0) {
-          using bhcl::bench::median;
-          const double e2e = median(e2e_s), single = median(single_s);
-          auto num = [](bool have, double v, const char* fmt) {
-            char b[32];
-            if (!have) return std::string("-");
-            std::snprintf(b, sizeof b, fmt, v);
-            return std::string(b);
-          };
-          const std::string label = bhcl::method_info(method).exact
-                                        ? method
-                                        : method + " A" + num(true, o.A, "%g") + " b" + num(true, border, "%g");
-          std::printf("| %s | %s | %d | %.4f | %.0f / %.0f | %.0f / %.0f | %.2f | %.3f | %.3f | %.1f | %.3f | %.3f "
-                      "| %.3f | %.3f | %s | %s | %s | %s |\n",
-                      set.c_str(), label.c_str(), R, bs.balance, pm.first, pm.second, qm.first, qm.second,
-                      100.0 * multi / double(nall), visits / double(nall),
-                      load.first / std::max(load.second, 1e-9), mb.first, median(shard_s),
-                      median(build_s), median(query_s), e2e, num(!single_s.empty(), single, "%.3f").c_str(),
-                      num(!e2e_ratio.empty(), median(e2e_ratio), "%.2f").c_str(),
-                      num(!query_ratio.empty(), median(query_ratio), "%.2f").c_str(), check.c_str());
-          std::fflush(stdout);
-          if (csv)
-            std::fprintf(csv, "%s,%s,%d,%s,%zu,%zu,%d,%.5f,%.0f,%.1f,%.4f,%.0f,%.1f,%.5f,%.4f,%.2f,%.4f,%.4f,"
-                              "%.4f,%.4f,%.4f,%.4f,%.4f,%s\n",
-                         set.c_str(), label.c_str(), R, o.input.c_str(), Nall, nall, o.k, bs.balance,
-                         pm.first, pm.second, load.first / std::max(load.second, 1e-9), qm.first,
-                         qm.second, multi / double(nall), visits / double(nall), mb.first,
-                         median(shard_s), median(build_s), median(query_s), e2e, single,
-                         median(e2e_ratio), median(query_ratio), check.c_str());
-        }
-      }
-    }
+    std::FILE* csv = open_csv(o, rank);
+    if (rank == 0) print_header(o, R, *rt);
+    for (const std::string& set : o.data) run_set(o, rt, set, rank, R, csv, status);
     if (csv) std::fclose(csv);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "distributed_bench: rank %d: %s\n", rank, e.what());

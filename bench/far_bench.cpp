@@ -133,12 +133,7 @@ std::size_t rows_differing(const KnnResult& a, const KnnResult& b, int k) {
   return bad;
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
-#ifdef BHCL_BUILD_TREE_POCL_CACHE
-  setenv("POCL_CACHE_DIR", BHCL_BUILD_TREE_POCL_CACHE, 0);
-#endif
+struct Options {
   std::vector<std::string> sets = {"uniform-on", "uniform-box", "cornell-on", "cornell-box", "autzen-on", "autzen-box",
                                    "field-bunny", "field-dragon", "icp-bunny", "icp-dragon", "clusters", "line", "plane"};
   std::vector<std::string> methods = {"blockhash", "rings", "kdtree", "flann", "bruteforce"};
@@ -147,26 +142,28 @@ int main(int argc, char** argv) {
   std::size_t brute_limit = 4000000000ull;
   int res = 64, rounds = 5;
   std::vector<int> ks = {1, 10, 50};
-  bench::BenchCli cli("far_bench",
-                      "every method where the query is not among the points (over the box, distance fields, ICP, "
-                      "two clusters, a line, a plane) and on the data: median per-round speed ratios and accuracy");
-  cli.names("sets", sets,
+};
+
+void declare(bench::BenchCli& cli, Options& o) {
+  cli.names("sets", o.sets,
             "workloads: {uniform,cornell,autzen}-{on,box}, field-{bunny,dragon}, icp-{bunny,dragon}, clusters, line, "
             "plane");
-  cli.names("methods", methods, "blockhash, rings (the grid by rings alone: the search before), kdtree, flann, bruteforce, "
+  cli.names("methods", o.methods, "blockhash, rings (the grid by rings alone: the search before), kdtree, flann, bruteforce, "
             "bh:DEFINES (blockhash with these kernel defines)");
-  cli.integer("N", N, "points of uniform, cornell and autzen", 1000, 2147483646.0);
-  cli.queries(n_queries);
-  cli.integer("far-queries", n_far, "queries of clusters, line and plane", 1, 1e9);
-  cli.integer("flat-N", flat_n, "points of line and plane (clusters: 60000)", 1000, 2147483646.0);
-  cli.integer("res", res, "distance fields: voxels per axis", 4, 1024);
-  cli.integer("brute-limit", brute_limit, "brute force only where points x queries is at most this", 0, 9e18);
-  cli.ks(ks);
-  cli.integer("rounds", rounds, "interleaved rounds (medians of per-round ratios)", 1, 1000);
-  cli.csv(csv);
-  cli.data_dir(data_dir);
-  cli.device(device);
-  cli.parse(argc, argv);
+  cli.integer("N", o.N, "points of uniform, cornell and autzen", 1000, 2147483646.0);
+  cli.queries(o.n_queries);
+  cli.integer("far-queries", o.n_far, "queries of clusters, line and plane", 1, 1e9);
+  cli.integer("flat-N", o.flat_n, "points of line and plane (clusters: 60000)", 1000, 2147483646.0);
+  cli.integer("res", o.res, "distance fields: voxels per axis", 4, 1024);
+  cli.integer("brute-limit", o.brute_limit, "brute force only where points x queries is at most this", 0, 9e18);
+  cli.ks(o.ks);
+  cli.integer("rounds", o.rounds, "interleaved rounds (medians of per-round ratios)", 1, 1000);
+  cli.csv(o.csv);
+  cli.data_dir(o.data_dir);
+  cli.device(o.device);
+}
+
+std::vector<Method> parse_methods(const bench::BenchCli& cli, const std::vector<std::string>& methods) {
   std::vector<Method> ms;
   for (const std::string& m : methods) {
     if (m == "rings") ms.push_back({m, "blockhash", "-DBHCL_GRID_FINE_RINGS=0xffffffff"});
@@ -174,121 +171,177 @@ int main(int argc, char** argv) {
     else if (m == "blockhash" || m == "kdtree" || m == "flann" || m == "bruteforce") ms.push_back({m, m, ""});
     else cli.fail("--methods: unknown method '" + m + "'");
   }
+  return ms;
+}
+
+// The points and queries of workload `set`, and its k (distance fields and ICP: k = 1 only).
+// False when its data file is absent.
+bool load_workload(const bench::BenchCli& cli, const Options& o, const std::string& set, Workload& w,
+                   std::vector<int>& set_ks) {
+  w = Workload{set, {}, {}};
+  set_ks = o.ks;
+  const auto dash = set.find('-');
+  const std::string base = dash == std::string::npos ? set : set.substr(0, dash);
+  const std::string kind = dash == std::string::npos ? "" : set.substr(dash + 1);
+  if (base == "field" || base == "icp") {
+    std::vector<float> on;
+    if (!bench::load_set(o.data_dir, kind, 0, 1, w.pts, on)) return false;
+    w.q = base == "field" ? field_queries(w.pts, o.res, 0.1f) : icp_queries(w.pts, 5.0f, 0.02f);
+    set_ks = {1};
+  } else if (set == "clusters") {
+    two_clusters(60000, o.n_far, w.pts, w.q);
+  } else if (set == "line" || set == "plane") {
+    flat_set(set == "line" ? 1 : 2, o.flat_n, o.n_far, w.pts, w.q);
+  } else if (kind == "on" || kind == "box") {
+    std::vector<float> on;
+    if (!bench::load_set(o.data_dir, base, o.N, o.n_queries, w.pts, on)) return false;
+    w.q = kind == "on" ? on : bench::box_queries(w.pts, o.n_queries, 7);
+  } else {
+    cli.fail("--sets: unknown workload '" + set + "'");
+  }
+  return true;
+}
+
+// The indexes of one workload, built once; consecutive blockhash methods share one.
+struct Indexes {
+  std::vector<std::unique_ptr<Index>> idx;
+  std::vector<bool> run;  // false: brute force past --brute-limit
+  Index& of(std::size_t m) const {
+    while (!idx[m]) --m;
+    return *idx[m];
+  }
+};
+
+Indexes build_indexes(const Options& o, const std::vector<Method>& ms, const std::shared_ptr<Runtime>& rt,
+                      const Workload& w) {
+  const std::size_t np = w.pts.size() / 3, nq = w.q.size() / 3;
+  Indexes ix{std::vector<std::unique_ptr<Index>>(ms.size()), std::vector<bool>(ms.size(), true)};
+  for (std::size_t m = 0; m < ms.size(); ++m) {
+    if (ms[m].index == "bruteforce" && double(np) * double(nq) > double(o.brute_limit)) {
+      ix.run[m] = false;
+      continue;
+    }
+    if (m > 0 && ms[m].index == "blockhash" && ms[m - 1].index == "blockhash") continue;  // shares the index
+    ix.idx[m] = make_index(ms[m].index, rt, w.pts.data(), np);
+  }
+  return ix;
+}
+
+// One k on a workload: each method's first call (kept: its rows), then `rounds` interleaved timed
+// calls.
+struct Timings {
+  std::vector<SearchParams> p;
+  std::vector<KnnResult> res;
+  std::vector<double> first;
+  std::vector<std::vector<double>> t;
+};
+
+Timings time_methods(const Options& o, const std::vector<Method>& ms, const Indexes& ix, const Workload& w, int k) {
+  const std::size_t nq = w.q.size() / 3;
+  Timings tm{std::vector<SearchParams>(ms.size()), std::vector<KnnResult>(ms.size()),
+             std::vector<double>(ms.size(), 0), std::vector<std::vector<double>>(ms.size())};
+  for (std::size_t m = 0; m < ms.size(); ++m) {
+    tm.p[m].k = k;
+    tm.p[m].kernel_defines = ms[m].defines;
+    if (!ix.run[m]) continue;
+    const double t0 = now_s();
+    ix.of(m).query(w.q.data(), nq, tm.p[m], tm.res[m]);
+    tm.first[m] = now_s() - t0;
+  }
+  for (int r = 0; r < o.rounds; ++r)
+    for (std::size_t m = 0; m < ms.size(); ++m) {
+      if (!ix.run[m]) continue;
+      KnnResult tmp;
+      const double t0 = now_s();
+      ix.of(m).query(w.q.data(), nq, tm.p[m], tmp);
+      tm.t[m].push_back(now_s() - t0);
+    }
+  return tm;
+}
+
+// Block hashing: the mean points examined per query (NaN for the other methods).
+double mean_examined(const Method& method, const Index& index, const Workload& w, const SearchParams& p) {
+  if (method.index != "blockhash") return NAN;
+  const std::size_t nq = w.q.size() / 3;
+  SearchParams pe = p;
+  pe.count_examined = true;
+  KnnResult re;
+  index.query(w.q.data(), nq, pe, re);
+  double s = 0;
+  for (std::int32_t e : re.examined) s += e;
+  return s / double(std::max<std::size_t>(1, nq));
+}
+
+// The rows of one k: each method's times, ratios to the others and accuracy against the kd-tree.
+void report_k(const Options& o, const std::vector<Method>& ms, const Indexes& ix, const Workload& w, int k,
+              const Timings& tm, std::FILE* out) {
+  const std::size_t np = w.pts.size() / 3, nq = w.q.size() / 3;
+  auto ratio = [&](const std::string& other, std::size_t m) {
+    for (std::size_t b = 0; b < ms.size(); ++b)
+      if (ms[b].name == other && ix.run[b]) {
+        std::vector<double> rs;
+        for (int r = 0; r < o.rounds; ++r) rs.push_back(tm.t[b][r] / tm.t[m][r]);
+        return bench::median(rs);
+      }
+    return double(NAN);
+  };
+  std::size_t truth = ms.size();
+  for (std::size_t m = 0; m < ms.size(); ++m)
+    if (ms[m].name == "kdtree") truth = m;
+  for (std::size_t m = 0; m < ms.size(); ++m) {
+    if (!ix.run[m]) continue;
+    Accuracy acc;
+    std::size_t diff = 0;
+    if (truth < ms.size()) {
+      acc = evaluate_accuracy(tm.res[m], tm.res[truth]);
+      diff = rows_differing(tm.res[m], tm.res[truth], k);
+    }
+    const double mean_ex = mean_examined(ms[m], ix.of(m), w, tm.p[m]);
+    const double t = bench::median(tm.t[m]), vkd = ratio("kdtree", m), vfl = ratio("flann", m),
+                 vbf = ratio("bruteforce", m);
+    const char* set = w.name.c_str();
+    std::printf("%-13s %3d %-10s %8.3f %8.3f %9.5f %7.2f %8.2f %7.2f %7.4f %7.4f %8.4f %7.4f %8zu %9.1f\n",
+                set, k, ms[m].name.c_str(), ix.of(m).build_seconds(), tm.first[m], t, vkd, vfl, vbf,
+                acc.recall, acc.false_negative_rate, acc.max_dilation, acc.mean_dilation, diff, mean_ex);
+    std::fflush(stdout);
+    if (out)
+      std::fprintf(out, "%s,%zu,%zu,%d,%s,%.5f,%.5f,%.6f,%.4f,%.4f,%.4f,%.5f,%.5f,%.5f,%.5f,%zu,%.2f\n", set,
+                   np, nq, k, ms[m].name.c_str(), ix.of(m).build_seconds(), tm.first[m], t, vkd, vfl, vbf,
+                   acc.recall, acc.false_negative_rate, acc.max_dilation, acc.mean_dilation, diff, mean_ex);
+  }
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+#ifdef BHCL_BUILD_TREE_POCL_CACHE
+  setenv("POCL_CACHE_DIR", BHCL_BUILD_TREE_POCL_CACHE, 0);
+#endif
+  Options o;
+  bench::BenchCli cli("far_bench",
+                      "every method where the query is not among the points (over the box, distance fields, ICP, "
+                      "two clusters, a line, a plane) and on the data: median per-round speed ratios and accuracy");
+  declare(cli, o);
+  cli.parse(argc, argv);
+  const std::vector<Method> ms = parse_methods(cli, o.methods);
   try {
-    auto rt = std::make_shared<Runtime>(device);
+    auto rt = std::make_shared<Runtime>(o.device);
     bench::print_run_header(argc, argv, *rt);
     std::printf("# vs_kd, vs_flann, vs_bf: median over %d rounds of t_other / t_method (> 1: this method faster); "
                 "t_s: median wall of a call; first_s: the first call (compiles); accuracy against the kd-tree's "
                 "exact rows; rows_diff: rows not bit-identical\n",
-                rounds);
-    std::FILE* out = csv.empty() ? nullptr : std::fopen(csv.c_str(), "w");
-    if (!csv.empty() && !out) cli.fail("--csv: cannot write " + csv);
-    if (out)
-      std::fprintf(out, "set,N,queries,k,method,build_s,first_s,t_s,vs_kd,vs_flann,vs_bf,recall,fn,maxdil,meandil,rows_diff,examined\n");
-    for (const std::string& set : sets) {
-      Workload w{set, {}, {}};
-      std::vector<int> set_ks = ks;
-      const auto dash = set.find('-');
-      const std::string base = dash == std::string::npos ? set : set.substr(0, dash);
-      const std::string kind = dash == std::string::npos ? "" : set.substr(dash + 1);
-      if (base == "field" || base == "icp") {
-        std::vector<float> on;
-        if (!bench::load_set(data_dir, kind, 0, 1, w.pts, on)) continue;
-        w.q = base == "field" ? field_queries(w.pts, res, 0.1f) : icp_queries(w.pts, 5.0f, 0.02f);
-        set_ks = {1};
-      } else if (set == "clusters") {
-        two_clusters(60000, n_far, w.pts, w.q);
-      } else if (set == "line" || set == "plane") {
-        flat_set(set == "line" ? 1 : 2, flat_n, n_far, w.pts, w.q);
-      } else if (kind == "on" || kind == "box") {
-        std::vector<float> on;
-        if (!bench::load_set(data_dir, base, N, n_queries, w.pts, on)) continue;
-        w.q = kind == "on" ? on : bench::box_queries(w.pts, n_queries, 7);
-      } else {
-        cli.fail("--sets: unknown workload '" + set + "'");
-      }
-      const std::size_t np = w.pts.size() / 3, nq = w.q.size() / 3;
-      std::printf("\n# %s: %zu points, %zu queries\n", set.c_str(), np, nq);
+                o.rounds);
+    std::FILE* out = cli.csv_file(
+        o.csv, "set,N,queries,k,method,build_s,first_s,t_s,vs_kd,vs_flann,vs_bf,recall,fn,maxdil,meandil,rows_diff,examined\n");
+    for (const std::string& set : o.sets) {
+      Workload w;
+      std::vector<int> set_ks;
+      if (!load_workload(cli, o, set, w, set_ks)) continue;
+      std::printf("\n# %s: %zu points, %zu queries\n", set.c_str(), w.pts.size() / 3, w.q.size() / 3);
       std::printf("%-13s %3s %-10s %8s %8s %9s %7s %8s %7s %7s %7s %8s %7s %8s %9s\n", "set", "k", "method", "build_s",
                   "first_s", "t_s", "vs_kd", "vs_flann", "vs_bf", "recall", "FN", "maxdil", "mdil", "rows_diff", "examined");
-      // The indexes, once per set.
-      std::vector<std::unique_ptr<Index>> idx(ms.size());
-      std::vector<bool> run(ms.size(), true);
-      for (std::size_t m = 0; m < ms.size(); ++m) {
-        if (ms[m].index == "bruteforce" && double(np) * double(nq) > double(brute_limit)) {
-          run[m] = false;
-          continue;
-        }
-        if (m > 0 && ms[m].index == "blockhash" && ms[m - 1].index == "blockhash") continue;  // shares the index
-        idx[m] = make_index(ms[m].index, rt, w.pts.data(), np);
-      }
-      auto index_of = [&](std::size_t m) -> Index& {
-        while (!idx[m]) --m;
-        return *idx[m];
-      };
-      for (int k : set_ks) {
-        std::vector<SearchParams> p(ms.size());
-        std::vector<KnnResult> res_m(ms.size());
-        std::vector<double> first(ms.size(), 0);
-        std::vector<std::vector<double>> t(ms.size());
-        for (std::size_t m = 0; m < ms.size(); ++m) {
-          p[m].k = k;
-          p[m].kernel_defines = ms[m].defines;
-          if (!run[m]) continue;
-          const double t0 = now_s();
-          index_of(m).query(w.q.data(), nq, p[m], res_m[m]);
-          first[m] = now_s() - t0;
-        }
-        for (int r = 0; r < rounds; ++r)
-          for (std::size_t m = 0; m < ms.size(); ++m) {
-            if (!run[m]) continue;
-            KnnResult tmp;
-            const double t0 = now_s();
-            index_of(m).query(w.q.data(), nq, p[m], tmp);
-            t[m].push_back(now_s() - t0);
-          }
-        auto ratio = [&](const std::string& other, std::size_t m) {
-          for (std::size_t o = 0; o < ms.size(); ++o)
-            if (ms[o].name == other && run[o]) {
-              std::vector<double> rs;
-              for (int r = 0; r < rounds; ++r) rs.push_back(t[o][r] / t[m][r]);
-              return bench::median(rs);
-            }
-          return double(NAN);
-        };
-        std::size_t truth = ms.size();
-        for (std::size_t m = 0; m < ms.size(); ++m)
-          if (ms[m].name == "kdtree") truth = m;
-        for (std::size_t m = 0; m < ms.size(); ++m) {
-          if (!run[m]) continue;
-          Accuracy acc;
-          std::size_t diff = 0;
-          if (truth < ms.size()) {
-            acc = evaluate_accuracy(res_m[m], res_m[truth]);
-            diff = rows_differing(res_m[m], res_m[truth], k);
-          }
-          double mean_ex = NAN;  // block hashing: the mean points examined per query
-          if (ms[m].index == "blockhash") {
-            SearchParams pe = p[m];
-            pe.count_examined = true;
-            KnnResult re;
-            index_of(m).query(w.q.data(), nq, pe, re);
-            double s = 0;
-            for (std::int32_t e : re.examined) s += e;
-            mean_ex = s / double(std::max<std::size_t>(1, nq));
-          }
-          const double tm = bench::median(t[m]), vkd = ratio("kdtree", m), vfl = ratio("flann", m),
-                       vbf = ratio("bruteforce", m);
-          std::printf("%-13s %3d %-10s %8.3f %8.3f %9.5f %7.2f %8.2f %7.2f %7.4f %7.4f %8.4f %7.4f %8zu %9.1f\n",
-                      set.c_str(), k, ms[m].name.c_str(), index_of(m).build_seconds(), first[m], tm, vkd, vfl, vbf,
-                      acc.recall, acc.false_negative_rate, acc.max_dilation, acc.mean_dilation, diff, mean_ex);
-          std::fflush(stdout);
-          if (out)
-            std::fprintf(out, "%s,%zu,%zu,%d,%s,%.5f,%.5f,%.6f,%.4f,%.4f,%.4f,%.5f,%.5f,%.5f,%.5f,%zu,%.2f\n", set.c_str(),
-                         np, nq, k, ms[m].name.c_str(), index_of(m).build_seconds(), first[m], tm, vkd, vfl, vbf,
-                         acc.recall, acc.false_negative_rate, acc.max_dilation, acc.mean_dilation, diff, mean_ex);
-        }
-      }
+      const Indexes ix = build_indexes(o, ms, rt, w);
+      for (int k : set_ks) report_k(o, ms, ix, w, k, time_methods(o, ms, ix, w, k), out);
     }
     if (out) std::fclose(out);
   } catch (const std::exception& e) {

@@ -51,8 +51,7 @@ struct Options {
 Options parse(int argc, char** argv) {
   Options o;
   bench::BenchCli cli("knn_bench", "Run time against error of every method, side by side in one process");
-  cli.data_dir(o.data_dir);
-  cli.names("data", o.data, "data sets: uniform, clustered, duplicates, cornell (generated) or bunny, dragon, autzen (files)");
+  cli.data_sets(o.data_dir, o.data, "data sets: uniform, clustered, duplicates, cornell (generated) or bunny, dragon, autzen (files)");
   cli.integers("N", o.sizes, "points per data set (file sets: the first N; 0: all)", 0, 2147483646.0);
   cli.queries(o.queries);
   cli.ks(o.ks);

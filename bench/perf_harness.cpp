@@ -286,44 +286,31 @@ std::size_t differing_rows(const KnnResult& a, const KnnResult& b) {
   return rows;
 }
 
-void run_set(const Options& o, const std::shared_ptr<Runtime>& rt, const std::string& set, int threads,
-             std::ofstream* csv) {
-  std::vector<float> pts, qs;
-  if (!bench::load_set(o.data_dir, set, o.N, o.queries, pts, qs)) return;
-  const std::size_t N = pts.size() / 3, n = qs.size() / 3;
-  std::printf("\n# %s: N = %zu points, n = %zu queries\n", set.c_str(), N, n);
-  if (N < o.N) std::printf("# %s: the file holds fewer than --N %zu points: all of them used\n", set.c_str(), o.N);
+// The query arrays, one per order, and the permutation that made each (the identity for "random").
+struct QueryOrders {
+  std::vector<std::vector<float>> q;
+  std::vector<std::vector<std::size_t>> perm;
+};
 
-  // Every structure once.
-  KdTreeIndex kd(rt, pts.data(), N);
-  std::printf("# build kdtree  %7.3f s\n", kd.build_seconds());
-  FlannParams fp;
-  fp.threads = threads;
-  FlannIndex fl(rt, pts.data(), N, fp);
-  std::printf("# build flann   %7.3f s (%d threads)\n", fl.build_seconds(), fl.threads());
-  std::vector<std::unique_ptr<BlockHashIndex>> bh;
-  for (const auto& b : o.builds) {
-    bh.push_back(std::make_unique<BlockHashIndex>(rt, pts.data(), N, b.params));
-    std::printf("# build %-7s %7.3f s  %s\n", b.name.c_str(), bh.back()->build_seconds(),
-                bh.back()->info().summary().c_str());
-  }
-  std::fflush(stdout);
-
-  // The query arrays, one per order, and the permutation that made the sorted one.
-  std::vector<std::vector<float>> order_q;
-  std::vector<std::vector<std::size_t>> order_perm;
+QueryOrders query_orders(const Options& o, const std::vector<float>& qs) {
+  const std::size_t n = qs.size() / 3;
+  QueryOrders out;
   for (const auto& ord : o.orders) {
     std::vector<std::size_t> perm(n);
     std::iota(perm.begin(), perm.end(), 0);
     if (ord == "sorted") perm = detail::hilbert_query_order(qs.data(), n);
     std::vector<float> q(3 * n);
     for (std::size_t i = 0; i < n; ++i) std::copy_n(&qs[3 * perm[i]], 3, &q[3 * i]);
-    order_q.push_back(std::move(q));
-    order_perm.push_back(std::move(perm));
+    out.q.push_back(std::move(q));
+    out.perm.push_back(std::move(perm));
   }
+  return out;
+}
 
-  // Variants: the two baselines first (their times are the ratios' numerators), then block hashing
-  // grouped by (build, defines, swept search options) with A innermost, as the tables list them.
+// Variants: the two baselines first (their times are the ratios' numerators), then block hashing
+// grouped by (build, defines, swept search options) with A innermost, as the tables list them.
+std::vector<Variant> make_variants(const Options& o, const Index& kd, const Index& fl,
+                                   const std::vector<std::unique_ptr<BlockHashIndex>>& bh) {
   std::vector<Variant> vars;
   auto base = [&](const std::string& name, const Index* idx, const std::string& defines) {
     Variant v;
@@ -362,32 +349,16 @@ void run_set(const Options& o, const std::shared_ptr<Runtime>& rt, const std::st
         }
       }
   for (auto& v : vars) v.params.sort_queries = 0;  // each order's array is dispatched as it is
+  return vars;
+}
 
-  // Warm-up: kernel compiles (PoCL compiles at the first launch) never land in a timed run.
-  // Reported per structure and defines variant (A and the swept search options share a kernel).
-  std::vector<std::pair<std::string, double>> compiles;
-  for (auto& v : vars)
-    for (int k : o.ks) {
-      SearchParams p = v.params;
-      p.k = k;
-      v.compile_s += v.index->warm_up(p);  // a recall-target variant tunes its A here, untimed
-      if (const auto t = v.index->recall_tuning(p))  // the tuning warm_up cached
-        std::printf("# %s k=%d: recall target %.3g -> A %g (sample recall %.4f on %zu queries%s, %.2f s)\n",
-                    v.name.c_str(), k, p.recall_target, double(t->A), t->recall, t->sample,
-                    t->reached ? "" : ", not reached", t->seconds);
-    }
-  for (const auto& v : vars) {
-    const std::string label = v.method == "blockhash" ? v.build + "/" + v.defines_name : v.name;
-    if (compiles.empty() || compiles.back().first != label) compiles.emplace_back(label, 0.0);
-    compiles.back().second += v.compile_s;
-  }
-  std::printf("# compile (warm-up) s:");
-  for (const auto& c : compiles) std::printf(" %s %.2f", c.first.c_str(), c.second);
-  std::printf("\n");
-  std::fflush(stdout);
-
-  // Truth: the kd-tree kernel without the baseline defines (they are what is being explored), at
-  // the largest k; FLANN checked against it once.
+// Truth: the kd-tree kernel without the baseline defines (they are what is being explored), at
+// the largest k; FLANN checked against it once. truth[order][k]: the leading columns (exact for a
+// smaller k under the tie rule), rows permuted as the order's queries.
+std::vector<std::vector<KnnResult>> truth_by_order(const Options& o, const Index& kd, const Index& fl,
+                                                   const std::vector<float>& qs,
+                                                   const std::vector<std::vector<std::size_t>>& order_perm) {
+  const std::size_t n = qs.size() / 3;
   const int kmax = *std::max_element(o.ks.begin(), o.ks.end());
   SearchParams tp;
   tp.k = kmax;
@@ -399,7 +370,6 @@ void run_set(const Options& o, const std::shared_ptr<Runtime>& rt, const std::st
   std::printf("# flann vs kdtree kernel (k = %d): %zu of %zu rows differ\n", kmax,
               differing_rows(truth_all, flann_all), n);
   flann_all = KnnResult();
-  // truth[order][k]: the leading columns (exact for a smaller k under the tie rule), rows permuted.
   std::vector<std::vector<KnnResult>> truth(o.orders.size());
   for (std::size_t oi = 0; oi < o.orders.size(); ++oi)
     for (int k : o.ks) {
@@ -413,11 +383,17 @@ void run_set(const Options& o, const std::shared_ptr<Runtime>& rt, const std::st
       }
       truth[oi].push_back(std::move(t));
     }
-  truth_all = KnnResult();
+  return truth;
+}
 
-  // Rounds. cells[oi][ki][vi].
-  std::vector<std::vector<std::vector<Cell>>> cells(
-      o.orders.size(), std::vector<std::vector<Cell>>(o.ks.size(), std::vector<Cell>(vars.size())));
+// cells[order][k][variant]: the round times and the first round's accuracy.
+using Cells = std::vector<std::vector<std::vector<Cell>>>;
+
+// The rounds: every variant once per order and k, in an order shuffled per round.
+Cells run_rounds(const Options& o, const std::string& set, const std::vector<Variant>& vars,
+                 const std::vector<std::vector<float>>& order_q, const std::vector<std::vector<KnnResult>>& truth) {
+  const std::size_t n = order_q.empty() ? 0 : order_q[0].size() / 3;
+  Cells cells(o.orders.size(), std::vector<std::vector<Cell>>(o.ks.size(), std::vector<Cell>(vars.size())));
   std::mt19937_64 rng(o.seed);
   const bool tty = isatty(STDERR_FILENO);
   KnnResult res;
@@ -442,79 +418,160 @@ void run_set(const Options& o, const std::shared_ptr<Runtime>& rt, const std::st
   if (tty) std::fprintf(stderr, "\n");
   if (stray_compile > 0)
     std::printf("# warning: %.2f s of compiles happened in timed runs (not in query_s)\n", stray_compile);
+  return cells;
+}
 
-  // Report per (k, order).
+// A variant's per-round ratios against the same round's baselines (row[0] = kdtree, row[1] =
+// flann) and its queries/s, with their medians and ranges.
+struct Ratios {
+  double qps = 0, kd = 0, fl = 0;
+  std::pair<double, double> kd_range, fl_range;  // min, max
+};
+
+Ratios round_ratios(const std::vector<Cell>& row, std::size_t vi, int rounds, std::size_t n) {
+  const Cell& c = row[vi];
+  std::vector<double> rk, rf, qps;
+  for (int r = 0; r < rounds; ++r) {
+    rk.push_back(row[0].t[r] / c.t[r]);
+    rf.push_back(row[1].t[r] / c.t[r]);
+    qps.push_back(double(n) / c.t[r]);
+  }
+  const auto mk = std::minmax_element(rk.begin(), rk.end());
+  const auto mf = std::minmax_element(rf.begin(), rf.end());
+  return {bench::median(qps), bench::median(rk), bench::median(rf), {*mk.first, *mk.second}, {*mf.first, *mf.second}};
+}
+
+// The data set a table is about.
+struct SetInfo {
+  std::string name;
+  std::size_t N, n;
+  int threads;
+};
+
+void write_csv_row(std::ofstream& csv, const Options& o, const Runtime& rt, const SetInfo& s, int k,
+                   const std::string& order, const Variant& v, const Ratios& q, const Accuracy& acc) {
+  const bool bhv = v.method == "blockhash";
+  csv << s.name << ',' << s.N << ',' << s.n << ',' << k << ',' << order << ',' << v.name << ','
+      << v.method << ',' << v.build << ',' << (bhv ? fmt_A(v.params.A) : "") << ',';
+  for (std::size_t i = 0; i < o.sweep.size(); ++i) csv << (bhv ? v.sweep[i] : "") << ',';
+  csv
+       << v.defines_name << ",\"" << v.params.kernel_defines << "\",\""
+       << (v.method == "flann" ? "host" : rt.info().device_name) << "\"," << s.threads << ','
+       << o.rounds << ',' << v.index->build_seconds() << ','
+       << v.compile_s << ',' << q.qps << ',' << q.kd << ',' << q.fl << ','
+       << q.kd_range.first << ',' << q.kd_range.second << ',' << q.fl_range.first << ',' << q.fl_range.second << ','
+       << acc.recall << ',' << acc.false_negative_rate << ',' << acc.max_dilation << ','
+       << acc.mean_dilation << '\n';
+}
+
+// Per (build, defines, swept options) group (contiguous in vars): the smallest A reaching the target.
+void print_smallest_A(const Options& o, const std::vector<Variant>& vars, const std::vector<Cell>& row,
+                      const std::vector<Ratios>& ratios) {
+  for (std::size_t g = 2; g < vars.size();) {
+    std::size_t end = g, best = 0;
+    double top = -1;
+    float top_A = 0;
+    for (; end < vars.size() && vars[end].build == vars[g].build && vars[end].defines_name == vars[g].defines_name &&
+           vars[end].sweep == vars[g].sweep;
+         ++end) {
+      const double rec = row[end].acc.recall;
+      if (vars[end].params.recall_target > 0) continue;  // its A is the index's choice: own row
+      if (rec >= o.recall_target && (!best || vars[end].params.A < vars[best].params.A)) best = end;
+      if (rec > top) top = rec, top_A = vars[end].params.A;
+    }
+    const Variant& v = vars[g];
+    if (best)
+      std::printf("smallest A with recall >= %g: %s ratio_kd %.2f ratio_flann %.2f\n", o.recall_target,
+                  vars[best].name.c_str(), ratios[best].kd, ratios[best].fl);
+    else
+      std::printf("smallest A with recall >= %g: %s/A*/%s/%s none reaches the target (best recall %.4f at A%s)\n",
+                  o.recall_target, v.build.c_str(), sweep_tags(o, v.sweep).c_str(),
+                  v.defines_name.c_str(), top, fmt_A(top_A).c_str());
+    g = end;
+  }
+}
+
+// The table of one (k, order): each variant's medians and accuracy (and its CSV row), the
+// baselines' ratio, and each group's smallest A reaching the recall target.
+void report(const Options& o, const Runtime& rt, const SetInfo& s, const std::vector<Variant>& vars,
+            const std::vector<Cell>& row, std::size_t ki, std::size_t oi, std::ofstream* csv) {
   std::size_t w = 8;
   for (const auto& v : vars) w = std::max(w, v.name.size());
-  for (std::size_t ki = 0; ki < o.ks.size(); ++ki)
-    for (std::size_t oi = 0; oi < o.orders.size(); ++oi) {
-      const auto& row = cells[oi][ki];
-      const int k = o.ks[ki];
-      std::printf("\n## %s N=%zu n=%zu k=%d order=%s threads=%d rounds=%d (ratios: median over rounds "
-                  "of t_base / t_variant)\n",
-                  set.c_str(), N, n, k, o.orders[oi].c_str(), threads, o.rounds);
-      std::printf("%-*s %10s %7s %8s %13s %7s %7s %7s %8s\n", int(w), "variant", "q/s", "vs kd",
-                  "vs flann", "vs kd min-max", "recall", "FN", "maxdil", "meandil");
-      // Per-round ratios against the same round's baselines (vars[0] = kdtree, vars[1] = flann).
-      std::vector<double> med_kd(vars.size()), med_fl(vars.size());
-      for (std::size_t vi = 0; vi < vars.size(); ++vi) {
-        const Cell& c = row[vi];
-        std::vector<double> rk, rf, qps;
-        for (int r = 0; r < o.rounds; ++r) {
-          rk.push_back(row[0].t[r] / c.t[r]);
-          rf.push_back(row[1].t[r] / c.t[r]);
-          qps.push_back(double(n) / c.t[r]);
-        }
-        med_kd[vi] = bench::median(rk);
-        med_fl[vi] = bench::median(rf);
-        const auto mk = std::minmax_element(rk.begin(), rk.end());
-        const auto mf = std::minmax_element(rf.begin(), rf.end());
-        char range[40];
-        std::snprintf(range, sizeof range, "%.2f-%.2f", *mk.first, *mk.second);
-        std::printf("%-*s %10.0f %7.2f %8.2f %13s %7.4f %7.4f %7.3f %8.4f\n", int(w), vars[vi].name.c_str(),
-                    bench::median(qps), med_kd[vi], med_fl[vi], range, c.acc.recall,
-                    c.acc.false_negative_rate, c.acc.max_dilation, c.acc.mean_dilation);
-        if (csv) {
-          const Variant& v = vars[vi];
-          const bool bhv = v.method == "blockhash";
-          *csv << set << ',' << N << ',' << n << ',' << k << ',' << o.orders[oi] << ',' << v.name << ','
-               << v.method << ',' << v.build << ',' << (bhv ? fmt_A(v.params.A) : "") << ',';
-          for (std::size_t i = 0; i < o.sweep.size(); ++i) *csv << (bhv ? v.sweep[i] : "") << ',';
-          *csv
-               << v.defines_name << ",\"" << v.params.kernel_defines << "\",\""
-               << (v.method == "flann" ? "host" : rt->info().device_name) << "\"," << threads << ','
-               << o.rounds << ',' << v.index->build_seconds() << ','
-               << v.compile_s << ',' << bench::median(qps) << ',' << med_kd[vi] << ',' << med_fl[vi] << ','
-               << *mk.first << ',' << *mk.second << ',' << *mf.first << ',' << *mf.second << ','
-               << c.acc.recall << ',' << c.acc.false_negative_rate << ',' << c.acc.max_dilation << ','
-               << c.acc.mean_dilation << '\n';
-        }
-      }
-      std::printf("kd-tree kernel vs FLANN: %.2f (median of per-round t_flann / t_kd)\n", med_fl[0]);
-      // Per (build, defines, swept options) group (contiguous in vars): the smallest A reaching the target.
-      for (std::size_t g = 2; g < vars.size();) {
-        std::size_t end = g, best = 0;
-        double top = -1;
-        float top_A = 0;
-        for (; end < vars.size() && vars[end].build == vars[g].build && vars[end].defines_name == vars[g].defines_name &&
-               vars[end].sweep == vars[g].sweep;
-             ++end) {
-          const double rec = row[end].acc.recall;
-          if (vars[end].params.recall_target > 0) continue;  // its A is the index's choice: own row
-          if (rec >= o.recall_target && (!best || vars[end].params.A < vars[best].params.A)) best = end;
-          if (rec > top) top = rec, top_A = vars[end].params.A;
-        }
-        const Variant& v = vars[g];
-        if (best)
-          std::printf("smallest A with recall >= %g: %s ratio_kd %.2f ratio_flann %.2f\n", o.recall_target,
-                      vars[best].name.c_str(), med_kd[best], med_fl[best]);
-        else
-          std::printf("smallest A with recall >= %g: %s/A*/%s/%s none reaches the target (best recall %.4f at A%s)\n",
-                      o.recall_target, v.build.c_str(), sweep_tags(o, v.sweep).c_str(),
-                      v.defines_name.c_str(), top, fmt_A(top_A).c_str());
-        g = end;
-      }
+  const int k = o.ks[ki];
+  std::printf("\n## %s N=%zu n=%zu k=%d order=%s threads=%d rounds=%d (ratios: median over rounds "
+              "of t_base / t_variant)\n",
+              s.name.c_str(), s.N, s.n, k, o.orders[oi].c_str(), s.threads, o.rounds);
+  std::printf("%-*s %10s %7s %8s %13s %7s %7s %7s %8s\n", int(w), "variant", "q/s", "vs kd",
+              "vs flann", "vs kd min-max", "recall", "FN", "maxdil", "meandil");
+  std::vector<Ratios> ratios(vars.size());
+  for (std::size_t vi = 0; vi < vars.size(); ++vi) {
+    const Cell& c = row[vi];
+    const Ratios& q = ratios[vi] = round_ratios(row, vi, o.rounds, s.n);
+    char range[40];
+    std::snprintf(range, sizeof range, "%.2f-%.2f", q.kd_range.first, q.kd_range.second);
+    std::printf("%-*s %10.0f %7.2f %8.2f %13s %7.4f %7.4f %7.3f %8.4f\n", int(w), vars[vi].name.c_str(),
+                q.qps, q.kd, q.fl, range, c.acc.recall,
+                c.acc.false_negative_rate, c.acc.max_dilation, c.acc.mean_dilation);
+    if (csv) write_csv_row(*csv, o, rt, s, k, o.orders[oi], vars[vi], q, c.acc);
+  }
+  std::printf("kd-tree kernel vs FLANN: %.2f (median of per-round t_flann / t_kd)\n", ratios[0].fl);
+  print_smallest_A(o, vars, row, ratios);
+}
+
+void run_set(const Options& o, const std::shared_ptr<Runtime>& rt, const std::string& set, int threads,
+             std::ofstream* csv) {
+  std::vector<float> pts, qs;
+  if (!bench::load_set(o.data_dir, set, o.N, o.queries, pts, qs)) return;
+  const std::size_t N = pts.size() / 3, n = qs.size() / 3;
+  std::printf("\n# %s: N = %zu points, n = %zu queries\n", set.c_str(), N, n);
+  if (N < o.N) std::printf("# %s: the file holds fewer than --N %zu points: all of them used\n", set.c_str(), o.N);
+
+  // Every structure once.
+  KdTreeIndex kd(rt, pts.data(), N);
+  std::printf("# build kdtree  %7.3f s\n", kd.build_seconds());
+  FlannParams fp;
+  fp.threads = threads;
+  FlannIndex fl(rt, pts.data(), N, fp);
+  std::printf("# build flann   %7.3f s (%d threads)\n", fl.build_seconds(), fl.threads());
+  std::vector<std::unique_ptr<BlockHashIndex>> bh;
+  for (const auto& b : o.builds) {
+    bh.push_back(std::make_unique<BlockHashIndex>(rt, pts.data(), N, b.params));
+    std::printf("# build %-7s %7.3f s  %s\n", b.name.c_str(), bh.back()->build_seconds(),
+                bh.back()->info().summary().c_str());
+  }
+  std::fflush(stdout);
+
+  const QueryOrders orders = query_orders(o, qs);
+  std::vector<Variant> vars = make_variants(o, kd, fl, bh);
+
+  // Warm-up: kernel compiles (PoCL compiles at the first launch) never land in a timed run.
+  // Reported per structure and defines variant (A and the swept search options share a kernel).
+  std::vector<std::pair<std::string, double>> compiles;
+  for (auto& v : vars)
+    for (int k : o.ks) {
+      SearchParams p = v.params;
+      p.k = k;
+      v.compile_s += v.index->warm_up(p);  // a recall-target variant tunes its A here, untimed
+      if (const auto t = v.index->recall_tuning(p))  // the tuning warm_up cached
+        std::printf("# %s k=%d: recall target %.3g -> A %g (sample recall %.4f on %zu queries%s, %.2f s)\n",
+                    v.name.c_str(), k, p.recall_target, double(t->A), t->recall, t->sample,
+                    t->reached ? "" : ", not reached", t->seconds);
     }
+  for (const auto& v : vars) {
+    const std::string label = v.method == "blockhash" ? v.build + "/" + v.defines_name : v.name;
+    if (compiles.empty() || compiles.back().first != label) compiles.emplace_back(label, 0.0);
+    compiles.back().second += v.compile_s;
+  }
+  std::printf("# compile (warm-up) s:");
+  for (const auto& c : compiles) std::printf(" %s %.2f", c.first.c_str(), c.second);
+  std::printf("\n");
+  std::fflush(stdout);
+
+  const std::vector<std::vector<KnnResult>> truth = truth_by_order(o, kd, fl, qs, orders.perm);
+  const Cells cells = run_rounds(o, set, vars, orders.q, truth);
+  for (std::size_t ki = 0; ki < o.ks.size(); ++ki)
+    for (std::size_t oi = 0; oi < o.orders.size(); ++oi)
+      report(o, *rt, {set, N, n, threads}, vars, cells[oi][ki], ki, oi, csv);
   if (csv) csv->flush();
   std::fflush(stdout);
 }

@@ -37,26 +37,74 @@ void declare_pathtrace(Args& a) {
              "IMAGE.exr");
 }
 
-int run_pathtrace(const Args& args) {
-  const auto t0 = std::chrono::steady_clock::now();
+// --size, --spp, --max-depth, --seed and --threads.
+PathTraceOptions pathtrace_options(const Args& args) {
   PathTraceOptions opt;
   parse_image_size(args.str("size", "512x512"), opt.width, opt.height);
   opt.spp = static_cast<int>(args.integer("spp", 64));
   opt.max_depth = static_cast<int>(args.integer("max-depth", 64));
   opt.seed = static_cast<std::uint64_t>(args.integer("seed", 1));
   opt.threads = static_cast<int>(args.integer("threads", 0));
+  return opt;
+}
+
+// --window X0,Y0,X1,Y1, inside the image (none when empty).
+void parse_window(const std::string& window, PathTraceOptions& opt) {
+  if (window.empty()) return;
+  char tail = 0;
+  if (std::sscanf(window.c_str(), "%d,%d,%d,%d%c", &opt.window_x0, &opt.window_y0, &opt.window_x1, &opt.window_y1,
+                  &tail) != 4 ||
+      opt.window_x0 < 0 || opt.window_y0 < 0 || opt.window_x1 > opt.width || opt.window_y1 > opt.height ||
+      opt.window_x0 >= opt.window_x1 || opt.window_y0 >= opt.window_y1)
+    throw UsageError("--window must be X0,Y0,X1,Y1 inside the image with X0 < X1 and Y0 < Y1, got '" + window + "'");
+}
+
+// --base: the pixels outside the window are the base image's.
+void paste_outside_window(const std::string& base, const PathTraceOptions& opt, Image& img) {
+  const Image b = read_exr(base);
+  if (b.width != img.width || b.height != img.height)
+    throw UsageError("--base " + base + " is " + std::to_string(b.width) + "x" + std::to_string(b.height) +
+                     ", the image " + std::to_string(img.width) + "x" + std::to_string(img.height));
+  for (int y = 0; y < img.height; ++y)
+    for (int x = 0; x < img.width; ++x)
+      if (x < opt.window_x0 || x >= opt.window_x1 || y < opt.window_y0 || y >= opt.window_y1) {
+        const std::size_t i = static_cast<std::size_t>(y) * img.width + x;
+        img.set(i, b.at(i));
+      }
+}
+
+// What the trace did: its paths, their vertices, the shadow rays and the time.
+Json trace_json(const PathTraceStats& stats) {
+  return {{"paths", stats.paths},
+          {"vertices", stats.vertices},
+          {"shadow_rays", stats.shadow_rays},
+          {"trace_s", stats.seconds}};
+}
+
+Json pathtrace_stats(const Args& args, const std::string& scene, const PathTraceOptions& opt,
+                     const PathTraceStats& stats, double mean, float exposure, double total_s) {
+  Json j;
+  j["command"] = "pathtrace";
+  add_image_fields(j, args, scene, opt.width, opt.height, opt.spp);
+  j["max_depth"] = opt.max_depth;
+  if (!args.str("window", "").empty()) j["window"] = {opt.window_x0, opt.window_y0, opt.window_x1, opt.window_y1};
+  if (const std::string base = args.str("base", ""); !base.empty()) j["base"] = base;
+  j["seed"] = opt.seed;
+  j.update(trace_json(stats));
+  j["mean_luminance"] = mean;
+  j["exposure"] = exposure;
+  j["total_s"] = total_s;
+  return j;
+}
+
+int run_pathtrace(const Args& args) {
+  const auto t0 = std::chrono::steady_clock::now();
+  PathTraceOptions opt = pathtrace_options(args);
   const double exposure_opt = args.number("exposure", 0.0);
   if (exposure_opt < 0 || !std::isfinite(exposure_opt)) throw UsageError("--exposure must be >= 0 (0: automatic)");
   const std::string out = args.str("out");
   const std::string window = args.str("window", ""), base = args.str("base", "");
-  if (!window.empty()) {
-    char tail = 0;
-    if (std::sscanf(window.c_str(), "%d,%d,%d,%d%c", &opt.window_x0, &opt.window_y0, &opt.window_x1, &opt.window_y1,
-                    &tail) != 4 ||
-        opt.window_x0 < 0 || opt.window_y0 < 0 || opt.window_x1 > opt.width || opt.window_y1 > opt.height ||
-        opt.window_x0 >= opt.window_x1 || opt.window_y0 >= opt.window_y1)
-      throw UsageError("--window must be X0,Y0,X1,Y1 inside the image with X0 < X1 and Y0 < Y1, got '" + window + "'");
-  }
+  parse_window(window, opt);
   if (!base.empty() && window.empty()) throw UsageError("--base applies only with --window");
   const std::string png = args.str("png", strip_extension(out) + ".png");
   check_distinct_files({{"--scene", args.str("scene", "")}, {"--base", base}},
@@ -74,18 +122,7 @@ int run_pathtrace(const Args& args) {
     img = path_trace(es, lights, opt, stats, &bar);
     bar.finish();
   }
-  if (!base.empty()) {
-    const Image b = read_exr(base);
-    if (b.width != img.width || b.height != img.height)
-      throw UsageError("--base " + base + " is " + std::to_string(b.width) + "x" + std::to_string(b.height) +
-                       ", the image " + std::to_string(img.width) + "x" + std::to_string(img.height));
-    for (int y = 0; y < img.height; ++y)
-      for (int x = 0; x < img.width; ++x)
-        if (x < opt.window_x0 || x >= opt.window_x1 || y < opt.window_y0 || y >= opt.window_y1) {
-          const std::size_t i = static_cast<std::size_t>(y) * img.width + x;
-          img.set(i, b.at(i));
-        }
-  }
+  if (!base.empty()) paste_outside_window(base, opt, img);
   write_exr(out, img);
   const float exposure = exposure_opt > 0 ? static_cast<float>(exposure_opt) : auto_exposure(img);
   write_png(png, tonemap(img, exposure));
@@ -97,21 +134,8 @@ int run_pathtrace(const Args& args) {
                stats.paths ? static_cast<double>(stats.vertices) / stats.paths : 0.0, stats.shadow_rays,
                stats.seconds, mean, out.c_str(), png.c_str());
   if (args.has("stats")) {
-    Json j;
-    j["command"] = "pathtrace";
-    add_image_fields(j, args, scene.name, opt.width, opt.height, opt.spp);
-    j["max_depth"] = opt.max_depth;
-    if (!window.empty()) j["window"] = {opt.window_x0, opt.window_y0, opt.window_x1, opt.window_y1};
-    if (!base.empty()) j["base"] = base;
-    j["seed"] = opt.seed;
-    j["paths"] = stats.paths;
-    j["vertices"] = stats.vertices;
-    j["shadow_rays"] = stats.shadow_rays;
-    j["trace_s"] = stats.seconds;
-    j["mean_luminance"] = mean;
-    j["exposure"] = exposure;
-    j["total_s"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    write_json(args.str("stats"), j);
+    const double total_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    write_json(args.str("stats"), pathtrace_stats(args, scene.name, opt, stats, mean, exposure, total_s));
   }
   return 0;
 }

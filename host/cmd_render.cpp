@@ -78,42 +78,40 @@ void declare_render(Args& a) {
   declare_index_options(a, 50, true);
 }
 
-int run_render(const Args& args) {
-  {
-    const bool cmp = args.flag("compare");
-    const bool prog0 = args.integer("passes", 1) > 1 || args.has("time");
-    for (const char* o : {"exact", "approx", "compare-A", "diff-scale", "noise-floor", "reference", "reference-block"})
-      if (!cmp && args.has(o) && !(prog0 && (std::string(o) == "reference" || std::string(o) == "reference-block")))
-        throw UsageError("--" + std::string(o) + " applies only with --compare" +
-                         (std::string(o).rfind("reference", 0) == 0 ? " or a progressive render" : ""));
-    if (cmp && args.has("method")) throw UsageError("--method does not apply with --compare (see --exact, --approx)");
-    for (const char* o : {"passes", "time", "alpha", "exr-every", "lists"})
-      if (cmp && args.has(o)) throw UsageError("--" + std::string(o) + " does not apply with --compare");
-    const bool prog = args.integer("passes", 1) > 1 || args.has("time");
-    for (const char* o : {"alpha", "exr-every"})
-      if (!prog && args.has(o))
-        throw UsageError("--" + std::string(o) + " applies only to a progressive render (--passes N > 1 or --time)");
-    if (args.has("time")) {
-      const double t = args.number("time", 0);
-      if (!(t > 0) || !std::isfinite(t)) throw UsageError("--time must be a positive number of seconds");
-    }
-    if (args.has("alpha")) {
-      const double al = args.number("alpha", 0);
-      if (!(al > 0 && al < 1)) throw UsageError("--alpha must be in (0, 1) (exclusive), got " + args.str("alpha", ""));
-    }
-    const std::string dflt = has_method("kdtree") ? "kdtree" : "bruteforce";
-    // --threads and --seed also drive Embree and the photon tracer.
-    if (cmp)
-      check_method_options(args, {args.str("exact", dflt), args.str("approx", "blockhash")}, {"threads", "seed"});
-    else
-      check_method_options(args, {args.str("method", dflt)}, {"threads", "seed"});
+// The options that apply only to one kind of render (--compare, a progressive one), refused in
+// the others; before any work.
+void check_render_usage(const Args& args) {
+  const bool cmp = args.flag("compare");
+  const bool prog0 = args.integer("passes", 1) > 1 || args.has("time");
+  for (const char* o : {"exact", "approx", "compare-A", "diff-scale", "noise-floor", "reference", "reference-block"})
+    if (!cmp && args.has(o) && !(prog0 && (std::string(o) == "reference" || std::string(o) == "reference-block")))
+      throw UsageError("--" + std::string(o) + " applies only with --compare" +
+                       (std::string(o).rfind("reference", 0) == 0 ? " or a progressive render" : ""));
+  if (cmp && args.has("method")) throw UsageError("--method does not apply with --compare (see --exact, --approx)");
+  for (const char* o : {"passes", "time", "alpha", "exr-every", "lists"})
+    if (cmp && args.has(o)) throw UsageError("--" + std::string(o) + " does not apply with --compare");
+  const bool prog = args.integer("passes", 1) > 1 || args.has("time");
+  for (const char* o : {"alpha", "exr-every"})
+    if (!prog && args.has(o))
+      throw UsageError("--" + std::string(o) + " applies only to a progressive render (--passes N > 1 or --time)");
+  if (args.has("time")) {
+    const double t = args.number("time", 0);
+    if (!(t > 0) || !std::isfinite(t)) throw UsageError("--time must be a positive number of seconds");
   }
-  const auto t_start = Clock::now();
-  const bool quiet = args.flag("quiet");
-  const bool compare = args.flag("compare");
-  const std::string out = args.str("out");
-  const std::string base = strip_extension(out);
+  if (args.has("alpha")) {
+    const double al = args.number("alpha", 0);
+    if (!(al > 0 && al < 1)) throw UsageError("--alpha must be in (0, 1) (exclusive), got " + args.str("alpha", ""));
+  }
+  const std::string dflt = has_method("kdtree") ? "kdtree" : "bruteforce";
+  // --threads and --seed also drive Embree and the photon tracer.
+  if (cmp)
+    check_method_options(args, {args.str("exact", dflt), args.str("approx", "blockhash")}, {"threads", "seed"});
+  else
+    check_method_options(args, {args.str("method", dflt)}, {"threads", "seed"});
+}
 
+// The image, the gather and its kNN search (seed and threads come later, from the method options).
+RenderOptions render_options(const Args& args) {
   RenderOptions ropt;
   parse_image_size(args.str("size", "512x512"), ropt.width, ropt.height);
   ropt.search = search_params(args, 50);
@@ -126,47 +124,36 @@ int run_render(const Args& args) {
   long long batch = args.integer("batch", 262144);
   if (!(ropt.caustic_radius >= 0)) throw UsageError("--caustic-radius must be >= 0");
   ropt.batch_queries = static_cast<std::size_t>(batch);
-  const std::vector<DensityEstimator> ests = parse_estimators(args, compare);
-  ropt.estimator = ests[0];
-  // --compare shades several estimators from one set of lists; one estimator needs none.
-  ropt.fused_estimate = !compare && !args.flag("lists");
-  MethodOptions mopt = method_options(args);
-  {
-    // Before any work: no output may overwrite the scene, a saved index or another output (the
-    // PNG preview lands beside --out unless --png names it).
-    std::vector<FileArg> outputs = {{"--out", out},
-                                    {args.has("png") ? "--png" : "the PNG beside --out", args.str("png", base + ".png")},
-                                    {"--stats", args.str("stats", "")},
-                                    {"--save-index", mopt.save_index()}};
-    if (compare) outputs.push_back({"the comparison sheet beside --out", base + "_compare.png"});
-    check_distinct_files({{"--scene", args.str("scene", "")},
-                          {"--load-index", mopt.load_index()},
-                          {"--reference", args.str("reference", "")}},
-                         outputs);
-  }
-  ropt.seed = static_cast<std::uint64_t>(mopt.integer("seed", 1));
-  ropt.threads = static_cast<int>(mopt.integer("threads", 0));
-  long long photons = args.integer("photons", 200000);
-  const double exposure_opt = args.number("exposure", 0.0);
-  if (exposure_opt < 0 || !std::isfinite(exposure_opt)) throw UsageError("--exposure must be >= 0 (0: automatic)");
+  return ropt;
+}
 
-  // The scene, in Embree.
-  Scene scene = load_scene(args.str("scene", "cornell"));
-  EmbreeScene es(scene, ropt.threads);
-  LightSampler lights(scene);
+// Before any work: no output may overwrite the scene, a saved index or another output (the PNG
+// preview lands beside --out unless --png names it).
+void check_render_files(const Args& args, const std::string& out, const std::string& base, const MethodOptions& mopt,
+                        bool compare) {
+  std::vector<FileArg> outputs = {{"--out", out},
+                                  {args.has("png") ? "--png" : "the PNG beside --out", args.str("png", base + ".png")},
+                                  {"--stats", args.str("stats", "")},
+                                  {"--save-index", mopt.save_index()}};
+  if (compare) outputs.push_back({"the comparison sheet beside --out", base + "_compare.png"});
+  check_distinct_files({{"--scene", args.str("scene", "")},
+                        {"--load-index", mopt.load_index()},
+                        {"--reference", args.str("reference", "")}},
+                       outputs);
+}
+
+void print_scene(const Scene& scene, const LightSampler& lights, const RenderOptions& ropt) {
   Vec3 P = lights.total_power();
   std::fprintf(stderr,
                "bhcl render: scene '%s': %zu triangles, %zu emitter triangles, emitted power (%.4g, %.4g, %.4g) "
                "[radiance x mm^2], %dx%d, %d spp, %d gather rays, k=%d\n",
                scene.name.c_str(), scene.triangles.size(), lights.count(), P.x, P.y, P.z, ropt.width,
                ropt.height, ropt.spp, ropt.gather, ropt.search.k);
+}
 
-  // Photons.
-  PhotonTraceOptions popt;
-  popt.photons = static_cast<std::size_t>(photons);
-  const long long photon_seed = args.integer("photon-seed", -1);
-  popt.seed = photon_seed >= 0 ? static_cast<std::uint64_t>(photon_seed) : ropt.seed;
-  popt.threads = ropt.threads;
+// The global and caustic photon maps, traced with a progress bar and reported.
+PhotonMaps trace_photons(const Scene& scene, const EmbreeScene& es, const LightSampler& lights,
+                         const PhotonTraceOptions& popt, bool quiet) {
   PhotonMaps maps;
   {
     Progress bar("photons", !quiet);
@@ -185,45 +172,82 @@ int run_render(const Args& args) {
   else
     std::fprintf(stderr, "bhcl render: no specular surfaces in scene '%s': no caustic map built\n",
                  scene.name.c_str());
+  return maps;
+}
+
+// The plain render: one method, pass by pass; the EXR, its PNG preview and the stats.
+int run_plain(const RenderSetup& s) {
+  const Args& args = s.args;
+  const std::string method = args.str("method", has_method("kdtree") ? "kdtree" : "bruteforce");
+  RenderRun r = render_with(method, method, s.ropt.search.A, s.maps, s.rt, s.mopt, s.es, s.lights, s.ropt, s.quiet);
+  write_exr(s.out, r.images[0]);
+  const float exposure = s.exposure_opt > 0 ? static_cast<float>(s.exposure_opt) : auto_exposure(r.images[0]);
+  const std::string png = args.str("png", s.base + ".png");
+  write_png(png, tonemap(r.images[0], exposure));
+  const double total = since(s.t_start);
+  print_split("bhcl render: time split", r, s.photon_s);
+  print_skipped(r, s.maps);
+  std::fprintf(stderr, "bhcl render: wrote %s and %s (exposure %.4g); total %.2f s on %s\n", s.out.c_str(),
+               png.c_str(), exposure, total, s.device.c_str());
+  if (args.has("stats")) {
+    Json j = render_header(*s.rt, args, s.scene.name, s.ropt, s.maps, s.popt.photons);
+    j.update(run_json(r, nullptr));  // method, A, build, search, the time split, query counts
+    j["exposure"] = exposure;
+    j["gather_rays"] = r.stats.gather_rays;
+    j["gather_escaped"] = r.stats.gather_escaped;
+    j["gather_no_query"] = r.stats.gather_no_query;
+    j["camera_samples"] = r.stats.camera_rays;
+    j["caustic_map"] = s.maps.caustic != nullptr;
+    j["visible_points"] = r.stats.visible_points;
+    j["photon_s"] = s.photon_s;
+    j["total_s"] = total;
+    write_json(args.str("stats"), j);
+  }
+  return 0;
+}
+
+int run_render(const Args& args) {
+  check_render_usage(args);
+  const auto t_start = Clock::now();
+  const bool quiet = args.flag("quiet");
+  const bool compare = args.flag("compare");
+  const std::string out = args.str("out");
+  const std::string base = strip_extension(out);
+
+  RenderOptions ropt = render_options(args);
+  const std::vector<DensityEstimator> ests = parse_estimators(args, compare);
+  ropt.estimator = ests[0];
+  // --compare shades several estimators from one set of lists; one estimator needs none.
+  ropt.fused_estimate = !compare && !args.flag("lists");
+  MethodOptions mopt = method_options(args);
+  check_render_files(args, out, base, mopt, compare);
+  ropt.seed = static_cast<std::uint64_t>(mopt.integer("seed", 1));
+  ropt.threads = static_cast<int>(mopt.integer("threads", 0));
+  long long photons = args.integer("photons", 200000);
+  const double exposure_opt = args.number("exposure", 0.0);
+  if (exposure_opt < 0 || !std::isfinite(exposure_opt)) throw UsageError("--exposure must be >= 0 (0: automatic)");
+
+  // The scene, in Embree.
+  Scene scene = load_scene(args.str("scene", "cornell"));
+  EmbreeScene es(scene, ropt.threads);
+  LightSampler lights(scene);
+  print_scene(scene, lights, ropt);
+
+  // Photons.
+  PhotonTraceOptions popt;
+  popt.photons = static_cast<std::size_t>(photons);
+  const long long photon_seed = args.integer("photon-seed", -1);
+  popt.seed = photon_seed >= 0 ? static_cast<std::uint64_t>(photon_seed) : ropt.seed;
+  popt.threads = ropt.threads;
+  PhotonMaps maps = trace_photons(scene, es, lights, popt, quiet);
+  const double photon_s = maps.trace.seconds;
 
   auto rt = std::make_shared<Runtime>(args.str("device", ""));
   const std::string device = rt->info().summary();
-
-  const bool progressive = args.integer("passes", 1) > 1 || args.has("time");
-  if (progressive) return run_progressive({args, t_start, quiet, out, base, ropt, ests, mopt, scene, es, lights, popt,
-                                           maps, photon_s, rt, device, exposure_opt});
-
-  if (!compare) {
-    const std::string method = args.str("method", has_method("kdtree") ? "kdtree" : "bruteforce");
-    RenderRun r = render_with(method, method, ropt.search.A, maps, rt, mopt, es, lights, ropt, quiet);
-    write_exr(out, r.images[0]);
-    const float exposure = exposure_opt > 0 ? static_cast<float>(exposure_opt) : auto_exposure(r.images[0]);
-    const std::string png = args.str("png", base + ".png");
-    write_png(png, tonemap(r.images[0], exposure));
-    const double total = since(t_start);
-    print_split("bhcl render: time split", r, photon_s);
-    print_skipped(r, maps);
-    std::fprintf(stderr, "bhcl render: wrote %s and %s (exposure %.4g); total %.2f s on %s\n", out.c_str(),
-                 png.c_str(), exposure, total, device.c_str());
-    if (args.has("stats")) {
-      Json j = render_header(*rt, args, scene.name, ropt, maps, popt.photons);
-      j.update(run_json(r, nullptr));  // method, A, build, search, the time split, query counts
-      j["exposure"] = exposure;
-      j["gather_rays"] = r.stats.gather_rays;
-      j["gather_escaped"] = r.stats.gather_escaped;
-      j["gather_no_query"] = r.stats.gather_no_query;
-      j["camera_samples"] = r.stats.camera_rays;
-      j["caustic_map"] = maps.caustic != nullptr;
-      j["visible_points"] = r.stats.visible_points;
-      j["photon_s"] = photon_s;
-      j["total_s"] = total;
-      write_json(args.str("stats"), j);
-    }
-    return 0;
-  }
-
-  return run_compare({args, t_start, quiet, out, base, ropt, ests, mopt, scene, es, lights, popt, maps, photon_s,
-                      rt, device, exposure_opt});
+  const RenderSetup setup{args, t_start, quiet, out, base, ropt, ests, mopt, scene, es, lights, popt,
+                          maps, photon_s, rt, device, exposure_opt};
+  if (args.integer("passes", 1) > 1 || args.has("time")) return run_progressive(setup);
+  return compare ? run_compare(setup) : run_plain(setup);
 }
 
 RegisterCommand reg_render("render", "the photon-mapping renderer, final gather answered by a kNN method",

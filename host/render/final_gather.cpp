@@ -107,20 +107,15 @@ std::vector<Vec3> FinalGatherRenderer::shade(const std::vector<SurfacePoint>& po
   return std::move(out[0]);
 }
 
-void FinalGatherRenderer::trace_points(const std::vector<SurfacePoint>& pts, const std::vector<std::uint32_t>& slots,
-                                       TracedPass& pass, RenderStats& stats) const {
-  const Scene& scene = es_.scene();
-  const float eps = es_.ray_epsilon();
-  const int M = opt_.gather, S = opt_.shadow_rays;
+namespace {
+
+// Each visible point's caustic query key, normal, albedo and weight.
+void fill_visible_points(const std::vector<SurfacePoint>& pts, float separation, TracedPass& pass) {
   const std::size_t n = pts.size();
-  pass.vis_slot = slots;
-  pass.direct.assign(n, Vec3{0, 0, 0});
   pass.vis_xyz.resize(3 * n);
   pass.vis_n.resize(n);
   pass.vis_kd.resize(n);
   pass.vis_weight.resize(n);
-  pass.q_begin.assign(n + 1, 0);
-  const float separation = medium_separation(scene.diagonal());
   for (std::size_t i = 0; i < n; ++i) {
     const Vec3 key = medium_key(pts[i].x, pts[i].in_glass, separation);  // the caustic query
     pass.vis_xyz[3 * i] = key.x;
@@ -130,89 +125,88 @@ void FinalGatherRenderer::trace_points(const std::vector<SurfacePoint>& pts, con
     pass.vis_kd[i] = pts[i].kd;
     pass.vis_weight[i] = pts[i].weight;
   }
-  if (n == 0) return;
+}
 
-  // Direct light and gather rays, per fixed chunk of points (outputs concatenated in chunk order,
-  // so the query order and the image do not depend on threads).
-  auto t0 = Clock::now();
-  constexpr std::size_t kChunk = 64;
-  const std::size_t chunks = (n + kChunk - 1) / kChunk;
-  struct ChunkOut {
-    std::vector<float> xyz;
-    std::vector<GatherQuery> q;
-    std::size_t shadow = 0, gather = 0, escaped = 0, no_query = 0;
-  };
-  std::vector<ChunkOut> co(chunks);
-  std::vector<std::uint32_t> q_count(n, 0);  // gather queries of each point
-  parallel_chunks(n, kChunk, opt_.threads, [&](std::size_t c, std::size_t b, std::size_t e) {
-    ChunkOut& o = co[c];
-    std::vector<RTCRay> shadow(static_cast<std::size_t>(S));
-    std::vector<Vec3> contrib(static_cast<std::size_t>(S));
-    std::vector<RTCRayHit> rays(static_cast<std::size_t>(M));
-    for (std::size_t i = b; i < e; ++i) {
-      const SurfacePoint& p = pts[i];
-      Rng rng(opt_.seed, kGatherStream, p.rng_index);
-      const Vec3 org = p.x + p.n * eps;
-      // Direct light: S shadow rays to points on the emitters, one stream.
-      for (int s = 0; s < S; ++s) {
-        float u0 = rng.uniform(), u1 = rng.uniform(), u2 = rng.uniform();
-        LightSampler::Sample ls = lights_.sample(u0, u1, u2);
-        Vec3 wi = ls.position - p.x;
-        float d2 = dot(wi, wi), d = std::sqrt(d2);
-        wi = wi / d;
-        float cos_x = dot(p.n, wi), cos_l = -dot(ls.normal, wi);
-        contrib[s] = {0, 0, 0};
-        if (cos_x > 0 && cos_l > 0 && d > 2 * eps) {
-          contrib[s] = ls.emission * (cos_x * cos_l / (d2 * ls.pdf_area));
-          set_shadow_ray(shadow[s], org, wi, 0.0f, d - 2 * eps);
-        } else {
-          set_shadow_ray(shadow[s], org, Vec3{0, 0, 1}, 0.0f, -1.0f);  // tfar < tnear: inactive
-        }
-      }
-      es_.occluded_stream(shadow.data(), shadow.size());
-      o.shadow += static_cast<std::size_t>(S);
-      Vec3 direct{0, 0, 0};
-      for (int s = 0; s < S; ++s)
-        if (shadow[s].tfar >= 0) direct += contrib[s];  // Embree sets tfar = -inf when occluded
-      pass.direct[i] = p.weight * p.kd * direct * (1.0f / (kPi * S));
+// The gather queries and ray counts of one fixed chunk of visible points.
+struct ChunkOut {
+  std::vector<float> xyz;
+  std::vector<GatherQuery> q;
+  std::size_t shadow = 0, gather = 0, escaped = 0, no_query = 0;
+};
 
-      // Final gather: M cosine-distributed rays, one incoherent stream.
-      if (M == 0) continue;
-      Frame frame(p.n);
-      for (int j = 0; j < M; ++j) {
-        Vec3 d = frame.to_world(cosine_hemisphere(rng.uniform(), rng.uniform()));
-        set_ray(rays[j], org, d, 0.0f, INFINITY);
-      }
-      es_.intersect_stream(rays.data(), rays.size(), false);
-      o.gather += static_cast<std::size_t>(M);
-      const Vec3 w0 = p.weight * p.kd * (1.0f / M);
-      for (int j = 0; j < M; ++j) {
-        const RTCRayHit& r = rays[j];
-        if (r.hit.geomID == RTC_INVALID_GEOMETRY_ID) {
-          ++o.escaped;
-          continue;
-        }
-        EmbreeScene::Hit hit{r.ray.tfar, r.hit.primID};
-        Vec3 ro = org, rd{r.ray.dir_x, r.ray.dir_y, r.ray.dir_z}, beta{1, 1, 1};
-        int glass = p.in_glass ? 1 : 0;
-        if (!follow_specular(es_, rng, ro, rd, hit, beta, opt_.max_specular_depth, glass)) {
-          ++o.escaped;
-          continue;
-        }
-        const Material& m = scene.material_of(hit.prim);
-        if (!m.is_diffuse()) {  // an emitter or a black surface: nothing for the map to add
-          ++o.no_query;
-          continue;
-        }
-        const Vec3 y = medium_key(ro + rd * hit.t, glass > 0, separation);
-        const bool back = dot(scene.geometric_normal(hit.prim), rd) >= 0;
-        o.xyz.insert(o.xyz.end(), {y.x, y.y, y.z});
-        o.q.push_back({hit.prim | (back ? kBackSide : 0u), w0 * beta});
-        ++q_count[i];
-      }
+// Direct light at p: shadow.size() shadow rays to points on the emitters, one stream; the sum of
+// the unoccluded emitters' contributions (`contrib`: the caller's scratch, one per ray).
+Vec3 direct_light(const EmbreeScene& es, const LightSampler& lights, const SurfacePoint& p, Vec3 org, Rng& rng,
+                  std::vector<RTCRay>& shadow, std::vector<Vec3>& contrib) {
+  const float eps = es.ray_epsilon();
+  for (std::size_t s = 0; s < shadow.size(); ++s) {
+    float u0 = rng.uniform(), u1 = rng.uniform(), u2 = rng.uniform();
+    LightSampler::Sample ls = lights.sample(u0, u1, u2);
+    Vec3 wi = ls.position - p.x;
+    float d2 = dot(wi, wi), d = std::sqrt(d2);
+    wi = wi / d;
+    float cos_x = dot(p.n, wi), cos_l = -dot(ls.normal, wi);
+    contrib[s] = {0, 0, 0};
+    if (cos_x > 0 && cos_l > 0 && d > 2 * eps) {
+      contrib[s] = ls.emission * (cos_x * cos_l / (d2 * ls.pdf_area));
+      set_shadow_ray(shadow[s], org, wi, 0.0f, d - 2 * eps);
+    } else {
+      set_shadow_ray(shadow[s], org, Vec3{0, 0, 1}, 0.0f, -1.0f);  // tfar < tnear: inactive
     }
-  });
-  es_.check("final gather");
+  }
+  es.occluded_stream(shadow.data(), shadow.size());
+  Vec3 direct{0, 0, 0};
+  for (std::size_t s = 0; s < shadow.size(); ++s)
+    if (shadow[s].tfar >= 0) direct += contrib[s];  // Embree sets tfar = -inf when occluded
+  return direct;
+}
+
+// Final gather at p: rays.size() cosine-distributed rays, one incoherent stream; each that ends on
+// a diffuse surface (through mirrors and glass) becomes a query in `o`. Returns their count.
+std::uint32_t gather_queries(const EmbreeScene& es, const SurfacePoint& p, Vec3 org, Rng& rng, int max_specular_depth,
+                             float separation, std::vector<RTCRayHit>& rays, ChunkOut& o) {
+  const Scene& scene = es.scene();
+  const std::size_t M = rays.size();
+  Frame frame(p.n);
+  for (std::size_t j = 0; j < M; ++j) {
+    Vec3 d = frame.to_world(cosine_hemisphere(rng.uniform(), rng.uniform()));
+    set_ray(rays[j], org, d, 0.0f, INFINITY);
+  }
+  es.intersect_stream(rays.data(), rays.size(), false);
+  o.gather += M;
+  const Vec3 w0 = p.weight * p.kd * (1.0f / static_cast<int>(M));
+  std::uint32_t queries = 0;
+  for (std::size_t j = 0; j < M; ++j) {
+    const RTCRayHit& r = rays[j];
+    if (r.hit.geomID == RTC_INVALID_GEOMETRY_ID) {
+      ++o.escaped;
+      continue;
+    }
+    EmbreeScene::Hit hit{r.ray.tfar, r.hit.primID};
+    Vec3 ro = org, rd{r.ray.dir_x, r.ray.dir_y, r.ray.dir_z}, beta{1, 1, 1};
+    int glass = p.in_glass ? 1 : 0;
+    if (!follow_specular(es, rng, ro, rd, hit, beta, max_specular_depth, glass)) {
+      ++o.escaped;
+      continue;
+    }
+    const Material& m = scene.material_of(hit.prim);
+    if (!m.is_diffuse()) {  // an emitter or a black surface: nothing for the map to add
+      ++o.no_query;
+      continue;
+    }
+    const Vec3 y = medium_key(ro + rd * hit.t, glass > 0, separation);
+    const bool back = dot(scene.geometric_normal(hit.prim), rd) >= 0;
+    o.xyz.insert(o.xyz.end(), {y.x, y.y, y.z});
+    o.q.push_back({hit.prim | (back ? kBackSide : 0u), w0 * beta});
+    ++queries;
+  }
+  return queries;
+}
+
+// The chunks' queries concatenated in chunk order (each chunk freed once copied), their ray
+// counts into `stats`, and each point's first query (q_begin) from its count.
+void concatenate_chunks(std::vector<ChunkOut>& co, const std::vector<std::uint32_t>& q_count, TracedPass& pass,
+                        RenderStats& stats) {
   std::size_t total = 0;
   for (const auto& o : co) total += o.q.size();
   pass.gather_xyz.reserve(3 * total);
@@ -226,7 +220,48 @@ void FinalGatherRenderer::trace_points(const std::vector<SurfacePoint>& pts, con
     stats.gather_no_query += o.no_query;
     o = ChunkOut{};
   }
-  for (std::size_t i = 0; i < n; ++i) pass.q_begin[i + 1] = pass.q_begin[i] + q_count[i];
+  for (std::size_t i = 0; i < q_count.size(); ++i) pass.q_begin[i + 1] = pass.q_begin[i] + q_count[i];
+}
+
+}  // namespace
+
+void FinalGatherRenderer::trace_points(const std::vector<SurfacePoint>& pts, const std::vector<std::uint32_t>& slots,
+                                       TracedPass& pass, RenderStats& stats) const {
+  const float eps = es_.ray_epsilon();
+  const int M = opt_.gather, S = opt_.shadow_rays;
+  const std::size_t n = pts.size();
+  pass.vis_slot = slots;
+  pass.direct.assign(n, Vec3{0, 0, 0});
+  pass.q_begin.assign(n + 1, 0);
+  const float separation = medium_separation(es_.scene().diagonal());
+  fill_visible_points(pts, separation, pass);
+  if (n == 0) return;
+
+  // Direct light and gather rays, per fixed chunk of points (outputs concatenated in chunk order,
+  // so the query order and the image do not depend on threads).
+  auto t0 = Clock::now();
+  constexpr std::size_t kChunk = 64;
+  const std::size_t chunks = (n + kChunk - 1) / kChunk;
+  std::vector<ChunkOut> co(chunks);
+  std::vector<std::uint32_t> q_count(n, 0);  // gather queries of each point
+  parallel_chunks(n, kChunk, opt_.threads, [&](std::size_t c, std::size_t b, std::size_t e) {
+    ChunkOut& o = co[c];
+    std::vector<RTCRay> shadow(static_cast<std::size_t>(S));
+    std::vector<Vec3> contrib(static_cast<std::size_t>(S));
+    std::vector<RTCRayHit> rays(static_cast<std::size_t>(M));
+    for (std::size_t i = b; i < e; ++i) {
+      const SurfacePoint& p = pts[i];
+      Rng rng(opt_.seed, kGatherStream, p.rng_index);
+      const Vec3 org = p.x + p.n * eps;
+      const Vec3 direct = direct_light(es_, lights_, p, org, rng, shadow, contrib);
+      o.shadow += static_cast<std::size_t>(S);
+      pass.direct[i] = p.weight * p.kd * direct * (1.0f / (kPi * S));
+      if (M == 0) continue;
+      q_count[i] = gather_queries(es_, p, org, rng, opt_.max_specular_depth, separation, rays, o);
+    }
+  });
+  es_.check("final gather");
+  concatenate_chunks(co, q_count, pass, stats);
   stats.trace_s += since(t0);
 }
 
