@@ -142,6 +142,8 @@ BlockHashBuildParams build_params(const Options& o, const std::string& preset, s
     bp.hilbert_seed = o.seed_blocks;
     bp.box_order = o.box_order;
     bp.target_cell_points = o.target;
+    // A block-layout override builds the block layouts (the grid refuses their options).
+    if (o.L > 0 || o.X > 0 || o.seed_blocks >= 0 || o.box_order >= 0) bp.grid = 0;
   }
   bp.verbose = N >= 200000;  // the build's own progress lines
   return bp;
