@@ -163,14 +163,7 @@ void add_image_fields(Json& j, const Args& args, const std::string& scene, int w
 
 void add_query_stats(Json& j, const Index& index, const QueryStats& st) {
   j["build_s"] = index.build_seconds();
-  j["compile_s"] = st.compile_s;
-  j["query_s"] = st.query_s;
-  j["upload_s"] = st.upload_s;
-  j["download_s"] = st.download_s;
-  j["wall_s"] = st.wall_s;
-  j["queries_per_s"] = st.queries_per_s();
-  j["batches"] = st.batches;
-  j["nonfinite_queries"] = st.nonfinite_queries;
+  st.for_each_field([&](const char* name, auto value) { j[name] = value; });
   if (g_coords_read) {
     // The precision the stored float32 coordinates leave, in the files' units.
     j["coordinates"] = {{"recentred", g_coords.recentred},

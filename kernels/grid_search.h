@@ -69,27 +69,12 @@ typedef struct bhcl_grid_dbox {
 #ifdef __OPENCL_C_VERSION__
 /* The geometry from the kernels' three arguments (the host's order: see bhcl_grid_geom). */
 inline bhcl_grid_geom bhcl_grid_geom_from(float4 geo0, float4 geo1, uint4 dims) {
-  bhcl_grid_geom g;
-  g.ox = geo0.x;
-  g.oy = geo0.y;
-  g.oz = geo0.z;
-  g.h = geo0.w;
-  g.inv_h = geo1.x;
-  g.margin = geo1.y;
-  g.nx = dims.x;
-  g.ny = dims.y;
-  g.nz = dims.z;
-  g.sparse = dims.w;
+  /* In bhcl_grid_geom's field order: origin and side, 1/side and margin, the dimensions. */
+  const bhcl_grid_geom g = {geo0.x, geo0.y, geo0.z, geo0.w, geo1.x, geo1.y, dims.x, dims.y, dims.z, dims.w};
   return g;
 }
 inline bhcl_grid_dbox bhcl_grid_dbox_from(float4 lo, float4 hi) {
-  bhcl_grid_dbox b;
-  b.lx = lo.x;
-  b.ly = lo.y;
-  b.lz = lo.z;
-  b.hx = hi.x;
-  b.hy = hi.y;
-  b.hz = hi.z;
+  const bhcl_grid_dbox b = {lo.x, lo.y, lo.z, hi.x, hi.y, hi.z};  /* the field order of bhcl_grid_dbox */
   return b;
 }
 #endif

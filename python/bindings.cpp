@@ -82,15 +82,7 @@ py::dict device_dict(const bhcl::DeviceInfo& d) {
 
 py::dict stats_dict(const bhcl::QueryStats& s) {
   py::dict o;
-  o["n_queries"] = s.n_queries;
-  o["nonfinite_queries"] = s.nonfinite_queries;
-  o["batches"] = s.batches;
-  o["compile_s"] = s.compile_s;
-  o["upload_s"] = s.upload_s;
-  o["query_s"] = s.query_s;
-  o["download_s"] = s.download_s;
-  o["wall_s"] = s.wall_s;
-  o["queries_per_s"] = s.queries_per_s();
+  s.for_each_field([&](const char* name, auto value) { o[name] = value; });
   return o;
 }
 

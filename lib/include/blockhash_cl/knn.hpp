@@ -220,6 +220,20 @@ struct QueryStats {
   double download_s = 0.0; // device -> host copies (event times)
   double wall_s = 0.0;     // the whole call, host clock (host methods: their search time is query_s)
   double queries_per_s() const { return query_s > 0 ? n_queries / query_s : 0.0; }
+  // Every field and queries_per_s as f(name, value): the one list the front ends' stats (bhcl's
+  // stats files, the Python package's dicts) are written from.
+  template <class F>
+  void for_each_field(F&& f) const {
+    f("n_queries", n_queries);
+    f("nonfinite_queries", nonfinite_queries);
+    f("batches", batches);
+    f("compile_s", compile_s);
+    f("upload_s", upload_s);
+    f("query_s", query_s);
+    f("download_s", download_s);
+    f("wall_s", wall_s);
+    f("queries_per_s", queries_per_s());
+  }
   // A slice of the same call answered on its own (a band, a sub-batch): its counts and times
   // added; n_queries and wall_s stay the caller's.
   void add_slice(const QueryStats& s) {
