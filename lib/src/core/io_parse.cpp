@@ -271,23 +271,62 @@ class PlyReader {
 };
 }  // namespace
 
-std::vector<float> parse_ply(const void* data, std::size_t size, const std::string& what) {
-  if (!is_ply(data, size)) {
-    if (is_npy(data, size)) fail(what, "is an NPY file, not PLY (name it .npy)");
-    fail(what, "not a PLY file (the first line is not 'ply')");
-  }
-  const auto* bytes = static_cast<const unsigned char*>(data);
-  const unsigned char* end = bytes + size;
-  const unsigned char* p = bytes;
-  int format = -1;
+namespace {
+
+struct PlyHeader {
+  int format = -1;  // 0 ascii, 1 binary little endian, 2 binary big endian
   std::vector<PlyElement> elements;
+};
+
+// A "property" line's declaration (after the word "property"); `at` names the line.
+PlyProperty ply_property(std::istringstream& ls, const std::string& line, const std::string& what,
+                         const std::string& at) {
+  PlyProperty pr;
+  std::string t;
+  ls >> t;
+  if (t == "list") {
+    std::string ct, it;
+    ls >> ct >> it >> pr.name;
+    pr.list = true;
+    pr.count_type = ply_type(ct);
+    pr.type = ply_type(it);
+    if (pr.count_type == PlyType::Invalid || pr.count_type == PlyType::F32 || pr.count_type == PlyType::F64 ||
+        pr.type == PlyType::Invalid)
+      fail(what, at + "bad list property '" + line.substr(0, 60) + "'");
+  } else {
+    pr.type = ply_type(t);
+    ls >> pr.name;
+    if (pr.type == PlyType::Invalid) fail(what, at + "unknown property type '" + t.substr(0, 20) + "'");
+  }
+  if (pr.name.empty()) fail(what, at + "a property without a name");
+  return pr;
+}
+
+// An "element" line's declaration: its name and row count.
+PlyElement ply_element(std::istringstream& ls, const std::string& line, const std::string& what,
+                       const std::string& at) {
+  PlyElement e;
+  std::string count;
+  ls >> e.name >> count;
+  char* stop = nullptr;
+  errno = 0;
+  const unsigned long long c = std::strtoull(count.c_str(), &stop, 10);
+  if (e.name.empty() || count.empty() || *stop != '\0' || errno == ERANGE || count[0] == '-')
+    fail(what, at + "bad element line '" + line.substr(0, 60) + "'");
+  e.count = static_cast<std::size_t>(c);
+  return e;
+}
+
+// The header, up to and including end_header; *p moves to the body's first byte.
+PlyHeader parse_ply_header(const unsigned char** p, const unsigned char* end, const std::string& what) {
+  PlyHeader h;
   bool header_done = false;
   std::size_t line_no = 0;
-  while (p < end) {
-    const auto* eol = static_cast<const unsigned char*>(std::memchr(p, '\n', static_cast<std::size_t>(end - p)));
+  while (*p < end) {
+    const auto* eol = static_cast<const unsigned char*>(std::memchr(*p, '\n', static_cast<std::size_t>(end - *p)));
     if (!eol) break;
-    std::string line(p, eol);
-    p = eol + 1;
+    std::string line(*p, eol);
+    *p = eol + 1;
     ++line_no;
     if (!line.empty() && line.back() == '\r') line.pop_back();
     std::istringstream ls(line);
@@ -302,75 +341,71 @@ std::vector<float> parse_ply(const void* data, std::size_t size, const std::stri
     if (word == "format") {
       std::string f, version;
       ls >> f >> version;
-      if (f == "ascii") format = 0;
-      else if (f == "binary_little_endian") format = 1;
-      else if (f == "binary_big_endian") format = 2;
+      if (f == "ascii") h.format = 0;
+      else if (f == "binary_little_endian") h.format = 1;
+      else if (f == "binary_big_endian") h.format = 2;
       else fail(what, at + "unknown PLY format '" + f + "'");
     } else if (word == "element") {
-      PlyElement e;
-      std::string count;
-      ls >> e.name >> count;
-      char* stop = nullptr;
-      errno = 0;
-      const unsigned long long c = std::strtoull(count.c_str(), &stop, 10);
-      if (e.name.empty() || count.empty() || *stop != '\0' || errno == ERANGE || count[0] == '-')
-        fail(what, at + "bad element line '" + line.substr(0, 60) + "'");
-      e.count = static_cast<std::size_t>(c);
-      elements.push_back(e);
+      h.elements.push_back(ply_element(ls, line, what, at));
     } else if (word == "property") {
-      if (elements.empty()) fail(what, at + "a property before any element");
-      PlyProperty pr;
-      std::string t;
-      ls >> t;
-      if (t == "list") {
-        std::string ct, it;
-        ls >> ct >> it >> pr.name;
-        pr.list = true;
-        pr.count_type = ply_type(ct);
-        pr.type = ply_type(it);
-        if (pr.count_type == PlyType::Invalid || pr.count_type == PlyType::F32 ||
-            pr.count_type == PlyType::F64 || pr.type == PlyType::Invalid)
-          fail(what, at + "bad list property '" + line.substr(0, 60) + "'");
-      } else {
-        pr.type = ply_type(t);
-        ls >> pr.name;
-        if (pr.type == PlyType::Invalid) fail(what, at + "unknown property type '" + t.substr(0, 20) + "'");
-      }
-      if (pr.name.empty()) fail(what, at + "a property without a name");
-      elements.back().props.push_back(pr);
+      if (h.elements.empty()) fail(what, at + "a property before any element");
+      h.elements.back().props.push_back(ply_property(ls, line, what, at));
     } else {
       fail(what, at + "unexpected '" + word.substr(0, 20) + "'");
     }
   }
   if (!header_done) fail(what, "the PLY header has no end_header line");
-  if (format < 0) fail(what, "the PLY header has no format line");
-  auto vit = std::find_if(elements.begin(), elements.end(), [](const PlyElement& e) { return e.name == "vertex"; });
-  if (vit == elements.end()) fail(what, "the PLY file has no vertex element");
-  int axis_prop[3] = {-1, -1, -1};
+  if (h.format < 0) fail(what, "the PLY header has no format line");
+  return h;
+}
+
+// The vertex element's x, y and z properties (their places in its list), each float or double.
+void xyz_properties(const PlyElement& vertex, const std::string& what, int axis_prop[3]) {
   for (int a = 0; a < 3; ++a) {
     const std::string name(1, "xyz"[a]);
-    for (std::size_t i = 0; i < vit->props.size(); ++i)
-      if (vit->props[i].name == name) axis_prop[a] = static_cast<int>(i);
+    axis_prop[a] = -1;
+    for (std::size_t i = 0; i < vertex.props.size(); ++i)
+      if (vertex.props[i].name == name) axis_prop[a] = static_cast<int>(i);
     if (axis_prop[a] < 0) fail(what, "the PLY vertex element has no property " + name);
-    const PlyProperty& pr = vit->props[static_cast<std::size_t>(axis_prop[a])];
+    const PlyProperty& pr = vertex.props[static_cast<std::size_t>(axis_prop[a])];
     if (pr.list || (pr.type != PlyType::F32 && pr.type != PlyType::F64))
       fail(what, "the PLY vertex property " + name + " is not float or double");
   }
-  // The body must be able to hold the declared elements before anything is allocated.
-  const std::size_t remaining = static_cast<std::size_t>(end - p);
-  for (auto it = elements.begin(); it <= vit; ++it) {
-    // The fewest bytes a row takes: a digit and a separator per ASCII value (the last value of
-    // the file needs no separator), the scalar sizes in binary.
+}
+
+// The body must be able to hold the declared elements up to the vertices before anything is
+// allocated: the fewest bytes a row takes is a digit and a separator per ASCII value (the last
+// value of the file needs no separator), the scalar sizes in binary.
+void check_body_holds(const PlyHeader& h, std::vector<PlyElement>::const_iterator vit, std::size_t remaining,
+                      const std::string& what) {
+  for (auto it = h.elements.begin(); it <= vit; ++it) {
     std::size_t row_min = 0;
-    for (const auto& pr : it->props)
-      row_min += format == 0 ? 2 : ply_size(pr.list ? pr.count_type : pr.type);
+    for (const auto& pr : it->props) row_min += h.format == 0 ? 2 : ply_size(pr.list ? pr.count_type : pr.type);
     if (it->props.empty() && it->count > 0 && it == vit) fail(what, "the PLY vertex element has no properties");
-    if (row_min > 0 && it->count > (remaining + (format == 0 ? 1 : 0)) / row_min)
+    if (row_min > 0 && it->count > (remaining + (h.format == 0 ? 1 : 0)) / row_min)
       fail(what, "truncated: the header declares " + std::to_string(it->count) + " " + it->name +
                      " rows, more than the file holds");
   }
-  PlyReader reader(p, end, format, what);
-  for (auto it = elements.begin(); it < vit; ++it)  // elements before the vertices: skipped
+}
+
+}  // namespace
+
+std::vector<float> parse_ply(const void* data, std::size_t size, const std::string& what) {
+  if (!is_ply(data, size)) {
+    if (is_npy(data, size)) fail(what, "is an NPY file, not PLY (name it .npy)");
+    fail(what, "not a PLY file (the first line is not 'ply')");
+  }
+  const auto* bytes = static_cast<const unsigned char*>(data);
+  const unsigned char* end = bytes + size;
+  const unsigned char* p = bytes;
+  const PlyHeader h = parse_ply_header(&p, end, what);
+  auto vit = std::find_if(h.elements.begin(), h.elements.end(), [](const PlyElement& e) { return e.name == "vertex"; });
+  if (vit == h.elements.end()) fail(what, "the PLY file has no vertex element");
+  int axis_prop[3];
+  xyz_properties(*vit, what, axis_prop);
+  check_body_holds(h, vit, static_cast<std::size_t>(end - p), what);
+  PlyReader reader(p, end, h.format, what);
+  for (auto it = h.elements.begin(); it < vit; ++it)  // elements before the vertices: skipped
     for (std::size_t r = 0; !it->props.empty() && r < it->count; ++r) {
       reader.set_context(it->name, r);
       for (const auto& pr : it->props) reader.skip_property(pr);
