@@ -318,15 +318,19 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search(BHCL_GLOBAL const bhcl_u32* starts,
   t = cz > g.nz - 1u - cz ? cz : g.nz - 1u - cz;
   rmax = rmax > t ? rmax : t;
   bhcl_u32 examined = 0;
+  /* The walk, where one is taken, starts from one call below the rings (one copy of its scan in
+   * the inlined search, not one per way into it): walk_r0 is the last ring searched
+   * (0xffffffff: none), kNoWalk while the rings answer alone. */
+  const bhcl_u32 kNoWalk = 0xfffffffeu;
+  bhcl_u32 walk_r0 = kNoWalk;
   /* No point within the home cell's 4^3 block of the pyramid's level 2 (nor, then, within a ring
    * of it in most cases): the walk alone, the rings would only look up empty rows. */
   if (fine_rings != 0xffffffffu && rmax > fine_rings && bhcl_grid_occ_size(g, 1u) > 1u) { /* level 2 exists */
     if (occ[bhcl_grid_occ_index(g, bhcl_grid_occ_size(g, 1u), 2u, cx >> 2, cy >> 2, cz >> 2)] == 0u)
-      return bhcl_grid_search_far(starts, px, py, pz, pid, occ, g, db, qx, qy, qz, cx, cy, cz, 0xffffffffu, 0u,
-                                  budget, st);
+      walk_r0 = 0xffffffffu;
   }
   bhcl_grid_rows rows;
-  for (bhcl_u32 r = 0; r <= rmax; ++r) {
+  for (bhcl_u32 r = 0; walk_r0 == kNoWalk && r <= rmax; ++r) {
     const int side = 2 * (int)r + 1;
     bhcl_u32 nr = 0;
     for (int jz = 0; jz < side; ++jz) {
@@ -396,12 +400,12 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search(BHCL_GLOBAL const bhcl_u32* starts,
      * bound yet, or a large radius) goes to the walk. */
     if (fine_rings != 0xffffffffu && r >= fine_rings && r < rmax) {
       const float reach = w + (float)BHCL_GRID_RING_SLACK * g.h;
-      if (!(BHCL_GRID_BOUND(st) < reach * reach) || r >= fine_rings + BHCL_GRID_RING_CAP)
-        return bhcl_grid_search_far(starts, px, py, pz, pid, occ, g, db, qx, qy, qz, cx, cy, cz, r, examined,
-                                    budget, st);
+      if (!(BHCL_GRID_BOUND(st) < reach * reach) || r >= fine_rings + BHCL_GRID_RING_CAP) walk_r0 = r;
     }
   }
-  return examined;
+  if (walk_r0 == kNoWalk) return examined;
+  return bhcl_grid_search_far(starts, px, py, pz, pid, occ, g, db, qx, qy, qz, cx, cy, cz, walk_r0, examined, budget,
+                              st);
 }
 #undef BHCL_GRID_RUN
 #endif /* BHCL_GRID_STATE */
