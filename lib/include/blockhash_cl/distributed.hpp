@@ -195,6 +195,17 @@ class DistributedIndex final : public SearchIndex {
   const std::vector<ShardBox>& boxes(int r) const { return boxes_.at(static_cast<std::size_t>(r)); }
 
  private:
+  // The constructor's steps (index.cpp), collective in this order on every rank.
+  struct Shard;  // this rank's points after the exchange, with their places over all ranks
+  std::uint64_t number_points(const float* points, std::size_t n);
+  Shard shard_points(const float* points, std::size_t n, std::uint64_t offset);
+  void share_boxes(const Shard& shard, int boxes_per_rank);
+  std::vector<float> global_order(Shard shard);
+  void build_local(const std::shared_ptr<Runtime>& runtime, const std::vector<float>& xyz,
+                   const MethodOptions& options);
+  void agree_global_cell_side(const std::shared_ptr<Runtime>& runtime, const std::vector<float>& xyz,
+                              const MethodOptions& options);
+
   std::uint64_t key_of(const float xyz[3]) const;
   // The ranks other than `skip` with a box within squared distance `bound` of q (conservative).
   void ranks_meeting(const float q[3], double bound, int skip, std::vector<int>& out) const;

@@ -87,7 +87,98 @@ double reported_cell_side(const Index* index) {
   return 0;
 }
 
+// The largest extent over the three axes of the points xyz (0 for none).
+double largest_extent(const std::vector<float>& xyz) {
+  const std::size_t m = xyz.size() / 3;
+  double extent = 0;
+  for (int d = 0; d < 3 && m > 0; ++d) {
+    float lo = xyz[static_cast<std::size_t>(d)], hi = lo;
+    for (std::size_t i = 0; i < m; ++i) {
+      lo = std::min(lo, xyz[3 * i + d]);
+      hi = std::max(hi, xyz[3 * i + d]);
+    }
+    extent = std::max(extent, double(hi) - double(lo));
+  }
+  return extent;
+}
+
+// Parameters: checked on every rank, agreed, so that a rank with other parameters fails all.
+// Returns the method's description.
+const MethodInfo& check_build_params(MPI_Comm comm, const Runtime* runtime, const float* points, std::size_t n,
+                                     const DistributedBuildParams& params) {
+  std::string err;
+  const MethodInfo* info = nullptr;
+  try {
+    info = &method_info(params.method);
+    if (!params.options.load_index().empty() || !params.options.save_index().empty())
+      throw Error("load_index / save_index are not supported: each rank builds its shard's index");
+    if (!(params.border_factor >= 1 && params.border_factor <= 1024))
+      throw Error("border_factor must be in [1, 1024], got " + std::to_string(params.border_factor));
+    if (params.boxes_per_rank < 1 || params.boxes_per_rank > 1024)
+      throw Error("boxes_per_rank must be in [1, 1024], got " + std::to_string(params.boxes_per_rank));
+    if (n > 0 && points == nullptr) throw Error("points is null with n = " + std::to_string(n));
+    if (!runtime) throw Error("runtime is null");
+    if (std::isnan(params.deadline_s) || std::isinf(params.deadline_s))
+      throw Error("deadline_s must be finite (0: no deadline, negative: BHCL_MPI_DEADLINE_S), got " +
+                  std::to_string(params.deadline_s));
+    if (params.deadline_s < 0)
+      if (const std::string e = distributed::deadline_env_error(); !e.empty()) throw Error(e);
+    if (params.id_base < 0 || params.id_base > (std::int64_t(1) << 62))
+      throw Error("id_base must be in [0, 2^62], got " + std::to_string(params.id_base));
+  } catch (const std::exception& e) {
+    err = what_of(e);
+  }
+  mpi_agree(comm, err, kWhat);
+  distributed::agree_parameters(comm, distributed::build_parameters(params), kWhat);
+  return *info;  // set: a rank whose method_info threw failed mpi_agree
+}
+
+// The first of this rank's n points with a NaN/Inf coordinate, named by its global id (the first
+// point's is first_id) and its place on this rank; empty when every point is finite.
+std::string nonfinite_point(const float* points, std::size_t n, std::int64_t first_id) {
+  for (std::size_t i = 0; i < n; ++i) {
+    const float* p = points + 3 * i;
+    if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) {
+      std::ostringstream os;
+      os << "points: point " << first_id + static_cast<std::int64_t>(i) << " (this rank's point " << i
+         << ") has a non-finite coordinate (" << p[0] << ", " << p[1] << ", " << p[2] << ")";
+      return os.str();
+    }
+  }
+  return {};
+}
+
+// This rank's points as records in the order of `sorted` (its composites, ascending), cut into
+// runs by the splitters: send_counts[r] of them for rank r's shard.
+std::vector<PointRecord> records_by_shard(const std::vector<Composite>& sorted, const std::vector<Composite>& split,
+                                          const float* points, std::uint64_t offset,
+                                          std::vector<std::size_t>& send_counts) {
+  const std::size_t R = split.size(), n = sorted.size();
+  send_counts.assign(R, 0);
+  std::vector<PointRecord> out(n);
+  std::size_t pos = 0;
+  for (std::size_t r = 0; r < R; ++r) {
+    const std::size_t end =
+        r + 1 < R ? static_cast<std::size_t>(std::lower_bound(sorted.begin(), sorted.end(), split[r + 1]) -
+                                             sorted.begin())
+                  : n;
+    send_counts[r] = end - pos;
+    for (; pos < end; ++pos) {
+      const std::uint64_t g = distributed::position_of(sorted[pos]);
+      const float* p = points + 3 * (g - offset);
+      out[pos] = {{p[0], p[1], p[2]}, 0, g};
+    }
+  }
+  return out;
+}
+
 }  // namespace
+
+// This rank's shard after the exchange: its points, each with its place over all ranks (its
+// global id less id_base), in the order they came in.
+struct DistributedIndex::Shard {
+  std::vector<PointRecord> points;
+};
 
 DistributedIndex::DistributedIndex(MPI_Comm comm, std::shared_ptr<Runtime> runtime, const float* points,
                                    std::size_t n, const DistributedBuildParams& params) {
@@ -97,224 +188,22 @@ DistributedIndex::DistributedIndex(MPI_Comm comm, std::shared_ptr<Runtime> runti
   try {
     MPI_Comm_rank(comm_, &rank_);
     MPI_Comm_size(comm_, &ranks_);
-    const std::size_t R = static_cast<std::size_t>(ranks_);
-
-    // Parameters: checked on every rank, agreed, so that a rank with other parameters fails all.
-    std::string err;
-    const MethodInfo* info = nullptr;
-    try {
-      info = &method_info(params.method);
-      if (!params.options.load_index().empty() || !params.options.save_index().empty())
-        throw Error("load_index / save_index are not supported: each rank builds its shard's index");
-      if (!(params.border_factor >= 1 && params.border_factor <= 1024))
-        throw Error("border_factor must be in [1, 1024], got " + std::to_string(params.border_factor));
-      if (params.boxes_per_rank < 1 || params.boxes_per_rank > 1024)
-        throw Error("boxes_per_rank must be in [1, 1024], got " + std::to_string(params.boxes_per_rank));
-      if (n > 0 && points == nullptr) throw Error("points is null with n = " + std::to_string(n));
-      if (!runtime) throw Error("runtime is null");
-      if (std::isnan(params.deadline_s) || std::isinf(params.deadline_s))
-        throw Error("deadline_s must be finite (0: no deadline, negative: BHCL_MPI_DEADLINE_S), got " +
-                    std::to_string(params.deadline_s));
-      if (params.deadline_s < 0)
-        if (const std::string e = distributed::deadline_env_error(); !e.empty()) throw Error(e);
-      if (params.id_base < 0 || params.id_base > (std::int64_t(1) << 62))
-        throw Error("id_base must be in [0, 2^62], got " + std::to_string(params.id_base));
-    } catch (const std::exception& e) {
-      err = what_of(e);
-    }
-    mpi_agree(comm_, err, kWhat);
-    distributed::agree_parameters(comm_, distributed::build_parameters(params), kWhat);
-    method_ = info->name;
-    exact_ = info->exact;
+    const MethodInfo& info = check_build_params(comm_, runtime.get(), points, n, params);
+    method_ = info.name;
+    exact_ = info.exact;
     border_factor_ = params.border_factor;
     id_base_ = params.id_base;
+    const std::uint64_t offset = number_points(points, n);
 
-    // Global indices: this rank's part follows the parts of lower ranks.
-    std::uint64_t n_local = n, offset = 0, total = 0;
-    MPI_Exscan(&n_local, &offset, 1, MPI_UINT64_T, MPI_SUM, comm_);
-    if (rank_ == 0) offset = 0;  // MPI leaves rank 0's result undefined
-    MPI_Allreduce(&n_local, &total, 1, MPI_UINT64_T, MPI_SUM, comm_);
-    // The same totals on every rank, so every rank throws here or none does.
-    if (total == 0) throw Error(std::string(kWhat) + ": no points on any rank");
-    // Global ids are int64; a shard is one local index, whose ids are int32 (2^31 - 2 points).
-    if (total > distributed::kMaxPoints)
-      throw Error(std::string(kWhat) + ": " + std::to_string(total) + " points in all: at most 2^40 - 1");
-    if (const std::uint64_t largest = (total + R - 1) / R; largest > 0x7ffffffeu)
-      throw Error(std::string(kWhat) + ": " + std::to_string(total) + " points over " + std::to_string(R) +
-                  " ranks make shards of up to " + std::to_string(largest) +
-                  " points, past one index's int32 id range (2^31 - 2 points): use at least " +
-                  std::to_string((total + 0x7ffffffdu) / 0x7ffffffeu) + " ranks");
-    n_global_ = static_cast<std::size_t>(total);
-
-    for (std::size_t i = 0; i < n && err.empty(); ++i) {
-      const float* p = points + 3 * i;
-      if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) {
-        std::ostringstream os;
-        os << "points: point " << id_base_ + static_cast<std::int64_t>(offset + i) << " (this rank's point " << i
-           << ") has a non-finite coordinate (" << p[0] << ", " << p[1] << ", " << p[2] << ")";
-        err = os.str();
-      }
-    }
-    mpi_agree(comm_, err, kWhat);
-
-    // Keys over the global box; the global order is by (key, global index).
     Stopwatch shard_clock;
-    const blockhash::Quantiser q = distributed::global_quantiser(comm_, points, n);
-    for (int d = 0; d < 3; ++d) origin_[d] = q.origin[d];
-    scale_ = q.scale;
-    std::vector<Composite> sorted(n);
-    for (std::size_t i = 0; i < n; ++i)
-      sorted[i] = distributed::composite(distributed::hilbert_key(q, points + 3 * i), offset + i);
-    std::sort(sorted.begin(), sorted.end());
-    const std::vector<Composite> split = distributed::find_splitters(comm_, sorted, total);
-
-    // Every rank derives every shard's size and first key from the splitters alone.
-    shard_sizes_.resize(R);
-    first_keys_.resize(R);
-    for (std::size_t r = 0; r < R; ++r) {
-      shard_sizes_[r] = (total * (r + 1)) / R - (total * r) / R;
-      first_keys_[r] = distributed::key_of(split[r]);
-      if (shard_sizes_[r] > 0) nonempty_.push_back(static_cast<int>(r));
-    }
-
-    // Send each point to the shard holding its composite: runs of the sorted local array.
-    std::vector<std::size_t> send_counts(R, 0), recv_counts;
-    std::vector<PointRecord> out_points(n);
-    {
-      std::size_t pos = 0;
-      for (std::size_t r = 0; r < R; ++r) {
-        const std::size_t end =
-            r + 1 < R ? static_cast<std::size_t>(
-                            std::lower_bound(sorted.begin(), sorted.end(), split[r + 1]) - sorted.begin())
-                      : n;
-        send_counts[r] = end - pos;
-        for (; pos < end; ++pos) {
-          const std::uint64_t g = distributed::position_of(sorted[pos]);
-          const float* p = points + 3 * (g - offset);
-          out_points[pos] = {{p[0], p[1], p[2]}, 0, g};
-        }
-      }
-    }
-    std::vector<Composite>().swap(sorted);
-    std::vector<unsigned char> raw = exchange(comm_, out_points.data(), send_counts,
-                                              sizeof(PointRecord), recv_counts, "sharding the points");
-    std::vector<PointRecord>().swap(out_points);
-    const std::size_t m = raw.size() / sizeof(PointRecord);
-    std::vector<PointRecord> shard(m);
-    if (m) std::memcpy(shard.data(), raw.data(), raw.size());
-    std::vector<unsigned char>().swap(raw);
-    // The splitters promised this size; a mismatch is a bug here, reported rather than hung on.
-    if (m != shard_sizes_[static_cast<std::size_t>(rank_)])
-      err = "internal error: the shard holds " + std::to_string(m) + " points, the splitters promised " +
-            std::to_string(shard_sizes_[static_cast<std::size_t>(rank_)]);
-    mpi_agree(comm_, err, kWhat);
-    build_stats_.n_global = n_global_;
-    build_stats_.n_input = n;
-    build_stats_.shard_points = m;
-    build_stats_.points_sent = n - send_counts[static_cast<std::size_t>(rank_)];
-    build_stats_.points_received = m - recv_counts[static_cast<std::size_t>(rank_)];
-    build_stats_.shard_points_all.assign(shard_sizes_.begin(), shard_sizes_.end());
-    const double mean = double(total) / double(R);
-    build_stats_.balance =
-        double(*std::max_element(shard_sizes_.begin(), shard_sizes_.end())) / mean;
-
-    // The shared boxes: consecutive runs of the shard in Hilbert order (the key order the ranks
-    // cut by, so the runs are compact pieces of the curve).
-    std::vector<float> xyz(3 * m);
-    {
-      std::vector<std::pair<Composite, std::size_t>> order(m);
-      for (std::size_t i = 0; i < m; ++i)
-        order[i] = {distributed::composite(distributed::hilbert_key(q, shard[i].xyz), shard[i].position), i};
-      std::sort(order.begin(), order.end());
-      for (std::size_t i = 0; i < m; ++i)
-        std::memcpy(&xyz[3 * i], shard[order[i].second].xyz, 12);
-    }
-    const std::size_t B = static_cast<std::size_t>(params.boxes_per_rank);
-    std::vector<distributed::Box> mine = distributed::run_boxes(xyz.data(), m, B);
-    {
-      // Fixed B slots per rank; a rank with fewer points than B fills the rest with NaN boxes.
-      std::vector<float> slots(B * 6, std::numeric_limits<float>::quiet_NaN()), all(R * B * 6);
-      for (std::size_t j = 0; j < mine.size(); ++j) {
-        std::memcpy(&slots[6 * j], mine[j].lo, 12);
-        std::memcpy(&slots[6 * j + 3], mine[j].hi, 12);
-      }
-      MPI_Allgather(slots.data(), static_cast<int>(B * 6), MPI_FLOAT, all.data(),
-                    static_cast<int>(B * 6), MPI_FLOAT, comm_);
-      boxes_.assign(R, {});
-      rank_box_.resize(R);
-      for (std::size_t r = 0; r < R; ++r) {
-        for (std::size_t j = 0; j < std::min<std::size_t>(B, shard_sizes_[r]); ++j) {
-          ShardBox b;
-          std::memcpy(b.lo, &all[(r * B + j) * 6], 12);
-          std::memcpy(b.hi, &all[(r * B + j) * 6 + 3], 12);
-          boxes_[r].push_back(b);
-        }
-        rank_box_[r] = distributed::union_box(boxes_[r]);
-      }
-    }
+    Shard shard = shard_points(points, n, offset);
+    share_boxes(shard, params.boxes_per_rank);
     build_stats_.shard_s = shard_clock.seconds();
 
-    // The local index over the shard in global-index order: a row's ties then go to the lower
-    // local index, which is the lower global index, as in one process.
-    std::sort(shard.begin(), shard.end(),
-              [](const PointRecord& a, const PointRecord& b) { return a.position < b.position; });
-    shard_ids_.resize(m);
-    for (std::size_t i = 0; i < m; ++i) {
-      shard_ids_[i] = id_base_ + static_cast<std::int64_t>(shard[i].position);
-      std::memcpy(&xyz[3 * i], shard[i].xyz, 12);
-    }
-    std::vector<PointRecord>().swap(shard);
+    const std::vector<float> xyz = global_order(std::move(shard));
     Stopwatch build_clock;
-    err.clear();
-    try {
-      if (m > 0) local_ = make_index(method_, runtime, xyz.data(), m, params.options);
-    } catch (const std::exception& e) {
-      err = "building the local " + method_ + " index of " + std::to_string(m) + " points: " + what_of(e);
-    }
-    mpi_agree(comm_, err, kWhat);
-    // Block hashing's grid: the cell side one process would choose for ALL the points, not each
-    // shard's own. The grid picks its side h so that the point-weighted mean population of a
-    // point's cell is target_cell_points: a shard of density rho_r picks h_r with h_r^3 rho_r =
-    // target, one process over every shard h = (sum_r w_r h_r^-3)^(-1/3), w_r the shard's share
-    // of the points. Each shard is rebuilt with that side (a grid build is a fraction of the
-    // sharding's cost), so that a budget A means on every shard what it means in one process.
-    // Not done when the caller set cell-size, or where a shard's extent is outside
-    // [2^-40, 2^40] (its index coordinates are then rescaled, knn.hpp, and sides do not compare).
-    if (!params.options.has("cell-size")) {
-      const double side = reported_cell_side(local_.get());
-      double extent = 0;
-      for (int d = 0; d < 3 && m > 0; ++d) {
-        float lo = xyz[static_cast<std::size_t>(d)], hi = lo;
-        for (std::size_t i = 0; i < m; ++i) {
-          lo = std::min(lo, xyz[3 * i + d]);
-          hi = std::max(hi, xyz[3 * i + d]);
-        }
-        extent = std::max(extent, double(hi) - double(lo));
-      }
-      const bool comparable = extent == 0 || (extent >= std::ldexp(1.0, -40) && extent <= std::ldexp(1.0, 40));
-      double mine[3] = {0, 0, 0}, sum[3] = {0, 0, 0};  // sum of m h^-3, of m, shards that cannot join
-      if (side > 0 && comparable)
-        mine[0] = double(m) / std::pow(side, 3.0), mine[1] = double(m);
-      else if (m > 0)
-        mine[2] = 1;
-      MPI_Allreduce(mine, sum, 3, MPI_DOUBLE, MPI_SUM, comm_);
-      if (sum[2] == 0 && sum[0] > 0) {
-        const double h = std::cbrt(sum[1] / sum[0]);
-        err.clear();
-        try {
-          if (m > 0 && std::fabs(h / side - 1.0) > 1e-9) {
-            char text[40];
-            std::snprintf(text, sizeof text, "%.17g", h);
-            MethodOptions o = params.options;
-            o.set("cell-size", text);
-            local_ = make_index(method_, runtime, xyz.data(), m, o);
-          }
-        } catch (const std::exception& e) {
-          err = "rebuilding the local blockhash index with the global cell side " + std::to_string(h) + ": " + what_of(e);
-        }
-        mpi_agree(comm_, err, kWhat);
-      }
-    }
+    build_local(runtime, xyz, params.options);
+    agree_global_cell_side(runtime, xyz, params.options);
     build_stats_.build_s = build_clock.seconds();
     build_stats_.wall_s = wall.seconds();
   } catch (...) {
@@ -322,6 +211,185 @@ DistributedIndex::DistributedIndex(MPI_Comm comm, std::shared_ptr<Runtime> runti
     MPI_Comm_free(&comm_);
     throw;
   }
+}
+
+// Global indices: this rank's part follows the parts of lower ranks. Sets n_global_ and returns
+// this rank's offset; throws on every rank for no points, too many, or a NaN/Inf point.
+std::uint64_t DistributedIndex::number_points(const float* points, std::size_t n) {
+  const std::size_t R = static_cast<std::size_t>(ranks_);
+  std::uint64_t n_local = n, offset = 0, total = 0;
+  MPI_Exscan(&n_local, &offset, 1, MPI_UINT64_T, MPI_SUM, comm_);
+  if (rank_ == 0) offset = 0;  // MPI leaves rank 0's result undefined
+  MPI_Allreduce(&n_local, &total, 1, MPI_UINT64_T, MPI_SUM, comm_);
+  // The same totals on every rank, so every rank throws here or none does.
+  if (total == 0) throw Error(std::string(kWhat) + ": no points on any rank");
+  // Global ids are int64; a shard is one local index, whose ids are int32 (2^31 - 2 points).
+  if (total > distributed::kMaxPoints)
+    throw Error(std::string(kWhat) + ": " + std::to_string(total) + " points in all: at most 2^40 - 1");
+  if (const std::uint64_t largest = (total + R - 1) / R; largest > 0x7ffffffeu)
+    throw Error(std::string(kWhat) + ": " + std::to_string(total) + " points over " + std::to_string(R) +
+                " ranks make shards of up to " + std::to_string(largest) +
+                " points, past one index's int32 id range (2^31 - 2 points): use at least " +
+                std::to_string((total + 0x7ffffffdu) / 0x7ffffffeu) + " ranks");
+  n_global_ = static_cast<std::size_t>(total);
+  mpi_agree(comm_, nonfinite_point(points, n, id_base_ + static_cast<std::int64_t>(offset)), kWhat);
+  return offset;
+}
+
+// Keys over the global box; the global order is by (key, global index), cut by the splitters into
+// the ranks' shards, each point sent to its own.
+DistributedIndex::Shard DistributedIndex::shard_points(const float* points, std::size_t n, std::uint64_t offset) {
+  const std::size_t R = static_cast<std::size_t>(ranks_);
+  const std::size_t me = static_cast<std::size_t>(rank_);
+  const std::uint64_t total = n_global_;
+  const blockhash::Quantiser q = distributed::global_quantiser(comm_, points, n);
+  for (int d = 0; d < 3; ++d) origin_[d] = q.origin[d];
+  scale_ = q.scale;
+  std::vector<Composite> sorted(n);
+  for (std::size_t i = 0; i < n; ++i)
+    sorted[i] = distributed::composite(distributed::hilbert_key(q, points + 3 * i), offset + i);
+  std::sort(sorted.begin(), sorted.end());
+  const std::vector<Composite> split = distributed::find_splitters(comm_, sorted, total);
+
+  // Every rank derives every shard's size and first key from the splitters alone.
+  shard_sizes_.resize(R);
+  first_keys_.resize(R);
+  for (std::size_t r = 0; r < R; ++r) {
+    shard_sizes_[r] = (total * (r + 1)) / R - (total * r) / R;
+    first_keys_[r] = distributed::key_of(split[r]);
+    if (shard_sizes_[r] > 0) nonempty_.push_back(static_cast<int>(r));
+  }
+
+  // Send each point to the shard holding its composite: runs of the sorted local array.
+  std::vector<std::size_t> send_counts, recv_counts;
+  std::vector<PointRecord> out_points = records_by_shard(sorted, split, points, offset, send_counts);
+  std::vector<Composite>().swap(sorted);
+  std::vector<unsigned char> raw = exchange(comm_, out_points.data(), send_counts,
+                                            sizeof(PointRecord), recv_counts, "sharding the points");
+  std::vector<PointRecord>().swap(out_points);
+  const std::size_t m = raw.size() / sizeof(PointRecord);
+  Shard shard;
+  shard.points.resize(m);
+  if (m) std::memcpy(shard.points.data(), raw.data(), raw.size());
+  std::vector<unsigned char>().swap(raw);
+  // The splitters promised this size; a mismatch is a bug here, reported rather than hung on.
+  std::string err;
+  if (m != shard_sizes_[me])
+    err = "internal error: the shard holds " + std::to_string(m) + " points, the splitters promised " +
+          std::to_string(shard_sizes_[me]);
+  mpi_agree(comm_, err, kWhat);
+  build_stats_.n_global = n_global_;
+  build_stats_.n_input = n;
+  build_stats_.shard_points = m;
+  build_stats_.points_sent = n - send_counts[me];
+  build_stats_.points_received = m - recv_counts[me];
+  build_stats_.shard_points_all.assign(shard_sizes_.begin(), shard_sizes_.end());
+  const double mean = double(total) / double(R);
+  build_stats_.balance = double(*std::max_element(shard_sizes_.begin(), shard_sizes_.end())) / mean;
+  return shard;
+}
+
+// The shared boxes: consecutive runs of the shard in Hilbert order (the key order the ranks cut
+// by, so the runs are compact pieces of the curve).
+void DistributedIndex::share_boxes(const Shard& shard, int boxes_per_rank) {
+  const std::size_t R = static_cast<std::size_t>(ranks_);
+  const std::size_t m = shard.points.size();
+  std::vector<float> xyz(3 * m);
+  {
+    std::vector<std::pair<Composite, std::size_t>> order(m);
+    for (std::size_t i = 0; i < m; ++i)
+      order[i] = {distributed::composite(key_of(shard.points[i].xyz), shard.points[i].position), i};
+    std::sort(order.begin(), order.end());
+    for (std::size_t i = 0; i < m; ++i) std::memcpy(&xyz[3 * i], shard.points[order[i].second].xyz, 12);
+  }
+  const std::size_t B = static_cast<std::size_t>(boxes_per_rank);
+  std::vector<distributed::Box> mine = distributed::run_boxes(xyz.data(), m, B);
+  // Fixed B slots per rank; a rank with fewer points than B fills the rest with NaN boxes.
+  std::vector<float> slots(B * 6, std::numeric_limits<float>::quiet_NaN()), all(R * B * 6);
+  for (std::size_t j = 0; j < mine.size(); ++j) {
+    std::memcpy(&slots[6 * j], mine[j].lo, 12);
+    std::memcpy(&slots[6 * j + 3], mine[j].hi, 12);
+  }
+  MPI_Allgather(slots.data(), static_cast<int>(B * 6), MPI_FLOAT, all.data(), static_cast<int>(B * 6), MPI_FLOAT,
+                comm_);
+  boxes_.assign(R, {});
+  rank_box_.resize(R);
+  for (std::size_t r = 0; r < R; ++r) {
+    for (std::size_t j = 0; j < std::min<std::size_t>(B, shard_sizes_[r]); ++j) {
+      ShardBox b;
+      std::memcpy(b.lo, &all[(r * B + j) * 6], 12);
+      std::memcpy(b.hi, &all[(r * B + j) * 6 + 3], 12);
+      boxes_[r].push_back(b);
+    }
+    rank_box_[r] = distributed::union_box(boxes_[r]);
+  }
+}
+
+// The shard in global-index order, the order of the local index: a row's ties then go to the
+// lower local index, which is the lower global index, as in one process. Sets shard_ids_ and
+// returns the points in that order.
+std::vector<float> DistributedIndex::global_order(Shard shard) {
+  std::vector<PointRecord>& points = shard.points;
+  const std::size_t m = points.size();
+  std::sort(points.begin(), points.end(),
+            [](const PointRecord& a, const PointRecord& b) { return a.position < b.position; });
+  std::vector<float> xyz(3 * m);
+  shard_ids_.resize(m);
+  for (std::size_t i = 0; i < m; ++i) {
+    shard_ids_[i] = id_base_ + static_cast<std::int64_t>(points[i].position);
+    std::memcpy(&xyz[3 * i], points[i].xyz, 12);
+  }
+  return xyz;
+}
+
+void DistributedIndex::build_local(const std::shared_ptr<Runtime>& runtime, const std::vector<float>& xyz,
+                                   const MethodOptions& options) {
+  const std::size_t m = xyz.size() / 3;
+  std::string err;
+  try {
+    if (m > 0) local_ = make_index(method_, runtime, xyz.data(), m, options);
+  } catch (const std::exception& e) {
+    err = "building the local " + method_ + " index of " + std::to_string(m) + " points: " + what_of(e);
+  }
+  mpi_agree(comm_, err, kWhat);
+}
+
+// Block hashing's grid: the cell side one process would choose for ALL the points, not each
+// shard's own. The grid picks its side h so that the point-weighted mean population of a
+// point's cell is target_cell_points: a shard of density rho_r picks h_r with h_r^3 rho_r =
+// target, one process over every shard h = (sum_r w_r h_r^-3)^(-1/3), w_r the shard's share
+// of the points. Each shard is rebuilt with that side (a grid build is a fraction of the
+// sharding's cost), so that a budget A means on every shard what it means in one process.
+// Not done when the caller set cell-size, or where a shard's extent is outside
+// [2^-40, 2^40] (its index coordinates are then rescaled, knn.hpp, and sides do not compare).
+void DistributedIndex::agree_global_cell_side(const std::shared_ptr<Runtime>& runtime, const std::vector<float>& xyz,
+                                              const MethodOptions& options) {
+  if (options.has("cell-size")) return;
+  const std::size_t m = xyz.size() / 3;
+  const double side = reported_cell_side(local_.get());
+  const double extent = largest_extent(xyz);
+  const bool comparable = extent == 0 || (extent >= std::ldexp(1.0, -40) && extent <= std::ldexp(1.0, 40));
+  double mine[3] = {0, 0, 0}, sum[3] = {0, 0, 0};  // sum of m h^-3, of m, shards that cannot join
+  if (side > 0 && comparable)
+    mine[0] = double(m) / std::pow(side, 3.0), mine[1] = double(m);
+  else if (m > 0)
+    mine[2] = 1;
+  MPI_Allreduce(mine, sum, 3, MPI_DOUBLE, MPI_SUM, comm_);
+  if (sum[2] != 0 || !(sum[0] > 0)) return;
+  const double h = std::cbrt(sum[1] / sum[0]);
+  std::string err;
+  try {
+    if (m > 0 && std::fabs(h / side - 1.0) > 1e-9) {
+      char text[40];
+      std::snprintf(text, sizeof text, "%.17g", h);
+      MethodOptions o = options;
+      o.set("cell-size", text);
+      local_ = make_index(method_, runtime, xyz.data(), m, o);
+    }
+  } catch (const std::exception& e) {
+    err = "rebuilding the local blockhash index with the global cell side " + std::to_string(h) + ": " + what_of(e);
+  }
+  mpi_agree(comm_, err, kWhat);
 }
 
 DistributedIndex::~DistributedIndex() {
