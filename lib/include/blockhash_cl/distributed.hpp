@@ -207,6 +207,9 @@ class DistributedIndex final : public SearchIndex {
                               const MethodOptions& options);
 
   std::uint64_t key_of(const float xyz[3]) const;
+  // Sets ds.owner and ds.ranks_visited for n queries: each finite query's owner and 1 rank; -1
+  // and 0 ranks for a query with a NaN/Inf coordinate, counted in st.nonfinite_queries.
+  void route_to_owners(const float* queries, std::size_t n, QueryStats& st, DistributedQueryStats& ds) const;
   // The ranks other than `skip` with a box within squared distance `bound` of q (conservative).
   void ranks_meeting(const float q[3], double bound, int skip, std::vector<int>& out) const;
   void require_int32_ids(const char* call) const;

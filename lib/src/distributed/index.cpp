@@ -416,6 +416,21 @@ int DistributedIndex::owner_of(const float xyz[3]) const {
   return owner;
 }
 
+void DistributedIndex::route_to_owners(const float* queries, std::size_t n, QueryStats& st,
+                                       DistributedQueryStats& ds) const {
+  ds.ranks_visited.assign(n, 0);
+  ds.owner.assign(n, -1);
+  for (std::size_t i = 0; i < n; ++i) {
+    const float* q = queries + 3 * i;
+    if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2])) {
+      ++st.nonfinite_queries;
+      continue;
+    }
+    ds.owner[i] = owner_of(q);
+    ds.ranks_visited[i] = 1;
+  }
+}
+
 void DistributedIndex::ranks_meeting(const float q[3], double bound, int skip, std::vector<int>& out) const {
   out.clear();
   for (int r : nonempty_) {
@@ -489,8 +504,6 @@ QueryStats DistributedIndex::query(const float* queries, std::size_t n, const Se
   const std::size_t rb = row_bytes(k);
   out.resize(n, k);
   if (params.count_examined) out.examined.assign(n, 0);
-  ds.ranks_visited.assign(n, 0);
-  ds.owner.assign(n, -1);
 
   // Sends the records (grouped by destination rank, send_counts each), answers the ones that came
   // in with the local index (a record's budget class 1: with A = border_A) and sends the rows
@@ -536,39 +549,18 @@ QueryStats DistributedIndex::query(const float* queries, std::size_t n, const Se
 
   // Phase 1: every finite query to the rank owning its key.
   Stopwatch p1;
-  std::vector<std::size_t> send_counts(R, 0);
-  for (std::size_t i = 0; i < n; ++i) {
-    const float* q = queries + 3 * i;
-    if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2])) {
-      ++st.nonfinite_queries;
-      continue;
-    }
-    ds.owner[i] = owner_of(q);
-    ds.ranks_visited[i] = 1;
-    ++send_counts[static_cast<std::size_t>(ds.owner[i])];
-  }
-  // Counting sort by destination; sent[j] = the caller's index of the j-th record sent.
-  std::vector<std::size_t> start(R + 1, 0);
-  for (std::size_t r = 0; r < R; ++r) start[r + 1] = start[r] + send_counts[r];
-  std::vector<std::size_t> sent(start[R]);
-  std::vector<QueryRecord> records(start[R]);
+  route_to_owners(queries, n, st, ds);
+  std::vector<Route> routes;
+  for (std::size_t i = 0; i < n; ++i)
+    if (ds.owner[i] >= 0) routes.push_back({ds.owner[i], 0, i});
   {
-    std::vector<std::size_t> pos(start.begin(), start.end() - 1);
-    for (std::size_t i = 0; i < n; ++i) {
-      if (ds.owner[i] < 0) continue;
-      const std::size_t j = pos[static_cast<std::size_t>(ds.owner[i])]++;
-      sent[j] = i;
-      std::memcpy(records[j].xyz, queries + 3 * i, 12);
-      records[j].budget_class = 0;
-    }
-  }
-  {
-    auto [back, moved] = round_trip(records, send_counts, "phase 1 (owner)");
+    const Outbox box = group_by_rank(routes, queries, R);
+    auto [back, moved] = round_trip(box.records, box.send_counts, "phase 1 (owner)");
     ds.owner_sent = moved.first;
     ds.owner_received = moved.second;
     // The owner's row is each query's first.
-    for (std::size_t j = 0; j < sent.size(); ++j) {
-      const std::size_t i = sent[j];
+    for (std::size_t j = 0; j < routes.size(); ++j) {
+      const std::size_t i = routes[j].query;
       const unsigned char* src = &back[j * rb];
       std::memcpy(&out.ids[i * kk], src, kk * 8);
       std::memcpy(&out.dist2[i * kk], src + kk * 8, kk * 4);
@@ -587,12 +579,7 @@ QueryStats DistributedIndex::query(const float* queries, std::size_t n, const Se
   const double radius2 = std::isinf(params.max_radius)
                              ? std::numeric_limits<double>::infinity()
                              : double(params.max_radius) * double(params.max_radius);
-  struct Extra {
-    int rank;
-    std::int32_t budget_class;
-    std::size_t query;
-  };
-  std::vector<Extra> extra;
+  routes.clear();
   {
     std::vector<int> met;
     for (std::size_t i = 0; i < n; ++i) {
@@ -600,31 +587,24 @@ QueryStats DistributedIndex::query(const float* queries, std::size_t n, const Se
       const double bound = out.counts[i] >= k ? double(out.dist2[i * kk + kk - 1]) : radius2;
       ranks_meeting(queries + 3 * i, bound, ds.owner[i], met);
       if (met.empty()) continue;
-      for (int r : met) extra.push_back({r, 0, i});
+      for (int r : met) routes.push_back({r, 0, i});
       if (border_A > 0) {
-        extra.push_back({ds.owner[i], 1, i});
+        routes.push_back({ds.owner[i], 1, i});
         ++ds.reanswered;
       }
       ds.ranks_visited[i] += static_cast<std::int32_t>(met.size());
       ++ds.multi_rank_queries;
     }
   }
-  std::stable_sort(extra.begin(), extra.end(), [](const Extra& a, const Extra& b) { return a.rank < b.rank; });
-  std::fill(send_counts.begin(), send_counts.end(), 0);
-  records.resize(extra.size());
-  for (std::size_t j = 0; j < extra.size(); ++j) {
-    ++send_counts[static_cast<std::size_t>(extra[j].rank)];
-    std::memcpy(records[j].xyz, queries + 3 * extra[j].query, 12);
-    records[j].budget_class = extra[j].budget_class;
-  }
   {
-    auto [back, moved] = round_trip(records, send_counts, "phase 2 (ball)");
+    const Outbox box = group_by_rank(routes, queries, R);
+    auto [back, moved] = round_trip(box.records, box.send_counts, "phase 2 (ball)");
     ds.extra_sent = moved.first;
     ds.extra_received = moved.second;
     std::vector<std::int64_t> ids_tmp;
     std::vector<float> d2_tmp;
-    for (std::size_t j = 0; j < extra.size(); ++j)
-      merge_row(out, extra[j].query, &back[j * rb], k, ids_tmp, d2_tmp);
+    for (std::size_t j = 0; j < routes.size(); ++j)
+      merge_row(out, routes[j].query, &back[j * rb], k, ids_tmp, d2_tmp);
   }
   ds.phase2_s = p2.seconds();
   st.wall_s = wall.seconds();

@@ -61,41 +61,26 @@ QueryStats DistributedIndex::radius_search(const float* queries, std::size_t n, 
   // rank's answer).
   distributed::agree_parameters(comm_, distributed::radius_parameters(r, params),
                                 std::string(kWhat) + "::radius_search");
-  ds.ranks_visited.assign(n, 0);
-  ds.owner.assign(n, -1);
   // Each finite query to its owner and to every other rank with a box meeting the ball.
+  route_to_owners(queries, n, st, ds);
   const double r2 = double(r) * double(r);
-  struct Dest {
-    int rank;
-    std::size_t query;
-  };
-  std::vector<Dest> dests;
+  std::vector<Route> routes;
   {
     std::vector<int> met;
     for (std::size_t i = 0; i < n; ++i) {
-      const float* q = queries + 3 * i;
-      if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2])) {
-        ++st.nonfinite_queries;
-        continue;
-      }
-      ds.owner[i] = owner_of(q);
-      dests.push_back({ds.owner[i], i});
-      ranks_meeting(q, r2, ds.owner[i], met);
-      for (int m : met) dests.push_back({m, i});
-      ds.ranks_visited[i] = 1 + static_cast<std::int32_t>(met.size());
+      if (ds.owner[i] < 0) continue;
+      routes.push_back({ds.owner[i], 0, i});
+      ranks_meeting(queries + 3 * i, r2, ds.owner[i], met);
+      for (int m : met) routes.push_back({m, 0, i});
+      ds.ranks_visited[i] += static_cast<std::int32_t>(met.size());
       if (!met.empty()) ++ds.multi_rank_queries;
     }
   }
-  std::stable_sort(dests.begin(), dests.end(), [](const Dest& a, const Dest& b) { return a.rank < b.rank; });
-  std::vector<std::size_t> send_counts(R, 0), recv_counts, back_counts, entry_counts_back;
-  std::vector<QueryRecord> records(dests.size());
-  for (std::size_t j = 0; j < dests.size(); ++j) {
-    ++send_counts[static_cast<std::size_t>(dests[j].rank)];
-    std::memcpy(records[j].xyz, queries + 3 * dests[j].query, 12);
-    records[j].budget_class = 0;
-  }
+  const Outbox box = group_by_rank(routes, queries, R);
+  const std::vector<std::size_t>& send_counts = box.send_counts;
+  std::vector<std::size_t> recv_counts, back_counts, entry_counts_back;
   const std::vector<unsigned char> in =
-      exchange(comm_, records.data(), send_counts, sizeof(QueryRecord), recv_counts, "radius (queries)");
+      exchange(comm_, box.records.data(), send_counts, sizeof(QueryRecord), recv_counts, "radius (queries)");
   const std::size_t m = in.size() / sizeof(QueryRecord);
   // The answers: per record (count, found, examined), then its entries (global id, distance).
   struct Counts {
@@ -157,10 +142,10 @@ QueryStats DistributedIndex::radius_search(const float* queries, std::size_t n, 
   std::vector<std::int64_t> found(n, 0), examined(n, 0);
   {
     std::size_t at = 0;
-    for (std::size_t j = 0; j < dests.size(); ++j) {
+    for (std::size_t j = 0; j < routes.size(); ++j) {
       Counts c;
       std::memcpy(&c, cb.data() + j * sizeof(Counts), sizeof c);
-      const std::size_t i = dests[j].query;
+      const std::size_t i = routes[j].query;
       found[i] += c.found;
       examined[i] += c.examined;
       for (std::int64_t t = 0; t < c.count; ++t, ++at) {
