@@ -213,6 +213,7 @@ class DistributedIndex final : public SearchIndex {
   // The ranks other than `skip` with a box within squared distance `bound` of q (conservative).
   void ranks_meeting(const float q[3], double bound, int skip, std::vector<int>& out) const;
   void require_int32_ids(const char* call) const;
+  float check_knn_params(const float* queries, std::size_t n, const SearchParams& params) const;
 
   MPI_Comm comm_ = MPI_COMM_NULL;
   int rank_ = 0, ranks_ = 1;

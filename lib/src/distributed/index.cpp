@@ -78,6 +78,92 @@ void merge_row(KnnResult64& out, std::size_t q, const unsigned char* src, int k,
   out.counts[q] = m;
 }
 
+// The owner's rows (`back`, on the wire, in the order of `routes`) as each query's first row.
+void take_owner_rows(KnnResult64& out, const std::vector<Route>& routes, const std::vector<unsigned char>& back,
+                     int k, bool count_examined) {
+  const std::size_t kk = static_cast<std::size_t>(k), rb = row_bytes(k);
+  for (std::size_t j = 0; j < routes.size(); ++j) {
+    const std::size_t i = routes[j].query;
+    const unsigned char* src = &back[j * rb];
+    std::memcpy(&out.ids[i * kk], src, kk * 8);
+    std::memcpy(&out.dist2[i * kk], src + kk * 8, kk * 4);
+    std::int32_t tail[2];
+    std::memcpy(tail, src + kk * 12, 8);
+    out.counts[i] = tail[0];
+    if (count_examined) out.examined[i] = tail[1];
+  }
+}
+
+// What the round trips of one kNN call share on this rank.
+struct KnnCall {
+  MPI_Comm comm;
+  std::size_t me;
+  const Index* local;                          // this rank's index, nullptr for an empty shard
+  const std::vector<std::int64_t>& shard_ids;  // its global ids
+  const SearchParams& params;
+  float border_A;  // approximate methods: the budget of a border query's second answer
+  QueryStats& st;
+  DistributedQueryStats& ds;
+};
+
+// The local index's rows for the records that came in (a record's budget class 1: with A =
+// border_A), on the wire in the records' order.
+std::vector<unsigned char> answer_locally(KnnCall& c, const std::vector<QueryRecord>& got) {
+  const int k = c.params.k;
+  const std::size_t m = got.size(), rb = row_bytes(k);
+  std::vector<unsigned char> rows(m * rb, 0);
+  if (m > 0 && !c.local) throw Error("queries reached a rank with an empty shard");
+  for (std::int32_t cls : {0, 1}) {
+    std::vector<std::size_t> which;
+    for (std::size_t i = 0; i < m; ++i)
+      if (got[i].budget_class == cls) which.push_back(i);
+    if (which.empty()) continue;
+    std::vector<float> xyz(3 * which.size());
+    for (std::size_t j = 0; j < which.size(); ++j) std::memcpy(&xyz[3 * j], got[which[j]].xyz, 12);
+    SearchParams p = c.params;
+    if (cls == 1) p.A = c.border_A, p.recall_target = 0;
+    KnnResult r;
+    add_stats(c.st, c.local->query(xyz.data(), which.size(), p, r));
+    for (std::size_t j = 0; j < which.size(); ++j) pack_row(&rows[which[j] * rb], r, j, k, c.shard_ids);
+  }
+  return rows;
+}
+
+// The rows of one round trip, in the order the records were sent, and the records that crossed
+// ranks (sent to others, received from others).
+struct Rows {
+  std::vector<unsigned char> bytes;
+  std::size_t sent = 0, received = 0;
+};
+
+// Sends the records, answers the ones that came in with the local index and sends the rows back.
+// Local failures fail every rank.
+Rows round_trip(KnnCall& c, const Outbox& box, const char* phase) {
+  const std::size_t rb = row_bytes(c.params.k);
+  std::vector<std::size_t> recv_counts, back_counts;
+  const std::vector<unsigned char> in =
+      exchange(c.comm, box.records.data(), box.send_counts, sizeof(QueryRecord), recv_counts, phase);
+  const std::size_t m = in.size() / sizeof(QueryRecord);
+  std::vector<QueryRecord> got(m);
+  if (m) std::memcpy(got.data(), in.data(), in.size());
+  std::vector<unsigned char> rows;
+  std::string e;
+  try {
+    rows = answer_locally(c, got);
+  } catch (const std::exception& ex) {
+    e = std::string(phase) + ": " + what_of(ex);
+  }
+  mpi_agree(c.comm, e, std::string(kWhat) + "::query");
+  c.ds.answered += m;
+  Rows back;
+  back.sent = to_others(box.send_counts, c.me);
+  back.received = to_others(recv_counts, c.me);
+  back.bytes = exchange(c.comm, rows.data(), recv_counts, rb, back_counts, phase);
+  c.ds.bytes_sent += back.sent * sizeof(QueryRecord) + back.received * rb;
+  c.ds.bytes_received += back.received * sizeof(QueryRecord) + back.sent * rb;
+  return back;
+}
+
 // The cell side a grid build reports (block hashing's build_used "cell_size", written with 17
 // digits: it reads back exactly), 0 for an index that reports none.
 double reported_cell_side(const Index* index) {
@@ -468,17 +554,11 @@ QueryStats DistributedIndex::query(const float* queries, std::size_t n, const Se
   return st;
 }
 
-QueryStats DistributedIndex::query(const float* queries, std::size_t n, const SearchParams& params,
-                                   KnnResult64& out, DistributedQueryStats* stats) const {
-  Stopwatch wall;
-  QueryStats st;
-  st.n_queries = n;
-  DistributedQueryStats ds;
-  const std::size_t R = static_cast<std::size_t>(ranks_);
-  const std::size_t me = static_cast<std::size_t>(rank_);
-
+// Checks the call's parameters on every rank and agrees them. Returns the budget of a border
+// query's second answer (approximate methods; 0: none).
+float DistributedIndex::check_knn_params(const float* queries, std::size_t n, const SearchParams& params) const {
   std::string err;
-  float border_A = 0;  // approximate methods: the budget of a border query's second answer
+  float border_A = 0;
   try {
     kmax_variant(params.k);
     if (std::isnan(params.max_radius) || params.max_radius < 0)
@@ -499,53 +579,22 @@ QueryStats DistributedIndex::query(const float* queries, std::size_t n, const Se
   // Every search parameter as rank 0's (k, the radius and count_examined shape the rows every
   // rank sends; the others what each rank's rows mean).
   distributed::agree_parameters(comm_, distributed::search_parameters(params), std::string(kWhat) + "::query");
+  return border_A;
+}
+
+QueryStats DistributedIndex::query(const float* queries, std::size_t n, const SearchParams& params,
+                                   KnnResult64& out, DistributedQueryStats* stats) const {
+  Stopwatch wall;
+  QueryStats st;
+  st.n_queries = n;
+  DistributedQueryStats ds;
+  const std::size_t R = static_cast<std::size_t>(ranks_);
+  const float border_A = check_knn_params(queries, n, params);
+  KnnCall call{comm_, static_cast<std::size_t>(rank_), local_.get(), shard_ids_, params, border_A, st, ds};
   const int k = params.k;
   const std::size_t kk = static_cast<std::size_t>(k);
-  const std::size_t rb = row_bytes(k);
   out.resize(n, k);
   if (params.count_examined) out.examined.assign(n, 0);
-
-  // Sends the records (grouped by destination rank, send_counts each), answers the ones that came
-  // in with the local index (a record's budget class 1: with A = border_A) and sends the rows
-  // back. Returns the rows in the order the records were sent. Local failures fail every rank.
-  auto round_trip = [&](const std::vector<QueryRecord>& records, const std::vector<std::size_t>& send_counts,
-                        const char* phase) {
-    std::vector<std::size_t> recv_counts, back_counts;
-    const std::vector<unsigned char> in =
-        exchange(comm_, records.data(), send_counts, sizeof(QueryRecord), recv_counts, phase);
-    const std::size_t m = in.size() / sizeof(QueryRecord);
-    std::vector<QueryRecord> got(m);
-    if (m) std::memcpy(got.data(), in.data(), in.size());
-    std::vector<unsigned char> rows(m * rb, 0);
-    std::string e;
-    try {
-      if (m > 0 && !local_) throw Error("queries reached a rank with an empty shard");
-      for (std::int32_t cls : {0, 1}) {
-        std::vector<std::size_t> which;
-        for (std::size_t i = 0; i < m; ++i)
-          if (got[i].budget_class == cls) which.push_back(i);
-        if (which.empty()) continue;
-        std::vector<float> xyz(3 * which.size());
-        for (std::size_t j = 0; j < which.size(); ++j) std::memcpy(&xyz[3 * j], got[which[j]].xyz, 12);
-        SearchParams p = params;
-        if (cls == 1) p.A = border_A, p.recall_target = 0;
-        KnnResult r;
-        add_stats(st, local_->query(xyz.data(), which.size(), p, r));
-        for (std::size_t j = 0; j < which.size(); ++j) pack_row(&rows[which[j] * rb], r, j, k, shard_ids_);
-      }
-    } catch (const std::exception& ex) {
-      e = std::string(phase) + ": " + what_of(ex);
-    }
-    mpi_agree(comm_, e, std::string(kWhat) + "::query");
-    ds.answered += m;
-    const std::size_t from_others = m - recv_counts[me];
-    std::size_t to_others = 0;
-    for (std::size_t r = 0; r < R; ++r) to_others += r == me ? 0 : send_counts[r];
-    std::vector<unsigned char> back = exchange(comm_, rows.data(), recv_counts, rb, back_counts, phase);
-    ds.bytes_sent += to_others * sizeof(QueryRecord) + from_others * rb;
-    ds.bytes_received += from_others * sizeof(QueryRecord) + to_others * rb;
-    return std::make_pair(std::move(back), std::make_pair(to_others, from_others));
-  };
 
   // Phase 1: every finite query to the rank owning its key.
   Stopwatch p1;
@@ -554,21 +603,10 @@ QueryStats DistributedIndex::query(const float* queries, std::size_t n, const Se
   for (std::size_t i = 0; i < n; ++i)
     if (ds.owner[i] >= 0) routes.push_back({ds.owner[i], 0, i});
   {
-    const Outbox box = group_by_rank(routes, queries, R);
-    auto [back, moved] = round_trip(box.records, box.send_counts, "phase 1 (owner)");
-    ds.owner_sent = moved.first;
-    ds.owner_received = moved.second;
-    // The owner's row is each query's first.
-    for (std::size_t j = 0; j < routes.size(); ++j) {
-      const std::size_t i = routes[j].query;
-      const unsigned char* src = &back[j * rb];
-      std::memcpy(&out.ids[i * kk], src, kk * 8);
-      std::memcpy(&out.dist2[i * kk], src + kk * 8, kk * 4);
-      std::int32_t tail[2];
-      std::memcpy(tail, src + kk * 12, 8);
-      out.counts[i] = tail[0];
-      if (params.count_examined) out.examined[i] = tail[1];
-    }
+    const Rows back = round_trip(call, group_by_rank(routes, queries, R), "phase 1 (owner)");
+    ds.owner_sent = back.sent;
+    ds.owner_received = back.received;
+    take_owner_rows(out, routes, back.bytes, k, params.count_examined);
   }
   ds.phase1_s = p1.seconds();
 
@@ -580,31 +618,29 @@ QueryStats DistributedIndex::query(const float* queries, std::size_t n, const Se
                              ? std::numeric_limits<double>::infinity()
                              : double(params.max_radius) * double(params.max_radius);
   routes.clear();
-  {
-    std::vector<int> met;
-    for (std::size_t i = 0; i < n; ++i) {
-      if (ds.owner[i] < 0) continue;
-      const double bound = out.counts[i] >= k ? double(out.dist2[i * kk + kk - 1]) : radius2;
-      ranks_meeting(queries + 3 * i, bound, ds.owner[i], met);
-      if (met.empty()) continue;
-      for (int r : met) routes.push_back({r, 0, i});
-      if (border_A > 0) {
-        routes.push_back({ds.owner[i], 1, i});
-        ++ds.reanswered;
-      }
-      ds.ranks_visited[i] += static_cast<std::int32_t>(met.size());
-      ++ds.multi_rank_queries;
+  std::vector<int> met;
+  for (std::size_t i = 0; i < n; ++i) {
+    if (ds.owner[i] < 0) continue;
+    const double bound = out.counts[i] >= k ? double(out.dist2[i * kk + kk - 1]) : radius2;
+    ranks_meeting(queries + 3 * i, bound, ds.owner[i], met);
+    if (met.empty()) continue;
+    for (int r : met) routes.push_back({r, 0, i});
+    if (border_A > 0) {
+      routes.push_back({ds.owner[i], 1, i});
+      ++ds.reanswered;
     }
+    ds.ranks_visited[i] += static_cast<std::int32_t>(met.size());
+    ++ds.multi_rank_queries;
   }
   {
-    const Outbox box = group_by_rank(routes, queries, R);
-    auto [back, moved] = round_trip(box.records, box.send_counts, "phase 2 (ball)");
-    ds.extra_sent = moved.first;
-    ds.extra_received = moved.second;
+    const Rows back = round_trip(call, group_by_rank(routes, queries, R), "phase 2 (ball)");
+    ds.extra_sent = back.sent;
+    ds.extra_received = back.received;
+    const std::size_t rb = row_bytes(k);
     std::vector<std::int64_t> ids_tmp;
     std::vector<float> d2_tmp;
     for (std::size_t j = 0; j < routes.size(); ++j)
-      merge_row(out, routes[j].query, &back[j * rb], k, ids_tmp, d2_tmp);
+      merge_row(out, routes[j].query, &back.bytes[j * rb], k, ids_tmp, d2_tmp);
   }
   ds.phase2_s = p2.seconds();
   st.wall_s = wall.seconds();
