@@ -214,6 +214,7 @@ class DistributedIndex final : public SearchIndex {
   void ranks_meeting(const float q[3], double bound, int skip, std::vector<int>& out) const;
   void require_int32_ids(const char* call) const;
   float check_knn_params(const float* queries, std::size_t n, const SearchParams& params) const;
+  void check_radius_params(const float* queries, std::size_t n, float r, const RadiusParams& params) const;
 
   MPI_Comm comm_ = MPI_COMM_NULL;
   int rank_ = 0, ranks_ = 1;
