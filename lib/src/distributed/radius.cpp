@@ -2,22 +2,20 @@
 // it meets, the slices gathered back in the caller's order.
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <cstring>
-#include <limits>
-#include <numeric>
-#include <sstream>
+#include <string>
+#include <utility>
+#include <vector>
 
-#include "blockhash_cl/blockhash.hpp"
 #include "blockhash_cl/distributed.hpp"
 #include "blockhash_cl/error.hpp"
 #include "distributed/agreement.hpp"
 #include "distributed/mpi_util.hpp"
-#include "distributed/shard.hpp"
 #include "distributed/wire.hpp"
 
 namespace bhcl {
 
-using distributed::Composite;
 using distributed::exchange;
 using distributed::Stopwatch;
 using namespace distributed::wire;
