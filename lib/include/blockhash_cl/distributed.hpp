@@ -195,10 +195,29 @@ class DistributedIndex final : public SearchIndex {
   const std::vector<ShardBox>& boxes(int r) const { return boxes_.at(static_cast<std::size_t>(r)); }
 
  private:
+  // The constructor's steps (index.cpp), collective in this order on every rank.
+  struct Shard;  // this rank's points after the exchange, with their places over all ranks
+  std::uint64_t number_points(const float* points, std::size_t n);
+  Shard shard_points(const float* points, std::size_t n, std::uint64_t offset);
+  void share_boxes(const Shard& shard, int boxes_per_rank);
+  std::vector<float> global_order(Shard shard);
+  void build_local(const std::shared_ptr<Runtime>& runtime, const std::vector<float>& xyz,
+                   const MethodOptions& options);
+  void agree_global_cell_side(const std::shared_ptr<Runtime>& runtime, const std::vector<float>& xyz,
+                              const MethodOptions& options);
+
+  // The queries' steps (index.cpp, radius.cpp). The checks fail every rank alike (mpi_agree) and
+  // agree the parameters with rank 0's; check_knn_params returns the budget of a border query's
+  // second answer (approximate methods; 0: none).
+  float check_knn_params(const float* queries, std::size_t n, const SearchParams& params) const;
+  void check_radius_params(const float* queries, std::size_t n, float r, const RadiusParams& params) const;
+  void require_int32_ids(const char* call) const;
   std::uint64_t key_of(const float xyz[3]) const;
+  // Sets ds.owner and ds.ranks_visited for n queries: each finite query's owner and 1 rank; -1
+  // and 0 ranks for a query with a NaN/Inf coordinate, counted in st.nonfinite_queries.
+  void route_to_owners(const float* queries, std::size_t n, QueryStats& st, DistributedQueryStats& ds) const;
   // The ranks other than `skip` with a box within squared distance `bound` of q (conservative).
   void ranks_meeting(const float q[3], double bound, int skip, std::vector<int>& out) const;
-  void require_int32_ids(const char* call) const;
 
   MPI_Comm comm_ = MPI_COMM_NULL;
   int rank_ = 0, ranks_ = 1;

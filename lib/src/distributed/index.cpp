@@ -78,6 +78,92 @@ void merge_row(KnnResult64& out, std::size_t q, const unsigned char* src, int k,
   out.counts[q] = m;
 }
 
+// The owner's rows (`back`, on the wire, in the order of `routes`) as each query's first row.
+void take_owner_rows(KnnResult64& out, const std::vector<Route>& routes, const std::vector<unsigned char>& back,
+                     int k, bool count_examined) {
+  const std::size_t kk = static_cast<std::size_t>(k), rb = row_bytes(k);
+  for (std::size_t j = 0; j < routes.size(); ++j) {
+    const std::size_t i = routes[j].query;
+    const unsigned char* src = &back[j * rb];
+    std::memcpy(&out.ids[i * kk], src, kk * 8);
+    std::memcpy(&out.dist2[i * kk], src + kk * 8, kk * 4);
+    std::int32_t tail[2];
+    std::memcpy(tail, src + kk * 12, 8);
+    out.counts[i] = tail[0];
+    if (count_examined) out.examined[i] = tail[1];
+  }
+}
+
+// What the round trips of one kNN call share on this rank.
+struct KnnCall {
+  MPI_Comm comm;
+  std::size_t me;
+  const Index* local;                          // this rank's index, nullptr for an empty shard
+  const std::vector<std::int64_t>& shard_ids;  // its global ids
+  const SearchParams& params;
+  float border_A;  // approximate methods: the budget of a border query's second answer
+  QueryStats& st;
+  DistributedQueryStats& ds;
+};
+
+// The local index's rows for the records that came in (a record's budget class 1: with A =
+// border_A), on the wire in the records' order.
+std::vector<unsigned char> answer_locally(KnnCall& c, const std::vector<QueryRecord>& got) {
+  const int k = c.params.k;
+  const std::size_t m = got.size(), rb = row_bytes(k);
+  std::vector<unsigned char> rows(m * rb, 0);
+  if (m > 0 && !c.local) throw Error("queries reached a rank with an empty shard");
+  for (std::int32_t cls : {0, 1}) {
+    std::vector<std::size_t> which;
+    for (std::size_t i = 0; i < m; ++i)
+      if (got[i].budget_class == cls) which.push_back(i);
+    if (which.empty()) continue;
+    std::vector<float> xyz(3 * which.size());
+    for (std::size_t j = 0; j < which.size(); ++j) std::memcpy(&xyz[3 * j], got[which[j]].xyz, 12);
+    SearchParams p = c.params;
+    if (cls == 1) p.A = c.border_A, p.recall_target = 0;
+    KnnResult r;
+    add_stats(c.st, c.local->query(xyz.data(), which.size(), p, r));
+    for (std::size_t j = 0; j < which.size(); ++j) pack_row(&rows[which[j] * rb], r, j, k, c.shard_ids);
+  }
+  return rows;
+}
+
+// The rows of one round trip, in the order the records were sent, and the records that crossed
+// ranks (sent to others, received from others).
+struct Rows {
+  std::vector<unsigned char> bytes;
+  std::size_t sent = 0, received = 0;
+};
+
+// Sends the records, answers the ones that came in with the local index and sends the rows back.
+// Local failures fail every rank.
+Rows round_trip(KnnCall& c, const Outbox& box, const char* phase) {
+  const std::size_t rb = row_bytes(c.params.k);
+  std::vector<std::size_t> recv_counts, back_counts;
+  const std::vector<unsigned char> in =
+      exchange(c.comm, box.records.data(), box.send_counts, sizeof(QueryRecord), recv_counts, phase);
+  const std::size_t m = in.size() / sizeof(QueryRecord);
+  std::vector<QueryRecord> got(m);
+  if (m) std::memcpy(got.data(), in.data(), in.size());
+  std::vector<unsigned char> rows;
+  std::string e;
+  try {
+    rows = answer_locally(c, got);
+  } catch (const std::exception& ex) {
+    e = std::string(phase) + ": " + what_of(ex);
+  }
+  mpi_agree(c.comm, e, std::string(kWhat) + "::query");
+  c.ds.answered += m;
+  Rows back;
+  back.sent = to_others(box.send_counts, c.me);
+  back.received = to_others(recv_counts, c.me);
+  back.bytes = exchange(c.comm, rows.data(), recv_counts, rb, back_counts, phase);
+  c.ds.bytes_sent += back.sent * sizeof(QueryRecord) + back.received * rb;
+  c.ds.bytes_received += back.received * sizeof(QueryRecord) + back.sent * rb;
+  return back;
+}
+
 // The cell side a grid build reports (block hashing's build_used "cell_size", written with 17
 // digits: it reads back exactly), 0 for an index that reports none.
 double reported_cell_side(const Index* index) {
@@ -87,7 +173,98 @@ double reported_cell_side(const Index* index) {
   return 0;
 }
 
+// The largest extent over the three axes of the points xyz (0 for none).
+double largest_extent(const std::vector<float>& xyz) {
+  const std::size_t m = xyz.size() / 3;
+  double extent = 0;
+  for (int d = 0; d < 3 && m > 0; ++d) {
+    float lo = xyz[static_cast<std::size_t>(d)], hi = lo;
+    for (std::size_t i = 0; i < m; ++i) {
+      lo = std::min(lo, xyz[3 * i + d]);
+      hi = std::max(hi, xyz[3 * i + d]);
+    }
+    extent = std::max(extent, double(hi) - double(lo));
+  }
+  return extent;
+}
+
+// Parameters: checked on every rank, agreed, so that a rank with other parameters fails all.
+// Returns the method's description.
+const MethodInfo& check_build_params(MPI_Comm comm, const Runtime* runtime, const float* points, std::size_t n,
+                                     const DistributedBuildParams& params) {
+  std::string err;
+  const MethodInfo* info = nullptr;
+  try {
+    info = &method_info(params.method);
+    if (!params.options.load_index().empty() || !params.options.save_index().empty())
+      throw Error("load_index / save_index are not supported: each rank builds its shard's index");
+    if (!(params.border_factor >= 1 && params.border_factor <= 1024))
+      throw Error("border_factor must be in [1, 1024], got " + std::to_string(params.border_factor));
+    if (params.boxes_per_rank < 1 || params.boxes_per_rank > 1024)
+      throw Error("boxes_per_rank must be in [1, 1024], got " + std::to_string(params.boxes_per_rank));
+    if (n > 0 && points == nullptr) throw Error("points is null with n = " + std::to_string(n));
+    if (!runtime) throw Error("runtime is null");
+    if (std::isnan(params.deadline_s) || std::isinf(params.deadline_s))
+      throw Error("deadline_s must be finite (0: no deadline, negative: BHCL_MPI_DEADLINE_S), got " +
+                  std::to_string(params.deadline_s));
+    if (params.deadline_s < 0)
+      if (const std::string e = distributed::deadline_env_error(); !e.empty()) throw Error(e);
+    if (params.id_base < 0 || params.id_base > (std::int64_t(1) << 62))
+      throw Error("id_base must be in [0, 2^62], got " + std::to_string(params.id_base));
+  } catch (const std::exception& e) {
+    err = what_of(e);
+  }
+  mpi_agree(comm, err, kWhat);
+  distributed::agree_parameters(comm, distributed::build_parameters(params), kWhat);
+  return *info;  // set: a rank whose method_info threw failed mpi_agree
+}
+
+// The first of this rank's n points with a NaN/Inf coordinate, named by its global id (the first
+// point's is first_id) and its place on this rank; empty when every point is finite.
+std::string nonfinite_point(const float* points, std::size_t n, std::int64_t first_id) {
+  for (std::size_t i = 0; i < n; ++i) {
+    const float* p = points + 3 * i;
+    if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) {
+      std::ostringstream os;
+      os << "points: point " << first_id + static_cast<std::int64_t>(i) << " (this rank's point " << i
+         << ") has a non-finite coordinate (" << p[0] << ", " << p[1] << ", " << p[2] << ")";
+      return os.str();
+    }
+  }
+  return {};
+}
+
+// This rank's points as records in the order of `sorted` (its composites, ascending), cut into
+// runs by the splitters: send_counts[r] of them for rank r's shard.
+std::vector<PointRecord> records_by_shard(const std::vector<Composite>& sorted, const std::vector<Composite>& split,
+                                          const float* points, std::uint64_t offset,
+                                          std::vector<std::size_t>& send_counts) {
+  const std::size_t R = split.size(), n = sorted.size();
+  send_counts.assign(R, 0);
+  std::vector<PointRecord> out(n);
+  std::size_t pos = 0;
+  for (std::size_t r = 0; r < R; ++r) {
+    const std::size_t end =
+        r + 1 < R ? static_cast<std::size_t>(std::lower_bound(sorted.begin(), sorted.end(), split[r + 1]) -
+                                             sorted.begin())
+                  : n;
+    send_counts[r] = end - pos;
+    for (; pos < end; ++pos) {
+      const std::uint64_t g = distributed::position_of(sorted[pos]);
+      const float* p = points + 3 * (g - offset);
+      out[pos] = {{p[0], p[1], p[2]}, 0, g};
+    }
+  }
+  return out;
+}
+
 }  // namespace
+
+// This rank's shard after the exchange: its points, each with its place over all ranks (its
+// global id less id_base), in the order they came in.
+struct DistributedIndex::Shard {
+  std::vector<PointRecord> points;
+};
 
 DistributedIndex::DistributedIndex(MPI_Comm comm, std::shared_ptr<Runtime> runtime, const float* points,
                                    std::size_t n, const DistributedBuildParams& params) {
@@ -97,224 +274,22 @@ DistributedIndex::DistributedIndex(MPI_Comm comm, std::shared_ptr<Runtime> runti
   try {
     MPI_Comm_rank(comm_, &rank_);
     MPI_Comm_size(comm_, &ranks_);
-    const std::size_t R = static_cast<std::size_t>(ranks_);
-
-    // Parameters: checked on every rank, agreed, so that a rank with other parameters fails all.
-    std::string err;
-    const MethodInfo* info = nullptr;
-    try {
-      info = &method_info(params.method);
-      if (!params.options.load_index().empty() || !params.options.save_index().empty())
-        throw Error("load_index / save_index are not supported: each rank builds its shard's index");
-      if (!(params.border_factor >= 1 && params.border_factor <= 1024))
-        throw Error("border_factor must be in [1, 1024], got " + std::to_string(params.border_factor));
-      if (params.boxes_per_rank < 1 || params.boxes_per_rank > 1024)
-        throw Error("boxes_per_rank must be in [1, 1024], got " + std::to_string(params.boxes_per_rank));
-      if (n > 0 && points == nullptr) throw Error("points is null with n = " + std::to_string(n));
-      if (!runtime) throw Error("runtime is null");
-      if (std::isnan(params.deadline_s) || std::isinf(params.deadline_s))
-        throw Error("deadline_s must be finite (0: no deadline, negative: BHCL_MPI_DEADLINE_S), got " +
-                    std::to_string(params.deadline_s));
-      if (params.deadline_s < 0)
-        if (const std::string e = distributed::deadline_env_error(); !e.empty()) throw Error(e);
-      if (params.id_base < 0 || params.id_base > (std::int64_t(1) << 62))
-        throw Error("id_base must be in [0, 2^62], got " + std::to_string(params.id_base));
-    } catch (const std::exception& e) {
-      err = what_of(e);
-    }
-    mpi_agree(comm_, err, kWhat);
-    distributed::agree_parameters(comm_, distributed::build_parameters(params), kWhat);
-    method_ = info->name;
-    exact_ = info->exact;
+    const MethodInfo& info = check_build_params(comm_, runtime.get(), points, n, params);
+    method_ = info.name;
+    exact_ = info.exact;
     border_factor_ = params.border_factor;
     id_base_ = params.id_base;
+    const std::uint64_t offset = number_points(points, n);
 
-    // Global indices: this rank's part follows the parts of lower ranks.
-    std::uint64_t n_local = n, offset = 0, total = 0;
-    MPI_Exscan(&n_local, &offset, 1, MPI_UINT64_T, MPI_SUM, comm_);
-    if (rank_ == 0) offset = 0;  // MPI leaves rank 0's result undefined
-    MPI_Allreduce(&n_local, &total, 1, MPI_UINT64_T, MPI_SUM, comm_);
-    // The same totals on every rank, so every rank throws here or none does.
-    if (total == 0) throw Error(std::string(kWhat) + ": no points on any rank");
-    // Global ids are int64; a shard is one local index, whose ids are int32 (2^31 - 2 points).
-    if (total > distributed::kMaxPoints)
-      throw Error(std::string(kWhat) + ": " + std::to_string(total) + " points in all: at most 2^40 - 1");
-    if (const std::uint64_t largest = (total + R - 1) / R; largest > 0x7ffffffeu)
-      throw Error(std::string(kWhat) + ": " + std::to_string(total) + " points over " + std::to_string(R) +
-                  " ranks make shards of up to " + std::to_string(largest) +
-                  " points, past one index's int32 id range (2^31 - 2 points): use at least " +
-                  std::to_string((total + 0x7ffffffdu) / 0x7ffffffeu) + " ranks");
-    n_global_ = static_cast<std::size_t>(total);
-
-    for (std::size_t i = 0; i < n && err.empty(); ++i) {
-      const float* p = points + 3 * i;
-      if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) {
-        std::ostringstream os;
-        os << "points: point " << id_base_ + static_cast<std::int64_t>(offset + i) << " (this rank's point " << i
-           << ") has a non-finite coordinate (" << p[0] << ", " << p[1] << ", " << p[2] << ")";
-        err = os.str();
-      }
-    }
-    mpi_agree(comm_, err, kWhat);
-
-    // Keys over the global box; the global order is by (key, global index).
     Stopwatch shard_clock;
-    const blockhash::Quantiser q = distributed::global_quantiser(comm_, points, n);
-    for (int d = 0; d < 3; ++d) origin_[d] = q.origin[d];
-    scale_ = q.scale;
-    std::vector<Composite> sorted(n);
-    for (std::size_t i = 0; i < n; ++i)
-      sorted[i] = distributed::composite(distributed::hilbert_key(q, points + 3 * i), offset + i);
-    std::sort(sorted.begin(), sorted.end());
-    const std::vector<Composite> split = distributed::find_splitters(comm_, sorted, total);
-
-    // Every rank derives every shard's size and first key from the splitters alone.
-    shard_sizes_.resize(R);
-    first_keys_.resize(R);
-    for (std::size_t r = 0; r < R; ++r) {
-      shard_sizes_[r] = (total * (r + 1)) / R - (total * r) / R;
-      first_keys_[r] = distributed::key_of(split[r]);
-      if (shard_sizes_[r] > 0) nonempty_.push_back(static_cast<int>(r));
-    }
-
-    // Send each point to the shard holding its composite: runs of the sorted local array.
-    std::vector<std::size_t> send_counts(R, 0), recv_counts;
-    std::vector<PointRecord> out_points(n);
-    {
-      std::size_t pos = 0;
-      for (std::size_t r = 0; r < R; ++r) {
-        const std::size_t end =
-            r + 1 < R ? static_cast<std::size_t>(
-                            std::lower_bound(sorted.begin(), sorted.end(), split[r + 1]) - sorted.begin())
-                      : n;
-        send_counts[r] = end - pos;
-        for (; pos < end; ++pos) {
-          const std::uint64_t g = distributed::position_of(sorted[pos]);
-          const float* p = points + 3 * (g - offset);
-          out_points[pos] = {{p[0], p[1], p[2]}, 0, g};
-        }
-      }
-    }
-    std::vector<Composite>().swap(sorted);
-    std::vector<unsigned char> raw = exchange(comm_, out_points.data(), send_counts,
-                                              sizeof(PointRecord), recv_counts, "sharding the points");
-    std::vector<PointRecord>().swap(out_points);
-    const std::size_t m = raw.size() / sizeof(PointRecord);
-    std::vector<PointRecord> shard(m);
-    if (m) std::memcpy(shard.data(), raw.data(), raw.size());
-    std::vector<unsigned char>().swap(raw);
-    // The splitters promised this size; a mismatch is a bug here, reported rather than hung on.
-    if (m != shard_sizes_[static_cast<std::size_t>(rank_)])
-      err = "internal error: the shard holds " + std::to_string(m) + " points, the splitters promised " +
-            std::to_string(shard_sizes_[static_cast<std::size_t>(rank_)]);
-    mpi_agree(comm_, err, kWhat);
-    build_stats_.n_global = n_global_;
-    build_stats_.n_input = n;
-    build_stats_.shard_points = m;
-    build_stats_.points_sent = n - send_counts[static_cast<std::size_t>(rank_)];
-    build_stats_.points_received = m - recv_counts[static_cast<std::size_t>(rank_)];
-    build_stats_.shard_points_all.assign(shard_sizes_.begin(), shard_sizes_.end());
-    const double mean = double(total) / double(R);
-    build_stats_.balance =
-        double(*std::max_element(shard_sizes_.begin(), shard_sizes_.end())) / mean;
-
-    // The shared boxes: consecutive runs of the shard in Hilbert order (the key order the ranks
-    // cut by, so the runs are compact pieces of the curve).
-    std::vector<float> xyz(3 * m);
-    {
-      std::vector<std::pair<Composite, std::size_t>> order(m);
-      for (std::size_t i = 0; i < m; ++i)
-        order[i] = {distributed::composite(distributed::hilbert_key(q, shard[i].xyz), shard[i].position), i};
-      std::sort(order.begin(), order.end());
-      for (std::size_t i = 0; i < m; ++i)
-        std::memcpy(&xyz[3 * i], shard[order[i].second].xyz, 12);
-    }
-    const std::size_t B = static_cast<std::size_t>(params.boxes_per_rank);
-    std::vector<distributed::Box> mine = distributed::run_boxes(xyz.data(), m, B);
-    {
-      // Fixed B slots per rank; a rank with fewer points than B fills the rest with NaN boxes.
-      std::vector<float> slots(B * 6, std::numeric_limits<float>::quiet_NaN()), all(R * B * 6);
-      for (std::size_t j = 0; j < mine.size(); ++j) {
-        std::memcpy(&slots[6 * j], mine[j].lo, 12);
-        std::memcpy(&slots[6 * j + 3], mine[j].hi, 12);
-      }
-      MPI_Allgather(slots.data(), static_cast<int>(B * 6), MPI_FLOAT, all.data(),
-                    static_cast<int>(B * 6), MPI_FLOAT, comm_);
-      boxes_.assign(R, {});
-      rank_box_.resize(R);
-      for (std::size_t r = 0; r < R; ++r) {
-        for (std::size_t j = 0; j < std::min<std::size_t>(B, shard_sizes_[r]); ++j) {
-          ShardBox b;
-          std::memcpy(b.lo, &all[(r * B + j) * 6], 12);
-          std::memcpy(b.hi, &all[(r * B + j) * 6 + 3], 12);
-          boxes_[r].push_back(b);
-        }
-        rank_box_[r] = distributed::union_box(boxes_[r]);
-      }
-    }
+    Shard shard = shard_points(points, n, offset);
+    share_boxes(shard, params.boxes_per_rank);
     build_stats_.shard_s = shard_clock.seconds();
 
-    // The local index over the shard in global-index order: a row's ties then go to the lower
-    // local index, which is the lower global index, as in one process.
-    std::sort(shard.begin(), shard.end(),
-              [](const PointRecord& a, const PointRecord& b) { return a.position < b.position; });
-    shard_ids_.resize(m);
-    for (std::size_t i = 0; i < m; ++i) {
-      shard_ids_[i] = id_base_ + static_cast<std::int64_t>(shard[i].position);
-      std::memcpy(&xyz[3 * i], shard[i].xyz, 12);
-    }
-    std::vector<PointRecord>().swap(shard);
+    const std::vector<float> xyz = global_order(std::move(shard));
     Stopwatch build_clock;
-    err.clear();
-    try {
-      if (m > 0) local_ = make_index(method_, runtime, xyz.data(), m, params.options);
-    } catch (const std::exception& e) {
-      err = "building the local " + method_ + " index of " + std::to_string(m) + " points: " + what_of(e);
-    }
-    mpi_agree(comm_, err, kWhat);
-    // Block hashing's grid: the cell side one process would choose for ALL the points, not each
-    // shard's own. The grid picks its side h so that the point-weighted mean population of a
-    // point's cell is target_cell_points: a shard of density rho_r picks h_r with h_r^3 rho_r =
-    // target, one process over every shard h = (sum_r w_r h_r^-3)^(-1/3), w_r the shard's share
-    // of the points. Each shard is rebuilt with that side (a grid build is a fraction of the
-    // sharding's cost), so that a budget A means on every shard what it means in one process.
-    // Not done when the caller set cell-size, or where a shard's extent is outside
-    // [2^-40, 2^40] (its index coordinates are then rescaled, knn.hpp, and sides do not compare).
-    if (!params.options.has("cell-size")) {
-      const double side = reported_cell_side(local_.get());
-      double extent = 0;
-      for (int d = 0; d < 3 && m > 0; ++d) {
-        float lo = xyz[static_cast<std::size_t>(d)], hi = lo;
-        for (std::size_t i = 0; i < m; ++i) {
-          lo = std::min(lo, xyz[3 * i + d]);
-          hi = std::max(hi, xyz[3 * i + d]);
-        }
-        extent = std::max(extent, double(hi) - double(lo));
-      }
-      const bool comparable = extent == 0 || (extent >= std::ldexp(1.0, -40) && extent <= std::ldexp(1.0, 40));
-      double mine[3] = {0, 0, 0}, sum[3] = {0, 0, 0};  // sum of m h^-3, of m, shards that cannot join
-      if (side > 0 && comparable)
-        mine[0] = double(m) / std::pow(side, 3.0), mine[1] = double(m);
-      else if (m > 0)
-        mine[2] = 1;
-      MPI_Allreduce(mine, sum, 3, MPI_DOUBLE, MPI_SUM, comm_);
-      if (sum[2] == 0 && sum[0] > 0) {
-        const double h = std::cbrt(sum[1] / sum[0]);
-        err.clear();
-        try {
-          if (m > 0 && std::fabs(h / side - 1.0) > 1e-9) {
-            char text[40];
-            std::snprintf(text, sizeof text, "%.17g", h);
-            MethodOptions o = params.options;
-            o.set("cell-size", text);
-            local_ = make_index(method_, runtime, xyz.data(), m, o);
-          }
-        } catch (const std::exception& e) {
-          err = "rebuilding the local blockhash index with the global cell side " + std::to_string(h) + ": " + what_of(e);
-        }
-        mpi_agree(comm_, err, kWhat);
-      }
-    }
+    build_local(runtime, xyz, params.options);
+    agree_global_cell_side(runtime, xyz, params.options);
     build_stats_.build_s = build_clock.seconds();
     build_stats_.wall_s = wall.seconds();
   } catch (...) {
@@ -322,6 +297,185 @@ DistributedIndex::DistributedIndex(MPI_Comm comm, std::shared_ptr<Runtime> runti
     MPI_Comm_free(&comm_);
     throw;
   }
+}
+
+// Global indices: this rank's part follows the parts of lower ranks. Sets n_global_ and returns
+// this rank's offset; throws on every rank for no points, too many, or a NaN/Inf point.
+std::uint64_t DistributedIndex::number_points(const float* points, std::size_t n) {
+  const std::size_t R = static_cast<std::size_t>(ranks_);
+  std::uint64_t n_local = n, offset = 0, total = 0;
+  MPI_Exscan(&n_local, &offset, 1, MPI_UINT64_T, MPI_SUM, comm_);
+  if (rank_ == 0) offset = 0;  // MPI leaves rank 0's result undefined
+  MPI_Allreduce(&n_local, &total, 1, MPI_UINT64_T, MPI_SUM, comm_);
+  // The same totals on every rank, so every rank throws here or none does.
+  if (total == 0) throw Error(std::string(kWhat) + ": no points on any rank");
+  // Global ids are int64; a shard is one local index, whose ids are int32 (2^31 - 2 points).
+  if (total > distributed::kMaxPoints)
+    throw Error(std::string(kWhat) + ": " + std::to_string(total) + " points in all: at most 2^40 - 1");
+  if (const std::uint64_t largest = (total + R - 1) / R; largest > 0x7ffffffeu)
+    throw Error(std::string(kWhat) + ": " + std::to_string(total) + " points over " + std::to_string(R) +
+                " ranks make shards of up to " + std::to_string(largest) +
+                " points, past one index's int32 id range (2^31 - 2 points): use at least " +
+                std::to_string((total + 0x7ffffffdu) / 0x7ffffffeu) + " ranks");
+  n_global_ = static_cast<std::size_t>(total);
+  mpi_agree(comm_, nonfinite_point(points, n, id_base_ + static_cast<std::int64_t>(offset)), kWhat);
+  return offset;
+}
+
+// Keys over the global box; the global order is by (key, global index), cut by the splitters into
+// the ranks' shards, each point sent to its own.
+DistributedIndex::Shard DistributedIndex::shard_points(const float* points, std::size_t n, std::uint64_t offset) {
+  const std::size_t R = static_cast<std::size_t>(ranks_);
+  const std::size_t me = static_cast<std::size_t>(rank_);
+  const std::uint64_t total = n_global_;
+  const blockhash::Quantiser q = distributed::global_quantiser(comm_, points, n);
+  for (int d = 0; d < 3; ++d) origin_[d] = q.origin[d];
+  scale_ = q.scale;
+  std::vector<Composite> sorted(n);
+  for (std::size_t i = 0; i < n; ++i)
+    sorted[i] = distributed::composite(distributed::hilbert_key(q, points + 3 * i), offset + i);
+  std::sort(sorted.begin(), sorted.end());
+  const std::vector<Composite> split = distributed::find_splitters(comm_, sorted, total);
+
+  // Every rank derives every shard's size and first key from the splitters alone.
+  shard_sizes_.resize(R);
+  first_keys_.resize(R);
+  for (std::size_t r = 0; r < R; ++r) {
+    shard_sizes_[r] = (total * (r + 1)) / R - (total * r) / R;
+    first_keys_[r] = distributed::key_of(split[r]);
+    if (shard_sizes_[r] > 0) nonempty_.push_back(static_cast<int>(r));
+  }
+
+  // Send each point to the shard holding its composite: runs of the sorted local array.
+  std::vector<std::size_t> send_counts, recv_counts;
+  std::vector<PointRecord> out_points = records_by_shard(sorted, split, points, offset, send_counts);
+  std::vector<Composite>().swap(sorted);
+  std::vector<unsigned char> raw = exchange(comm_, out_points.data(), send_counts,
+                                            sizeof(PointRecord), recv_counts, "sharding the points");
+  std::vector<PointRecord>().swap(out_points);
+  const std::size_t m = raw.size() / sizeof(PointRecord);
+  Shard shard;
+  shard.points.resize(m);
+  if (m) std::memcpy(shard.points.data(), raw.data(), raw.size());
+  std::vector<unsigned char>().swap(raw);
+  // The splitters promised this size; a mismatch is a bug here, reported rather than hung on.
+  std::string err;
+  if (m != shard_sizes_[me])
+    err = "internal error: the shard holds " + std::to_string(m) + " points, the splitters promised " +
+          std::to_string(shard_sizes_[me]);
+  mpi_agree(comm_, err, kWhat);
+  build_stats_.n_global = n_global_;
+  build_stats_.n_input = n;
+  build_stats_.shard_points = m;
+  build_stats_.points_sent = n - send_counts[me];
+  build_stats_.points_received = m - recv_counts[me];
+  build_stats_.shard_points_all.assign(shard_sizes_.begin(), shard_sizes_.end());
+  const double mean = double(total) / double(R);
+  build_stats_.balance = double(*std::max_element(shard_sizes_.begin(), shard_sizes_.end())) / mean;
+  return shard;
+}
+
+// The shared boxes: consecutive runs of the shard in Hilbert order (the key order the ranks cut
+// by, so the runs are compact pieces of the curve).
+void DistributedIndex::share_boxes(const Shard& shard, int boxes_per_rank) {
+  const std::size_t R = static_cast<std::size_t>(ranks_);
+  const std::size_t m = shard.points.size();
+  std::vector<float> xyz(3 * m);
+  {
+    std::vector<std::pair<Composite, std::size_t>> order(m);
+    for (std::size_t i = 0; i < m; ++i)
+      order[i] = {distributed::composite(key_of(shard.points[i].xyz), shard.points[i].position), i};
+    std::sort(order.begin(), order.end());
+    for (std::size_t i = 0; i < m; ++i) std::memcpy(&xyz[3 * i], shard.points[order[i].second].xyz, 12);
+  }
+  const std::size_t B = static_cast<std::size_t>(boxes_per_rank);
+  std::vector<distributed::Box> mine = distributed::run_boxes(xyz.data(), m, B);
+  // Fixed B slots per rank; a rank with fewer points than B fills the rest with NaN boxes.
+  std::vector<float> slots(B * 6, std::numeric_limits<float>::quiet_NaN()), all(R * B * 6);
+  for (std::size_t j = 0; j < mine.size(); ++j) {
+    std::memcpy(&slots[6 * j], mine[j].lo, 12);
+    std::memcpy(&slots[6 * j + 3], mine[j].hi, 12);
+  }
+  MPI_Allgather(slots.data(), static_cast<int>(B * 6), MPI_FLOAT, all.data(), static_cast<int>(B * 6), MPI_FLOAT,
+                comm_);
+  boxes_.assign(R, {});
+  rank_box_.resize(R);
+  for (std::size_t r = 0; r < R; ++r) {
+    for (std::size_t j = 0; j < std::min<std::size_t>(B, shard_sizes_[r]); ++j) {
+      ShardBox b;
+      std::memcpy(b.lo, &all[(r * B + j) * 6], 12);
+      std::memcpy(b.hi, &all[(r * B + j) * 6 + 3], 12);
+      boxes_[r].push_back(b);
+    }
+    rank_box_[r] = distributed::union_box(boxes_[r]);
+  }
+}
+
+// The shard in global-index order, the order of the local index: a row's ties then go to the
+// lower local index, which is the lower global index, as in one process. Sets shard_ids_ and
+// returns the points in that order.
+std::vector<float> DistributedIndex::global_order(Shard shard) {
+  std::vector<PointRecord>& points = shard.points;
+  const std::size_t m = points.size();
+  std::sort(points.begin(), points.end(),
+            [](const PointRecord& a, const PointRecord& b) { return a.position < b.position; });
+  std::vector<float> xyz(3 * m);
+  shard_ids_.resize(m);
+  for (std::size_t i = 0; i < m; ++i) {
+    shard_ids_[i] = id_base_ + static_cast<std::int64_t>(points[i].position);
+    std::memcpy(&xyz[3 * i], points[i].xyz, 12);
+  }
+  return xyz;
+}
+
+void DistributedIndex::build_local(const std::shared_ptr<Runtime>& runtime, const std::vector<float>& xyz,
+                                   const MethodOptions& options) {
+  const std::size_t m = xyz.size() / 3;
+  std::string err;
+  try {
+    if (m > 0) local_ = make_index(method_, runtime, xyz.data(), m, options);
+  } catch (const std::exception& e) {
+    err = "building the local " + method_ + " index of " + std::to_string(m) + " points: " + what_of(e);
+  }
+  mpi_agree(comm_, err, kWhat);
+}
+
+// Block hashing's grid: the cell side one process would choose for ALL the points, not each
+// shard's own. The grid picks its side h so that the point-weighted mean population of a
+// point's cell is target_cell_points: a shard of density rho_r picks h_r with h_r^3 rho_r =
+// target, one process over every shard h = (sum_r w_r h_r^-3)^(-1/3), w_r the shard's share
+// of the points. Each shard is rebuilt with that side (a grid build is a fraction of the
+// sharding's cost), so that a budget A means on every shard what it means in one process.
+// Not done when the caller set cell-size, or where a shard's extent is outside
+// [2^-40, 2^40] (its index coordinates are then rescaled, knn.hpp, and sides do not compare).
+void DistributedIndex::agree_global_cell_side(const std::shared_ptr<Runtime>& runtime, const std::vector<float>& xyz,
+                                              const MethodOptions& options) {
+  if (options.has("cell-size")) return;
+  const std::size_t m = xyz.size() / 3;
+  const double side = reported_cell_side(local_.get());
+  const double extent = largest_extent(xyz);
+  const bool comparable = extent == 0 || (extent >= std::ldexp(1.0, -40) && extent <= std::ldexp(1.0, 40));
+  double mine[3] = {0, 0, 0}, sum[3] = {0, 0, 0};  // sum of m h^-3, of m, shards that cannot join
+  if (side > 0 && comparable)
+    mine[0] = double(m) / std::pow(side, 3.0), mine[1] = double(m);
+  else if (m > 0)
+    mine[2] = 1;
+  MPI_Allreduce(mine, sum, 3, MPI_DOUBLE, MPI_SUM, comm_);
+  if (sum[2] != 0 || !(sum[0] > 0)) return;
+  const double h = std::cbrt(sum[1] / sum[0]);
+  std::string err;
+  try {
+    if (m > 0 && std::fabs(h / side - 1.0) > 1e-9) {
+      char text[40];
+      std::snprintf(text, sizeof text, "%.17g", h);
+      MethodOptions o = options;
+      o.set("cell-size", text);
+      local_ = make_index(method_, runtime, xyz.data(), m, o);
+    }
+  } catch (const std::exception& e) {
+    err = "rebuilding the local blockhash index with the global cell side " + std::to_string(h) + ": " + what_of(e);
+  }
+  mpi_agree(comm_, err, kWhat);
 }
 
 DistributedIndex::~DistributedIndex() {
@@ -346,6 +500,21 @@ int DistributedIndex::owner_of(const float xyz[3]) const {
   for (int r : nonempty_)
     if (first_keys_[static_cast<std::size_t>(r)] <= key) owner = r;
   return owner;
+}
+
+void DistributedIndex::route_to_owners(const float* queries, std::size_t n, QueryStats& st,
+                                       DistributedQueryStats& ds) const {
+  ds.ranks_visited.assign(n, 0);
+  ds.owner.assign(n, -1);
+  for (std::size_t i = 0; i < n; ++i) {
+    const float* q = queries + 3 * i;
+    if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2])) {
+      ++st.nonfinite_queries;
+      continue;
+    }
+    ds.owner[i] = owner_of(q);
+    ds.ranks_visited[i] = 1;
+  }
 }
 
 void DistributedIndex::ranks_meeting(const float q[3], double bound, int skip, std::vector<int>& out) const {
@@ -385,17 +554,11 @@ QueryStats DistributedIndex::query(const float* queries, std::size_t n, const Se
   return st;
 }
 
-QueryStats DistributedIndex::query(const float* queries, std::size_t n, const SearchParams& params,
-                                   KnnResult64& out, DistributedQueryStats* stats) const {
-  Stopwatch wall;
-  QueryStats st;
-  st.n_queries = n;
-  DistributedQueryStats ds;
-  const std::size_t R = static_cast<std::size_t>(ranks_);
-  const std::size_t me = static_cast<std::size_t>(rank_);
-
+// Checks the call's parameters on every rank and agrees them. Returns the budget of a border
+// query's second answer (approximate methods; 0: none).
+float DistributedIndex::check_knn_params(const float* queries, std::size_t n, const SearchParams& params) const {
   std::string err;
-  float border_A = 0;  // approximate methods: the budget of a border query's second answer
+  float border_A = 0;
   try {
     kmax_variant(params.k);
     if (std::isnan(params.max_radius) || params.max_radius < 0)
@@ -416,99 +579,34 @@ QueryStats DistributedIndex::query(const float* queries, std::size_t n, const Se
   // Every search parameter as rank 0's (k, the radius and count_examined shape the rows every
   // rank sends; the others what each rank's rows mean).
   distributed::agree_parameters(comm_, distributed::search_parameters(params), std::string(kWhat) + "::query");
+  return border_A;
+}
+
+QueryStats DistributedIndex::query(const float* queries, std::size_t n, const SearchParams& params,
+                                   KnnResult64& out, DistributedQueryStats* stats) const {
+  Stopwatch wall;
+  QueryStats st;
+  st.n_queries = n;
+  DistributedQueryStats ds;
+  const std::size_t R = static_cast<std::size_t>(ranks_);
+  const float border_A = check_knn_params(queries, n, params);
+  KnnCall call{comm_, static_cast<std::size_t>(rank_), local_.get(), shard_ids_, params, border_A, st, ds};
   const int k = params.k;
   const std::size_t kk = static_cast<std::size_t>(k);
-  const std::size_t rb = row_bytes(k);
   out.resize(n, k);
   if (params.count_examined) out.examined.assign(n, 0);
-  ds.ranks_visited.assign(n, 0);
-  ds.owner.assign(n, -1);
-
-  // Sends the records (grouped by destination rank, send_counts each), answers the ones that came
-  // in with the local index (a record's budget class 1: with A = border_A) and sends the rows
-  // back. Returns the rows in the order the records were sent. Local failures fail every rank.
-  auto round_trip = [&](const std::vector<QueryRecord>& records, const std::vector<std::size_t>& send_counts,
-                        const char* phase) {
-    std::vector<std::size_t> recv_counts, back_counts;
-    const std::vector<unsigned char> in =
-        exchange(comm_, records.data(), send_counts, sizeof(QueryRecord), recv_counts, phase);
-    const std::size_t m = in.size() / sizeof(QueryRecord);
-    std::vector<QueryRecord> got(m);
-    if (m) std::memcpy(got.data(), in.data(), in.size());
-    std::vector<unsigned char> rows(m * rb, 0);
-    std::string e;
-    try {
-      if (m > 0 && !local_) throw Error("queries reached a rank with an empty shard");
-      for (std::int32_t cls : {0, 1}) {
-        std::vector<std::size_t> which;
-        for (std::size_t i = 0; i < m; ++i)
-          if (got[i].budget_class == cls) which.push_back(i);
-        if (which.empty()) continue;
-        std::vector<float> xyz(3 * which.size());
-        for (std::size_t j = 0; j < which.size(); ++j) std::memcpy(&xyz[3 * j], got[which[j]].xyz, 12);
-        SearchParams p = params;
-        if (cls == 1) p.A = border_A, p.recall_target = 0;
-        KnnResult r;
-        add_stats(st, local_->query(xyz.data(), which.size(), p, r));
-        for (std::size_t j = 0; j < which.size(); ++j) pack_row(&rows[which[j] * rb], r, j, k, shard_ids_);
-      }
-    } catch (const std::exception& ex) {
-      e = std::string(phase) + ": " + what_of(ex);
-    }
-    mpi_agree(comm_, e, std::string(kWhat) + "::query");
-    ds.answered += m;
-    const std::size_t from_others = m - recv_counts[me];
-    std::size_t to_others = 0;
-    for (std::size_t r = 0; r < R; ++r) to_others += r == me ? 0 : send_counts[r];
-    std::vector<unsigned char> back = exchange(comm_, rows.data(), recv_counts, rb, back_counts, phase);
-    ds.bytes_sent += to_others * sizeof(QueryRecord) + from_others * rb;
-    ds.bytes_received += from_others * sizeof(QueryRecord) + to_others * rb;
-    return std::make_pair(std::move(back), std::make_pair(to_others, from_others));
-  };
 
   // Phase 1: every finite query to the rank owning its key.
   Stopwatch p1;
-  std::vector<std::size_t> send_counts(R, 0);
-  for (std::size_t i = 0; i < n; ++i) {
-    const float* q = queries + 3 * i;
-    if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2])) {
-      ++st.nonfinite_queries;
-      continue;
-    }
-    ds.owner[i] = owner_of(q);
-    ds.ranks_visited[i] = 1;
-    ++send_counts[static_cast<std::size_t>(ds.owner[i])];
-  }
-  // Counting sort by destination; sent[j] = the caller's index of the j-th record sent.
-  std::vector<std::size_t> start(R + 1, 0);
-  for (std::size_t r = 0; r < R; ++r) start[r + 1] = start[r] + send_counts[r];
-  std::vector<std::size_t> sent(start[R]);
-  std::vector<QueryRecord> records(start[R]);
+  route_to_owners(queries, n, st, ds);
+  std::vector<Route> routes;
+  for (std::size_t i = 0; i < n; ++i)
+    if (ds.owner[i] >= 0) routes.push_back({ds.owner[i], 0, i});
   {
-    std::vector<std::size_t> pos(start.begin(), start.end() - 1);
-    for (std::size_t i = 0; i < n; ++i) {
-      if (ds.owner[i] < 0) continue;
-      const std::size_t j = pos[static_cast<std::size_t>(ds.owner[i])]++;
-      sent[j] = i;
-      std::memcpy(records[j].xyz, queries + 3 * i, 12);
-      records[j].budget_class = 0;
-    }
-  }
-  {
-    auto [back, moved] = round_trip(records, send_counts, "phase 1 (owner)");
-    ds.owner_sent = moved.first;
-    ds.owner_received = moved.second;
-    // The owner's row is each query's first.
-    for (std::size_t j = 0; j < sent.size(); ++j) {
-      const std::size_t i = sent[j];
-      const unsigned char* src = &back[j * rb];
-      std::memcpy(&out.ids[i * kk], src, kk * 8);
-      std::memcpy(&out.dist2[i * kk], src + kk * 8, kk * 4);
-      std::int32_t tail[2];
-      std::memcpy(tail, src + kk * 12, 8);
-      out.counts[i] = tail[0];
-      if (params.count_examined) out.examined[i] = tail[1];
-    }
+    const Rows back = round_trip(call, group_by_rank(routes, queries, R), "phase 1 (owner)");
+    ds.owner_sent = back.sent;
+    ds.owner_received = back.received;
+    take_owner_rows(out, routes, back.bytes, k, params.count_examined);
   }
   ds.phase1_s = p1.seconds();
 
@@ -519,44 +617,30 @@ QueryStats DistributedIndex::query(const float* queries, std::size_t n, const Se
   const double radius2 = std::isinf(params.max_radius)
                              ? std::numeric_limits<double>::infinity()
                              : double(params.max_radius) * double(params.max_radius);
-  struct Extra {
-    int rank;
-    std::int32_t budget_class;
-    std::size_t query;
-  };
-  std::vector<Extra> extra;
-  {
-    std::vector<int> met;
-    for (std::size_t i = 0; i < n; ++i) {
-      if (ds.owner[i] < 0) continue;
-      const double bound = out.counts[i] >= k ? double(out.dist2[i * kk + kk - 1]) : radius2;
-      ranks_meeting(queries + 3 * i, bound, ds.owner[i], met);
-      if (met.empty()) continue;
-      for (int r : met) extra.push_back({r, 0, i});
-      if (border_A > 0) {
-        extra.push_back({ds.owner[i], 1, i});
-        ++ds.reanswered;
-      }
-      ds.ranks_visited[i] += static_cast<std::int32_t>(met.size());
-      ++ds.multi_rank_queries;
+  routes.clear();
+  std::vector<int> met;
+  for (std::size_t i = 0; i < n; ++i) {
+    if (ds.owner[i] < 0) continue;
+    const double bound = out.counts[i] >= k ? double(out.dist2[i * kk + kk - 1]) : radius2;
+    ranks_meeting(queries + 3 * i, bound, ds.owner[i], met);
+    if (met.empty()) continue;
+    for (int r : met) routes.push_back({r, 0, i});
+    if (border_A > 0) {
+      routes.push_back({ds.owner[i], 1, i});
+      ++ds.reanswered;
     }
-  }
-  std::stable_sort(extra.begin(), extra.end(), [](const Extra& a, const Extra& b) { return a.rank < b.rank; });
-  std::fill(send_counts.begin(), send_counts.end(), 0);
-  records.resize(extra.size());
-  for (std::size_t j = 0; j < extra.size(); ++j) {
-    ++send_counts[static_cast<std::size_t>(extra[j].rank)];
-    std::memcpy(records[j].xyz, queries + 3 * extra[j].query, 12);
-    records[j].budget_class = extra[j].budget_class;
+    ds.ranks_visited[i] += static_cast<std::int32_t>(met.size());
+    ++ds.multi_rank_queries;
   }
   {
-    auto [back, moved] = round_trip(records, send_counts, "phase 2 (ball)");
-    ds.extra_sent = moved.first;
-    ds.extra_received = moved.second;
+    const Rows back = round_trip(call, group_by_rank(routes, queries, R), "phase 2 (ball)");
+    ds.extra_sent = back.sent;
+    ds.extra_received = back.received;
+    const std::size_t rb = row_bytes(k);
     std::vector<std::int64_t> ids_tmp;
     std::vector<float> d2_tmp;
-    for (std::size_t j = 0; j < extra.size(); ++j)
-      merge_row(out, extra[j].query, &back[j * rb], k, ids_tmp, d2_tmp);
+    for (std::size_t j = 0; j < routes.size(); ++j)
+      merge_row(out, routes[j].query, &back.bytes[j * rb], k, ids_tmp, d2_tmp);
   }
   ds.phase2_s = p2.seconds();
   st.wall_s = wall.seconds();
