@@ -31,7 +31,7 @@ using namespace render_cmd;
 void declare_render(Args& a) {
   a.add_required("out", "the image (half-float OpenEXR); a PNG preview goes beside it", "IMAGE.exr");
   a.add_text("scene", "cornell, a scene name from the scenes folder, or an OBJ file", "cornell", "SCENE");
-  a.add_text("method", "the kNN method of the final gather", has_method("kdtree") ? "kdtree" : "bruteforce",
+  a.add_text("method", "the kNN method of the final gather", "kdtree",
              "NAME");
   a.add_integer("photons", "photons emitted", 1, Args::kNoLimit, "200000");
   a.add_integer("gather", "final-gather rays per pixel sample", 0, 4096, "32");
@@ -65,7 +65,7 @@ void declare_render(Args& a) {
                 1, 1000000, "0");
   a.group("Comparison");
   a.add_flag("compare", "render with an exact method and with block hashing at several A, side by side");
-  a.add_text("exact", "--compare: the exact method", has_method("kdtree") ? "kdtree" : "bruteforce", "NAME");
+  a.add_text("exact", "--compare: the exact method", "kdtree", "NAME");
   a.add_text("approx", "--compare: the approximate method", "blockhash", "NAME");
   a.add_text("compare-A", "--compare: the values of A, comma separated", "4,8,16", "LIST");
   a.add_number("diff-scale", "--compare: relative error shown as full scale in the difference images", "0.1");
@@ -102,7 +102,7 @@ void check_render_usage(const Args& args) {
     const double al = args.number("alpha", 0);
     if (!(al > 0 && al < 1)) throw UsageError("--alpha must be in (0, 1) (exclusive), got " + args.str("alpha", ""));
   }
-  const std::string dflt = has_method("kdtree") ? "kdtree" : "bruteforce";
+  const std::string dflt = "kdtree";
   // --threads and --seed also drive Embree and the photon tracer.
   if (cmp)
     check_method_options(args, {args.str("exact", dflt), args.str("approx", "blockhash")}, {"threads", "seed"});
@@ -178,7 +178,7 @@ PhotonMaps trace_photons(const Scene& scene, const EmbreeScene& es, const LightS
 // The plain render: one method, pass by pass; the EXR, its PNG preview and the stats.
 int run_plain(const RenderSetup& s) {
   const Args& args = s.args;
-  const std::string method = args.str("method", has_method("kdtree") ? "kdtree" : "bruteforce");
+  const std::string method = args.str("method", "kdtree");
   RenderRun r = render_with(method, method, s.ropt.search.A, s.maps, s.rt, s.mopt, s.es, s.lights, s.ropt, s.quiet);
   write_exr(s.out, r.images[0]);
   const float exposure = s.exposure_opt > 0 ? static_cast<float>(s.exposure_opt) : auto_exposure(r.images[0]);

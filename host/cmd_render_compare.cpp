@@ -22,7 +22,7 @@ struct CompareOptions {
 
 CompareOptions compare_options(const Args& args) {
   CompareOptions c;
-  c.exact = args.str("exact", has_method("kdtree") ? "kdtree" : "bruteforce");
+  c.exact = args.str("exact", "kdtree");
   c.approx = args.str("approx", "blockhash");
   c.As = parse_list(args.str("compare-A", "4,8,16"));
   c.max_rel = static_cast<float>(args.number("diff-scale", 0.1));

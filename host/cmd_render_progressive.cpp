@@ -15,7 +15,7 @@ namespace bhcl::cli::render_cmd {
 
 int run_progressive(const RenderSetup& s) {
   const Args& args = s.args;
-  const std::string method = args.str("method", has_method("kdtree") ? "kdtree" : "bruteforce");
+  const std::string method = args.str("method", "kdtree");
   ProgressiveOptions po;
   // --time alone: passes until the time is up (the option's upper bound caps them).
   po.passes = static_cast<int>(args.has("passes") ? args.integer("passes", 1) : (args.has("time") ? 1000000 : 1));

@@ -42,12 +42,6 @@ std::vector<float> parse_list(const std::string& s) {
   return v;
 }
 
-bool has_method(const std::string& m) {
-  for (const auto& n : method_names())
-    if (n == m) return true;
-  return false;
-}
-
 
 std::string format_g(double v) {
   char b[32];

@@ -25,7 +25,6 @@ double since(Clock::time_point t0);
 
 // --compare-A: positive numbers separated by commas.
 std::vector<float> parse_list(const std::string& s);
-bool has_method(const std::string& m);
 
 struct RenderRun {
   std::string label, method;

@@ -219,10 +219,6 @@ TEST_CASE("render: the OpenEXR image round-trips and the PNG preview is written"
 }
 
 TEST_CASE("render: brute force and the kd-tree give the same image") {
-  if (!has_method("kdtree")) {
-    MESSAGE("method kdtree not built: nothing to compare");
-    return;
-  }
   Scene scene = cornell_scene();
   SmallRender a = small_render(scene, "bruteforce", 3000, 32, 6, 2);
   SmallRender b = small_render(scene, "kdtree", 3000, 32, 6, 2);

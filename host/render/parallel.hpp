@@ -11,8 +11,10 @@
 
 namespace bhcl::render {
 
+// 0: the CPUs this process may use (its affinity mask), as the library's loops resolve it, not
+// hardware_concurrency() (every CPU of the machine, pinned or not).
 inline int resolve_threads(int threads) {
-  return threads > 0 ? threads : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  return threads > 0 ? threads : static_cast<int>(detail::default_threads());
 }
 
 // fn(chunk_index, begin, end) for chunks [c*chunk, min(n, (c+1)*chunk)).

@@ -30,8 +30,8 @@ Quirks quirks_for(const DeviceInfo& device) {
     q.default_local_size = 64;
     q.description = "pocl: compiles at first launch (warm-up launch before timing)";
   } else if (info.is_nvidia) {
-    // NVIDIA's driver compiles at clBuildProgram; 64 items = 2 warps keep register pressure of
-    // the private top-k list manageable.
+    // NVIDIA's driver compiles at clBuildProgram. 64 items = 2 warps a group (the private top-k
+    // list's registers are per work-item: the group size does not change them).
     q.default_local_size = 64;
     q.description = "nvidia: none";
   } else {

@@ -31,13 +31,6 @@ std::string trim_nul(std::string s) {
   return s;
 }
 
-template <typename T, cl_int Name, typename Obj>
-T info_of(const Obj& obj, const char* call) {
-  T value{};
-  check_cl(obj.getInfo(Name, &value), call);
-  return value;
-}
-
 std::string devices_listing(const std::vector<DeviceInfo>& devs) {
   std::ostringstream os;
   if (devs.empty()) os << "  (no OpenCL device found: is pocl-opencl-icd installed?)\n";
