@@ -128,7 +128,7 @@ void fill_visible_points(const std::vector<SurfacePoint>& pts, float separation,
 }
 
 // The gather queries and ray counts of one fixed chunk of visible points.
-struct ChunkOut {
+struct GatherChunk {
   std::vector<float> xyz;
   std::vector<GatherQuery> q;
   std::size_t shadow = 0, gather = 0, escaped = 0, no_query = 0;
@@ -164,7 +164,7 @@ Vec3 direct_light(const EmbreeScene& es, const LightSampler& lights, const Surfa
 // Final gather at p: rays.size() cosine-distributed rays, one incoherent stream; each that ends on
 // a diffuse surface (through mirrors and glass) becomes a query in `o`. Returns their count.
 std::uint32_t gather_queries(const EmbreeScene& es, const SurfacePoint& p, Vec3 org, Rng& rng, int max_specular_depth,
-                             float separation, std::vector<RTCRayHit>& rays, ChunkOut& o) {
+                             float separation, std::vector<RTCRayHit>& rays, GatherChunk& o) {
   const Scene& scene = es.scene();
   const std::size_t M = rays.size();
   Frame frame(p.n);
@@ -205,7 +205,7 @@ std::uint32_t gather_queries(const EmbreeScene& es, const SurfacePoint& p, Vec3 
 
 // The chunks' queries concatenated in chunk order (each chunk freed once copied), their ray
 // counts into `stats`, and each point's first query (q_begin) from its count.
-void concatenate_chunks(std::vector<ChunkOut>& co, const std::vector<std::uint32_t>& q_count, TracedPass& pass,
+void concatenate_chunks(std::vector<GatherChunk>& co, const std::vector<std::uint32_t>& q_count, TracedPass& pass,
                         RenderStats& stats) {
   std::size_t total = 0;
   for (const auto& o : co) total += o.q.size();
@@ -218,7 +218,7 @@ void concatenate_chunks(std::vector<ChunkOut>& co, const std::vector<std::uint32
     stats.gather_rays += o.gather;
     stats.gather_escaped += o.escaped;
     stats.gather_no_query += o.no_query;
-    o = ChunkOut{};
+    o = GatherChunk{};
   }
   for (std::size_t i = 0; i < q_count.size(); ++i) pass.q_begin[i + 1] = pass.q_begin[i] + q_count[i];
 }
@@ -242,10 +242,10 @@ void FinalGatherRenderer::trace_points(const std::vector<SurfacePoint>& pts, con
   auto t0 = Clock::now();
   constexpr std::size_t kChunk = 64;
   const std::size_t chunks = (n + kChunk - 1) / kChunk;
-  std::vector<ChunkOut> co(chunks);
+  std::vector<GatherChunk> co(chunks);
   std::vector<std::uint32_t> q_count(n, 0);  // gather queries of each point
   parallel_chunks(n, kChunk, opt_.threads, [&](std::size_t c, std::size_t b, std::size_t e) {
-    ChunkOut& o = co[c];
+    GatherChunk& o = co[c];
     std::vector<RTCRay> shadow(static_cast<std::size_t>(S));
     std::vector<Vec3> contrib(static_cast<std::size_t>(S));
     std::vector<RTCRayHit> rays(static_cast<std::size_t>(M));
