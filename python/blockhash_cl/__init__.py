@@ -50,7 +50,7 @@ from ._checks import (  # noqa: F401
 __all__ = [
     "Error", "OpenCLError", "Runtime", "Index", "RadiusResult", "RadiusResultWithStats", "make_index",
     "load", "devices", "select_device", "get_runtime", "method_names", "build_options", "MAX_K",
-    "HAVE_FLANN", "__version__",
+    "HAVE_FLANN", "__version__", "KDTree", "cKDTree",
 ]
 
 __version__: str = _core.__version__
@@ -721,3 +721,6 @@ Index.query.__doc__ = (Index.query.__doc__ or "").replace("{search_options}", _o
 Index.radius_search.__doc__ = (Index.radius_search.__doc__ or "").replace(
     "{radius_options}", _options_doc(_RADIUS_OPTIONS))
 make_index.__doc__ = (make_index.__doc__ or "").replace("{build_options}", _options_doc(_BUILD_OPTIONS))
+
+# scipy.spatial.KDTree's interface over an Index (_scipy.py).
+from ._scipy import KDTree, cKDTree  # noqa: E402
