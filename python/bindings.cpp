@@ -15,10 +15,14 @@
 #include <pybind11/stl.h>
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
+#include <climits>
+#include <cmath>
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <thread>
 #include <utility>
 #include <vector>
 
@@ -167,6 +171,99 @@ py::tuple radius_query(const bhcl::Index& index, const py::array_t<float, py::ar
   stats["examined"] = examined;
   return py::make_tuple(to_numpy(std::move(r_out.offsets), {rows + 1}), to_numpy(std::move(r_out.dist2), {total}),
                         to_numpy(std::move(r_out.ids), {total}), to_numpy(std::move(r_out.found), {rows}), stats);
+}
+
+// float64 refinement (python/blockhash_cl/_refine.py): distances in double from the caller's points,
+// rows re-sorted by (distance, id). Rows are split over a few threads (GIL released).
+template <typename F>
+void over_rows(std::size_t n, std::size_t work, F&& f) {
+  const unsigned hw = std::max(1u, std::min(8u, std::thread::hardware_concurrency()));
+  const unsigned t = work < 200000 ? 1u : hw;
+  std::vector<std::thread> pool;
+  for (unsigned i = 1; i < t; ++i) pool.emplace_back([&, i] { f(n * i / t, n * (i + 1) / t); });
+  f(0, n / t);
+  for (auto& th : pool) th.join();
+}
+
+inline double dist2_64(const double* q, const double* p) {
+  const double dx = q[0] - p[0], dy = q[1] - p[1], dz = q[2] - p[2];
+  return (dx * dx + dy * dy) + dz * dz;
+}
+
+// ids (n, kc) int32 (-1: missing) -> the first k of each row by float64 (distance, id): (d2 (n, k)
+// float64, ids (n, k) int32); missing are inf and -1.
+py::tuple refine_knn(const py::array_t<double, py::array::c_style>& q, const py::array_t<double, py::array::c_style>& pts,
+                     const py::array_t<std::int32_t, py::array::c_style>& ids, int k) {
+  if (q.ndim() != 2 || q.shape(1) != 3 || pts.ndim() != 2 || pts.shape(1) != 3 || ids.ndim() != 2 ||
+      ids.shape(0) != q.shape(0) || k < 1 || k > ids.shape(1))
+    throw py::value_error("refine_knn: q (n, 3), points (N, 3), ids (n, kc) with 1 <= k <= kc");
+  const std::size_t n = static_cast<std::size_t>(q.shape(0)), kc = static_cast<std::size_t>(ids.shape(1)),
+                    np = static_cast<std::size_t>(pts.shape(0)), kk = static_cast<std::size_t>(k);
+  std::vector<double> od(n * kk);
+  std::vector<std::int32_t> oi(n * kk);
+  const double* qd = q.data();
+  const double* pd = pts.data();
+  const std::int32_t* id = ids.data();
+  std::atomic<bool> bad{false};
+  {
+    py::gil_scoped_release nogil;
+    over_rows(n, n * kc, [&](std::size_t a, std::size_t b) {
+      std::vector<std::pair<double, std::int32_t>> row(kc);
+      for (std::size_t r = a; r < b; ++r) {
+        for (std::size_t j = 0; j < kc; ++j) {
+          const std::int32_t i = id[r * kc + j];
+          if (i >= 0 && static_cast<std::size_t>(i) >= np) bad = true;
+          row[j] = {i >= 0 && static_cast<std::size_t>(i) < np ? dist2_64(qd + 3 * r, pd + 3 * static_cast<std::size_t>(i))
+                                                               : HUGE_VAL,
+                    i >= 0 ? i : INT32_MAX};
+        }
+        // Insertion sort: the float32 order is nearly always the float64 one already.
+        for (std::size_t j = 1; j < kc; ++j)
+          for (std::size_t m = j; m > 0 && row[m] < row[m - 1]; --m) std::swap(row[m], row[m - 1]);
+        for (std::size_t j = 0; j < kk; ++j) {
+          od[r * kk + j] = row[j].first;
+          oi[r * kk + j] = row[j].second == INT32_MAX ? -1 : row[j].second;
+        }
+      }
+    });
+  }
+  if (bad) throw py::value_error("refine_knn: an id past the points");
+  const auto rows = static_cast<py::ssize_t>(n), cols = static_cast<py::ssize_t>(kk);
+  return py::make_tuple(to_numpy(std::move(od), {rows, cols}), to_numpy(std::move(oi), {rows, cols}));
+}
+
+// Squared float64 distances of pairs (q[owner[j]], points[ids[j]]); id -1 gives inf.
+py::array_t<double> pair_dist2(const py::array_t<double, py::array::c_style>& q,
+                               const py::array_t<std::int64_t, py::array::c_style>& owner,
+                               const py::array_t<double, py::array::c_style>& pts,
+                               const py::array_t<std::int32_t, py::array::c_style>& ids) {
+  if (q.ndim() != 2 || q.shape(1) != 3 || pts.ndim() != 2 || pts.shape(1) != 3 || owner.ndim() != 1 ||
+      ids.ndim() != 1 || owner.shape(0) != ids.shape(0))
+    throw py::value_error("pair_dist2: q (n, 3), owner (m,), points (N, 3), ids (m,)");
+  const std::size_t m = static_cast<std::size_t>(ids.shape(0)), n = static_cast<std::size_t>(q.shape(0)),
+                    np = static_cast<std::size_t>(pts.shape(0));
+  std::vector<double> out(m);
+  const double* qd = q.data();
+  const double* pd = pts.data();
+  const std::int64_t* ow = owner.data();
+  const std::int32_t* id = ids.data();
+  std::atomic<bool> bad{false};
+  {
+    py::gil_scoped_release nogil;
+    over_rows(m, m, [&](std::size_t a, std::size_t b) {
+      for (std::size_t j = a; j < b; ++j) {
+        const std::int32_t i = id[j];
+        const std::int64_t o = ow[j];
+        if (o < 0 || static_cast<std::size_t>(o) >= n || (i >= 0 && static_cast<std::size_t>(i) >= np)) {
+          bad = true;
+          continue;
+        }
+        out[j] = i < 0 ? HUGE_VAL : dist2_64(qd + 3 * o, pd + 3 * static_cast<std::size_t>(i));
+      }
+    });
+  }
+  if (bad) throw py::value_error("pair_dist2: an index out of range");
+  return to_numpy(std::move(out), {static_cast<py::ssize_t>(m)});
 }
 
 std::unique_ptr<bhcl::Index> make_index(const std::string& method,
@@ -390,6 +487,10 @@ PYBIND11_MODULE(_core, m) {
         return i.warm_up(p);
       }, py::arg("params"));
 
+  m.def("refine_knn", &refine_knn, py::arg("q").noconvert(), py::arg("points").noconvert(),
+        py::arg("ids").noconvert(), py::arg("k"), "float64 refinement of kNN rows (blockhash_cl/_refine.py).");
+  m.def("pair_dist2", &pair_dist2, py::arg("q").noconvert(), py::arg("owner").noconvert(),
+        py::arg("points").noconvert(), py::arg("ids").noconvert(), "float64 squared distances of pairs.");
   m.def("make_index", &make_index, py::arg("method"), py::arg("runtime"),
         py::arg("points").noconvert(), py::arg("options"));
 }

@@ -452,7 +452,7 @@ class Index:
             self._points = grown
         if self._points64 is not None:
             a, _ = _checked(points, "points")
-            grown = np.asfortranarray(np.concatenate([self._points64, np.asarray(a, np.float64).reshape(-1, 3)]))
+            grown = np.concatenate([self._points64, np.asarray(a, np.float64).reshape(-1, 3)])
             grown.flags.writeable = False
             self._points64 = grown
         self._p_round = max(self._p_round, _refine.rounding_bound(stored))
@@ -597,7 +597,7 @@ def _rebuild(method: str, pts: np.ndarray, origin: np.ndarray, options: Dict[str
                     f"state has {len(pts)} rows of which {removed.size} removed")
     pts.flags.writeable = False
     if points64 is not None:
-        points64 = np.array(points64, np.float64, order="F")
+        points64 = np.array(points64, np.float64, order="C")
         if points64.shape != pts.shape:
             raise Error(f"load: the float64 copy has shape {points64.shape}, the points {pts.shape}")
         points64.flags.writeable = False
@@ -620,7 +620,7 @@ def _copy64(a: np.ndarray, stored: np.ndarray, origin: np.ndarray, refine: Optio
             return None
     elif refine is not True:
         raise TypeError(f"refine must be True, False or None, got {refine!r}")
-    p64 = np.array(a, np.float64, order="F")  # column-major: the refinement gathers a column at a time
+    p64 = np.array(a, np.float64, order="C")
     p64.flags.writeable = False
     return p64
 

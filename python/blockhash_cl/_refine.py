@@ -29,6 +29,8 @@ from typing import Any, Callable, Dict, Optional, Tuple
 
 import numpy as np
 
+from . import _core
+
 _REL = 2.0 ** -19  # relative bound on the float32 distance arithmetic (about 30 ulp, generous)
 _SQRT3 = float(np.sqrt(3.0))
 
@@ -66,38 +68,16 @@ def lower(d32: Any, delta: Any) -> Any:
     return np.asarray(d32, np.float64) * (1 - 2 * _REL) - delta
 
 
-def dist2_64(q64: np.ndarray, p64: np.ndarray, ids: np.ndarray) -> np.ndarray:
-    """Squared float64 distances (dx dx + dy dy) + dz dz of queries q64 ((n, 3), or (total, 3)
-    for 1-D ids) to the caller's points p64[ids] (ids (n, kc) or (total,)); id -1 (missing)
-    gives inf. One coordinate at a time (p64 is kept column-major, so each column's gather
-    reads one contiguous array)."""
-    safe = np.where(ids >= 0, ids, 0)
-    d2 = None
-    for j in range(3):
-        qj = q64[:, j, None] if ids.ndim == 2 else q64[:, j]
-        dj = qj - p64[:, j][safe]
-        d2 = dj * dj if d2 is None else d2 + dj * dj
-    assert d2 is not None
-    d2[ids < 0] = np.inf
-    return d2
+def dist2_64(q64: np.ndarray, owner: np.ndarray, p64: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """Squared float64 distances (dx dx + dy dy) + dz dz of the pairs (q64[owner[j]],
+    p64[ids[j]]) (the C++ layer, threads, GIL released); id -1 (missing) gives inf."""
+    return _core.pair_dist2(np.ascontiguousarray(q64, np.float64), np.ascontiguousarray(owner, np.int64), p64,
+                            np.ascontiguousarray(ids, np.int32))
 
 
-def _sorted_rows(d2: np.ndarray, ids: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
-    """Each row ordered by (float64 distance, id), missing (-1, inf) last. The float32 order is
-    nearly always the float64 one already: only the rows it is not are sorted."""
-    key = np.where(ids >= 0, ids, np.iinfo(np.int32).max)
-    if d2.shape[1] < 2:
-        return d2, ids
-    bad = np.flatnonzero(~np.all(d2[:, 1:] > d2[:, :-1], axis=1))
-    if len(bad):  # ties (missing neighbours, duplicates) in order by id need no sort either
-        a, b, ka, kb = d2[bad, :-1], d2[bad, 1:], key[bad, :-1], key[bad, 1:]
-        bad = bad[~np.all((b > a) | ((b == a) & (kb > ka)) | ((ka == kb) & np.isinf(a)), axis=1)]
-    if len(bad):
-        order = np.lexsort((key[bad], d2[bad]), axis=-1)
-        d2, ids = d2.copy(), ids.copy()
-        d2[bad] = np.take_along_axis(d2[bad], order, -1)
-        ids[bad] = np.take_along_axis(ids[bad], order, -1)
-    return d2, ids
+def _refined_rows(q64: np.ndarray, p64: np.ndarray, ids: np.ndarray, k: int) -> Tuple[np.ndarray, np.ndarray]:
+    """The first k of each row of candidates by float64 (distance, id), missing (inf, -1) last."""
+    return _core.refine_knn(np.ascontiguousarray(q64, np.float64), p64, np.ascontiguousarray(ids, np.int32), k)
 
 
 def knn(search: Callable[[np.ndarray, int, Optional[float]], Tuple[np.ndarray, np.ndarray, np.ndarray, Dict[str, Any]]],
@@ -112,7 +92,9 @@ def knn(search: Callable[[np.ndarray, int, Optional[float]], Tuple[np.ndarray, n
     Returns (dist2 float64 (n, k), ids int32 (n, k), counts (n,), stats of the first search with
     the refine_* fields)."""
     n = len(q64)
+    t_prep = time.perf_counter()
     delta = query_delta(q32, point_rounding)
+    prep_s = time.perf_counter() - t_prep
     kc = min(max_k, k + 1) if exact else k
     wide_r = None if max_radius is None else float(upper(max_radius, float(np.max(delta, initial=0.0))))
     t_search = time.perf_counter()
@@ -127,13 +109,12 @@ def knn(search: Callable[[np.ndarray, int, Optional[float]], Tuple[np.ndarray, n
     radius_rows = 0
     candidates = kc
     while True:
-        d2, ids = _sorted_rows(dist2_64(q64[rows], p64, ids32), ids32)
+        kk = min(k, ids32.shape[1])
+        take_d2, take_ids = _refined_rows(q64[rows], p64, ids32, kk)
         if max_radius is not None:
             limit = max_radius * max_radius
-            outside = d2 >= limit if strict else d2 > limit
-            d2[outside], ids[outside] = np.inf, -1
-        kk = min(k, d2.shape[1])
-        take_d2, take_ids = d2[:, :kk], ids[:, :kk]
+            outside = take_d2 >= limit if strict else take_d2 > limit
+            take_d2[outside], take_ids[outside] = np.inf, -1
         if not exact:
             out_d2[rows, :kk], out_ids[rows, :kk] = take_d2, take_ids
             break
@@ -145,7 +126,7 @@ def knn(search: Callable[[np.ndarray, int, Optional[float]], Tuple[np.ndarray, n
         last = np.sqrt(d2_32[:, -1].astype(np.float64))
         done = (np.asarray(counts) < ids32.shape[1]) | (lower(last, delta[rows]) > u)
         if kk == k and len(rows) == n:  # the first pass: every row (those not done are redone)
-            out_d2, out_ids = np.ascontiguousarray(take_d2), np.ascontiguousarray(take_ids)
+            out_d2, out_ids = take_d2, take_ids
         else:
             out_d2[rows[done], :kk], out_ids[rows[done], :kk] = take_d2[done], take_ids[done]
         rows, u = rows[~done], u[~done]
@@ -167,7 +148,7 @@ def knn(search: Callable[[np.ndarray, int, Optional[float]], Tuple[np.ndarray, n
         offsets, _, rids = radius(q32[rows], r)
         searched += time.perf_counter() - t_s
         owner = np.repeat(np.arange(len(rows)), np.diff(offsets))
-        rd2 = dist2_64(q64[rows][owner], p64, rids)
+        rd2 = dist2_64(q64[rows], owner, p64, rids)
         order = np.lexsort((rids, rd2, owner))
         owner, rd2, rids = owner[order], rd2[order], rids[order]
         rank = np.arange(len(owner)) - np.searchsorted(owner, np.arange(len(rows)))[owner]
@@ -180,7 +161,7 @@ def knn(search: Callable[[np.ndarray, int, Optional[float]], Tuple[np.ndarray, n
         out_ids[rows[owner[sel]], rank[sel]] = rids[sel]
         break
     found = np.sum(out_ids >= 0, axis=1).astype(np.int32)
-    refine_s = time.perf_counter() - t0
+    refine_s = time.perf_counter() - t0 + prep_s
     stats = dict(stats)
     stats.update(refined=True, refine_exact=bool(exact), refine_s=refine_s,
                  refine_share=refine_s / (first_s + refine_s) if first_s + refine_s > 0 else 0.0,
@@ -198,7 +179,9 @@ def radius(search: Callable[[np.ndarray, float, int], Tuple[np.ndarray, np.ndarr
     radius r (not squared) with at most cap results per query (0: none), sorted: (offsets, dist2,
     ids, found, stats). Returns (offsets int64, dist2 float64, ids int32, found, stats)."""
     n = len(q64)
+    t_prep = time.perf_counter()
     delta = query_delta(q32, point_rounding)
+    prep_s = time.perf_counter() - t_prep
     rq = np.sqrt(r2)
     r_search = float(np.max(upper(rq, delta), initial=0.0)) if n else 0.0
     if not exact:
@@ -214,7 +197,7 @@ def radius(search: Callable[[np.ndarray, float, int], Tuple[np.ndarray, np.ndarr
     searched = 0.0
     counts = np.diff(offsets)
     owner = np.repeat(np.arange(n), counts)
-    d2 = dist2_64(q64[owner], p64, ids)
+    d2 = dist2_64(q64, owner, p64, ids)
     keep = d2 <= r2[owner]
     again = np.zeros(0, np.int64)
     if cap:
@@ -236,7 +219,7 @@ def radius(search: Callable[[np.ndarray, float, int], Tuple[np.ndarray, np.ndarr
         # Replace those rows' results with the uncapped ones.
         drop = np.isin(owner, again)
         own2 = again[np.repeat(np.arange(len(again)), np.diff(o2))]
-        d2b = dist2_64(q64[own2], p64, i2)
+        d2b = dist2_64(q64, own2, p64, i2)
         owner = np.concatenate([owner[~drop], own2])
         d2 = np.concatenate([d2[~drop], d2b])
         ids = np.concatenate([ids[~drop], i2])
@@ -259,7 +242,7 @@ def radius(search: Callable[[np.ndarray, float, int], Tuple[np.ndarray, np.ndarr
     kept = np.bincount(owner, minlength=n)
     new_offsets = np.zeros(n + 1, np.int64)
     np.cumsum(kept, out=new_offsets[1:])
-    refine_s = time.perf_counter() - t0
+    refine_s = time.perf_counter() - t0 + prep_s
     stats = dict(stats)
     stats["results"] = int(new_offsets[-1])
     if max_results:
