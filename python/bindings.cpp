@@ -266,6 +266,71 @@ py::array_t<double> pair_dist2(const py::array_t<double, py::array::c_style>& q,
   return to_numpy(std::move(out), {static_cast<py::ssize_t>(m)});
 }
 
+// A radius search's slices (offsets (n + 1,), ids) refined: each query's points within r2[i]
+// (squared, float64 distances <= r2), sorted by (distance, id) when `sorted`, else in the given
+// order: (offsets, d2 float64, ids int32).
+py::tuple refine_radius(const py::array_t<double, py::array::c_style>& q, const py::array_t<double, py::array::c_style>& pts,
+                        const py::array_t<std::int64_t, py::array::c_style>& offsets,
+                        const py::array_t<std::int32_t, py::array::c_style>& ids,
+                        const py::array_t<double, py::array::c_style>& r2, bool sorted) {
+  const std::size_t n = static_cast<std::size_t>(q.shape(0));
+  if (q.ndim() != 2 || q.shape(1) != 3 || pts.ndim() != 2 || pts.shape(1) != 3 || offsets.ndim() != 1 ||
+      static_cast<std::size_t>(offsets.shape(0)) != n + 1 || ids.ndim() != 1 || r2.ndim() != 1 ||
+      static_cast<std::size_t>(r2.shape(0)) != n || offsets.data()[n] != ids.shape(0))
+    throw py::value_error("refine_radius: q (n, 3), points (N, 3), offsets (n + 1,), ids (offsets[n],), r2 (n,)");
+  const std::size_t total = static_cast<std::size_t>(ids.shape(0)), np = static_cast<std::size_t>(pts.shape(0));
+  std::vector<double> d2(total);
+  std::vector<std::int32_t> out_ids(total);
+  std::vector<std::int64_t> kept(n + 1, 0);
+  const double* qd = q.data();
+  const double* pd = pts.data();
+  const double* rr = r2.data();
+  const std::int64_t* off = offsets.data();
+  const std::int32_t* id = ids.data();
+  std::atomic<bool> bad{false};
+  {
+    py::gil_scoped_release nogil;
+    // Each slice compacted in place (its kept points at its start), then the slices packed.
+    over_rows(n, total, [&](std::size_t a, std::size_t b) {
+      std::vector<std::pair<double, std::int32_t>> row;
+      for (std::size_t r = a; r < b; ++r) {
+        row.clear();
+        for (std::int64_t j = off[r]; j < off[r + 1]; ++j) {
+          const std::int32_t i = id[j];
+          if (i < 0 || static_cast<std::size_t>(i) >= np) {
+            bad = true;
+            continue;
+          }
+          const double d = dist2_64(qd + 3 * r, pd + 3 * static_cast<std::size_t>(i));
+          if (d <= rr[r]) row.emplace_back(d, i);
+        }
+        if (sorted) std::sort(row.begin(), row.end());
+        for (std::size_t j = 0; j < row.size(); ++j) {
+          d2[static_cast<std::size_t>(off[r]) + j] = row[j].first;
+          out_ids[static_cast<std::size_t>(off[r]) + j] = row[j].second;
+        }
+        kept[r + 1] = static_cast<std::int64_t>(row.size());
+      }
+    });
+    std::size_t at = 0;
+    for (std::size_t r = 0; r < n; ++r) {
+      const std::size_t from = static_cast<std::size_t>(off[r]), m = static_cast<std::size_t>(kept[r + 1]);
+      if (from != at) {
+        std::copy(d2.begin() + from, d2.begin() + from + m, d2.begin() + at);
+        std::copy(out_ids.begin() + from, out_ids.begin() + from + m, out_ids.begin() + at);
+      }
+      at += m;
+      kept[r + 1] += kept[r];
+    }
+    d2.resize(at);
+    out_ids.resize(at);
+  }
+  if (bad) throw py::value_error("refine_radius: an id past the points");
+  const auto m = static_cast<py::ssize_t>(d2.size());
+  return py::make_tuple(to_numpy(std::move(kept), {static_cast<py::ssize_t>(n + 1)}), to_numpy(std::move(d2), {m}),
+                        to_numpy(std::move(out_ids), {m}));
+}
+
 std::unique_ptr<bhcl::Index> make_index(const std::string& method,
                                         const std::shared_ptr<bhcl::Runtime>& runtime,
                                         const py::array_t<float, py::array::c_style>& points,
@@ -491,6 +556,9 @@ PYBIND11_MODULE(_core, m) {
         py::arg("ids").noconvert(), py::arg("k"), "float64 refinement of kNN rows (blockhash_cl/_refine.py).");
   m.def("pair_dist2", &pair_dist2, py::arg("q").noconvert(), py::arg("owner").noconvert(),
         py::arg("points").noconvert(), py::arg("ids").noconvert(), "float64 squared distances of pairs.");
+  m.def("refine_radius", &refine_radius, py::arg("q").noconvert(), py::arg("points").noconvert(),
+        py::arg("offsets").noconvert(), py::arg("ids").noconvert(), py::arg("r2").noconvert(), py::arg("sorted"),
+        "float64 refinement of radius slices.");
   m.def("make_index", &make_index, py::arg("method"), py::arg("runtime"),
         py::arg("points").noconvert(), py::arg("options"));
 }

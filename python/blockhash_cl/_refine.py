@@ -195,6 +195,19 @@ def radius(search: Callable[[np.ndarray, float, int], Tuple[np.ndarray, np.ndarr
     first_s = time.perf_counter() - t_search
     t0 = time.perf_counter()
     searched = 0.0
+    if not cap:  # the common case: each slice filtered (and sorted) in the C++ layer
+        new_offsets, d2, ids = _core.refine_radius(np.ascontiguousarray(q64, np.float64), p64,
+                                                   np.ascontiguousarray(offsets, np.int64),
+                                                   np.ascontiguousarray(ids, np.int32),
+                                                   np.ascontiguousarray(r2, np.float64), bool(return_sorted))
+        refine_s = time.perf_counter() - t0 + prep_s
+        stats = dict(stats)
+        stats["results"] = int(new_offsets[-1])
+        stats.update(refined=True, refine_exact=bool(exact), refine_s=refine_s,
+                     refine_share=refine_s / (first_s + refine_s) if first_s + refine_s > 0 else 0.0,
+                     refine_search_s=0.0, refine_candidates=int(len(d2_32)), refine_requeried_rows=0,
+                     refine_radius_rows=0)
+        return new_offsets, d2, ids, np.diff(new_offsets), stats
     counts = np.diff(offsets)
     owner = np.repeat(np.arange(n), counts)
     d2 = dist2_64(q64, owner, p64, ids)
