@@ -148,7 +148,8 @@ class Index:
 
     Attributes: method, exact, size (also len()), memory_bytes, build_seconds, device (a dict as
     devices() gives), build_info (the parameters a block-hash build used), coordinates (the origin
-    float64 input is stored relative to and the rounding left), last_stats (the last query's
+    float64 input is stored relative to and the rounding left), refined (answers in float64 from
+    the caller's float64 points: make_index's refine), last_stats (the last query's
     stats dict, whichever thread ran it).
 
     Pickling (multiprocessing, dask) and save()/load() work for every method: a block-hash index
@@ -294,8 +295,9 @@ class Index:
         search keywords of each method's option table (A and recall_target exclude each other):
 {search_options}
 
-        Returns (dist2, ids): (n, k) float32 squared distances (caller units) and (n, k) int32
-        indices into the points, each row ascending (FAISS's order); then counts ((n,) int32,
+        Returns (dist2, ids): (n, k) float32 squared distances (caller units; float64, each row
+        recomputed from the caller's points, when the index is refined: make_index's refine) and
+        (n, k) int32 indices into the points, each row ascending (FAISS's order); then counts ((n,) int32,
         neighbours found per query) if return_counts, then the stats dict if return_stats (also
         in last_stats): n_queries, nonfinite_queries, batches, compile_s, upload_s, query_s,
         download_s, wall_s, queries_per_s, coordinates (see Index.coordinates), and for blockhash
@@ -397,7 +399,8 @@ class Index:
         an empty slice.
 
         Returns a RadiusResult (offsets, dist2, ids) in FAISS's layout: query i's results are
-        dist2[offsets[i]:offsets[i+1]] (float32, SQUARED) and the same slice of ids (int32), each
+        dist2[offsets[i]:offsets[i+1]] (float32, SQUARED; float64 when the index is refined, the
+        points within r in float64) and the same slice of ids (int32), each
         sorted by (distance, index) unless return_sorted=False; offsets is (n + 1,) int64. With
         return_stats, a RadiusResultWithStats whose stats are query's, plus results,
         truncated_queries and found (the (n,) counts before the cap). The GIL is released while

@@ -135,7 +135,7 @@ class KDTree:
         """(n, k) float64 squared distances and int64 ids (-1 missing), nearer than dub."""
         from . import MAX_K, _core
         nq = len(xs)
-        if self.index is None or nq == 0:
+        if self.index is None or nq == 0 or not dub > 0:  # nothing is nearer than 0 (or a negative bound)
             return np.full((nq, k), np.inf), np.full((nq, k), -1, np.int64)
         q = self.index._to_index(xs, "x")
         mr = None if math.isinf(dub) else dub

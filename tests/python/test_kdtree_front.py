@@ -111,3 +111,18 @@ def test_refusals_name_what_is_supported(sets):
         bh.KDTree(a, method="nope")
     with pytest.raises(ValueError, match="grid"):
         bh.KDTree(a, grid=0)
+
+
+def test_bounds_nan_queries_and_integer_data(sets):
+    a, b, sa, _ = sets
+    t = bh.KDTree(a)
+    for dub in (-1.0, 0.0):
+        d, i = t.query(b[:5], k=2, distance_upper_bound=dub)
+        assert np.isinf(d).all() and (i == t.n).all()
+    q = b[:4].copy()
+    q[0, 1] = np.nan
+    d, i = t.query(q, k=2)
+    assert np.isinf(d[0]).all() and (i[0] == t.n).all()
+    np.testing.assert_array_equal(i[1:], sa.query(q[1:], k=2)[1])
+    ti = bh.KDTree(np.arange(30).reshape(10, 3).tolist())
+    assert ti.data.dtype == np.float64 and ti.query([0, 0, 0], k=2)[1].tolist() == [0, 1]
