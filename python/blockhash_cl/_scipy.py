@@ -327,7 +327,6 @@ class KDTree:
         weighted = weights is not None
         r2 = np.where(rr < 0, -1.0, rr * rr)
         total = np.zeros(len(rr), np.float64 if weighted else np.int64)
-        finite = rr[np.isfinite(rr) & (rr >= 0)]
         rmax = float(np.max(rr)) if len(rr) and np.max(rr) >= 0 else -1.0
         if rmax >= 0 and self.n and other.n:
             for i, j, d2 in self._pairs(other, rmax):
@@ -344,7 +343,6 @@ class KDTree:
                     total += cw[pos]
                 else:
                     total += pos
-        del finite
         if not cumulative:
             total = np.diff(np.concatenate([np.zeros(1, total.dtype), total]))
         if ra.ndim == 0:
