@@ -23,6 +23,7 @@
 #include <memory>
 #include <string>
 #include <thread>
+#include <type_traits>
 #include <utility>
 #include <vector>
 
@@ -31,6 +32,7 @@
 #include "blockhash_cl/error.hpp"
 #include "blockhash_cl/factory.hpp"
 #include "blockhash_cl/knn.hpp"
+#include "blockhash_cl/multi_device.hpp"
 #include "blockhash_cl/runtime.hpp"
 #if BHCL_HAVE_FLANN
 #include "blockhash_cl/flann_index.hpp"
@@ -98,7 +100,7 @@ void add_used(py::dict& o, const bhcl::MethodInfo::Used& used) {
 
 // What the search actually used beyond the caller's parameters (as `bhcl knn --stats` writes it):
 // SearchIndex::search_used.
-void add_resolved(py::dict& o, const bhcl::Index& index, const bhcl::SearchParams& p) {
+void add_resolved(py::dict& o, const bhcl::SearchIndex& index, const bhcl::SearchParams& p) {
   bhcl::UsedFields used;
   {
     py::gil_scoped_release nogil;
@@ -108,7 +110,8 @@ void add_resolved(py::dict& o, const bhcl::Index& index, const bhcl::SearchParam
 }
 
 // kNN: (dist2 (n, k) float32, ids (n, k) int32, counts (n,) int32, stats dict).
-py::tuple knn_query(const bhcl::Index& index, const py::array_t<float, py::array::c_style>& queries,
+template <typename IndexT>
+py::tuple knn_query(const IndexT& index, const py::array_t<float, py::array::c_style>& queries,
                     const bhcl::SearchParams& params) {
   const std::size_t n = rows_of(queries, "queries");
   bhcl::KnnResult r;
@@ -152,15 +155,21 @@ py::tuple knn_query(const bhcl::Index& index, const py::array_t<float, py::array
 
 // Radius search: (offsets (n + 1,) int64, dist2 (total,) float32, ids (total,) int32,
 // found (n,) int64, stats dict with truncated_queries).
-py::tuple radius_query(const bhcl::Index& index, const py::array_t<float, py::array::c_style>& queries,
+template <typename IndexT>
+py::tuple radius_query(const IndexT& index, const py::array_t<float, py::array::c_style>& queries,
                        float r, bool squared, const bhcl::RadiusParams& params) {
   const std::size_t n = rows_of(queries, "queries");
   bhcl::RadiusResult r_out;
   bhcl::QueryStats st;
   {
     py::gil_scoped_release nogil;
-    st = squared ? index.radius_search_squared(queries.data(), n, r, params, r_out)
-                 : index.radius_search(queries.data(), n, r, params, r_out);
+    if constexpr (std::is_same_v<IndexT, bhcl::Index>) {
+      st = squared ? index.radius_search_squared(queries.data(), n, r, params, r_out)
+                   : index.radius_search(queries.data(), n, r, params, r_out);
+    } else {
+      if (squared) throw bhcl::Error("radius_search: a multi-device index takes r, not squared=True");
+      st = index.radius_search(queries.data(), n, r, params, r_out);
+    }
   }
   const auto total = static_cast<py::ssize_t>(r_out.total()), rows = static_cast<py::ssize_t>(n);
   py::dict stats = stats_dict(st);
@@ -514,8 +523,8 @@ PYBIND11_MODULE(_core, m) {
       .def_property_readonly("build_seconds", &bhcl::Index::build_seconds)
       .def_property_readonly("runtime", &bhcl::Index::runtime_ptr)
       .def_property_readonly("build_info", &build_info)
-      .def("query", &knn_query, py::arg("queries").noconvert(), py::arg("params"))
-      .def("radius_search", &radius_query, py::arg("queries").noconvert(), py::arg("r"),
+      .def("query", &knn_query<bhcl::Index>, py::arg("queries").noconvert(), py::arg("params"))
+      .def("radius_search", &radius_query<bhcl::Index>, py::arg("queries").noconvert(), py::arg("r"),
            py::arg("squared"), py::arg("params"))
       .def("save", &save, py::arg("path"))
       // Updates (Index::insert/remove): the new ids (first .. first + n - 1), GIL released.
@@ -561,4 +570,81 @@ PYBIND11_MODULE(_core, m) {
         "float64 refinement of radius slices.");
   m.def("make_index", &make_index, py::arg("method"), py::arg("runtime"),
         py::arg("points").noconvert(), py::arg("options"));
+
+  // bhcl::MultiDeviceIndex with the attributes and calls of Index above that the package's Index
+  // uses (it wraps either): one copy per runtime, a batch split among them by their throughput.
+  using Multi = bhcl::MultiDeviceIndex;
+  py::class_<Multi, std::unique_ptr<Multi>>(m, "MultiDeviceIndex")
+      .def(py::init([](std::vector<std::shared_ptr<bhcl::Runtime>> runtimes, const std::string& method,
+                       const py::array_t<float, py::array::c_style>& points, const bhcl::MethodOptions& options) {
+             const std::size_t n = rows_of(points, "points");
+             py::gil_scoped_release nogil;
+             return std::make_unique<Multi>(std::move(runtimes), method, points.data(), n, options);
+           }),
+           py::arg("runtimes"), py::arg("method"), py::arg("points").noconvert(), py::arg("options"))
+      .def_property_readonly("method", &Multi::method)
+      .def_property_readonly("exact", &Multi::exact)
+      .def_property_readonly("size", &Multi::size)
+      .def_property_readonly("devices", &Multi::devices)
+      .def_property_readonly("memory_bytes", [](const Multi& x) {
+        std::size_t b = 0;
+        for (std::size_t d = 0; d < x.devices(); ++d) b += x.index(d).memory_bytes();
+        return b;
+      })
+      .def_property_readonly("host_bytes", [](const Multi& x) {
+        std::size_t b = 0;
+        for (std::size_t d = 0; d < x.devices(); ++d) b += x.index(d).host_bytes();
+        return b;
+      })
+      .def_property_readonly("saves", [](const Multi&) { return false; })
+      .def_property_readonly("build_seconds", [](const Multi& x) {
+        double s = 0;
+        for (std::size_t d = 0; d < x.devices(); ++d) s = std::max(s, x.index(d).build_seconds());
+        return s;
+      })
+      .def_property_readonly("runtime", [](const Multi& x) { return x.index(0).runtime_ptr(); })
+      .def_property_readonly("runtimes", [](const Multi& x) {
+        std::vector<std::shared_ptr<bhcl::Runtime>> r;
+        for (std::size_t d = 0; d < x.devices(); ++d) r.push_back(x.index(d).runtime_ptr());
+        return r;
+      })
+      .def_property_readonly("build_info", [](const Multi& x) {
+        py::dict o;
+        add_used(o, x.build_used());
+        return o;
+      })
+      .def_property_readonly("weights", &Multi::weights)
+      .def("set_weights", &Multi::set_weights, py::arg("weights"))
+      .def("query", &knn_query<Multi>, py::arg("queries").noconvert(), py::arg("params"))
+      .def("radius_search", &radius_query<Multi>, py::arg("queries").noconvert(), py::arg("r"),
+           py::arg("squared"), py::arg("params"))
+      .def("save", [](const Multi&, const std::string&) {
+        throw bhcl::Error("save: a multi-device index saves through the package (its points), not a structure file");
+      }, py::arg("path"))
+      .def("insert", [](Multi& x, const py::array_t<float, py::array::c_style>& points) {
+             const std::size_t n = rows_of(points, "points");
+             std::int32_t first = 0;
+             {
+               py::gil_scoped_release nogil;
+               first = x.insert(points.data(), n);
+             }
+             std::vector<std::int32_t> ids(n);
+             for (std::size_t i = 0; i < n; ++i) ids[i] = first + static_cast<std::int32_t>(i);
+             return to_numpy(std::move(ids), {static_cast<py::ssize_t>(n)});
+           }, py::arg("points").noconvert())
+      .def("remove", [](Multi& x, const py::array_t<std::int32_t, py::array::c_style>& ids) {
+             if (ids.ndim() != 1) throw bhcl::Error("remove: ids must be a 1-D array");
+             const std::size_t n = static_cast<std::size_t>(ids.shape(0));
+             py::gil_scoped_release nogil;
+             x.remove(ids.data(), n);
+           }, py::arg("ids").noconvert())
+      .def_property_readonly("id_bound", &Multi::id_bound)
+      .def("contains", [](const Multi& x, std::int32_t id) { return x.index(0).contains(id); }, py::arg("id"))
+      .def_property_readonly("removed_count", [](const Multi& x) { return x.index(0).removed_count(); })
+      .def("warm_up", [](const Multi& x, const bhcl::SearchParams& p) {
+        py::gil_scoped_release nogil;
+        double s = 0;
+        for (std::size_t d = 0; d < x.devices(); ++d) s += x.index(d).warm_up(p);
+        return s;
+      }, py::arg("params"));
 }

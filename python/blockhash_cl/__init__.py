@@ -162,12 +162,15 @@ class Index:
     """
 
     __slots__ = ("_impl", "last_stats", "_origin", "_points", "_options", "_coords", "_removed", "_points64",
-                 "_p_round")
+                 "_p_round", "_devices")
 
     def __init__(self, impl: "_core.Index", origin: Optional[np.ndarray] = None,
                  points: Optional[np.ndarray] = None, options: Optional[Dict[str, Any]] = None,
-                 removed: Optional[np.ndarray] = None, points64: Optional[np.ndarray] = None) -> None:
+                 removed: Optional[np.ndarray] = None, points64: Optional[np.ndarray] = None,
+                 devices: Optional[List[str]] = None) -> None:
         self._impl = impl
+        # The device specs of a multi-device index (make_index's devices), None for one device.
+        self._devices = devices
         # The caller's float64 points (a row per id issued) when answers are refined in float64,
         # and the largest rounding of a stored coordinate (the search's widening, _refine.py).
         self._points64 = points64
@@ -212,7 +215,22 @@ class Index:
 
     @property
     def device(self) -> Dict[str, Any]:
+        """The device (of a multi-device index: the first copy's; see devices)."""
         return dict(self._impl.runtime.device)
+
+    @property
+    def devices(self) -> List[Dict[str, Any]]:
+        """The device of each copy of the index: one for a single-device index, one per entry of
+        make_index's devices for a multi-device one."""
+        if self._devices is None:
+            return [self.device]
+        return [dict(r.device) for r in self._impl.runtimes]
+
+    @property
+    def weights(self) -> List[float]:
+        """A multi-device index's current split of a batch among its devices (summing to 1; equal
+        at first, then each device's measured throughput); [1.0] for one device."""
+        return list(self._impl.weights) if self._devices is not None else [1.0]
 
     @property
     def build_info(self) -> Dict[str, Any]:
@@ -552,7 +570,7 @@ class Index:
         state: Dict[str, Any] = {"format": _NPZ_FORMAT, "method": self.method, "options": dict(self._options),
                                  "origin": self._origin.copy(), "points": self._travelling_points(),
                                  "removed": self._removed.copy(), "structure": None,
-                                 "points64": self._travelling_points64()}
+                                 "points64": self._travelling_points64(), "devices": self._devices}
         if self._impl.saves:
             state["structure"] = self._structure_bytes()
         return state
@@ -562,14 +580,15 @@ class Index:
             raise Error("unpickle: not a blockhash_cl index state (format "
                         f"{state.get('format') if isinstance(state, dict) else type(state).__name__!r})")
         other = _rebuild(state["method"], state["points"], state["origin"], state["options"], state["structure"], None,
-                         state.get("removed"), state.get("points64"))
+                         state.get("removed"), state.get("points64"), state.get("devices"))
         for name in Index.__slots__:
             setattr(self, name, getattr(other, name))
 
 
 def _rebuild(method: str, pts: np.ndarray, origin: np.ndarray, options: Dict[str, Any],
              structure: Optional[bytes], device: Union[None, str, Runtime],
-             removed: Optional[np.ndarray] = None, points64: Optional[np.ndarray] = None) -> Index:
+             removed: Optional[np.ndarray] = None, points64: Optional[np.ndarray] = None,
+             devices: Optional[List[str]] = None) -> Index:
     """An index over stored (relative, float32) points, a row per id issued: rebuilt from its
     build options and the removed ids removed again, or for block hashing read from its saved
     structure (which holds the ids itself)."""
@@ -592,7 +611,7 @@ def _rebuild(method: str, pts: np.ndarray, origin: np.ndarray, options: Dict[str
         table = _BUILD_OPTIONS.get(method, {})
         _refuse_unknown(method, options, tuple(table), "build option")
         _set_table_options(_core.set_build_option, opts, method, table, options)
-        impl = _core.make_index(method, get_runtime(device), pts, opts)
+        impl = _build(method, pts, opts, device, devices)
         if removed.size:
             impl.remove(removed)
     if impl.id_bound != len(pts) or impl.size != len(pts) - removed.size:
@@ -604,7 +623,7 @@ def _rebuild(method: str, pts: np.ndarray, origin: np.ndarray, options: Dict[str
         if points64.shape != pts.shape:
             raise Error(f"load: the float64 copy has shape {points64.shape}, the points {pts.shape}")
         points64.flags.writeable = False
-    return Index(impl, origin, pts, options, removed, points64)
+    return Index(impl, origin, pts, options, removed, points64, devices)
 
 
 def _copy64(a: np.ndarray, stored: np.ndarray, origin: np.ndarray, refine: Optional[bool]) -> Optional[np.ndarray]:
@@ -628,8 +647,39 @@ def _copy64(a: np.ndarray, stored: np.ndarray, origin: np.ndarray, refine: Optio
     return p64
 
 
+def _device_specs(devices: Any) -> List[str]:
+    """make_index's devices as specs ("P:D" for a Runtime), checked."""
+    if isinstance(devices, (str, Runtime)) or not hasattr(devices, "__iter__"):
+        raise TypeError("devices must be a list of device specs or Runtimes, e.g. ['pocl', 'nvidia']")
+    specs = []
+    for d in devices:
+        if isinstance(d, Runtime):
+            specs.append(d.device["spec"])
+        elif isinstance(d, str) and d.strip():
+            specs.append(d.strip())
+        else:
+            raise TypeError(f"devices: each entry must be a non-empty str or a Runtime, got {d!r}")
+    if not specs:
+        raise ValueError("devices must name at least one device")
+    return specs
+
+
+def _build(method: str, pts: np.ndarray, opts: "_core.MethodOptions", device: Union[None, str, Runtime],
+           devices: Optional[List[str]]) -> Any:
+    """The C++ index: one device's, or a MultiDeviceIndex with a copy on each of devices."""
+    if devices is None:
+        return _core.make_index(method, get_runtime(device), pts, opts)
+    # Each copy on its own runtime (context and queue): a spec named twice gets a second one.
+    runtimes: List[Runtime] = []
+    for spec in devices:
+        rt = get_runtime(spec)
+        runtimes.append(rt if all(r is not rt for r in runtimes) else Runtime(spec))
+    return _core.MultiDeviceIndex(runtimes, method, pts, opts)
+
+
 def make_index(method: str, points: Any, *, device: Union[None, str, Runtime] = None,
-               refine: Optional[bool] = None, **options: Any) -> Index:
+               devices: Optional[List[Union[str, Runtime]]] = None, refine: Optional[bool] = None,
+               **options: Any) -> Index:
     """Builds an index of `method` ("blockhash", "kdtree", "bruteforce", "flann"; see
     method_names()) over points, an (N, 3) array (float32 or float64; converted to float32 once
     when it is not C-contiguous float32; the index keeps its own copy, not the array). float64
@@ -642,6 +692,13 @@ def make_index(method: str, points: Any, *, device: Union[None, str, Runtime] = 
 {build_options}
     device: a spec ("P:D", "cpu", "gpu", "pocl", "nvidia:1"), a Runtime, or None for
     BHCL_DEVICE, else PoCL, else the first device. The GIL is released during the build.
+
+    devices (instead of device): a list of specs or Runtimes: the library's multi-device index,
+    a copy built on each (concurrently); a batch is split among them by their measured throughput
+    (Index.weights), the parts run at once and the rows come back in order, equal to one device's
+    bit for bit. query, radius_search (not squared=True), add and remove, pickling (rebuilt on the
+    same device specs) and save (the points; load builds one device's index) work as for one
+    device.
 
     refine (float64 in, float64 out): None (default) refines when the points are float64 and
     re-centred (see above) and storing them in float32 rounded some coordinate; True always
@@ -664,10 +721,13 @@ def make_index(method: str, points: Any, *, device: Union[None, str, Runtime] = 
     _check_count(a, method)
     origin = _origin_for(a)
     pts = _relative(a, origin, "points") if np.any(origin) else _xyz(a, "points")
+    if devices is not None and device is not None:
+        raise TypeError("give device or devices, not both")
+    specs = None if devices is None else _device_specs(devices)
     p64 = _copy64(a, pts, origin, refine)
-    impl = _core.make_index(method, get_runtime(device), pts, opts)
+    impl = _build(method, pts, opts, device, specs)
     return Index(impl, origin, _own_copy(pts, points), {k: v for k, v in options.items() if v is not None},
-                 None, p64)
+                 None, p64, specs)
 
 
 def load(path: Union[str, "os.PathLike[str]"], points: Any = None, *,
