@@ -15,6 +15,9 @@ environment, e.g.
     /tmp/pybench/bin/pip install .            # blockhash_cl itself
     /tmp/pybench/bin/python bench/python_bench.py --data bunny,cornell,autzen
 (Open3D's wheel needs Debian's libusb-1.0-0.) A package that is missing is reported and skipped.
+Two other modes (issue 40): --front compares blockhash_cl.KDTree, the scipy-compatible front,
+with scipy's KDTree, pykdtree and napf (pip install napf); --utm N measures the float64
+refinement on the UTM-like case (docs/PYTHON.md has both tables and their commands).
 """
 import argparse
 import os
@@ -96,8 +99,167 @@ def run_rounds(variants, rounds, baseline):
     return stats
 
 
+def utm(a):
+    """Issue 40's float64 case: points in a 100 m patch at 4.3e6 m (UTM-like), queries over the
+    patch; per exact method and k, the share of rows equal to scipy's float64 answer at rel 1e-9
+    (distances, and indices where scipy's distances do not tie), refined (the default for such
+    points) and not (refine=False), the refinement's share of the call (stats refine_share) and
+    the refined call's time against the unrefined one's; then the KDTree front against scipy's
+    KDTree (workers=-1)."""
+    from scipy.spatial import KDTree as SciKDTree
+    rng = np.random.default_rng(40)
+    base = np.array([512345.678, 4312345.678, 112.5])
+    pts = base + rng.random((a.utm, 3)) * 100.0
+    qs = base + rng.random((a.queries, 3)) * 100.0
+    tree = cKDTree(pts)
+    methods = [m for m in ("bruteforce", "kdtree", "flann", "blockhash") if m in bh.method_names()]
+    lines = [f"# UTM case: {a.utm} points, {a.queries} queries in a 100 m patch at 4.3e6 m; blockhash_cl "
+             f"{bh.__version__} on {bh.get_runtime().device['summary']}; median of {a.rounds} rounds",
+             "| method | search | rows right, refined | rows right, float32 | refine_share | refined s | unrefined s |",
+             "|---|---|---|---|---|---|---|"]
+    print("\n".join(lines), flush=True)
+
+    def right(d, ids, rd, ri):
+        close = np.abs(d - rd) <= 1e-9 * np.maximum(rd, 1e-300)
+        tie = (rd == np.roll(rd, 1, axis=1)) | (rd == np.roll(rd, -1, axis=1))
+        return float(np.mean(np.all(close & ((ids == ri) | tie), axis=1)))
+
+    for method in methods:
+        q = qs if method != "bruteforce" else qs[: max(1, a.queries // 20)]
+        ref64 = bh.make_index(method, pts)
+        ref32 = bh.make_index(method, pts, refine=False)
+        for k in [int(x) for x in a.k.split(",")]:
+            rd, ri = tree.query(q, k=k, workers=-1)
+            rd, ri = rd.reshape(len(q), k), ri.reshape(len(q), k)
+            ref64.query(q[:16], k=k)
+            ref32.query(q[:16], k=k)
+            t64, t32, share = [], [], []
+            for _ in range(a.rounds):
+                s, (d2, ids, st) = timed(lambda: ref64.query(q, k=k, return_stats=True))
+                t64.append(s)
+                share.append(st["refine_share"])
+                s, (d2b, idb) = timed(lambda: ref32.query(q, k=k))
+                t32.append(s)
+            line = (f"| {method} | kNN k={k} | {right(np.sqrt(d2), ids, rd, ri):.6f} | "
+                    f"{right(np.sqrt(d2b.astype(np.float64)), idb, rd, ri):.6f} | {np.median(share):.3f} | "
+                    f"{np.median(t64):.3f} | {np.median(t32):.3f} |")
+            lines.append(line)
+            print(line, flush=True)
+        r = 2.0
+        truth = tree.query_ball_point(q, r, workers=-1)
+        s64, res = timed(lambda: ref64.radius_search(q, r))
+        st = ref64.last_stats
+        s32, _ = timed(lambda: ref32.radius_search(q, r))
+        ok = 0
+        for j in range(len(q)):
+            d2, ids = res.slice(j)
+            want = np.array(sorted(truth[j]), dtype=np.int64)
+            exact = np.sum((pts[ids] - q[j]) ** 2, axis=1)
+            ok += np.array_equal(np.sort(ids), want) and np.allclose(d2, exact, rtol=1e-9, atol=0)
+        line = f"| {method} | radius r={r} | {ok / len(q):.6f} | - | {st['refine_share']:.3f} | {s64:.3f} | {s32:.3f} |"
+        lines.append(line)
+        print(line, flush=True)
+    # The front against scipy's KDTree, k = 10.
+    front = bh.KDTree(pts)
+    sci = SciKDTree(pts)
+    front.query(qs[:16], k=10)
+    tf = [timed(lambda: front.query(qs, k=10))[0] for _ in range(a.rounds)]
+    ts = [timed(lambda: sci.query(qs, k=10, workers=-1))[0] for _ in range(a.rounds)]
+    d, i = front.query(qs, k=10)
+    rd, ri = sci.query(qs, k=10, workers=-1)
+    line = (f"| KDTree front (blockhash) vs scipy KDTree workers=-1 | kNN k=10 | {right(d, i, rd, ri):.6f} | - | - | "
+            f"{np.median(tf):.3f} | scipy {np.median(ts):.3f} |")
+    lines.append(line)
+    print(line, flush=True)
+    if a.markdown:
+        with open(a.markdown, "w") as f:
+            f.write("\n".join(lines) + "\n")
+
+
+def front(a):
+    """Issue 40's drop-in comparison: blockhash_cl.KDTree (scipy's interface, float64 answers)
+    against scipy.spatial.KDTree (workers=--threads), pykdtree (OMP_NUM_THREADS) and napf
+    (nthread) where installed, all on the same float64 points and queries; per data set, k and
+    query kind ("data": the points themselves, shuffled; "box": uniform over the points' box), the
+    median time of --rounds rounds, the speed-up against scipy and the share of rows equal to
+    scipy's (indices, and distances at rel 1e-9; napf and pykdtree distances squared, then
+    rooted)."""
+    from scipy.spatial import KDTree as SciKDTree
+    try:
+        import napf
+    except ImportError:
+        napf = None
+    lines = [f"# blockhash_cl {bh.__version__} KDTree on {bh.get_runtime().device['summary']}; scipy workers={a.threads}; "
+             f"pykdtree {'yes' if PyKDTree else 'missing'} (OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}); "
+             f"napf {'yes' if napf else 'missing'} (nthread={a.threads}); {a.rounds} rounds, median",
+             "| data | N | queries | k | variant | build s | query s | vs scipy | rows = scipy's |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    print("\n".join(lines), flush=True)
+    rng = np.random.default_rng(40)
+
+    def row(*cells):
+        line = "| " + " | ".join(str(c) for c in cells) + " |"
+        lines.append(line)
+        print(line, flush=True)
+
+    for name in a.data.split(","):
+        pts, _ = load(a.make_dataset, name, a.N, 1, a.data_dir)
+        if pts is None:
+            continue
+        pts = np.asarray(pts, np.float64)
+        n = min(a.queries, len(pts))
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        query_sets = {"data": pts[rng.permutation(len(pts))[:n]], "box": lo + rng.random((n, 3)) * (hi - lo)}
+        builds = {}
+        builds["scipy KDTree"], sci = timed(lambda: SciKDTree(pts))
+        builds["blockhash_cl KDTree (blockhash)"], fb = timed(lambda: bh.KDTree(pts))
+        builds["blockhash_cl KDTree (kdtree)"], fk = timed(lambda: bh.KDTree(pts, method="kdtree"))
+        if PyKDTree:
+            builds["pykdtree"], pyk = timed(lambda: PyKDTree(pts, leafsize=16))
+        if napf:
+            builds["napf"], nap = timed(lambda: napf.KDT(pts, metric=2))
+        for qname, qs in query_sets.items():
+            for k in [int(x) for x in a.k.split(",")]:
+                fb.query(qs[:16], k=k)
+                fk.query(qs[:16], k=k)
+                variants = {
+                    "scipy KDTree": lambda: sci.query(qs, k=k, workers=a.threads),
+                    "blockhash_cl KDTree (blockhash)": lambda: fb.query(qs, k=k),
+                    "blockhash_cl KDTree (kdtree)": lambda: fk.query(qs, k=k),
+                }
+                if PyKDTree:
+                    def pyk_q():
+                        d, i = pyk.query(qs, k=k)
+                        return d, i
+                    variants["pykdtree"] = pyk_q
+                if napf:
+                    def napf_q():
+                        d2, i = nap.knn_search(qs, k, a.threads)
+                        return np.sqrt(d2), i
+                    variants["napf"] = napf_q
+                st = run_rounds({v: (lambda f=f: timed(f)) for v, f in variants.items()}, a.rounds, "scipy KDTree")
+                rd, ri = st["scipy KDTree"][2]
+                rd, ri = np.asarray(rd).reshape(n, k), np.asarray(ri).reshape(n, k)
+                for v, (times, ratios, res) in st.items():
+                    d, i = (np.asarray(x).reshape(n, k) for x in res)
+                    close = np.abs(d - rd) <= 1e-9 * np.maximum(rd, 1e-300)
+                    tie = (rd == np.roll(rd, 1, axis=1)) | (rd == np.roll(rd, -1, axis=1))
+                    same = float(np.mean(np.all(close & ((i == ri) | tie), axis=1)))
+                    row(name, len(pts), qname, k, v, f"{builds.get(v, 0):.2f}", f"{np.median(times):.3f}",
+                        f"{np.median(ratios):.2f} ({min(ratios):.2f}-{max(ratios):.2f})", f"{same:.4f}")
+    if a.markdown:
+        with open(a.markdown, "w") as f:
+            f.write("\n".join(lines) + "\n")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--front", action="store_true",
+                    help="compare the scipy-compatible blockhash_cl.KDTree with scipy's KDTree, pykdtree and napf "
+                         "(uses --data, --N, --queries, --k, --rounds, --threads, --markdown)")
+    ap.add_argument("--utm", type=int, default=0,
+                    help="run issue 40's float64 case instead (this many points, e.g. 200000): rows right at "
+                         "rel 1e-9 refined and not, refine_share; uses --queries, --k, --rounds, --markdown")
     ap.add_argument("--data", default="bunny,cornell,autzen")
     ap.add_argument("--N", type=int, default=1000000, help="points per set (file sets: the first N)")
     ap.add_argument("--queries", type=int, default=100000)
@@ -112,6 +274,10 @@ def main():
     ap.add_argument("--markdown", default="", help="also write the table here")
     a = ap.parse_args()
     os.environ.setdefault("OMP_NUM_THREADS", str(a.threads))
+    if a.utm:
+        return utm(a)
+    if a.front:
+        return front(a)
     random.seed(12345)
     ks = [int(x) for x in a.k.split(",")]
     As = [float(x) for x in a.A.split(",")]

@@ -15,10 +15,15 @@
 #include <pybind11/stl.h>
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
+#include <climits>
+#include <cmath>
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <thread>
+#include <type_traits>
 #include <utility>
 #include <vector>
 
@@ -27,6 +32,7 @@
 #include "blockhash_cl/error.hpp"
 #include "blockhash_cl/factory.hpp"
 #include "blockhash_cl/knn.hpp"
+#include "blockhash_cl/multi_device.hpp"
 #include "blockhash_cl/runtime.hpp"
 #if BHCL_HAVE_FLANN
 #include "blockhash_cl/flann_index.hpp"
@@ -94,7 +100,7 @@ void add_used(py::dict& o, const bhcl::MethodInfo::Used& used) {
 
 // What the search actually used beyond the caller's parameters (as `bhcl knn --stats` writes it):
 // SearchIndex::search_used.
-void add_resolved(py::dict& o, const bhcl::Index& index, const bhcl::SearchParams& p) {
+void add_resolved(py::dict& o, const bhcl::SearchIndex& index, const bhcl::SearchParams& p) {
   bhcl::UsedFields used;
   {
     py::gil_scoped_release nogil;
@@ -104,7 +110,8 @@ void add_resolved(py::dict& o, const bhcl::Index& index, const bhcl::SearchParam
 }
 
 // kNN: (dist2 (n, k) float32, ids (n, k) int32, counts (n,) int32, stats dict).
-py::tuple knn_query(const bhcl::Index& index, const py::array_t<float, py::array::c_style>& queries,
+template <typename IndexT>
+py::tuple knn_query(const IndexT& index, const py::array_t<float, py::array::c_style>& queries,
                     const bhcl::SearchParams& params) {
   const std::size_t n = rows_of(queries, "queries");
   bhcl::KnnResult r;
@@ -148,15 +155,21 @@ py::tuple knn_query(const bhcl::Index& index, const py::array_t<float, py::array
 
 // Radius search: (offsets (n + 1,) int64, dist2 (total,) float32, ids (total,) int32,
 // found (n,) int64, stats dict with truncated_queries).
-py::tuple radius_query(const bhcl::Index& index, const py::array_t<float, py::array::c_style>& queries,
+template <typename IndexT>
+py::tuple radius_query(const IndexT& index, const py::array_t<float, py::array::c_style>& queries,
                        float r, bool squared, const bhcl::RadiusParams& params) {
   const std::size_t n = rows_of(queries, "queries");
   bhcl::RadiusResult r_out;
   bhcl::QueryStats st;
   {
     py::gil_scoped_release nogil;
-    st = squared ? index.radius_search_squared(queries.data(), n, r, params, r_out)
-                 : index.radius_search(queries.data(), n, r, params, r_out);
+    if constexpr (std::is_same_v<IndexT, bhcl::Index>) {
+      st = squared ? index.radius_search_squared(queries.data(), n, r, params, r_out)
+                   : index.radius_search(queries.data(), n, r, params, r_out);
+    } else {
+      if (squared) throw bhcl::Error("radius_search: a multi-device index takes r, not squared=True");
+      st = index.radius_search(queries.data(), n, r, params, r_out);
+    }
   }
   const auto total = static_cast<py::ssize_t>(r_out.total()), rows = static_cast<py::ssize_t>(n);
   py::dict stats = stats_dict(st);
@@ -167,6 +180,164 @@ py::tuple radius_query(const bhcl::Index& index, const py::array_t<float, py::ar
   stats["examined"] = examined;
   return py::make_tuple(to_numpy(std::move(r_out.offsets), {rows + 1}), to_numpy(std::move(r_out.dist2), {total}),
                         to_numpy(std::move(r_out.ids), {total}), to_numpy(std::move(r_out.found), {rows}), stats);
+}
+
+// float64 refinement (python/blockhash_cl/_refine.py): distances in double from the caller's points,
+// rows re-sorted by (distance, id). Rows are split over a few threads (GIL released).
+template <typename F>
+void over_rows(std::size_t n, std::size_t work, F&& f) {
+  const unsigned hw = std::max(1u, std::min(8u, std::thread::hardware_concurrency()));
+  const unsigned t = work < 200000 ? 1u : hw;
+  std::vector<std::thread> pool;
+  for (unsigned i = 1; i < t; ++i) pool.emplace_back([&, i] { f(n * i / t, n * (i + 1) / t); });
+  f(0, n / t);
+  for (auto& th : pool) th.join();
+}
+
+inline double dist2_64(const double* q, const double* p) {
+  const double dx = q[0] - p[0], dy = q[1] - p[1], dz = q[2] - p[2];
+  return (dx * dx + dy * dy) + dz * dz;
+}
+
+// ids (n, kc) int32 (-1: missing) -> the first k of each row by float64 (distance, id): (d2 (n, k)
+// float64, ids (n, k) int32); missing are inf and -1.
+py::tuple refine_knn(const py::array_t<double, py::array::c_style>& q, const py::array_t<double, py::array::c_style>& pts,
+                     const py::array_t<std::int32_t, py::array::c_style>& ids, int k) {
+  if (q.ndim() != 2 || q.shape(1) != 3 || pts.ndim() != 2 || pts.shape(1) != 3 || ids.ndim() != 2 ||
+      ids.shape(0) != q.shape(0) || k < 1 || k > ids.shape(1))
+    throw py::value_error("refine_knn: q (n, 3), points (N, 3), ids (n, kc) with 1 <= k <= kc");
+  const std::size_t n = static_cast<std::size_t>(q.shape(0)), kc = static_cast<std::size_t>(ids.shape(1)),
+                    np = static_cast<std::size_t>(pts.shape(0)), kk = static_cast<std::size_t>(k);
+  std::vector<double> od(n * kk);
+  std::vector<std::int32_t> oi(n * kk);
+  const double* qd = q.data();
+  const double* pd = pts.data();
+  const std::int32_t* id = ids.data();
+  std::atomic<bool> bad{false};
+  {
+    py::gil_scoped_release nogil;
+    over_rows(n, n * kc, [&](std::size_t a, std::size_t b) {
+      std::vector<std::pair<double, std::int32_t>> row(kc);
+      for (std::size_t r = a; r < b; ++r) {
+        for (std::size_t j = 0; j < kc; ++j) {
+          const std::int32_t i = id[r * kc + j];
+          if (i >= 0 && static_cast<std::size_t>(i) >= np) bad = true;
+          row[j] = {i >= 0 && static_cast<std::size_t>(i) < np ? dist2_64(qd + 3 * r, pd + 3 * static_cast<std::size_t>(i))
+                                                               : HUGE_VAL,
+                    i >= 0 ? i : INT32_MAX};
+        }
+        // Insertion sort: the float32 order is nearly always the float64 one already.
+        for (std::size_t j = 1; j < kc; ++j)
+          for (std::size_t m = j; m > 0 && row[m] < row[m - 1]; --m) std::swap(row[m], row[m - 1]);
+        for (std::size_t j = 0; j < kk; ++j) {
+          od[r * kk + j] = row[j].first;
+          oi[r * kk + j] = row[j].second == INT32_MAX ? -1 : row[j].second;
+        }
+      }
+    });
+  }
+  if (bad) throw py::value_error("refine_knn: an id past the points");
+  const auto rows = static_cast<py::ssize_t>(n), cols = static_cast<py::ssize_t>(kk);
+  return py::make_tuple(to_numpy(std::move(od), {rows, cols}), to_numpy(std::move(oi), {rows, cols}));
+}
+
+// Squared float64 distances of pairs (q[owner[j]], points[ids[j]]); id -1 gives inf.
+py::array_t<double> pair_dist2(const py::array_t<double, py::array::c_style>& q,
+                               const py::array_t<std::int64_t, py::array::c_style>& owner,
+                               const py::array_t<double, py::array::c_style>& pts,
+                               const py::array_t<std::int32_t, py::array::c_style>& ids) {
+  if (q.ndim() != 2 || q.shape(1) != 3 || pts.ndim() != 2 || pts.shape(1) != 3 || owner.ndim() != 1 ||
+      ids.ndim() != 1 || owner.shape(0) != ids.shape(0))
+    throw py::value_error("pair_dist2: q (n, 3), owner (m,), points (N, 3), ids (m,)");
+  const std::size_t m = static_cast<std::size_t>(ids.shape(0)), n = static_cast<std::size_t>(q.shape(0)),
+                    np = static_cast<std::size_t>(pts.shape(0));
+  std::vector<double> out(m);
+  const double* qd = q.data();
+  const double* pd = pts.data();
+  const std::int64_t* ow = owner.data();
+  const std::int32_t* id = ids.data();
+  std::atomic<bool> bad{false};
+  {
+    py::gil_scoped_release nogil;
+    over_rows(m, m, [&](std::size_t a, std::size_t b) {
+      for (std::size_t j = a; j < b; ++j) {
+        const std::int32_t i = id[j];
+        const std::int64_t o = ow[j];
+        if (o < 0 || static_cast<std::size_t>(o) >= n || (i >= 0 && static_cast<std::size_t>(i) >= np)) {
+          bad = true;
+          continue;
+        }
+        out[j] = i < 0 ? HUGE_VAL : dist2_64(qd + 3 * o, pd + 3 * static_cast<std::size_t>(i));
+      }
+    });
+  }
+  if (bad) throw py::value_error("pair_dist2: an index out of range");
+  return to_numpy(std::move(out), {static_cast<py::ssize_t>(m)});
+}
+
+// A radius search's slices (offsets (n + 1,), ids) refined: each query's points within r2[i]
+// (squared, float64 distances <= r2), sorted by (distance, id) when `sorted`, else in the given
+// order: (offsets, d2 float64, ids int32).
+py::tuple refine_radius(const py::array_t<double, py::array::c_style>& q, const py::array_t<double, py::array::c_style>& pts,
+                        const py::array_t<std::int64_t, py::array::c_style>& offsets,
+                        const py::array_t<std::int32_t, py::array::c_style>& ids,
+                        const py::array_t<double, py::array::c_style>& r2, bool sorted) {
+  const std::size_t n = static_cast<std::size_t>(q.shape(0));
+  if (q.ndim() != 2 || q.shape(1) != 3 || pts.ndim() != 2 || pts.shape(1) != 3 || offsets.ndim() != 1 ||
+      static_cast<std::size_t>(offsets.shape(0)) != n + 1 || ids.ndim() != 1 || r2.ndim() != 1 ||
+      static_cast<std::size_t>(r2.shape(0)) != n || offsets.data()[n] != ids.shape(0))
+    throw py::value_error("refine_radius: q (n, 3), points (N, 3), offsets (n + 1,), ids (offsets[n],), r2 (n,)");
+  const std::size_t total = static_cast<std::size_t>(ids.shape(0)), np = static_cast<std::size_t>(pts.shape(0));
+  std::vector<double> d2(total);
+  std::vector<std::int32_t> out_ids(total);
+  std::vector<std::int64_t> kept(n + 1, 0);
+  const double* qd = q.data();
+  const double* pd = pts.data();
+  const double* rr = r2.data();
+  const std::int64_t* off = offsets.data();
+  const std::int32_t* id = ids.data();
+  std::atomic<bool> bad{false};
+  {
+    py::gil_scoped_release nogil;
+    // Each slice compacted in place (its kept points at its start), then the slices packed.
+    over_rows(n, total, [&](std::size_t a, std::size_t b) {
+      std::vector<std::pair<double, std::int32_t>> row;
+      for (std::size_t r = a; r < b; ++r) {
+        row.clear();
+        for (std::int64_t j = off[r]; j < off[r + 1]; ++j) {
+          const std::int32_t i = id[j];
+          if (i < 0 || static_cast<std::size_t>(i) >= np) {
+            bad = true;
+            continue;
+          }
+          const double d = dist2_64(qd + 3 * r, pd + 3 * static_cast<std::size_t>(i));
+          if (d <= rr[r]) row.emplace_back(d, i);
+        }
+        if (sorted) std::sort(row.begin(), row.end());
+        for (std::size_t j = 0; j < row.size(); ++j) {
+          d2[static_cast<std::size_t>(off[r]) + j] = row[j].first;
+          out_ids[static_cast<std::size_t>(off[r]) + j] = row[j].second;
+        }
+        kept[r + 1] = static_cast<std::int64_t>(row.size());
+      }
+    });
+    std::size_t at = 0;
+    for (std::size_t r = 0; r < n; ++r) {
+      const std::size_t from = static_cast<std::size_t>(off[r]), m = static_cast<std::size_t>(kept[r + 1]);
+      if (from != at) {
+        std::copy(d2.begin() + from, d2.begin() + from + m, d2.begin() + at);
+        std::copy(out_ids.begin() + from, out_ids.begin() + from + m, out_ids.begin() + at);
+      }
+      at += m;
+      kept[r + 1] += kept[r];
+    }
+    d2.resize(at);
+    out_ids.resize(at);
+  }
+  if (bad) throw py::value_error("refine_radius: an id past the points");
+  const auto m = static_cast<py::ssize_t>(d2.size());
+  return py::make_tuple(to_numpy(std::move(kept), {static_cast<py::ssize_t>(n + 1)}), to_numpy(std::move(d2), {m}),
+                        to_numpy(std::move(out_ids), {m}));
 }
 
 std::unique_ptr<bhcl::Index> make_index(const std::string& method,
@@ -352,8 +523,8 @@ PYBIND11_MODULE(_core, m) {
       .def_property_readonly("build_seconds", &bhcl::Index::build_seconds)
       .def_property_readonly("runtime", &bhcl::Index::runtime_ptr)
       .def_property_readonly("build_info", &build_info)
-      .def("query", &knn_query, py::arg("queries").noconvert(), py::arg("params"))
-      .def("radius_search", &radius_query, py::arg("queries").noconvert(), py::arg("r"),
+      .def("query", &knn_query<bhcl::Index>, py::arg("queries").noconvert(), py::arg("params"))
+      .def("radius_search", &radius_query<bhcl::Index>, py::arg("queries").noconvert(), py::arg("r"),
            py::arg("squared"), py::arg("params"))
       .def("save", &save, py::arg("path"))
       // Updates (Index::insert/remove): the new ids (first .. first + n - 1), GIL released.
@@ -390,6 +561,90 @@ PYBIND11_MODULE(_core, m) {
         return i.warm_up(p);
       }, py::arg("params"));
 
+  m.def("refine_knn", &refine_knn, py::arg("q").noconvert(), py::arg("points").noconvert(),
+        py::arg("ids").noconvert(), py::arg("k"), "float64 refinement of kNN rows (blockhash_cl/_refine.py).");
+  m.def("pair_dist2", &pair_dist2, py::arg("q").noconvert(), py::arg("owner").noconvert(),
+        py::arg("points").noconvert(), py::arg("ids").noconvert(), "float64 squared distances of pairs.");
+  m.def("refine_radius", &refine_radius, py::arg("q").noconvert(), py::arg("points").noconvert(),
+        py::arg("offsets").noconvert(), py::arg("ids").noconvert(), py::arg("r2").noconvert(), py::arg("sorted"),
+        "float64 refinement of radius slices.");
   m.def("make_index", &make_index, py::arg("method"), py::arg("runtime"),
         py::arg("points").noconvert(), py::arg("options"));
+
+  // bhcl::MultiDeviceIndex with the attributes and calls of Index above that the package's Index
+  // uses (it wraps either): one copy per runtime, a batch split among them by their throughput.
+  using Multi = bhcl::MultiDeviceIndex;
+  py::class_<Multi, std::unique_ptr<Multi>>(m, "MultiDeviceIndex")
+      .def(py::init([](std::vector<std::shared_ptr<bhcl::Runtime>> runtimes, const std::string& method,
+                       const py::array_t<float, py::array::c_style>& points, const bhcl::MethodOptions& options) {
+             const std::size_t n = rows_of(points, "points");
+             py::gil_scoped_release nogil;
+             return std::make_unique<Multi>(std::move(runtimes), method, points.data(), n, options);
+           }),
+           py::arg("runtimes"), py::arg("method"), py::arg("points").noconvert(), py::arg("options"))
+      .def_property_readonly("method", &Multi::method)
+      .def_property_readonly("exact", &Multi::exact)
+      .def_property_readonly("size", &Multi::size)
+      .def_property_readonly("devices", &Multi::devices)
+      .def_property_readonly("memory_bytes", [](const Multi& x) {
+        std::size_t b = 0;
+        for (std::size_t d = 0; d < x.devices(); ++d) b += x.index(d).memory_bytes();
+        return b;
+      })
+      .def_property_readonly("host_bytes", [](const Multi& x) {
+        std::size_t b = 0;
+        for (std::size_t d = 0; d < x.devices(); ++d) b += x.index(d).host_bytes();
+        return b;
+      })
+      .def_property_readonly("saves", [](const Multi&) { return false; })
+      .def_property_readonly("build_seconds", [](const Multi& x) {
+        double s = 0;
+        for (std::size_t d = 0; d < x.devices(); ++d) s = std::max(s, x.index(d).build_seconds());
+        return s;
+      })
+      .def_property_readonly("runtime", [](const Multi& x) { return x.index(0).runtime_ptr(); })
+      .def_property_readonly("runtimes", [](const Multi& x) {
+        std::vector<std::shared_ptr<bhcl::Runtime>> r;
+        for (std::size_t d = 0; d < x.devices(); ++d) r.push_back(x.index(d).runtime_ptr());
+        return r;
+      })
+      .def_property_readonly("build_info", [](const Multi& x) {
+        py::dict o;
+        add_used(o, x.build_used());
+        return o;
+      })
+      .def_property_readonly("weights", &Multi::weights)
+      .def("set_weights", &Multi::set_weights, py::arg("weights"))
+      .def("query", &knn_query<Multi>, py::arg("queries").noconvert(), py::arg("params"))
+      .def("radius_search", &radius_query<Multi>, py::arg("queries").noconvert(), py::arg("r"),
+           py::arg("squared"), py::arg("params"))
+      .def("save", [](const Multi&, const std::string&) {
+        throw bhcl::Error("save: a multi-device index saves through the package (its points), not a structure file");
+      }, py::arg("path"))
+      .def("insert", [](Multi& x, const py::array_t<float, py::array::c_style>& points) {
+             const std::size_t n = rows_of(points, "points");
+             std::int32_t first = 0;
+             {
+               py::gil_scoped_release nogil;
+               first = x.insert(points.data(), n);
+             }
+             std::vector<std::int32_t> ids(n);
+             for (std::size_t i = 0; i < n; ++i) ids[i] = first + static_cast<std::int32_t>(i);
+             return to_numpy(std::move(ids), {static_cast<py::ssize_t>(n)});
+           }, py::arg("points").noconvert())
+      .def("remove", [](Multi& x, const py::array_t<std::int32_t, py::array::c_style>& ids) {
+             if (ids.ndim() != 1) throw bhcl::Error("remove: ids must be a 1-D array");
+             const std::size_t n = static_cast<std::size_t>(ids.shape(0));
+             py::gil_scoped_release nogil;
+             x.remove(ids.data(), n);
+           }, py::arg("ids").noconvert())
+      .def_property_readonly("id_bound", &Multi::id_bound)
+      .def("contains", [](const Multi& x, std::int32_t id) { return x.index(0).contains(id); }, py::arg("id"))
+      .def_property_readonly("removed_count", [](const Multi& x) { return x.index(0).removed_count(); })
+      .def("warm_up", [](const Multi& x, const bhcl::SearchParams& p) {
+        py::gil_scoped_release nogil;
+        double s = 0;
+        for (std::size_t d = 0; d < x.devices(); ++d) s += x.index(d).warm_up(p);
+        return s;
+      }, py::arg("params"));
 }

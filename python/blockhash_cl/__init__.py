@@ -37,6 +37,7 @@ import numpy as np
 import numpy.typing as npt
 
 from . import _core
+from . import _refine
 from ._core import Error, OpenCLError, Runtime
 # The method tables as keyword arguments and the checks of arrays and values (_checks.py).
 from ._checks import (  # noqa: F401
@@ -49,7 +50,7 @@ from ._checks import (  # noqa: F401
 __all__ = [
     "Error", "OpenCLError", "Runtime", "Index", "RadiusResult", "RadiusResultWithStats", "make_index",
     "load", "devices", "select_device", "get_runtime", "method_names", "build_options", "MAX_K",
-    "HAVE_FLANN", "__version__",
+    "HAVE_FLANN", "__version__", "KDTree", "cKDTree",
 ]
 
 __version__: str = _core.__version__
@@ -147,7 +148,8 @@ class Index:
 
     Attributes: method, exact, size (also len()), memory_bytes, build_seconds, device (a dict as
     devices() gives), build_info (the parameters a block-hash build used), coordinates (the origin
-    float64 input is stored relative to and the rounding left), last_stats (the last query's
+    float64 input is stored relative to and the rounding left), refined (answers in float64 from
+    the caller's float64 points: make_index's refine), last_stats (the last query's
     stats dict, whichever thread ran it).
 
     Pickling (multiprocessing, dask) and save()/load() work for every method: a block-hash index
@@ -159,12 +161,20 @@ class Index:
     add continues there) and the same answers.
     """
 
-    __slots__ = ("_impl", "last_stats", "_origin", "_points", "_options", "_coords", "_removed")
+    __slots__ = ("_impl", "last_stats", "_origin", "_points", "_options", "_coords", "_removed", "_points64",
+                 "_p_round", "_devices")
 
     def __init__(self, impl: "_core.Index", origin: Optional[np.ndarray] = None,
                  points: Optional[np.ndarray] = None, options: Optional[Dict[str, Any]] = None,
-                 removed: Optional[np.ndarray] = None) -> None:
+                 removed: Optional[np.ndarray] = None, points64: Optional[np.ndarray] = None,
+                 devices: Optional[List[str]] = None) -> None:
         self._impl = impl
+        # The device specs of a multi-device index (make_index's devices), None for one device.
+        self._devices = devices
+        # The caller's float64 points (a row per id issued) when answers are refined in float64,
+        # and the largest rounding of a stored coordinate (the search's widening, _refine.py).
+        self._points64 = points64
+        self._p_round = _refine.rounding_bound(points) if points is not None else 0.0
         # The ids removed so far (ascending int32): their rows of _points are not live.
         self._removed = np.zeros(0, np.int32) if removed is None else np.asarray(removed, np.int32)
         self.last_stats: Optional[Dict[str, Any]] = None
@@ -196,6 +206,7 @@ class Index:
         its host copies (block hashing's structure, an exact method's copy of the points) and the
         package's host copy of the points (12 B each, for pickling and save)."""
         own = self._points.nbytes if self._points is not None else 0
+        own += self._points64.nbytes if self._points64 is not None else 0
         return int(self._impl.memory_bytes) + int(self._impl.host_bytes) + own
 
     @property
@@ -204,7 +215,22 @@ class Index:
 
     @property
     def device(self) -> Dict[str, Any]:
+        """The device (of a multi-device index: the first copy's; see devices)."""
         return dict(self._impl.runtime.device)
+
+    @property
+    def devices(self) -> List[Dict[str, Any]]:
+        """The device of each copy of the index: one for a single-device index, one per entry of
+        make_index's devices for a multi-device one."""
+        if self._devices is None:
+            return [self.device]
+        return [dict(r.device) for r in self._impl.runtimes]
+
+    @property
+    def weights(self) -> List[float]:
+        """A multi-device index's current split of a batch among its devices (summing to 1; equal
+        at first, then each device's measured throughput); [1.0] for one device."""
+        return list(self._impl.weights) if self._devices is not None else [1.0]
 
     @property
     def build_info(self) -> Dict[str, Any]:
@@ -221,6 +247,22 @@ class Index:
         max_abs_relative, float32_step and max_rounding (the largest rounding of a stored
         coordinate, in caller units), recentred. Distances are always in caller units."""
         return dict(self._coords)
+
+    @property
+    def refined(self) -> bool:
+        """Whether answers are refined in float64 from the caller's float64 points (make_index's
+        refine): distances come back float64, each row recomputed and re-sorted in double."""
+        return self._points64 is not None
+
+    def _exact_search(self, options: Dict[str, Any]) -> bool:
+        """Whether a search with these keyword arguments is exact (refinement then guarantees the
+        float64 answer): the exact methods, and block hashing's grid without a budget."""
+        if self._impl.exact:
+            return True
+        if self.method != "blockhash" or not self._impl.build_info.get("grid", False):
+            return False
+        a = options.get("A")
+        return options.get("recall_target") is None and (a is None or a == 0 or a == float("inf"))
 
     def __repr__(self) -> str:
         return f"<blockhash_cl.Index {self.method} of {self.size} points on {self.device['summary']}>"
@@ -271,8 +313,9 @@ class Index:
         search keywords of each method's option table (A and recall_target exclude each other):
 {search_options}
 
-        Returns (dist2, ids): (n, k) float32 squared distances (caller units) and (n, k) int32
-        indices into the points, each row ascending (FAISS's order); then counts ((n,) int32,
+        Returns (dist2, ids): (n, k) float32 squared distances (caller units; float64, each row
+        recomputed from the caller's points, when the index is refined: make_index's refine) and
+        (n, k) int32 indices into the points, each row ascending (FAISS's order); then counts ((n,) int32,
         neighbours found per query) if return_counts, then the stats dict if return_stats (also
         in last_stats): n_queries, nonfinite_queries, batches, compile_s, upload_s, query_s,
         download_s, wall_s, queries_per_s, coordinates (see Index.coordinates), and for blockhash
@@ -287,7 +330,10 @@ class Index:
         p = self._search_params(k, dict(search, max_radius=max_radius, sort_queries=sort_queries))
         a, single = _checked(queries, "queries", single_ok=True)
         q = self._to_index(a, "queries")
-        dist2, ids, counts, stats = self._impl.query(q, p)
+        if self._points64 is not None:
+            dist2, ids, counts, stats = self._query64(a, q, p.k, max_radius, search, sort_queries)
+        else:
+            dist2, ids, counts, stats = self._impl.query(q, p)
         stats["coordinates"] = dict(self._coords)
         self.last_stats = stats
         if single:
@@ -298,6 +344,40 @@ class Index:
         if return_stats:
             out += (stats,)
         return out
+
+    def _query64(self, a: np.ndarray, q: np.ndarray, k: int, max_radius: Optional[float],
+                 search: Dict[str, Any], sort_queries: Any, strict: bool = False) -> Tuple[Any, ...]:
+        """query() refined in float64 (_refine.knn): (dist2 float64, ids, counts, stats)."""
+        assert self._points64 is not None
+
+        def run(rows: np.ndarray, kc: int, mr: Optional[float]) -> Tuple[Any, ...]:
+            p = self._search_params(kc, dict(search, max_radius=mr, sort_queries=sort_queries))
+            return self._impl.query(np.ascontiguousarray(rows), p)
+
+        def ball(rows: np.ndarray, r: float) -> Tuple[Any, ...]:
+            offsets, d2, ids, _, _ = self._impl.radius_search(np.ascontiguousarray(rows), r, False,
+                                                              _core.RadiusParams())
+            return offsets, d2, ids
+
+        with np.errstate(invalid="ignore", over="ignore"):
+            q64 = np.asarray(a, np.float64)
+        return _refine.knn(run, ball, q64, q, self._points64, self._p_round, k, MAX_K, max_radius,
+                           self._exact_search(search), strict)
+
+    def _radius64(self, a: np.ndarray, q: np.ndarray, r2: np.ndarray, p: "_core.RadiusParams",
+                  max_results: int, return_sorted: bool, exact: bool) -> Tuple[Any, ...]:
+        """radius_search() refined in float64 (_refine.radius), r2 the squared radius per query:
+        (offsets, dist2 float64, ids, found, stats)."""
+        assert self._points64 is not None
+
+        def run(rows: np.ndarray, r: float, cap: int) -> Tuple[Any, ...]:
+            p.max_results = cap
+            p.sorted = bool(cap)
+            return self._impl.radius_search(np.ascontiguousarray(rows), r, False, p)
+
+        with np.errstate(invalid="ignore", over="ignore"):
+            q64 = np.asarray(a, np.float64)
+        return _refine.radius(run, q64, q, self._points64, self._p_round, r2, max_results, return_sorted, exact)
 
     @overload
     def radius_search(self, queries: Any, r: float, *, squared: bool = ..., max_results: Optional[int] = ...,
@@ -337,7 +417,8 @@ class Index:
         an empty slice.
 
         Returns a RadiusResult (offsets, dist2, ids) in FAISS's layout: query i's results are
-        dist2[offsets[i]:offsets[i+1]] (float32, SQUARED) and the same slice of ids (int32), each
+        dist2[offsets[i]:offsets[i+1]] (float32, SQUARED; float64 when the index is refined, the
+        points within r in float64) and the same slice of ids (int32), each
         sorted by (distance, index) unless return_sorted=False; offsets is (n + 1,) int64. With
         return_stats, a RadiusResultWithStats whose stats are query's, plus results,
         truncated_queries and found (the (n,) counts before the cap). The GIL is released while
@@ -358,7 +439,15 @@ class Index:
         radius = _float("r", r)
         a, _ = _checked(queries, "queries", single_ok=True)
         q = self._to_index(a, "queries")
-        offsets, dist2, ids, found, stats = self._impl.radius_search(q, radius, bool(squared), p)
+        if self._points64 is not None:
+            if radius < 0 or radius != radius:
+                raise Error(f"radius_search: r = {radius!r} must be >= 0")
+            r2 = np.full(len(q), radius if squared else radius * radius, np.float64)
+            exact = self._exact_search(search) and not (method == "blockhash" and p.budget)
+            offsets, dist2, ids, found, stats = self._radius64(a, q, r2, p, int(p.max_results), bool(return_sorted),
+                                                               exact)
+        else:
+            offsets, dist2, ids, found, stats = self._impl.radius_search(q, radius, bool(squared), p)
         stats["found"] = found
         stats["coordinates"] = dict(self._coords)
         self.last_stats = stats
@@ -382,6 +471,12 @@ class Index:
             grown = np.concatenate([self._points, stored.reshape(-1, 3)])
             grown.flags.writeable = False
             self._points = grown
+        if self._points64 is not None:
+            a, _ = _checked(points, "points")
+            grown = np.concatenate([self._points64, np.asarray(a, np.float64).reshape(-1, 3)])
+            grown.flags.writeable = False
+            self._points64 = grown
+        self._p_round = max(self._p_round, _refine.rounding_bound(stored))
         return ids
 
     def remove(self, ids: Any) -> None:
@@ -432,9 +527,10 @@ class Index:
         fd, tmp = tempfile.mkstemp(dir=os.path.dirname(os.path.abspath(path)), prefix=".bhcl-", suffix=".tmp")
         try:
             with os.fdopen(fd, "wb") as f:
+                extra = {} if self._points64 is None else {"points64": self._travelling_points64()}
                 np.savez(f, format=np.array(_NPZ_FORMAT), method=np.array(self.method),
                          options=np.array(json.dumps(self._options)), origin=self._origin,
-                         points=self._travelling_points(), removed=self._removed)
+                         points=self._travelling_points(), removed=self._removed, **extra)
             os.replace(tmp, path)
         except BaseException:
             try:
@@ -456,12 +552,25 @@ class Index:
         pts[self._removed] = pts[int(np.flatnonzero(live)[0])]
         return pts
 
+    def _travelling_points64(self) -> Optional[np.ndarray]:
+        """The float64 copy as it travels (refined indexes), removed rows as _travelling_points."""
+        if self._points64 is None:
+            return None
+        if not self._removed.size:
+            return self._points64
+        pts = np.array(self._points64)
+        live = np.ones(len(pts), bool)
+        live[self._removed] = False
+        pts[self._removed] = pts[int(np.flatnonzero(live)[0])]
+        return pts
+
     def __getstate__(self) -> Dict[str, Any]:
         if self._points is None:
             raise Error(f"pickle: this {self.method} index holds no copy of its points")
         state: Dict[str, Any] = {"format": _NPZ_FORMAT, "method": self.method, "options": dict(self._options),
                                  "origin": self._origin.copy(), "points": self._travelling_points(),
-                                 "removed": self._removed.copy(), "structure": None}
+                                 "removed": self._removed.copy(), "structure": None,
+                                 "points64": self._travelling_points64(), "devices": self._devices}
         if self._impl.saves:
             state["structure"] = self._structure_bytes()
         return state
@@ -471,14 +580,15 @@ class Index:
             raise Error("unpickle: not a blockhash_cl index state (format "
                         f"{state.get('format') if isinstance(state, dict) else type(state).__name__!r})")
         other = _rebuild(state["method"], state["points"], state["origin"], state["options"], state["structure"], None,
-                         state.get("removed"))
+                         state.get("removed"), state.get("points64"), state.get("devices"))
         for name in Index.__slots__:
             setattr(self, name, getattr(other, name))
 
 
 def _rebuild(method: str, pts: np.ndarray, origin: np.ndarray, options: Dict[str, Any],
              structure: Optional[bytes], device: Union[None, str, Runtime],
-             removed: Optional[np.ndarray] = None) -> Index:
+             removed: Optional[np.ndarray] = None, points64: Optional[np.ndarray] = None,
+             devices: Optional[List[str]] = None) -> Index:
     """An index over stored (relative, float32) points, a row per id issued: rebuilt from its
     build options and the removed ids removed again, or for block hashing read from its saved
     structure (which holds the ids itself)."""
@@ -501,17 +611,74 @@ def _rebuild(method: str, pts: np.ndarray, origin: np.ndarray, options: Dict[str
         table = _BUILD_OPTIONS.get(method, {})
         _refuse_unknown(method, options, tuple(table), "build option")
         _set_table_options(_core.set_build_option, opts, method, table, options)
-        impl = _core.make_index(method, get_runtime(device), pts, opts)
+        impl = _build(method, pts, opts, device, devices)
         if removed.size:
             impl.remove(removed)
     if impl.id_bound != len(pts) or impl.size != len(pts) - removed.size:
         raise Error(f"load: the {method} index holds {impl.size} points of ids 0 .. {impl.id_bound - 1}; the "
                     f"state has {len(pts)} rows of which {removed.size} removed")
     pts.flags.writeable = False
-    return Index(impl, origin, pts, options, removed)
+    if points64 is not None:
+        points64 = np.array(points64, np.float64, order="C")
+        if points64.shape != pts.shape:
+            raise Error(f"load: the float64 copy has shape {points64.shape}, the points {pts.shape}")
+        points64.flags.writeable = False
+    return Index(impl, origin, pts, options, removed, points64, devices)
+
+
+def _copy64(a: np.ndarray, stored: np.ndarray, origin: np.ndarray, refine: Optional[bool]) -> Optional[np.ndarray]:
+    """The float64 copy of the caller's points answers are refined from, or None: refine True
+    always (any input, taken as float64), False never, None (auto) when the points are float64,
+    re-centred (far from 0 for their size: georeferenced data, where float32 storage costs most)
+    and their float32 storage rounded some coordinate (stored + origin != the caller's)."""
+    if refine is False:
+        return None
+    if refine is None:
+        if a.dtype.kind != "f" or a.dtype.itemsize <= 4 or a.size == 0 or not np.any(origin):
+            return None
+        with np.errstate(invalid="ignore", over="ignore"):
+            lossless = np.array_equal(stored.astype(np.float64) + origin, a, equal_nan=True)
+        if lossless:
+            return None
+    elif refine is not True:
+        raise TypeError(f"refine must be True, False or None, got {refine!r}")
+    p64 = np.array(a, np.float64, order="C")
+    p64.flags.writeable = False
+    return p64
+
+
+def _device_specs(devices: Any) -> List[str]:
+    """make_index's devices as specs ("P:D" for a Runtime), checked."""
+    if isinstance(devices, (str, Runtime)) or not hasattr(devices, "__iter__"):
+        raise TypeError("devices must be a list of device specs or Runtimes, e.g. ['pocl', 'nvidia']")
+    specs = []
+    for d in devices:
+        if isinstance(d, Runtime):
+            specs.append(d.device["spec"])
+        elif isinstance(d, str) and d.strip():
+            specs.append(d.strip())
+        else:
+            raise TypeError(f"devices: each entry must be a non-empty str or a Runtime, got {d!r}")
+    if not specs:
+        raise ValueError("devices must name at least one device")
+    return specs
+
+
+def _build(method: str, pts: np.ndarray, opts: "_core.MethodOptions", device: Union[None, str, Runtime],
+           devices: Optional[List[str]]) -> Any:
+    """The C++ index: one device's, or a MultiDeviceIndex with a copy on each of devices."""
+    if devices is None:
+        return _core.make_index(method, get_runtime(device), pts, opts)
+    # Each copy on its own runtime (context and queue): a spec named twice gets a second one.
+    runtimes: List[Runtime] = []
+    for spec in devices:
+        rt = get_runtime(spec)
+        runtimes.append(rt if all(r is not rt for r in runtimes) else Runtime(spec))
+    return _core.MultiDeviceIndex(runtimes, method, pts, opts)
 
 
 def make_index(method: str, points: Any, *, device: Union[None, str, Runtime] = None,
+               devices: Optional[List[Union[str, Runtime]]] = None, refine: Optional[bool] = None,
                **options: Any) -> Index:
     """Builds an index of `method` ("blockhash", "kdtree", "bruteforce", "flann"; see
     method_names()) over points, an (N, 3) array (float32 or float64; converted to float32 once
@@ -525,6 +692,24 @@ def make_index(method: str, points: Any, *, device: Union[None, str, Runtime] = 
 {build_options}
     device: a spec ("P:D", "cpu", "gpu", "pocl", "nvidia:1"), a Runtime, or None for
     BHCL_DEVICE, else PoCL, else the first device. The GIL is released during the build.
+
+    devices (instead of device): a list of specs or Runtimes: the library's multi-device index,
+    a copy built on each (concurrently); a batch is split among them by their measured throughput
+    (Index.weights), the parts run at once and the rows come back in order, equal to one device's
+    bit for bit. query, radius_search (not squared=True), add and remove, pickling (rebuilt on the
+    same device specs) and save (the points; load builds one device's index) work as for one
+    device.
+
+    refine (float64 in, float64 out): None (default) refines when the points are float64 and
+    re-centred (see above) and storing them in float32 rounded some coordinate; True always
+    (any float64 data; the points taken as float64); False never. A refined index keeps a float64 copy of the points (24 B each, in
+    memory_bytes) and answers query() and radius_search() in float64: its float32 search is
+    widened by the stored rounding bound so that no true neighbour is lost, each row's distances
+    are recomputed in double from the caller's points (queries taken in float64 too) and
+    re-sorted, dist2 comes back float64; for every exact search (exact methods, block hashing's
+    grid without a budget) the rows are the float64 answer. The stats say refined, refine_s,
+    refine_share, refine_candidates, refine_requeried_rows, refine_radius_rows. By default
+    float64 data around 0 (and float32 data cast up, bit for bit) gives the float32 answer.
     """
     if not isinstance(method, str):
         raise TypeError(f"method must be a str, got {type(method).__name__}")
@@ -536,12 +721,17 @@ def make_index(method: str, points: Any, *, device: Union[None, str, Runtime] = 
     _check_count(a, method)
     origin = _origin_for(a)
     pts = _relative(a, origin, "points") if np.any(origin) else _xyz(a, "points")
-    impl = _core.make_index(method, get_runtime(device), pts, opts)
-    return Index(impl, origin, _own_copy(pts, points), {k: v for k, v in options.items() if v is not None})
+    if devices is not None and device is not None:
+        raise TypeError("give device or devices, not both")
+    specs = None if devices is None else _device_specs(devices)
+    p64 = _copy64(a, pts, origin, refine)
+    impl = _build(method, pts, opts, device, specs)
+    return Index(impl, origin, _own_copy(pts, points), {k: v for k, v in options.items() if v is not None},
+                 None, p64, specs)
 
 
 def load(path: Union[str, "os.PathLike[str]"], points: Any = None, *,
-         device: Union[None, str, Runtime] = None) -> Index:
+         device: Union[None, str, Runtime] = None, refine: Optional[bool] = None) -> Index:
     """Reads an index Index.save() wrote. A block-hash file needs the (N, 3) points it was built
     from (the index refers to them by index; as bhcl --load-index; after add() and remove(), a row
     per id issued, id_bound rows: a removed id's row is not compared); a file that does not match
@@ -560,6 +750,7 @@ def load(path: Union[str, "os.PathLike[str]"], points: Any = None, *,
                 method, options = str(z["method"]), json.loads(str(z["options"]))
                 origin, stored = np.array(z["origin"], np.float64), np.array(z["points"], np.float32)
                 removed = np.array(z["removed"], np.int32) if "removed" in z.files else None
+                points64 = np.array(z["points64"], np.float64) if "points64" in z.files else None
         except (KeyError, ValueError, OSError) as e:
             raise Error(f"load: {path} is not a readable blockhash_cl index ({e})") from None
         if fmt not in _NPZ_FORMATS:
@@ -575,7 +766,7 @@ def load(path: Union[str, "os.PathLike[str]"], points: Any = None, *,
             diff = np.flatnonzero(differs)
             if diff.size:
                 raise Error(f"load: {path}: point {int(diff[0])} differs from the one it was built from")
-        return _rebuild(method, stored, origin, options, None, device, removed)
+        return _rebuild(method, stored, origin, options, None, device, removed, points64)
     if points is None:
         raise Error(f"load: {path} is a block-hash index file: give the points it was built from")
     a, _ = _checked(points, "points")
@@ -585,7 +776,7 @@ def load(path: Union[str, "os.PathLike[str]"], points: Any = None, *,
     opts.set("load-index", path)
     impl = _core.make_index("blockhash", get_runtime(device), pts, opts)
     removed = impl.removed_ids() if impl.removed_count else None  # a file saved after removals
-    return Index(impl, origin, _own_copy(pts, points), {}, removed)
+    return Index(impl, origin, _own_copy(pts, points), {}, removed, _copy64(a, pts, origin, refine))
 
 
 # The docstrings list what the option tables hold.
@@ -593,3 +784,6 @@ Index.query.__doc__ = (Index.query.__doc__ or "").replace("{search_options}", _o
 Index.radius_search.__doc__ = (Index.radius_search.__doc__ or "").replace(
     "{radius_options}", _options_doc(_RADIUS_OPTIONS))
 make_index.__doc__ = (make_index.__doc__ or "").replace("{build_options}", _options_doc(_BUILD_OPTIONS))
+
+# scipy.spatial.KDTree's interface over an Index (_scipy.py).
+from ._scipy import KDTree, cKDTree  # noqa: E402

@@ -1,0 +1,121 @@
+"""Issue 40, part 2: float64 points answered in float64 (Index refine; KDTree always).
+
+The UTM-like case of the issue at 20k points (bench/python_bench.py --utm measures 200k): points in
+a 100 m patch at 4.3e6 m, every exact method, kNN and radius search, against scipy's cKDTree in
+float64 at rel 1e-9; a row is right when its distances are within rel 1e-9 of scipy's and its
+indices equal scipy's (where scipy's distances tie exactly, either order).
+"""
+import pickle
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+import blockhash_cl as bh
+
+EXACT = [m for m in ("bruteforce", "kdtree", "flann") if m in bh.method_names()] + ["blockhash"]
+BASE = np.array([512345.678, 4312345.678, 112.5])
+
+
+@pytest.fixture(scope="module")
+def utm():
+    rng = np.random.default_rng(40)
+    pts = BASE + rng.random((20000, 3)) * 100.0
+    q = BASE + rng.random((4000, 3)) * 100.0
+    return pts, q, cKDTree(pts)
+
+
+def rows_right(d, ids, ref_d, ref_i):
+    close = np.abs(d - ref_d) <= 1e-9 * np.maximum(ref_d, 1e-300)
+    same = (ids == ref_i) | np.isclose(ref_d, np.roll(ref_d, 1, axis=1), rtol=0, atol=0) \
+        | np.isclose(ref_d, np.roll(ref_d, -1, axis=1), rtol=0, atol=0)
+    return np.all(close & same, axis=1)
+
+
+@pytest.mark.parametrize("method", EXACT)
+@pytest.mark.parametrize("k", [1, 10, 50])
+def test_utm_knn_rows_are_scipys_float64_rows(utm, method, k):
+    pts, q, tree = utm
+    ref_d, ref_i = tree.query(q, k=k)
+    ref_d, ref_i = ref_d.reshape(len(q), k), ref_i.reshape(len(q), k)
+    index = bh.make_index(method, pts)
+    assert index.refined and index.coordinates["recentred"]
+    d2, ids, st = index.query(q, k=k, return_stats=True)
+    assert d2.dtype == np.float64 and ids.dtype == np.int32
+    assert st["refined"] and st["refine_exact"] and st["refine_s"] >= 0 and 0 <= st["refine_share"] <= 1
+    right = rows_right(np.sqrt(d2), ids, ref_d, ref_i)
+    assert right.mean() >= 0.9999, (method, k, right.mean())
+    # The same points without refinement: float32's rounding shows at rel 1e-9.
+    d32, _ = bh.make_index(method, pts, refine=False).query(q, k=k)
+    assert d32.dtype == np.float32
+    assert rows_right(np.sqrt(d32.astype(np.float64)), ids, ref_d, ref_i).mean() < 0.5
+
+
+@pytest.mark.parametrize("method", EXACT)
+def test_utm_radius_is_scipys_float64_ball(utm, method):
+    pts, q, tree = utm
+    index = bh.make_index(method, pts)
+    r = 2.5
+    res, st = index.radius_search(q, r), index.last_stats
+    assert res.dist2.dtype == np.float64 and st["refined"]
+    truth = tree.query_ball_point(q, r)
+    wrong = 0
+    for j in range(len(q)):
+        d2, ids = res.slice(j)
+        ref = np.array(sorted(truth[j], key=lambda t: (np.sum((pts[t] - q[j]) ** 2), t)), dtype=np.int64)
+        ref_d2 = np.sum((pts[ref] - q[j]) ** 2, axis=1) if len(ref) else np.zeros(0)
+        wrong += not (np.array_equal(ids, ref) and np.allclose(d2, ref_d2, rtol=1e-12, atol=0))
+    assert wrong / len(q) <= 1e-4
+    # A point exactly on the float64 sphere is in (d2 <= r*r), one a hair outside is not.
+    on = BASE + np.array([[0.0, 0.0, 0.0], [3.0, 4.0, 0.0], [3.0, 4.0 + 1e-7, 0.0]])
+    idx = bh.make_index(method, np.concatenate([on, pts]))
+    assert idx.radius_search(on[:1], 5.0).ids.tolist() == [0, 1]
+    # max_results: the nearest in float64.
+    capped = index.radius_search(q[:200], r, max_results=3)
+    for j in range(200):
+        assert np.array_equal(capped.slice(j)[1], res.slice(j)[1][:3])
+
+
+def test_duplicates_force_more_candidates_and_the_radius_fallback():
+    """Near-ties at the last candidate (duplicate points) are searched again: with more
+    candidates, then (past MAX_K duplicates) by a radius search; the rows stay scipy's."""
+    rng = np.random.default_rng(41)
+    pts = BASE + rng.random((3000, 3)) * 10.0
+    pts[100:500] = pts[100]          # 400 copies of one point
+    pts[600:606] = pts[600]          # a few copies of another
+    q = np.concatenate([pts[[100, 600]] + 1e-4, BASE + rng.random((50, 3)) * 10.0])
+    index = bh.make_index("kdtree", pts)
+    d2, ids, st = index.query(q, k=8, return_stats=True)
+    assert st["refine_requeried_rows"] >= 1 and st["refine_radius_rows"] >= 1
+    ref_d, ref_i = cKDTree(pts).query(q, k=8)
+    np.testing.assert_allclose(np.sqrt(d2), ref_d, rtol=1e-12)
+    assert ids[0].tolist() == list(range(100, 108))  # ties by index
+    assert ids[1].tolist()[:6] == list(range(600, 606))
+
+
+def test_refine_modes_max_radius_pickle_and_add():
+    rng = np.random.default_rng(42)
+    pts = BASE + rng.random((5000, 3)) * 50.0
+    q = BASE + rng.random((300, 3)) * 50.0
+    assert not bh.make_index("kdtree", pts, refine=False).refined
+    assert not bh.make_index("kdtree", pts.astype(np.float32)).refined        # float32 in: float32 out
+    assert not bh.make_index("kdtree", rng.random((100, 3))).refined          # around 0: as before
+    assert bh.make_index("kdtree", rng.random((100, 3)), refine=True).refined
+    with pytest.raises(TypeError, match="refine"):
+        bh.make_index("kdtree", pts, refine="yes")
+    index = bh.make_index("kdtree", pts)
+    d2, ids = index.query(q, k=6, max_radius=2.0)
+    ref_d, ref_i = cKDTree(pts).query(q, k=6, distance_upper_bound=np.nextafter(2.0, 3.0))
+    np.testing.assert_array_equal(ids, np.where(ref_i == len(pts), -1, ref_i))
+    np.testing.assert_allclose(np.sqrt(d2), ref_d, rtol=1e-12)
+    back = pickle.loads(pickle.dumps(index))
+    assert back.refined
+    np.testing.assert_array_equal(back.query(q, k=6)[0], index.query(q, k=6)[0])
+    more = BASE + rng.random((100, 3)) * 50.0
+    index.add(more)
+    allp = np.concatenate([pts, more])
+    d2, ids = index.query(q, k=4)
+    ref_d, ref_i = cKDTree(allp).query(q, k=4)
+    np.testing.assert_array_equal(ids, ref_i)
+    np.testing.assert_allclose(np.sqrt(d2), ref_d, rtol=1e-12)
+    assert index.memory_bytes >= allp.nbytes  # the float64 copy is counted
