@@ -60,6 +60,19 @@ def load(make_dataset, name, n_points, n_queries, data_dir):
         return np.load(p), np.load(q)
 
 
+class Table:
+    """A Markdown table printed as it grows (a row at a time), its lines kept for the output file."""
+
+    def __init__(self, title, columns):
+        self.lines = [title, "| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+        print("\n".join(self.lines), flush=True)
+
+    def row(self, *cells):
+        line = "| " + " | ".join(str(c) for c in cells) + " |"
+        self.lines.append(line)
+        print(line, flush=True)
+
+
 def timed(fn):
     t0 = time.perf_counter()
     out = fn()
@@ -189,18 +202,12 @@ def front(a):
         import napf
     except ImportError:
         napf = None
-    lines = [f"# blockhash_cl {bh.__version__} KDTree on {bh.get_runtime().device['summary']}; scipy workers={a.threads}; "
-             f"pykdtree {'yes' if PyKDTree else 'missing'} (OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}); "
-             f"napf {'yes' if napf else 'missing'} (nthread={a.threads}); {a.rounds} rounds, median",
-             "| data | N | queries | k | variant | build s | query s | vs scipy | rows = scipy's |",
-             "|---|---|---|---|---|---|---|---|---|"]
-    print("\n".join(lines), flush=True)
+    table = Table(f"# blockhash_cl {bh.__version__} KDTree on {bh.get_runtime().device['summary']}; scipy workers={a.threads}; "
+                  f"pykdtree {'yes' if PyKDTree else 'missing'} (OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}); "
+                  f"napf {'yes' if napf else 'missing'} (nthread={a.threads}); {a.rounds} rounds, median",
+                  ["data", "N", "queries", "k", "variant", "build s", "query s", "vs scipy", "rows = scipy's"])
+    lines, row = table.lines, table.row
     rng = np.random.default_rng(40)
-
-    def row(*cells):
-        line = "| " + " | ".join(str(c) for c in cells) + " |"
-        lines.append(line)
-        print(line, flush=True)
 
     for name in a.data.split(","):
         pts, _ = load(a.make_dataset, name, a.N, 1, a.data_dir)
@@ -283,17 +290,11 @@ def main():
     As = [float(x) for x in a.A.split(",")]
     per_query = [int(x) for x in a.per_query.split(",")]
     dev = bh.get_runtime().device
-    lines = [f"# blockhash_cl {bh.__version__} on {dev['summary']}; numpy {np.__version__}; "
-             f"cKDTree workers={a.threads}; pykdtree {'yes' if PyKDTree else 'missing'}; "
-             f"Open3D {o3d.__version__ if o3d else 'missing'}; {a.rounds} rounds, shuffled",
-             "| data | N | search | variant | build s | q/s (median) | vs cKDTree (median, min-max) | recall |",
-             "|---|---|---|---|---|---|---|---|"]
-    print("\n".join(lines), flush=True)
-
-    def row(*cells):
-        line = "| " + " | ".join(str(c) for c in cells) + " |"
-        lines.append(line)
-        print(line, flush=True)
+    table = Table(f"# blockhash_cl {bh.__version__} on {dev['summary']}; numpy {np.__version__}; "
+                  f"cKDTree workers={a.threads}; pykdtree {'yes' if PyKDTree else 'missing'}; "
+                  f"Open3D {o3d.__version__ if o3d else 'missing'}; {a.rounds} rounds, shuffled",
+                  ["data", "N", "search", "variant", "build s", "q/s (median)", "vs cKDTree (median, min-max)", "recall"])
+    lines, row = table.lines, table.row
 
     for name in a.data.split(","):
         pts, qs = load(a.make_dataset, name, a.N, a.queries, a.data_dir)

@@ -429,12 +429,33 @@ void save(const bhcl::Index& index, const std::string& path) {
 
 }  // namespace
 
-PYBIND11_MODULE(_core, m) {
-  m.doc() = "blockhash_cl's C++ layer; use the package blockhash_cl, not this module.";
-  m.attr("__version__") = BHCL_VERSION_STRING;
-  m.attr("HAVE_FLANN") = bool(BHCL_HAVE_FLANN);
-  m.attr("MAX_K") = bhcl::kMaxK;
+namespace {
 
+// Updates of an Index or a MultiDeviceIndex (Index::insert/remove): the new ids (first ..
+// first + n - 1), the GIL released while the index changes.
+template <class T>
+py::array insert_points(T& index, const py::array_t<float, py::array::c_style>& points) {
+  const std::size_t n = rows_of(points, "points");
+  std::int32_t first = 0;
+  {
+    py::gil_scoped_release nogil;
+    first = index.insert(points.data(), n);
+  }
+  std::vector<std::int32_t> ids(n);
+  for (std::size_t i = 0; i < n; ++i) ids[i] = first + static_cast<std::int32_t>(i);
+  return to_numpy(std::move(ids), {static_cast<py::ssize_t>(n)});
+}
+template <class T>
+void remove_ids(T& index, const py::array_t<std::int32_t, py::array::c_style>& ids) {
+  if (ids.ndim() != 1)
+    throw bhcl::Error("remove: ids must be a 1-D array, got " + std::to_string(ids.ndim()) + " dimensions");
+  const std::size_t n = static_cast<std::size_t>(ids.shape(0));
+  py::gil_scoped_release nogil;
+  index.remove(ids.data(), n);
+}
+
+// blockhash_cl.Error (a ValueError) and OpenCLError, and the translation of the library's exceptions.
+void bind_errors(py::module_& m) {
   g_error = PyErr_NewExceptionWithDoc(
       "blockhash_cl.Error",
       "An error of the blockhash_cl library: bad input or parameters, an unreadable file. A ValueError.",
@@ -456,7 +477,10 @@ PYBIND11_MODULE(_core, m) {
       PyErr_SetString(g_error, e.what());
     }
   });
+}
 
+// The method registry, the option setters and the devices.
+void bind_registry(py::module_& m) {
   m.def("method_names", &bhcl::method_names, "Names make_index accepts, in display order.");
   m.def("method_table", &method_table, "The method registry: flags, build and search options.");
   m.def("set_build_option", &set_build_option, py::arg("options"), py::arg("method"),
@@ -485,7 +509,10 @@ PYBIND11_MODULE(_core, m) {
     py::gil_scoped_release nogil;
     return bhcl::default_runtime();
   }, "The process-wide runtime (BHCL_DEVICE, read once, else PoCL, else the first device).");
+}
 
+// SearchParams, RadiusParams and MethodOptions.
+void bind_params(py::module_& m) {
   py::class_<bhcl::SearchParams>(m, "SearchParams")
       .def(py::init<>())
       .def_readwrite("k", &bhcl::SearchParams::k)
@@ -512,7 +539,10 @@ PYBIND11_MODULE(_core, m) {
       .def_readwrite("values", &bhcl::MethodOptions::values)
       .def("set", [](bhcl::MethodOptions& o, const std::string& name, const std::string& text) { o.set(name, text); },
            py::arg("name"), py::arg("text"));
+}
 
+// bhcl::Index: the calls the package's Index wraps.
+void bind_index(py::module_& m) {
   py::class_<bhcl::Index, std::unique_ptr<bhcl::Index>>(m, "Index")
       .def_property_readonly("method", &bhcl::Index::method)
       .def_property_readonly("exact", &bhcl::Index::exact)
@@ -528,23 +558,8 @@ PYBIND11_MODULE(_core, m) {
            py::arg("squared"), py::arg("params"))
       .def("save", &save, py::arg("path"))
       // Updates (Index::insert/remove): the new ids (first .. first + n - 1), GIL released.
-      .def("insert", [](bhcl::Index& index, const py::array_t<float, py::array::c_style>& points) {
-             const std::size_t n = rows_of(points, "points");
-             std::int32_t first = 0;
-             {
-               py::gil_scoped_release nogil;
-               first = index.insert(points.data(), n);
-             }
-             std::vector<std::int32_t> ids(n);
-             for (std::size_t i = 0; i < n; ++i) ids[i] = first + static_cast<std::int32_t>(i);
-             return to_numpy(std::move(ids), {static_cast<py::ssize_t>(n)});
-           }, py::arg("points").noconvert())
-      .def("remove", [](bhcl::Index& index, const py::array_t<std::int32_t, py::array::c_style>& ids) {
-             if (ids.ndim() != 1) throw bhcl::Error("remove: ids must be a 1-D array, got " + std::to_string(ids.ndim()) + " dimensions");
-             const std::size_t n = static_cast<std::size_t>(ids.shape(0));
-             py::gil_scoped_release nogil;
-             index.remove(ids.data(), n);
-           }, py::arg("ids").noconvert())
+      .def("insert", &insert_points<bhcl::Index>, py::arg("points").noconvert())
+      .def("remove", &remove_ids<bhcl::Index>, py::arg("ids").noconvert())
       .def_property_readonly("id_bound", &bhcl::Index::id_bound)
       .def("contains", &bhcl::Index::contains, py::arg("id"))
       .def_property_readonly("removed_count", &bhcl::Index::removed_count)
@@ -560,7 +575,10 @@ PYBIND11_MODULE(_core, m) {
         py::gil_scoped_release nogil;
         return i.warm_up(p);
       }, py::arg("params"));
+}
 
+// The float64 refinement helpers and make_index.
+void bind_refine(py::module_& m) {
   m.def("refine_knn", &refine_knn, py::arg("q").noconvert(), py::arg("points").noconvert(),
         py::arg("ids").noconvert(), py::arg("k"), "float64 refinement of kNN rows (blockhash_cl/_refine.py).");
   m.def("pair_dist2", &pair_dist2, py::arg("q").noconvert(), py::arg("owner").noconvert(),
@@ -570,7 +588,10 @@ PYBIND11_MODULE(_core, m) {
         "float64 refinement of radius slices.");
   m.def("make_index", &make_index, py::arg("method"), py::arg("runtime"),
         py::arg("points").noconvert(), py::arg("options"));
+}
 
+// bhcl::MultiDeviceIndex.
+void bind_multi_device(py::module_& m) {
   // bhcl::MultiDeviceIndex with the attributes and calls of Index above that the package's Index
   // uses (it wraps either): one copy per runtime, a batch split among them by their throughput.
   using Multi = bhcl::MultiDeviceIndex;
@@ -621,23 +642,8 @@ PYBIND11_MODULE(_core, m) {
       .def("save", [](const Multi&, const std::string&) {
         throw bhcl::Error("save: a multi-device index saves through the package (its points), not a structure file");
       }, py::arg("path"))
-      .def("insert", [](Multi& x, const py::array_t<float, py::array::c_style>& points) {
-             const std::size_t n = rows_of(points, "points");
-             std::int32_t first = 0;
-             {
-               py::gil_scoped_release nogil;
-               first = x.insert(points.data(), n);
-             }
-             std::vector<std::int32_t> ids(n);
-             for (std::size_t i = 0; i < n; ++i) ids[i] = first + static_cast<std::int32_t>(i);
-             return to_numpy(std::move(ids), {static_cast<py::ssize_t>(n)});
-           }, py::arg("points").noconvert())
-      .def("remove", [](Multi& x, const py::array_t<std::int32_t, py::array::c_style>& ids) {
-             if (ids.ndim() != 1) throw bhcl::Error("remove: ids must be a 1-D array");
-             const std::size_t n = static_cast<std::size_t>(ids.shape(0));
-             py::gil_scoped_release nogil;
-             x.remove(ids.data(), n);
-           }, py::arg("ids").noconvert())
+      .def("insert", &insert_points<Multi>, py::arg("points").noconvert())
+      .def("remove", &remove_ids<Multi>, py::arg("ids").noconvert())
       .def_property_readonly("id_bound", &Multi::id_bound)
       .def("contains", [](const Multi& x, std::int32_t id) { return x.index(0).contains(id); }, py::arg("id"))
       .def_property_readonly("removed_count", [](const Multi& x) { return x.index(0).removed_count(); })
@@ -647,4 +653,20 @@ PYBIND11_MODULE(_core, m) {
         for (std::size_t d = 0; d < x.devices(); ++d) s += x.index(d).warm_up(p);
         return s;
       }, py::arg("params"));
+}
+
+}  // namespace
+
+PYBIND11_MODULE(_core, m) {
+  m.doc() = "blockhash_cl's C++ layer; use the package blockhash_cl, not this module.";
+  m.attr("__version__") = BHCL_VERSION_STRING;
+  m.attr("HAVE_FLANN") = bool(BHCL_HAVE_FLANN);
+  m.attr("MAX_K") = bhcl::kMaxK;
+
+  bind_errors(m);
+  bind_registry(m);
+  bind_params(m);
+  bind_index(m);
+  bind_refine(m);
+  bind_multi_device(m);
 }
