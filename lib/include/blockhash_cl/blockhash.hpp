@@ -14,8 +14,8 @@
 //   paper  the talk's scheme and defaults: L = P = round(ln N), X = 10, B = ceil(A k / (X ln N)) + 1
 //          for the design A and k, direct addressing of all (P+1)^3 cells, a full bucket drops
 //          new blocks, no neighbour probes, no bounding-box skipping (kernels/blockhash_knn.cl).
-// The block layouts of the previous auto (grid = 0, or any of L, P, B, X, cell_aligned,
-// box_order, box_skip, direct_addressing, guard_thresholds, keep_top_count, hilbert_seed set):
+// The block layouts of the previous auto (grid = 0; their fields L, P, B, X, cell_aligned,
+// box_order, ... are refused on the grid, the grid's on them):
 //          cell_aligned (the default before the grid): blocks aligned to the cells of one table,
 //          guarded CDF thresholds, the octant then the 4 x 4 x 4 block of cells, blocks in order of
 //          box distance (kernels/blockhash_cells_knn.cl); cell_aligned = 0 (or L > 1): the talk's
@@ -83,8 +83,8 @@ struct BlockHashBuildParams {
   // whose cells are all empty (far from the data) still gets k answers. -1: auto 1, paper 0.
   int hilbert_seed = -1;
   int neighbour_probes = -1;  // default for SearchParams::neighbour_probes == -1 (block layouts)
-  // auto: the grid layout. -1: on for auto unless a block-layout field above is set; 0: the block
-  // layouts; 1: the grid (refused with a block-layout field set).
+  // The layout: -1 the preset's (auto: the grid; paper: its tables), 0 the block layouts, 1 the
+  // grid. A field of another layout than the one chosen is refused (bhcl::Error), never ignored.
   int grid = -1;
   // Grid: the cells' side in the points' units (> 0), or -1 to choose it from a sample so that
   // the point-weighted mean cell population is target_cell_points (-1: 24).
