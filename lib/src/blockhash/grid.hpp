@@ -115,6 +115,12 @@ void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid&
 // parallel over `threads`: 0 all); every path that adds points to cells calls it.
 std::size_t grid_occupancy_bytes(const bhcl_grid_geom& g);
 void build_grid_occupancy(Grid& g, unsigned threads);
+// b widened to hold the point (x, y, z).
+inline void widen_box(bhcl_grid_dbox& b, float x, float y, float z) {
+  b.lx = std::min(b.lx, x), b.ly = std::min(b.ly, y), b.lz = std::min(b.lz, z);
+  b.hx = std::max(b.hx, x), b.hy = std::max(b.hy, y), b.hz = std::max(b.hz, z);
+}
+
 // The box of g's live points (holes left out): g.dbox on a load and after a remove that took a
 // point on it (a build takes its own box, an insert widens g.dbox by the new points').
 bhcl_grid_dbox grid_points_box(const Grid& g, unsigned threads);

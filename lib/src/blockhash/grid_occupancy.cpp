@@ -93,10 +93,7 @@ bhcl_grid_dbox grid_points_box(const Grid& g, unsigned threads) {
         for (std::size_t t = pb; t < pe; ++t) {
           bhcl_grid_dbox b = part[t];
           for (std::size_t i = n * t / parts, e = n * (t + 1) / parts; i < e; ++i) {
-            if (!(g.x[i] < INFINITY)) continue;  // a hole (coordinates +inf)
-            b.lx = std::min(b.lx, g.x[i]), b.hx = std::max(b.hx, g.x[i]);
-            b.ly = std::min(b.ly, g.y[i]), b.hy = std::max(b.hy, g.y[i]);
-            b.lz = std::min(b.lz, g.z[i]), b.hz = std::max(b.hz, g.z[i]);
+            if (g.x[i] < INFINITY) widen_box(b, g.x[i], g.y[i], g.z[i]);  // not a hole (+inf)
           }
           part[t] = b;
         }

@@ -88,15 +88,6 @@ struct UpdateCounters {
   }
 };
 
-// The live points' box widened by m new points.
-void widen_box(bhcl_grid_dbox& b, const float* scaled, std::size_t m) {
-  for (std::size_t i = 0; i < m; ++i) {
-    const float* p = scaled + 3 * i;
-    b.lx = std::min(b.lx, p[0]), b.ly = std::min(b.ly, p[1]), b.lz = std::min(b.lz, p[2]);
-    b.hx = std::max(b.hx, p[0]), b.hy = std::max(b.hy, p[1]), b.hz = std::max(b.hz, p[2]);
-  }
-}
-
 // The merge of an insert, out of place, in parallel over ranges of cells: each cell's run copied
 // to its new start (the old start plus the new points of the cells before it, add[c]) with its
 // new points (order[add[c] ..], ids first + i) behind it, into the scratch arrays (sized n1 + pad).
@@ -299,7 +290,8 @@ void BlockHashIndex::grid_insert(const float* scaled, std::size_t m, std::int32_
   g.n_points = n1;
   s_->n_points = n1;
   const std::size_t p_from = first_cell < nc ? g.starts[first_cell] : n0;
-  widen_box(g.dbox, scaled, m);  // the live points' box
+  for (std::size_t i = 0; i < m; ++i)  // the live points' box
+    blockhash::widen_box(g.dbox, scaled[3 * i], scaled[3 * i + 1], scaled[3 * i + 2]);
   blockhash::build_grid_occupancy(g, params_.threads);
   grid_upload_from(p_from, first_cell);
   info_.n_points = n1;

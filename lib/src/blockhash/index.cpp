@@ -6,7 +6,9 @@
 #include <cstddef>
 #include <cstdio>
 #include <cstring>
+#include <initializer_list>
 #include <sstream>
+#include <utility>
 
 #include "bhcl_shared.h"
 #include "blockhash/build.hpp"
@@ -98,43 +100,47 @@ void grid_geometry_info(const blockhash::Structure& s, BlockHashBuildInfo& in) {
   in.n_points = s.n_points;
 }
 
-// The block-layout fields the caller set, by name ("" for none).
-std::string block_fields_set(const BlockHashBuildParams& p) {
+// The names of the fields marked set, comma separated ("" for none).
+std::string names_set(std::initializer_list<std::pair<bool, const char*>> fields) {
   std::string s;
-  auto add = [&](bool set, const char* name) {
+  for (const auto& [set, name] : fields)
     if (set) s += (s.empty() ? "" : ", ") + std::string(name);
-  };
-  add(p.L > 0, "L");
-  add(p.P > 0, "P");
-  add(p.B > 0, "B");
-  add(p.X > 0, "X");
-  add(p.cell_aligned >= 0, "cell_aligned");
-  add(p.box_order >= 0, "box_order");
-  add(p.box_skip >= 0, "box_skip");
-  add(p.direct_addressing >= 0, "direct_addressing");
-  add(p.guard_thresholds >= 0, "guard_thresholds");
-  add(p.keep_top_count >= 0, "keep_top_count");
-  add(p.hilbert_seed >= 0, "hilbert_seed");
-  const BlockHashBuildParams d;
-  add(p.b_percentile != d.b_percentile, "b_percentile");
-  add(p.design_A != d.design_A, "design_A");
-  add(p.design_k != d.design_k, "design_k");
-  add(p.hist_bins != d.hist_bins, "hist_bins");
-  add(p.hilbert_bits != d.hilbert_bits, "hilbert_bits");
-  add(p.neighbour_probes >= 0, "neighbour_probes");
   return s;
 }
 
-// The grid's own fields the caller set, by name ("" for none).
+// The block-layout fields the caller set.
+std::string block_fields_set(const BlockHashBuildParams& p) {
+  const BlockHashBuildParams d;
+  return names_set({{p.L > 0, "L"},
+                    {p.P > 0, "P"},
+                    {p.B > 0, "B"},
+                    {p.X > 0, "X"},
+                    {p.cell_aligned >= 0, "cell_aligned"},
+                    {p.box_order >= 0, "box_order"},
+                    {p.box_skip >= 0, "box_skip"},
+                    {p.direct_addressing >= 0, "direct_addressing"},
+                    {p.guard_thresholds >= 0, "guard_thresholds"},
+                    {p.keep_top_count >= 0, "keep_top_count"},
+                    {p.hilbert_seed >= 0, "hilbert_seed"},
+                    {p.b_percentile != d.b_percentile, "b_percentile"},
+                    {p.design_A != d.design_A, "design_A"},
+                    {p.design_k != d.design_k, "design_k"},
+                    {p.hist_bins != d.hist_bins, "hist_bins"},
+                    {p.hilbert_bits != d.hilbert_bits, "hilbert_bits"},
+                    {p.neighbour_probes >= 0, "neighbour_probes"}});
+}
+
+// The grid's own fields the caller set.
 std::string grid_fields_set(const BlockHashBuildParams& p) {
-  std::string s;
-  auto add = [&](bool set, const char* name) {
-    if (set) s += (s.empty() ? "" : ", ") + std::string(name);
-  };
-  add(p.cell_size != -1, "cell_size");
-  add(p.max_cells_per_point != BlockHashBuildParams{}.max_cells_per_point, "max_cells_per_point");
-  add(p.grid_directory != -1, "grid_directory");
-  return s;
+  return names_set({{p.cell_size != -1, "cell_size"},
+                    {p.max_cells_per_point != BlockHashBuildParams{}.max_cells_per_point, "max_cells_per_point"},
+                    {p.grid_directory != -1, "grid_directory"}});
+}
+
+// Refuses fields of another layout: "blockhash: F is an option of <whose>" ("F, G are options").
+[[noreturn]] void refuse_fields(const std::string& fields, const std::string& whose) {
+  throw Error("blockhash: " + fields + (fields.find(',') == std::string::npos ? " is an option" : " are options") +
+              " of " + whose);
 }
 
 // Which layout a build makes, chosen explicitly: the auto preset's grid (grid -1 or 1), the
@@ -148,16 +154,13 @@ bool wants_grid(const BlockHashBuildParams& p) {
   if (paper && p.grid == 1)
     throw Error("blockhash: grid = 1 is the auto preset's layout; the paper preset has its own");
   const bool grid = !paper && p.grid != 0;
-  if (grid) {
-    if (const std::string f = block_fields_set(p); !f.empty())
-      throw Error("blockhash: " + f + (f.find(',') == std::string::npos ? " is an option" : " are options") +
-                  " of the block layouts; the auto preset builds the grid (set grid = 0 for the "
-                  "cell-aligned blocks, or preset = paper for the talk's tables)");
-  } else if (const std::string f = grid_fields_set(p); !f.empty()) {
-    throw Error("blockhash: " + f + (f.find(',') == std::string::npos ? " is an option" : " are options") +
-                " of the grid (the auto preset's layout), not of the " +
-                (paper ? std::string("paper preset's tables") : std::string("block layouts (grid = 0)")));
-  }
+  const std::string other = grid ? block_fields_set(p) : grid_fields_set(p);
+  if (!other.empty() && grid)
+    refuse_fields(other, "the block layouts; the auto preset builds the grid (set grid = 0 for the "
+                         "cell-aligned blocks, or preset = paper for the talk's tables)");
+  if (!other.empty())
+    refuse_fields(other, std::string("the grid (the auto preset's layout), not of the ") +
+                             (paper ? "paper preset's tables" : "block layouts (grid = 0)"));
   return grid;
 }
 

@@ -97,8 +97,7 @@ std::optional<BlockHashIndex::RecallTuning> BlockHashIndex::recall_tuning(const 
 }
 
 float BlockHashIndex::resolved_A(const SearchParams& p) const {
-  if (info_.grid && p.recall_target >= 1) return INFINITY;  // the exact mode
-  if (p.recall_target > 0) return recall_tuning(p)->A;
+  if (p.recall_target > 0) return recall_tuning(p)->A;  // the grid at a target of 1: its exact mode
   if (p.A == 0) return info_.grid ? INFINITY : 8.0f;  // the index's default (SearchParams::A)
   return p.A;
 }

@@ -124,8 +124,8 @@ const KernelDefine* find_kernel_define(const std::string& name) {
   return nullptr;
 }
 
-std::vector<std::pair<std::string, std::string>> parse_kernel_defines(const std::string& defines) {
-  std::vector<std::pair<std::string, std::string>> out;
+std::vector<CallerDefine> parse_kernel_defines(const std::string& defines) {
+  std::vector<CallerDefine> out;
   std::istringstream is(defines);
   std::string tok;
   while (is >> tok) {
@@ -140,8 +140,7 @@ std::vector<std::pair<std::string, std::string>> parse_kernel_defines(const std:
     if (d->kind == K::Structural)
       throw Error("kernel_defines: " + name + " is set by the library from the index (" + d->help +
                   "); a caller cannot set it");
-    parse_value(*d, value);
-    out.emplace_back(name, value);
+    out.push_back({d, value, parse_value(*d, value)});
   }
   return out;
 }
@@ -156,12 +155,12 @@ std::string kernel_build_options(const std::string& file, const DefineValues& li
                   " does not read (kernel_defines.cpp's table)");
     options += (options.empty() ? "-D" : " -D") + std::string(name) + "=" + std::to_string(value);
   }
-  for (const auto& [name, value] : parse_kernel_defines(caller_defines)) {
-    const KernelDefine* d = find_kernel_define(name);
-    if (!d->read_by(file))
-      throw Error("kernel_defines: " + name + " (" + kind_name(d->kind) + ") is not read by " + file +
-                  ", the kernel this query builds (it is read by " + readers_of(*d) + ")");
-    options += (options.empty() ? "-D" : " -D") + name + "=" + value;
+  for (const CallerDefine& c : parse_kernel_defines(caller_defines)) {
+    const KernelDefine& d = *c.define;
+    if (!d.read_by(file))
+      throw Error("kernel_defines: " + std::string(d.name) + " (" + kind_name(d.kind) + ") is not read by " + file +
+                  ", the kernel this query builds (it is read by " + readers_of(d) + ")");
+    options += (options.empty() ? "-D" : " -D") + std::string(d.name) + "=" + c.text;
   }
   return options;
 }
@@ -169,8 +168,8 @@ std::string kernel_build_options(const std::string& file, const DefineValues& li
 std::uint32_t caller_define_value(const std::string& caller_defines, const std::string& name,
                                   std::uint32_t fallback) {
   std::uint32_t v = fallback;
-  for (const auto& [n, value] : parse_kernel_defines(caller_defines))
-    if (n == name) v = static_cast<std::uint32_t>(std::strtoull(value.c_str(), nullptr, 0));
+  for (const CallerDefine& c : parse_kernel_defines(caller_defines))
+    if (name == c.define->name) v = static_cast<std::uint32_t>(c.value);
   return v;
 }
 

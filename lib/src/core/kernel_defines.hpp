@@ -36,10 +36,16 @@ const std::vector<KernelDefine>& kernel_define_table();
 // The entry of `name` (BHCL_...), nullptr when no kernel reads it.
 const KernelDefine* find_kernel_define(const std::string& name);
 
-// A caller's kernel_defines as (name, value text) pairs; a -DNAME without a value is "1".
-// Throws bhcl::Error for a token that is not -DNAME[=VALUE], or a name no kernel reads (listing
-// the table), or a structural one, or a value that is not an integer in the entry's range.
-std::vector<std::pair<std::string, std::string>> parse_kernel_defines(const std::string& defines);
+// One define of a caller's kernel_defines: its entry, the value as written and as read.
+struct CallerDefine {
+  const KernelDefine* define;
+  std::string text;  // "1" for a -DNAME without a value
+  long long value;
+};
+// A caller's kernel_defines, in order. Throws bhcl::Error for a token that is not
+// -DNAME[=VALUE], or a name no kernel reads (listing the table), or a structural one, or a value
+// that is not an integer in the entry's range.
+std::vector<CallerDefine> parse_kernel_defines(const std::string& defines);
 
 // The build options of kernel `file`: the library's own defines (each must be in the table and
 // read by `file`: an internal error otherwise), then the caller's, each of which `file` must read
