@@ -22,7 +22,6 @@
 #include <cstdint>
 #include <memory>
 #include <string>
-#include <thread>
 #include <type_traits>
 #include <utility>
 #include <vector>
@@ -33,6 +32,7 @@
 #include "blockhash_cl/factory.hpp"
 #include "blockhash_cl/knn.hpp"
 #include "blockhash_cl/multi_device.hpp"
+#include "blockhash_cl/parallel.hpp"
 #include "blockhash_cl/runtime.hpp"
 #if BHCL_HAVE_FLANN
 #include "blockhash_cl/flann_index.hpp"
@@ -184,14 +184,12 @@ py::tuple radius_query(const IndexT& index, const py::array_t<float, py::array::
 
 // float64 refinement (python/blockhash_cl/_refine.py): distances in double from the caller's points,
 // rows re-sorted by (distance, id). Rows are split over a few threads (GIL released).
+// The library's parallel_for, over at most 8 of the CPUs this process may use, once the work
+// (distances to compute) pays for threads.
 template <typename F>
 void over_rows(std::size_t n, std::size_t work, F&& f) {
-  const unsigned hw = std::max(1u, std::min(8u, std::thread::hardware_concurrency()));
-  const unsigned t = work < 200000 ? 1u : hw;
-  std::vector<std::thread> pool;
-  for (unsigned i = 1; i < t; ++i) pool.emplace_back([&, i] { f(n * i / t, n * (i + 1) / t); });
-  f(0, n / t);
-  for (auto& th : pool) th.join();
+  const unsigned t = work < 200000 ? 1u : std::min(8u, bhcl::detail::default_threads());
+  bhcl::detail::parallel_for(n, f, t, 1);
 }
 
 inline double dist2_64(const double* q, const double* p) {
