@@ -50,6 +50,12 @@
 #endif
 #define BHCL_GRID_ROWBUF (BHCL_GRID_ROWCAP > 0 ? BHCL_GRID_ROWCAP : 1)
 
+/* The pyramid nodes the far walk queues, nearest first (0: depth-first, no queue; grid_search.h). */
+#ifndef BHCL_GRID_WALKCAP
+#define BHCL_GRID_WALKCAP 0
+#endif
+#define BHCL_GRID_WALKBUF (BHCL_GRID_WALKCAP > 0 ? BHCL_GRID_WALKCAP : 1)
+
 #if BHCL_GRID_VTOPK
 #if BHCL_KMAX > 64
 #error "the register top-k holds at most 64 entries"
@@ -441,7 +447,7 @@ __kernel void blockhash_grid_knn(__global const uint* starts, __global const flo
   float fill_d[16 * VR];
   int fill_i[16 * VR];
   vt_init(&t, k, max_r2, fill_d, fill_i);
-  if (bhcl_query_is_finite(q)) examined = bhcl_grid_search(starts, px, py, pz, pid, occ, g, db, qx, qy, qz, budget, BHCL_GRID_ROWCAP, BHCL_GRID_FINE_RINGS, &t);
+  if (bhcl_query_is_finite(q)) examined = bhcl_grid_search(starts, px, py, pz, pid, occ, g, db, qx, qy, qz, budget, BHCL_GRID_ROWCAP, BHCL_GRID_FINE_RINGS, BHCL_GRID_WALKCAP, &t);
   VT_FINISH(&t);
   float td[16 * VR];
   int ti[16 * VR];
@@ -460,7 +466,7 @@ __kernel void blockhash_grid_knn(__global const uint* starts, __global const flo
   t.n = 0;
   t.max_r2 = max_r2;
   bhcl_topk_init(t.d, t.i, k);
-  if (bhcl_query_is_finite(q)) examined = bhcl_grid_search(starts, px, py, pz, pid, occ, g, db, qx, qy, qz, budget, BHCL_GRID_ROWCAP, BHCL_GRID_FINE_RINGS, &t);
+  if (bhcl_query_is_finite(q)) examined = bhcl_grid_search(starts, px, py, pz, pid, occ, g, db, qx, qy, qz, budget, BHCL_GRID_ROWCAP, BHCL_GRID_FINE_RINGS, BHCL_GRID_WALKCAP, &t);
   for (uint j = 0; j < k; ++j) {
     int empty = t.i[j] == BHCL_EMPTY_SLOT_ID;
     out_ids[base + j] = empty ? BHCL_MISSING_ID : t.i[j];

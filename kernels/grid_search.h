@@ -233,65 +233,85 @@ typedef struct bhcl_grid_rows {
 /* The search of one query (finite q): returns the points examined. cap (<= BHCL_GRID_ROWBUF):
  * the runs of a ring gathered and scanned nearest first (0: each run scanned as it is met, the
  * GPU form, no private array); the kernel and the reference must use the same cap. */
-/* The search past the first rings: every fine cell outside the cube of cells [c - r0, c + r0]
- * around the home cell c (which the rings have accounted for) that the pyramid shows occupied and
- * whose slabs come within the bound, found by a depth-first walk down the pyramid from its top,
- * the children of a node in BHCL_GRID_OCC_ORDER and each tested against the bound as it is met
- * (a node of empty space costs one bit test, however large). Stackless: on the way up, a child's
- * position in its parent's order is recomputed from its coordinates. Returns the points examined
- * (`examined` on entry: the rings'). */
-BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search_far(BHCL_GLOBAL const bhcl_u32* starts,
-                                               BHCL_GLOBAL const float* px, BHCL_GLOBAL const float* py,
-                                               BHCL_GLOBAL const float* pz, BHCL_GLOBAL const bhcl_i32* pid,
-                                               BHCL_GLOBAL const bhcl_u8* occ, const bhcl_grid_geom g,
-                                               const bhcl_grid_dbox db, float qx, float qy, float qz, bhcl_u32 cx, bhcl_u32 cy,
-                                               bhcl_u32 cz, bhcl_u32 r0, bhcl_u32 examined,
-                                               bhcl_u32 budget, BHCL_GRID_STATE* st) {
-  bhcl_u32 off, total;
-  const bhcl_u32 top = bhcl_grid_occ_top(g, &off, &total);
-  /* r0 0xffffffff: no ring was searched (the cube is empty) */
-  const bhcl_u32 vx0 = r0 == 0xffffffffu ? 1u : cx > r0 ? cx - r0 : 0u, vy0 = cy > r0 ? cy - r0 : 0u,
-                 vz0 = cz > r0 ? cz - r0 : 0u;
-  const bhcl_u32 vx1 = r0 == 0xffffffffu ? 0u : cx + r0, vy1 = cy + r0, vz1 = cz + r0;
-  bhcl_u32 l = top, X = 0u, Y = 0u, Z = 0u, p = 0u;
+/* The walk's geometry, fixed per query: the grid, the points' box, the query, its clamped cell
+ * and the cube of cells [v0, v1] the rings have accounted for (empty: v0 > v1 along x). */
+typedef struct bhcl_grid_walk_ctx {
+  bhcl_grid_geom g;
+  bhcl_grid_dbox db;
+  float qx, qy, qz;
+  bhcl_u32 cx, cy, cz;
+  bhcl_u32 vx0, vy0, vz0, vx1, vy1, vz1;
+} bhcl_grid_walk_ctx;
+
+/* Child o of node (X, Y, Z) of level m + 1: its squared distance from the query (a lower bound of
+ * its points'), or -1 when the rings have searched all of it. *u: the child's coordinates. */
+BHCL_GRID_INLINE float bhcl_grid_walk_child(const bhcl_grid_walk_ctx* w, bhcl_u32 m, bhcl_u32 X, bhcl_u32 Y,
+                                            bhcl_u32 Z, bhcl_u32 o, bhcl_u32* ux, bhcl_u32* uy, bhcl_u32* uz) {
+  *ux = 2u * X + (o & 1u);
+  *uy = 2u * Y + ((o >> 1) & 1u);
+  *uz = 2u * Z + (o >> 2);
+  const bhcl_u32 x0 = *ux << m, y0 = *uy << m, z0 = *uz << m;
+  bhcl_u32 x1 = ((*ux + 1u) << m) - 1u, y1 = ((*uy + 1u) << m) - 1u, z1 = ((*uz + 1u) << m) - 1u;
+  if (x1 >= w->g.nx) x1 = w->g.nx - 1u;
+  if (y1 >= w->g.ny) y1 = w->g.ny - 1u;
+  if (z1 >= w->g.nz) z1 = w->g.nz - 1u;
+  if (x0 >= w->vx0 && x1 <= w->vx1 && y0 >= w->vy0 && y1 <= w->vy1 && z0 >= w->vz0 && z1 <= w->vz1) return -1.0f;
+  const float ex = bhcl_grid_slabs_in(w->qx, w->g.ox, w->g.h, w->g.margin, x0, x1, w->db.lx, w->db.hx);
+  const float ey = bhcl_grid_slabs_in(w->qy, w->g.oy, w->g.h, w->g.margin, y0, y1, w->db.ly, w->db.hy);
+  const float ez = bhcl_grid_slabs_in(w->qz, w->g.oz, w->g.h, w->g.margin, z0, z1, w->db.lz, w->db.hz);
+  return ex * ex + ey * ey + ez * ez;
+}
+
+/* Scans fine cell (x, y, z) (a level-0 child of the walk). Returns 0 when the budget stops it. */
+#define BHCL_GRID_WALK_CELL(x_, y_, z_)                                   \
+  {                                                                       \
+    if (examined >= budget) return examined;                              \
+    const bhcl_u32 c_ = ((z_) * w->g.ny + (y_)) * w->g.nx + (x_);         \
+    const bhcl_u32 a_ = bhcl_grid_start(starts, w->g.sparse, c_);         \
+    const bhcl_u32 b_ = bhcl_grid_start(starts, w->g.sparse, c_ + 1u);    \
+    BHCL_GRID_SCAN(st, a_, b_);                                           \
+    examined += b_ - a_;                                                  \
+  }
+
+/* Every fine cell below node (X0, Y0, Z0) of level l0 (whose level starts at byte off) outside the
+ * rings' cube that the pyramid shows occupied and whose slabs come within the bound, found
+ * depth-first, the children of a node in BHCL_GRID_OCC_ORDER and each tested against the bound as
+ * it is met (a node of empty space costs one bit test, however large). Stackless: on the way up, a
+ * child's position in its parent's order is recomputed from its coordinates. Returns the points
+ * examined (`examined` on entry: those before). */
+BHCL_GRID_INLINE bhcl_u32 bhcl_grid_walk_depth_first(BHCL_GLOBAL const bhcl_u32* starts,
+                                                     BHCL_GLOBAL const float* px, BHCL_GLOBAL const float* py,
+                                                     BHCL_GLOBAL const float* pz, BHCL_GLOBAL const bhcl_i32* pid,
+                                                     BHCL_GLOBAL const bhcl_u8* occ, const bhcl_grid_walk_ctx* w,
+                                                     bhcl_u32 l0, bhcl_u32 X0, bhcl_u32 Y0, bhcl_u32 Z0, bhcl_u32 off,
+                                                     bhcl_u32 examined, bhcl_u32 budget, BHCL_GRID_STATE* st) {
+  const float qx = w->qx, qy = w->qy, qz = w->qz;
+  bhcl_u32 l = l0, X = X0, Y = Y0, Z = Z0, p = 0u;
   for (;;) {
     const bhcl_u32 m = l - 1u; /* the children's level */
     if (p == 8u) { /* this node is done: up to its parent, at the position after it */
-      if (l == top) break;
+      if (l == l0) break;
       const bhcl_u32 o = (X & 1u) | ((Y & 1u) << 1) | ((Z & 1u) << 2);
-      off += bhcl_grid_occ_size(g, l);
+      off += bhcl_grid_occ_size(w->g, l);
       ++l;
       X >>= 1;
       Y >>= 1;
       Z >>= 1;
-      p = BHCL_GRID_OCC_ORDER(o ^ bhcl_grid_occ_near(cx, cy, cz, X, Y, Z, l - 1u)) + 1u;
+      p = BHCL_GRID_OCC_ORDER(o ^ bhcl_grid_occ_near(w->cx, w->cy, w->cz, X, Y, Z, l - 1u)) + 1u;
       continue;
     }
-    const bhcl_u32 o = BHCL_GRID_OCC_ORDER(p) ^ bhcl_grid_occ_near(cx, cy, cz, X, Y, Z, m);
+    const bhcl_u32 o = BHCL_GRID_OCC_ORDER(p) ^ bhcl_grid_occ_near(w->cx, w->cy, w->cz, X, Y, Z, m);
     ++p;
-    const bhcl_u32 mask = occ[bhcl_grid_occ_index(g, off, l, X, Y, Z)];
+    const bhcl_u32 mask = occ[bhcl_grid_occ_index(w->g, off, l, X, Y, Z)];
     if (!((mask >> o) & 1u)) continue;
-    const bhcl_u32 ux = 2u * X + (o & 1u), uy = 2u * Y + ((o >> 1) & 1u), uz = 2u * Z + (o >> 2);
-    const bhcl_u32 x0 = ux << m, y0 = uy << m, z0 = uz << m;
-    bhcl_u32 x1 = ((ux + 1u) << m) - 1u, y1 = ((uy + 1u) << m) - 1u, z1 = ((uz + 1u) << m) - 1u;
-    if (x1 >= g.nx) x1 = g.nx - 1u;
-    if (y1 >= g.ny) y1 = g.ny - 1u;
-    if (z1 >= g.nz) z1 = g.nz - 1u;
-    if (x0 >= vx0 && x1 <= vx1 && y0 >= vy0 && y1 <= vy1 && z0 >= vz0 && z1 <= vz1) continue;
-    const float ex = bhcl_grid_slabs_in(qx, g.ox, g.h, g.margin, x0, x1, db.lx, db.hx);
-    const float ey = bhcl_grid_slabs_in(qy, g.oy, g.h, g.margin, y0, y1, db.ly, db.hy);
-    const float ez = bhcl_grid_slabs_in(qz, g.oz, g.h, g.margin, z0, z1, db.lz, db.hz);
-    if (ex * ex + ey * ey + ez * ez > BHCL_GRID_BOUND(st)) continue;
+    bhcl_u32 ux, uy, uz;
+    const float d = bhcl_grid_walk_child(w, m, X, Y, Z, o, &ux, &uy, &uz);
+    if (d < 0.0f || d > BHCL_GRID_BOUND(st)) continue;
     if (m == 0u) { /* a fine cell: its run */
-      if (examined >= budget) return examined;
-      const bhcl_u32 c = (z0 * g.ny + y0) * g.nx + x0;
-      const bhcl_u32 a = bhcl_grid_start(starts, g.sparse, c);
-      const bhcl_u32 b = bhcl_grid_start(starts, g.sparse, c + 1u);
-      BHCL_GRID_SCAN(st, a, b);
-      examined += b - a;
+      BHCL_GRID_WALK_CELL(ux, uy, uz)
       continue;
     }
-    off -= bhcl_grid_occ_size(g, m);
+    off -= bhcl_grid_occ_size(w->g, m);
     l = m;
     X = ux;
     Y = uy;
@@ -301,6 +321,109 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search_far(BHCL_GLOBAL const bhcl_u32* start
   return examined;
 }
 
+/* The best-first walk's queue: pyramid nodes by level and coordinates, in descending squared
+ * distance from the query (the nearest is popped from the back). */
+#ifndef BHCL_GRID_WALKBUF
+#define BHCL_GRID_WALKBUF 32
+#endif
+/* Nodes of this level or below (4^3 fine cells) are walked depth-first when popped, not expanded
+ * into the queue: near the fine cells the depth-first child order is as good and costs no queue
+ * moves. A constant, not a define: the host reference must walk the same way. */
+#define BHCL_GRID_WALK_DF_LEVEL 2u
+typedef struct bhcl_grid_walk_queue {
+  float d[BHCL_GRID_WALKBUF];
+  bhcl_u32 xl[BHCL_GRID_WALKBUF]; /* X | level << 27 */
+  bhcl_u32 y[BHCL_GRID_WALKBUF], z[BHCL_GRID_WALKBUF];
+  bhcl_u32 off[BHCL_GRID_WALKBUF]; /* the byte of the node's level */
+} bhcl_grid_walk_queue;
+
+/* The search past the first rings: every fine cell outside the cube of cells [c - r0, c + r0]
+ * around the home cell c (which the rings have accounted for) that the pyramid shows occupied and
+ * whose slabs come within the bound. walk_cap 0: depth-first from the top
+ * (bhcl_grid_walk_depth_first; no private queue, the GPU form). walk_cap > 0 (<= BHCL_GRID_WALKBUF):
+ * best-first, the nearest node of a queue of walk_cap expanded first and its fine cells scanned as
+ * met, so that the first points found are the nearest and the bound tightens before the far nodes
+ * are reached (a query between two clusters no longer scans the far one first); a child that
+ * finds the queue full is walked depth-first at once. Either order visits every node within the
+ * final bound, so the rows are the same. Returns the points examined (`examined` on entry: the
+ * rings'). */
+BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search_far(BHCL_GLOBAL const bhcl_u32* starts,
+                                               BHCL_GLOBAL const float* px, BHCL_GLOBAL const float* py,
+                                               BHCL_GLOBAL const float* pz, BHCL_GLOBAL const bhcl_i32* pid,
+                                               BHCL_GLOBAL const bhcl_u8* occ, const bhcl_grid_geom g,
+                                               const bhcl_grid_dbox db, float qx, float qy, float qz, bhcl_u32 cx, bhcl_u32 cy,
+                                               bhcl_u32 cz, bhcl_u32 r0, bhcl_u32 examined,
+                                               bhcl_u32 budget, bhcl_u32 walk_cap, BHCL_GRID_STATE* st) {
+  bhcl_u32 top_off, total;
+  const bhcl_u32 top = bhcl_grid_occ_top(g, &top_off, &total);
+  bhcl_grid_walk_ctx wc;
+  bhcl_grid_walk_ctx* w = &wc;
+  wc.g = g;
+  wc.db = db;
+  wc.qx = qx;
+  wc.qy = qy;
+  wc.qz = qz;
+  wc.cx = cx;
+  wc.cy = cy;
+  wc.cz = cz;
+  /* r0 0xffffffff: no ring was searched (the cube is empty) */
+  wc.vx0 = r0 == 0xffffffffu ? 1u : cx > r0 ? cx - r0 : 0u;
+  wc.vy0 = cy > r0 ? cy - r0 : 0u;
+  wc.vz0 = cz > r0 ? cz - r0 : 0u;
+  wc.vx1 = r0 == 0xffffffffu ? 0u : cx + r0;
+  wc.vy1 = cy + r0;
+  wc.vz1 = cz + r0;
+  /* The queue keeps a node's x in 27 bits (the level in the other 5). */
+  if (walk_cap == 0u || g.nx > 0x07ffffffu)
+    return bhcl_grid_walk_depth_first(starts, px, py, pz, pid, occ, w, top, 0u, 0u, 0u, top_off, examined, budget, st);
+  bhcl_grid_walk_queue qu;
+  bhcl_u32 nq = 1u;
+  qu.d[0] = 0.0f;
+  qu.xl[0] = top << 27;
+  qu.y[0] = qu.z[0] = 0u;
+  qu.off[0] = top_off;
+  while (nq > 0u) {
+    --nq;
+    if (qu.d[nq] > BHCL_GRID_BOUND(st)) break; /* the rest are farther still */
+    const bhcl_u32 l = qu.xl[nq] >> 27, X = qu.xl[nq] & 0x07ffffffu, Y = qu.y[nq], Z = qu.z[nq];
+    const bhcl_u32 off = qu.off[nq];
+    if (l <= BHCL_GRID_WALK_DF_LEVEL) {
+      examined = bhcl_grid_walk_depth_first(starts, px, py, pz, pid, occ, w, l, X, Y, Z, off, examined, budget, st);
+      if (examined >= budget) return examined;
+      continue;
+    }
+    const bhcl_u32 m = l - 1u, moff = off - bhcl_grid_occ_size(g, m);
+    const bhcl_u32 mask = occ[bhcl_grid_occ_index(g, off, l, X, Y, Z)];
+    for (bhcl_u32 o = 0u; o < 8u; ++o) {
+      if (!((mask >> o) & 1u)) continue;
+      bhcl_u32 ux, uy, uz;
+      const float d = bhcl_grid_walk_child(w, m, X, Y, Z, o, &ux, &uy, &uz);
+      if (d < 0.0f || d > BHCL_GRID_BOUND(st)) continue;
+      if (nq < walk_cap) { /* m >= BHCL_GRID_WALK_DF_LEVEL: never a fine cell */
+        bhcl_u32 j = nq++;
+        while (j > 0u && qu.d[j - 1u] < d) {
+          qu.d[j] = qu.d[j - 1u];
+          qu.xl[j] = qu.xl[j - 1u];
+          qu.y[j] = qu.y[j - 1u];
+          qu.z[j] = qu.z[j - 1u];
+          qu.off[j] = qu.off[j - 1u];
+          --j;
+        }
+        qu.d[j] = d;
+        qu.xl[j] = ux | (m << 27);
+        qu.y[j] = uy;
+        qu.z[j] = uz;
+        qu.off[j] = moff;
+      } else {
+        examined = bhcl_grid_walk_depth_first(starts, px, py, pz, pid, occ, w, m, ux, uy, uz, moff, examined, budget, st);
+        if (examined >= budget) return examined;
+      }
+    }
+  }
+  return examined;
+}
+#undef BHCL_GRID_WALK_CELL
+
 /* fine_rings: the rings searched before the pyramid walk takes over (0xffffffff: rings only). */
 BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search(BHCL_GLOBAL const bhcl_u32* starts,
                                            BHCL_GLOBAL const float* px, BHCL_GLOBAL const float* py,
@@ -308,7 +431,7 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search(BHCL_GLOBAL const bhcl_u32* starts,
                                            BHCL_GLOBAL const bhcl_u8* occ, const bhcl_grid_geom g,
                                            const bhcl_grid_dbox db, float qx, float qy, float qz,
                                            bhcl_u32 budget, bhcl_u32 cap,
-                                           bhcl_u32 fine_rings, BHCL_GRID_STATE* st) {
+                                           bhcl_u32 fine_rings, bhcl_u32 walk_cap, BHCL_GRID_STATE* st) {
   const bhcl_u32 cx = bhcl_grid_cell(qx, g.ox, g.inv_h, g.nx);
   const bhcl_u32 cy = bhcl_grid_cell(qy, g.oy, g.inv_h, g.ny);
   const bhcl_u32 cz = bhcl_grid_cell(qz, g.oz, g.inv_h, g.nz);
@@ -405,7 +528,7 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search(BHCL_GLOBAL const bhcl_u32* starts,
   }
   if (walk_r0 == kNoWalk) return examined;
   return bhcl_grid_search_far(starts, px, py, pz, pid, occ, g, db, qx, qy, qz, cx, cy, cz, walk_r0, examined, budget,
-                              st);
+                              walk_cap, st);
 }
 #undef BHCL_GRID_RUN
 #endif /* BHCL_GRID_STATE */

@@ -104,7 +104,9 @@ TEST_CASE("grid_far_vs_reference: kernel == host reference, walk from ring 0, af
     BlockHashIndex index(test::runtime(), c.pts.data(), c.pts.size() / 3);
     const std::size_t N = c.pts.size() / 3, n = c.qs.size() / 3;
     for (const char* d : {"-DBHCL_GRID_FINE_RINGS=0", "-DBHCL_GRID_FINE_RINGS=1", "-DBHCL_GRID_FINE_RINGS=0xffffffff",
-                          "-DBHCL_GRID_VTOPK=0 -DBHCL_GRID_PREFETCH=0 -DBHCL_GRID_ROWCAP=0"})
+                          "-DBHCL_GRID_VTOPK=0 -DBHCL_GRID_PREFETCH=0 -DBHCL_GRID_ROWCAP=0",
+                          // the walk depth-first, and best-first with a queue that overflows at once or soon
+                          "-DBHCL_GRID_WALKCAP=0", "-DBHCL_GRID_WALKCAP=1", "-DBHCL_GRID_WALKCAP=3"})
       for (int k : {1, 16, 17, 65})
         for (float A : {2.0f, INFINITY}) {
           CAPTURE(c.name);
@@ -123,6 +125,27 @@ TEST_CASE("grid_far_vs_reference: kernel == host reference, walk from ring 0, af
           if (std::isinf(A))
             test::require_identical(r, reference::knn_float(c.pts.data(), N, c.qs.data(), n, p), c.name + " exact");
         }
+  }
+}
+
+TEST_CASE("grid_far_best_first: the best-first walk examines fewer points between two clusters") {
+  // Its purpose: the depth-first walk's fixed child order scans the far cluster first for about
+  // half the queries between them; best-first reaches the near one first and its bound prunes
+  // the other. Same rows either way (checked above).
+  const FarCase c = far_cases()[1];
+  REQUIRE(c.name == "two clusters");
+  BlockHashIndex index(test::runtime(), c.pts.data(), c.pts.size() / 3);
+  for (int k : {1, 10}) {
+    CAPTURE(k);
+    long long examined[2] = {0, 0};
+    for (int best_first : {0, 1}) {
+      SearchParams p = exact(k, best_first ? "-DBHCL_GRID_WALKCAP=32" : "-DBHCL_GRID_WALKCAP=0");
+      p.count_examined = true;
+      const KnnResult r = index.query(c.qs, p);
+      for (std::int32_t e : r.examined) examined[best_first] += e;
+    }
+    MESSAGE("k = " << k << ": points examined depth-first " << examined[0] << ", best-first " << examined[1]);
+    CHECK(examined[1] < examined[0]);
   }
 }
 

@@ -222,9 +222,9 @@ TEST_CASE("updates: the grid's budget counts live points, and thinned cells retu
   const bool cpu = test::runtime()->quirks().vector_scan;  // the row cap the kernel was built with
   KnnResult widened, plain;
   std::vector<std::int32_t> ex_widened, ex_plain;
-  blockhash::reference_query_grid(g, qs.data(), 256, 8, INFINITY, 18, blockhash::grid_row_cap(cpu), BHCL_GRID_FINE_RINGS, widened,
+  blockhash::reference_query_grid(g, qs.data(), 256, 8, INFINITY, 18, blockhash::grid_traversal(cpu), widened,
                                   &ex_widened, 0);
-  blockhash::reference_query_grid(g, qs.data(), 256, 8, INFINITY, 16, blockhash::grid_row_cap(cpu), BHCL_GRID_FINE_RINGS, plain,
+  blockhash::reference_query_grid(g, qs.data(), 256, 8, INFINITY, 16, blockhash::grid_traversal(cpu), plain,
                                   &ex_plain, 0);
   CHECK(dev.examined == ex_widened);
   std::size_t sum_widened = 0, sum_plain = 0;

@@ -45,6 +45,7 @@ class KernelArgs;
 namespace blockhash {
 struct Structure;  // the host copy of every built array (lib/src/blockhash/build.hpp)
 struct GridIdState;  // a grid file's ids and update state (lib/src/blockhash/grid_io.hpp)
+struct GridTraversal;  // the grid traversal's form (lib/src/blockhash/grid.hpp)
 }
 
 struct BlockHashBuildParams {
@@ -285,8 +286,9 @@ class BlockHashIndex : public Index {
   bool grid_in_place() const;
   void release_grid_views();
   void add_grid_args(detail::KernelArgs& args) const;
-  std::uint32_t fine_rings_for(const SearchParams& p) const;
-  std::uint32_t row_cap_for(const SearchParams& params) const;  // the kernel's BHCL_GRID_ROWCAP
+  // The traversal the kNN kernel runs for p (the device's form, a caller's defines over it): the
+  // host reference follows the same.
+  blockhash::GridTraversal traversal_for(const SearchParams& p) const;
   // The indexed points in ascending id order and the caller's coordinates; ids (optional) gets
   // their ids (0 .. N - 1 unless updates removed some).
   std::vector<float> indexed_points(std::vector<std::int32_t>* ids = nullptr) const;

@@ -125,11 +125,23 @@ inline void widen_box(bhcl_grid_dbox& b, float x, float y, float z) {
 // point on it (a build takes its own box, an insert widens g.dbox by the new points').
 bhcl_grid_dbox grid_points_box(const Grid& g, unsigned threads);
 
+// The traversal's form, the kNN kernel's defines of the same names: row_cap BHCL_GRID_ROWCAP (the
+// runs of a ring scanned nearest first, at most BHCL_GRID_ROWBUF), fine_rings
+// BHCL_GRID_FINE_RINGS, walk_cap BHCL_GRID_WALKCAP (the far walk's best-first queue, at most
+// BHCL_GRID_WALKBUF; 0: depth-first).
+struct GridTraversal {
+  std::uint32_t row_cap, fine_rings, walk_cap;
+};
+// The form a device gets: on CPU devices the gathered rings and the best-first walk (private
+// arrays are cheap there); on GPUs neither (no private array: the registers and stack sm_90
+// keeps, bench/results/gpu/sm90_table.txt).
+GridTraversal grid_traversal(bool cpu);
+
 // The host reference of blockhash_grid_knn.cl (the same traversal, grid_search.h): rows equal
-// to the kernel's bit for bit. budget as the kernel's (0xffffffff: exact); row_cap the kernel's
-// BHCL_GRID_ROWCAP (at most BHCL_GRID_ROWBUF), fine_rings its BHCL_GRID_FINE_RINGS.
+// to the kernel's bit for bit, and the points examined too for the same form. budget as the
+// kernel's (0xffffffff: exact).
 void reference_query_grid(const Grid& g, const float* queries, std::size_t n, int k, float max_r2,
-                          std::uint32_t budget, std::uint32_t row_cap, std::uint32_t fine_rings, KnnResult& out,
+                          std::uint32_t budget, const GridTraversal& form, KnnResult& out,
                           std::vector<std::int32_t>* examined, unsigned threads);
 // The grid's budget over its stored slots, for a budget b of live points. A removed point stays
 // a hole (examined, never returned) until the compaction at 1/8 holes, so the budget grows by
@@ -141,8 +153,6 @@ inline std::uint32_t grid_budget(std::uint32_t b, std::size_t stored, std::size_
   const double s = std::ceil(double(b) * double(stored) / double(stored - holes));
   return static_cast<std::uint32_t>(std::min(s, 4294967294.0));
 }
-// The row cap of the kernel variant a device gets (CPU devices 32, GPUs 0: no private array).
-inline std::uint32_t grid_row_cap(bool cpu) { return cpu ? 32u : 0u; }
 
 // Save / load (blockhash/grid_io.cpp). The file starts with kGridMagic.
 inline constexpr char kGridMagic[8] = {'B', 'H', 'C', 'L', 'G', 'R', 'I', 'D'};

@@ -37,11 +37,17 @@ inline void ref_scan(RefTopK* t, float qx, float qy, float qz, const float* px, 
 
 namespace bhcl::blockhash {
 
+GridTraversal grid_traversal(bool cpu) {
+  return cpu ? GridTraversal{32u, BHCL_GRID_FINE_RINGS, BHCL_GRID_WALKBUF} : GridTraversal{0u, BHCL_GRID_FINE_RINGS, 0u};
+}
+
 void reference_query_grid(const Grid& g, const float* queries, std::size_t n, int k, float max_r2,
-                          std::uint32_t budget, std::uint32_t row_cap, std::uint32_t fine_rings, KnnResult& out,
+                          std::uint32_t budget, const GridTraversal& form, KnnResult& out,
                           std::vector<std::int32_t>* examined, unsigned threads) {
-  if (row_cap > BHCL_GRID_ROWBUF)
-    throw Error("blockhash grid reference: row_cap " + std::to_string(row_cap) + " above " + std::to_string(BHCL_GRID_ROWBUF));
+  if (form.row_cap > BHCL_GRID_ROWBUF)
+    throw Error("blockhash grid reference: row_cap " + std::to_string(form.row_cap) + " above " + std::to_string(BHCL_GRID_ROWBUF));
+  if (form.walk_cap > BHCL_GRID_WALKBUF)
+    throw Error("blockhash grid reference: walk_cap " + std::to_string(form.walk_cap) + " above " + std::to_string(BHCL_GRID_WALKBUF));
   if (g.occ.size() != grid_occupancy_bytes(g.geom))
     throw Error("blockhash grid reference: the occupancy pyramid is not built");
   out.resize(n, k);
@@ -62,7 +68,7 @@ void reference_query_grid(const Grid& g, const float* queries, std::size_t n, in
           std::uint32_t ex = 0;
           if (std::isfinite(qx) && std::isfinite(qy) && std::isfinite(qz))
             ex = bhcl_grid_search(g.starts.data(), g.x.data(), g.y.data(), g.z.data(), g.ids.data(),
-                                  g.occ.data(), g.geom, g.dbox, qx, qy, qz, budget, row_cap, fine_rings, &t);
+                                  g.occ.data(), g.geom, g.dbox, qx, qy, qz, budget, form.row_cap, form.fine_rings, form.walk_cap, &t);
           std::int32_t found = 0;
           for (int j = 0; j < k; ++j) {
             const std::size_t o = q * std::size_t(k) + std::size_t(j);

@@ -110,7 +110,8 @@ detail::DefineValues BlockHashIndex::kernel_options(int kmax) const {
     return {{"BHCL_KMAX", kmax},
             {"BHCL_GRID_VTOPK", cpu && kmax <= 64 ? 1 : 0},
             {"BHCL_GRID_PREFETCH", cpu ? 2 : 0},
-            {"BHCL_GRID_ROWCAP", blockhash::grid_row_cap(cpu)}};
+            {"BHCL_GRID_ROWCAP", blockhash::grid_traversal(cpu).row_cap},
+            {"BHCL_GRID_WALKCAP", blockhash::grid_traversal(cpu).walk_cap}};
   }
   const long long cap = blockhash::scan_cap(kmax, info_.X);
   if (info_.cell_aligned)
@@ -210,12 +211,11 @@ cl::Event BlockHashIndex::enqueue_radius_batch(const cl::CommandQueue& queue,
   return detail::launch_1d(queue, kernel, count, local_size, wait, name);
 }
 
-std::uint32_t BlockHashIndex::row_cap_for(const SearchParams& p) const {
-  return detail::caller_define_value(p.kernel_defines, "BHCL_GRID_ROWCAP", blockhash::grid_row_cap(runtime().quirks().vector_scan));
-}
-
-std::uint32_t BlockHashIndex::fine_rings_for(const SearchParams& p) const {
-  return detail::caller_define_value(p.kernel_defines, "BHCL_GRID_FINE_RINGS", BHCL_GRID_FINE_RINGS);
+blockhash::GridTraversal BlockHashIndex::traversal_for(const SearchParams& p) const {
+  const blockhash::GridTraversal d = blockhash::grid_traversal(runtime().quirks().vector_scan);
+  return {detail::caller_define_value(p.kernel_defines, "BHCL_GRID_ROWCAP", d.row_cap),
+          detail::caller_define_value(p.kernel_defines, "BHCL_GRID_FINE_RINGS", d.fine_rings),
+          detail::caller_define_value(p.kernel_defines, "BHCL_GRID_WALKCAP", d.walk_cap)};
 }
 
 void BlockHashIndex::add_grid_args(detail::KernelArgs& args) const {
@@ -244,7 +244,7 @@ KnnResult BlockHashIndex::reference_query(const float* queries, std::size_t n,
   if (info_.grid) {
     blockhash::reference_query_grid(*s_->grid, queries, n, params.k, detail::squared_radius(params.max_radius),
                                     blockhash::grid_budget(budget(params), s_->grid->n_points, info_.holes),
-                                    row_cap_for(params), fine_rings_for(params), out, examined, threads);
+                                    traversal_for(params), out, examined, threads);
   } else if (info_.cell_aligned) {
     blockhash::reference_query_cells(*s_, queries, n, params, cells_probes(params), out, examined, threads);
   } else {
