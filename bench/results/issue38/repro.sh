@@ -40,6 +40,18 @@ import numpy as np
 a = np.fromfile('$d/ids_ref.i32', np.int32).reshape(-1, 8); b = np.fromfile('$d/ids_bad.i32', np.int32).reshape(-1, 8)
 print('  rows differing from the saved index:', int(np.any(a != b, axis=1).sum()), 'of', len(a))"
 fi
+echo "== grid index whose id bound says 2^31 - 2 (checksum recomputed), under ulimit -v 3 GiB"
+/usr/bin/python3 - "$d/g.bhidx" <<'PY'
+import struct, sys
+p = sys.argv[1]; d = bytearray(open(p, 'rb').read())
+struct.pack_into('<Q', d, 84, 2**31 - 2)
+def fnv(b, x=0xcbf29ce484222325):
+    for c in b: x = ((x ^ c) * 0x100000001b3) & 0xffffffffffffffff
+    return x
+struct.pack_into('<Q', d, 132, fnv(d[140:], fnv(d[:132])))
+open(p + '.bound', 'wb').write(bytes(d))
+PY
+(ulimit -v 3145728; "$bhcl" knn --method blockhash --points "$d/p.f32" --queries "$d/p.f32" --k 8 --load-index "$d/g.bhidx.bound" --out-ids "$d/ids_b.i32" --out-dist2 /dev/null --quiet 2>&1 | tail -1; echo "  status ${PIPESTATUS[0]}")
 echo "== render --out /dev/null"
 rm -f /dev/null.png
 "$bhcl" render --out /dev/null --photons 2000 --size 16x16 --quiet 2>&1 | tail -1; echo "  status ${PIPESTATUS[0]}"
