@@ -13,6 +13,7 @@
 #include <string>
 #include <vector>
 
+#include "blockhash_cl/atomic_file.hpp"
 #include "blockhash_cl/config.hpp"
 #include "blockhash_cl/error.hpp"
 #include "cli.hpp"
@@ -129,6 +130,8 @@ void print_help(std::FILE* to) {
 
 int main(int argc, char** argv) {
   choose_pocl_cache();
+  // Ctrl-C, SIGTERM or SIGHUP mid-write leaves no temporary beside an output (issue 38).
+  bhcl::install_temporary_cleanup();
   if (argc < 2) {
     print_help(stderr);
     return 2;

@@ -14,6 +14,7 @@
 #include "blockhash_cl/config.hpp"
 #include "blockhash_cl/error.hpp"
 #include "blockhash_cl/io.hpp"
+#include "blockhash_cl/numbers.hpp"
 #include "progress.hpp"
 
 namespace bhcl::cli {
@@ -128,14 +129,8 @@ double Args::number(const std::string& key, double fallback) const {
   if (!has(key)) return fallback;
   if (table_.count(key)) return table_value(key).number;
   std::string v = str(key);
-  size_t pos = 0;
-  double x = 0;
-  try {
-    x = std::stod(v, &pos);
-  } catch (...) {
-    pos = 0;
-  }
-  if (pos == 0 || pos != v.size()) throw UsageError("--" + key + " expects a number, got '" + v + "'");
+  double x = 0;  // locale-free (numbers.hpp); past the double range: +-inf, as strtod
+  if (bhcl::detail::parse_double(v, x) == bhcl::detail::NumberParse::NotNumber) throw UsageError("--" + key + " expects a number, got '" + v + "'");
   return x;
 }
 
@@ -480,8 +475,12 @@ void check_distinct_files(const std::vector<FileArg>& inputs, const std::vector<
   for (const FileArg& out : outputs) {
     if (out.path.empty()) continue;
     const std::string id = file_identity(out.path);
+    // A character device (/dev/null) takes any number of outputs (render --out /dev/null sends
+    // its PNG preview there too); as an input it is still refused below.
+    struct stat st {};
+    const bool device = ::stat(out.path.c_str(), &st) == 0 && S_ISCHR(st.st_mode);
     for (std::size_t i = 0; i < seen.size(); ++i) {
-      if (seen[i].first != id) continue;
+      if (seen[i].first != id || (device && i >= n_inputs)) continue;
       if (i < n_inputs)
         throw UsageError(out.option + " " + out.path + " is the input " + seen[i].second->option +
                          ": writing it would destroy it");
@@ -565,16 +564,22 @@ SearchParams search_params(const Args& args, int default_k) {
 
 void parse_image_size(const std::string& s, int& w, int& h) {
   auto x = s.find('x');
-  try {
-    if (x == std::string::npos) throw 0;
-    std::size_t p1 = 0, p2 = 0;
-    w = std::stoi(s.substr(0, x), &p1);
-    h = std::stoi(s.substr(x + 1), &p2);
-    if (p1 != x || p2 != s.size() - x - 1) throw 0;
-  } catch (...) {
+  if (x == std::string::npos || bhcl::detail::parse_integer(s.substr(0, x), w) != bhcl::detail::NumberParse::Ok ||
+      bhcl::detail::parse_integer(s.substr(x + 1), h) != bhcl::detail::NumberParse::Ok) {
     throw UsageError("--size expects WxH (e.g. 512x512), got '" + s + "'");
   }
   if (w < 1 || h < 1 || w > 16384 || h > 16384) throw UsageError("--size must be between 1x1 and 16384x16384");
+}
+
+bool names_device(const std::string& path) {
+  struct stat st {};
+  return ::stat(path.c_str(), &st) == 0 && !S_ISREG(st.st_mode) && !S_ISDIR(st.st_mode);
+}
+
+std::string beside_output(const std::string& out, const std::string& base, const std::string& suffix) {
+  // A device or FIFO (/dev/null) has no directory of its own to put a file beside: the companion
+  // goes to the same device (issue 38: --out /dev/null made a regular file /dev/null.png).
+  return names_device(out) ? out : base + suffix;
 }
 
 std::string strip_extension(const std::string& path) {

@@ -170,5 +170,10 @@ CommandInputs read_command_inputs(const Args& args, std::vector<FileArg> outputs
 void parse_image_size(const std::string& s, int& w, int& h);
 // The path without its last extension ("a/b.exr" -> "a/b"; "a.d/b" stays).
 std::string strip_extension(const std::string& path);
+// True for a path that exists and is neither a regular file nor a directory (/dev/null, a FIFO).
+bool names_device(const std::string& path);
+// The file written beside the output `out` (base: out without its extension): base + suffix, or
+// out itself when out names a device or FIFO (a PNG preview of --out /dev/null goes to /dev/null).
+std::string beside_output(const std::string& out, const std::string& base, const std::string& suffix);
 
 }  // namespace bhcl::cli

@@ -106,7 +106,7 @@ int run_pathtrace(const Args& args) {
   const std::string window = args.str("window", ""), base = args.str("base", "");
   parse_window(window, opt);
   if (!base.empty() && window.empty()) throw UsageError("--base applies only with --window");
-  const std::string png = args.str("png", strip_extension(out) + ".png");
+  const std::string png = args.str("png", beside_output(out, strip_extension(out), ".png"));
   check_distinct_files({{"--scene", args.str("scene", "")}, {"--base", base}},
                        {{"--out", out}, {args.has("png") ? "--png" : "the PNG beside --out", png},
                         {"--stats", args.str("stats", "")}});

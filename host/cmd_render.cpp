@@ -132,10 +132,10 @@ RenderOptions render_options(const Args& args) {
 void check_render_files(const Args& args, const std::string& out, const std::string& base, const MethodOptions& mopt,
                         bool compare) {
   std::vector<FileArg> outputs = {{"--out", out},
-                                  {args.has("png") ? "--png" : "the PNG beside --out", args.str("png", base + ".png")},
+                                  {args.has("png") ? "--png" : "the PNG beside --out", args.str("png", beside_output(out, base, ".png"))},
                                   {"--stats", args.str("stats", "")},
                                   {"--save-index", mopt.save_index()}};
-  if (compare) outputs.push_back({"the comparison sheet beside --out", base + "_compare.png"});
+  if (compare) outputs.push_back({"the comparison sheet beside --out", beside_output(out, base, "_compare.png")});
   check_distinct_files({{"--scene", args.str("scene", "")},
                         {"--load-index", mopt.load_index()},
                         {"--reference", args.str("reference", "")}},
@@ -182,7 +182,7 @@ int run_plain(const RenderSetup& s) {
   RenderRun r = render_with(method, method, s.ropt.search.A, s.maps, s.rt, s.mopt, s.es, s.lights, s.ropt, s.quiet);
   write_exr(s.out, r.images[0]);
   const float exposure = s.exposure_opt > 0 ? static_cast<float>(s.exposure_opt) : auto_exposure(r.images[0]);
-  const std::string png = args.str("png", s.base + ".png");
+  const std::string png = args.str("png", beside_output(s.out, s.base, ".png"));
   write_png(png, tonemap(r.images[0], exposure));
   const double total = since(s.t_start);
   print_split("bhcl render: time split", r, s.photon_s);

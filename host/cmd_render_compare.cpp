@@ -167,10 +167,10 @@ void write_estimator_sheet(const RenderSetup& s, const Comparison& c, std::size_
   for (std::size_t i = 0; i < runs.size(); ++i) {
     const Image& img = runs[i].images[e];
     const std::string tag = i == 0 ? "exact" : "A" + format_g(runs[i].A);
-    const std::string exr = i == 0 ? (e == 0 ? s.out : s.base + etag + ".exr") : s.base + etag + "_" + tag + ".exr";
+    const std::string exr = i == 0 ? (e == 0 ? s.out : beside_output(s.out, s.base, etag + ".exr")) : beside_output(s.out, s.base, etag + "_" + tag + ".exr");
     write_exr(exr, img);
     Rgb8 tm = tonemap(img, c.exposure);
-    write_png(strip_extension(exr) + ".png", tm);
+    write_png(beside_output(exr, strip_extension(exr), ".png"), tm);
     out.diffs[e].push_back(image_diff(img, ref));
     const ImageDiff& d = out.diffs[e].back();
     Panel p{tm, {}};
@@ -182,7 +182,7 @@ void write_estimator_sheet(const RenderSetup& s, const Comparison& c, std::size_
     top.push_back(std::move(p));
     if (i > 0) {
       Rgb8 fc = false_colour_difference(img, ref, max_rel);
-      write_png(s.base + etag + "_diff_" + tag + ".png", fc);
+      write_png(beside_output(s.out, s.base, etag + "_diff_" + tag + ".png"), fc);
       std::snprintf(buf, sizeof buf, "fixed scale 0-%.3g%%", 100.0 * max_rel);
       fixed_row.push_back({fc, {"|rel. error| " + tag, buf}});
       std::snprintf(buf, sizeof buf, "auto scale 0-%.3g%% (p99)", 100.0 * auto_rel);
@@ -194,7 +194,7 @@ void write_estimator_sheet(const RenderSetup& s, const Comparison& c, std::size_
                                             {"colour scale", "fixed (--diff-scale)"}});
   auto_row.insert(auto_row.begin(), Panel{labelled_colour_scale(ref.width, ref.height, auto_rel, text),
                                           {"colour scale", auto_ok ? "auto: 99th pct." : "auto: all exact"}});
-  out.paths[e] = s.base + etag + "_compare.png";
+  out.paths[e] = beside_output(s.out, s.base, etag + "_compare.png");
   write_png(out.paths[e], labelled_sheet({top, fixed_row, auto_row}, 8, text));
 }
 

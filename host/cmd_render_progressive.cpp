@@ -64,7 +64,7 @@ int run_progressive(const RenderSetup& s) {
   ProgressiveResult res = render_progressive(s.es, s.lights, ropt, po, &s.maps, on_pass);
   write_exr(s.out, res.image);
   const float exposure = s.exposure_opt > 0 ? static_cast<float>(s.exposure_opt) : auto_exposure(res.image);
-  const std::string png = args.str("png", s.base + ".png");
+  const std::string png = args.str("png", beside_output(s.out, s.base, ".png"));
   write_png(png, tonemap(res.image, exposure));
   const double total = since(s.t_start);
   const RenderStats& st = res.stats;

@@ -8,6 +8,7 @@
 
 #include "blockhash_cl/error.hpp"
 #include "blockhash_cl/factory.hpp"
+#include "blockhash_cl/numbers.hpp"
 #include "blockhash_cl/runtime.hpp"
 #include "cli.hpp"
 #include "commands.hpp"
@@ -29,14 +30,11 @@ std::vector<float> parse_list(const std::string& s) {
   std::stringstream ss(s);
   std::string item;
   while (std::getline(ss, item, ',')) {
-    try {
-      std::size_t p = 0;
-      float a = std::stof(item, &p);
-      if (p != item.size() || !(a > 0)) throw 0;
-      v.push_back(a);
-    } catch (...) {
+    double a = 0;  // locale-free (numbers.hpp)
+    if (bhcl::detail::parse_double(item, a) != bhcl::detail::NumberParse::Ok || !(a > 0) || !(a < 0x1.ffffffp+127)) {
       throw UsageError("--compare-A expects positive numbers separated by commas, got '" + s + "'");
     }
+    v.push_back(static_cast<float>(a));
   }
   if (v.empty()) throw UsageError("--compare-A is empty");
   return v;

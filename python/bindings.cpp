@@ -32,6 +32,7 @@
 #include "blockhash_cl/factory.hpp"
 #include "blockhash_cl/knn.hpp"
 #include "blockhash_cl/multi_device.hpp"
+#include "blockhash_cl/numbers.hpp"
 #include "blockhash_cl/parallel.hpp"
 #include "blockhash_cl/runtime.hpp"
 #if BHCL_HAVE_FLANN
@@ -401,21 +402,36 @@ const bhcl::OptionInfo& table_entry(const std::string& method, const std::string
   throw bhcl::Error("option '" + name + "' does not apply to method " + method);
 }
 
+// A keyword's value as the option table's parser reads it: a Python int or float crosses as a
+// number and is written here locale-free (numbers.hpp: the shortest text that reads back to the
+// same double), never through Python's or C's locale-dependent text (issue 38: after
+// setlocale(LC_ALL, "de_DE.UTF-8") "8.0" was refused); a str passes as given (a choice).
+std::string option_text(const py::handle& value) {
+  if (py::isinstance<py::str>(value)) return value.cast<std::string>();
+  if (py::isinstance<py::bool_>(value)) return value.cast<bool>() ? "1" : "0";
+  if (py::isinstance<py::int_>(value)) return py::str(value).cast<std::string>();  // digits only
+  if (py::isinstance<py::float_>(value)) return bhcl::detail::format_double(value.cast<double>());
+  throw py::type_error("an option value must be a str, an int or a float");
+}
+
 void set_build_option(bhcl::MethodOptions& opts, const std::string& method, const std::string& name,
-                      const std::string& text) {
+                      const py::object& value) {
+  const std::string text = option_text(value);
   const bhcl::OptionInfo& o = table_entry(method, name, bhcl::OptionInfo::Build);
   o.parse(text, o.keyword_name());
   opts.set(name, text);
 }
 
 void set_search_option(bhcl::SearchParams& p, const std::string& method, const std::string& name,
-                       const std::string& text) {
+                       const py::object& value) {
+  const std::string text = option_text(value);
   const bhcl::OptionInfo& o = table_entry(method, name, bhcl::OptionInfo::Search);
   o.set_search(&p, o.parse(text, o.keyword_name()));
 }
 
 void set_radius_option(bhcl::RadiusParams& p, const std::string& method, const std::string& name,
-                       const std::string& text) {
+                       const py::object& value) {
+  const std::string text = option_text(value);
   const bhcl::OptionInfo& o = table_entry(method, name, bhcl::OptionInfo::Radius);
   o.set_radius(&p, o.parse(text, o.keyword_name()));
 }
@@ -482,11 +498,11 @@ void bind_registry(py::module_& m) {
   m.def("method_names", &bhcl::method_names, "Names make_index accepts, in display order.");
   m.def("method_table", &method_table, "The method registry: flags, build and search options.");
   m.def("set_build_option", &set_build_option, py::arg("options"), py::arg("method"),
-        py::arg("name"), py::arg("text"));
+        py::arg("name"), py::arg("value"));
   m.def("set_search_option", &set_search_option, py::arg("params"), py::arg("method"),
-        py::arg("name"), py::arg("text"));
+        py::arg("name"), py::arg("value"));
   m.def("set_radius_option", &set_radius_option, py::arg("params"), py::arg("method"),
-        py::arg("name"), py::arg("text"));
+        py::arg("name"), py::arg("value"));
   m.def("list_devices", [] {
     std::vector<py::dict> out;
     for (const auto& d : bhcl::list_devices()) out.push_back(device_dict(d));

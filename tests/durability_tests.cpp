@@ -22,12 +22,12 @@ namespace {
 
 using test::slurp;
 
-// Temporaries of write_file (".NAME.tmp.*") left in the test folder for `name`.
+// Temporaries of write_file (".NAME.bhcltmp.*") left in the test folder for `name`.
 int leftover_temporaries(const std::string& name) {
   int count = 0;
   DIR* d = opendir(BHCL_TEST_TMP_DIR);
   REQUIRE(d != nullptr);
-  const std::string prefix = "." + name + ".tmp.";
+  const std::string prefix = "." + name + ".bhcltmp.";
   while (dirent* e = readdir(d))
     if (std::string(e->d_name).rfind(prefix, 0) == 0) ++count;
   closedir(d);

@@ -14,6 +14,7 @@
 #include "blockhash_cl/cornell_box.hpp"
 #include "blockhash_cl/error.hpp"
 #include "blockhash_cl/io.hpp"
+#include "blockhash_cl/numbers.hpp"
 
 namespace bhcl::render {
 
@@ -184,9 +185,10 @@ struct LineReader {
   float number(std::istringstream& in, const char* what) const {
     std::string tok;
     if (!(in >> tok)) fail(std::string("missing ") + what);
-    char* end = nullptr;
-    float v = std::strtof(tok.c_str(), &end);
-    if (end == tok.c_str() || *end != '\0') fail(std::string("bad number '") + tok + "' for " + what);
+    double d = 0;  // locale-free (numbers.hpp)
+    if (bhcl::detail::parse_double(tok, d) == bhcl::detail::NumberParse::NotNumber)
+      fail(std::string("bad number '") + tok + "' for " + what);
+    const float v = std::isfinite(d) && std::fabs(d) < 0x1.ffffffp+127 ? float(d) : float(INFINITY);
     if (!std::isfinite(v)) fail(std::string("non-finite ") + what + " '" + tok + "'");
     return v;
   }

@@ -36,7 +36,7 @@ except ImportError:  # pragma: no cover
 import numpy as np
 import numpy.typing as npt
 
-from . import _core
+from . import _container, _core
 from . import _refine
 from ._core import Error, OpenCLError, Runtime
 # The method tables as keyword arguments and the checks of arrays and values (_checks.py).
@@ -139,8 +139,8 @@ class RadiusResultWithStats(NamedTuple):
 # Format 2 adds "removed" (the ids removed by Index.remove, ascending; their rows of "points" hold a
 # live point's coordinates, not the removed ones): load() builds over every row and removes them
 # again, so the ids, id_bound and the answers are the saved index's. Format 1 (no removals) reads.
-_NPZ_FORMAT = "blockhash_cl.index/2"
-_NPZ_FORMATS = ("blockhash_cl.index/1", _NPZ_FORMAT)
+_NPZ_FORMAT = _container.FORMAT
+_NPZ_FORMATS = _container.FORMATS
 
 
 class Index:
@@ -744,17 +744,8 @@ def load(path: Union[str, "os.PathLike[str]"], points: Any = None, *,
     except OSError as e:
         raise Error(f"load: cannot read {path}: {e.strerror}") from None
     if head[:2] == b"PK":
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                fmt = str(z["format"])
-                method, options = str(z["method"]), json.loads(str(z["options"]))
-                origin, stored = np.array(z["origin"], np.float64), np.array(z["points"], np.float32)
-                removed = np.array(z["removed"], np.int32) if "removed" in z.files else None
-                points64 = np.array(z["points64"], np.float64) if "points64" in z.files else None
-        except (KeyError, ValueError, OSError) as e:
-            raise Error(f"load: {path} is not a readable blockhash_cl index ({e})") from None
-        if fmt not in _NPZ_FORMATS:
-            raise Error(f"load: {path} has format {fmt!r}, this version reads {' and '.join(map(repr, _NPZ_FORMATS))}")
+        # Every field checked against the others, memory bounded by the file (_container.py).
+        method, options, origin, stored, removed, points64 = _container.read_container(path, Error)
         if points is not None:
             a, _ = _checked(points, "points")
             mine = _relative(a, origin, "points") if np.any(origin) else _xyz(a, "points")
@@ -766,7 +757,12 @@ def load(path: Union[str, "os.PathLike[str]"], points: Any = None, *,
             diff = np.flatnonzero(differs)
             if diff.size:
                 raise Error(f"load: {path}: point {int(diff[0])} differs from the one it was built from")
-        return _rebuild(method, stored, origin, options, None, device, removed, points64)
+        if method not in _BUILD_OPTIONS and method not in method_names():
+            raise Error(f"load: {path}: field 'method' is {method!r}, not a method of this library")
+        try:
+            return _rebuild(method, stored, origin, options, None, device, removed, points64)
+        except (TypeError, ValueError) as e:  # a crafted option's name or value
+            raise Error(f"load: {path}: field 'options': {e}") from None
     if points is None:
         raise Error(f"load: {path} is a block-hash index file: give the points it was built from")
     a, _ = _checked(points, "points")

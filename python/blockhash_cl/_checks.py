@@ -3,7 +3,7 @@ and values the public functions take (blockhash_cl/__init__.py re-exports what i
 from __future__ import annotations
 
 import operator
-from typing import Any, Dict, List, Tuple
+from typing import Any, Dict, List, Tuple, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -51,15 +51,17 @@ def _search_options(method: str) -> Tuple[str, ...]:
     return _SEARCH_COMMON + tuple(_SEARCH_OPTIONS.get(method, {}))
 
 
-def _option_text(name: str, entry: Dict[str, Any], value: Any) -> str:
-    """A keyword argument as the table's parser reads it (the range is the library's check)."""
+def _option_text(name: str, entry: Dict[str, Any], value: Any) -> Union[str, int, float]:
+    """A keyword argument as the table's parser reads it (the range is the library's check).
+    Numbers cross to the library as numbers (it writes and reads their text locale-free): text
+    made here would follow no locale either, but one conversion place is what stays true."""
     if entry["kind"] == "choice":
         if not isinstance(value, str):
             raise TypeError(f"{name} must be a str, got {type(value).__name__}")
         return value
     if entry["kind"] == "number":
-        return repr(_float(name, value))
-    return str(_int(name, value, -2**63, 2**63 - 1))
+        return _float(name, value)
+    return _int(name, value, -2**63, 2**63 - 1)
 
 
 def _set_table_options(setter: Any, target: Any, method: str, table: Dict[str, Dict[str, Any]],

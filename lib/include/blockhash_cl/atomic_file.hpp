@@ -1,12 +1,16 @@
 // A file replaced atomically, written in pieces (issue 22): the bytes go to a temporary beside
-// the target (".NAME.tmp.PID.N" in the same directory), and commit() flushes it to the disk
+// the target (".NAME.bhcltmp.PID.RANDOM" in the same directory, NAME replaced by a hash where
+// the temporary's name would pass NAME_MAX; opened with O_EXCL, a new random part on EEXIST), and
+// commit() flushes it to the disk
 // (fsync), closes it and renames it over the target. Until then the old file is intact; a failure
 // anywhere (a full disk, a size limit, no permission) is a bhcl::Error naming the file, what it
 // held and the system's reason (strerror), and the temporary is removed, as is the temporary of
 // an AtomicFile destroyed without commit(): no partial output ever stands under the target's
 // name. A path through a symbolic link replaces the file it names; a path that names a device or
 // FIFO (/dev/stdout) is written in place (nothing to replace; write_at is refused there).
-// write_file (io.hpp) is the one-shot form.
+// write_file (io.hpp) is the one-shot form. Temporaries of this tool for the same target left by
+// a process that cannot be running any more (its PID gone, or this process's own PID: a
+// container's PID 1) are removed when the next one is made (issue 38).
 #pragma once
 
 #include <cstddef>
@@ -14,6 +18,11 @@
 #include <string>
 
 namespace bhcl {
+
+// For a program's main (bhcl): SIGINT, SIGTERM and SIGHUP (those not ignored) remove the
+// temporaries being written and exit with 128 + the signal (130, 143, 129). Not installed by the
+// library itself: a host program (Python) keeps its own handlers.
+void install_temporary_cleanup();
 
 class AtomicFile {
  public:
@@ -32,8 +41,12 @@ class AtomicFile {
 
  private:
   [[noreturn]] void fail(const std::string& step, int err);
+  void remove_temporary();
+  void close_directory();
   std::string path_, what_, target_, tmp_;
-  int fd_ = -1;
+  std::string name_, tmp_name_;  // the target's and the temporary's names in the directory dirfd_
+  int fd_ = -1, dirfd_ = -1;
+  int slot_ = -1;                 // the signal handler's table entry (-1: none)
   bool in_place_ = false, done_ = false;
   std::uint64_t size_ = 0;
 };

@@ -155,9 +155,10 @@ class BlockHashIndex : public Index {
   ~BlockHashIndex() override;
 
   // A saved index (versioned, checksummed). Throws bhcl::Error naming the file and the field for a
-  // missing, truncated, corrupt or foreign file.
+  // missing, truncated, corrupt or foreign file. rows >= 0: the caller's point count, which must be
+  // the file's id bound; checked before the index allocates anything by that bound (its id table).
   static std::unique_ptr<BlockHashIndex> load(std::shared_ptr<Runtime> runtime,
-                                              const std::string& path);
+                                              const std::string& path, std::int64_t rows = -1);
   bool saves() const override { return true; }
   void save(const std::string& path) const override;
   // The next frame's points with this build's parameters (the grid keeps its cell side), the

@@ -1,6 +1,9 @@
 // The one way to split host work over threads (builds, host references, FLANN's queries, several
 // devices, the renderer): every worker is joined before return, and the first exception a worker
-// throws is rethrown in the caller (none ends the process). Three shapes:
+// throws is rethrown in the caller (none ends the process). A thread the OS cannot start (a
+// cgroup's pids.max, ulimit -u or -v: std::thread throws std::system_error) never aborts: the work
+// runs on the threads that did start and the caller (issue 38: the throw from emplace_back
+// destroyed joinable threads, std::terminate). Three shapes:
 //   parallel_for     contiguous ranges, one per thread;
 //   parallel_chunks  fixed chunks handed out in turn (chunking independent of the thread count);
 //   parallel_tasks   one thread per task (e.g. per device).
@@ -11,6 +14,7 @@
 #include <cstddef>
 #include <exception>
 #include <mutex>
+#include <system_error>
 #include <thread>
 #include <vector>
 
@@ -38,6 +42,21 @@ inline unsigned available_cpus() {
 
 inline unsigned default_threads() { return available_cpus(); }
 
+// Starts thread i = 0 .. count - 1 running make(i) into pool; stops at the first the OS refuses
+// and returns how many started (the caller then does the rest itself).
+template <typename Make>
+std::size_t start_threads(std::vector<std::thread>& pool, std::size_t count, Make&& make) {
+  pool.reserve(count);  // emplace_back then never reallocates (no bad_alloc after a start)
+  for (std::size_t i = 0; i < count; ++i) {
+    try {
+      pool.emplace_back(make(i));
+    } catch (const std::system_error&) {
+      return i;
+    }
+  }
+  return count;
+}
+
 // Calls fn(begin, end) on [0, n) cut into `threads` contiguous ranges (0: all hardware threads);
 // small n runs inline.
 template <typename Fn>
@@ -51,19 +70,21 @@ void parallel_for(std::size_t n, Fn&& fn, unsigned threads = 0, std::size_t min_
   std::vector<std::thread> pool;
   std::exception_ptr error;
   std::mutex m;
-  const std::size_t per = (n + t - 1) / t;
-  for (std::size_t i = 0; i < t; ++i) {
-    std::size_t b = i * per, e = std::min(n, b + per);
-    if (b >= e) break;
-    pool.emplace_back([&, b, e] {
-      try {
-        fn(b, e);
-      } catch (...) {
-        std::lock_guard<std::mutex> lock(m);
-        if (!error) error = std::current_exception();
-      }
-    });
-  }
+  const std::size_t per = (n + t - 1) / t, ranges = (n + per - 1) / per;
+  auto range = [&](std::size_t i) {
+    try {
+      fn(i * per, std::min(n, i * per + per));
+    } catch (...) {
+      std::lock_guard<std::mutex> lock(m);
+      if (!error) error = std::current_exception();
+    }
+  };
+  // Range 0 is the caller's; those whose thread the OS refused run after it, on the caller too.
+  const std::size_t started = start_threads(pool, ranges - 1, [&](std::size_t i) {
+    return std::thread([&range, i] { range(i + 1); });
+  });
+  range(0);
+  for (std::size_t i = started + 1; i < ranges; ++i) range(i);
   for (auto& th : pool) th.join();
   if (error) std::rethrow_exception(error);
 }
@@ -94,7 +115,7 @@ void parallel_chunks(std::size_t n, std::size_t chunk, unsigned threads, Fn&& fn
   };
   const std::size_t t = std::min<std::size_t>(threads, chunks);
   std::vector<std::thread> pool;
-  for (std::size_t i = 1; i < t; ++i) pool.emplace_back(work);
+  start_threads(pool, t - 1, [&](std::size_t) { return std::thread(work); });  // the chunks go to those started
   work();
   for (auto& th : pool) th.join();
   if (error) std::rethrow_exception(error);
@@ -106,14 +127,16 @@ template <typename Fn>
 void parallel_tasks(std::size_t tasks, Fn&& fn) {
   std::vector<std::exception_ptr> errors(tasks);
   std::vector<std::thread> pool;
-  for (std::size_t i = 0; i < tasks; ++i)
-    pool.emplace_back([&, i] {
-      try {
-        fn(i);
-      } catch (...) {
-        errors[i] = std::current_exception();
-      }
-    });
+  auto task = [&](std::size_t i) {
+    try {
+      fn(i);
+    } catch (...) {
+      errors[i] = std::current_exception();
+    }
+  };
+  // Tasks whose thread the OS refused run in the caller, one after another.
+  const std::size_t started = start_threads(pool, tasks, [&](std::size_t i) { return std::thread([&task, i] { task(i); }); });
+  for (std::size_t i = started; i < tasks; ++i) task(i);
   for (auto& th : pool) th.join();
   for (auto& e : errors)
     if (e) std::rethrow_exception(e);

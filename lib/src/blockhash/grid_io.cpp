@@ -96,7 +96,11 @@ void validate_ids(const Grid& g, GridIdState& st, const std::string& what) {
   }
   if (bound < n - holes) bad("the id bound " + std::to_string(bound) + " is below the " + std::to_string(n - holes) + " live points");
   if (holes == n) bad("every slot is a hole");
-  std::vector<std::int32_t> rank(bound, -1);
+  // The live ids sorted (their ranks by binary search), never a table over [0, id bound): a
+  // crafted bound of 2^31 - 2 in a 79 KB file then allocates nothing past the file's own arrays
+  // (issue 38: 8 GiB, std::bad_alloc).
+  std::vector<std::int32_t> live;
+  live.reserve(n - holes);
   for (std::size_t i = 0; i < n; ++i) {
     const std::int32_t id = g.ids[i];
     if (id == kHoleId) {
@@ -105,11 +109,14 @@ void validate_ids(const Grid& g, GridIdState& st, const std::string& what) {
       continue;
     }
     if (id < 0 || std::size_t(id) >= bound) bad("id " + std::to_string(id) + " at position " + std::to_string(i) + " is outside [0, id bound " + std::to_string(bound) + ")");
-    if (rank[std::size_t(id)] >= 0) bad("id " + std::to_string(id) + " appears twice (position " + std::to_string(i) + ")");
-    rank[std::size_t(id)] = 0;
+    live.push_back(id);
   }
-  for (std::int32_t id = 0, r = 0; std::size_t(id) < bound; ++id)
-    if (rank[std::size_t(id)] >= 0) rank[std::size_t(id)] = r++;
+  std::sort(live.begin(), live.end());
+  for (std::size_t i = 1; i < live.size(); ++i)
+    if (live[i] == live[i - 1]) bad("id " + std::to_string(live[i]) + " appears twice");
+  auto rank = [&](std::int32_t id) {
+    return static_cast<std::int32_t>(std::lower_bound(live.begin(), live.end(), id) - live.begin());
+  };
   // hb[i]: holes among slots [0, i).
   std::vector<std::uint32_t> hb(n + 1, 0);
   for (std::size_t i = 0; i < n; ++i) hb[i + 1] = hb[i] + (g.ids[i] == kHoleId ? 1u : 0u);
@@ -136,7 +143,7 @@ void validate_ids(const Grid& g, GridIdState& st, const std::string& what) {
     t.x[w] = g.x[i];
     t.y[w] = g.y[i];
     t.z[w] = g.z[i];
-    t.ids[w] = rank[std::size_t(g.ids[i])];
+    t.ids[w] = rank(g.ids[i]);
     ++w;
   }
   t.validate(what);
@@ -151,6 +158,46 @@ void validate_ids(const Grid& g, GridIdState& st, const std::string& what) {
   }
   st.live = m;
   st.holes = holes;
+}
+
+// The geometry's fields against each other (issue 38: a file whose cell side was changed and its
+// checksum recomputed loaded, and answered 90 % of the rows wrong on the exact default): the
+// search assigns cells by inv_h and bounds them by h, so inv_h must be the build's 1 / h exactly;
+// the margin must cover the rounding at the grid's magnitudes as the build's does (its lower part,
+// from the origin, the far corner and h; the build adds the points' extent).
+void check_geometry(const bhcl_grid_geom& g, const std::string& what) {
+  auto bad = [&](const std::string& m) { throw Error(what + ": corrupt grid index: " + m); };
+  if (!(g.h > 0) || !std::isfinite(g.h)) bad("field 'h' (the cell side) is not a positive finite number");
+  if (g.inv_h != 1.0f / g.h) bad("field 'inv_h' is not 1 / h (the cell side's two fields disagree)");
+  const float o[3] = {g.ox, g.oy, g.oz};
+  const std::uint32_t dims[3] = {g.nx, g.ny, g.nz};
+  double mag = 0;
+  for (int d = 0; d < 3; ++d) {
+    if (!std::isfinite(o[d])) bad("the origin is not finite");
+    mag = std::max({mag, std::fabs(double(o[d])), std::fabs(double(o[d]) + double(dims[d]) * g.h)});
+  }
+  const double need = (mag + double(g.h)) * std::ldexp(1.0, -20);
+  if (!(double(g.margin) >= need * (1 - 1e-6)) || !std::isfinite(g.margin))
+    bad("field 'margin' " + std::to_string(g.margin) + " is below the rounding slack of the grid's magnitudes");
+}
+
+// Every stored point within its cell's slabs along each axis (lowered by the margin, as the search
+// bounds a cell: bhcl_grid_slabs): Grid::validate checks the assignment by inv_h, this the bound
+// by h, so a crafted geometry that moves the cells away from the points is refused rather than
+// searched inexactly. Holes (+inf) are in no cell.
+void check_points_in_cells(const Grid& g, const std::string& what) {
+  const bhcl_grid_geom& q = g.geom;
+  for (std::size_t i = 0; i < g.n_points; ++i) {
+    if (g.ids[i] == kHoleId) continue;
+    const float p[3] = {g.x[i], g.y[i], g.z[i]};
+    const float o[3] = {q.ox, q.oy, q.oz};
+    const std::uint32_t dims[3] = {q.nx, q.ny, q.nz};
+    for (int d = 0; d < 3; ++d) {
+      const std::uint32_t c = bhcl_grid_cell(p[d], o[d], q.inv_h, dims[d]);
+      if (bhcl_grid_slabs(p[d], o[d], q.h, q.margin, c, c) > 0.0f)
+        throw Error(what + ": corrupt grid index: point " + std::to_string(i) + " lies outside its cell by more than the margin (fields 'ox' .. 'margin' disagree with the points)");
+    }
+  }
 }
 
 }  // namespace
@@ -203,7 +250,7 @@ GridFile parse_grid(const std::string& data, const std::string& what) {
   return parse_grid(data, what, &st);
 }
 
-GridFile parse_grid(const std::string& data, const std::string& what, GridIdState* ids) {
+GridFile parse_grid(const std::string& data, const std::string& what, GridIdState* ids, bool verify_checksum) {
   GridIdState st;
   In in{data, what};
   if (data.size() < 8 || std::memcmp(data.data(), kGridMagic, 8) != 0)
@@ -267,7 +314,7 @@ GridFile parse_grid(const std::string& data, const std::string& what, GridIdStat
   if (data.size() > expect)
     throw Error(what + ": grid index with trailing bytes (" + std::to_string(data.size()) + " bytes, its header declares " + std::to_string(expect) + ")");
   std::uint64_t sum = fnv1a(data.data() + header + 8, data.size() - header - 8, fnv1a(data.data(), header));
-  if (sum != want_sum) throw Error(what + ": grid index checksum mismatch (the file is corrupt)");
+  if (verify_checksum && sum != want_sum) throw Error(what + ": grid index checksum mismatch (the file is corrupt)");
   in.get_n(g.starts, std::size_t(entries), "directory");
   in.get_n(g.x, g.n_points, "x");
   in.get_n(g.y, g.n_points, "y");
@@ -277,7 +324,9 @@ GridFile parse_grid(const std::string& data, const std::string& what, GridIdStat
   g.y.resize(g.n_points + kGridPad, INFINITY);
   g.z.resize(g.n_points + kGridPad, INFINITY);
   g.ids.resize(g.n_points + kGridPad, -1);
+  check_geometry(g.geom, what);
   validate_ids(g, st, what);
+  check_points_in_cells(g, what);
   g.dbox = grid_points_box(g, 0);
   build_grid_occupancy(g, 0);
   if (ids) *ids = st;

@@ -403,11 +403,25 @@ BlockHashIndex::BlockHashIndex(std::shared_ptr<Runtime> runtime, std::unique_ptr
 
 BlockHashIndex::~BlockHashIndex() = default;
 
+namespace {
+// The caller's points give a row per id issued: a file whose id bound differs is refused before
+// anything is sized by that bound (issue 38: a crafted bound of 2^31 - 2 in a few KB).
+void check_rows(const std::string& path, std::int64_t rows, std::int64_t bound, std::size_t live) {
+  if (rows < 0 || rows == bound) return;
+  throw Error(path + ": the saved index holds " + std::to_string(live) + " points" +
+              (std::size_t(bound) != live ? " of ids 0 .. " + std::to_string(bound - 1) +
+                                                " (give a row for every id, removed ones included)"
+                                          : std::string()) +
+              ", the point set " + std::to_string(rows));
+}
+}  // namespace
+
 std::unique_ptr<BlockHashIndex> BlockHashIndex::load(std::shared_ptr<Runtime> runtime,
-                                                     const std::string& path) {
+                                                     const std::string& path, std::int64_t rows) {
   if (blockhash::is_grid_file(path)) {
     blockhash::GridIdState st;
     blockhash::GridFile f = blockhash::load_grid(path, &st);
+    check_rows(path, rows, st.id_bound, st.live);
     auto s = std::make_unique<blockhash::Structure>();
     s->n_points = f.grid.n_points;
     s->scale_exp = f.scale_exp;
@@ -419,6 +433,7 @@ std::unique_ptr<BlockHashIndex> BlockHashIndex::load(std::shared_ptr<Runtime> ru
   }
   std::int64_t bound = -1;
   auto s = blockhash::load_structure(path, &bound);
+  check_rows(path, rows, bound, s->n_points);
   std::unique_ptr<BlockHashIndex> bh(new BlockHashIndex(std::move(runtime), std::move(s)));
   if (bound != std::int64_t(bh->size())) bh->loaded_update_state(bound);  // sparse ids after removals
   // An update rebuilds a block layout (blocks_update) from the build parameters: the saved

@@ -366,20 +366,20 @@ std::unique_ptr<Structure> parse_structure(const std::string& data, const std::s
     // Sparse ids (an index saved after removals): each id in [0, bound) at most once; validate
     // sees them replaced by their ranks (0 .. N - 1, the invariants it checks), then they return.
     auto fail = [&](const std::string& why) { throw Error(path + ": invalid block-hash index: " + why); };
-    std::vector<std::int32_t> rank(static_cast<std::size_t>(bound), -1), live;
+    // The ranks come from the sorted ids, not a table over [0, bound): a crafted bound of 2^31 - 2
+    // in a file of a few KB then allocates nothing past the file's own arrays (issue 38: 8 GiB).
     for (std::size_t i = 0; i < s->order.size(); ++i) {
       const std::int32_t o = s->order[i];
       if (o < 0 || std::uint64_t(o) >= bound) fail("order entry " + std::to_string(i) + " = " + std::to_string(o) + " is outside [0, id bound)");
-      if (rank[std::size_t(o)] >= 0) fail("order is not a set of distinct ids (entry " + std::to_string(i) + ")");
-      rank[std::size_t(o)] = 0;
     }
-    live.reserve(s->order.size());
-    for (std::size_t id = 0; id < rank.size(); ++id)
-      if (rank[id] >= 0) {
-        rank[id] = static_cast<std::int32_t>(live.size());
-        live.push_back(static_cast<std::int32_t>(id));
-      }
-    auto to_rank = [&](std::int32_t id) { return id >= 0 && std::uint64_t(id) < bound ? rank[std::size_t(id)] : -1; };
+    std::vector<std::int32_t> live(s->order.begin(), s->order.end());
+    std::sort(live.begin(), live.end());
+    for (std::size_t i = 1; i < live.size(); ++i)
+      if (live[i] == live[i - 1]) fail("order is not a set of distinct ids (id " + std::to_string(live[i]) + " twice)");
+    auto to_rank = [&](std::int32_t id) {
+      const auto it = std::lower_bound(live.begin(), live.end(), id);
+      return it != live.end() && *it == id ? static_cast<std::int32_t>(it - live.begin()) : -1;
+    };
     for (auto& o : s->order) o = to_rank(o);
     for (std::size_t b = 0; b < s->blocks.size(); ++b)
       for (std::int32_t j = 0; j < std::min<std::int32_t>(s->boxes[b].count, BHCL_BH_BLOCK_SLOTS); ++j)

@@ -14,6 +14,7 @@
 #include "blockhash_cl/error.hpp"
 #include "blockhash_cl/factory.hpp"
 #include "blockhash_cl/knn.hpp"
+#include "blockhash_cl/numbers.hpp"
 #include "blockhash_layout.h"
 
 namespace bhcl::blockhash {
@@ -106,7 +107,7 @@ std::unique_ptr<Index> make(std::shared_ptr<Runtime> runtime, const float* point
   std::unique_ptr<BlockHashIndex> bh;
   const std::string load = options.load_index(), save = options.save_index();
   if (!load.empty()) {
-    bh = BlockHashIndex::load(std::move(runtime), load);
+    bh = BlockHashIndex::load(std::move(runtime), load, static_cast<std::int64_t>(n_points));
     // The point set gives the point of every id issued (after removals, a removed id's row is
     // not read): id_bound() rows, size() of them live.
     if (std::size_t(bh->id_bound()) != n_points)
@@ -128,9 +129,7 @@ std::unique_ptr<Index> make(std::shared_ptr<Runtime> runtime, const float* point
 
 std::string json_bool(bool b) { return b ? "true" : "false"; }
 std::string json_real(double x) {
-  char b[40];
-  std::snprintf(b, sizeof b, "%.17g", x);
-  std::string s = b;
+  std::string s = detail::format_general(x, 17);  // "%.17g", locale-free: Python's json reads it
   if (s.find_first_of(".eEn") == std::string::npos) s += ".0";  // stays a real number
   return s;
 }

@@ -6,7 +6,15 @@
 #include <cstdlib>
 #include <cstring>
 
+#include <chrono>
+#include <climits>
+#include <csignal>
+#include <string>
+#include <vector>
+
+#include <dirent.h>
 #include <fcntl.h>
+#include <sys/random.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -16,10 +24,133 @@ namespace bhcl {
 
 namespace {
 std::string system_reason(int err) { return std::string(" (") + std::strerror(err) + ")"; }
+
+// The temporaries being written now, for the signal handler (install_temporary_cleanup): a fixed
+// table, so that the handler touches no allocation, each slot the directory's descriptor and the
+// temporary's name within it (unlinkat is async-signal-safe). A slot is claimed by a
+// compare-exchange on `state` (0 free, 1 being filled, 2 live); the handler reads live slots only.
+struct TmpSlot {
+  std::atomic<int> state{0};
+  int dirfd = -1;
+  char name[NAME_MAX + 1] = {};
+};
+constexpr int kSlots = 64;
+TmpSlot g_slots[kSlots];
+
+int register_temporary(int dirfd, const std::string& name) {
+  for (int i = 0; i < kSlots; ++i) {
+    int expect = 0;
+    if (!g_slots[i].state.compare_exchange_strong(expect, 1)) continue;
+    g_slots[i].dirfd = dirfd;
+    std::memcpy(g_slots[i].name, name.c_str(), std::min<std::size_t>(name.size() + 1, sizeof g_slots[i].name));
+    g_slots[i].name[NAME_MAX] = '\0';
+    g_slots[i].state.store(2);
+    return i;
+  }
+  return -1;  // more than kSlots at once: this one is removed by its destructor only
+}
+
+void unregister_temporary(int slot) {
+  if (slot >= 0) g_slots[slot].state.store(0);
+}
+
+extern "C" void remove_temporaries_and_exit(int sig) {
+  for (auto& s : g_slots)
+    if (s.state.load() == 2) ::unlinkat(s.dirfd, s.name, 0);
+  ::_exit(128 + sig);  // the shell's status for a death by signal: 130 SIGINT, 143 SIGTERM, 129 SIGHUP
+}
+
+// 64 unpredictable bits: the temporary's name part that no earlier run, no other process and no
+// PID reused across containers (a PID-1 entrypoint is always 1) can have taken.
+std::uint64_t random_bits() {
+  std::uint64_t v = 0;
+  if (::getrandom(&v, sizeof v, GRND_NONBLOCK) == static_cast<ssize_t>(sizeof v)) return v;
+  static std::atomic<std::uint64_t> counter{0};
+  const auto t = std::chrono::steady_clock::now().time_since_epoch().count();
+  return (std::uint64_t(t) * 0x9e3779b97f4a7c15ull) ^ (std::uint64_t(::getpid()) << 32) ^ counter.fetch_add(1);
+}
+
+std::string hex(std::uint64_t v, int digits) {
+  static const char* d = "0123456789abcdef";
+  std::string s(digits, '0');
+  for (int i = digits - 1; i >= 0; --i, v >>= 4) s[i] = d[v & 15];
+  return s;
+}
+
+// The part of a temporary's name that names its target: the target's name where the whole
+// temporary name fits NAME_MAX, else a hash of it (a valid name of up to 255 bytes must have a
+// temporary too; issue 38: ".NAME.tmp.PID.N" was 13-16 bytes longer than the name).
+constexpr const char* kTmpTag = ".bhcltmp.";
+constexpr std::size_t kTmpExtra = 1 + 9 + 10 + 1 + 16;  // "." NAME ".bhcltmp." PID "." RANDOM
+std::string temporary_key(const std::string& name) {
+  if (name.size() + kTmpExtra <= NAME_MAX) return name;
+  std::uint64_t h = 0xcbf29ce484222325ull;
+  for (unsigned char c : name) h = (h ^ c) * 0x100000001b3ull;
+  return "h" + hex(h, 16);
+}
+
+bool all_digits(const std::string& s) {
+  return !s.empty() && std::all_of(s.begin(), s.end(), [](unsigned char c) { return c >= '0' && c <= '9'; });
+}
+
+// The PID in a temporary's name of this tool for the target key: ".KEY.bhcltmp.PID.HEX", or the
+// older ".KEY.tmp.PID.N"; 0 for any other name.
+long temporary_pid(const std::string& entry, const std::string& key) {
+  for (const char* tag : {kTmpTag, ".tmp."}) {
+    const std::string prefix = "." + key + tag;
+    if (entry.size() <= prefix.size() || entry.compare(0, prefix.size(), prefix) != 0) continue;
+    const std::string rest = entry.substr(prefix.size());
+    const std::size_t dot = rest.find('.');
+    if (dot == std::string::npos || !all_digits(rest.substr(0, dot)) || rest.size() - dot - 1 == 0 || dot > 9) continue;
+    return std::atol(rest.substr(0, dot).c_str());
+  }
+  return 0;
+}
+
+// Temporaries of this tool for the same target that a process killed before its cleanup left
+// (SIGKILL, a power loss): removed when their writer cannot be running, i.e. its PID is no live
+// process, or is this process's own (a container's entrypoint is PID 1 in every run; this process
+// writes no temporary of this target but the one it is about to make). They never block a run
+// (the random part), this only keeps them from piling up.
+void remove_stale_temporaries(int dirfd, const std::string& key) {
+  const int fd = ::openat(dirfd, ".", O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (fd < 0) return;
+  DIR* d = ::fdopendir(fd);
+  if (!d) {
+    ::close(fd);
+    return;
+  }
+  std::vector<std::string> stale;
+  while (const dirent* e = ::readdir(d)) {
+    const std::string entry = e->d_name;
+    const long pid = temporary_pid(entry, key);
+    if (pid <= 0) continue;
+    const bool gone = pid == ::getpid() || (::kill(static_cast<pid_t>(pid), 0) != 0 && errno == ESRCH);
+    if (gone) stale.push_back(entry);
+  }
+  ::closedir(d);
+  for (const auto& name : stale) {
+    bool mine = false;  // one of this process's temporaries being written now (another thread)
+    for (auto& s : g_slots)
+      if (s.state.load() == 2 && name == s.name) mine = true;
+    if (!mine) ::unlinkat(dirfd, name.c_str(), 0);
+  }
+}
 }  // namespace
 
+void install_temporary_cleanup() {
+  for (int sig : {SIGINT, SIGTERM, SIGHUP}) {
+    struct sigaction old {};
+    if (::sigaction(sig, nullptr, &old) == 0 && old.sa_handler == SIG_IGN) continue;  // nohup: stays ignored
+    struct sigaction sa {};
+    sa.sa_handler = remove_temporaries_and_exit;
+    sigemptyset(&sa.sa_mask);
+    for (int other : {SIGINT, SIGTERM, SIGHUP}) sigaddset(&sa.sa_mask, other);  // one cleanup at a time
+    ::sigaction(sig, &sa, nullptr);
+  }
+}
+
 AtomicFile::AtomicFile(const std::string& path, const std::string& what) : path_(path), what_(what) {
-  static std::atomic<unsigned> serial{0};
   // Through a symbolic link: the file it names is replaced (beside it), not the link.
   target_ = path;
   struct stat link {};
@@ -30,9 +161,9 @@ AtomicFile::AtomicFile(const std::string& path, const std::string& what) : path_
     }
   }
   const std::size_t slash = target_.find_last_of('/');
-  const std::string dir = slash == std::string::npos ? std::string() : target_.substr(0, slash + 1);
-  const std::string name = slash == std::string::npos ? target_ : target_.substr(slash + 1);
-  if (name.empty()) throw Error(path + ": cannot write " + what + " (the path names a directory)");
+  const std::string dir = slash == std::string::npos ? std::string(".") : slash == 0 ? std::string("/") : target_.substr(0, slash);
+  name_ = slash == std::string::npos ? target_ : target_.substr(slash + 1);
+  if (name_.empty()) throw Error(path + ": cannot write " + what + " (the path names a directory)");
   struct stat old {};
   const bool had_old = ::stat(path.c_str(), &old) == 0;
   if (had_old && S_ISDIR(old.st_mode)) throw Error(path + ": cannot write " + what + " (a directory)");
@@ -43,21 +174,57 @@ AtomicFile::AtomicFile(const std::string& path, const std::string& what) : path_
     if (fd_ < 0) throw Error(path + ": cannot open for writing " + what + system_reason(errno));
     return;
   }
-  tmp_ = dir + "." + name + ".tmp." + std::to_string(::getpid()) + "." + std::to_string(serial.fetch_add(1));
-  fd_ = ::open(tmp_.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
-  if (fd_ < 0) throw Error(path + ": cannot open for writing " + what + system_reason(errno));
+  if (name_.size() > NAME_MAX) throw Error(path + ": cannot open for writing " + what + system_reason(ENAMETOOLONG));
+  // The temporary and the rename go through the directory's descriptor, so that only the name's
+  // own length counts (a path of 4090 characters has room for no longer one beside it).
+  dirfd_ = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (dirfd_ < 0) throw Error(path + ": cannot open for writing " + what + " (its directory: " + std::strerror(errno) + ")");
+  const std::string key = temporary_key(name_);
+  remove_stale_temporaries(dirfd_, key);
+  int err = 0;
+  for (int attempt = 0; attempt < 16 && fd_ < 0; ++attempt) {
+    tmp_name_ = "." + key + kTmpTag + std::to_string(::getpid()) + "." + hex(random_bits(), 16);
+    // Registered before it exists: a signal right after the open still finds it (an unlink of a
+    // name not made yet does nothing; the random part is no other process's).
+    slot_ = register_temporary(dirfd_, tmp_name_);
+    fd_ = ::openat(dirfd_, tmp_name_.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
+    err = errno;
+    if (fd_ >= 0) break;
+    unregister_temporary(slot_);
+    slot_ = -1;
+    if (err != EEXIST) break;  // another name would fail the same way
+  }
+  if (fd_ < 0) {
+    close_directory();
+    throw Error(path + ": cannot open for writing " + what + system_reason(err));
+  }
+  tmp_ = (slash == std::string::npos ? std::string() : target_.substr(0, slash + 1)) + tmp_name_;
   if (had_old) (void)::fchmod(fd_, old.st_mode & 07777);  // keep the old file's permissions
 }
 
 AtomicFile::~AtomicFile() {
   if (fd_ >= 0) ::close(fd_);
-  if (!done_ && !tmp_.empty()) ::unlink(tmp_.c_str());
+  if (!done_) remove_temporary();
+  close_directory();
+}
+
+void AtomicFile::remove_temporary() {
+  if (!tmp_name_.empty() && dirfd_ >= 0) ::unlinkat(dirfd_, tmp_name_.c_str(), 0);
+  unregister_temporary(slot_);
+  slot_ = -1;
+}
+
+void AtomicFile::close_directory() {
+  unregister_temporary(slot_);
+  slot_ = -1;
+  if (dirfd_ >= 0) ::close(dirfd_);
+  dirfd_ = -1;
 }
 
 void AtomicFile::fail(const std::string& step, int err) {
   if (fd_ >= 0) ::close(fd_);
   fd_ = -1;
-  if (!tmp_.empty()) ::unlink(tmp_.c_str());
+  remove_temporary();
   done_ = true;
   throw Error(path_ + ": writing " + what_ + " failed" + (step.empty() ? "" : " (" + step + ")") + system_reason(err));
 }
@@ -104,16 +271,18 @@ void AtomicFile::commit() {
   fd_ = -1;
   if (::close(fd) != 0) {
     const int err = errno;
-    ::unlink(tmp_.c_str());
+    remove_temporary();
     done_ = true;
     throw Error(path_ + ": writing " + what_ + " failed (close)" + system_reason(err));
   }
-  if (::rename(tmp_.c_str(), target_.c_str()) != 0) {
+  if (::renameat(dirfd_, tmp_name_.c_str(), dirfd_, name_.c_str()) != 0) {
     const int err = errno;
-    ::unlink(tmp_.c_str());
+    remove_temporary();
     done_ = true;
     throw Error(path_ + ": writing " + what_ + " failed (rename of the temporary " + tmp_ + ")" + system_reason(err));
   }
+  unregister_temporary(slot_);
+  slot_ = -1;
   done_ = true;
 }
 

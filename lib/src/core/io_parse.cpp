@@ -12,6 +12,7 @@
 #include <sstream>
 
 #include "blockhash_cl/error.hpp"
+#include "blockhash_cl/numbers.hpp"
 
 namespace bhcl::io_detail {
 namespace {
@@ -87,7 +88,11 @@ float to_float(double v, const std::string& what, std::size_t value_index) {
     if (t_wide->size() <= value_index) t_wide->resize(value_index + 1, 0.0);
     (*t_wide)[value_index] = v;
   }
-  if (std::isfinite(v) && std::fabs(v) > static_cast<double>(FLT_MAX)) {
+  // What rounds to a finite float is accepted (issue 38: 3.4028235e+38, FLT_MAX as numpy prints
+  // float32, is 3.4e30 above FLT_MAX and rounds to it): below FLT_MAX + half its ulp
+  // (2^128 - 2^103, which itself rounds to even, away to infinity) the conversion is finite.
+  constexpr double kFloatRoundsToInf = 0x1.ffffffp+127;
+  if (std::isfinite(v) && std::fabs(v) >= kFloatRoundsToInf) {
     std::ostringstream os;
     os << "point " << value_index / 3 << " has coordinate " << "xyz"[value_index % 3] << " = " << v
        << ", beyond the float range";
@@ -153,9 +158,8 @@ std::vector<float> parse_text(const void* data, std::size_t size, const std::str
       // A byte that is no text at all: this is not a text file.
       for (unsigned char c : token)
         if (c < 0x20 || c >= 0x7f) fail(what, "line " + std::to_string(line_no) + ": binary data, not text");
-      char* stop = nullptr;
-      const double v = std::strtod(token.c_str(), &stop);
-      if (stop == token.c_str() || *stop != '\0')
+      double v = 0;  // locale-free (numbers.hpp); past the double range: +-inf, refused below
+      if (detail::parse_double(token, v) == detail::NumberParse::NotNumber)
         fail(what, "line " + std::to_string(line_no) + ": '" + token.substr(0, 40) +
                        "' is not a number (text point files hold x y z per line; '#' starts a comment)");
       xyz.push_back(to_float(v, what, xyz.size()));
@@ -256,9 +260,8 @@ class PlyReader {
     const unsigned char* start = p_;
     while (p_ < end_ && !std::isspace(*p_)) ++p_;
     std::string tok(start, p_);
-    char* stop = nullptr;
-    const double v = std::strtod(tok.c_str(), &stop);
-    if (stop == tok.c_str() || *stop != '\0')
+    double v = 0;  // locale-free (numbers.hpp)
+    if (detail::parse_double(tok, v) == detail::NumberParse::NotNumber)
       fail(what_, element_ + " " + std::to_string(row_) + ": '" + tok.substr(0, 40) + "' is not a number");
     return v;
   }
@@ -308,10 +311,8 @@ PlyElement ply_element(std::istringstream& ls, const std::string& line, const st
   PlyElement e;
   std::string count;
   ls >> e.name >> count;
-  char* stop = nullptr;
-  errno = 0;
-  const unsigned long long c = std::strtoull(count.c_str(), &stop, 10);
-  if (e.name.empty() || count.empty() || *stop != '\0' || errno == ERANGE || count[0] == '-')
+  unsigned long long c = 0;
+  if (e.name.empty() || detail::parse_integer(count, c) != detail::NumberParse::Ok)
     fail(what, at + "bad element line '" + line.substr(0, 60) + "'");
   e.count = static_cast<std::size_t>(c);
   return e;
@@ -485,10 +486,8 @@ std::vector<float> parse_npy(const void* data, std::size_t size, const std::stri
     std::istringstream ds(t);
     std::string d;
     while (ds >> d) {
-      char* stop = nullptr;
-      errno = 0;
-      const unsigned long long v = std::strtoull(d.c_str(), &stop, 10);
-      if (*stop != '\0' || errno == ERANGE || d[0] == '-') fail(what, "bad NPY shape (" + dims_text.substr(0, 40) + ")");
+      unsigned long long v = 0;
+      if (detail::parse_integer(d, v) != detail::NumberParse::Ok) fail(what, "bad NPY shape (" + dims_text.substr(0, 40) + ")");
       dims.push_back(v);
     }
   }

@@ -8,6 +8,7 @@
 
 #include "blockhash_cl/error.hpp"
 #include "blockhash_cl/knn.hpp"
+#include "blockhash_cl/numbers.hpp"
 
 namespace bhcl {
 namespace {
@@ -76,24 +77,14 @@ OptionValue OptionInfo::parse(const std::string& text, const std::string& shown)
   v.text = text;
   auto refuse = [&] { return Error(who + " must be " + range_text() + ", got " + text); };
   if (kind == Kind::Integer) {
-    std::size_t pos = 0;
-    try {
-      v.integer = std::stoll(text, &pos);
-    } catch (const std::out_of_range&) {
-      throw refuse();
-    } catch (...) {
-      pos = 0;
-    }
-    if (pos == 0 || pos != text.size()) throw Error(who + " expects an integer, got '" + text + "'");
+    // Locale-free (numbers.hpp): the text of a Python int or a command line, whatever setlocale said.
+    const detail::NumberParse r = detail::parse_integer(text, v.integer);
+    if (r == detail::NumberParse::OutOfRange) throw refuse();
+    if (r != detail::NumberParse::Ok) throw Error(who + " expects an integer, got '" + text + "'");
     v.number = double(v.integer);
   } else if (kind == Kind::Number) {
-    std::size_t pos = 0;
-    try {
-      v.number = std::stod(text, &pos);
-    } catch (...) {
-      pos = 0;
-    }
-    if (pos == 0 || pos != text.size()) throw Error(who + " expects a number, got '" + text + "'");
+    if (detail::parse_double(text, v.number) == detail::NumberParse::NotNumber)
+      throw Error(who + " expects a number, got '" + text + "'");
     v.integer = static_cast<long long>(std::isfinite(v.number) ? v.number : 0);
   } else if (kind == Kind::Choice && !in_range(v)) {
     throw Error(who + " must be " + range_text() + ", got '" + text + "'");

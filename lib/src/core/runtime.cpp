@@ -12,6 +12,7 @@
 #include <tuple>
 
 #include "blockhash_cl/error.hpp"
+#include "blockhash_cl/numbers.hpp"
 
 namespace bhcl {
 namespace detail {
@@ -187,14 +188,19 @@ DeviceInfo select_device(const std::string& spec_in) {
   auto is_number = [](const std::string& s) {
     return !s.empty() && std::all_of(s.begin(), s.end(), [](unsigned char c) { return std::isdigit(c); });
   };
+  // Digits past the integer range name no device either (issue 38: std::stoul threw "stoul").
+  auto index_of = [](const std::string& s) {
+    unsigned long long v = 0;
+    return detail::parse_integer(s, v) == detail::NumberParse::Ok ? v : ~0ull;
+  };
   if (is_number(head) && is_number(tail)) {
-    size_t p = std::stoul(head), d = std::stoul(tail);
+    const unsigned long long p = index_of(head), d = index_of(tail);
     for (const auto& dev : devs)
       if (dev.platform_index == p && dev.device_index == d) return dev;
     return fail("no device " + head + ":" + tail);
   }
   if (!tail.empty() && !is_number(tail)) return fail("expected NAME[:INDEX] or P:D");
-  size_t want = tail.empty() ? 0 : std::stoul(tail);
+  const unsigned long long want = tail.empty() ? 0 : index_of(tail);
   std::vector<DeviceInfo> matches;
   for (const auto& d : devs) {
     bool match;

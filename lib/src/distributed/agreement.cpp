@@ -11,20 +11,17 @@
 #include <thread>
 
 #include "blockhash_cl/error.hpp"
+#include "blockhash_cl/numbers.hpp"
 
 namespace bhcl::distributed {
 
 namespace {
 
 std::string f32(float v) {
-  char b[32];
-  std::snprintf(b, sizeof b, "%.9g", double(v));
-  return b;
+  return detail::format_general(double(v), 9);  // locale-free (numbers.hpp)
 }
 std::string f64(double v) {
-  char b[40];
-  std::snprintf(b, sizeof b, "%.17g", v);
-  return b;
+  return detail::format_general(v, 17);
 }
 std::string z(std::size_t v) { return std::to_string(v); }
 
@@ -101,9 +98,8 @@ double* deadline_slot(MPI_Comm comm, bool create) {
 bool parse_env_deadline(double& out) {
   const char* e = std::getenv("BHCL_MPI_DEADLINE_S");
   if (!e || !*e) return false;
-  char* end = nullptr;
-  const double v = std::strtod(e, &end);
-  if (end == e || *end != '\0' || !(v >= 0) || std::isinf(v)) return false;
+  double v = 0;
+  if (detail::parse_double(e, v) != detail::NumberParse::Ok || !(v >= 0) || std::isinf(v)) return false;
   out = v;
   return true;
 }
@@ -134,9 +130,7 @@ bool poll_all(std::vector<MPI_Request>& reqs, double seconds) {
 }
 
 std::string seconds_text(double s) {
-  char b[32];
-  std::snprintf(b, sizeof b, "%g", s);
-  return b;
+  return detail::format_general(s, 6);
 }
 
 }  // namespace

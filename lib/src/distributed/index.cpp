@@ -12,6 +12,7 @@
 
 #include "blockhash_cl/distributed.hpp"
 #include "blockhash_cl/error.hpp"
+#include "blockhash_cl/numbers.hpp"
 #include "distributed/agreement.hpp"
 #include "distributed/mpi_util.hpp"
 #include "distributed/shard.hpp"
@@ -169,7 +170,10 @@ Rows round_trip(KnnCall& c, const Outbox& box, const char* phase) {
 double reported_cell_side(const Index* index) {
   if (!index) return 0;
   for (const auto& [name, value] : index->build_used())
-    if (name == "cell_size") return std::strtod(value.c_str(), nullptr);
+    if (name == "cell_size") {
+      double v = 0;
+      return detail::parse_double(value, v) == detail::NumberParse::Ok ? v : 0.0;
+    }
   return 0;
 }
 
@@ -466,10 +470,8 @@ void DistributedIndex::agree_global_cell_side(const std::shared_ptr<Runtime>& ru
   std::string err;
   try {
     if (m > 0 && std::fabs(h / side - 1.0) > 1e-9) {
-      char text[40];
-      std::snprintf(text, sizeof text, "%.17g", h);
       MethodOptions o = options;
-      o.set("cell-size", text);
+      o.set("cell-size", detail::format_general(h, 17));
       local_ = make_index(method_, runtime, xyz.data(), m, o);
     }
   } catch (const std::exception& e) {
