@@ -1,7 +1,8 @@
-// Issue 41, part 2: an image's error against a converged reference, as a user judges a render:
-// the worst TILE x TILE tile and the RMSE over the tiles of the relative tile-mean luminance
-// error (tiles where the reference sees an emitter, a pixel over 8x the median, left out, as
-// bhcl render --reference does), and the relative error of one region's mean luminance (the
+// Issue 41, part 2: an image's error against a converged reference, as a user judges a render,
+// with bhcl render --reference's definitions (host/render/compare.cpp, block_error): over the
+// TILE x TILE tiles whose reference sees no emitter (no pixel over 8x the median), the RMSE of the
+// tile-mean luminance over the mean reference tile, and the worst tile's |tile - reference| /
+// reference; and the relative error of one region's mean luminance (the
 // caustic: the floor under the glass). Build:
 //   g++ -O2 -std=c++17 image_errors.cpp $(pkg-config --cflags --libs OpenEXR) -o image_errors
 // Usage: image_errors IMAGE.exr REFERENCE.exr TILE X0,Y0,X1,Y1   (region in fractions of the image)
@@ -59,18 +60,18 @@ int main(int argc, char** argv) {
     std::vector<double> sorted = ref;
     std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
     const double bright = 8 * sorted[sorted.size() / 2];
-    double se = 0, worst = 0;
+    double se = 0, worst = 0, sum_ref = 0;
     int tiles = 0;
     for (int ty = 0; ty + T <= H; ty += T)
       for (int tx = 0; tx + T <= W; tx += T) {
         bool emitter = false;
         for (int y = ty; y < ty + T; ++y)
           for (int x = tx; x < tx + T; ++x) emitter = emitter || ref[std::size_t(y) * W + x] > bright;
-        const double r = mean_of(ref, W, tx, ty, tx + T, ty + T);
-        if (emitter || !(r > 0)) continue;
-        const double e = (mean_of(img, W, tx, ty, tx + T, ty + T) - r) / r;
-        se += e * e;
-        worst = std::max(worst, std::fabs(e));
+        if (emitter) continue;
+        const double r = mean_of(ref, W, tx, ty, tx + T, ty + T), a = mean_of(img, W, tx, ty, tx + T, ty + T);
+        se += (a - r) * (a - r);
+        sum_ref += r;
+        if (r > 0) worst = std::max(worst, std::fabs(a - r) / r);
         ++tiles;
       }
     const int x0 = int(f[0] * W), y0 = int(f[1] * H), x1 = int(f[2] * W), y1 = int(f[3] * H);
@@ -78,7 +79,8 @@ int main(int argc, char** argv) {
       throw std::runtime_error("the region is empty or outside the image");
     const double rr = mean_of(ref, W, x0, y0, x1, y1);
     const double region = (mean_of(img, W, x0, y0, x1, y1) - rr) / rr;
-    std::printf("%.6g %.6g %.6g\n", tiles ? std::sqrt(se / tiles) : 0.0, worst, std::fabs(region));
+    const double rmse = tiles && sum_ref > 0 ? std::sqrt(se / tiles) / (sum_ref / tiles) : 0.0;
+    std::printf("%.6g %.6g %.6g\n", rmse, worst, std::fabs(region));
   } catch (const std::exception& e) {
     std::fprintf(stderr, "image_errors: %s\n", e.what());
     return 1;
