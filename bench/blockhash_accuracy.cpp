@@ -32,6 +32,7 @@
 
 #include "blockhash_cl/blockhash_cl.hpp"
 #include "blockhash_cl/datasets.hpp"
+#include "blockhash_cl/io.hpp"
 #include "blockhash_cl/cornell_box.hpp"
 #include "bench_cli.hpp"
 #include "bench_util.hpp"
@@ -250,7 +251,8 @@ void write_rows(const Options& o, const std::vector<Row>& rows) {
   std::printf("\n| data | preset | k | A | L | P | B | X | recall@k | FN | dil. max | dil. mean | incompl. | examined | us/query | build s | B/point |%s\n",
               " talk ovh | our ovh |");
   std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
-  std::ofstream csv(o.csv);
+  // Built in memory, then written through the atomic writer (a temporary renamed into place).
+  std::ostringstream csv;
   csv << "data,preset,N,k,A,L,P,B,X,recall,false_negative_rate,max_dilation,mean_dilation,incomplete,examined_mean,query_us,build_s,memory_per_point,overhead,talk_overhead,median_cell_points,p90_cell_blocks,compile_s\n";
   for (const auto& r : rows) {
     std::printf("| %s | %s | %d | %g | %d | %d | %d | %d | %.4f | %.4f | %.3f | %.4f | %zu | %.1f | %.2f | %.2f | %.1f | %.3f | %.3f |\n",
@@ -265,6 +267,7 @@ void write_rows(const Options& o, const std::vector<Row>& rows) {
         << "," << r.mem_per_point << "," << r.overhead << "," << r.talk_overhead << ","
         << r.info.median_cell_points << "," << r.info.p90_cell_blocks << "," << r.compile_s << "\n";
   }
+  write_file(o.csv, {csv.str()}, "the accuracy table (CSV)");
   std::fprintf(stderr, "CSV: %s\n", o.csv.c_str());
 }
 
