@@ -57,7 +57,8 @@ Options parse(int argc, char** argv) {
   cli.ks(o.ks);
   cli.As(o.As);
   cli.methods(o.methods);
-  cli.names("presets", o.presets, "blockhash presets (auto, paper)")->check(CLI::IsMember({"auto", "paper"}));
+  cli.names("presets", o.presets, "blockhash presets (auto, paper, paper-cells)")
+      ->check(CLI::IsMember({"auto", "paper", "paper-cells"}));
   cli.reps(o.reps);
   cli.text("sort", o.sort, "dispatch in Hilbert order: off, on or both", "WHEN")->check(CLI::IsMember({"off", "on", "both"}));
   cli.csv(o.csv);

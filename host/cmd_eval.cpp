@@ -4,6 +4,7 @@
 #include <memory>
 #include <string>
 
+#include "blockhash_cl/blockhash.hpp"
 #include "blockhash_cl/error.hpp"
 #include "blockhash_cl/factory.hpp"
 #include "blockhash_cl/io.hpp"
@@ -26,7 +27,9 @@ Side run_side(const std::string& method, const std::shared_ptr<Runtime>& rt,
               const std::vector<float>& points, const std::vector<float>& queries,
               const SearchParams& params, const MethodOptions& mopt, bool quiet) {
   Side s;
-  s.index = build_with_progress(method, rt, points, mopt, quiet);
+  // The paper presets: B sized for the A and k asked (the talk's rule).
+  s.index = build_with_progress(method, rt, points, method == "blockhash" ? paper_options_for_search(mopt, params) : mopt,
+                                quiet);
   s.stats = query_with_progress(*s.index, queries, params, s.result, quiet);
   return s;
 }

@@ -84,6 +84,24 @@ TracedFrame trace_once(const RenderSetup& s, RenderStats& trace_stats) {
   return frame;
 }
 
+// At most this many gather queries, evenly spread over the frame, measure the lists' accuracy:
+// enough for the mean dilation to two or three digits, a small share of a render's queries.
+constexpr std::size_t kListSample = 20000;
+
+// Every stride-th gather query of the frame, at most `most` of them (3 floats each).
+std::vector<float> gather_sample(const TracedFrame& frame, std::size_t most) {
+  std::size_t total = 0;
+  for (const TracedPass& p : frame.passes) total += p.gather_xyz.size() / 3;
+  const std::size_t stride = std::max<std::size_t>(1, (total + most - 1) / most);
+  std::vector<float> out;
+  out.reserve(3 * std::min(total, most));
+  std::size_t i = 0;
+  for (const TracedPass& p : frame.passes)
+    for (std::size_t q = 0; q < p.gather_xyz.size() / 3; ++q, ++i)
+      if (i % stride == 0) out.insert(out.end(), p.gather_xyz.begin() + 3 * q, p.gather_xyz.begin() + 3 * q + 3);
+  return out;
+}
+
 bool same_images(const RenderRun& a, const RenderRun& b, std::size_t estimators) {
   bool same = true;
   for (std::size_t e = 0; e < estimators; ++e) same = same && a.images[e].rgb == b.images[e].rgb;
@@ -96,10 +114,22 @@ bool same_images(const RenderRun& a, const RenderRun& b, std::size_t estimators)
 void shade_sweep(const RenderSetup& s, const CompareOptions& c, const TracedFrame& frame,
                  std::vector<RenderRun>& runs) {
   shade_run(runs.back(), frame, s.ests, s.maps, s.es, s.lights, s.ropt, s.quiet);
+  // The exact method's lists on a sample of the gather queries, while its index is the map's.
+  const std::vector<float> sample = gather_sample(frame, kListSample);
+  KnnResult truth;
+  if (!sample.empty()) s.maps.global->query(sample.data(), sample.size() / 3, s.ropt.search, truth);
   for (float A : c.As) {
     char label[64];
     std::snprintf(label, sizeof label, "%s A=%g", c.approx.c_str(), A);
     runs.push_back(start_run(label, c.approx, A, s.maps, s.rt, s.mopt, s.ropt));
+    if (!sample.empty()) {
+      SearchParams p = s.ropt.search;
+      p.A = A;
+      KnnResult r;
+      s.maps.global->query(sample.data(), sample.size() / 3, p, r);
+      runs.back().lists_accuracy = evaluate_accuracy(r, truth);
+      runs.back().has_lists_accuracy = true;
+    }
     shade_run(runs.back(), frame, s.ests, s.maps, s.es, s.lights, s.ropt, s.quiet);
     if (runs.size() > 2 && same_images(runs.back(), runs[runs.size() - 2], s.ests.size())) {
       std::fprintf(stderr, "bhcl render --compare: %s gives an image bit-identical to %s: larger A skipped\n",
@@ -179,6 +209,12 @@ void write_estimator_sheet(const RenderSetup& s, const Comparison& c, std::size_
     p.lines.push_back(buf);
     std::snprintf(buf, sizeof buf, "RMSE %.3g (%.3g%%)", d.rmse, 100.0 * d.relative_rmse);
     p.lines.push_back(i == 0 ? "the reference" : buf);
+    if (runs[i].has_lists_accuracy) {
+      const Accuracy& a = runs[i].lists_accuracy;
+      std::snprintf(buf, sizeof buf, "FN %.3g%% dil %.3g/%.4f", 100.0 * a.false_negative_rate, a.max_dilation,
+                    a.mean_dilation);
+      p.lines.push_back(buf);
+    }
     top.push_back(std::move(p));
     if (i > 0) {
       Rgb8 fc = false_colour_difference(img, ref, max_rel);
@@ -227,6 +263,17 @@ void print_errors(const RenderSetup& s, const Comparison& c) {
       std::fprintf(stderr, "  %-18s %12.5g %12.5g %14.5g %12.3f %12.3f %10.3f\n", runs[i].label.c_str(),
                    diffs[i].rmse, diffs[i].relative_rmse, diffs[i].mean_rel_error, runs[i].stats.query_s,
                    runs[i].stats.query_kernel_s, runs[i].build_s);
+    if (e == 0 && runs.size() > 1 && runs[1].has_lists_accuracy) {
+      std::fprintf(stderr, "  the global map's k-nearest lists on %zu of the gather queries against %s's (the talk's measures):\n",
+                   runs[1].lists_accuracy.queries, runs[0].label.c_str());
+      std::fprintf(stderr, "  %-18s %12s %12s %12s %12s %12s\n", "method", "false neg.", "dil. max", "dil. mean",
+                   "recall", "incomplete");
+      for (std::size_t i = 1; i < runs.size(); ++i) {
+        const Accuracy& a = runs[i].lists_accuracy;
+        std::fprintf(stderr, "  %-18s %12.5f %12.4f %12.5f %12.5f %12zu\n", runs[i].label.c_str(),
+                     a.false_negative_rate, a.max_dilation, a.mean_dilation, a.recall, a.incomplete_queries);
+      }
+    }
     for (const auto& [name, d] : c.noise.diffs[e])
       std::fprintf(stderr, "  %-18s %12.5g %12.5g %14.5g   (noise floor: %s)\n", "exact, other seed", d.rmse,
                    d.relative_rmse, d.mean_rel_error, name.c_str());
@@ -283,7 +330,17 @@ Json noise_json(const NamedDiffs& noise) {
 
 Json runs_json(const std::vector<RenderRun>& runs, const std::vector<ImageDiff>& diffs) {
   Json j = Json::array();
-  for (std::size_t i = 0; i < runs.size(); ++i) j.push_back(run_json(runs[i], &diffs[i]));
+  for (std::size_t i = 0; i < runs.size(); ++i) {
+    j.push_back(run_json(runs[i], &diffs[i]));
+    if (!runs[i].has_lists_accuracy) continue;
+    const Accuracy& a = runs[i].lists_accuracy;
+    j.back()["lists_accuracy"] = {{"queries", a.queries},
+                                  {"false_negative_rate", a.false_negative_rate},
+                                  {"max_dilation", a.max_dilation},
+                                  {"mean_dilation", a.mean_dilation},
+                                  {"recall", a.recall},
+                                  {"incomplete_queries", a.incomplete_queries}};
+  }
   return j;
 }
 

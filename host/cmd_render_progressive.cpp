@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdio>
 
+#include "blockhash_cl/blockhash.hpp"
 #include "exr_io.hpp"
 #include "png_io.hpp"
 #include "progressive.hpp"
@@ -22,7 +23,8 @@ int run_progressive(const RenderSetup& s) {
   po.time_s = args.number("time", 0.0);
   po.alpha = args.number("alpha", kPpmAlpha);
   po.method = method;
-  po.index_options = s.mopt;
+  // The paper presets: B sized for the A and k asked (the talk's rule).
+  po.index_options = method == "blockhash" ? paper_options_for_search(s.mopt, s.ropt.search) : s.mopt;
   po.runtime = s.rt;
   po.photons = s.popt;
   const long long exr_every = args.integer("exr-every", 0);

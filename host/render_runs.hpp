@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "blockhash_cl/factory.hpp"
+#include "blockhash_cl/metrics.hpp"
 #include "blockhash_cl/runtime.hpp"
 #include "cli.hpp"
 #include "compare.hpp"
@@ -33,6 +34,10 @@ struct RenderRun {
   RenderStats stats;
   double build_s = 0, warm_s = 0, total_s = 0;
   Json build, search;  // the parameters the global map's index used, for the stats
+  // --compare: the talk's measures (false negatives, max and mean dilation) of the global map's
+  // k-nearest lists on a sample of the frame's gather queries, against the exact run's lists.
+  bool has_lists_accuracy = false;
+  Accuracy lists_accuracy;
 };
 
 std::string format_g(double v);

@@ -3,6 +3,7 @@
 #include <random>
 
 #include "blockhash/build.hpp"
+#include "blockhash/options.hpp"
 #include "test_util.hpp"
 
 #include "blockhash_cl/spatial_order.hpp"
@@ -292,6 +293,70 @@ TEST_CASE("blockhash tables: every point's block is in its cell's bucket unless 
       s->validate("built structure");
     }
   }
+}
+
+TEST_CASE("blockhash params: paper-cells keeps the talk's L, X and B and puts k / 4 points in the median cell") {
+  // Points on the faces of a box, like a photon map (at 200k photons P = ln N puts 180 in a cell).
+  auto pts = datasets::cornell_photons(40000, 3);
+  BlockHashBuildParams paper = preset("paper"), cells = preset("paper-cells");
+  for (BlockHashBuildParams* p : {&paper, &cells}) {
+    p->design_A = 16;
+    p->design_k = 50;
+  }
+  auto sp = cut(pts, paper), sc = cut(pts, cells);
+  derive_params(paper, *sp);
+  derive_params(cells, *sc);
+  CHECK(sc->info.L == sp->info.L);
+  CHECK(sc->info.X == sp->info.X);
+  CHECK(sc->info.B == sp->info.B);  // the talk's B > A k / (X ln N)
+  CHECK(sp->info.P == int(std::lround(std::log(40000.0))));
+  CHECK_FALSE(sc->info.direct_addressing);  // the directory: (P+1)^3 buckets would not fit
+  CHECK_FALSE(sc->info.keep_top_count);
+  CHECK_FALSE(sc->info.guard_thresholds);
+  const double med_paper = median_cell_points(*sp, paper, sp->info.P, 1);
+  const double med_cells = median_cell_points(*sc, cells, sc->info.P, 1);
+  CAPTURE(sc->info.P);
+  CHECK(med_paper > 2 * med_cells);  // the talk's P: cells larger than the k / 4 aimed at
+  CHECK(med_cells >= 50 / 4.0 / 2);
+  CHECK(med_cells <= 50 / 4.0 * 2);
+  // target_cell_points overrides the k / 4.
+  cells.target_cell_points = 100;
+  auto st = cut(pts, cells);
+  derive_params(cells, *st);
+  CHECK(st->info.P < sc->info.P);
+  CHECK(BlockHashBuildParams::parse_preset("paper-cells") == BlockHashBuildParams::Preset::PaperCells);
+  CHECK(std::string(BlockHashBuildParams::preset_name(BlockHashBuildParams::Preset::PaperCells)) == "paper-cells");
+  CHECK_THROWS_WITH_AS(BlockHashBuildParams::parse_preset("papers"), doctest::Contains("paper-cells"), Error);
+}
+
+TEST_CASE("blockhash options: the paper presets' B is sized for the search asked, other builds untouched") {
+  SearchParams p;
+  p.k = 50;
+  p.A = 16;
+  MethodOptions paper;
+  paper.set("preset", "paper");
+  MethodOptions sized = paper_options_for_search(paper, p);
+  CHECK(sized.text("design-k") == "50");
+  CHECK(std::stod(sized.text("design-A")) == 16.0);
+  paper.set("preset", "paper-cells");
+  CHECK(paper_options_for_search(paper, p).has("design-A"));
+  p.A = 0;  // the index default, 8
+  CHECK(std::stod(paper_options_for_search(paper, p).text("design-A")) == 8.0);
+  p.A = INFINITY;  // no A at build: the design A stays the option's default
+  CHECK_FALSE(paper_options_for_search(paper, p).has("design-A"));
+  CHECK(paper_options_for_search(paper, p).text("design-k") == "50");
+  p.A = 4;
+  MethodOptions given = paper;
+  given.set("B", "3");  // the caller's B wins
+  CHECK_FALSE(paper_options_for_search(given, p).has("design-A"));
+  MethodOptions autop;  // auto (the grid) has no B
+  CHECK(paper_options_for_search(autop, p).values == autop.values);
+  // The sized options build an index whose B follows the talk's rule for that A and k.
+  auto pts = datasets::cornell_photons(20000, 5);
+  BlockHashBuildParams bp;
+  apply_build_options(blockhash::option_table(), paper_options_for_search(paper, p), &bp, "blockhash");
+  BlockHashIndex idx(test::runtime(), pts.data(), 20000, bp);
+  CHECK(idx.B() == int(std::ceil(4.0 * 50 / (10 * std::log(20000.0)))) + 1);
 }
 
 TEST_CASE("blockhash params: the talk's formulas for paper, data-driven auto, overrides") {

@@ -20,7 +20,7 @@ using bhcl::test::spit;
 TEST_CASE("blockhash io: save and load give the same index and the same answers") {
   auto pts = datasets::clustered(6000, 1, 6, 0.02f);
   auto qs = datasets::clustered(200, 2, 6, 0.02f);
-  for (const char* pr : {"auto", "paper"}) {
+  for (const char* pr : {"auto", "paper", "paper-cells"}) {
     CAPTURE(pr);
     BlockHashBuildParams bp;
     bp.preset = BlockHashBuildParams::parse_preset(pr);
@@ -32,6 +32,7 @@ TEST_CASE("blockhash io: save and load give the same index and the same answers"
     CHECK(b->P() == a.P());
     CHECK(b->B() == a.B());
     CHECK(b->X() == a.X());
+    CHECK(b->info().preset == a.info().preset);
     CHECK(b->memory_bytes() == a.memory_bytes());
     CHECK(b->info().occupied_cells == a.info().occupied_cells);
     CHECK(b->structure().refs == a.structure().refs);

@@ -345,6 +345,34 @@ TEST_CASE("render: bhcl render writes the EXR and the PNG and the stats") {
   CHECK(out.find("/no/such.obj: cannot open a scene file") != std::string::npos);
 }
 
+TEST_CASE("render: --compare with the paper preset sizes B for each A and reports the lists' false negatives and dilation") {
+  const std::string base = test::tmp_path("cli_cmp_paper"), exr = base + ".exr", json = base + ".json";
+  std::string out;
+  // B from the design A of 8 made every A the same build: A had no effect on the image (issue 41).
+  const std::string common = "render --scene cornell --photons 20000 --gather 4 --k 20 --size 24x24 --quiet ";
+  int rc = test::run_bhcl(common + "--compare --preset paper --compare-A 2,16 --out " + exr + " --stats " + json, &out);
+  INFO(out);
+  REQUIRE(rc == 0);
+  std::ifstream s(json);
+  const nlohmann::json j = nlohmann::json::parse(s);
+  REQUIRE(j.at("runs").size() == 3);
+  const auto& a2 = j.at("runs")[1];
+  const auto& a16 = j.at("runs")[2];
+  const double lnN = std::log(double(j.at("photons").get<long>()));
+  CHECK(a2.at("build").at("B").get<int>() == int(std::ceil(2.0 * 20 / (10 * lnN))) + 1);
+  CHECK(a16.at("build").at("B").get<int>() == int(std::ceil(16.0 * 20 / (10 * lnN))) + 1);
+  CHECK(a16.at("build").at("B").get<int>() > a2.at("build").at("B").get<int>());
+  // The talk's measures of the lists against the exact method's: more candidates, fewer misses.
+  const auto& l2 = a2.at("lists_accuracy");
+  const auto& l16 = a16.at("lists_accuracy");
+  CHECK(l2.at("queries").get<long>() > 100);
+  CHECK(l16.at("false_negative_rate").get<double>() < l2.at("false_negative_rate").get<double>());
+  CHECK(l16.at("mean_dilation").get<double>() < l2.at("mean_dilation").get<double>());
+  CHECK(l16.at("mean_dilation").get<double>() >= 1.0);
+  CHECK(out.find("the talk's measures") != std::string::npos);
+  CHECK(read_exr(base + "_A2.exr").rgb != read_exr(base + "_A16.exr").rgb);
+}
+
 TEST_CASE("render: --compare stops at an A whose image repeats, and --noise-floor and --photon-seed work") {
   const std::string base = test::tmp_path("cli_cmp"), exr = base + ".exr", json = base + ".json";
   std::string out;

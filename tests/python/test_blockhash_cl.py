@@ -249,7 +249,7 @@ def test_bad_methods_and_options(data):
         bh.make_index("blockhash", pts, threads=2)
     with pytest.raises(TypeError, match="'colour' does not apply"):
         bh.make_index("blockhash", pts, colour=2)
-    with pytest.raises(ValueError, match="preset must be auto or paper, got 'fast'"):
+    with pytest.raises(ValueError, match="preset must be auto, paper or paper-cells, got 'fast'"):
         bh.make_index("blockhash", pts, preset="fast")
     with pytest.raises(ValueError, match=r"X must be in \[1, 16\] \(or -1\), got 99"):
         bh.make_index("blockhash", pts, X=99)
@@ -427,7 +427,7 @@ def test_radius_search_bad_input(indexes, data):
 def test_build_options_come_from_the_registry(data):
     pts, _ = data
     assert "leaf_size" in bh.build_options("kdtree")
-    assert bh.build_options("blockhash")["preset"]["choices"] == ["auto", "paper"]
+    assert bh.build_options("blockhash")["preset"]["choices"] == ["auto", "paper", "paper-cells"]
     idx = bh.make_index("kdtree", pts[:2000], leaf_size=4)
     d, i = idx.query(pts[:10], k=1)
     assert np.array_equal(i[:, 0], np.arange(10))

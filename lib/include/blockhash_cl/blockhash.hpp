@@ -14,6 +14,14 @@
 //   paper  the talk's scheme and defaults: L = P = round(ln N), X = 10, B = ceil(A k / (X ln N)) + 1
 //          for the design A and k, direct addressing of all (P+1)^3 cells, a full bucket drops
 //          new blocks, no neighbour probes, no bounding-box skipping (kernels/blockhash_knn.cl).
+//          B is fixed at build: set design_A and design_k to the A and k the queries will use
+//          (bhcl render and blockhash_accuracy do), a larger A examines no more than B allows.
+//   paper-cells  paper with one departure (docs/ACCURACY.md, "Where the talk's rules do not
+//          carry over"): P is chosen from the data so that the median occupied cell holds about
+//          design_k / 4 points (a cell's side then about the k-th neighbour distance) instead of
+//          ln N, and the buckets are in a directory of the occupied cells (memory only: the same
+//          buckets). On surfaces P = ln N makes cells of hundreds of points that B blocks only
+//          sample.
 // The block layouts of the previous auto (grid = 0; their fields L, P, B, X, cell_aligned,
 // box_order, ... are refused on the grid, the grid's on them):
 //          cell_aligned (the default before the grid): blocks aligned to the cells of one table,
@@ -36,6 +44,7 @@
 #include <vector>
 
 #include "blockhash_cl/knn.hpp"
+#include "blockhash_cl/options.hpp"
 
 namespace bhcl {
 
@@ -49,14 +58,14 @@ struct GridTraversal;  // the grid traversal's form (lib/src/blockhash/grid.hpp)
 }
 
 struct BlockHashBuildParams {
-  enum class Preset { Auto, Paper };
+  enum class Preset { Auto, Paper, PaperCells };
   Preset preset = Preset::Auto;
   int L = -1;  // tables
   int P = -1;  // thresholds per dimension (cells per dimension: P + 1), <= 1024
   int B = -1;  // block references per bucket
   int X = -1;  // points per block, 1..16 (16 fills the 256-byte block)
-  // auto: P is chosen so that the median occupied cell holds about this many points
-  // (-1: 24 with cell-aligned blocks, 100 without).
+  // auto and paper-cells: P is chosen so that the median occupied cell holds about this many
+  // points (-1: 24 with cell-aligned blocks, 100 without; paper-cells design_k / 4).
   double target_cell_points = -1.0;
   // auto: blocks aligned to the cells of the primary table (the points ordered by the Hilbert
   // order of their cell, then by their own key; a bucket is the run of blocks holding exactly its
@@ -66,7 +75,9 @@ struct BlockHashBuildParams {
   int cell_aligned = -1;
   // auto: B is this percentile of the distinct blocks touching an occupied cell.
   double b_percentile = 0.90;
-  // paper: B follows the talk's rule B > A k / (X ln N) for this design A and k.
+  // paper presets: B follows the talk's rule B > A k / (X ln N) for this design A and k (B is
+  // fixed at build: a query with a larger A k examines no more); paper-cells: the median occupied
+  // cell holds about design_k / 4 points (target_cell_points overrides it).
   double design_A = 8.0;
   int design_k = 10;
   int hist_bins = 1024;       // histogram bins per dimension for the threshold CDFs
@@ -101,8 +112,10 @@ struct BlockHashBuildParams {
   std::uint64_t seed = 1;     // threshold jitter (a different jitter per table)
   bool verbose = false;       // progress of the build stages on stderr
 
-  static Preset parse_preset(const std::string& name);  // "auto" | "paper"; throws otherwise
+  static Preset parse_preset(const std::string& name);  // "auto" | "paper" | "paper-cells"; throws otherwise
   static const char* preset_name(Preset p);
+  // The talk's L tables (paper, paper-cells), not auto's layouts.
+  static bool is_paper(Preset p) { return p == Preset::Paper || p == Preset::PaperCells; }
 };
 
 // The values a build actually used (derived ones filled in) and what it cost.
@@ -317,5 +330,13 @@ class BlockHashIndex : public Index {
   std::size_t g_starts_cap_ = 0, g_points_cap_ = 0, g_occ_cap_ = 0;
   BlockHashBuildParams params_;
 };
+
+// The paper presets size B at build from design_A and design_k (the talk: B > A k / (X ln N)),
+// so a query with a larger A k than the build's examines no more. For a search of `params` the
+// options of a block-hashing build sized for it: design-A = the A asked (the index default, 8,
+// for A = 0; unchanged for A = inf or a recall target, which have no A at build) and design-k =
+// its k, where the preset is paper or paper-cells and the caller set none of B, design-A and
+// design-k. Other presets and methods: `options` unchanged.
+MethodOptions paper_options_for_search(const MethodOptions& options, const SearchParams& params);
 
 }  // namespace bhcl

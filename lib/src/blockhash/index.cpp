@@ -150,9 +150,10 @@ std::string grid_fields_set(const BlockHashBuildParams& p) {
 bool wants_grid(const BlockHashBuildParams& p) {
   if (p.grid != -1 && p.grid != 0 && p.grid != 1)
     throw Error("blockhash: grid must be -1 (preset), 0 or 1, got " + std::to_string(p.grid));
-  const bool paper = p.preset == BlockHashBuildParams::Preset::Paper;
+  const bool paper = BlockHashBuildParams::is_paper(p.preset);
   if (paper && p.grid == 1)
-    throw Error("blockhash: grid = 1 is the auto preset's layout; the paper preset has its own");
+    throw Error(std::string("blockhash: grid = 1 is the auto preset's layout; the ") +
+                BlockHashBuildParams::preset_name(p.preset) + " preset has its own");
   const bool grid = !paper && p.grid != 0;
   const std::string other = grid ? block_fields_set(p) : grid_fields_set(p);
   if (!other.empty() && grid)
@@ -442,6 +443,11 @@ std::unique_ptr<BlockHashIndex> BlockHashIndex::load(std::shared_ptr<Runtime> ru
   if (bh->info_.preset == BlockHashBuildParams::Preset::Auto) {
     bh->params_.cell_aligned = bh->info_.cell_aligned ? 1 : 0;
     if (!bh->info_.cell_aligned) bh->params_.L = bh->info_.L;
+  }
+  if (bh->info_.preset == BlockHashBuildParams::Preset::PaperCells) {
+    // Its P and B came from the design k and A, which the file does not hold: keep the saved ones.
+    bh->params_.P = bh->info_.P;
+    bh->params_.B = bh->info_.B;
   }
   return bh;
 }

@@ -2,7 +2,7 @@
 //
 // File format (little-endian), version 5:
 //   "BHCLIDX\0" magic, u32 version, u32 0x01020304 (byte-order check), u32 header bytes,
-//   u32 preset, L, P, B, X, flags (guard, top count, direct, box skip, probes, box order, cell-aligned: new in 3),
+//   u32 preset (0 auto, 1 paper, 2 paper-cells), L, P, B, X, flags (guard, top count, direct, box skip, probes, box order, cell-aligned: new in 3),
 //   u64 n_points, n_blocks, n_thresholds, n_table_starts, n_keys, n_buckets, n_refs,
 //   f64 median cell points, median cell blocks, p90 cell blocks,
 //   u64 id bound (one past the largest id issued; new in 5: after Index::remove the ids in order
@@ -34,6 +34,10 @@ constexpr char kMagic[8] = {'B', 'H', 'C', 'L', 'I', 'D', 'X', '\0'};
 constexpr std::uint32_t kVersion = 5;
 constexpr std::uint32_t kHeaderBytesV4 = 8 + 4 * 3 + 4 * 6 + 4 * 7 + 8 * 7 + 8 * 3 + 8;
 constexpr std::uint32_t kHeaderBytes = kHeaderBytesV4 + 8;
+std::uint32_t preset_code(BlockHashBuildParams::Preset p) {
+  return p == BlockHashBuildParams::Preset::PaperCells ? 2u : (p == BlockHashBuildParams::Preset::Paper ? 1u : 0u);
+}
+
 std::uint32_t header_bytes(std::uint32_t version) { return version == 4 ? kHeaderBytesV4 : kHeaderBytes; }
 
 std::uint64_t fnv1a(const unsigned char* p, std::size_t n, std::uint64_t h = 0xcbf29ce484222325ull) {
@@ -230,7 +234,7 @@ void save_structure(const Structure& s, const std::string& path, std::int64_t id
                         (in.direct_addressing ? 4u : 0u) | (in.box_skip ? 8u : 0u) |
                         (in.neighbour_probes ? 16u : 0u) | (in.box_order ? 32u : 0u) |
                         (in.cell_aligned ? 64u : 0u);
-  for (std::uint32_t v : {std::uint32_t(in.preset == BlockHashBuildParams::Preset::Paper ? 1 : 0),
+  for (std::uint32_t v : {preset_code(in.preset),
                           std::uint32_t(in.L), std::uint32_t(in.P), std::uint32_t(in.B),
                           std::uint32_t(in.X), flags})
     h.put(v);
@@ -291,8 +295,9 @@ std::unique_ptr<Structure> parse_structure(const std::string& data, const std::s
   auto s = std::make_unique<Structure>();
   BlockHashBuildInfo& info = s->info;
   std::uint32_t preset = r.get<std::uint32_t>("preset");
-  if (preset > 1) throw Error(path + ": block-hash index has an unknown preset " + std::to_string(preset));
-  info.preset = preset ? BlockHashBuildParams::Preset::Paper : BlockHashBuildParams::Preset::Auto;
+  if (preset > 2) throw Error(path + ": block-hash index has an unknown preset " + std::to_string(preset));
+  info.preset = preset == 2 ? BlockHashBuildParams::Preset::PaperCells
+                            : (preset ? BlockHashBuildParams::Preset::Paper : BlockHashBuildParams::Preset::Auto);
   // Every field in its range, nothing masked away: a corrupt header is refused, never read as
   // other parameters.
   auto field = [&](const char* name, std::uint32_t lo, std::uint32_t hi) {

@@ -41,14 +41,14 @@ OptionInfo seed() {
   return o;
 }
 
-// An option of the block layouts (grid = 0, or preset paper): the grid refuses it.
+// An option of the block layouts (grid = 0, or preset paper / paper-cells): the grid refuses it.
 OptionInfo block(OptionInfo o) {
-  o.help += " (block layouts: grid = 0 or preset paper)";
+  o.help += " (block layouts: grid = 0 or preset paper, paper-cells)";
   return o.needing("grid=0");
 }
 
 std::vector<OptionInfo> make_table() {
-  OptionInfo preset = option::choice("preset", "parameter preset", {"auto", "paper"}, "auto");
+  OptionInfo preset = option::choice("preset", "parameter preset (paper: the talk's rules; paper-cells: the same with P from the data, docs/ACCURACY.md)", {"auto", "paper", "paper-cells"}, "auto");
   preset.field = "BlockHashBuildParams::preset";
   preset.get = [](const void* p, OptionValue& v) { v.text = P::preset_name(static_cast<const P*>(p)->preset); };
   preset.set = [](void* p, const OptionValue& v) { static_cast<P*>(p)->preset = P::parse_preset(v.text); };
@@ -59,15 +59,15 @@ std::vector<OptionInfo> make_table() {
       block(BHCL_BUILD_OPTION(P, B, option::integer("B", "block references per bucket (-1: the preset decides)", 1, 65535, "-1").or_unset())),
       block(BHCL_BUILD_OPTION(P, X, option::integer("X", "points per block (-1: the preset decides)", 1, BHCL_BH_BLOCK_SLOTS, "-1").or_unset())),
       seed(),
-      BHCL_BUILD_OPTION(P, grid, option::integer("grid", "the layout: -1 the preset's (auto: the grid, exact by default; paper: the talk's tables), 0 the block layouts (their options need it), 1 the grid", 0, 1, "-1").or_unset()),
+      BHCL_BUILD_OPTION(P, grid, option::integer("grid", "the layout: -1 the preset's (auto: the grid, exact by default; paper, paper-cells: the talk's tables), 0 the block layouts (their options need it), 1 the grid", 0, 1, "-1").or_unset()),
       BHCL_BUILD_OPTION(P, cell_size, option::number("cell-size", "grid: the cells' side in the points' units (-1: chosen so a point's cell holds ~target-cell-points)", 0, 1e30, "-1", true).or_unset()),
       BHCL_BUILD_OPTION(P, max_cells_per_point, option::number("max-cells-per-point", "grid: the most cells per point of the direct table (past it a two-level directory of up to 16x as many, then the cells grow)", 0.01, 1024, "8")),
       BHCL_BUILD_OPTION(P, grid_directory, option::integer("grid-directory", "grid: the cell directory (-1: by max-cells-per-point, 0: direct, 1: two-level)", 0, 1, "-1").or_unset()),
-      BHCL_BUILD_OPTION(P, target_cell_points, option::number("target-cell-points", "auto: the cell population aimed at (-1: 24; grid: a point's cell, block layouts: the median occupied cell, 100 for L tables)", 1, 1e6, "-1").or_unset()),
+      BHCL_BUILD_OPTION(P, target_cell_points, option::number("target-cell-points", "auto, paper-cells: the cell population aimed at (-1: 24; grid: a point's cell, block layouts: the median occupied cell, 100 for L tables; paper-cells design-k / 4)", 1, 1e6, "-1").or_unset()),
       block(BHCL_BUILD_OPTION(P, cell_aligned, flag("cell-aligned", "auto: blocks aligned to the cells of one table"))),
       block(BHCL_BUILD_OPTION(P, b_percentile, option::number("b-percentile", "auto: B is this percentile of the distinct blocks per occupied cell", 0, 1, "0.9", true))),
-      block(BHCL_BUILD_OPTION(P, design_A, option::number("design-A", "paper: the A of the talk's rule for B", 0, kHuge, "8", true))),
-      block(BHCL_BUILD_OPTION(P, design_k, option::integer("design-k", "paper: the k of the talk's rule for B", 1, kIntMax, "10"))),
+      block(BHCL_BUILD_OPTION(P, design_A, option::number("design-A", "paper presets: the A of the talk's rule for B (bhcl render and knn: the A asked)", 0, kHuge, "8", true))),
+      block(BHCL_BUILD_OPTION(P, design_k, option::integer("design-k", "paper presets: the k of the talk's rule for B, and paper-cells' cell population k / 4 (bhcl render and knn: the k asked)", 1, kIntMax, "10"))),
       block(BHCL_BUILD_OPTION(P, hist_bins, option::integer("hist-bins", "histogram bins per dimension of the threshold CDFs", 2, 1 << 22, "1024"))),
       block(BHCL_BUILD_OPTION(P, hilbert_bits, option::integer("hilbert-bits", "bits per dimension of the Hilbert keys", 1, 21, "21"))),
       block(BHCL_BUILD_OPTION(P, guard_thresholds, flag("guard-thresholds", "thresholds snapped to bin edges, de-duplicated, off heavy bins"))),
@@ -244,5 +244,17 @@ namespace bhcl {
 
 UsedFields BlockHashIndex::build_used() const { return blockhash::used_build(*this); }
 UsedFields BlockHashIndex::search_used(const SearchParams& p) const { return blockhash::used_search(*this, p); }
+
+MethodOptions paper_options_for_search(const MethodOptions& options, const SearchParams& params) {
+  const std::string preset = options.text("preset", "auto");
+  if (preset != "paper" && preset != "paper-cells") return options;
+  if (options.has("B") || options.has("design-A") || options.has("design-k")) return options;
+  if (!options.load_index().empty()) return options;  // a saved index has its B
+  MethodOptions out = options;
+  out.set("design-k", std::to_string(params.k));
+  const double A = params.recall_target > 0 ? 0.0 : (params.A == 0 ? 8.0 : params.A);
+  if (A > 0 && std::isfinite(A)) out.set("design-A", blockhash::json_real(A));
+  return out;
+}
 
 }  // namespace bhcl

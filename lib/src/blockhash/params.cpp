@@ -1,5 +1,6 @@
 // The parameters of a block-hash build. paper: the talk's formulas (L = P = round(ln N),
-// B > A k / (X ln N)); auto: from the data (docs/ACCURACY.md, "Choosing P": P so that the median
+// B > A k / (X ln N)); paper-cells: the same but P so that the median occupied cell holds about
+// design_k / 4 points (docs/ACCURACY.md, "Where the talk's rules do not carry over"); auto: from the data (docs/ACCURACY.md, "Choosing P": P so that the median
 // occupied cell holds ~24 points with cell-aligned blocks, ~100 in the L-table layout; B = 90th
 // percentile of distinct blocks per cell, L = 4 in the L-table layout).
 #include <algorithm>
@@ -16,11 +17,17 @@ namespace bhcl {
 BlockHashBuildParams::Preset BlockHashBuildParams::parse_preset(const std::string& name) {
   if (name == "auto" || name.empty()) return Preset::Auto;
   if (name == "paper") return Preset::Paper;
-  throw Error("blockhash: unknown preset '" + name + "' (auto, paper)");
+  if (name == "paper-cells") return Preset::PaperCells;
+  throw Error("blockhash: unknown preset '" + name + "' (auto, paper, paper-cells)");
 }
 
 const char* BlockHashBuildParams::preset_name(Preset p) {
-  return p == Preset::Paper ? "paper" : "auto";
+  switch (p) {
+    case Preset::Paper: return "paper";
+    case Preset::PaperCells: return "paper-cells";
+    case Preset::Auto: break;
+  }
+  return "auto";
 }
 
 }  // namespace bhcl
@@ -64,7 +71,7 @@ std::vector<float> sorted_points(const Structure& s) {
 }  // namespace
 
 int derive_x(const BlockHashBuildParams& p) {
-  int X = p.X > 0 ? p.X : (p.preset == BlockHashBuildParams::Preset::Paper ? 10 : BHCL_BH_BLOCK_SLOTS);
+  int X = p.X > 0 ? p.X : (BlockHashBuildParams::is_paper(p.preset) ? 10 : BHCL_BH_BLOCK_SLOTS);
   if (p.X == 0 || X > BHCL_BH_BLOCK_SLOTS)
     throw Error("blockhash: X must be in [1, " + std::to_string(BHCL_BH_BLOCK_SLOTS) +
                 "] (points per 256-byte block), got " + std::to_string(p.X));
@@ -119,15 +126,50 @@ double median_cell_points(const Structure& s, const BlockHashBuildParams& p, int
   return CellSample(s, p, stride).median_points(s, p, P);
 }
 
+// The P whose median occupied cell (table 0, over a stride sample) is nearest `target` points in
+// ratio: a bisection for the smallest P at or below it, then P - 1 if that is nearer.
+int p_for_cell_points(const Structure& s, const BlockHashBuildParams& p, double target, std::size_t stride) {
+  // One sample and its histograms for every candidate P: only the inversion depends on P.
+  const CellSample sample(s, p, stride);
+  auto f = [&](int P) { return sample.median_points(s, p, P); };
+  int lo = 1, hi = BHCL_BH_MAX_P;
+  if (f(hi) > target) {
+    lo = hi;
+  } else {
+    while (lo < hi) {
+      int mid = (lo + hi) / 2;
+      if (f(mid) <= target) hi = mid;
+      else lo = mid + 1;
+    }
+  }
+  int P = lo;
+  if (lo > 1) {
+    double a = f(lo), b = f(lo - 1);
+    if (a > 0 && b > 0 && std::abs(std::log(b / target)) < std::abs(std::log(a / target))) P = lo - 1;
+  }
+  return P;
+}
+
+// The sample stride of the P bisection: at most 2^18 points sampled, and below a quarter of the
+// target population (the median of a stride sample's cell counts times the stride is only
+// unbiased while a cell keeps several sampled points: at 10M points a 2^18 sample put P at its
+// cap with 3-point cells).
+std::size_t bisection_stride(std::size_t n, double target) {
+  return std::max<std::size_t>(1, std::min<std::size_t>(n >> 18, static_cast<std::size_t>(target / 4)));
+}
+
 void derive_params(const BlockHashBuildParams& p, Structure& s) {
   check_build_fields(option_table(), &p, "blockhash");  // every range, from the option table
   BlockHashBuildInfo& in = s.info;
-  const bool paper = p.preset == BlockHashBuildParams::Preset::Paper;
+  const bool paper = BlockHashBuildParams::is_paper(p.preset);
+  const bool paper_cells = p.preset == BlockHashBuildParams::Preset::PaperCells;
   auto flag = [&](int v, bool paper_default) { return v < 0 ? (paper ? paper_default : !paper_default) : v != 0; };
   in.preset = p.preset;
   in.guard_thresholds = flag(p.guard_thresholds, false);
   in.keep_top_count = flag(p.keep_top_count, false);
-  in.direct_addressing = flag(p.direct_addressing, true);
+  // paper-cells: (P+1)^3 buckets of B slots per table would be GBs at its P (~90 at 1M photons);
+  // the directory of occupied cells holds the same buckets.
+  in.direct_addressing = flag(p.direct_addressing, !paper_cells);
   in.box_skip = flag(p.box_skip, false);
   in.neighbour_probes = flag(p.neighbour_probes, false);
   in.box_order = flag(p.box_order, false);
@@ -150,7 +192,18 @@ void derive_params(const BlockHashBuildParams& p, Structure& s) {
   const int lnr = std::max(1, static_cast<int>(std::lround(lnN)));
   if (paper) {
     in.L = p.L > 0 ? p.L : std::min(64, lnr);
-    in.P = p.P > 0 ? p.P : std::min(BHCL_BH_MAX_P, lnr);
+    if (p.P > 0) {
+      in.P = p.P;
+    } else if (paper_cells) {
+      // A cell of k / 4 points on a surface is a square of side ~0.89 r_k (the k-neighbourhood a
+      // disc of k points), in a volume a cube of side ~1.0 r_k: the L jittered cells around a
+      // query then tile its neighbourhood, and B blocks hold a whole cell, not a sample of it.
+      const double target = p.target_cell_points > 0 ? p.target_cell_points : std::max(1.0, p.design_k / 4.0);
+      in.P = p_for_cell_points(s, p, target, bisection_stride(s.n_points, target));
+      if (p.verbose) std::fprintf(stderr, "blockhash: paper-cells P = %d (median cell ~%.0f points)\n", in.P, target);
+    } else {
+      in.P = std::min(BHCL_BH_MAX_P, lnr);
+    }
     if (p.B > 0) {
       in.B = p.B;
     } else {
@@ -163,38 +216,16 @@ void derive_params(const BlockHashBuildParams& p, Structure& s) {
   }
   in.L = in.cell_aligned ? 1 : (p.L > 0 ? p.L : 4);
   // P: bisection on the median points per occupied cell (table 0, guarded thresholds), over a
-  // stride sample of the Hilbert-sorted points (spatially even) of at most 2^18 points.
-  // The median of a stride sample's cell counts times the stride is only unbiased while a cell
-  // keeps several sampled points: the stride stays below a quarter of the target population
-  // (at 10M points a 2^18 sample put P at its cap with 3-point cells).
+  // stride sample of the Hilbert-sorted points (spatially even; bisection_stride says how large).
   const double target_pts = p.target_cell_points > 0 ? p.target_cell_points : (in.cell_aligned ? 24.0 : 100.0);
-  const std::size_t stride = std::max<std::size_t>(
-      1, std::min<std::size_t>(s.n_points >> 18, static_cast<std::size_t>(target_pts / 4)));
+  const std::size_t stride = bisection_stride(s.n_points, target_pts);
   if (in.cell_aligned) measure_axis_spread(s, stride);
   if (p.P > 0) {
     in.P = p.P;
   } else {
     const double target = p.target_cell_points > 0 ? p.target_cell_points : (in.cell_aligned ? 24.0 : 100.0);
-    // One sample and its histograms for every candidate P: only the inversion depends on P.
-    const CellSample sample(s, p, stride);
-    auto f = [&](int P) { return sample.median_points(s, p, P); };
-    int lo = 1, hi = BHCL_BH_MAX_P;
-    if (f(hi) > target) {
-      lo = hi;
-    } else {
-      while (lo < hi) {
-        int mid = (lo + hi) / 2;
-        if (f(mid) <= target) hi = mid;
-        else lo = mid + 1;
-      }
-    }
-    // lo: the smallest P whose median is <= target; P - 1 may be closer (in ratio).
-    in.P = lo;
-    if (lo > 1) {
-      double a = f(lo), b = f(lo - 1);
-      if (a > 0 && b > 0 && std::abs(std::log(b / target)) < std::abs(std::log(a / target))) in.P = lo - 1;
-    }
-    if (p.verbose) std::fprintf(stderr, "blockhash: auto P = %d (median cell ~%.0f points)\n", in.P, f(in.P));
+    in.P = p_for_cell_points(s, p, target, stride);
+    if (p.verbose) std::fprintf(stderr, "blockhash: auto P = %d\n", in.P);
   }
   if (p.B > 0) {
     in.B = p.B;
