@@ -4,6 +4,7 @@
 
 #include "blockhash_cl/error.hpp"
 #include "blockhash_cl/runtime.hpp"
+#include "blockhash_cl/kernel_forms.hpp"
 #include "cli.hpp"
 #include "commands.hpp"
 
@@ -37,6 +38,11 @@ int run_devices(const Args& args) {
                             : (env && *env ? ("BHCL_DEVICE=" + std::string(env)).c_str() : "default"),
               pick.platform_index, pick.device_index, pick.summary().c_str(),
               quirks_for(pick).description.c_str());
+  const detail::GridKernelForm& f = detail::grid_kernel_form(pick);
+  std::printf("grid kernel form: %s (isa '%s'; vtopk %d, prefetch %d, row_cap %u, walk_cap %u, fill_sort %d, "
+              "prefetch_lines %d)\n  measured: %s\n",
+              f.name, detail::device_isa(pick).c_str(), f.vtopk ? 1 : 0, f.prefetch, f.row_cap, f.walk_cap, f.fill_sort,
+              f.prefetch_lines, f.measured);
   const char* cache = std::getenv("POCL_CACHE_DIR");
   std::printf("PoCL kernel cache: %s\n", cache && *cache ? cache : "PoCL's default");
   return 0;

@@ -9,6 +9,7 @@
 #include "blockhash_cl/error.hpp"
 #include "core/device_util.hpp"
 #include "core/kernel_defines.hpp"
+#include "blockhash_cl/kernel_forms.hpp"
 
 namespace bhcl {
 std::uint32_t BlockHashIndex::cells_probes(const SearchParams& p) const {
@@ -104,14 +105,16 @@ float BlockHashIndex::resolved_A(const SearchParams& p) const {
 
 detail::DefineValues BlockHashIndex::kernel_options(int kmax) const {
   if (info_.grid) {
-    // The register list and the prefetch where the compiler vectorises (CPU devices: the quirks
-    // list); the scalar list on GPUs and past 64 entries.
-    const bool cpu = runtime().quirks().vector_scan;
-    return {{"BHCL_KMAX", kmax},
-            {"BHCL_GRID_VTOPK", cpu && kmax <= 64 ? 1 : 0},
-            {"BHCL_GRID_PREFETCH", cpu ? 2 : 0},
-            {"BHCL_GRID_ROWCAP", blockhash::grid_traversal(cpu).row_cap},
-            {"BHCL_GRID_WALKCAP", blockhash::grid_traversal(cpu).walk_cap}};
+    // The device's row of the forms table (core/kernel_forms.cpp); the scalar list past 64 entries.
+    const detail::GridKernelForm& f = detail::grid_kernel_form(runtime().info());
+    detail::DefineValues v = {{"BHCL_KMAX", kmax},
+                              {"BHCL_GRID_VTOPK", f.vtopk && kmax <= 64 ? 1 : 0},
+                              {"BHCL_GRID_PREFETCH", f.prefetch},
+                              {"BHCL_GRID_ROWCAP", f.row_cap},
+                              {"BHCL_GRID_WALKCAP", f.walk_cap}};
+    if (f.fill_sort >= 0) v.push_back({"BHCL_GRID_FILLSORT", f.fill_sort});
+    if (f.prefetch_lines >= 0) v.push_back({"BHCL_GRID_PREFETCH_LINES", f.prefetch_lines});
+    return v;
   }
   const long long cap = blockhash::scan_cap(kmax, info_.X);
   if (info_.cell_aligned)
@@ -212,10 +215,10 @@ cl::Event BlockHashIndex::enqueue_radius_batch(const cl::CommandQueue& queue,
 }
 
 blockhash::GridTraversal BlockHashIndex::traversal_for(const SearchParams& p) const {
-  const blockhash::GridTraversal d = blockhash::grid_traversal(runtime().quirks().vector_scan);
-  return {detail::caller_define_value(p.kernel_defines, "BHCL_GRID_ROWCAP", d.row_cap),
-          detail::caller_define_value(p.kernel_defines, "BHCL_GRID_FINE_RINGS", d.fine_rings),
-          detail::caller_define_value(p.kernel_defines, "BHCL_GRID_WALKCAP", d.walk_cap)};
+  const detail::GridKernelForm& f = detail::grid_kernel_form(runtime().info());
+  return {detail::caller_define_value(p.kernel_defines, "BHCL_GRID_ROWCAP", f.row_cap),
+          detail::caller_define_value(p.kernel_defines, "BHCL_GRID_FINE_RINGS", BHCL_GRID_FINE_RINGS),
+          detail::caller_define_value(p.kernel_defines, "BHCL_GRID_WALKCAP", f.walk_cap)};
 }
 
 void BlockHashIndex::add_grid_args(detail::KernelArgs& args) const {

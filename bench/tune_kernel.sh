@@ -1,0 +1,25 @@
+#!/usr/bin/env bash
+# Measures this device's row of the grid kernel's forms table (lib/src/core/kernel_forms.cpp):
+# perf_harness runs the device's current row ("base") beside candidate forms, each one change
+# from it, in interleaved rounds in one process, on each data set and order; tune_pick.py takes
+# the median over rows of each candidate's speed against base (same queries, exact, so the rows
+# are the same) and prints the winning row in the table's format, with the figures to quote.
+#   bench/tune_kernel.sh [build-dir] [data-dir] [rounds]     (POCL_MAX_PTHREAD_COUNT as you run)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+build=${1:-build}
+data=${2:-../shared/data}
+rounds=${3:-5}
+harness=$build/bench/perf_harness
+[ -x "$harness" ] || { echo "tune_kernel: $harness not built" >&2; exit 1; }
+out=${TUNE_OUT:-bench/results/harness/tune_$(date +%Y%m%d)}
+mkdir -p "$(dirname "$out")"
+# Candidates: one change each from the device's row (the defines the table's fields set).
+cands="base:;fill1:-DBHCL_GRID_FILLSORT=1;fill0:-DBHCL_GRID_FILLSORT=0;rowcap0:-DBHCL_GRID_ROWCAP=0;"
+cands+="rowcap8:-DBHCL_GRID_ROWCAP=8;lines1:-DBHCL_GRID_PREFETCH_LINES=1;lines4:-DBHCL_GRID_PREFETCH_LINES=4;"
+cands+="pf0:-DBHCL_GRID_PREFETCH=0;walk0:-DBHCL_GRID_WALKCAP=0"
+sets=${TUNE_SETS:-uniform,cornell,autzen}
+rm -f "$out.csv"
+"$harness" --data "$sets" --data-dir "$data" --k 10,50 --order sorted,random --A inf --rounds "$rounds" \
+  --defines "$cands" --csv "$out.csv" | tee "$out.txt"
+/usr/bin/env python3 bench/tune_pick.py "$out.csv" | tee -a "$out.txt"
