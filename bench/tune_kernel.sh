@@ -20,6 +20,6 @@ cands+="rowcap8:-DBHCL_GRID_ROWCAP=8;lines1:-DBHCL_GRID_PREFETCH_LINES=1;lines4:
 cands+="pf0:-DBHCL_GRID_PREFETCH=0;walk0:-DBHCL_GRID_WALKCAP=0"
 sets=${TUNE_SETS:-uniform,cornell,autzen}
 rm -f "$out.csv"
-"$harness" --data "$sets" --data-dir "$data" --k 10,50 --order sorted,random --A inf --rounds "$rounds" \
+"$harness" --data "$sets" --data-dir "$data" --N "${TUNE_N:-1000000}" --queries "${TUNE_Q:-100000}" --k 10,50 --order sorted,random --A 1000000 --rounds "$rounds" \
   --defines "$cands" --csv "$out.csv" | tee "$out.txt"
 /usr/bin/env python3 bench/tune_pick.py "$out.csv" | tee -a "$out.txt"
