@@ -44,6 +44,75 @@ void radix_sort_by_key(KeyedRow* v, KeyedRow* tmp, std::size_t n, int key_bits) 
 
 }  // namespace
 
+namespace {
+
+// Bit b of v (16 bits) moved to bit 3b.
+inline std::uint64_t spread3(std::uint64_t v) {
+  v &= 0xffff;
+  v = (v | (v << 32)) & 0x1f00000000ffffull;
+  v = (v | (v << 16)) & 0x1f0000ff0000ffull;
+  v = (v | (v << 8)) & 0x100f00f00f00f00full;
+  v = (v | (v << 4)) & 0x10c30c30c30c30c3ull;
+  v = (v | (v << 2)) & 0x1249249249249249ull;
+  return v;
+}
+
+// Skilling's transpose as kernels/bhcl_arith.h's bh_hilbert_encode at 16 bits, for m <= kLanes
+// cells at once: a mask instead of each of its tests, and the lanes innermost, so that the
+// compiler runs the lanes in vector registers (one key is a chain of 45 dependent steps; lanes
+// are independent). Bit b of axis i goes to key bit 3b + (2 - i).
+constexpr std::size_t kLanes = 16;
+void hilbert_keys16_lanes(const std::uint32_t* x0, const std::uint32_t* x1, const std::uint32_t* x2,
+                          std::uint64_t* keys, std::size_t m) {
+  std::uint32_t X0[kLanes] = {}, X1[kLanes] = {}, X2[kLanes] = {};
+  for (std::size_t l = 0; l < m; ++l) {
+    X0[l] = x0[l];
+    X1[l] = x1[l];
+    X2[l] = x2[l];
+  }
+  for (std::uint32_t Q = 1u << 15; Q > 1; Q >>= 1) {
+    const std::uint32_t P = Q - 1;
+    for (std::size_t l = 0; l < kLanes; ++l) {
+      std::uint32_t a = X0[l], b = X1[l], c = X2[l];
+      a ^= P & (0u - ((a & Q) != 0));
+      std::uint32_t set = 0u - ((b & Q) != 0), t = (a ^ b) & P & ~set;
+      a ^= (P & set) | t;
+      b ^= t;
+      set = 0u - ((c & Q) != 0);
+      t = (a ^ c) & P & ~set;
+      a ^= (P & set) | t;
+      c ^= t;
+      X0[l] = a;
+      X1[l] = b;
+      X2[l] = c;
+    }
+  }
+  for (std::size_t l = 0; l < kLanes; ++l) {
+    X1[l] ^= X0[l];
+    X2[l] ^= X1[l];
+    std::uint32_t t = 0;
+    for (std::uint32_t Q = 1u << 15; Q > 1; Q >>= 1) t ^= (Q - 1) & (0u - ((X2[l] & Q) != 0));
+    X0[l] ^= t;
+    X1[l] ^= t;
+    X2[l] ^= t;
+  }
+  for (std::size_t l = 0; l < m; ++l) keys[l] = (spread3(X0[l]) << 2) | (spread3(X1[l]) << 1) | spread3(X2[l]);
+}
+
+// The quantiser's cell at 16 bits (sfc::Quantiser::cell without its per-call ldexp).
+inline std::uint32_t cell16(const sfc::Quantiser& qz, int d, float v) {
+  const double c = std::floor((double(v) - qz.origin[d]) * qz.scale);
+  return c > 0 ? static_cast<std::uint32_t>(std::min(c, 65535.0)) : 0u;
+}
+
+}  // namespace
+
+std::uint64_t hilbert_key16(std::uint32_t x, std::uint32_t y, std::uint32_t z) {
+  std::uint64_t key;
+  hilbert_keys16_lanes(&x, &y, &z, &key, 1);
+  return key;
+}
+
 std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n) {
   // One parallel pass for the queries' box (finite ones only), one for the keys, a radix sort of
   // each thread's part and a merge: the order of the stable sort by (key, index), at a few
@@ -96,10 +165,18 @@ std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n) {
   parallel_for(threads, [&](std::size_t tb, std::size_t te) {
     for (std::size_t t = tb; t < te; ++t) {
       const std::size_t lo = std::min(n, t * per), hi = std::min(n, (t + 1) * per);
-      for (std::size_t i = lo; i < hi; ++i) {
-        const float* q = xyz + 3 * i;
-        const bool ok = std::isfinite(q[0]) && std::isfinite(q[1]) && std::isfinite(q[2]);
-        rows[i] = {ok ? sfc::hilbert_encode(qz.cell(0, q[0]), qz.cell(1, q[1]), qz.cell(2, q[2]), kBits) : last, i};
+      for (std::size_t i0 = lo; i0 < hi; i0 += kLanes) {
+        const std::size_t m = std::min(kLanes, hi - i0);
+        std::uint32_t c[3][kLanes];
+        bool ok[kLanes];
+        for (std::size_t l = 0; l < m; ++l) {
+          const float* q = xyz + 3 * (i0 + l);
+          ok[l] = std::isfinite(q[0]) && std::isfinite(q[1]) && std::isfinite(q[2]);
+          for (int d = 0; d < 3; ++d) c[d][l] = ok[l] ? cell16(qz, d, q[d]) : 0u;
+        }
+        std::uint64_t keys[kLanes];
+        hilbert_keys16_lanes(c[0], c[1], c[2], keys, m);
+        for (std::size_t l = 0; l < m; ++l) rows[i0 + l] = {ok[l] ? keys[l] : last, i0 + l};
       }
       radix_sort_by_key(rows.data() + lo, tmp.data() + lo, hi - lo, 3 * kBits + 1);
     }
