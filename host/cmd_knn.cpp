@@ -87,7 +87,7 @@ Answered answer(const Args& args, const SearchIndex& index, const std::vector<fl
     a.st = query_in_slices(index, queries, a.params, quiet, [&](std::size_t, const KnnResult& part) {
       const auto t0 = std::chrono::steady_clock::now();
       files.append(part);
-      a.commit_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      a.write_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     });
     const auto t0 = std::chrono::steady_clock::now();
     files.commit();  // after the wall time: the files' flush to the disk and their renames
