@@ -23,23 +23,30 @@ struct KeyedRow {
 
 // Stable LSD radix sort by key (11-bit digits; a digit every key shares is skipped): equal keys
 // keep their order, as the sort by (key, index) the build uses. `tmp` is scratch of v's size.
+// Every digit's histogram in one pass, and the two arrays swap roles pass by pass (one copy at
+// the end when the result lies in tmp): the passes only scatter.
 void radix_sort_by_key(KeyedRow* v, KeyedRow* tmp, std::size_t n, int key_bits) {
   constexpr int kDigit = 11;
   constexpr std::size_t kBuckets = std::size_t(1) << kDigit;
-  std::vector<std::size_t> count(kBuckets);
-  for (int shift = 0; shift < key_bits; shift += kDigit) {
-    std::fill(count.begin(), count.end(), 0);
-    for (std::size_t i = 0; i < n; ++i) ++count[(v[i].key >> shift) & (kBuckets - 1)];
-    if (std::find(count.begin(), count.end(), n) != count.end()) continue;  // one digit for all
+  const int digits = (key_bits + kDigit - 1) / kDigit;
+  std::vector<std::size_t> count(kBuckets * static_cast<std::size_t>(digits), 0);
+  for (std::size_t i = 0; i < n; ++i)
+    for (int d = 0; d < digits; ++d) ++count[d * kBuckets + ((v[i].key >> (d * kDigit)) & (kBuckets - 1))];
+  KeyedRow *from = v, *to = tmp;
+  for (int d = 0; d < digits; ++d) {
+    std::size_t* c = &count[d * kBuckets];
+    if (std::find(c, c + kBuckets, n) != c + kBuckets) continue;  // one digit for all
     std::size_t sum = 0;
-    for (auto& c : count) {
-      const std::size_t here = c;
-      c = sum;
+    for (std::size_t j = 0; j < kBuckets; ++j) {
+      const std::size_t here = c[j];
+      c[j] = sum;
       sum += here;
     }
-    for (std::size_t i = 0; i < n; ++i) tmp[count[(v[i].key >> shift) & (kBuckets - 1)]++] = v[i];
-    std::copy(tmp, tmp + n, v);
+    const int shift = d * kDigit;
+    for (std::size_t i = 0; i < n; ++i) to[c[(from[i].key >> shift) & (kBuckets - 1)]++] = from[i];
+    std::swap(from, to);
   }
+  if (from != v) std::copy(from, from + n, v);
 }
 
 }  // namespace
@@ -124,16 +131,20 @@ std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n) {
   std::vector<std::size_t> finite_of(threads, 0);
   parallel_for(threads, [&](std::size_t tb, std::size_t te) {
     for (std::size_t t = tb; t < te; ++t) {
-      auto& bx = boxes[t];
-      for (std::size_t i = t * per; i < std::min(n, (t + 1) * per); ++i) {
-        const float* q = xyz + 3 * i;
-        if (!(std::isfinite(q[0]) && std::isfinite(q[1]) && std::isfinite(q[2]))) continue;
-        ++finite_of[t];
-        for (int d = 0; d < 3; ++d) {
-          bx[d] = std::min(bx[d], double(q[d]));
-          bx[3 + d] = std::max(bx[3 + d], double(q[d]));
-        }
+      // Locals, in float (the box of floats is exact in float): the loop keeps them in registers.
+      float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+      std::size_t count = 0;
+      const std::size_t b = std::min(n, t * per), e = std::min(n, (t + 1) * per);
+      for (std::size_t i = b; i < e; ++i) {
+        const float x = xyz[3 * i], y = xyz[3 * i + 1], z = xyz[3 * i + 2];
+        if (!(std::isfinite(x) && std::isfinite(y) && std::isfinite(z))) continue;
+        ++count;
+        lo[0] = std::min(lo[0], x), hi[0] = std::max(hi[0], x);
+        lo[1] = std::min(lo[1], y), hi[1] = std::max(hi[1], y);
+        lo[2] = std::min(lo[2], z), hi[2] = std::max(hi[2], z);
       }
+      finite_of[t] = count;
+      for (int d = 0; d < 3; ++d) boxes[t][d] = lo[d], boxes[t][3 + d] = hi[d];
     }
   }, threads, 1);
   std::size_t finite = 0;
