@@ -1,6 +1,7 @@
 // bhcl: the blockhash_cl command-line tool. Each sub-command's options are parsed by CLI11
 // (`bhcl CMD --help` lists them). Errors are one line on stderr: exit 2 for a usage mistake,
 // 1 for anything else (bad input, OpenCL failure).
+#include <filesystem>
 #include <limits.h>
 #include <sys/stat.h>
 
@@ -96,11 +97,21 @@ bool run_from_build_tree() {
 
 // PoCL's kernel cache: where the user put it (POCL_CACHE_DIR), else the build tree's for a bhcl
 // run from its build tree, else the user's cache directory ($XDG_CACHE_HOME/blockhash_cl/pocl or
-// ~/.cache/blockhash_cl/pocl). `bhcl devices` shows which.
+// ~/.cache/blockhash_cl/pocl). `bhcl devices` shows which. A folder that cannot be made is left to
+// the library, which falls back to a private temporary one and says so (program_cache.hpp).
+// The library's program binaries go beside PoCL's cache when run from the build tree (its
+// build-tree/program-cache, unless BHCL_CACHE_DIR is set), so that a build tree keeps its own.
 void choose_pocl_cache() {
+#ifdef BHCL_BUILD_TREE
+  const bool in_tree = run_from_build_tree();
+  if (const char* mine = std::getenv("BHCL_CACHE_DIR"); in_tree && !(mine && *mine)) {
+    const std::string dir = (std::filesystem::path(BHCL_BUILD_TREE_POCL_CACHE).parent_path() / "program-cache").string();
+    setenv("BHCL_CACHE_DIR", dir.c_str(), 1);
+  }
+#endif
   if (const char* set = std::getenv("POCL_CACHE_DIR"); set && *set) return;
 #ifdef BHCL_BUILD_TREE
-  if (run_from_build_tree()) {
+  if (in_tree) {
     setenv("POCL_CACHE_DIR", BHCL_BUILD_TREE_POCL_CACHE, 1);
     return;
   }

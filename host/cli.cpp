@@ -169,6 +169,25 @@ void add_query_stats(Json& j, const Index& index, const QueryStats& st) {
   }
 }
 
+Json stages_json(const QueryStats& st, double write_s, double commit_s) {
+  // Where the call's time went, stage by stage (host clock; the kernel's from its events), and
+  // what none of them covers (the exact check's double-precision rows, thread starts, waits).
+  const double named = st.compile_s + st.sort_s + st.upload_s + st.query_s + st.download_s + st.unsort_s;
+  Json j;
+  j["compile_s"] = st.compile_s;
+  j["sort_s"] = st.sort_s;
+  j["upload_s"] = st.upload_s;
+  j["kernel_s"] = st.query_s;
+  j["download_s"] = st.download_s;
+  j["unsort_s"] = st.unsort_s;
+  j["write_s"] = write_s;    // the output files' appends, inside wall_s
+  j["commit_s"] = commit_s;  // their flush and renames, after wall_s
+  j["other_s"] = std::max(0.0, st.wall_s - named - write_s);
+  j["wall_s"] = st.wall_s;
+  j["wall_over_kernel"] = st.query_s > 0 ? st.wall_s / st.query_s : 0.0;
+  return j;
+}
+
 Json inputs_json(const Args& args, std::size_t N, std::size_t n, const SearchParams& p) {
   Json j;
   j["points"] = args.str("points");

@@ -84,6 +84,10 @@ Json stats_header(const std::string& command, const Runtime& rt);
 void add_image_fields(Json& j, const Args& args, const std::string& scene, int width, int height, int spp);
 // The timings and counts of a query call (with the index's build time) into a stats object.
 void add_query_stats(Json& j, const Index& index, const QueryStats& st);
+// The stats file's "stages": compile, sort, upload, kernel, download, unsort, write (the output
+// files' appends, timed by the caller), other (the rest of wall), wall, wall / kernel, and commit
+// (the files' flush and renames after the call).
+Json stages_json(const QueryStats& st, double write_s, double commit_s);
 // The inputs of a knn or eval run: the point and query files, N, n, k and the radius.
 Json inputs_json(const Args& args, std::size_t N, std::size_t n, const SearchParams& p);
 // The build parameters an index actually used (SearchIndex::build_used: derived ones

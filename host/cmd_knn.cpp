@@ -58,6 +58,8 @@ struct Answered {
   QueryStats st;
   SearchParams params;  // kNN: the parameters the batch ran with (SearchIndex::params_for_batch)
   BatchTuning bt;       // kNN: what params_for_batch did
+  double write_s = 0;         // kNN: the output files' appends, inside the query call's wall time
+  double commit_s = 0;        // kNN: their flush to the disk and renames, after it
   std::size_t found = 0;      // neighbours found, or radius results
   std::size_t truncated = 0;  // radius: queries cut at --max-results
 };
@@ -83,9 +85,14 @@ Answered answer(const Args& args, const SearchIndex& index, const std::vector<fl
   } else {
     a.params = index.params_for_batch(queries.data(), n, params, &a.bt);
     KnnOutputs files(args, n, a.params.k);
-    a.st = query_in_slices(index, queries, a.params, quiet,
-                           [&](std::size_t, const KnnResult& part) { files.append(part); });
-    files.commit();
+    a.st = query_in_slices(index, queries, a.params, quiet, [&](std::size_t, const KnnResult& part) {
+      const auto t0 = std::chrono::steady_clock::now();
+      files.append(part);
+      a.write_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    });
+    const auto t0 = std::chrono::steady_clock::now();
+    files.commit();  // after the wall time: the files' flush to the disk and their renames
+    a.commit_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     a.found = files.found();
   }
   return a;
@@ -288,6 +295,7 @@ int run_knn(const Args& args) {
                                {"distribution", bt.distribution}, {"seconds", bt.seconds},
                                {"compile_s", bt.compile_s}};
     add_query_stats(j, *index, st);
+    j["stages"] = stages_json(st, a.write_s, a.commit_s);
     j["neighbours_found"] = found;
     j["memory_bytes"] = index->memory_bytes();
     write_json(args.str("stats"), j);

@@ -317,9 +317,9 @@ class Index:
         recomputed from the caller's points, when the index is refined: make_index's refine) and
         (n, k) int32 indices into the points, each row ascending (FAISS's order); then counts ((n,) int32,
         neighbours found per query) if return_counts, then the stats dict if return_stats (also
-        in last_stats): n_queries, nonfinite_queries, batches, compile_s, upload_s, query_s,
-        download_s, wall_s, queries_per_s, coordinates (see Index.coordinates), and for blockhash
-        the search options used. Block hashing with recall_target, or with neither A nor
+        in last_stats): n_queries, nonfinite_queries, batches, compile_s, sort_s, upload_s,
+        query_s, download_s, unsort_s, wall_s, queries_per_s, coordinates (see
+        Index.coordinates), and for blockhash the search options used. Block hashing with recall_target, or with neither A nor
         recall_target on a block layout (grid=0, the paper preset: target 0.95; the grid's
         default is exact), tunes A on a sample of THIS batch against exact answers, cached per
         k, target and the batch's distribution; the stats then say A, tuned_on ("queries"),

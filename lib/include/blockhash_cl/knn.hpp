@@ -36,6 +36,7 @@
 
 #include <CL/opencl.hpp>
 
+#include <chrono>
 #include <cstddef>
 #include <algorithm>
 #include <cstdint>
@@ -215,9 +216,15 @@ struct QueryStats {
   std::size_t nonfinite_queries = 0;  // queries with NaN/Inf coordinates (empty rows)
   std::size_t batches = 0;            // kernel dispatches
   double compile_s = 0.0;  // program builds and first-launch compiles done during this call
-  double upload_s = 0.0;   // host -> device copies (event times)
+  // The call's stages, in order (host clock unless said): the queries' Hilbert order, the upload
+  // (the queries gathered in that order into the buffer the kernel reads: zero-copy on a CPU
+  // device), the kernel (query_s), the download (results mapped, or copied from a GPU), the
+  // unsort (rows scattered to the caller's order with the exact check), the rest in wall_s.
+  double sort_s = 0.0;
+  double upload_s = 0.0;
   double query_s = 0.0;    // kernel execution (event times), compile excluded
-  double download_s = 0.0; // device -> host copies (event times)
+  double download_s = 0.0;
+  double unsort_s = 0.0;
   double wall_s = 0.0;     // the whole call, host clock (host methods: their search time is query_s)
   double queries_per_s() const { return query_s > 0 ? n_queries / query_s : 0.0; }
   // Every field and queries_per_s as f(name, value): the one list the front ends' stats (bhcl's
@@ -228,9 +235,11 @@ struct QueryStats {
     f("nonfinite_queries", nonfinite_queries);
     f("batches", batches);
     f("compile_s", compile_s);
+    f("sort_s", sort_s);
     f("upload_s", upload_s);
     f("query_s", query_s);
     f("download_s", download_s);
+    f("unsort_s", unsort_s);
     f("wall_s", wall_s);
     f("queries_per_s", queries_per_s());
   }
@@ -240,9 +249,11 @@ struct QueryStats {
     nonfinite_queries += s.nonfinite_queries;
     batches += s.batches;
     compile_s += s.compile_s;
+    sort_s += s.sort_s;
     upload_s += s.upload_s;
     query_s += s.query_s;
     download_s += s.download_s;
+    unsort_s += s.unsort_s;
   }
 };
 
@@ -565,6 +576,23 @@ class Index : public SearchIndex {
   std::int32_t id_bound_ = 0;
   std::vector<bool> removed_;
   std::size_t removed_n_ = 0;
+  // The host-array query's buffers, kept from call to call (query_on_device).
+  struct QueryBuffers {
+    cl::Buffer q, ids, dist2, counts, examined_buf;
+    std::size_t rows = 0, k = 0;
+    bool host = false;  // host memory the device uses in place (a CPU device)
+    bool examined() const { return examined_buf() != nullptr; }
+  };
+  void take_query_buffers(std::size_t rows, std::size_t k, bool examined, QueryBuffers& b) const;
+  void give_back_query_buffers(QueryBuffers&& b) const;
+  // A device method's host-array query: queries gathered in `order` (null: as given) into the
+  // kernel's buffer, rows scattered back to the caller's order, suspect rows answered exactly.
+  void query_on_device(const float* caller_queries, std::size_t n, const std::size_t* order,
+                       const SearchParams& params, KnnResult& out, QueryStats& st) const;
+  QueryStats query_host_method(const float* queries, std::size_t n, const SearchParams& params,
+                               KnnResult& out, bool sort, std::chrono::steady_clock::time_point t0) const;
+  mutable std::mutex io_mutex_;
+  mutable QueryBuffers io_cache_;
   mutable std::mutex warm_mutex_;
   // (kmax, local size, defines); kmax 0: the radius kernels.
   mutable std::set<std::tuple<int, std::size_t, std::string>> warmed_;

@@ -73,8 +73,16 @@ class Runtime {
 
   // Builds (or returns the cached) program of a kernels/ file with the given extra options.
   // "-cl-std=CL1.2" and the quirks' options are always added. Cached per context, device, file
-  // and options. Throws BuildError with the log on failure.
+  // and options, in the process and across processes (the library's program binary cache: a
+  // warm process builds from the stored binary in about a millisecond; see program_cache.hpp).
+  // Throws BuildError with the log on failure.
   cl::Program program(const std::string& file, const std::string& options = {}) const;
+
+  // After first launches: the binaries of the programs this process built from source, which now
+  // hold the machine code compiled for those launches, replace the stored ones when they grew
+  // (the library's program cache, lib/src/core/program_cache.hpp), so that the next process
+  // loads them instead of compiling.
+  void keep_program_binaries() const;
 
   // Builds a program from source text (not cached); for tests and user kernels.
   cl::Program build_source(const std::string& source, const std::string& options,
@@ -93,6 +101,9 @@ class Runtime {
  private:
   void init_from(const DeviceInfo& info);
   void make_warm_queue();
+  std::string binary_key(const std::string& full_options, const std::string& source) const;
+  // A program from a stored binary, built; an empty one when the driver refuses the binary.
+  cl::Program build_binary(const std::vector<unsigned char>& binary, const std::string& name) const;
 
   cl::Context context_;
   cl::Device device_;

@@ -303,6 +303,7 @@ double Index::warm_up(const SearchParams& params) const {
   // On the library's own queue: the caller's queue may hold commands gated by a user event.
   cl::Event e = enqueue_batch(runtime_->warm_queue(), q, 0, 0, rb, params, local, nullptr);
   check_cl(e.wait(), "clWaitForEvents", method() + " warm-up");
+  runtime_->keep_program_binaries();  // the launch compiled this local size: kept for later processes
   warmed_.insert(key);
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
@@ -402,6 +403,12 @@ cl::Event Index::enqueue_query(const cl::CommandQueue& queue, const cl::Buffer& 
   return detail::launch_1d(queue, back, nk, local, &w1, "bhcl_scale_in_place");
 }
 
+namespace {
+double seconds_since(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+}  // namespace
+
 QueryStats Index::query(const float* queries, std::size_t n, const SearchParams& params,
                         KnnResult& out) const {
   auto t0 = std::chrono::steady_clock::now();
@@ -409,11 +416,244 @@ QueryStats Index::query(const float* queries, std::size_t n, const SearchParams&
   check_params(params);
   const bool sort = params.sort_queries > 0 || (params.sort_queries < 0 && n >= kAutoSortQueries);
   // Sizes before allocation: a result that cannot fit is refused with what it needs, before any
-  // search (the Hilbert-ordered path holds the rows twice).
+  // search (the Hilbert-ordered path holds the rows twice: the caller's and the device's).
   check_result_memory(n, params.k, params.count_examined, sort && n > 1 ? 2 : 1, method());
+  if (answers_on_host()) return query_host_method(queries, n, params, out, sort, t0);
+  QueryStats st;
+  st.n_queries = n;
+  // Dispatch in Hilbert order (neighbouring work-items walk the same cells), rows written in the
+  // caller's order as they come off the device: no second pass over the result.
+  std::vector<std::size_t> order;
+  if (sort && n > 1) {
+    const auto ts = std::chrono::steady_clock::now();
+    order = detail::hilbert_query_order(queries, n);
+    st.sort_s = seconds_since(ts);
+  }
+  for (std::size_t i = 0; i < n; ++i) {
+    const float* q = queries + 3 * i;
+    if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2])) ++st.nonfinite_queries;
+  }
+  // Every row is written by the scatter below: sized, not filled (a filled result is a pass of
+  // its own; a result reused from the caller's last call costs nothing here).
+  const std::size_t k = static_cast<std::size_t>(params.k);
+  out.n = n;
+  out.k = params.k;
+  out.ids.resize(n * k);
+  out.dist2.resize(n * k);
+  out.counts.resize(n);
+  if (params.count_examined) out.examined.resize(n);
+  else out.examined.clear();
+  if (n > 0) query_on_device(queries, n, order.empty() ? nullptr : order.data(), params, out, st);
+  st.wall_s = seconds_since(t0);
+  return st;
+}
+
+namespace {
+// Host buffers a CPU device reads and writes in place (zero-copy: PoCL's kernels use the host
+// memory itself); a GPU gets device memory and copies.
+cl::Buffer io_buffer(const Runtime& rt, bool host_visible, std::size_t bytes, const char* what) {
+  if (!host_visible) return detail::device_buffer(rt, bytes, what);
+  cl_int err = CL_SUCCESS;
+  cl::Buffer b(rt.context(), CL_MEM_READ_WRITE | CL_MEM_ALLOC_HOST_PTR, std::max<std::size_t>(bytes, 4), nullptr, &err);
+  check_cl(err, "clCreateBuffer", std::string(what) + " (host memory), " + std::to_string(bytes) + " bytes");
+  return b;
+}
+
+// A mapped region of a buffer, unmapped when done (also on an exception).
+class Mapped {
+ public:
+  Mapped(const cl::CommandQueue& q, const cl::Buffer& b, cl_map_flags flags, std::size_t bytes, const char* what)
+      : q_(q), b_(b) {
+    cl_int err = CL_SUCCESS;
+    ptr_ = q.enqueueMapBuffer(b, CL_TRUE, flags, 0, std::max<std::size_t>(bytes, 4), nullptr, nullptr, &err);
+    check_cl(err, "clEnqueueMapBuffer", what);
+  }
+  ~Mapped() {
+    if (ptr_) q_.enqueueUnmapMemObject(b_, ptr_);
+  }
+  Mapped(const Mapped&) = delete;
+  Mapped& operator=(const Mapped&) = delete;
+  void unmap(const char* what) {
+    cl::Event e;
+    check_cl(q_.enqueueUnmapMemObject(b_, ptr_, nullptr, &e), "clEnqueueUnmapMemObject", what);
+    ptr_ = nullptr;
+  }
+  template <typename T>
+  T* as() const { return static_cast<T*>(ptr_); }
+
+ private:
+  const cl::CommandQueue& q_;
+  const cl::Buffer& b_;
+  void* ptr_ = nullptr;
+};
+}  // namespace
+
+void Index::take_query_buffers(std::size_t rows, std::size_t k, bool examined, QueryBuffers& b) const {
+  {
+    std::lock_guard<std::mutex> lock(io_mutex_);
+    if (io_cache_.rows >= rows && io_cache_.k == k && (io_cache_.examined() || !examined)) {
+      b = std::move(io_cache_);
+      io_cache_ = QueryBuffers{};
+      return;
+    }
+  }
+  const Runtime& rt = *runtime_;
+  b.host = (rt.info().type & CL_DEVICE_TYPE_CPU) != 0;
+  b.rows = rows;
+  b.k = k;
+  b.q = io_buffer(rt, b.host, rows * 3 * sizeof(float), "queries");
+  b.ids = io_buffer(rt, b.host, rows * k * sizeof(std::int32_t), "ids");
+  b.dist2 = io_buffer(rt, b.host, rows * k * sizeof(float), "dist2");
+  b.counts = io_buffer(rt, b.host, rows * sizeof(std::int32_t), "counts");
+  if (examined) b.examined_buf = io_buffer(rt, b.host, rows * sizeof(std::int32_t), "examined");
+}
+
+void Index::give_back_query_buffers(QueryBuffers&& b) const {
+  // Kept for the next call (its pages are mapped already: fresh ones fault on every 4 KiB),
+  // up to the bound on scratch memory.
+  if (b.rows * (8 * b.k + 20) > kSortScratchBytes) return;
+  std::lock_guard<std::mutex> lock(io_mutex_);
+  if (b.rows >= io_cache_.rows) io_cache_ = std::move(b);
+}
+
+void Index::query_on_device(const float* caller_queries, std::size_t n, const std::size_t* order,
+                            const SearchParams& params, KnnResult& out, QueryStats& st) const {
+  const Runtime& rt = *runtime_;
+  const cl::CommandQueue& queue = rt.queue();
+  const std::size_t k = static_cast<std::size_t>(params.k);
+  const SearchParams sp = scaled(params);
+  const float r2s = detail::squared_radius(sp.max_radius);
+  const bool check = exact() && !caller_points_.empty();
+  const bool tiny_radius = r2s > 0 && r2s < kTrustedMin;
+  const int full = static_cast<int>(std::min<std::size_t>(k, size()));
+  // Host chunks bound the device memory of one call: results are 8*k bytes per query.
+  std::size_t chunk = std::max<std::size_t>(1, (std::size_t(256) << 20) / (8 * k + 12));
+  if (rt.info().max_alloc_bytes)
+    chunk = std::min<std::size_t>(chunk, std::max<std::size_t>(1, rt.info().max_alloc_bytes / (4 * k)));
+  chunk = std::min(chunk, n);
+  QueryBuffers b;
+  take_query_buffers(chunk, k, params.count_examined, b);
+  ResultBuffers rb{b.ids, b.dist2, b.counts};
+  if (params.count_examined) rb.examined = b.examined_buf;
+  std::vector<float> qstage;  // device memory only: the gathered queries before their copy
+  std::vector<std::int32_t> ids_stage, counts_stage, examined_stage;
+  std::vector<float> dist2_stage;
+  std::vector<std::size_t> suspects;
+  std::mutex suspects_mutex;
+  for (std::size_t first = 0; first < n; first += chunk) {
+    const std::size_t m = std::min(chunk, n - first);
+    const auto src = [&](std::size_t i) { return order ? order[first + i] : first + i; };
+    // Upload, fused with the sort: each query gathered from the caller's array in dispatch order
+    // (and scaled, at extreme scales) straight into the buffer the kernel reads.
+    auto tu = std::chrono::steady_clock::now();
+    {
+      std::unique_ptr<Mapped> map;
+      float* dst;
+      if (b.host) {
+        map = std::make_unique<Mapped>(queue, b.q, CL_MAP_WRITE_INVALIDATE_REGION, m * 3 * sizeof(float), "queries");
+        dst = map->as<float>();
+      } else {
+        qstage.resize(3 * m);
+        dst = qstage.data();
+      }
+      detail::parallel_for(m, [&](std::size_t lo, std::size_t hi) {
+        for (std::size_t i = lo; i < hi; ++i) {
+          const float* q = caller_queries + 3 * src(i);
+          for (int d = 0; d < 3; ++d) dst[3 * i + d] = scale_exp_ ? std::ldexp(q[d], -scale_exp_) : q[d];
+        }
+      }, 0, 16384);
+      if (map) map->unmap("queries");
+      else check_cl(queue.enqueueWriteBuffer(b.q, CL_FALSE, 0, m * 3 * sizeof(float), dst), "clEnqueueWriteBuffer", "queries");
+    }
+    st.upload_s += seconds_since(tu);
+    std::vector<cl::Event> kernels;
+    enqueue_impl(queue, b.q, m, rb, sp, nullptr, &kernels, &st.compile_s);
+    check_cl(queue.finish(), "clFinish", method() + " query");
+    for (const auto& e : kernels) st.query_s += event_seconds(e);
+    st.batches += kernels.size();
+    // Download: mapped in place on a CPU device (no copy), read on a GPU.
+    auto td = std::chrono::steady_clock::now();
+    std::unique_ptr<Mapped> mids, mdist2, mcounts, mexam;
+    const std::int32_t *ids, *counts, *exam = nullptr;
+    const float* dist2;
+    if (b.host) {
+      mids = std::make_unique<Mapped>(queue, b.ids, CL_MAP_READ, m * k * 4, "ids");
+      mdist2 = std::make_unique<Mapped>(queue, b.dist2, CL_MAP_READ, m * k * 4, "dist2");
+      mcounts = std::make_unique<Mapped>(queue, b.counts, CL_MAP_READ, m * 4, "counts");
+      if (params.count_examined) mexam = std::make_unique<Mapped>(queue, b.examined_buf, CL_MAP_READ, m * 4, "examined");
+      ids = mids->as<std::int32_t>();
+      dist2 = mdist2->as<float>();
+      counts = mcounts->as<std::int32_t>();
+      if (mexam) exam = mexam->as<std::int32_t>();
+    } else {
+      ids_stage.resize(m * k);
+      dist2_stage.resize(m * k);
+      counts_stage.resize(m);
+      check_cl(queue.enqueueReadBuffer(b.ids, CL_FALSE, 0, m * k * 4, ids_stage.data()), "clEnqueueReadBuffer", "ids");
+      check_cl(queue.enqueueReadBuffer(b.dist2, CL_FALSE, 0, m * k * 4, dist2_stage.data()), "clEnqueueReadBuffer", "dist2");
+      check_cl(queue.enqueueReadBuffer(b.counts, CL_FALSE, 0, m * 4, counts_stage.data()), "clEnqueueReadBuffer", "counts");
+      if (params.count_examined) {
+        examined_stage.resize(m);
+        check_cl(queue.enqueueReadBuffer(b.examined_buf, CL_FALSE, 0, m * 4, examined_stage.data()),
+                 "clEnqueueReadBuffer", "examined");
+        exam = examined_stage.data();
+      }
+      check_cl(queue.finish(), "clFinish", method() + " results");
+      ids = ids_stage.data();
+      dist2 = dist2_stage.data();
+      counts = counts_stage.data();
+    }
+    st.download_s += seconds_since(td);
+    // Unsort: each row to the caller's place, its distances back to the caller's scale, and the
+    // rows the float search cannot vouch for noted, in one parallel pass.
+    auto tw = std::chrono::steady_clock::now();
+    detail::parallel_for(m, [&](std::size_t lo, std::size_t hi) {
+      std::vector<std::size_t> mine;
+      for (std::size_t i = lo; i < hi; ++i) {
+        const std::size_t row = src(i);
+        const std::int32_t* ri = ids + i * k;
+        const float* rd = dist2 + i * k;
+        const int c = counts[i];
+        if (check) {
+          const float* q = caller_queries + 3 * row;
+          if (std::isfinite(q[0]) && std::isfinite(q[1]) && std::isfinite(q[2])) {
+            bool bad = tiny_radius || (std::isinf(r2s) && c < full);
+            for (int j = 0; j < c && !bad; ++j) bad = entry_suspect(q, ri[j], rd[j]);
+            if (bad) mine.push_back(row);
+          }
+        }
+        std::copy_n(ri, k, &out.ids[row * k]);
+        if (scale_exp_) {
+          for (std::size_t j = 0; j < k; ++j) out.dist2[row * k + j] = std::ldexp(rd[j], 2 * scale_exp_);
+        } else {
+          std::copy_n(rd, k, &out.dist2[row * k]);
+        }
+        out.counts[row] = c;
+        if (exam) out.examined[row] = exam[i];
+      }
+      if (!mine.empty()) {
+        std::lock_guard<std::mutex> lock(suspects_mutex);
+        suspects.insert(suspects.end(), mine.begin(), mine.end());
+      }
+    }, 0, 8192);
+    st.unsort_s += seconds_since(tw);
+  }
+  // The last chunk's unmaps done before its buffers serve another call.
+  check_cl(queue.finish(), "clFinish", method() + " query");
+  give_back_query_buffers(std::move(b));
+  // The threads' lists in row order: the answers do not depend on the thread count.
+  std::sort(suspects.begin(), suspects.end());
+  answer_rows_exactly(caller_queries, suspects, params, out);
+}
+
+QueryStats Index::query_host_method(const float* queries, std::size_t n, const SearchParams& params,
+                                    KnnResult& out, bool sort,
+                                    std::chrono::steady_clock::time_point t0) const {
   if (sort && n > 1) {
     // Dispatch in Hilbert order, return rows in the caller's order.
+    const auto ts = std::chrono::steady_clock::now();
     std::vector<std::size_t> order = detail::hilbert_query_order(queries, n);
+    const double sort_s = seconds_since(ts);
     const std::vector<float> sorted = detail::queries_in_order(queries, order);
     SearchParams p = params;
     p.sort_queries = 0;
@@ -424,6 +664,8 @@ QueryStats Index::query(const float* queries, std::size_t n, const SearchParams&
     KnnResult& tmp = rows;
     out.resize(n, params.k);  // before the search: a result that cannot be held fails first
     QueryStats st = query(sorted.data(), n, p, tmp);
+    st.sort_s = sort_s;
+    const auto tu = std::chrono::steady_clock::now();
     const std::size_t k = static_cast<std::size_t>(params.k);
     detail::parallel_for(n, [&](std::size_t b, std::size_t e) {
       for (std::size_t i = b; i < e; ++i) {
@@ -437,6 +679,7 @@ QueryStats Index::query(const float* queries, std::size_t n, const SearchParams&
       for (std::size_t i = 0; i < n; ++i) out.examined[order[i]] = tmp.examined[i];
     }
     if (tmp.ids.capacity() * 8 > kSortScratchBytes) tmp = KnnResult{};  // kept only up to the bound
+    st.unsort_s = seconds_since(tu);
     st.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     return st;
   }
@@ -465,56 +708,9 @@ QueryStats Index::query(const float* queries, std::size_t n, const SearchParams&
     if (scale_exp_ != 0)
       ldexp_all(d2, d2, count, 2 * scale_exp_);
   };
-  if (answers_on_host()) {
-    st.query_s = host_search(queries, n, sp, out);
-    collect_suspect_rows(caller_queries, 0, n, r2s, out, suspects);
-    unscale(out.dist2.data(), out.dist2.size());
-    answer_rows_exactly(caller_queries, suspects, params, out);
-    st.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    return st;
-  }
-  const Runtime& rt = *runtime_;
-  const cl::CommandQueue& queue = rt.queue();
-  const std::size_t k = static_cast<std::size_t>(params.k);
-  // Host chunks bound the device memory of one call: results are 8*k bytes per query.
-  std::size_t chunk = std::max<std::size_t>(1, (std::size_t(256) << 20) / (8 * k + 12));
-  if (rt.info().max_alloc_bytes)
-    chunk = std::min<std::size_t>(chunk, std::max<std::size_t>(1, rt.info().max_alloc_bytes / (4 * k)));
-  chunk = std::min(chunk, n);
-  auto make = [&](std::size_t bytes, const char* what) { return detail::device_buffer(rt, bytes, what); };
-  cl::Buffer qbuf = make(chunk * 3 * sizeof(float), "queries");
-  ResultBuffers rb{make(chunk * k * sizeof(std::int32_t), "ids"), make(chunk * k * sizeof(float), "dist2"),
-                   make(chunk * sizeof(std::int32_t), "counts")};
-  if (params.count_examined) rb.examined = make(chunk * sizeof(std::int32_t), "examined");
-  for (std::size_t first = 0; first < n; first += chunk) {
-    std::size_t m = std::min(chunk, n - first);
-    cl::Event up, d1, d2, d3;
-    check_cl(queue.enqueueWriteBuffer(qbuf, CL_FALSE, 0, m * 3 * sizeof(float), queries + 3 * first,
-                                      nullptr, &up),
-             "clEnqueueWriteBuffer", "queries");
-    std::vector<cl::Event> kernels;
-    enqueue_impl(queue, qbuf, m, rb, sp, nullptr, &kernels, &st.compile_s);
-    check_cl(queue.enqueueReadBuffer(rb.ids, CL_FALSE, 0, m * k * sizeof(std::int32_t),
-                                     out.ids.data() + first * k, nullptr, &d1),
-             "clEnqueueReadBuffer", "ids");
-    check_cl(queue.enqueueReadBuffer(rb.dist2, CL_FALSE, 0, m * k * sizeof(float),
-                                     out.dist2.data() + first * k, nullptr, &d2),
-             "clEnqueueReadBuffer", "dist2");
-    check_cl(queue.enqueueReadBuffer(rb.counts, CL_FALSE, 0, m * sizeof(std::int32_t),
-                                     out.counts.data() + first, nullptr, &d3),
-             "clEnqueueReadBuffer", "counts");
-    if (params.count_examined)
-      check_cl(queue.enqueueReadBuffer(rb.examined, CL_FALSE, 0, m * sizeof(std::int32_t),
-                                       out.examined.data() + first),
-               "clEnqueueReadBuffer", "examined");
-    check_cl(queue.finish(), "clFinish", method() + " query");
-    st.upload_s += event_seconds(up);
-    for (const auto& e : kernels) st.query_s += event_seconds(e);
-    st.download_s += event_seconds(d1) + event_seconds(d2) + event_seconds(d3);
-    st.batches += kernels.size();
-    collect_suspect_rows(caller_queries, first, m, r2s, out, suspects);
-    unscale(out.dist2.data() + first * k, m * k);
-  }
+  st.query_s = host_search(queries, n, sp, out);
+  collect_suspect_rows(caller_queries, 0, n, r2s, out, suspects);
+  unscale(out.dist2.data(), out.dist2.size());
   answer_rows_exactly(caller_queries, suspects, params, out);
   st.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return st;

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <cstddef>
+#include <cstdint>
 #include <vector>
 
 namespace bhcl::detail {
@@ -12,6 +13,9 @@ namespace bhcl::detail {
 // (16 bits per axis); queries with a non-finite coordinate go last, in their own order.
 // order[i] = the caller's index of the i-th query to dispatch.
 std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n);
+
+// sfc::hilbert_encode(x, y, z, 16), computed without branches (the query order's keys).
+std::uint64_t hilbert_key16(std::uint32_t x, std::uint32_t y, std::uint32_t z);
 
 // The queries in that order: row i of the result is row order[i] of xyz (n x 3).
 std::vector<float> queries_in_order(const float* xyz, const std::vector<std::size_t>& order);

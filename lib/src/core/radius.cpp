@@ -277,6 +277,7 @@ double Index::warm_up_radius(const cl::Buffer& queries, const RadiusBuffers& rb,
     cl::Event w = enqueue_radius_batch(runtime().warm_queue(), queries, 0, 0, r2, pass, rb, params, local, nullptr);
     check_cl(w.wait(), "clWaitForEvents", method() + " radius warm-up");
   }
+  runtime().keep_program_binaries();  // the launches compiled this local size: kept for later processes
   warmed_.insert(key);
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }

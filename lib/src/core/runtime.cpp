@@ -13,6 +13,7 @@
 
 #include "blockhash_cl/error.hpp"
 #include "blockhash_cl/numbers.hpp"
+#include "core/program_cache.hpp"
 
 namespace bhcl {
 namespace detail {
@@ -113,6 +114,27 @@ std::map<ProgramKey, cl::Program>& program_cache() {
   static std::map<ProgramKey, cl::Program> cache;
   return cache;
 }
+// Per program: its binary cache file and the size of the binary last stored or loaded there (a
+// later launch that compiled more work-group functions grows the binary: stored again).
+struct StoredBinary {
+  detail::ProgramBinaryCache file;
+  std::size_t bytes = 0;
+  bool fresh = false;  // built from source in this process: its first launches grow the binary
+};
+std::map<ProgramKey, StoredBinary>& stored_binaries() {
+  static std::map<ProgramKey, StoredBinary> m;
+  return m;
+}
+
+// The binary of a built program for its one device (empty when the driver gives none).
+std::vector<unsigned char> program_binary(const cl::Program& p) {
+  std::vector<std::size_t> sizes;
+  if (p.getInfo(CL_PROGRAM_BINARY_SIZES, &sizes) != CL_SUCCESS || sizes.size() != 1 || sizes[0] == 0) return {};
+  std::vector<unsigned char> bin(sizes[0]);
+  unsigned char* ptr = bin.data();
+  if (clGetProgramInfo(p(), CL_PROGRAM_BINARIES, sizeof ptr, &ptr, nullptr) != CL_SUCCESS) return {};
+  return bin;
+}
 
 }  // namespace
 
@@ -132,6 +154,8 @@ std::string DeviceInfo::summary() const {
 
 std::vector<DeviceInfo> list_devices() {
   std::vector<DeviceInfo> out;
+  // PoCL reads its cache folder at its first call: a folder it cannot make must be replaced now.
+  detail::ensure_pocl_cache_usable();
   std::vector<cl::Platform> platforms;
   if (cl::Platform::get(&platforms) != CL_SUCCESS) return out;  // no ICD: no devices
   for (size_t pi = 0; pi < platforms.size(); ++pi) {
@@ -309,10 +333,86 @@ cl::Program Runtime::program(const std::string& file, const std::string& options
     if (it != program_cache().end()) return it->second;
   }
   std::string source = kernel_source(file);
-  dump_program(file, source, build_options(options));
-  cl::Program p = build_source(source, options, file);
+  const std::string opts = build_options(options);
+  dump_program(file, source, opts);
+  detail::ProgramBinaryCache stored(file, binary_key(opts, source));
+  std::size_t stored_bytes = 0;
+  bool fresh = false;
+  cl::Program p;
+  if (auto bin = stored.load()) {
+    stored_bytes = bin->size();
+    p = build_binary(*bin, file);
+  }
+  if (!p()) {
+    // PoCL re-reads its own cache on a build from source: its damaged files are removed first.
+    if (info_.is_pocl) detail::check_pocl_cache_once();
+    p = build_source(source, options, file);
+    const std::vector<unsigned char> bin = stored.enabled() ? program_binary(p) : std::vector<unsigned char>();
+    stored.store(bin);
+    stored_bytes = bin.size();
+    fresh = stored.enabled();
+  }
   std::lock_guard<std::mutex> lock(cache_mutex());
+  stored_binaries().insert_or_assign(key, StoredBinary{stored, stored_bytes, fresh});
   return program_cache().emplace(key, p).first->second;
+}
+
+std::string Runtime::binary_key(const std::string& full_options, const std::string& source) const {
+  // Everything the compiled program depends on; the driver version carries PoCL's version.
+  return "blockhash_cl program 1\n" + info_.platform_name + "\n" + info_.platform_version + "\n" +
+         info_.device_name + "\n" + info_.device_vendor + "\n" + info_.driver_version + "\n" +
+         full_options + "\n" + source;
+}
+
+cl::Program Runtime::build_binary(const std::vector<unsigned char>& bin, const std::string& name) const {
+  // The program's folder in PoCL's cache is checked first: PoCL loads what it finds there.
+  if (info_.is_pocl) detail::check_pocl_program_folder(bin);
+  auto t0 = std::chrono::steady_clock::now();
+  cl_int err = CL_SUCCESS, status = CL_SUCCESS;
+  const unsigned char* ptr = bin.data();
+  const std::size_t size = bin.size();
+  cl_device_id dev = device_();
+  cl_program raw = clCreateProgramWithBinary(context_(), 1, &dev, &size, &ptr, &status, &err);
+  cl::Program p;
+  if (err == CL_SUCCESS && status == CL_SUCCESS) {
+    p = cl::Program(raw);
+    err = p.build(std::vector<cl::Device>{device_}, build_options("").c_str());
+  } else if (raw) {
+    clReleaseProgram(raw);
+  }
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    build_seconds_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  }
+  if (err == CL_SUCCESS && status == CL_SUCCESS) return p;
+  // A binary the driver no longer takes (another build of it with the same version string):
+  // compiled again from source, and said once.
+  detail::note_once("program-binary-refused", "the driver refused the cached program binary of " + name +
+                                                  " (OpenCL error " + std::to_string(err != CL_SUCCESS ? err : status) +
+                                                  "); compiled from source");
+  return cl::Program();
+}
+
+void Runtime::keep_program_binaries() const {
+  // Programs loaded from a stored binary are left as they are: re-reading a binary costs PoCL a
+  // walk of its cache folder, which a warm process should not pay.
+  std::vector<std::pair<ProgramKey, cl::Program>> fresh;
+  {
+    std::lock_guard<std::mutex> lock(cache_mutex());
+    for (auto& [key, st] : stored_binaries())
+      if (st.fresh && key.context == context_() && key.device == device_()) {
+        st.fresh = false;
+        fresh.emplace_back(key, program_cache().at(key));
+      }
+  }
+  for (const auto& [key, p] : fresh) {
+    const std::vector<unsigned char> bin = program_binary(p);
+    std::lock_guard<std::mutex> lock(cache_mutex());
+    StoredBinary& st = stored_binaries().at(key);
+    if (bin.size() == st.bytes) continue;
+    st.file.store(bin);
+    st.bytes = bin.size();
+  }
 }
 
 cl::Kernel Runtime::kernel(const std::string& file, const std::string& kernel_name,

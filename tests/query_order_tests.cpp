@@ -1,0 +1,49 @@
+// The query path's Hilbert order (core/query_order.cpp): its branch-free keys equal the curve's
+// reference encoder, and the parallel radix sort gives the stable sort by (key, index).
+#include <doctest/doctest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <random>
+#include <vector>
+
+#include "core/query_order.hpp"
+#include "sfc/hilbert.hpp"
+#include "test_util.hpp"
+
+TEST_CASE("query order: branch-free 16-bit Hilbert keys equal sfc::hilbert_encode") {
+  std::mt19937 rng(7);
+  std::uniform_int_distribution<std::uint32_t> cell(0, 0xffff);
+  const std::uint32_t edges[] = {0, 1, 2, 0x7fff, 0x8000, 0xfffe, 0xffff};
+  for (std::uint32_t x : edges)
+    for (std::uint32_t y : edges)
+      for (std::uint32_t z : edges) REQUIRE(bhcl::detail::hilbert_key16(x, y, z) == bhcl::sfc::hilbert_encode(x, y, z, 16));
+  for (int i = 0; i < 200000; ++i) {
+    const std::uint32_t x = cell(rng), y = cell(rng), z = cell(rng);
+    REQUIRE(bhcl::detail::hilbert_key16(x, y, z) == bhcl::sfc::hilbert_encode(x, y, z, 16));
+  }
+}
+
+TEST_CASE("query order: the parallel order equals the stable sort by (key, index), non-finite last") {
+  // 50k queries (over the threaded path's threshold) with duplicates (equal keys) and NaNs.
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> u(-5.0f, 5.0f);
+  const std::size_t n = 50000;
+  std::vector<float> q(3 * n);
+  for (auto& v : q) v = u(rng);
+  for (std::size_t i = 0; i < n; i += 7) std::copy_n(&q[0], 3, &q[3 * i]);  // many equal keys
+  for (std::size_t i = 5; i < n; i += 1001) q[3 * i + 1] = NAN;
+  const std::vector<std::size_t> got = bhcl::detail::hilbert_query_order(q.data(), n);
+  // The reference: the finite queries' keys over their own box, sorted stably, then the rest.
+  std::vector<std::size_t> finite, rest;
+  for (std::size_t i = 0; i < n; ++i)
+    (std::isfinite(q[3 * i]) && std::isfinite(q[3 * i + 1]) && std::isfinite(q[3 * i + 2]) ? finite : rest).push_back(i);
+  std::vector<float> compact;
+  for (std::size_t i : finite) compact.insert(compact.end(), &q[3 * i], &q[3 * i] + 3);
+  const auto qz = bhcl::sfc::make_quantiser(compact.data(), finite.size(), 16);
+  const auto keys = bhcl::sfc::hilbert_keys(compact.data(), finite.size(), qz);
+  std::vector<std::size_t> want;
+  for (std::int32_t j : bhcl::sfc::hilbert_order(keys)) want.push_back(finite[static_cast<std::size_t>(j)]);
+  want.insert(want.end(), rest.begin(), rest.end());
+  CHECK(got == want);
+}
