@@ -330,6 +330,9 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_walk_depth_first(BHCL_GLOBAL const bhcl_u32*
  * into the queue: near the fine cells the depth-first child order is as good and costs no queue
  * moves. A constant, not a define: the host reference must walk the same way. */
 #define BHCL_GRID_WALK_DF_LEVEL 2u
+#ifndef BHCL_GRID_WALK_DESCEND
+#define BHCL_GRID_WALK_DESCEND 1
+#endif
 typedef struct bhcl_grid_walk_queue {
   float d[BHCL_GRID_WALKBUF];
   bhcl_u32 xl[BHCL_GRID_WALKBUF]; /* X | level << 27 */
@@ -341,9 +344,11 @@ typedef struct bhcl_grid_walk_queue {
  * around the home cell c (which the rings have accounted for) that the pyramid shows occupied and
  * whose slabs come within the bound. walk_cap 0: depth-first from the top
  * (bhcl_grid_walk_depth_first; no private queue, the GPU form). walk_cap > 0 (<= BHCL_GRID_WALKBUF):
- * best-first, the nearest node of a queue of walk_cap expanded first and its fine cells scanned as
- * met, so that the first points found are the nearest and the bound tightens before the far nodes
- * are reached (a query between two clusters no longer scans the far one first); a child that
+ * best-first, the nearest node of a queue of walk_cap popped first and followed down into its
+ * nearest child level by level (its other children queued), its fine cells scanned as met, so
+ * that the first points found are near and the bound tightens before the far nodes are reached (a
+ * query between two clusters no longer scans the far one first; one over a surface no longer
+ * expands every coarse node nearer than the surface before it reaches a point); a child that
  * finds the queue full is walked depth-first at once. Either order visits every node within the
  * final bound, so the rows are the same. Returns the points examined (`examined` on entry: the
  * rings'). */
@@ -385,39 +390,55 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search_far(BHCL_GLOBAL const bhcl_u32* start
   while (nq > 0u) {
     --nq;
     if (qu.d[nq] > BHCL_GRID_BOUND(st)) break; /* the rest are farther still */
-    const bhcl_u32 l = qu.xl[nq] >> 27, X = qu.xl[nq] & 0x07ffffffu, Y = qu.y[nq], Z = qu.z[nq];
-    const bhcl_u32 off = qu.off[nq];
-    if (l <= BHCL_GRID_WALK_DF_LEVEL) {
-      examined = bhcl_grid_walk_depth_first(starts, px, py, pz, pid, occ, w, l, X, Y, Z, off, examined, budget, st);
-      if (examined >= budget) return examined;
-      continue;
-    }
-    const bhcl_u32 m = l - 1u, moff = off - bhcl_grid_occ_size(g, m);
-    const bhcl_u32 mask = occ[bhcl_grid_occ_index(g, off, l, X, Y, Z)];
-    for (bhcl_u32 o = 0u; o < 8u; ++o) {
-      if (!((mask >> o) & 1u)) continue;
-      bhcl_u32 ux, uy, uz;
-      const float d = bhcl_grid_walk_child(w, m, X, Y, Z, o, &ux, &uy, &uz);
-      if (d < 0.0f || d > BHCL_GRID_BOUND(st)) continue;
-      if (nq < walk_cap) { /* m >= BHCL_GRID_WALK_DF_LEVEL: never a fine cell */
-        bhcl_u32 j = nq++;
-        while (j > 0u && qu.d[j - 1u] < d) {
-          qu.d[j] = qu.d[j - 1u];
-          qu.xl[j] = qu.xl[j - 1u];
-          qu.y[j] = qu.y[j - 1u];
-          qu.z[j] = qu.z[j - 1u];
-          qu.off[j] = qu.off[j - 1u];
-          --j;
-        }
-        qu.d[j] = d;
-        qu.xl[j] = ux | (m << 27);
-        qu.y[j] = uy;
-        qu.z[j] = uz;
-        qu.off[j] = moff;
-      } else {
-        examined = bhcl_grid_walk_depth_first(starts, px, py, pz, pid, occ, w, m, ux, uy, uz, moff, examined, budget, st);
+    bhcl_u32 l = qu.xl[nq] >> 27, X = qu.xl[nq] & 0x07ffffffu, Y = qu.y[nq], Z = qu.z[nq];
+    bhcl_u32 off = qu.off[nq];
+    /* Down from the popped node, BHCL_GRID_WALK_DESCEND: always into its nearest child, the others
+     * queued, so that the first fine cells are reached (and the bound made) after one descent, not
+     * after every coarse node nearer than them has been expanded; the queue then prunes. */
+    for (;;) {
+      if (l <= BHCL_GRID_WALK_DF_LEVEL) {
+        examined = bhcl_grid_walk_depth_first(starts, px, py, pz, pid, occ, w, l, X, Y, Z, off, examined, budget, st);
         if (examined >= budget) return examined;
+        break;
       }
+      const bhcl_u32 m = l - 1u, moff = off - bhcl_grid_occ_size(g, m);
+      const bhcl_u32 mask = occ[bhcl_grid_occ_index(g, off, l, X, Y, Z)];
+      float nd = -1.0f; /* the nearest child so far (-1: none), kept out of the queue */
+      bhcl_u32 nx_ = 0u, ny_ = 0u, nz_ = 0u;
+      for (bhcl_u32 o = 0u; o < 8u; ++o) {
+        if (!((mask >> o) & 1u)) continue;
+        bhcl_u32 ux, uy, uz;
+        float d = bhcl_grid_walk_child(w, m, X, Y, Z, o, &ux, &uy, &uz);
+        if (d < 0.0f || d > BHCL_GRID_BOUND(st)) continue;
+        if (BHCL_GRID_WALK_DESCEND && (nd < 0.0f || d < nd)) { /* the new nearest: queue the old one */
+          const float td = nd;
+          const bhcl_u32 tx = nx_, ty = ny_, tz = nz_;
+          nd = d, nx_ = ux, ny_ = uy, nz_ = uz;
+          if (td < 0.0f) continue;
+          d = td, ux = tx, uy = ty, uz = tz;
+        }
+        if (nq < walk_cap) { /* m >= BHCL_GRID_WALK_DF_LEVEL: never a fine cell */
+          bhcl_u32 j = nq++;
+          while (j > 0u && qu.d[j - 1u] < d) {
+            qu.d[j] = qu.d[j - 1u];
+            qu.xl[j] = qu.xl[j - 1u];
+            qu.y[j] = qu.y[j - 1u];
+            qu.z[j] = qu.z[j - 1u];
+            qu.off[j] = qu.off[j - 1u];
+            --j;
+          }
+          qu.d[j] = d;
+          qu.xl[j] = ux | (m << 27);
+          qu.y[j] = uy;
+          qu.z[j] = uz;
+          qu.off[j] = moff;
+        } else {
+          examined = bhcl_grid_walk_depth_first(starts, px, py, pz, pid, occ, w, m, ux, uy, uz, moff, examined, budget, st);
+          if (examined >= budget) return examined;
+        }
+      }
+      if (nd < 0.0f || nd > BHCL_GRID_BOUND(st)) break;
+      l = m, X = nx_, Y = ny_, Z = nz_, off = moff;
     }
   }
   return examined;

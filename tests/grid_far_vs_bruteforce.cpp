@@ -149,6 +149,22 @@ TEST_CASE("grid_far_best_first: the best-first walk examines fewer points betwee
   }
 }
 
+TEST_CASE("grid_far_vs_bruteforce: the best-first walk without its descent (the experiment's other arm) exact") {
+  // BHCL_GRID_WALK_DESCEND=0 queues every child instead of following the nearest; the host
+  // reference walks the default, so only the exact rows can be compared, against brute force.
+  for (const FarCase& c : far_cases()) {
+    BlockHashIndex index(test::runtime(), c.pts.data(), c.pts.size() / 3);
+    for (int k : {1, 17}) {
+      CAPTURE(c.name);
+      CAPTURE(k);
+      const SearchParams p = exact(k, "-DBHCL_GRID_WALK_DESCEND=0 -DBHCL_GRID_WALKCAP=3");
+      test::require_identical(index.query(c.qs, p),
+                              reference::knn_float(c.pts.data(), c.pts.size() / 3, c.qs.data(), c.qs.size() / 3, p),
+                              c.name + " no descent");
+    }
+  }
+}
+
 TEST_CASE("grid_far_radius_vs_bruteforce: radius search exact where the query is far") {
   for (const FarCase& c : far_cases()) {
     CAPTURE(c.name);
