@@ -6,7 +6,8 @@
 #
 # 1. BUILD_DIR/bench/kernel_dump builds every method's programs (every k variant, kNN and radius)
 #    with BHCL_DUMP_PROGRAMS=dir, so the library writes each program's source (includes resolved)
-#    and its full build options; BHCL_QUIRKS_AS=nvidia makes the defines those of an NVIDIA GPU.
+#    and its full build options; BHCL_QUIRKS_AS=nvidia and BHCL_KERNEL_FORM=gpu-nvidia make the
+#    defines those of an NVIDIA GPU (the quirks and the grid kernel's row of the forms table).
 # 2. Each program goes through clang-15's OpenCL front end for nvptx64 with libclc's builtins
 #    (Debian libclc-15: /usr/lib/clc/nvptx64--nvidiacl.bc) to PTX (LLVM 15 targets up to sm_86;
 #    PTX is forward compatible), then `ptxas -v -arch=sm_90`.
@@ -33,7 +34,7 @@ trap 'rm -rf "$work"' EXIT
 mkdir -p "$work/dump"
 # Enough points that the data-dependent defines are those of a 1M-point index (kd-tree stack,
 # paper's L); the builds take seconds.
-BHCL_DUMP_PROGRAMS="$work/dump" BHCL_QUIRKS_AS=nvidia "$dump_tool" "$@" > "$work/dump.log" 2>&1 || {
+BHCL_DUMP_PROGRAMS="$work/dump" BHCL_QUIRKS_AS=nvidia BHCL_KERNEL_FORM=gpu-nvidia "$dump_tool" "$@" > "$work/dump.log" 2>&1 || {
   cat "$work/dump.log"
   echo "gpu_kernel_table: kernel_dump failed"
   exit 1
