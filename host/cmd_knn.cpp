@@ -67,16 +67,9 @@ std::vector<FileArg> knn_output_files(const Args& args) {
 namespace {
 
 // A MultiDeviceIndex as the runner queries it: each device's share summed over the slices.
-class SharesSummed final : public SearchIndex {
+class SharesSummed final : public SearchThrough<MultiDeviceIndex> {
  public:
-  explicit SharesSummed(const MultiDeviceIndex& index) : index_(index) {}
-  std::string method() const override { return index_.method(); }
-  bool exact() const override { return index_.exact(); }
-  std::size_t size() const override { return index_.size(); }
-  SearchParams params_for_batch(const float* queries, std::size_t n, const SearchParams& params,
-                                BatchTuning* info = nullptr) const override {
-    return index_.params_for_batch(queries, n, params, info);
-  }
+  using SearchThrough::SearchThrough;
   QueryStats query(const float* queries, std::size_t n, const SearchParams& params,
                    KnnResult& out) const override {
     std::vector<DeviceShare> s;
@@ -106,7 +99,6 @@ class SharesSummed final : public SearchIndex {
       shares_[d].stats.wall_s += s[d].stats.wall_s;
     }
   }
-  const MultiDeviceIndex& index_;
   mutable std::vector<DeviceShare> shares_;
 };
 

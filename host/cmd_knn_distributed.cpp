@@ -152,12 +152,9 @@ std::shared_ptr<Runtime> read_inputs(const Args& args, Job& job, std::vector<flo
 
 // The distributed index as the runner queries it: this rank's DistributedQueryStats summed over
 // the slices, with the int64-id calls the runner takes when the ids pass 2^31 (RunPlace::ids64).
-class RanksSummed final : public SearchIndex {
+class RanksSummed final : public SearchThrough<DistributedIndex> {
  public:
-  explicit RanksSummed(const DistributedIndex& index) : index_(index) {}
-  std::string method() const override { return index_.method(); }
-  bool exact() const override { return index_.exact(); }
-  std::size_t size() const override { return index_.size(); }
+  using SearchThrough::SearchThrough;
   QueryStats query(const float* q, std::size_t n, const SearchParams& p, KnnResult& out) const override {
     return add(index_.query(q, n, p, out, &slice_));
   }
@@ -184,7 +181,6 @@ class RanksSummed final : public SearchIndex {
     for (auto v : slice_.ranks_visited) visits_ += static_cast<std::size_t>(v);
     return st;
   }
-  const DistributedIndex& index_;
   mutable DistributedQueryStats slice_, sums_;
   mutable std::size_t visits_ = 0;
 };

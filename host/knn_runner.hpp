@@ -49,6 +49,25 @@ RunQuery asked_query(const Args& args);
 // bhcl knn's output files, by the option that names each (cmd_knn.cpp).
 std::vector<FileArg> knn_output_files(const Args& args);
 
+// A SearchIndex over another index, as the runner queries it (the wrapper sums what the inner
+// index's richer overloads report per slice): the inner index's name, exactness, size and batch
+// parameters forwarded.
+template <typename Inner>
+class SearchThrough : public SearchIndex {
+ public:
+  explicit SearchThrough(const Inner& inner) : index_(inner) {}
+  std::string method() const override { return index_.method(); }
+  bool exact() const override { return index_.exact(); }
+  std::size_t size() const override { return index_.size(); }
+  SearchParams params_for_batch(const float* queries, std::size_t n, const SearchParams& params,
+                                BatchTuning* info = nullptr) const override {
+    return index_.params_for_batch(queries, n, params, info);
+  }
+
+ protected:
+  const Inner& index_;
+};
+
 // What the runner did.
 struct Answered {
   QueryStats st;
