@@ -17,9 +17,8 @@ packages=(
 )
 if [ "${1:-}" = "--ci" ]; then
   # libclc-15: libclc's nvptx builtins for bench/gpu_kernel_table.sh (with the CUDA toolkit's
-  # ptxas where installed; the step skips without it). ccache: .ci/run's Release tree and
-  # `pip install .` (.ci/python) compile the library with the same flags; the second takes the
-  # first's objects from a cache in the clone (build-ccache), not from one kept between runs.
+  # ptxas where installed; the step skips without it). ccache: .ci/run's compiler cache, kept
+  # between runs (~/.cache/blockhash_cl-ci unless BHCL_CI_CACHE names another place).
   packages+=(clang libclang-rt-14-dev libclc-15 ccache)
 fi
 

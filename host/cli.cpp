@@ -157,7 +157,11 @@ void add_image_fields(Json& j, const Args& args, const std::string& scene, int w
 }
 
 void add_query_stats(Json& j, const Index& index, const QueryStats& st) {
-  j["build_s"] = index.build_seconds();
+  add_query_stats(j, index.build_seconds(), st);
+}
+
+void add_query_stats(Json& j, double build_s, const QueryStats& st) {
+  j["build_s"] = build_s;
   st.for_each_field([&](const char* name, auto value) { j[name] = value; });
   if (g_coords_read) {
     // The precision the stored float32 coordinates leave, in the files' units.
@@ -381,17 +385,16 @@ std::size_t knn_slice_rows(std::size_t n, int k, bool count_examined, bool bar) 
   return std::max<std::size_t>(1, std::min(rows, n));
 }
 
-// The slice loop under both runners: answer(first, m) answers queries [first, first + m) and
-// returns its stats (no queries: one empty slice); the stats summed, the bar drawn, the wall time.
-static QueryStats in_slices(std::size_t n, std::size_t slice, render::Progress& bar,
-                            const std::function<QueryStats(std::size_t, std::size_t)>& answer) {
+QueryStats in_slices(std::size_t n, std::size_t n_all, std::size_t rows, render::Progress& bar,
+                     const std::function<QueryStats(std::size_t, std::size_t)>& answer) {
   auto t0 = std::chrono::steady_clock::now();
   QueryStats total;
-  for (std::size_t first = 0; first < n || first == 0; first += slice) {
-    const std::size_t m = std::min(slice, n - first);
+  rows = std::max<std::size_t>(rows, 1);
+  const std::size_t slices = n_all == 0 ? 1 : (n_all + rows - 1) / rows;
+  for (std::size_t s = 0; s < slices; ++s) {
+    const std::size_t first = std::min(n, s * rows), m = std::min(rows, n - first);
     total.add_slice(answer(first, m));
-    bar.update(double(first + m) / double(std::max<std::size_t>(n, 1)));
-    if (n == 0) break;
+    bar.update(double(std::min(n_all, (s + 1) * rows)) / double(std::max<std::size_t>(n_all, 1)));
   }
   bar.finish();
   total.n_queries = n;
@@ -399,17 +402,21 @@ static QueryStats in_slices(std::size_t n, std::size_t slice, render::Progress& 
   return total;
 }
 
+std::size_t radius_slice_rows(std::size_t n, bool bar) {
+  if (const std::size_t o = slice_rows_override()) return o;
+  // A slice's result is known only after its search: 2^18 queries bound it (with a bar, about a
+  // hundredth of the batch, at least 2^15).
+  std::size_t rows = std::size_t(1) << 18;
+  if (bar) rows = std::min(rows, std::max<std::size_t>(std::size_t(1) << 15, n / 100));
+  return rows;
+}
+
 QueryStats radius_in_slices(const SearchIndex& index, const std::vector<float>& queries, float radius,
                             const RadiusParams& params, bool quiet, const RadiusSink& sink) {
   const std::size_t n = queries.size() / 3;
   render::Progress bar("radius " + index.method() + " (" + std::to_string(n) + " queries)", !quiet);
-  // A slice's result is known only after its search: 2^18 queries bound it (with a bar, about a
-  // hundredth of the batch, at least 2^15).
-  std::size_t slice = std::size_t(1) << 18;
-  if (bar.enabled()) slice = std::min(slice, std::max<std::size_t>(std::size_t(1) << 15, n / 100));
-  if (const std::size_t o = slice_rows_override()) slice = o;
   RadiusResult part;
-  return in_slices(n, slice, bar, [&](std::size_t first, std::size_t m) {
+  return in_slices(n, n, radius_slice_rows(n, bar.enabled()), bar, [&](std::size_t first, std::size_t m) {
     const QueryStats st = index.radius_search(queries.data() + 3 * first, m, radius, params, part);
     sink(first, part);
     return st;
@@ -452,7 +459,7 @@ QueryStats query_in_slices(const SearchIndex& index, const std::vector<float>& q
   render::Progress bar("query " + index.method() + " (" + std::to_string(n) + " queries)", !quiet);
   const std::size_t slice = knn_slice_rows(n, params.k, params.count_examined, bar.enabled());
   KnnResult part;
-  return in_slices(n, slice, bar, [&](std::size_t first, std::size_t m) {
+  return in_slices(n, n, slice, bar, [&](std::size_t first, std::size_t m) {
     const QueryStats st = index.query(queries.data() + 3 * first, m, params, part);
     sink(first, part);
     return st;

@@ -16,6 +16,10 @@
 #include "blockhash_cl/factory.hpp"
 #include "blockhash_cl/knn.hpp"
 
+namespace bhcl::render {
+class Progress;
+}
+
 namespace bhcl::cli {
 
 // A command-line mistake: bhcl prints it as one line and exits with status 2.
@@ -84,6 +88,7 @@ Json stats_header(const std::string& command, const Runtime& rt);
 void add_image_fields(Json& j, const Args& args, const std::string& scene, int width, int height, int spp);
 // The timings and counts of a query call (with the index's build time) into a stats object.
 void add_query_stats(Json& j, const Index& index, const QueryStats& st);
+void add_query_stats(Json& j, double build_s, const QueryStats& st);  // an index built elsewhere
 // The stats file's "stages": compile, sort, upload, kernel, download, unsort, write (the output
 // files' appends, timed by the caller), other (the rest of wall), wall, wall / kernel, and commit
 // (the files' flush and renames after the call).
@@ -138,6 +143,13 @@ QueryStats query_in_slices(const SearchIndex& index, const std::vector<float>& q
 QueryStats radius_in_slices(const SearchIndex& index, const std::vector<float>& queries, float radius,
                             const RadiusParams& params, bool quiet, const RadiusSink& sink);
 std::size_t knn_slice_rows(std::size_t n, int k, bool count_examined, bool bar);
+std::size_t radius_slice_rows(std::size_t n, bool bar);
+// The slice loop under bhcl's runners: the slices of `rows` queries of a call of n_all, each
+// through answer(first, m) for this process's part of it (n of them: n_all in one process; an MPI
+// job's ranks make every call, rank 0 with its queries, the others with none, n = 0); no queries:
+// one empty slice. The stats summed, the bar drawn, the wall time of the whole loop.
+QueryStats in_slices(std::size_t n, std::size_t n_all, std::size_t rows, render::Progress& bar,
+                     const std::function<QueryStats(std::size_t, std::size_t)>& answer);
 // --radius and the tables' radius options, checked for `methods`: --k, --max-radius and the
 // kNN-only options are refused with it, r must be finite and >= 0 (the caller adds its own, e.g.
 // knn's --max-results).

@@ -18,6 +18,7 @@
 #include "blockhash_cl/runtime.hpp"
 #include "cli.hpp"
 #include "commands.hpp"
+#include "knn_runner.hpp"
 #include "result_files.hpp"
 
 #if BHCL_HAVE_MPI
@@ -40,8 +41,6 @@ void declare_knn_distributed(Args& a) {
                 0, std::int64_t(1) << 62, "0");
   a.group("");
 }
-
-RadiusParams radius_options(const Args& args, float& radius);  // cmd_knn.cpp: --radius's options
 
 #if !BHCL_HAVE_MPI
 
@@ -112,31 +111,21 @@ struct Job {
 // What the command line asks of a distributed run, checked before MPI starts: every rank sees
 // the same command line and fails alike.
 struct DistributedRun {
-  std::string method;
-  bool radius_mode = false;
-  float radius = 0;
-  RadiusParams rparams;
-  SearchParams params;
+  RunQuery q;
   MethodOptions mopt;
   DistributedBuildParams bp;
 };
 
 DistributedRun distributed_options(const Args& args) {
   DistributedRun run;
-  const std::string& method = run.method = args.str("method");
-  run.radius_mode = args.has("radius");
-  if (run.radius_mode) run.rparams = radius_options(args, run.radius);  // checks the method options too
-  else check_method_options(args, {method});
-  const std::string out_ids = args.str("out-ids");
-  const std::string out_dist2 = args.str("out-dist2");
-  run.params = search_params(args);
+  const std::string method = args.str("method");
+  run.q = asked_query(args);
   run.mopt = method_options(args);
   if (!run.mopt.load_index().empty() || !run.mopt.save_index().empty())
     throw UsageError("--load-index and --save-index do not apply with --distributed (each rank builds its shard)");
-  check_distinct_files({{"--points", args.str("points")}, {"--queries", args.str("queries")}},
-                       {{"--out-ids", out_ids}, {"--out-dist2", out_dist2},
-                        {"--out-counts", args.str("out-counts", "")}, {"--stats", args.str("stats", "")},
-                        {"--out-offsets", args.str("out-offsets", "")}});
+  std::vector<FileArg> outputs = knn_output_files(args);
+  outputs.push_back({"--stats", args.str("stats", "")});
+  check_distinct_files({{"--points", args.str("points")}, {"--queries", args.str("queries")}}, outputs);
   DistributedBuildParams& bp = run.bp;
   bp.method = method;
   bp.options = run.mopt;
@@ -161,194 +150,121 @@ std::shared_ptr<Runtime> read_inputs(const Args& args, Job& job, std::vector<flo
   return rt;
 }
 
-// The query calls of a distributed run: rank 0 holds every query, so it tells every rank n and
-// the slice size, and every rank makes the same calls, rank 0 passing slice s of its queries and
-// the others none.
-struct Slices {
-  std::size_t n_global = 0, rows = 1;
-  std::size_t count() const { return n_global == 0 ? 1 : (n_global + rows - 1) / rows; }
-  // Slice s of this rank's n queries: (first, count).
-  std::pair<std::size_t, std::size_t> of(std::size_t s, std::size_t n, int rank) const {
-    if (rank != 0) return {0, 0};
-    const std::size_t first = std::min(n, s * rows);
-    return {first, std::min(rows, n - first)};
+// The distributed index as the runner queries it: this rank's DistributedQueryStats summed over
+// the slices, with the int64-id calls the runner takes when the ids pass 2^31 (RunPlace::ids64).
+class RanksSummed final : public SearchThrough<DistributedIndex> {
+ public:
+  using SearchThrough::SearchThrough;
+  QueryStats query(const float* q, std::size_t n, const SearchParams& p, KnnResult& out) const override {
+    return add(index_.query(q, n, p, out, &slice_));
   }
-};
+  QueryStats query64(const float* q, std::size_t n, const SearchParams& p, KnnResult64& out) const {
+    return add(index_.query(q, n, p, out, &slice_));
+  }
+  QueryStats radius_search(const float* q, std::size_t n, float r, const RadiusParams& p,
+                           RadiusResult& out) const override {
+    return add(index_.radius_search(q, n, r, p, out, &slice_));
+  }
+  QueryStats radius64(const float* q, std::size_t n, float r, const RadiusParams& p, RadiusResult64& out) const {
+    return add(index_.radius_search(q, n, r, p, out, &slice_));
+  }
+  const DistributedQueryStats& sums() const { return sums_; }
+  std::size_t visits() const { return visits_; }  // ranks visited, summed over this rank's queries
 
-// Rank 0's n (the others hold none) and its slice size: radius slices of 2^18 queries (their
-// results are known only after the search), kNN slices of about 256 MiB of rows.
-Slices agree_slices(std::size_t n, const DistributedRun& run, int rank) {
-  std::uint64_t v[2] = {n, run.radius_mode ? std::min<std::uint64_t>(std::uint64_t(1) << 18, std::max<std::size_t>(n, 1))
-                                           : knn_slice_rows(n, run.params.k, run.params.count_examined, false)};
-  if (run.radius_mode && rank == 0)
-    if (const char* e = std::getenv("BHCL_SLICE_ROWS"); e && *e) v[1] = knn_slice_rows(n, 1, false, false);
-  MPI_Bcast(v, 2, MPI_UINT64_T, 0, MPI_COMM_WORLD);
-  return {static_cast<std::size_t>(v[0]), std::max<std::size_t>(1, static_cast<std::size_t>(v[1]))};
-}
-
-// The slices' statistics summed (the per-query vectors are not kept: the tool reports their sums).
-struct Totals {
-  QueryStats st;
-  DistributedQueryStats ds;
-  std::size_t visits = 0;  // ranks visited, summed over this rank's queries
-
-  void add(const QueryStats& ps, const DistributedQueryStats& pds) {
-    st.n_queries += ps.n_queries;
-    st.wall_s += ps.wall_s;
-    st.add_slice(ps);
+ private:
+  QueryStats add(const QueryStats& st) const {
     using D = DistributedQueryStats;
     for (std::size_t D::*count : {&D::multi_rank_queries, &D::owner_sent, &D::owner_received, &D::extra_sent,
                                   &D::extra_received, &D::reanswered, &D::answered, &D::bytes_sent, &D::bytes_received})
-      ds.*count += pds.*count;
-    for (double D::*seconds : {&D::phase1_s, &D::phase2_s}) ds.*seconds += pds.*seconds;
-    for (auto v : pds.ranks_visited) visits += static_cast<std::size_t>(v);
+      sums_.*count += slice_.*count;
+    for (double D::*seconds : {&D::phase1_s, &D::phase2_s}) sums_.*seconds += slice_.*seconds;
+    for (auto v : slice_.ranks_visited) visits_ += static_cast<std::size_t>(v);
+    return st;
   }
+  mutable DistributedQueryStats slice_, sums_;
+  mutable std::size_t visits_ = 0;
 };
 
-// Every slice through `search` (each rank calls it for each; the others pass none), each written
-// on rank 0 as it comes back (`Outputs`: KnnOutputs or RadiusOutputs), so that the whole result is
-// never held there; a failure there is told to every rank after the last slice. `done` reads the
-// committed files' counts on rank 0.
-template <typename Outputs, typename Part, typename Search, typename Done>
-void answer_in_slices(Job& job, const Slices& slices, std::size_t n, std::unique_ptr<Outputs> files,
-                      Totals& t, const Search& search, const Done& done) {
-  for (std::size_t s = 0; s < slices.count(); ++s) {
-    const auto [first, m] = slices.of(s, n, job.rank);
-    Part part;
-    DistributedQueryStats pds;
-    const QueryStats ps = search(first, m, part, pds);
-    t.add(ps, pds);
-    if (job.rank == 0 && job.err.empty()) job.attempt([&] { files->append(part); });
-  }
-  if (job.rank == 0 && job.err.empty())
-    job.attempt([&] {
-      files->commit();
-      done(*files);
-    });
-  files.reset();  // a failed write: the temporaries removed
-  job.agree();
-}
-
-// Radius search: rank 0's queries, the slices written there (FAISS layout, as bhcl knn --radius).
-int run_radius(const Args& args, Job& job, const DistributedIndex& index, const DistributedRun& run,
-               const std::vector<float>& queries, const Slices& slices, const Runtime& rt) {
-  const std::size_t N = index.size(), n = queries.size() / 3;
-  std::unique_ptr<RadiusOutputs> files;
-  if (job.rank == 0) job.attempt([&] { files = std::make_unique<RadiusOutputs>(args, n, !index.ids_fit_int32()); });
-  job.agree();
-  Totals t;
-  std::size_t total = 0, truncated = 0;
-  answer_in_slices<RadiusOutputs, RadiusResult64>(
-      job, slices, n, std::move(files), t,
-      [&](std::size_t first, std::size_t m, RadiusResult64& part, DistributedQueryStats& pds) {
-        return index.radius_search(queries.data() + 3 * first, m, run.radius, run.rparams, part, &pds);
-      },
-      [&](const RadiusOutputs& f) {
-        total = f.total();
-        truncated = f.truncated_queries();
-      });
-  const QueryStats& rst = t.st;
-  const DistributedQueryStats& rds = t.ds;
-  if (job.rank == 0) job.attempt([&] {
-      std::fprintf(stderr,
-                   "bhcl knn --distributed --radius: %s on %d rank(s): N=%zu n=%zu r=%g  build %.3f s  "
-                   "query %.3f s  queries on more than one rank %zu (%.1f %%)  results %zu  truncated %zu\n",
-                   index.method().c_str(), job.ranks, N, n, double(run.radius), index.build_stats().wall_s,
-                   rst.wall_s, rds.multi_rank_queries, n ? 100.0 * double(rds.multi_rank_queries) / double(n) : 0.0,
-                   total, truncated);
-      if (!args.has("stats")) return;
-      Json j = stats_header("knn", rt);
-      j["method"] = index.method();
-      j["exact"] = index.exact();
-      j["N"] = N;
-      j["n"] = n;
-      j["radius"] = {{"radius", run.radius}, {"max_results", run.rparams.max_results},
-                     {"budget", run.rparams.budget}, {"results", total}, {"truncated_queries", truncated}};
-      j["build_s"] = index.build_stats().wall_s;
-      j["wall_s"] = rst.wall_s;
-      j["nonfinite_queries"] = rst.nonfinite_queries;
-      j["distributed"] = {{"ranks", job.ranks}, {"multi_rank_queries", rds.multi_rank_queries}};
-      write_json(args.str("stats"), j);
-    });
-  job.agree();
-  return 0;
+// The MPI job as the runner's data: rank 0 writes, every rank makes every call (the slice count
+// and size rank 0's), a failure anywhere is told to every rank (mpi_agree).
+RunPlace job_place(const Job& job, const DistributedIndex& index, const Runtime& rt, const RanksSummed& summed) {
+  RunPlace place;
+  place.kind = IndexKind::distributed;
+  place.where = std::to_string(job.ranks) + " rank(s) (" + rt.info().device_name + " on rank 0)";
+  place.writes = job.rank == 0;
+  place.ids64 = !index.ids_fit_int32();
+  place.agree_slices = [](std::size_t n, std::size_t rows) {
+    std::uint64_t v[2] = {n, rows};
+    MPI_Bcast(v, 2, MPI_UINT64_T, 0, MPI_COMM_WORLD);
+    return std::pair{static_cast<std::size_t>(v[0]), static_cast<std::size_t>(v[1])};
+  };
+  place.agree = [](const std::string& err) { mpi_agree(MPI_COMM_WORLD, err, "bhcl knn --distributed"); };
+  place.query64 = [&summed](const float* q, std::size_t n, const SearchParams& p, KnnResult64& out) {
+    return summed.query64(q, n, p, out);
+  };
+  place.radius64 = [&summed](const float* q, std::size_t n, float r, const RadiusParams& p, RadiusResult64& out) {
+    return summed.radius64(q, n, r, p, out);
+  };
+  return place;
 }
 
 // Per-rank figures gathered on rank 0 (every rank takes part in the gathers).
-Json per_rank_json(const Job& job, const DistributedBuildStats& bs, const Totals& t) {
+Json per_rank_json(const Job& job, const DistributedBuildStats& bs, const RanksSummed& summed, const QueryStats& st) {
   const auto all = [&](double v) { return gathered(v, job.rank, job.ranks); };
+  const DistributedQueryStats& ds = summed.sums();
   Json j = Json::object();
   j["shard_points"] = all(double(bs.shard_points));
   j["points_received"] = all(double(bs.points_received));
-  j["queries_received"] = all(double(t.ds.owner_received + t.ds.extra_received));
-  j["queries_answered"] = all(double(t.ds.answered));
+  j["queries_received"] = all(double(ds.owner_received + ds.extra_received));
+  j["queries_answered"] = all(double(ds.answered));
   j["build_s"] = all(bs.build_s);
-  j["query_s"] = all(t.st.query_s);
-  j["compile_s"] = all(t.st.compile_s);
+  j["query_s"] = all(st.query_s);
+  j["compile_s"] = all(st.compile_s);
   return j;
 }
 
-// The kNN stats file (rank 0).
-Json knn_stats(const Args& args, const Job& job, const DistributedIndex& index, const DistributedRun& run,
-               const Runtime& rt, std::size_t n, const Totals& t, std::size_t found, Json per_rank) {
+// The job's own figures: the summary line's tail and the stats file's "distributed" (collective:
+// the per-rank figures are gathered on every rank).
+void add_job_figures(RunReport& r, const Job& job, const DistributedIndex& index, const DistributedRun& run,
+                     const RanksSummed& summed, const QueryStats& st) {
+  const DistributedQueryStats& ds = summed.sums();
+  const std::size_t n = r.n;
+  char note[160];
+  std::snprintf(note, sizeof note, "  queries on more than one rank %zu (%.1f %%)", ds.multi_rank_queries,
+                n ? 100.0 * double(ds.multi_rank_queries) / double(n) : 0.0);
+  r.note = note;
   const DistributedBuildStats& bs = index.build_stats();
-  const std::size_t N = index.size();
-  Json j = stats_header("knn", rt);
-  j["method"] = index.method();
-  j["exact"] = index.exact();
-  j.update(inputs_json(args, N, n, run.params));
-  if (index.local_index()) {
-    // Rank 0's local index: parameters every rank derives the same way from its own shard.
-    j["build"] = build_json(*index.local_index(), run.mopt);
-    j["search"] = search_json(*index.local_index(), run.params);
-  }
-  j["build_s"] = bs.wall_s;
-  j["wall_s"] = t.st.wall_s;
-  j["nonfinite_queries"] = t.st.nonfinite_queries;
-  j["neighbours_found"] = found;
   Json d;
   d["ranks"] = job.ranks;
   d["input"] = "rank 0 reads the files and passes every point and query";
   d["boxes_per_rank"] = run.bp.boxes_per_rank;
   d["border_factor"] = run.bp.border_factor;
   d["balance"] = bs.balance;
-  d["multi_rank_queries"] = t.ds.multi_rank_queries;
-  d["mean_ranks_visited"] = n ? double(t.visits) / double(n) : 0.0;
-  d["reanswered_queries"] = t.ds.reanswered;
-  d["phase1_s"] = t.ds.phase1_s;
-  d["phase2_s"] = t.ds.phase2_s;
-  d["per_rank"] = std::move(per_rank);
-  j["distributed"] = d;
-  return j;
+  d["multi_rank_queries"] = ds.multi_rank_queries;
+  d["mean_ranks_visited"] = n ? double(summed.visits()) / double(n) : 0.0;
+  d["reanswered_queries"] = ds.reanswered;
+  d["phase1_s"] = ds.phase1_s;
+  d["phase2_s"] = ds.phase2_s;
+  d["per_rank"] = per_rank_json(job, bs, summed, st);
+  r.extra["distributed"] = d;
 }
 
-// kNN: rank 0's queries, the rows written there; the per-rank figures gathered for the stats.
-int run_knn(const Args& args, Job& job, const DistributedIndex& index, const DistributedRun& run,
-            const std::vector<float>& queries, const Slices& slices, const Runtime& rt) {
-  const std::size_t N = index.size(), n = queries.size() / 3;
-  std::unique_ptr<KnnOutputs> files;
-  if (job.rank == 0)
-    job.attempt([&] { files = std::make_unique<KnnOutputs>(args, n, run.params.k, !index.ids_fit_int32()); });
-  job.agree();
-  Totals t;
-  std::size_t found = 0;
-  answer_in_slices<KnnOutputs, KnnResult64>(
-      job, slices, n, std::move(files), t,
-      [&](std::size_t first, std::size_t m, KnnResult64& part, DistributedQueryStats& pds) {
-        return index.query(queries.data() + 3 * first, m, run.params, part, &pds);
-      },
-      [&](const KnnOutputs& f) { found = f.found(); });
-  Json per_rank = per_rank_json(job, index.build_stats(), t);
-  // Rank 0 writes; a failure there fails every rank.
-  if (job.rank == 0) job.attempt([&] {
-      std::fprintf(stderr,
-                   "bhcl knn --distributed: %s on %d rank(s) (%s on rank 0): N=%zu n=%zu k=%d  build %.3f s  "
-                   "query %.3f s  queries on more than one rank %zu (%.1f %%)  neighbours found %zu\n",
-                   index.method().c_str(), job.ranks, rt.info().device_name.c_str(), N, n, run.params.k,
-                   index.build_stats().wall_s, t.st.wall_s, t.ds.multi_rank_queries,
-                   n ? 100.0 * double(t.ds.multi_rank_queries) / double(n) : 0.0, found);
-      if (args.has("stats")) write_json(args.str("stats"), knn_stats(args, job, index, run, rt, n, t, found, per_rank));
-    });
+// kNN or radius search over the job through bhcl knn's runner: rank 0's queries, the rows written
+// there as they come back; the summary and the stats file from rank 0.
+int run_job(const Args& args, Job& job, const DistributedIndex& index, const DistributedRun& run,
+            const std::vector<float>& queries, const Runtime& rt) {
+  const RanksSummed summed(index);
+  const RunPlace place = job_place(job, index, rt, summed);
+  const Answered a = answer(args, summed, place, queries, run.q);
+  RunReport r;
+  // Rank 0's local index: parameters every rank derives the same way from its own shard.
+  r.built = index.local_index();
+  r.mopt = run.mopt;
+  r.build_s = index.build_stats().wall_s;
+  r.N = index.size();
+  r.n = queries.size() / 3;
+  add_job_figures(r, job, index, run, summed, a.st);
+  job.attempt([&] { report(args, place, rt, summed, run.q, a, r); });  // a failure there fails every rank
   job.agree();
   return 0;
 }
@@ -388,10 +304,8 @@ int run_knn_distributed(const Args& args) {
     std::vector<float> points, queries;
     const std::shared_ptr<Runtime> rt = read_inputs(args, job, points, queries);
     const DistributedIndex index(MPI_COMM_WORLD, rt, points.data(), points.size() / 3, run.bp);
-    const Slices slices = agree_slices(queries.size() / 3, run, job.rank);
     std::vector<float>().swap(points);
-    if (run.radius_mode) return run_radius(args, job, index, run, queries, slices, *rt);
-    return run_knn(args, job, index, run, queries, slices, *rt);
+    return run_job(args, job, index, run, queries, *rt);
   } catch (const std::exception& e) {
     return fail_every_rank(e);
   }

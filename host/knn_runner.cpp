@@ -1,0 +1,216 @@
+#include "knn_runner.hpp"
+
+#include <chrono>
+#include <cstdio>
+#include <exception>
+#include <memory>
+
+#include "blockhash_cl/runtime.hpp"
+#include "progress.hpp"
+#include "result_files.hpp"
+
+namespace bhcl::cli {
+namespace {
+
+double seconds_since(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+// The first failure of a run's writes. One process: thrown at once. A job: kept, so that this
+// rank still makes every remaining call the others make, and told to every rank at the end.
+class Failure {
+ public:
+  explicit Failure(const RunPlace& place) : place_(place) {}
+  template <typename F>
+  void attempt(F&& f) {
+    if (!err_.empty()) return;
+    if (!place_.collective()) return f();
+    try {
+      f();
+    } catch (const std::exception& e) {
+      err_ = e.what();
+    }
+  }
+  void agree() const {
+    if (place_.collective()) place_.agree(err_);
+  }
+
+ private:
+  const RunPlace& place_;
+  std::string err_;
+};
+
+// The job's query count and slice size: this process's own in one process, rank 0's in a job.
+std::pair<std::size_t, std::size_t> slicing(const RunPlace& place, std::size_t n, std::size_t rows) {
+  return place.agree_slices ? place.agree_slices(n, rows) : std::pair{n, rows};
+}
+
+// Every slice through search(first, m, part), each part appended to `files` (this process's
+// outputs; none on the ranks that do not write) as it comes back; committed at the end.
+template <typename Outputs, typename Part, typename Search>
+QueryStats slices_to_files(const RunPlace& place, std::size_t n, std::size_t rows, render::Progress& bar,
+                           std::unique_ptr<Outputs> files, Answered& a, const Search& search) {
+  Failure failure(place);
+  const auto [n_all, job_rows] = slicing(place, n, rows);
+  Part part;
+  const QueryStats st = in_slices(n, n_all, job_rows, bar, [&](std::size_t first, std::size_t m) {
+    const QueryStats ps = search(first, m, part);
+    if (files) failure.attempt([&] {
+        const auto t0 = std::chrono::steady_clock::now();
+        files->append(part);
+        a.write_s += seconds_since(t0);
+      });
+    return ps;
+  });
+  if (files) failure.attempt([&] {
+      const auto t0 = std::chrono::steady_clock::now();
+      files->commit();  // after the wall time: the files' flush to the disk and their renames
+      a.commit_s = seconds_since(t0);
+      if constexpr (std::is_same_v<Outputs, KnnOutputs>) {
+        a.found = files->found();
+      } else {
+        a.found = files->total();
+        a.truncated = files->truncated_queries();
+      }
+    });
+  files.reset();  // a failed write: the temporaries removed
+  failure.agree();
+  return st;
+}
+
+// This process's outputs (none where it does not write); a job agrees on whether every rank
+// could open them before any query.
+template <typename Outputs, typename... Extra>
+std::unique_ptr<Outputs> open_outputs(const Args& args, const RunPlace& place, Extra... extra) {
+  Failure failure(place);
+  std::unique_ptr<Outputs> files;
+  if (place.writes) failure.attempt([&] { files = std::make_unique<Outputs>(args, extra..., place.ids64); });
+  failure.agree();
+  return files;
+}
+
+template <typename Id>
+Answered answer_knn(const Args& args, const SearchIndex& index, const RunPlace& place,
+                    const std::vector<float>& queries, const SearchParams& asked) {
+  const std::size_t n = queries.size() / 3;
+  Answered a;
+  a.params = index.params_for_batch(queries.data(), n, asked, &a.bt);
+  render::Progress bar("query " + index.method() + " (" + std::to_string(n) + " queries)",
+                       place.writes && !args.flag("quiet"));
+  const std::size_t rows = knn_slice_rows(n, a.params.k, a.params.count_examined, bar.enabled());
+  auto files = open_outputs<KnnOutputs>(args, place, n, a.params.k);
+  a.st = slices_to_files<KnnOutputs, KnnRows<Id>>(
+      place, n, rows, bar, std::move(files), a, [&](std::size_t first, std::size_t m, KnnRows<Id>& part) {
+        if constexpr (std::is_same_v<Id, std::int64_t>)
+          return place.query64(queries.data() + 3 * first, m, a.params, part);
+        else
+          return index.query(queries.data() + 3 * first, m, a.params, part);
+      });
+  return a;
+}
+
+template <typename Id>
+Answered answer_radius(const Args& args, const SearchIndex& index, const RunPlace& place,
+                       const std::vector<float>& queries, const RadiusParams& rp, float r) {
+  const std::size_t n = queries.size() / 3;
+  Answered a;
+  render::Progress bar("radius " + index.method() + " (" + std::to_string(n) + " queries)",
+                       place.writes && !args.flag("quiet"));
+  auto files = open_outputs<RadiusOutputs>(args, place, n);
+  a.st = slices_to_files<RadiusOutputs, RadiusRows<Id>>(
+      place, n, radius_slice_rows(n, bar.enabled()), bar, std::move(files), a,
+      [&](std::size_t first, std::size_t m, RadiusRows<Id>& part) {
+        if constexpr (std::is_same_v<Id, std::int64_t>)
+          return place.radius64(queries.data() + 3 * first, m, r, rp, part);
+        else
+          return index.radius_search(queries.data() + 3 * first, m, r, rp, part);
+      });
+  return a;
+}
+
+}  // namespace
+
+Answered answer(const Args& args, const SearchIndex& index, const RunPlace& place,
+                const std::vector<float>& queries, const RunQuery& q) {
+  if (q.radius)
+    return place.ids64 ? answer_radius<std::int64_t>(args, index, place, queries, *q.radius, q.r)
+                       : answer_radius<std::int32_t>(args, index, place, queries, *q.radius, q.r);
+  return place.ids64 ? answer_knn<std::int64_t>(args, index, place, queries, q.params)
+                     : answer_knn<std::int32_t>(args, index, place, queries, q.params);
+}
+
+namespace {
+
+void print_summary(const RunPlace& place, const SearchIndex& index, const RunQuery& q, const Answered& a,
+                   const RunReport& r) {
+  const QueryStats& st = a.st;
+  char what[64];
+  if (q.radius) std::snprintf(what, sizeof what, "r=%g", double(q.r));
+  else std::snprintf(what, sizeof what, "k=%d", a.params.k);
+  std::fprintf(stderr,
+               "bhcl knn%s: %s on %s: N=%zu n=%zu %s  build %.3f s  compile %.3f s  query %.4f s (%.0f q/s)  "
+               "wall %.4f s  %s %zu",
+               q.radius ? " --radius" : "", index.method().c_str(), place.where.c_str(), r.N, r.n, what,
+               r.build_s, st.compile_s, st.query_s, st.queries_per_s(), st.wall_s,
+               q.radius ? "results" : "neighbours found", a.found);
+  if (q.radius)
+    std::fprintf(stderr, " (%.2f per query)  truncated queries %zu", r.n ? double(a.found) / double(r.n) : 0.0,
+                 a.truncated);
+  std::fprintf(stderr, "%s\n", r.note.c_str());
+}
+
+// The kNN call's fields: its inputs, what the build and the search used, the tuning, the stages.
+void add_knn_fields(Json& j, const Args& args, const Answered& a, const RunReport& r) {
+  j.update(inputs_json(args, r.N, r.n, a.params));
+  if (r.built) {
+    j["build"] = build_json(*r.built, r.mopt);
+    j["search"] = search_json(*r.built, a.params);
+  }
+  const BatchTuning& bt = a.bt;
+  if (bt.tuned)
+    j["search"]["tuning"] = {{"recall_target", bt.target}, {"A", bt.tuning.A}, {"tuned_on", "queries"},
+                             {"sample", bt.tuning.sample}, {"sample_recall", bt.tuning.recall},
+                             {"reached", bt.tuning.reached}, {"cached", bt.cached},
+                             {"distribution", bt.distribution}, {"seconds", bt.seconds},
+                             {"compile_s", bt.compile_s}};
+}
+
+// The radius call's fields: its inputs, the build, the radius options and the results.
+void add_radius_fields(Json& j, const Args& args, const SearchIndex& index, const RunQuery& q,
+                       const Answered& a, const RunReport& r) {
+  j["points"] = args.str("points");
+  j["queries"] = args.str("queries");
+  j["N"] = r.N;
+  j["n"] = r.n;
+  if (r.built) j["build"] = build_json(*r.built, r.mopt);
+  j["radius"] = {{"radius", q.r}, {"max_results", q.radius->max_results}, {"budget", q.radius->budget}};
+  j["radius"].update(table_values(args, index.method(), OptionInfo::Radius));
+  j["radius"]["results"] = a.found;
+  j["radius"]["truncated_queries"] = a.truncated;
+}
+
+}  // namespace
+
+void report(const Args& args, const RunPlace& place, const Runtime& rt, const SearchIndex& index,
+            const RunQuery& q, const Answered& a, const RunReport& r) {
+  if (!place.writes) return;
+  print_summary(place, index, q, a, r);
+  if (!args.has("stats")) return;
+  Json j = stats_header("knn", rt);
+  j["method"] = index.method();
+  j["exact"] = index.exact();
+  j["index_kind"] = place.kind == IndexKind::device ? "device" : place.kind == IndexKind::devices ? "devices"
+                                                                                                  : "distributed";
+  if (q.radius) add_radius_fields(j, args, index, q, a, r);
+  else add_knn_fields(j, args, a, r);
+  add_query_stats(j, r.build_s, a.st);
+  if (!q.radius) {
+    j["stages"] = stages_json(a.st, a.write_s, a.commit_s);
+    j["neighbours_found"] = a.found;
+  }
+  if (place.kind == IndexKind::device && r.built) j["memory_bytes"] = r.built->memory_bytes();
+  j.update(r.extra);
+  write_json(args.str("stats"), j);
+}
+
+}  // namespace bhcl::cli
