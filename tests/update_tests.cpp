@@ -245,6 +245,84 @@ TEST_CASE("updates: the grid's budget counts live points, and thinned cells retu
   budget_kernel_equals_reference(ix, m, rng, "grid budget A = 2 after the retune, kernel vs reference");
 }
 
+// Issue 39: an insert that crosses the retune band (900k + 100k uniform from Python: built twice,
+// 3.5-4.5x a fresh build) or lands off the box makes one fresh build over the live points: the
+// update's stats count one rebuild, the grid is the one a fresh build of the result makes, and
+// the answers are exact.
+TEST_CASE("updates: an insert across the grid's retune band is one fresh build, equal to a fresh build of the result") {
+  std::mt19937_64 rng(39);
+  Model m;
+  std::vector<float> p0 = uniform(rng, 36000, 0.0f, 1.0f);
+  BlockHashIndex ix(test::runtime(), p0.data(), 36000);
+  REQUIRE(ix.info().grid);
+  m.add(p0);
+  auto fresh_of_model = [&] {
+    std::vector<std::int32_t> ids;
+    std::vector<float> pts = m.points(ids);
+    return std::make_unique<BlockHashIndex>(test::runtime(), pts.data(), ids.size());
+  };
+  // 5 % more: the point-weighted mean grows by about 5 %, inside the band: a merge.
+  std::vector<float> more = uniform(rng, 1800, 0.02f, 0.98f);
+  ix.insert(more.data(), 1800);
+  m.add(more);
+  REQUIRE(ix.info().merges == 1);
+  REQUIRE(ix.info().update_rebuilds == 0);
+  // Another 25 %, inside the box: past 1.1x, so the side is retuned, by one build.
+  std::vector<float> cross = uniform(rng, 9900, 0.02f, 0.98f);
+  ix.insert(cross.data(), 9900);
+  m.add(cross);
+  CHECK(ix.info().merges == 1);
+  CHECK(ix.info().update_rebuilds == 1);
+  CHECK(ix.info().retunes == 1);
+  {
+    auto fresh = fresh_of_model();
+    CHECK(ix.info().cell_size == fresh->info().cell_size);
+    CHECK(ix.info().mean_cell_points == doctest::Approx(fresh->info().mean_cell_points));
+    CHECK(ix.info().occupied_cells == fresh->info().occupied_cells);
+  }
+  check_exact(ix, m, rng);
+  // Off the box and large (the set doubles into a neighbouring region): before, a build with the
+  // side kept whose cells then fell outside the band, and a second build. Now one, as fresh.
+  std::vector<float> off = uniform(rng, 49500, 0.0f, 1.0f);
+  for (std::size_t i = 0; i < off.size(); i += 3) off[i] += 1.0f;
+  ix.insert(off.data(), 49500);
+  m.add(off);
+  CHECK(ix.info().update_rebuilds == 2);
+  {
+    auto fresh = fresh_of_model();
+    CHECK(ix.info().cell_size == fresh->info().cell_size);
+    CHECK(ix.info().occupied_cells == fresh->info().occupied_cells);
+    CHECK(ix.info().mean_cell_points == doctest::Approx(fresh->info().mean_cell_points));
+  }
+  check_exact(ix, m, rng);
+  // Small, off the box and dense (5 % of the set in a cube a few cells wide): the population the
+  // kept side would give is far past the band although the set grew by 5 %; before, the build
+  // with the side kept was followed by a second one (counted as one rebuild). update_rebuilds
+  // counts the builds themselves.
+  std::vector<float> dense = uniform(rng, std::size_t(ix.size() / 20), 2.1f, 2.2f);
+  const std::size_t before = ix.info().update_rebuilds;
+  ix.insert(dense.data(), dense.size() / 3);
+  m.add(dense);
+  CHECK(ix.info().update_rebuilds == before + 1);
+  {
+    auto fresh = fresh_of_model();
+    CHECK(ix.info().cell_size == fresh->info().cell_size);
+    CHECK(ix.info().occupied_cells == fresh->info().occupied_cells);
+  }
+  check_exact(ix, m, rng);
+  // A large remove (past 1/8 holes and below the band): one build, no compaction before it
+  // counted as a second pass over the points' structure.
+  std::vector<std::int32_t> drop;
+  for (const auto& kv : m.live)
+    if (rng() % 2) drop.push_back(kv.first);
+  const std::size_t rebuilds = ix.info().update_rebuilds;
+  ix.remove(drop.data(), drop.size());
+  for (std::int32_t id : drop) m.live.erase(id);
+  CHECK(ix.info().update_rebuilds == rebuilds + 1);
+  CHECK(ix.info().holes == 0);
+  check_exact(ix, m, rng);
+}
+
 TEST_CASE("updates: block hashing's two-level grid directory after random inserts and removes") {
   std::mt19937_64 rng(12);
   Model m;

@@ -16,10 +16,12 @@
 //    scatter gives them.
 //  - the leaf split: a cell side tuned for a population (target_cell_points) stops fitting when
 //    the set grows or shrinks; once the point-weighted mean cell population drifts past 1.1x (or
-//    below 0.9x) of the last tuned build's, the grid is rebuilt over the live points with a freshly
+//    below 0.9x) of the last full build's, the grid is rebuilt over the live points with a freshly
 //    tuned side. Growth by doubling keeps the amortised cost per point O(1).
-//  - points outside the grid's box: a full build over the live points with the previous cell side
-//    (the slab bounds, and so the exact mode, rely on every point lying inside its cell).
+//  - points outside the grid's box: a full build over the live points (the slab bounds, and so
+//    the exact mode, rely on every point lying inside its cell). Every full build an update makes
+//    (this one, the band's, the two-level directory's) is one fresh build with the build's own
+//    parameters, never two: no update costs more than building its result afresh (issue 39).
 //  - device buffers: the changed tail of each array written in place where it fits, reallocated
 //    with capacity grown by half where not (upload_grid); on a host-in-place device (PoCL's CPU
 //    device, Quirks::host_ptr_in_place) views of the host arrays, made again after the update.
@@ -28,6 +30,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <cstring>
 
 #include "bhcl_shared.h"
@@ -222,8 +225,8 @@ void BlockHashIndex::grid_upload_from(std::size_t point_from, std::size_t cell_f
 void BlockHashIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t first) {
   blockhash::Grid& g = *s_->grid;
   if (g.geom.sparse) {
-    // The two-level directory is not merged in place (its segment tables would move): a build
-    // over the live points and the new ones with the same cell side, as for points off the box.
+    // The two-level directory is not merged in place (its segment tables would move): a fresh
+    // build over the live points and the new ones, as for points off the box.
     std::vector<float> caller(3 * m);
     for (std::size_t i = 0; i < 3 * m; ++i) caller[i] = std::ldexp(scaled[i], s_->scale_exp);
     grid_rebuild_live(caller.data(), m, first, false);
@@ -300,26 +303,77 @@ void BlockHashIndex::grid_insert(const float* scaled, std::size_t m, std::int32_
   ++info_.merges;
 }
 
+void BlockHashIndex::grid_mark_holes_by_scan(const std::int32_t* ids, std::size_t n, std::size_t& lo, std::size_t& hi,
+                                             bool& on_box) {
+  blockhash::Grid& g = *s_->grid;
+  std::vector<std::uint8_t> gone(std::size_t(id_bound()), 0);
+  for (std::size_t i = 0; i < n; ++i) gone[std::size_t(ids[i])] = 1;
+  const unsigned T = std::max(1u, std::min<unsigned>(detail::default_threads(), unsigned(g.n_points / 65536 + 1)));
+  const std::size_t per = (g.n_points + T - 1) / T;
+  struct Part {
+    std::size_t lo = SIZE_MAX, hi = 0, found = 0;
+    bool on_box = false;
+  };
+  std::vector<Part> part(T);
+  const bhcl_grid_dbox b = g.dbox;
+  detail::parallel_for(T, [&](std::size_t tb, std::size_t te) {
+    for (std::size_t t = tb; t < te; ++t) {
+      Part& pt = part[t];
+      for (std::size_t i = t * per, e = std::min(g.n_points, i + per); i < e; ++i) {
+        const std::int32_t id = g.ids[i];
+        if (id == kHoleId || !gone[std::size_t(id)]) continue;
+        pt.on_box = pt.on_box || g.x[i] == b.lx || g.x[i] == b.hx || g.y[i] == b.ly || g.y[i] == b.hy ||
+                    g.z[i] == b.lz || g.z[i] == b.hz;
+        g.x[i] = g.y[i] = g.z[i] = INFINITY;
+        g.ids[i] = kHoleId;
+        pt.lo = std::min(pt.lo, i);
+        pt.hi = i;
+        ++pt.found;
+      }
+    }
+  }, T, 1);
+  std::size_t found = 0;
+  for (const Part& pt : part) {
+    lo = std::min(lo, pt.lo);
+    hi = std::max(hi, pt.hi);
+    on_box = on_box || pt.on_box;
+    found += pt.found;
+  }
+  if (found != n) throw Error("blockhash: remove: " + std::to_string(n - found) + " of the ids are not stored (internal)");
+  if (id_pos_.size() == std::size_t(id_bound()))  // a map kept (else made again when needed)
+    for (std::size_t i = 0; i < n; ++i) id_pos_[std::size_t(ids[i])] = -1;
+  else
+    id_pos_.clear();
+}
+
 void BlockHashIndex::grid_remove(const std::int32_t* ids, std::size_t n) {
   blockhash::Grid& g = *s_->grid;
-  if (id_pos_.size() != std::size_t(id_bound())) grid_positions();
   std::size_t lo = g.n_points, hi = 0;
-  for (std::size_t i = 0; i < n; ++i)
-    if (id_pos_[std::size_t(ids[i])] < 0)
-      throw Error("blockhash: remove: id " + std::to_string(ids[i]) + " is not stored (internal)");
   // The points' box (grid_search.h) stays the live points' own, as a load of the saved index
   // computes it: recomputed only when a removed point lies on it.
   bool on_box = false;
-  for (std::size_t i = 0; i < n; ++i) {
-    const std::size_t p = std::size_t(id_pos_[std::size_t(ids[i])]);
-    const bhcl_grid_dbox& b = g.dbox;
-    on_box = on_box || g.x[p] == b.lx || g.x[p] == b.hx || g.y[p] == b.ly || g.y[p] == b.hy || g.z[p] == b.lz ||
-             g.z[p] == b.hz;
-    g.x[p] = g.y[p] = g.z[p] = INFINITY;
-    g.ids[p] = kHoleId;
-    id_pos_[std::size_t(ids[i])] = -1;
-    lo = std::min(lo, p);
-    hi = std::max(hi, p);
+  // Many ids, or no id -> position map yet: one parallel pass over the stored ids against a mark
+  // per id (sequential reads) is cheaper than making the map (a random write per point; 0.4-0.6x
+  // of a fresh build for a 10 % remove). A few ids with the map: their slots directly.
+  const bool have_map = id_pos_.size() == std::size_t(id_bound());
+  if (n * 16 >= g.n_points || (!have_map && n * 256 >= g.n_points)) {
+    grid_mark_holes_by_scan(ids, n, lo, hi, on_box);
+  } else {
+    if (!have_map) grid_positions();
+    for (std::size_t i = 0; i < n; ++i)
+      if (id_pos_[std::size_t(ids[i])] < 0)
+        throw Error("blockhash: remove: id " + std::to_string(ids[i]) + " is not stored (internal)");
+    for (std::size_t i = 0; i < n; ++i) {
+      const std::size_t p = std::size_t(id_pos_[std::size_t(ids[i])]);
+      const bhcl_grid_dbox& b = g.dbox;
+      on_box = on_box || g.x[p] == b.lx || g.x[p] == b.hx || g.y[p] == b.ly || g.y[p] == b.hy || g.z[p] == b.lz ||
+               g.z[p] == b.hz;
+      g.x[p] = g.y[p] = g.z[p] = INFINITY;
+      g.ids[p] = kHoleId;
+      id_pos_[std::size_t(ids[i])] = -1;
+      lo = std::min(lo, p);
+      hi = std::max(hi, p);
+    }
   }
   info_.holes += n;
   if (on_box) g.dbox = blockhash::grid_points_box(g, params_.threads);
@@ -355,7 +409,7 @@ void BlockHashIndex::grid_remove(const std::int32_t* ids, std::size_t n) {
 
 void BlockHashIndex::grid_compact() {
   blockhash::Grid& g = *s_->grid;
-  if (g.geom.sparse) {  // the two-level directory: rebuilt over the live points, same side
+  if (g.geom.sparse) {  // the two-level directory: a fresh build over the live points
     grid_rebuild_live(nullptr, 0, 0, false);
     info_.holes = 0;
     ++info_.compactions;
@@ -414,44 +468,79 @@ void BlockHashIndex::live_points(std::vector<float>& xyz, std::vector<std::int32
   xyz = indexed_points(&ids);
 }
 
+void BlockHashIndex::grid_live_by_id(std::vector<float>& pts, std::vector<std::int32_t>& ids, std::size_t extra) {
+  const blockhash::Grid& g = *s_->grid;
+  // In ascending id order, as a fresh build of the result is given them (the build's cell side
+  // comes from a strided sample, which the grid's cell order would bias: 34 points per cell
+  // where the caller's order gives 24). The slot of each id (the position map, one parallel
+  // pass), then two parallel passes over the id range: the live ids per range, then the copy
+  // (in the caller's units).
+  if (id_pos_.size() != std::size_t(id_bound())) grid_positions();
+  const std::int32_t* const pos = id_pos_.data();
+  const std::size_t bound = id_pos_.size();
+  const unsigned T = std::max(1u, std::min<unsigned>(detail::default_threads(), unsigned(bound / 65536 + 1)));
+  std::vector<std::size_t> count(T + 1, 0);
+  const std::size_t per = (bound + T - 1) / T;
+  detail::parallel_for(T, [&](std::size_t tb, std::size_t te) {
+    for (std::size_t t = tb; t < te; ++t)
+      for (std::size_t i = t * per, e = std::min(bound, i + per); i < e; ++i) count[t + 1] += pos[i] >= 0;
+  }, T, 1);
+  for (unsigned t = 0; t < T; ++t) count[t + 1] += count[t];
+  const std::size_t live = count[T];
+  pts.resize(3 * (live + extra));
+  ids.resize(live + extra);
+  const int e2 = s_->scale_exp;
+  detail::parallel_for(T, [&](std::size_t tb, std::size_t te) {
+    for (std::size_t t = tb; t < te; ++t) {
+      std::size_t w = count[t];
+      for (std::size_t id = t * per, e = std::min(bound, id + per); id < e; ++id) {
+        if (pos[id] < 0) continue;
+        const std::size_t i = std::size_t(pos[id]);
+        float* p = pts.data() + 3 * w;
+        p[0] = e2 ? std::ldexp(g.x[i], e2) : g.x[i];
+        p[1] = e2 ? std::ldexp(g.y[i], e2) : g.y[i];
+        p[2] = e2 ? std::ldexp(g.z[i], e2) : g.z[i];
+        ids[w++] = static_cast<std::int32_t>(id);
+      }
+    }
+  }, T, 1);
+}
+
 void BlockHashIndex::grid_rebuild_live(const float* extra, std::size_t m, std::int32_t first, bool retune) {
+  // A fresh build over the live points and the new ones, with the build's own parameters (a
+  // tuned side unless the caller fixed one), done once: an update never costs more than building
+  // its result afresh plus the gather of the live points and the ids' mapping (issue 39; before,
+  // a rebuild that kept the side and then found the cells outside the band built a second time,
+  // and the gather was serial: 3.5-4.5x a fresh build across the band).
   std::vector<float> pts;
   std::vector<std::int32_t> ids;
-  live_points(pts, ids);
-  pts.insert(pts.end(), extra, extra + 3 * m);
-  for (std::size_t i = 0; i < m; ++i) ids.push_back(first + static_cast<std::int32_t>(i));
+  grid_live_by_id(pts, ids, m);
+  const std::size_t live = ids.size() - m;
+  std::copy(extra, extra + 3 * m, pts.begin() + 3 * live);
+  for (std::size_t i = 0; i < m; ++i) ids[live + i] = first + static_cast<std::int32_t>(i);
   const UpdateCounters keep(info_);
-  // The band applies to every update, not only to the merges: an insert into the two-level
-  // directory, or of points off the box, rebuilds with the side kept, and without this a
-  // clustered set grown 10x in 100 inserts reached 5x the tuned population (recall at A = 8 fell
-  // by 0.12). The population after the insert is predicted as for points from the same
-  // distribution (a Poisson cell of mean l grown by g keeps a point-weighted mean of g l + 1);
-  // the built grid's own mean is checked after, for inserts that land elsewhere.
-  const double ref = std::max(1.0, grid_build_mean_);
-  if (!retune && m > 0 && grid_build_mean_ > 0) {
-    const double live = double(ids.size() - m);
-    const double predicted = 1.0 + (std::max(info_.mean_cell_points, 1.0) - 1.0) * double(ids.size()) / std::max(live, 1.0);
-    retune = predicted > kRetuneAbove * ref;
-  }
-  // A fresh side (-1: tuned from a sample, as a fresh build) or the previous one (caller units).
-  build_grid_layout(pts.data(), ids.size(), retune ? -1.0 : info_.cell_size);
-  if (!retune && grid_build_mean_ > 0 &&
-      (info_.mean_cell_points > kRetuneAbove * ref || info_.mean_cell_points < kRetuneBelow * ref)) {
-    build_grid_layout(pts.data(), ids.size(), -1.0);
-    retune = true;
-  }
+  const double side_before = info_.cell_size;
+  id_pos_.clear();  // every point moves; the next remove that needs the map makes it again
+  const std::size_t builds_before = grid_builds_;
+  build_grid_layout(pts.data(), ids.size(), params_.cell_size);
+  pts = std::vector<float>();
   blockhash::Grid& g = *s_->grid;
-  // build_grid numbers the points 0 .. n - 1 in the order given (ascending ids): their ids.
-  for (std::size_t i = 0; i < g.n_points; ++i) g.ids[i] = ids[std::size_t(g.ids[i])];
-  check_cl(runtime_ptr()->queue().enqueueWriteBuffer(g_ids_, CL_TRUE, 0, g.ids.size() * 4, g.ids.data()),
-           "clEnqueueWriteBuffer", "blockhash grid ids");
+  // build_grid numbers the points 0 .. n - 1 in the order given: their ids.
+  {
+    std::int32_t* const gid = g.ids.data();
+    const std::int32_t* const by = ids.data();
+    detail::parallel_for(g.n_points, [&](std::size_t b, std::size_t e) {
+      for (std::size_t i = b; i < e; ++i) gid[i] = by[std::size_t(gid[i])];
+    });
+  }
+  if (!grid_in_place())  // a view shows the host array itself
+    check_cl(runtime_ptr()->queue().enqueueWriteBuffer(g_ids_, CL_TRUE, 0, g.ids.size() * 4, g.ids.data()),
+             "clEnqueueWriteBuffer", "blockhash grid ids");
   keep.put(info_);
-  ++info_.update_rebuilds;
-  if (retune) ++info_.retunes;
-  // The reference population is that of a tuned side (the first build's or a retune's): a rebuild
-  // that kept the side must not move it, or growth by small steps would never retune.
-  if (retune) grid_build_mean_ = info_.mean_cell_points;
-  grid_positions();
+  info_.update_rebuilds += grid_builds_ - builds_before;  // the builds made, not the calls
+  if (retune || info_.cell_size != side_before) ++info_.retunes;
+  // Every rebuild is a fresh build: its population is the one the band is measured from.
+  grid_build_mean_ = info_.mean_cell_points;
 }
 
 void BlockHashIndex::blocks_update(const float* points, std::size_t n, std::int32_t first,
