@@ -247,7 +247,8 @@ TEST_CASE("updates: the grid's budget counts live points, and thinned cells retu
 
 // Issue 39: an insert that crosses the retune band (900k + 100k uniform from Python: built twice,
 // 3.5-4.5x a fresh build) or lands off the box makes one fresh build over the live points: the
-// update's stats count one rebuild, the grid is the one a fresh build of the result makes, and
+// update's stats count one rebuild, the grid is tuned as a fresh build of the result is (its side
+// from a random sample of the same points: within the tuner's tolerance, not bit for bit), and
 // the answers are exact.
 TEST_CASE("updates: an insert across the grid's retune band is one fresh build, equal to a fresh build of the result") {
   std::mt19937_64 rng(39);
@@ -276,9 +277,9 @@ TEST_CASE("updates: an insert across the grid's retune band is one fresh build, 
   CHECK(ix.info().retunes == 1);
   {
     auto fresh = fresh_of_model();
-    CHECK(ix.info().cell_size == fresh->info().cell_size);
-    CHECK(ix.info().mean_cell_points == doctest::Approx(fresh->info().mean_cell_points));
-    CHECK(ix.info().occupied_cells == fresh->info().occupied_cells);
+    CHECK(ix.info().cell_size == doctest::Approx(fresh->info().cell_size).epsilon(0.05));
+    CHECK(ix.info().mean_cell_points == doctest::Approx(fresh->info().mean_cell_points).epsilon(0.1));
+    CHECK(double(ix.info().occupied_cells) == doctest::Approx(double(fresh->info().occupied_cells)).epsilon(0.15));
   }
   check_exact(ix, m, rng);
   // Off the box and large (the set doubles into a neighbouring region): before, a build with the
@@ -290,9 +291,9 @@ TEST_CASE("updates: an insert across the grid's retune band is one fresh build, 
   CHECK(ix.info().update_rebuilds == 2);
   {
     auto fresh = fresh_of_model();
-    CHECK(ix.info().cell_size == fresh->info().cell_size);
-    CHECK(ix.info().occupied_cells == fresh->info().occupied_cells);
-    CHECK(ix.info().mean_cell_points == doctest::Approx(fresh->info().mean_cell_points));
+    CHECK(ix.info().cell_size == doctest::Approx(fresh->info().cell_size).epsilon(0.05));
+    CHECK(double(ix.info().occupied_cells) == doctest::Approx(double(fresh->info().occupied_cells)).epsilon(0.15));
+    CHECK(ix.info().mean_cell_points == doctest::Approx(fresh->info().mean_cell_points).epsilon(0.1));
   }
   check_exact(ix, m, rng);
   // Small, off the box and dense (5 % of the set in a cube a few cells wide): the population the
@@ -306,8 +307,8 @@ TEST_CASE("updates: an insert across the grid's retune band is one fresh build, 
   CHECK(ix.info().update_rebuilds == before + 1);
   {
     auto fresh = fresh_of_model();
-    CHECK(ix.info().cell_size == fresh->info().cell_size);
-    CHECK(ix.info().occupied_cells == fresh->info().occupied_cells);
+    CHECK(ix.info().cell_size == doctest::Approx(fresh->info().cell_size).epsilon(0.05));
+    CHECK(double(ix.info().occupied_cells) == doctest::Approx(double(fresh->info().occupied_cells)).epsilon(0.15));
   }
   check_exact(ix, m, rng);
   // A large remove (past 1/8 holes and below the band): one build, no compaction before it

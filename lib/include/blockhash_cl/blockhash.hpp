@@ -275,8 +275,6 @@ class BlockHashIndex : public Index {
   // The removed ids' slots found by one pass over the stored ids (many ids, or no position map).
   void grid_mark_holes_by_scan(const std::int32_t* ids, std::size_t n, std::size_t& lo, std::size_t& hi,
                                bool& on_box);
-  // The live points (caller units) and their ids, ascending, with room for `extra` more.
-  void grid_live_by_id(std::vector<float>& caller_xyz, std::vector<std::int32_t>& ids, std::size_t extra);
   void blocks_update(const float* scaled, std::size_t n, std::int32_t first, const std::int32_t* ids,
                      std::size_t n_removed);
   void live_points(std::vector<float>& caller_xyz, std::vector<std::int32_t>& ids) const;

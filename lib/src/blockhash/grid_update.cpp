@@ -32,6 +32,9 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <random>
+#include <cstdio>
+#include <cstdlib>
 
 #include "bhcl_shared.h"
 #include "blockhash/build.hpp"
@@ -468,42 +471,69 @@ void BlockHashIndex::live_points(std::vector<float>& xyz, std::vector<std::int32
   xyz = indexed_points(&ids);
 }
 
-void BlockHashIndex::grid_live_by_id(std::vector<float>& pts, std::vector<std::int32_t>& ids, std::size_t extra) {
-  const blockhash::Grid& g = *s_->grid;
-  // In ascending id order, as a fresh build of the result is given them (the build's cell side
-  // comes from a strided sample, which the grid's cell order would bias: 34 points per cell
-  // where the caller's order gives 24). The slot of each id (the position map, one parallel
-  // pass), then two parallel passes over the id range: the live ids per range, then the copy
-  // (in the caller's units).
-  if (id_pos_.size() != std::size_t(id_bound())) grid_positions();
-  const std::int32_t* const pos = id_pos_.data();
-  const std::size_t bound = id_pos_.size();
-  const unsigned T = std::max(1u, std::min<unsigned>(detail::default_threads(), unsigned(bound / 65536 + 1)));
+// The live points (caller units: 2^scale_exp) and their ids in the grid's order, with room for
+// `extra` more.
+static void grid_live_in_cell_order(const blockhash::Grid& g, int scale_exp, std::vector<float>& pts,
+                                    std::vector<std::int32_t>& ids, std::size_t extra) {
+  // In the grid's own order (cell by cell), holes dropped: two sequential parallel passes over the
+  // slots, the live ones per range, then the copy (caller units). An id-ordered gather went
+  // through the id -> slot map, a random write and a random read per point: as long as the build
+  // itself (47 of 100 ms, 1.25M points). So after such a rebuild a cell's slots follow the old
+  // grid's order, not ascending ids (putting them back in id order cost 50 ms more): exact answers
+  // are unchanged (the kernels rank by distance, then id); a budgeted query may examine other
+  // points of a cell its budget cuts into than a fresh build's would, as any input order does.
+  const std::size_t n = g.n_points;
+  const unsigned T = std::max(1u, std::min<unsigned>(detail::default_threads(), unsigned(n / 65536 + 1)));
   std::vector<std::size_t> count(T + 1, 0);
-  const std::size_t per = (bound + T - 1) / T;
+  const std::size_t per = (n + T - 1) / T;
+  const std::int32_t* const gid = g.ids.data();
   detail::parallel_for(T, [&](std::size_t tb, std::size_t te) {
     for (std::size_t t = tb; t < te; ++t)
-      for (std::size_t i = t * per, e = std::min(bound, i + per); i < e; ++i) count[t + 1] += pos[i] >= 0;
+      for (std::size_t i = t * per, e = std::min(n, i + per); i < e; ++i) count[t + 1] += gid[i] != kHoleId;
   }, T, 1);
   for (unsigned t = 0; t < T; ++t) count[t + 1] += count[t];
   const std::size_t live = count[T];
   pts.resize(3 * (live + extra));
   ids.resize(live + extra);
-  const int e2 = s_->scale_exp;
+  const int e2 = scale_exp;
   detail::parallel_for(T, [&](std::size_t tb, std::size_t te) {
     for (std::size_t t = tb; t < te; ++t) {
       std::size_t w = count[t];
-      for (std::size_t id = t * per, e = std::min(bound, id + per); id < e; ++id) {
-        if (pos[id] < 0) continue;
-        const std::size_t i = std::size_t(pos[id]);
+      for (std::size_t i = t * per, e = std::min(n, i + per); i < e; ++i) {
+        if (gid[i] == kHoleId) continue;
         float* p = pts.data() + 3 * w;
         p[0] = e2 ? std::ldexp(g.x[i], e2) : g.x[i];
         p[1] = e2 ? std::ldexp(g.y[i], e2) : g.y[i];
         p[2] = e2 ? std::ldexp(g.z[i], e2) : g.z[i];
-        ids[w++] = static_cast<std::int32_t>(id);
+        ids[w++] = gid[i];
       }
     }
   }, T, 1);
+}
+
+// The build tunes its cell side from a strided sample of the points in the order given, and
+// corrects its estimate as for a random one (binomial thinning); a stride over points in cell
+// order is a stratified sample instead, which gave 34 points per cell for a target of 24. So the
+// points the stride will pick (every n / sample-th, as blockhash::choose_cell_side takes them)
+// change places with points at random positions: the sample is a random one, as a caller's
+// order gives, and the order stays cell order elsewhere.
+// The build tunes its cell side from a strided sample of the points in the order given, and
+// corrects its estimate as for a random one (binomial thinning); a stride over points in cell
+// order is a stratified sample instead, which gave 34 points per cell for a target of 24. So the
+// points the stride will pick (every n / sample-th, as blockhash::choose_cell_side takes them)
+// change places with points at random positions: the sample is a random one, as a caller's
+// order gives, and the order stays cell order elsewhere.
+static void shuffle_tuning_sample(std::vector<float>& pts, std::vector<std::int32_t>& ids) {
+  const std::size_t n = ids.size();
+  if (n == 0) return;
+  const std::size_t stride = std::max<std::size_t>(1, n / std::max<std::size_t>(1, blockhash::GridBuildParams{}.sample));
+  std::mt19937_64 rng(n);
+  std::uniform_int_distribution<std::size_t> pick(0, n - 1);
+  for (std::size_t i = 0; i < n; i += stride) {
+    const std::size_t r = pick(rng);
+    std::swap(ids[i], ids[r]);
+    for (int d = 0; d < 3; ++d) std::swap(pts[3 * i + d], pts[3 * r + d]);
+  }
 }
 
 void BlockHashIndex::grid_rebuild_live(const float* extra, std::size_t m, std::int32_t first, bool retune) {
@@ -514,10 +544,26 @@ void BlockHashIndex::grid_rebuild_live(const float* extra, std::size_t m, std::i
   // and the gather was serial: 3.5-4.5x a fresh build across the band).
   std::vector<float> pts;
   std::vector<std::int32_t> ids;
-  grid_live_by_id(pts, ids, m);
+  grid_live_in_cell_order(*s_->grid, s_->scale_exp, pts, ids, m);
   const std::size_t live = ids.size() - m;
   std::copy(extra, extra + 3 * m, pts.begin() + 3 * live);
   for (std::size_t i = 0; i < m; ++i) ids[live + i] = first + static_cast<std::int32_t>(i);
+  shuffle_tuning_sample(pts, ids);
+  // The old arrays are copied out: freed before the build allocates the new ones, so that the
+  // update's peak memory is a fresh build's plus the copy, not two grids.
+  {
+    blockhash::Grid& g = *s_->grid;
+    g.x = blockhash::GridVec<float>();
+    g.y = blockhash::GridVec<float>();
+    g.z = blockhash::GridVec<float>();
+    g.ids = blockhash::GridVec<std::int32_t>();
+    if (g.scratch) {  // an insert's merge arrays; the build's cells and records are kept
+      g.scratch->x = blockhash::GridVec<float>();
+      g.scratch->y = blockhash::GridVec<float>();
+      g.scratch->z = blockhash::GridVec<float>();
+      g.scratch->ids = blockhash::GridVec<std::int32_t>();
+    }
+  }
   const UpdateCounters keep(info_);
   const double side_before = info_.cell_size;
   id_pos_.clear();  // every point moves; the next remove that needs the map makes it again
@@ -533,9 +579,14 @@ void BlockHashIndex::grid_rebuild_live(const float* extra, std::size_t m, std::i
       for (std::size_t i = b; i < e; ++i) gid[i] = by[std::size_t(gid[i])];
     });
   }
-  if (!grid_in_place())  // a view shows the host array itself
-    check_cl(runtime_ptr()->queue().enqueueWriteBuffer(g_ids_, CL_TRUE, 0, g.ids.size() * 4, g.ids.data()),
-             "clEnqueueWriteBuffer", "blockhash grid ids");
+  if (!grid_in_place()) {  // a view shows the host array itself
+    const auto& q = runtime_ptr()->queue();
+    const std::size_t bytes = g.ids.size() * 4;
+    check_cl(q.enqueueWriteBuffer(g_x_, CL_FALSE, 0, bytes, g.x.data()), "clEnqueueWriteBuffer", "blockhash grid x");
+    check_cl(q.enqueueWriteBuffer(g_y_, CL_FALSE, 0, bytes, g.y.data()), "clEnqueueWriteBuffer", "blockhash grid y");
+    check_cl(q.enqueueWriteBuffer(g_z_, CL_FALSE, 0, bytes, g.z.data()), "clEnqueueWriteBuffer", "blockhash grid z");
+    check_cl(q.enqueueWriteBuffer(g_ids_, CL_TRUE, 0, bytes, g.ids.data()), "clEnqueueWriteBuffer", "blockhash grid ids");
+  }
   keep.put(info_);
   info_.update_rebuilds += grid_builds_ - builds_before;  // the builds made, not the calls
   if (retune || info_.cell_size != side_before) ++info_.retunes;
