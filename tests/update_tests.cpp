@@ -367,6 +367,51 @@ TEST_CASE("updates: an insert across the grid's retune band is one fresh build, 
   check_exact(ix, m, rng);
 }
 
+// Issue 39: a sensor moving on inserts past the box's edge every scan; the rebuild that takes
+// such points leaves room on the side they passed (two corner points, holes after the build), so
+// the next scans' points merge instead of building afresh each time; answers stay exact, the room
+// is never returned, and the live points' box stays their own.
+TEST_CASE("updates: the grid leaves room where inserts passed its box, so a sliding window merges") {
+  std::mt19937_64 rng(391);
+  Model m;
+  std::vector<float> p0 = uniform(rng, 20000, 0.0f, 1.0f);
+  BlockHashIndex ix(test::runtime(), p0.data(), 20000);
+  REQUIRE(ix.info().grid);
+  m.add(p0);
+  // Scan s: 1000 points in [0.1 s, 1 + 0.1 s] x [0, 1]^2 (0.1 of the extent past the old edge: the
+  // build's slack of two cells, 0.21, is passed every other scan).
+  std::size_t rebuilds = 0, merges = 0;
+  for (int s = 1; s <= 6; ++s) {
+    CAPTURE(s);
+    std::vector<float> scan = uniform(rng, 1000, 0.0f, 1.0f);
+    for (std::size_t i = 0; i < scan.size(); i += 3) scan[i] = 0.1f * float(s) + scan[i];
+    const std::size_t r0 = ix.info().update_rebuilds, g0 = ix.info().merges;
+    REQUIRE(ix.insert(scan.data(), 1000) == m.next);
+    m.add(scan);
+    rebuilds += ix.info().update_rebuilds - r0;
+    merges += ix.info().merges - g0;
+    if (ix.info().update_rebuilds > r0 && rebuilds == 1) CHECK(ix.info().holes == 2);  // the room's corners
+    // The crop: the 1000 live points of smallest x leave (the population stays in the band).
+    std::vector<std::pair<float, std::int32_t>> by_x;
+    for (const auto& kv : m.live) by_x.emplace_back(kv.second[0], kv.first);
+    std::partial_sort(by_x.begin(), by_x.begin() + 1000, by_x.end());
+    std::vector<std::int32_t> drop;
+    for (std::size_t i = 0; i < 1000; ++i) drop.push_back(by_x[i].second);
+    const std::size_t r1 = ix.info().update_rebuilds;
+    ix.remove(drop.data(), drop.size());
+    for (std::int32_t id : drop) m.live.erase(id);
+    CHECK(ix.info().update_rebuilds == r1);  // holes or a compaction, no build
+    check_exact(ix, m, rng);
+  }
+  // The scans within the build's slack merge; the first past it rebuilds with half the extent of
+  // room in +x, and the next ones land in it (one more rebuild at most: the band, as the
+  // population drifts; it keeps the room). Without the room every scan past the edge rebuilt.
+  CHECK(rebuilds >= 1);
+  CHECK(rebuilds <= 2);
+  CHECK(merges >= 4);
+  CHECK(ix.size() == m.live.size());
+}
+
 TEST_CASE("updates: block hashing's two-level grid directory after random inserts and removes") {
   std::mt19937_64 rng(12);
   Model m;

@@ -523,6 +523,62 @@ static void grid_live_in_cell_order(const blockhash::Grid& g, int scale_exp, std
 // points the stride will pick (every n / sample-th, as blockhash::choose_cell_side takes them)
 // change places with points at random positions: the sample is a random one, as a caller's
 // order gives, and the order stays cell order elsewhere.
+// Room to grow where an insert left the grid's box (a sensor moving on: every scan's leading edge
+// lies outside the box its map was built in, and each such insert was a full build). For each
+// axis and side the new points passed, the box of the rebuild is extended by half the points'
+// extent there, through two points at the corners of that box appended to the build's input with
+// the hole id; after the build they become holes (+inf), so they are never returned and the live
+// points' box stays their own. The next inserts that land in the room merge. Returns the points
+// appended (0 or 2).
+static std::size_t add_growth_room(const blockhash::Grid& g, int scale_exp, const float* extra, std::size_t m,
+                                   std::vector<float>& pts, std::vector<std::int32_t>& ids) {
+  if (m == 0) return 0;
+  double lo[3], hi[3];
+  const bhcl_grid_dbox& b = g.dbox;
+  const double blo[3] = {b.lx, b.ly, b.lz}, bhi[3] = {b.hx, b.hy, b.hz};
+  const double o[3] = {g.geom.ox, g.geom.oy, g.geom.oz}, nc[3] = {double(g.geom.nx), double(g.geom.ny), double(g.geom.nz)};
+  double glo[3], ghi[3];
+  for (int d = 0; d < 3; ++d) {
+    lo[d] = std::isfinite(blo[d]) ? std::ldexp(blo[d], scale_exp) : INFINITY;
+    hi[d] = std::isfinite(bhi[d]) ? std::ldexp(bhi[d], scale_exp) : -INFINITY;
+    glo[d] = std::ldexp(o[d], scale_exp);
+    ghi[d] = std::ldexp(o[d] + nc[d] * double(g.geom.h), scale_exp);
+  }
+  double nlo[3] = {INFINITY, INFINITY, INFINITY}, nhi[3] = {-INFINITY, -INFINITY, -INFINITY};
+  for (std::size_t i = 0; i < m; ++i)
+    for (int d = 0; d < 3; ++d) {
+      nlo[d] = std::min(nlo[d], double(extra[3 * i + d]));
+      nhi[d] = std::max(nhi[d], double(extra[3 * i + d]));
+    }
+  const double cell = std::ldexp(double(g.geom.h), scale_exp);
+  float c0[3], c1[3];
+  bool room = false;
+  for (int d = 0; d < 3; ++d) {
+    const double l = std::min(lo[d], nlo[d]), h = std::max(hi[d], nhi[d]), ext = h - l;
+    // Past the box: half the extent of room. Room left by an earlier rebuild is kept where the
+    // new points still reach the front on that side (within a quarter of the extent of it: a
+    // rebuild for the band must not take away the moving window's room).
+    // (Room is more than the build's own slack of two cells, or each rebuild would keep it and
+    // add its own again.)
+    const double kept = std::max(ext / 4, 4.0 * cell);
+    double c_lo = l, c_hi = h;
+    if (nlo[d] < glo[d]) c_lo = l - 0.5 * ext;
+    else if (glo[d] < l - kept && nlo[d] < l + ext / 4) c_lo = glo[d];
+    if (nhi[d] > ghi[d]) c_hi = h + 0.5 * ext;
+    else if (ghi[d] > h + kept && nhi[d] > h - ext / 4) c_hi = ghi[d];
+    room = room || c_lo < l || c_hi > h;
+    c0[d] = static_cast<float>(c_lo);
+    c1[d] = static_cast<float>(c_hi);
+    if (!std::isfinite(c0[d]) || !std::isfinite(c1[d])) return 0;  // at the float range's edge: no room
+  }
+  if (!room) return 0;
+  pts.insert(pts.end(), c0, c0 + 3);
+  pts.insert(pts.end(), c1, c1 + 3);
+  ids.push_back(kHoleId);
+  ids.push_back(kHoleId);
+  return 2;
+}
+
 static void shuffle_tuning_sample(std::vector<float>& pts, std::vector<std::int32_t>& ids) {
   const std::size_t n = ids.size();
   if (n == 0) return;
@@ -548,6 +604,7 @@ void BlockHashIndex::grid_rebuild_live(const float* extra, std::size_t m, std::i
   const std::size_t live = ids.size() - m;
   std::copy(extra, extra + 3 * m, pts.begin() + 3 * live);
   for (std::size_t i = 0; i < m; ++i) ids[live + i] = first + static_cast<std::int32_t>(i);
+  const std::size_t phantoms = add_growth_room(*s_->grid, s_->scale_exp, extra, m, pts, ids);
   shuffle_tuning_sample(pts, ids);
   // The old arrays are copied out: freed before the build allocates the new ones, so that the
   // update's peak memory is a fresh build's plus the copy, not two grids.
@@ -576,9 +633,13 @@ void BlockHashIndex::grid_rebuild_live(const float* extra, std::size_t m, std::i
     std::int32_t* const gid = g.ids.data();
     const std::int32_t* const by = ids.data();
     detail::parallel_for(g.n_points, [&](std::size_t b, std::size_t e) {
-      for (std::size_t i = b; i < e; ++i) gid[i] = by[std::size_t(gid[i])];
+      for (std::size_t i = b; i < e; ++i) {
+        gid[i] = by[std::size_t(gid[i])];
+        if (gid[i] == kHoleId) g.x[i] = g.y[i] = g.z[i] = INFINITY;  // a corner of the room left
+      }
     });
   }
+  if (phantoms) g.dbox = blockhash::grid_points_box(g, params_.threads);  // the live points' own
   if (!grid_in_place()) {  // a view shows the host array itself
     const auto& q = runtime_ptr()->queue();
     const std::size_t bytes = g.ids.size() * 4;
@@ -588,6 +649,7 @@ void BlockHashIndex::grid_rebuild_live(const float* extra, std::size_t m, std::i
     check_cl(q.enqueueWriteBuffer(g_ids_, CL_TRUE, 0, bytes, g.ids.data()), "clEnqueueWriteBuffer", "blockhash grid ids");
   }
   keep.put(info_);
+  info_.holes = phantoms;
   info_.update_rebuilds += grid_builds_ - builds_before;  // the builds made, not the calls
   if (retune || info_.cell_size != side_before) ++info_.retunes;
   // Every rebuild is a fresh build: its population is the one the band is measured from.
