@@ -143,6 +143,21 @@ _NPZ_FORMAT = _container.FORMAT
 _NPZ_FORMATS = _container.FORMATS
 
 
+
+def _append_rows(buf: Optional[np.ndarray], view: np.ndarray, rows: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+    """Appends rows to a read-only view of a growable store: (the store, the new read-only view).
+    The store grows by half (at least to fit) when full, so n adds copy O(total) rows in all; a
+    view handed out before stays valid (its rows are never written again)."""
+    n, m = view.shape[0], rows.shape[0]
+    if buf is None or buf.shape[0] < n + m or buf.dtype != view.dtype:
+        grown = np.empty((max(n + m, n + n // 2), view.shape[1]), view.dtype)
+        grown[:n] = view
+        buf = grown
+    buf[n:n + m] = rows
+    out = buf[:n + m]
+    out.flags.writeable = False
+    return buf, out
+
 class Index:
     """A built index of one method over (N, 3) points. Made by make_index() or load().
 
@@ -161,8 +176,8 @@ class Index:
     add continues there) and the same answers.
     """
 
-    __slots__ = ("_impl", "last_stats", "_origin", "_points", "_options", "_coords", "_removed", "_points64",
-                 "_p_round", "_devices")
+    __slots__ = ("_impl", "last_stats", "_origin", "_points", "_options", "_coords", "_removed_sorted", "_points64",
+                 "_p_round", "_devices", "_points_buf", "_points64_buf", "_removed_parts")
 
     def __init__(self, impl: "_core.Index", origin: Optional[np.ndarray] = None,
                  points: Optional[np.ndarray] = None, options: Optional[Dict[str, Any]] = None,
@@ -176,7 +191,11 @@ class Index:
         self._points64 = points64
         self._p_round = _refine.rounding_bound(points) if points is not None else 0.0
         # The ids removed so far (ascending int32): their rows of _points are not live.
-        self._removed = np.zeros(0, np.int32) if removed is None else np.asarray(removed, np.int32)
+        self._removed_sorted = np.zeros(0, np.int32) if removed is None else np.asarray(removed, np.int32)
+        self._removed_parts: List[np.ndarray] = []  # removes not yet merged into _removed_sorted
+        # The growable stores behind _points / _points64 once an add appended to them (None before).
+        self._points_buf: Optional[np.ndarray] = None
+        self._points64_buf: Optional[np.ndarray] = None
         self.last_stats: Optional[Dict[str, Any]] = None
         self._origin = np.zeros(3, np.float64) if origin is None else np.asarray(origin, np.float64)
         self._points = points
@@ -205,8 +224,9 @@ class Index:
         device memory is host memory): the library's structure (device arrays, points included),
         its host copies (block hashing's structure, an exact method's copy of the points) and the
         package's host copy of the points (12 B each, for pickling and save)."""
-        own = self._points.nbytes if self._points is not None else 0
-        own += self._points64.nbytes if self._points64 is not None else 0
+        own = 0
+        for buf, view in ((self._points_buf, self._points), (self._points64_buf, self._points64)):
+            own += buf.nbytes if buf is not None else view.nbytes if view is not None else 0
         return int(self._impl.memory_bytes) + int(self._impl.host_bytes) + own
 
     @property
@@ -467,15 +487,15 @@ class Index:
         float64 points are stored relative to the index's origin, as the build's were."""
         stored = self._to_index(points, "points")
         ids = self._impl.insert(stored)
-        if self._points is not None:  # the copy pickling and save rebuild from: a row per id issued
-            grown = np.concatenate([self._points, stored.reshape(-1, 3)])
-            grown.flags.writeable = False
-            self._points = grown
+        # The copies pickling and save rebuild from (a row per id issued), appended in place into
+        # stores grown by half when full: a copy of every row on each add cost more than the
+        # library's insert itself (12 MB per add at 1M points; issue 39).
+        if self._points is not None:
+            self._points_buf, self._points = _append_rows(self._points_buf, self._points, stored.reshape(-1, 3))
         if self._points64 is not None:
             a, _ = _checked(points, "points")
-            grown = np.concatenate([self._points64, np.asarray(a, np.float64).reshape(-1, 3)])
-            grown.flags.writeable = False
-            self._points64 = grown
+            self._points64_buf, self._points64 = _append_rows(self._points64_buf, self._points64,
+                                                              np.asarray(a, np.float64).reshape(-1, 3))
         self._p_round = max(self._p_round, _refine.rounding_bound(stored))
         return ids
 
@@ -489,7 +509,17 @@ class Index:
             raise ValueError("remove: an id is outside the int32 range")
         self._impl.remove(np.ascontiguousarray(arr, dtype=np.int32))
         # The rows stay (ids are never reused); the removed ids travel with them (see the class).
-        self._removed = np.union1d(self._removed, arr.astype(np.int32)).astype(np.int32)
+        # Kept as the calls gave them and merged when read: a sorted union on every remove grew
+        # with all the removes before it. The library refused repeats, so the parts are disjoint.
+        self._removed_parts.append(arr.astype(np.int32))
+
+    @property
+    def _removed(self) -> np.ndarray:
+        """The ids removed so far, ascending int32."""
+        if self._removed_parts:
+            self._removed_sorted = np.sort(np.concatenate([self._removed_sorted] + self._removed_parts)).astype(np.int32)
+            self._removed_parts = []
+        return self._removed_sorted
 
     @property
     def id_bound(self) -> int:

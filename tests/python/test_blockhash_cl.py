@@ -550,3 +550,30 @@ def test_pickle_and_save_after_add_and_remove(tmp_path, method, options):
     first_live = int(np.flatnonzero(live)[0])
     assert (state["points"][removed] == index._points[first_live]).all()
     assert state["removed"].tolist() == removed.tolist()
+
+
+def test_add_appends_in_place_and_remove_merges_lazily():
+    """Issue 39: add appends into a store grown by half (no copy of every row per add), remove
+    keeps its ids until read; the rows and removed ids are those of the calls, in order, and a
+    view of the rows taken earlier is unchanged and read-only after later adds."""
+    rng = np.random.default_rng(391)
+    base = rng.random((1000, 3), dtype=np.float32)
+    index = bh.make_index("blockhash", base)
+    adds = [rng.random((n, 3), dtype=np.float32) for n in (10, 300, 5, 900, 1)]
+    early = None
+    for i, a in enumerate(adds):
+        ids = index.add(a)
+        assert ids[0] == 1000 + sum(len(b) for b in adds[:i])
+        if i == 1:
+            early = index._points
+    assert early is not None and early.shape == (1310, 3) and not early.flags.writeable
+    np.testing.assert_array_equal(early, np.concatenate([base] + adds[:2]))
+    np.testing.assert_array_equal(index._points, np.concatenate([base] + adds))
+    assert not index._points.flags.writeable
+    index.remove(np.array([2200, 3, 1200]))
+    index.remove([7, 1001])
+    np.testing.assert_array_equal(index._removed, [3, 7, 1001, 1200, 2200])
+    assert index._removed.dtype == np.int32
+    index.remove([0])
+    np.testing.assert_array_equal(index._removed, [0, 3, 7, 1001, 1200, 2200])
+    assert len(index) == 1000 + sum(len(a) for a in adds) - 6

@@ -150,10 +150,12 @@ struct BlockHashBuildInfo {
   double t_total = 0;
   // Updates (Index::insert/remove; lib/src/blockhash/grid_update.cpp). holes: removed points
   // still stored (grid: +inf coordinates, dropped by the next merge or compaction); merges:
-  // inserts sorted into the existing cells; compactions; rebuilds: full builds an update made
-  // (grid: points outside the grid's box keep the cell side, a mean cell population drifted past
-  // 1.25x or below 0.8x of the tuned side's retunes it; block layouts: every update); t_update: seconds
-  // spent in updates so far.
+  // inserts sorted into the existing cells; compactions; update_rebuilds: full builds updates
+  // made, at most one per update (grid: points outside the grid's box, an insert into the
+  // two-level directory, or a mean cell population past 1.1x / below 0.9x of the tuned one, each
+  // a fresh build over the live points with the build's own parameters; block layouts: every
+  // update); retunes: those rebuilds the band caused or whose cell side changed; t_update:
+  // seconds spent in updates so far.
   std::size_t holes = 0, merges = 0, compactions = 0, update_rebuilds = 0, retunes = 0;
   double t_update = 0;
   std::string summary() const;  // one line
@@ -270,6 +272,9 @@ class BlockHashIndex : public Index {
   void grid_rebuild_live(const float* extra, std::size_t m, std::int32_t first, bool retune);
   void grid_upload_from(std::size_t point_from, std::size_t cell_from);
   void grid_positions();                                  // id -> position, from the grid's ids
+  // The removed ids' slots found by one pass over the stored ids (many ids, or no position map).
+  void grid_mark_holes_by_scan(const std::int32_t* ids, std::size_t n, std::size_t& lo, std::size_t& hi,
+                               bool& on_box);
   void blocks_update(const float* scaled, std::size_t n, std::int32_t first, const std::int32_t* ids,
                      std::size_t n_removed);
   void live_points(std::vector<float>& caller_xyz, std::vector<std::int32_t>& ids) const;
@@ -280,6 +285,7 @@ class BlockHashIndex : public Index {
   void loaded_update_state(std::int64_t id_bound);
   std::vector<std::int32_t> id_pos_;  // grid after updates: id -> sorted position (-1: none)
   double grid_build_mean_ = 0;        // the mean cell population of the last full grid build
+  std::size_t grid_builds_ = 0;       // grid builds made (the constructor's, rebuilds, updates')
 
   BlockHashIndex(std::shared_ptr<Runtime> runtime, std::unique_ptr<blockhash::Structure> s);
   void upload();

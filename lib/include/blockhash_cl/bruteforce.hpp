@@ -19,9 +19,11 @@ class BruteForceIndex : public Index {
 
   std::string method() const override { return "bruteforce"; }
   bool exact() const override { return true; }
-  std::size_t memory_bytes() const override { return host_.size() * 16; }
+  // The device array (none of its own where the device reads the host array in place).
+  std::size_t memory_bytes() const override;
   // The caller's points (the double-precision fallback) and the host mirror host_.
-  std::size_t host_bytes() const override { return size() * 3 * sizeof(float) + memory_bytes(); }
+  // The exact methods' copy of the caller's points and the host array (holes included).
+  std::size_t host_bytes() const override { return size() * 3 * sizeof(float) + host_.size() * 16; }
 
  protected:
   BHCL_INDEX_DEVICE_HOOKS
@@ -36,6 +38,7 @@ class BruteForceIndex : public Index {
   std::vector<HostPoint> host_;  // the device array: ascending ids
   cl::Buffer points_;  // float4 per point, w = the point's id (int bits)
   std::size_t cap_bytes_ = 0;
+  std::size_t holes_ = 0;  // removed points still stored (NaN coordinates) until a compaction
 };
 
 }  // namespace bhcl

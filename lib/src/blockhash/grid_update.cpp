@@ -16,10 +16,12 @@
 //    scatter gives them.
 //  - the leaf split: a cell side tuned for a population (target_cell_points) stops fitting when
 //    the set grows or shrinks; once the point-weighted mean cell population drifts past 1.1x (or
-//    below 0.9x) of the last tuned build's, the grid is rebuilt over the live points with a freshly
+//    below 0.9x) of the last full build's, the grid is rebuilt over the live points with a freshly
 //    tuned side. Growth by doubling keeps the amortised cost per point O(1).
-//  - points outside the grid's box: a full build over the live points with the previous cell side
-//    (the slab bounds, and so the exact mode, rely on every point lying inside its cell).
+//  - points outside the grid's box: a full build over the live points (the slab bounds, and so
+//    the exact mode, rely on every point lying inside its cell). Every full build an update makes
+//    (this one, the band's, the two-level directory's) is one fresh build with the build's own
+//    parameters, never two: no update costs more than building its result afresh (issue 39).
 //  - device buffers: the changed tail of each array written in place where it fits, reallocated
 //    with capacity grown by half where not (upload_grid); on a host-in-place device (PoCL's CPU
 //    device, Quirks::host_ptr_in_place) views of the host arrays, made again after the update.
@@ -28,7 +30,11 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <cstring>
+#include <random>
+#include <cstdio>
+#include <cstdlib>
 
 #include "bhcl_shared.h"
 #include "blockhash/build.hpp"
@@ -222,8 +228,8 @@ void BlockHashIndex::grid_upload_from(std::size_t point_from, std::size_t cell_f
 void BlockHashIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t first) {
   blockhash::Grid& g = *s_->grid;
   if (g.geom.sparse) {
-    // The two-level directory is not merged in place (its segment tables would move): a build
-    // over the live points and the new ones with the same cell side, as for points off the box.
+    // The two-level directory is not merged in place (its segment tables would move): a fresh
+    // build over the live points and the new ones, as for points off the box.
     std::vector<float> caller(3 * m);
     for (std::size_t i = 0; i < 3 * m; ++i) caller[i] = std::ldexp(scaled[i], s_->scale_exp);
     grid_rebuild_live(caller.data(), m, first, false);
@@ -300,26 +306,77 @@ void BlockHashIndex::grid_insert(const float* scaled, std::size_t m, std::int32_
   ++info_.merges;
 }
 
+void BlockHashIndex::grid_mark_holes_by_scan(const std::int32_t* ids, std::size_t n, std::size_t& lo, std::size_t& hi,
+                                             bool& on_box) {
+  blockhash::Grid& g = *s_->grid;
+  std::vector<std::uint8_t> gone(std::size_t(id_bound()), 0);
+  for (std::size_t i = 0; i < n; ++i) gone[std::size_t(ids[i])] = 1;
+  const unsigned T = std::max(1u, std::min<unsigned>(detail::default_threads(), unsigned(g.n_points / 65536 + 1)));
+  const std::size_t per = (g.n_points + T - 1) / T;
+  struct Part {
+    std::size_t lo = SIZE_MAX, hi = 0, found = 0;
+    bool on_box = false;
+  };
+  std::vector<Part> part(T);
+  const bhcl_grid_dbox b = g.dbox;
+  detail::parallel_for(T, [&](std::size_t tb, std::size_t te) {
+    for (std::size_t t = tb; t < te; ++t) {
+      Part& pt = part[t];
+      for (std::size_t i = t * per, e = std::min(g.n_points, i + per); i < e; ++i) {
+        const std::int32_t id = g.ids[i];
+        if (id == kHoleId || !gone[std::size_t(id)]) continue;
+        pt.on_box = pt.on_box || g.x[i] == b.lx || g.x[i] == b.hx || g.y[i] == b.ly || g.y[i] == b.hy ||
+                    g.z[i] == b.lz || g.z[i] == b.hz;
+        g.x[i] = g.y[i] = g.z[i] = INFINITY;
+        g.ids[i] = kHoleId;
+        pt.lo = std::min(pt.lo, i);
+        pt.hi = i;
+        ++pt.found;
+      }
+    }
+  }, T, 1);
+  std::size_t found = 0;
+  for (const Part& pt : part) {
+    lo = std::min(lo, pt.lo);
+    hi = std::max(hi, pt.hi);
+    on_box = on_box || pt.on_box;
+    found += pt.found;
+  }
+  if (found != n) throw Error("blockhash: remove: " + std::to_string(n - found) + " of the ids are not stored (internal)");
+  if (id_pos_.size() == std::size_t(id_bound()))  // a map kept (else made again when needed)
+    for (std::size_t i = 0; i < n; ++i) id_pos_[std::size_t(ids[i])] = -1;
+  else
+    id_pos_.clear();
+}
+
 void BlockHashIndex::grid_remove(const std::int32_t* ids, std::size_t n) {
   blockhash::Grid& g = *s_->grid;
-  if (id_pos_.size() != std::size_t(id_bound())) grid_positions();
   std::size_t lo = g.n_points, hi = 0;
-  for (std::size_t i = 0; i < n; ++i)
-    if (id_pos_[std::size_t(ids[i])] < 0)
-      throw Error("blockhash: remove: id " + std::to_string(ids[i]) + " is not stored (internal)");
   // The points' box (grid_search.h) stays the live points' own, as a load of the saved index
   // computes it: recomputed only when a removed point lies on it.
   bool on_box = false;
-  for (std::size_t i = 0; i < n; ++i) {
-    const std::size_t p = std::size_t(id_pos_[std::size_t(ids[i])]);
-    const bhcl_grid_dbox& b = g.dbox;
-    on_box = on_box || g.x[p] == b.lx || g.x[p] == b.hx || g.y[p] == b.ly || g.y[p] == b.hy || g.z[p] == b.lz ||
-             g.z[p] == b.hz;
-    g.x[p] = g.y[p] = g.z[p] = INFINITY;
-    g.ids[p] = kHoleId;
-    id_pos_[std::size_t(ids[i])] = -1;
-    lo = std::min(lo, p);
-    hi = std::max(hi, p);
+  // Many ids, or no id -> position map yet: one parallel pass over the stored ids against a mark
+  // per id (sequential reads) is cheaper than making the map (a random write per point; 0.4-0.6x
+  // of a fresh build for a 10 % remove). A few ids with the map: their slots directly.
+  const bool have_map = id_pos_.size() == std::size_t(id_bound());
+  if (n * 16 >= g.n_points || (!have_map && n * 256 >= g.n_points)) {
+    grid_mark_holes_by_scan(ids, n, lo, hi, on_box);
+  } else {
+    if (!have_map) grid_positions();
+    for (std::size_t i = 0; i < n; ++i)
+      if (id_pos_[std::size_t(ids[i])] < 0)
+        throw Error("blockhash: remove: id " + std::to_string(ids[i]) + " is not stored (internal)");
+    for (std::size_t i = 0; i < n; ++i) {
+      const std::size_t p = std::size_t(id_pos_[std::size_t(ids[i])]);
+      const bhcl_grid_dbox& b = g.dbox;
+      on_box = on_box || g.x[p] == b.lx || g.x[p] == b.hx || g.y[p] == b.ly || g.y[p] == b.hy || g.z[p] == b.lz ||
+               g.z[p] == b.hz;
+      g.x[p] = g.y[p] = g.z[p] = INFINITY;
+      g.ids[p] = kHoleId;
+      id_pos_[std::size_t(ids[i])] = -1;
+      lo = std::min(lo, p);
+      hi = std::max(hi, p);
+    }
   }
   info_.holes += n;
   if (on_box) g.dbox = blockhash::grid_points_box(g, params_.threads);
@@ -355,7 +412,7 @@ void BlockHashIndex::grid_remove(const std::int32_t* ids, std::size_t n) {
 
 void BlockHashIndex::grid_compact() {
   blockhash::Grid& g = *s_->grid;
-  if (g.geom.sparse) {  // the two-level directory: rebuilt over the live points, same side
+  if (g.geom.sparse) {  // the two-level directory: a fresh build over the live points
     grid_rebuild_live(nullptr, 0, 0, false);
     info_.holes = 0;
     ++info_.compactions;
@@ -414,44 +471,189 @@ void BlockHashIndex::live_points(std::vector<float>& xyz, std::vector<std::int32
   xyz = indexed_points(&ids);
 }
 
+// The live points (caller units: 2^scale_exp) and their ids in the grid's order, with room for
+// `extra` more.
+static void grid_live_in_cell_order(const blockhash::Grid& g, int scale_exp, std::vector<float>& pts,
+                                    std::vector<std::int32_t>& ids, std::size_t extra) {
+  // In the grid's own order (cell by cell), holes dropped: two sequential parallel passes over the
+  // slots, the live ones per range, then the copy (caller units). An id-ordered gather went
+  // through the id -> slot map, a random write and a random read per point: as long as the build
+  // itself (47 of 100 ms, 1.25M points). So after such a rebuild a cell's slots follow the old
+  // grid's order, not ascending ids (putting them back in id order cost 50 ms more): exact answers
+  // are unchanged (the kernels rank by distance, then id); a budgeted query may examine other
+  // points of a cell its budget cuts into than a fresh build's would, as any input order does.
+  const std::size_t n = g.n_points;
+  const unsigned T = std::max(1u, std::min<unsigned>(detail::default_threads(), unsigned(n / 65536 + 1)));
+  std::vector<std::size_t> count(T + 1, 0);
+  const std::size_t per = (n + T - 1) / T;
+  const std::int32_t* const gid = g.ids.data();
+  detail::parallel_for(T, [&](std::size_t tb, std::size_t te) {
+    for (std::size_t t = tb; t < te; ++t)
+      for (std::size_t i = t * per, e = std::min(n, i + per); i < e; ++i) count[t + 1] += gid[i] != kHoleId;
+  }, T, 1);
+  for (unsigned t = 0; t < T; ++t) count[t + 1] += count[t];
+  const std::size_t live = count[T];
+  pts.resize(3 * (live + extra));
+  ids.resize(live + extra);
+  const int e2 = scale_exp;
+  detail::parallel_for(T, [&](std::size_t tb, std::size_t te) {
+    for (std::size_t t = tb; t < te; ++t) {
+      std::size_t w = count[t];
+      for (std::size_t i = t * per, e = std::min(n, i + per); i < e; ++i) {
+        if (gid[i] == kHoleId) continue;
+        float* p = pts.data() + 3 * w;
+        p[0] = e2 ? std::ldexp(g.x[i], e2) : g.x[i];
+        p[1] = e2 ? std::ldexp(g.y[i], e2) : g.y[i];
+        p[2] = e2 ? std::ldexp(g.z[i], e2) : g.z[i];
+        ids[w++] = gid[i];
+      }
+    }
+  }, T, 1);
+}
+
+// The build tunes its cell side from a strided sample of the points in the order given, and
+// corrects its estimate as for a random one (binomial thinning); a stride over points in cell
+// order is a stratified sample instead, which gave 34 points per cell for a target of 24. So the
+// points the stride will pick (every n / sample-th, as blockhash::choose_cell_side takes them)
+// change places with points at random positions: the sample is a random one, as a caller's
+// order gives, and the order stays cell order elsewhere.
+// The build tunes its cell side from a strided sample of the points in the order given, and
+// corrects its estimate as for a random one (binomial thinning); a stride over points in cell
+// order is a stratified sample instead, which gave 34 points per cell for a target of 24. So the
+// points the stride will pick (every n / sample-th, as blockhash::choose_cell_side takes them)
+// change places with points at random positions: the sample is a random one, as a caller's
+// order gives, and the order stays cell order elsewhere.
+// Room to grow where an insert left the grid's box (a sensor moving on: every scan's leading edge
+// lies outside the box its map was built in, and each such insert was a full build). For each
+// axis and side the new points passed, the box of the rebuild is extended by half the points'
+// extent there, through two points at the corners of that box appended to the build's input with
+// the hole id; after the build they become holes (+inf), so they are never returned and the live
+// points' box stays their own. The next inserts that land in the room merge. Returns the points
+// appended (0 or 2).
+static std::size_t add_growth_room(const blockhash::Grid& g, int scale_exp, const float* extra, std::size_t m,
+                                   std::vector<float>& pts, std::vector<std::int32_t>& ids) {
+  if (m == 0) return 0;
+  double lo[3], hi[3];
+  const bhcl_grid_dbox& b = g.dbox;
+  const double blo[3] = {b.lx, b.ly, b.lz}, bhi[3] = {b.hx, b.hy, b.hz};
+  const double o[3] = {g.geom.ox, g.geom.oy, g.geom.oz}, nc[3] = {double(g.geom.nx), double(g.geom.ny), double(g.geom.nz)};
+  double glo[3], ghi[3];
+  for (int d = 0; d < 3; ++d) {
+    lo[d] = std::isfinite(blo[d]) ? std::ldexp(blo[d], scale_exp) : INFINITY;
+    hi[d] = std::isfinite(bhi[d]) ? std::ldexp(bhi[d], scale_exp) : -INFINITY;
+    glo[d] = std::ldexp(o[d], scale_exp);
+    ghi[d] = std::ldexp(o[d] + nc[d] * double(g.geom.h), scale_exp);
+  }
+  double nlo[3] = {INFINITY, INFINITY, INFINITY}, nhi[3] = {-INFINITY, -INFINITY, -INFINITY};
+  for (std::size_t i = 0; i < m; ++i)
+    for (int d = 0; d < 3; ++d) {
+      nlo[d] = std::min(nlo[d], double(extra[3 * i + d]));
+      nhi[d] = std::max(nhi[d], double(extra[3 * i + d]));
+    }
+  const double cell = std::ldexp(double(g.geom.h), scale_exp);
+  float c0[3], c1[3];
+  bool room = false;
+  for (int d = 0; d < 3; ++d) {
+    const double l = std::min(lo[d], nlo[d]), h = std::max(hi[d], nhi[d]), ext = h - l;
+    // Past the box: half the extent of room. Room left by an earlier rebuild is kept where the
+    // new points still reach the front on that side (within a quarter of the extent of it: a
+    // rebuild for the band must not take away the moving window's room).
+    // (Room is more than the build's own slack of two cells, or each rebuild would keep it and
+    // add its own again.)
+    const double kept = std::max(ext / 4, 4.0 * cell);
+    double c_lo = l, c_hi = h;
+    if (nlo[d] < glo[d]) c_lo = l - 0.5 * ext;
+    else if (glo[d] < l - kept && nlo[d] < l + ext / 4) c_lo = glo[d];
+    if (nhi[d] > ghi[d]) c_hi = h + 0.5 * ext;
+    else if (ghi[d] > h + kept && nhi[d] > h - ext / 4) c_hi = ghi[d];
+    room = room || c_lo < l || c_hi > h;
+    c0[d] = static_cast<float>(c_lo);
+    c1[d] = static_cast<float>(c_hi);
+    if (!std::isfinite(c0[d]) || !std::isfinite(c1[d])) return 0;  // at the float range's edge: no room
+  }
+  if (!room) return 0;
+  pts.insert(pts.end(), c0, c0 + 3);
+  pts.insert(pts.end(), c1, c1 + 3);
+  ids.push_back(kHoleId);
+  ids.push_back(kHoleId);
+  return 2;
+}
+
+static void shuffle_tuning_sample(std::vector<float>& pts, std::vector<std::int32_t>& ids) {
+  const std::size_t n = ids.size();
+  if (n == 0) return;
+  const std::size_t stride = std::max<std::size_t>(1, n / std::max<std::size_t>(1, blockhash::GridBuildParams{}.sample));
+  std::mt19937_64 rng(n);
+  std::uniform_int_distribution<std::size_t> pick(0, n - 1);
+  for (std::size_t i = 0; i < n; i += stride) {
+    const std::size_t r = pick(rng);
+    std::swap(ids[i], ids[r]);
+    for (int d = 0; d < 3; ++d) std::swap(pts[3 * i + d], pts[3 * r + d]);
+  }
+}
+
 void BlockHashIndex::grid_rebuild_live(const float* extra, std::size_t m, std::int32_t first, bool retune) {
+  // A fresh build over the live points and the new ones, with the build's own parameters (a
+  // tuned side unless the caller fixed one), done once: an update never costs more than building
+  // its result afresh plus the gather of the live points and the ids' mapping (issue 39; before,
+  // a rebuild that kept the side and then found the cells outside the band built a second time,
+  // and the gather was serial: 3.5-4.5x a fresh build across the band).
   std::vector<float> pts;
   std::vector<std::int32_t> ids;
-  live_points(pts, ids);
-  pts.insert(pts.end(), extra, extra + 3 * m);
-  for (std::size_t i = 0; i < m; ++i) ids.push_back(first + static_cast<std::int32_t>(i));
+  grid_live_in_cell_order(*s_->grid, s_->scale_exp, pts, ids, m);
+  const std::size_t live = ids.size() - m;
+  std::copy(extra, extra + 3 * m, pts.begin() + 3 * live);
+  for (std::size_t i = 0; i < m; ++i) ids[live + i] = first + static_cast<std::int32_t>(i);
+  const std::size_t phantoms = add_growth_room(*s_->grid, s_->scale_exp, extra, m, pts, ids);
+  shuffle_tuning_sample(pts, ids);
+  // The old arrays are copied out: freed before the build allocates the new ones, so that the
+  // update's peak memory is a fresh build's plus the copy, not two grids.
+  {
+    blockhash::Grid& g = *s_->grid;
+    g.x = blockhash::GridVec<float>();
+    g.y = blockhash::GridVec<float>();
+    g.z = blockhash::GridVec<float>();
+    g.ids = blockhash::GridVec<std::int32_t>();
+    if (g.scratch) {  // an insert's merge arrays; the build's cells and records are kept
+      g.scratch->x = blockhash::GridVec<float>();
+      g.scratch->y = blockhash::GridVec<float>();
+      g.scratch->z = blockhash::GridVec<float>();
+      g.scratch->ids = blockhash::GridVec<std::int32_t>();
+    }
+  }
   const UpdateCounters keep(info_);
-  // The band applies to every update, not only to the merges: an insert into the two-level
-  // directory, or of points off the box, rebuilds with the side kept, and without this a
-  // clustered set grown 10x in 100 inserts reached 5x the tuned population (recall at A = 8 fell
-  // by 0.12). The population after the insert is predicted as for points from the same
-  // distribution (a Poisson cell of mean l grown by g keeps a point-weighted mean of g l + 1);
-  // the built grid's own mean is checked after, for inserts that land elsewhere.
-  const double ref = std::max(1.0, grid_build_mean_);
-  if (!retune && m > 0 && grid_build_mean_ > 0) {
-    const double live = double(ids.size() - m);
-    const double predicted = 1.0 + (std::max(info_.mean_cell_points, 1.0) - 1.0) * double(ids.size()) / std::max(live, 1.0);
-    retune = predicted > kRetuneAbove * ref;
-  }
-  // A fresh side (-1: tuned from a sample, as a fresh build) or the previous one (caller units).
-  build_grid_layout(pts.data(), ids.size(), retune ? -1.0 : info_.cell_size);
-  if (!retune && grid_build_mean_ > 0 &&
-      (info_.mean_cell_points > kRetuneAbove * ref || info_.mean_cell_points < kRetuneBelow * ref)) {
-    build_grid_layout(pts.data(), ids.size(), -1.0);
-    retune = true;
-  }
+  const double side_before = info_.cell_size;
+  id_pos_.clear();  // every point moves; the next remove that needs the map makes it again
+  const std::size_t builds_before = grid_builds_;
+  build_grid_layout(pts.data(), ids.size(), params_.cell_size);
+  pts = std::vector<float>();
   blockhash::Grid& g = *s_->grid;
-  // build_grid numbers the points 0 .. n - 1 in the order given (ascending ids): their ids.
-  for (std::size_t i = 0; i < g.n_points; ++i) g.ids[i] = ids[std::size_t(g.ids[i])];
-  check_cl(runtime_ptr()->queue().enqueueWriteBuffer(g_ids_, CL_TRUE, 0, g.ids.size() * 4, g.ids.data()),
-           "clEnqueueWriteBuffer", "blockhash grid ids");
+  // build_grid numbers the points 0 .. n - 1 in the order given: their ids.
+  {
+    std::int32_t* const gid = g.ids.data();
+    const std::int32_t* const by = ids.data();
+    detail::parallel_for(g.n_points, [&](std::size_t b, std::size_t e) {
+      for (std::size_t i = b; i < e; ++i) {
+        gid[i] = by[std::size_t(gid[i])];
+        if (gid[i] == kHoleId) g.x[i] = g.y[i] = g.z[i] = INFINITY;  // a corner of the room left
+      }
+    });
+  }
+  if (phantoms) g.dbox = blockhash::grid_points_box(g, params_.threads);  // the live points' own
+  if (!grid_in_place()) {  // a view shows the host array itself
+    const auto& q = runtime_ptr()->queue();
+    const std::size_t bytes = g.ids.size() * 4;
+    check_cl(q.enqueueWriteBuffer(g_x_, CL_FALSE, 0, bytes, g.x.data()), "clEnqueueWriteBuffer", "blockhash grid x");
+    check_cl(q.enqueueWriteBuffer(g_y_, CL_FALSE, 0, bytes, g.y.data()), "clEnqueueWriteBuffer", "blockhash grid y");
+    check_cl(q.enqueueWriteBuffer(g_z_, CL_FALSE, 0, bytes, g.z.data()), "clEnqueueWriteBuffer", "blockhash grid z");
+    check_cl(q.enqueueWriteBuffer(g_ids_, CL_TRUE, 0, bytes, g.ids.data()), "clEnqueueWriteBuffer", "blockhash grid ids");
+  }
   keep.put(info_);
-  ++info_.update_rebuilds;
-  if (retune) ++info_.retunes;
-  // The reference population is that of a tuned side (the first build's or a retune's): a rebuild
-  // that kept the side must not move it, or growth by small steps would never retune.
-  if (retune) grid_build_mean_ = info_.mean_cell_points;
-  grid_positions();
+  info_.holes = phantoms;
+  info_.update_rebuilds += grid_builds_ - builds_before;  // the builds made, not the calls
+  if (retune || info_.cell_size != side_before) ++info_.retunes;
+  // Every rebuild is a fresh build: its population is the one the band is measured from.
+  grid_build_mean_ = info_.mean_cell_points;
 }
 
 void BlockHashIndex::blocks_update(const float* points, std::size_t n, std::int32_t first,

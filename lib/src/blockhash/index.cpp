@@ -208,6 +208,7 @@ void BlockHashIndex::build_grid_layout(const float* points, std::size_t n_points
   gp.threads = params_.threads;
   GridBuildStats st;
   build_grid(points, n_points, gp, *s.grid, &st);
+  ++grid_builds_;  // an update's stats count its builds from this (grid_update.cpp)
   BlockHashBuildInfo& in = s.info;
   in = BlockHashBuildInfo{};
   grid_geometry_info(s, in);

@@ -2,7 +2,10 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdint>
+#include <limits>
+#include <vector>
 #include <map>
 
 #include "blockhash_cl/error.hpp"
@@ -19,6 +22,9 @@ BruteForceIndex::BruteForceIndex(std::shared_ptr<Runtime> runtime, const float* 
   const float* pts = prepare_points(points, n_points, storage);
   // w = the point's id (int bits): the kernels rank and report by it, so that the ids stay stable
   // when updates compact the array (kept in ascending id order: ties still go to the lower id).
+  // Room for inserts of up to an eighth (2 B per point): the first insert after a build appends
+  // instead of moving every point (that move, and the upload after it, cost as much as the build).
+  host_.reserve(n_points + n_points / 8);
   host_.resize(n_points);
   for (std::size_t i = 0; i < n_points; ++i)
     host_[i] = HostPoint{pts[3 * i], pts[3 * i + 1], pts[3 * i + 2], static_cast<std::int32_t>(i)};
@@ -27,10 +33,19 @@ BruteForceIndex::BruteForceIndex(std::shared_ptr<Runtime> runtime, const float* 
 }
 
 // The device array from entry `from` on; a new buffer (capacity grown by half) when the points no
-// longer fit, so that a growing sequence reallocates O(log) times.
+// longer fit, so that a growing sequence reallocates O(log) times. On a device that reads host
+// memory in place (PoCL's CPU device, Quirks::host_ptr_in_place) the buffer is a view of host_
+// itself, made again after every update (host_ may have moved): nothing is copied.
 void BruteForceIndex::upload_from(std::size_t from, bool fresh) {
   const auto& rt = runtime_ptr();
   const std::size_t bytes = std::max<std::size_t>(host_.size(), 1) * sizeof(HostPoint);
+  if (rt->quirks().host_ptr_in_place && !host_.empty()) {
+    cl_int err = CL_SUCCESS;
+    points_ = cl::Buffer(rt->context(), CL_MEM_READ_ONLY | CL_MEM_USE_HOST_PTR, bytes, host_.data(), &err);
+    check_cl(err, "clCreateBuffer", "bruteforce points (in place), " + std::to_string(bytes) + " bytes");
+    cap_bytes_ = bytes;
+    return;
+  }
   if (fresh || !points_() || bytes > cap_bytes_) {
     const std::size_t cap = fresh ? bytes : std::max(bytes, cap_bytes_ + cap_bytes_ / 2);
     cl_int err = CL_SUCCESS;
@@ -43,6 +58,10 @@ void BruteForceIndex::upload_from(std::size_t from, bool fresh) {
   check_cl(rt->queue().enqueueWriteBuffer(points_, CL_TRUE, from * sizeof(HostPoint),
                                           (host_.size() - from) * sizeof(HostPoint), host_.data() + from),
            "clEnqueueWriteBuffer", "bruteforce points");
+}
+
+std::size_t BruteForceIndex::memory_bytes() const {
+  return runtime_ptr()->quirks().host_ptr_in_place ? 0 : host_.size() * sizeof(HostPoint);
 }
 
 // Updates: appended (ids are issued in ascending order) or compacted in place, order kept, and
@@ -61,23 +80,47 @@ void BruteForceIndex::insert_points(const float*, const float* scaled, std::size
   }
 }
 
+// A remove: the points become holes in place (NaN coordinates: no distance comparison accepts
+// one, so neither kernel returns it, at any radius), written back as the span they touch (nothing
+// on an in-place device); past an eighth of holes one stable compaction drops them all, order kept.
 void BruteForceIndex::remove_points(const std::int32_t* ids, std::size_t n) {
   check_cl(runtime_ptr()->queue().finish(), "clFinish", "bruteforce remove");
-  // ids ascending, host_ ascending by id: one merge pass.
-  const auto lower = std::lower_bound(host_.begin(), host_.end(), ids[0],
-                                      [](const HostPoint& p, std::int32_t id) { return p.id < id; });
-  const std::size_t from = std::size_t(lower - host_.begin());
-  std::size_t w = from, j = 0;
-  for (std::size_t i = from; i < host_.size(); ++i) {
-    if (j < n && host_[i].id == ids[j]) {
-      ++j;
-      continue;
+  // ids ascending, host_ ascending by distinct ids from 0: the entry of an id lies at or before
+  // the id's own number and after the previous id's entry, so a binary search in that range finds
+  // it (a few steps while few were compacted away; a walk over every entry read 16 MB at 1M).
+  std::vector<std::size_t> at(n);
+  {
+    std::size_t lo = 0;
+    for (std::size_t j = 0; j < n; ++j) {
+      const std::size_t hi = std::min(host_.size(), std::size_t(ids[j]) + 1);
+      const std::size_t i = std::size_t(std::lower_bound(host_.begin() + std::ptrdiff_t(std::min(lo, hi)), host_.begin() + std::ptrdiff_t(hi), ids[j],
+                                                         [](const HostPoint& p, std::int32_t id) { return p.id < id; }) -
+                                        host_.begin());
+      if (i == hi || host_[i].id != ids[j] || std::isnan(host_[i].x))
+        throw Error("bruteforce: remove: id " + std::to_string(ids[j]) + " was not stored (internal)");
+      at[j] = i;
+      lo = i + 1;
     }
-    host_[w++] = host_[i];
   }
-  if (j != n) throw Error("bruteforce: remove: an id was not stored (internal)");
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  if (8 * (holes_ + n) <= host_.size()) {
+    for (std::size_t i : at) host_[i].x = host_[i].y = host_[i].z = nan;
+    holes_ += n;
+    if (!runtime_ptr()->quirks().host_ptr_in_place) {
+      const std::size_t lo = at.front(), len = at.back() - lo + 1;
+      check_cl(runtime_ptr()->queue().enqueueWriteBuffer(points_, CL_TRUE, lo * sizeof(HostPoint), len * sizeof(HostPoint),
+                                                         host_.data() + lo),
+               "clEnqueueWriteBuffer", "bruteforce points (holes)");
+    }
+    return;
+  }
+  for (std::size_t i : at) host_[i].x = nan;
+  std::size_t w = 0;
+  for (std::size_t i = 0; i < host_.size(); ++i)
+    if (!std::isnan(host_[i].x)) host_[w++] = host_[i];
   host_.resize(w);
-  upload_from(from, false);
+  holes_ = 0;
+  upload_from(0, false);
 }
 
 cl::Event BruteForceIndex::enqueue_batch(const cl::CommandQueue& queue, const cl::Buffer& queries,

@@ -145,7 +145,12 @@ const float* Index::prepare_points(const float* points, std::size_t n, std::vect
   const detail::PointScan box = detail::scan_points(points, n);
   if (!box.finite) validate_points(points, n, "points");
   if (!answers_on_host()) refuse_in_forked_child(method());
-  if (exact()) caller_points_.assign(points, points + 3 * n);
+  if (exact()) {
+    // Room for inserts of up to an eighth (1.5 B per point, untouched until used): the first
+    // insert after a build appends instead of moving every row (issue 39).
+    caller_points_.reserve(3 * (n + n / 8));
+    caller_points_.assign(points, points + 3 * n);
+  }
   scale_exp_ = scale_exponent_of(box, points, n);
   if (scale_exp_ == 0) return points;
   storage.resize(3 * n);

@@ -7,6 +7,7 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <cstring>
 #include <exception>
 #include <limits>
@@ -40,11 +41,27 @@ struct Groups {
   bool empty() const { return begin.empty(); }
 };
 
+// One FLANN tree over a run of the index's local point numbers [offset, offset + n): the main tree
+// of the last full build, or the delta tree over the points inserted since (FLANN's
+// KDTreeSingleIndex::addPoints rebuilds the whole tree on every call, so the wrapper keeps the
+// new points in a tree of their own until they pass a share of the main one).
+struct FlannPart {
+  std::vector<float> points;  // kept for FLANN (it keeps row pointers) and for recomputing distances
+  std::unique_ptr<FlannTree> tree;
+  // Coincident points (a bounded-work guard): FLANN visits every point that ties the k-th
+  // distance, so 2M identical points cost a full scan per query (11x brute force). When the
+  // points hold duplicates the tree is built over one representative per group instead.
+  std::vector<float> unique_points;
+  Groups groups;
+  bool recompute = false;  // FLANN's distances differ from the contract's: recompute them
+  std::size_t offset = 0;
+  std::size_t n() const { return points.size() / 3; }
+};
+
 class ExactResultSet : public flann::ResultSet<float> {
  public:
-  ExactResultSet(const float* points, int k, float r2, bool recompute, const Groups* groups = nullptr)
-      : points_(points), k_(k), r2_(r2), recompute_(recompute),
-        groups_(groups && !groups->empty() ? groups : nullptr) {
+  // dead: a removed mark per local point number (null: none removed).
+  ExactResultSet(int k, float r2, const std::uint8_t* dead) : k_(k), r2_(r2), dead_(dead) {
     d_.resize(static_cast<std::size_t>(k));
     id_.resize(static_cast<std::size_t>(k));
   }
@@ -53,6 +70,13 @@ class ExactResultSet : public flann::ResultSet<float> {
     q_ = query;
     size_ = 0;
     worst_ = slack(r2_);
+  }
+  // The tree whose hits follow (the list carries over from the previous part's).
+  void use(const FlannPart& p) {
+    points_ = p.points.data();
+    recompute_ = p.recompute;
+    groups_ = p.groups.empty() ? nullptr : &p.groups;
+    offset_ = static_cast<std::int32_t>(p.offset);
   }
 
   bool full() const override { return size_ == k_; }
@@ -68,16 +92,18 @@ class ExactResultSet : public flann::ResultSet<float> {
       const std::int64_t b = groups_->begin[index], e = groups_->begin[index + 1];
       const float d = recompute_ ? reference::dist2_float(points_ + 3 * std::size_t(groups_->members[b]), q_) : dist;
       for (std::int64_t j = b; j < e; ++j)
-        if (!add(d, groups_->members[static_cast<std::size_t>(j)])) break;
+        if (!add(d, offset_ + groups_->members[static_cast<std::size_t>(j)])) break;
       return;
     }
-    const auto id = static_cast<std::int32_t>(index);
-    add(recompute_ ? reference::dist2_float(points_ + 3 * index, q_) : dist, id);
+    add(recompute_ ? reference::dist2_float(points_ + 3 * index, q_) : dist, offset_ + static_cast<std::int32_t>(index));
   }
 
-  void add(std::int32_t id) { add(reference::dist2_float(points_ + 3 * std::size_t(id), q_), id); }
+  // Point i of the current part, its distance computed (the linear scan).
+  void add_scanned(std::size_t i) { add(reference::dist2_float(points_ + 3 * i, q_), offset_ + static_cast<std::int32_t>(i)); }
 
+  // False when the rank rejects it (a removed point is skipped, not rejected: a group goes on).
   bool add(float d, std::int32_t id) {
+    if (dead_ && dead_[std::size_t(id)]) return true;
     if (!(d <= r2_)) return false;
     const auto k = static_cast<bhcl_u32>(k_);
     if (size_ == k_ && !bhcl_topk_accepts(d_.data(), id_.data(), k, d, id)) return false;
@@ -100,12 +126,14 @@ class ExactResultSet : public flann::ResultSet<float> {
  private:
   static float slack(float b) { return b + b * (1.0f / 1024.0f) + 1e-30f; }
 
-  const float* points_;
+  const float* points_ = nullptr;
   const float* q_ = nullptr;
   int k_;
   float r2_;
-  bool recompute_;
-  const Groups* groups_;
+  const std::uint8_t* dead_;
+  bool recompute_ = false;
+  const Groups* groups_ = nullptr;
+  std::int32_t offset_ = 0;
   int size_ = 0;
   float worst_ = 0.0f;
   std::vector<float> d_;
@@ -130,12 +158,16 @@ void run_workers(std::size_t threads, std::atomic<std::size_t>& next, std::size_
 // Every point within r2 under the contract's distance, fed by FLANN's traversal (radius search).
 class RadiusCollectSet : public flann::ResultSet<float> {
  public:
-  RadiusCollectSet(const float* points, float r2, bool recompute, const Groups* groups = nullptr)
-      : points_(points), r2_(r2), worst_(r2 + r2 * (1.0f / 1024.0f) + 1e-30f), recompute_(recompute),
-        groups_(groups && !groups->empty() ? groups : nullptr) {}
+  RadiusCollectSet(float r2, const std::uint8_t* dead) : r2_(r2), worst_(r2 + r2 * (1.0f / 1024.0f) + 1e-30f), dead_(dead) {}
   void reset(const float* query) {
     q_ = query;
     found_.clear();
+  }
+  void use(const FlannPart& p) {
+    points_ = p.points.data();
+    recompute_ = p.recompute;
+    groups_ = p.groups.empty() ? nullptr : &p.groups;
+    offset_ = static_cast<std::int32_t>(p.offset);
   }
   bool full() const override { return true; }
   void addPoint(float dist, std::size_t index) override {
@@ -143,26 +175,33 @@ class RadiusCollectSet : public flann::ResultSet<float> {
       const std::int64_t b = groups_->begin[index], e = groups_->begin[index + 1];
       const float d = recompute_ ? reference::dist2_float(points_ + 3 * std::size_t(groups_->members[b]), q_) : dist;
       if (d <= r2_)
-        for (std::int64_t j = b; j < e; ++j) found_.emplace_back(d, groups_->members[static_cast<std::size_t>(j)]);
+        for (std::int64_t j = b; j < e; ++j) keep(d, offset_ + groups_->members[static_cast<std::size_t>(j)]);
       return;
     }
     const float d = recompute_ ? reference::dist2_float(points_ + 3 * index, q_) : dist;
-    if (d <= r2_) found_.emplace_back(d, static_cast<std::int32_t>(index));
+    if (d <= r2_) keep(d, offset_ + static_cast<std::int32_t>(index));
   }
-  // A caller's point (the linear scan), not a representative.
-  void add_caller_point(float d, std::int32_t id) {
-    if (d <= r2_) found_.emplace_back(d, id);
+  // Point i of the current part (the linear scan), not a representative.
+  void add_scanned(std::size_t i) {
+    const float d = reference::dist2_float(points_ + 3 * i, q_);
+    if (d <= r2_) keep(d, offset_ + static_cast<std::int32_t>(i));
   }
   // The same slack as ExactResultSet: FLANN's rounded cell bounds never prune a point within r2.
   float worstDist() const override { return worst_; }
+  // In the parts' order (local numbers ascending within a distance only after the caller's sort).
   const std::vector<std::pair<float, std::int32_t>>& found() const { return found_; }
 
  private:
-  const float* points_;
+  void keep(float d, std::int32_t id) {
+    if (!(dead_ && dead_[std::size_t(id)])) found_.emplace_back(d, id);
+  }
+  const float* points_ = nullptr;
   const float* q_ = nullptr;
   float r2_, worst_;
-  bool recompute_;
-  const Groups* groups_;
+  const std::uint8_t* dead_;
+  bool recompute_ = false;
+  const Groups* groups_ = nullptr;
+  std::int32_t offset_ = 0;
   std::vector<std::pair<float, std::int32_t>> found_;
 };
 
@@ -211,18 +250,14 @@ bool group_coincident(const std::vector<float>& pts, std::vector<float>& unique,
 }  // namespace
 
 struct FlannIndex::Impl {
-  std::vector<float> points;  // the caller's points, kept for FLANN (it keeps row pointers) and
-                              // for recomputing distances
-  std::unique_ptr<FlannTree> tree;
-  // Coincident points (a bounded-work guard): FLANN visits every point that ties the k-th
-  // distance, so 2M identical points cost a full scan per query (11x brute force). When the
-  // points hold duplicates the tree is built over one representative per group instead.
-  std::vector<float> unique_points;
-  Groups groups;
-  bool recompute = false;  // FLANN's distances differ from the contract's: recompute them
-  // After updates: the stable id of each of `points` (ascending; empty: the identity).
+  FlannPart main, delta;  // local point numbers: main's 0 .. n - 1, then delta's
+  // After updates: the stable id of each local point number (ascending: every delta id is newer
+  // than every main one; empty: the identity).
   std::vector<std::int32_t> ext;
+  std::vector<std::uint8_t> dead;  // removed local numbers, skipped by every search (empty: none)
+  std::size_t n_dead = 0;
   std::int32_t id(std::int32_t i) const { return ext.empty() ? i : ext[std::size_t(i)]; }
+  std::size_t stored() const { return main.n() + delta.n(); }
   int leaf_max_size = 10;
 };
 
@@ -262,27 +297,35 @@ FlannIndex::FlannIndex(std::shared_ptr<Runtime> runtime, const float* points,
   set_build_seconds(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
 }
 
-void FlannIndex::build_tree(const float* pts, std::size_t n_points, std::vector<std::int32_t> ext) {
-  auto fresh = std::make_unique<Impl>();
-  fresh->leaf_max_size = impl_->leaf_max_size;
-  fresh->points.assign(pts, pts + 3 * n_points);
-  fresh->ext = std::move(ext);
-  const bool grouped = group_coincident(fresh->points, fresh->unique_points, fresh->groups);
+namespace {
+
+// A part's tree over pts (index coordinates), its coincident points grouped where there are many.
+void build_part(FlannPart& part, const float* pts, std::size_t n, int leaf_max_size) {
+  part.points.assign(pts, pts + 3 * n);
+  const bool grouped = group_coincident(part.points, part.unique_points, part.groups);
   try {
-    flann::Matrix<float> m(grouped ? fresh->unique_points.data() : fresh->points.data(),
-                           grouped ? fresh->unique_points.size() / 3 : n_points, 3);
-    fresh->tree = std::make_unique<FlannTree>(m, flann::KDTreeSingleIndexParams(fresh->leaf_max_size, true));
-    fresh->tree->buildIndex();
-    fresh->recompute = !flann_distance_matches(fresh->points.data(), n_points);
+    flann::Matrix<float> m(const_cast<float*>(grouped ? part.unique_points.data() : part.points.data()),
+                           grouped ? part.unique_points.size() / 3 : n, 3);
+    part.tree = std::make_unique<FlannTree>(m, flann::KDTreeSingleIndexParams(leaf_max_size, true));
+    part.tree->buildIndex();
+    part.recompute = !flann_distance_matches(part.points.data(), n);
   } catch (const std::exception& e) {
     throw Error(std::string("flann: building KDTreeSingleIndex failed: ") + e.what());
   }
+}
+
+}  // namespace
+
+void FlannIndex::build_tree(const float* pts, std::size_t n_points, std::vector<std::int32_t> ext) {
+  auto fresh = std::make_unique<Impl>();
+  fresh->leaf_max_size = impl_->leaf_max_size;
+  build_part(fresh->main, pts, n_points, fresh->leaf_max_size);
+  fresh->ext = std::move(ext);
   impl_ = std::move(fresh);  // only once built: a failed update leaves the index as it was
 }
 
-// Updates: a fresh tree over the live points, ids mapped (FLANN's own addPoints rebuilds the tree
-// too once it grows by half, and its removePoint keeps removed points in every search; the wrapper's
-// coincident-point groups are rebuilt with the tree). bench/update_bench.cpp measures the cost.
+// A fresh tree over the live points, ids mapped (the wrapper's coincident-point groups are
+// rebuilt with the tree).
 void FlannIndex::rebuild_live() {
   const std::vector<float>& cp = caller_points();
   std::vector<float> live;
@@ -300,8 +343,56 @@ void FlannIndex::rebuild_live() {
   build_tree(pts, n, std::move(ids));
 }
 
-void FlannIndex::insert_points(const float*, const float*, std::size_t, std::int32_t) { rebuild_live(); }
-void FlannIndex::remove_points(const std::int32_t*, std::size_t) { rebuild_live(); }
+// Updates, as FLANN's own KDTreeIndex::addPoints does them (a rebuild only past a threshold;
+// its KDTreeSingleIndex, the exact tree used here, rebuilds on every addPoints, and its
+// removePoint keeps a removed mark that every search skips): an insert rebuilds only the delta
+// tree over the points inserted since the last full build, until they pass an eighth of the
+// main tree's (then one full build over the live points); a remove marks the points removed
+// until a quarter of the stored ones are (then one full build). No update costs more than a
+// fresh build of its result; bench/update_bench.cpp measures them.
+void FlannIndex::insert_points(const float*, const float* scaled, std::size_t m, std::int32_t first) {
+  Impl& im = *impl_;
+  const std::size_t nd = im.delta.n() + m;
+  if (8 * nd > im.main.n()) {
+    rebuild_live();
+    return;
+  }
+  FlannPart delta;
+  std::vector<float> pts(im.delta.points);
+  pts.insert(pts.end(), scaled, scaled + 3 * m);
+  build_part(delta, pts.data(), nd, im.leaf_max_size);
+  delta.offset = im.main.n();
+  // Nothing of the index changed until here: a failed build leaves it as it was.
+  std::vector<std::int32_t> ext = im.ext;
+  if (ext.empty()) {
+    ext.resize(im.stored());
+    for (std::size_t i = 0; i < ext.size(); ++i) ext[i] = static_cast<std::int32_t>(i);
+  }
+  for (std::size_t i = 0; i < m; ++i) ext.push_back(first + static_cast<std::int32_t>(i));
+  if (!im.dead.empty()) im.dead.resize(im.main.n() + nd, 0);
+  im.ext = std::move(ext);
+  im.delta = std::move(delta);
+}
+
+void FlannIndex::remove_points(const std::int32_t* ids, std::size_t n) {
+  Impl& im = *impl_;
+  if (4 * (im.n_dead + n) > im.stored()) {
+    rebuild_live();
+    return;
+  }
+  // Local numbers first (ext ascending), so that an internal error leaves the marks as they were.
+  std::vector<std::size_t> local(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    std::size_t at = std::size_t(ids[i]);
+    if (!im.ext.empty()) at = std::size_t(std::lower_bound(im.ext.begin(), im.ext.end(), ids[i]) - im.ext.begin());
+    if (at >= im.stored() || im.id(static_cast<std::int32_t>(at)) != ids[i] || (!im.dead.empty() && im.dead[at]))
+      throw Error("flann: remove: id " + std::to_string(ids[i]) + " is not stored (internal)");
+    local[i] = at;
+  }
+  if (im.dead.empty()) im.dead.assign(im.stored(), 0);
+  for (std::size_t at : local) im.dead[at] = 1;
+  im.n_dead += n;
+}
 
 FlannIndex::~FlannIndex() = default;
 
@@ -310,9 +401,15 @@ std::size_t FlannIndex::memory_bytes() const {
   // (12 B each) and its row-pointer array (NNIndex::points_, 8 B each, which usedMemory leaves
   // out), our points, the contract's copy of the caller's points (exact methods, 12 B each), and
   // the groups of coincident points. Checked against the process's growth (tests/python).
-  return static_cast<std::size_t>(std::max(0, impl_->tree->usedMemory())) + size() * (12 + 8 + 12) +
-         impl_->points.size() * sizeof(float) + impl_->unique_points.size() * sizeof(float) +
-         impl_->groups.begin.size() * 8 + impl_->groups.members.size() * 4;
+  // After updates: the delta tree likewise, the removed marks and the id map.
+  std::size_t bytes = impl_->dead.size() + impl_->ext.size() * 4 + size() * 12;
+  for (const FlannPart* p : {&impl_->main, &impl_->delta}) {
+    if (!p->tree) continue;
+    bytes += static_cast<std::size_t>(std::max(0, p->tree->usedMemory())) + p->n() * (12 + 8) +
+             p->points.size() * sizeof(float) + p->unique_points.size() * sizeof(float) +
+             p->groups.begin.size() * 8 + p->groups.members.size() * 4;
+  }
+  return bytes;
 }
 
 std::size_t FlannIndex::search(const float* queries, std::size_t n, const SearchParams& params,
@@ -321,14 +418,15 @@ std::size_t FlannIndex::search(const float* queries, std::size_t n, const Search
   const int k = params.k;
   const float r2 = std::isinf(params.max_radius) ? std::numeric_limits<float>::infinity()
                                                  : params.max_radius * params.max_radius;
-  const float* pts = impl_->points.data();
-  const std::size_t N = impl_->points.size() / 3;  // stored = live (updates rebuild)
+  const Impl& im = *impl_;
+  const std::size_t N = im.stored() - im.n_dead;  // live
   const int full_row = static_cast<int>(std::min<std::size_t>(N, static_cast<std::size_t>(k)));
+  const std::uint8_t* dead = im.dead.empty() ? nullptr : im.dead.data();
   const flann::SearchParams fp(flann::FLANN_CHECKS_UNLIMITED, 0.0f);
   std::atomic<std::size_t> next{0}, nonfinite{0};
   constexpr std::size_t kChunk = 256;  // queries per grab: balances threads, little contention
   auto work = [&]() {
-    ExactResultSet set(pts, k, r2, impl_->recompute, &impl_->groups);
+    ExactResultSet set(k, r2, dead);
     std::size_t bad = 0;
     for (;;) {
       const std::size_t begin = next.fetch_add(kChunk);
@@ -340,19 +438,26 @@ std::size_t FlannIndex::search(const float* queries, std::size_t n, const Search
         float* row_d2 = dist2 + qi * std::size_t(k);
         set.reset(q);
         if (std::isfinite(q[0]) && std::isfinite(q[1]) && std::isfinite(q[2])) {
-          impl_->tree->findNeighbors(set, q, fp);
+          for (const FlannPart* p : {&im.main, &im.delta})  // the list carries over
+            if (p->tree) {
+              set.use(*p);
+              p->tree->findNeighbors(set, q, fp);
+            }
           // FLANN takes a point only when its distance is below the bound, never at +inf: a row
           // short of min(k, N) with no radius to blame holds such points; a scan completes it.
           if (set.size() < full_row && std::isinf(r2)) {
             set.reset(q);
-            for (std::size_t i = 0; i < N; ++i) set.add(static_cast<std::int32_t>(i));
+            for (const FlannPart* p : {&im.main, &im.delta}) {
+              set.use(*p);
+              for (std::size_t i = 0; i < p->n(); ++i) set.add_scanned(i);
+            }
           }
         } else {
           ++bad;
         }
         const int c = set.size();
         for (int j = 0; j < k; ++j) {
-          row_ids[j] = j < c ? impl_->id(set.id(j)) : -1;
+          row_ids[j] = j < c ? im.id(set.id(j)) : -1;
           row_d2[j] = j < c ? set.d(j) : std::numeric_limits<float>::infinity();
         }
         counts[qi] = c;
@@ -368,14 +473,14 @@ std::size_t FlannIndex::search(const float* queries, std::size_t n, const Search
 double FlannIndex::host_radius_search(const float* queries, std::size_t n, float r2,
                                       const RadiusParams&, RadiusResult& out) const {
   auto t0 = std::chrono::steady_clock::now();
-  const float* pts = impl_->points.data();
-  const std::size_t N = impl_->points.size() / 3;
+  const Impl& im = *impl_;
+  const std::uint8_t* dead = im.dead.empty() ? nullptr : im.dead.data();
   const flann::SearchParams fp(flann::FLANN_CHECKS_UNLIMITED, 0.0f);
   std::vector<std::vector<std::pair<float, std::int32_t>>> rows(n);
   std::atomic<std::size_t> next{0};
   constexpr std::size_t kChunk = 256;
   auto work = [&]() {
-    RadiusCollectSet set(pts, r2, impl_->recompute, &impl_->groups);
+    RadiusCollectSet set(r2, dead);
     for (;;) {
       const std::size_t begin = next.fetch_add(kChunk);
       if (begin >= n) break;
@@ -383,12 +488,15 @@ double FlannIndex::host_radius_search(const float* queries, std::size_t n, float
         const float* q = queries + 3 * qi;
         if (!(std::isfinite(q[0]) && std::isfinite(q[1]) && std::isfinite(q[2]))) continue;
         set.reset(q);
-        if (std::isinf(r2)) {
-          // FLANN takes a point only when its distance is below the bound, never at +inf.
-          for (std::size_t i = 0; i < N; ++i)
-            set.add_caller_point(reference::dist2_float(pts + 3 * i, q), static_cast<std::int32_t>(i));
-        } else {
-          impl_->tree->findNeighbors(set, q, fp);
+        for (const FlannPart* p : {&im.main, &im.delta}) {
+          if (!p->tree) continue;
+          set.use(*p);
+          if (std::isinf(r2)) {
+            // FLANN takes a point only when its distance is below the bound, never at +inf.
+            for (std::size_t i = 0; i < p->n(); ++i) set.add_scanned(i);
+          } else {
+            p->tree->findNeighbors(set, q, fp);
+          }
         }
         rows[qi] = set.found();
       }
@@ -408,7 +516,7 @@ double FlannIndex::host_radius_search(const float* queries, std::size_t n, float
     std::size_t at = static_cast<std::size_t>(out.offsets[i]);
     for (const auto& [d, id] : rows[i]) {
       out.dist2[at] = d;
-      out.ids[at++] = impl_->id(id);
+      out.ids[at++] = im.id(id);
     }
   }
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
