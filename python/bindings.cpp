@@ -35,33 +35,25 @@
 #include "blockhash_cl/numbers.hpp"
 #include "blockhash_cl/parallel.hpp"
 #include "blockhash_cl/runtime.hpp"
+#include "py_common.hpp"
 #if BHCL_HAVE_FLANN
 #include "blockhash_cl/flann_index.hpp"
 #endif
 
 namespace py = pybind11;
+using bhcl_py::rows_of;
+using bhcl_py::stats_dict;
+using bhcl_py::to_numpy;
+
+#if BHCL_PYTHON_DISTRIBUTED
+// distributed_bindings.cpp: bhcl::DistributedIndex (the build found MPI).
+void bind_distributed(py::module_& m);
+#endif
 
 namespace {
 
 PyObject* g_error = nullptr;     // blockhash_cl.Error(ValueError)
 PyObject* g_cl_error = nullptr;  // blockhash_cl.OpenCLError(Error, RuntimeError)
-
-// A numpy array that owns `v` (moved to the heap, freed with the array): the results leave the
-// library without a copy.
-template <typename T>
-py::array_t<T> to_numpy(std::vector<T>&& v, std::vector<py::ssize_t> shape) {
-  auto* heap = new std::vector<T>(std::move(v));
-  py::capsule owner(heap, [](void* p) { delete static_cast<std::vector<T>*>(p); });
-  return py::array_t<T>(std::move(shape), heap->data(), owner);
-}
-
-// The (n, 3) float32 C-contiguous array the Python layer prepared; checked again here because
-// _core is importable on its own.
-std::size_t rows_of(const py::array_t<float, py::array::c_style>& a, const char* what) {
-  if (a.ndim() != 2 || a.shape(1) != 3)
-    throw py::value_error(std::string(what) + " must have shape (n, 3)");
-  return static_cast<std::size_t>(a.shape(0));
-}
 
 py::dict device_dict(const bhcl::DeviceInfo& d) {
   py::dict o;
@@ -84,12 +76,6 @@ py::dict device_dict(const bhcl::DeviceInfo& d) {
   o["is_nvidia"] = d.is_nvidia;
   o["summary"] = d.summary();
   o["quirks"] = bhcl::quirks_for(d).description;
-  return o;
-}
-
-py::dict stats_dict(const bhcl::QueryStats& s) {
-  py::dict o;
-  s.for_each_field([&](const char* name, auto value) { o[name] = value; });
   return o;
 }
 
@@ -683,4 +669,10 @@ PYBIND11_MODULE(_core, m) {
   bind_index(m);
   bind_refine(m);
   bind_multi_device(m);
+#if BHCL_PYTHON_DISTRIBUTED
+  m.attr("HAVE_MPI") = true;
+  bind_distributed(m);
+#else
+  m.attr("HAVE_MPI") = false;
+#endif
 }
