@@ -13,6 +13,7 @@ packages=(
   libopenmpi-dev openmpi-bin
   python3 python3-numpy python3-matplotlib
   python3-venv python3-dev pybind11-dev python3-scipy python3-pytest
+  python3-mpi4py  # the Python DistributedIndex's tests under mpirun (the package itself works without it)
   locales  # localedef: the locale tests build de_DE.UTF-8 in a private LOCPATH (no root)
 )
 if [ "${1:-}" = "--ci" ]; then

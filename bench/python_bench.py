@@ -73,6 +73,14 @@ class Table:
         print(line, flush=True)
 
 
+def write_atomic(path, text):
+    """The table to `path` through a temporary beside it and a rename (never half a file)."""
+    tmp = f"{path}.{os.getpid()}.tmp"
+    with open(tmp, "w") as f:
+        f.write(text)
+    os.replace(tmp, path)
+
+
 def timed(fn):
     t0 = time.perf_counter()
     out = fn()
@@ -185,8 +193,7 @@ def utm(a):
     lines.append(line)
     print(line, flush=True)
     if a.markdown:
-        with open(a.markdown, "w") as f:
-            f.write("\n".join(lines) + "\n")
+        write_atomic(a.markdown, "\n".join(lines) + "\n")
 
 
 def front(a):
@@ -255,8 +262,7 @@ def front(a):
                     row(name, len(pts), qname, k, v, f"{builds.get(v, 0):.2f}", f"{np.median(times):.3f}",
                         f"{np.median(ratios):.2f} ({min(ratios):.2f}-{max(ratios):.2f})", f"{same:.4f}")
     if a.markdown:
-        with open(a.markdown, "w") as f:
-            f.write("\n".join(lines) + "\n")
+        write_atomic(a.markdown, "\n".join(lines) + "\n")
 
 
 def main():
@@ -366,8 +372,7 @@ def main():
                 row(name, N, f"radius r={r:.4g} ({mean:.1f}/query)", v, "", f"{n / np.median(times):.0f}",
                     f"{np.median(ratios):.2f} ({min(ratios):.2f}-{max(ratios):.2f})", f"{rec:.4f}")
     if a.markdown:
-        with open(a.markdown, "w") as f:
-            f.write("\n".join(lines) + "\n")
+        write_atomic(a.markdown, "\n".join(lines) + "\n")
 
 
 if __name__ == "__main__":

@@ -20,7 +20,13 @@
 #include <climits>
 #include <cmath>
 #include <cstdint>
+#include <cstdlib>
+#include <limits>
 #include <memory>
+#include <cstddef>
+#include <unordered_map>
+#include <mutex>
+#include <new>
 #include <string>
 #include <type_traits>
 #include <utility>
@@ -35,33 +41,25 @@
 #include "blockhash_cl/numbers.hpp"
 #include "blockhash_cl/parallel.hpp"
 #include "blockhash_cl/runtime.hpp"
+#include "py_common.hpp"
 #if BHCL_HAVE_FLANN
 #include "blockhash_cl/flann_index.hpp"
 #endif
 
 namespace py = pybind11;
+using bhcl_py::rows_of;
+using bhcl_py::stats_dict;
+using bhcl_py::to_numpy;
+
+#if BHCL_PYTHON_DISTRIBUTED
+// distributed_bindings.cpp: bhcl::DistributedIndex (the build found MPI).
+void bind_distributed(py::module_& m);
+#endif
 
 namespace {
 
 PyObject* g_error = nullptr;     // blockhash_cl.Error(ValueError)
 PyObject* g_cl_error = nullptr;  // blockhash_cl.OpenCLError(Error, RuntimeError)
-
-// A numpy array that owns `v` (moved to the heap, freed with the array): the results leave the
-// library without a copy.
-template <typename T>
-py::array_t<T> to_numpy(std::vector<T>&& v, std::vector<py::ssize_t> shape) {
-  auto* heap = new std::vector<T>(std::move(v));
-  py::capsule owner(heap, [](void* p) { delete static_cast<std::vector<T>*>(p); });
-  return py::array_t<T>(std::move(shape), heap->data(), owner);
-}
-
-// The (n, 3) float32 C-contiguous array the Python layer prepared; checked again here because
-// _core is importable on its own.
-std::size_t rows_of(const py::array_t<float, py::array::c_style>& a, const char* what) {
-  if (a.ndim() != 2 || a.shape(1) != 3)
-    throw py::value_error(std::string(what) + " must have shape (n, 3)");
-  return static_cast<std::size_t>(a.shape(0));
-}
 
 py::dict device_dict(const bhcl::DeviceInfo& d) {
   py::dict o;
@@ -84,12 +82,6 @@ py::dict device_dict(const bhcl::DeviceInfo& d) {
   o["is_nvidia"] = d.is_nvidia;
   o["summary"] = d.summary();
   o["quirks"] = bhcl::quirks_for(d).description;
-  return o;
-}
-
-py::dict stats_dict(const bhcl::QueryStats& s) {
-  py::dict o;
-  s.for_each_field([&](const char* name, auto value) { o[name] = value; });
   return o;
 }
 
@@ -193,13 +185,148 @@ void over_rows(std::size_t n, std::size_t work, F&& f) {
   bhcl::detail::parallel_for(n, f, t, 1);
 }
 
+// The refinement's output buffers, kept for reuse once numpy frees them. Why: a refined k = 50
+// call over 200k queries writes 120 MB of fresh results, and glibc maps and unmaps each such
+// buffer (above its mmap threshold), so every call faulted in 30k fresh pages: perf put 47 % of
+// the refinement's samples in the kernel (faults, zeroing, the page lists, unmapping). A freed
+// buffer is kept while the pool holds at most kPoolBuffers of them and kPoolBytes in all, and a
+// request takes the smallest kept buffer that fits it without wasting more than half; the next
+// call's pages are then already mapped. BHCL_REFINE_POOL=0 turns the pool off (every buffer
+// freed at once). Huge pages (MADV_HUGEPAGE) were tried instead and dropped: on this shared
+// machine their compaction made the k = 50 refinement 1.7-2.2x slower
+// (bench/results/issue40/refine_hugepages_tried.md).
+class BufferPool {
+ public:
+  static BufferPool& instance() {
+    static BufferPool* pool = new BufferPool();  // never destroyed: buffers may outlive exit's order
+    return *pool;
+  }
+  void* take(std::size_t bytes) {
+    if (enabled()) {
+      std::lock_guard<std::mutex> lock(mu_);
+      std::size_t best = kept_.size();
+      for (std::size_t i = 0; i < kept_.size(); ++i)
+        if (kept_[i].bytes >= bytes && kept_[i].bytes <= 2 * bytes &&
+            (best == kept_.size() || kept_[i].bytes < kept_[best].bytes))
+          best = i;
+      if (best != kept_.size()) {
+        Block b = kept_[best];
+        kept_.erase(kept_.begin() + static_cast<std::ptrdiff_t>(best));
+        total_ -= b.bytes;
+        sizes_[b.p] = b.bytes;
+        return b.p;
+      }
+    }
+    void* p = std::malloc(bytes);
+    if (!p) throw std::bad_alloc();
+    std::lock_guard<std::mutex> lock(mu_);
+    sizes_[p] = bytes;
+    return p;
+  }
+  void give(void* p) {
+    std::lock_guard<std::mutex> lock(mu_);
+    auto it = sizes_.find(p);
+    const std::size_t bytes = it == sizes_.end() ? 0 : it->second;
+    if (it != sizes_.end()) sizes_.erase(it);
+    if (bytes >= kMinBytes && enabled()) {
+      while (!kept_.empty() && (kept_.size() >= kPoolBuffers || total_ + bytes > kPoolBytes)) {
+        std::free(kept_.front().p);  // the oldest first
+        total_ -= kept_.front().bytes;
+        kept_.erase(kept_.begin());
+      }
+      if (bytes <= kPoolBytes) {
+        kept_.push_back({p, bytes});
+        total_ += bytes;
+        return;
+      }
+    }
+    std::free(p);
+  }
+
+ private:
+  struct Block {
+    void* p;
+    std::size_t bytes;
+  };
+  static constexpr std::size_t kPoolBuffers = 8;
+  static constexpr std::size_t kPoolBytes = std::size_t(1) << 30;
+  static constexpr std::size_t kMinBytes = std::size_t(1) << 20;  // smaller ones come from malloc's heap
+  static bool enabled() {
+    const char* v = std::getenv("BHCL_REFINE_POOL");
+    return !(v && v[0] == '0');
+  }
+  std::mutex mu_;
+  std::vector<Block> kept_;
+  std::size_t total_ = 0;
+  std::unordered_map<void*, std::size_t> sizes_;  // every buffer handed out, by address
+};
+
+// An output array the refinement writes every entry of: from the pool above, without
+// std::vector's value initialisation (a pass over up to 2 GB of results before the real writes),
+// handed to numpy without a copy (back to the pool when numpy frees it).
+template <typename T>
+class Uninit {
+ public:
+  explicit Uninit(std::size_t n)
+      : p_(static_cast<T*>(BufferPool::instance().take(std::max<std::size_t>(1, n) * sizeof(T)))) {}
+  ~Uninit() {
+    if (p_) BufferPool::instance().give(p_);
+  }
+  Uninit(const Uninit&) = delete;
+  Uninit& operator=(const Uninit&) = delete;
+  T& operator[](std::size_t i) { return p_[i]; }
+  py::array_t<T> to_numpy(std::vector<py::ssize_t> shape) && {
+    T* raw = p_;
+    py::capsule owner(raw, [](void* x) { BufferPool::instance().give(x); });
+    p_ = nullptr;
+    return py::array_t<T>(std::move(shape), raw, owner);
+  }
+
+ private:
+  T* p_ = nullptr;
+};
+
 inline double dist2_64(const double* q, const double* p) {
   const double dx = q[0] - p[0], dy = q[1] - p[1], dz = q[2] - p[2];
   return (dx * dx + dy * dy) + dz * dz;
 }
 
+// _refine.query_delta in one pass (numpy's took a third of the refinement at k = 10: an (n, 3)
+// abs, a reduction along the short axis, np.spacing): per query, sqrt3 (eq + ep) (1 + rel) +
+// 1e-30 with eq half the float32 spacing at the query's largest |stored coordinate| (0 where that
+// is not finite: a NaN/Inf query, answered with an empty row).
+py::array_t<double> query_delta(const py::array_t<float, py::array::c_style>& q32, double point_rounding,
+                                double sqrt3, double rel) {
+  const std::size_t n = rows_of(q32, "queries");
+  Uninit<double> out(n);
+  const float* q = q32.data();
+  {
+    py::gil_scoped_release nogil;
+    for (std::size_t i = 0; i < n; ++i) {
+      const float a = std::fabs(q[3 * i]), b = std::fabs(q[3 * i + 1]), c = std::fabs(q[3 * i + 2]);
+      double eq = 0;
+      if (std::isfinite(a) && std::isfinite(b) && std::isfinite(c)) {
+        const float m = std::max(a, std::max(b, c));
+        const float spacing = std::nextafter(m, std::numeric_limits<float>::infinity()) - m;
+        if (std::isfinite(spacing)) eq = 0.5 * static_cast<double>(spacing);
+      }
+      out[i] = sqrt3 * (eq + point_rounding) * (1 + rel) + 1e-30;
+    }
+  }
+  return std::move(out).to_numpy({static_cast<py::ssize_t>(n)});
+}
+
+// How many rows ahead refine_knn prefetches the candidates' points: BHCL_REFINE_PREFETCH (0 turns
+// it off, for measuring it; at most 8), else kPrefetchRows.
+constexpr std::size_t kPrefetchRows = 2;
+std::size_t prefetch_rows() {
+  const char* v = std::getenv("BHCL_REFINE_PREFETCH");
+  if (!v || v[0] < '0' || v[0] > '8' || v[1] != 0) return kPrefetchRows;
+  return static_cast<std::size_t>(v[0] - '0');
+}
+
 // ids (n, kc) int32 (-1: missing) -> the first k of each row by float64 (distance, id): (d2 (n, k)
-// float64, ids (n, k) int32); missing are inf and -1.
+// float64, ids (n, k) int32, found (n,) int32: the ids >= 0 of each row); missing are inf and -1.
 py::tuple refine_knn(const py::array_t<double, py::array::c_style>& q, const py::array_t<double, py::array::c_style>& pts,
                      const py::array_t<std::int32_t, py::array::c_style>& ids, int k) {
   if (q.ndim() != 2 || q.shape(1) != 3 || pts.ndim() != 2 || pts.shape(1) != 3 || ids.ndim() != 2 ||
@@ -207,37 +334,64 @@ py::tuple refine_knn(const py::array_t<double, py::array::c_style>& q, const py:
     throw py::value_error("refine_knn: q (n, 3), points (N, 3), ids (n, kc) with 1 <= k <= kc");
   const std::size_t n = static_cast<std::size_t>(q.shape(0)), kc = static_cast<std::size_t>(ids.shape(1)),
                     np = static_cast<std::size_t>(pts.shape(0)), kk = static_cast<std::size_t>(k);
-  std::vector<double> od(n * kk);
-  std::vector<std::int32_t> oi(n * kk);
+  // The memory before allocating: 12 bytes per entry, within two copies of a kNN result's 8.
+  bhcl::check_result_memory(n, k, false, 2, "refine_knn");
+  // Every entry is written below: no zeroing pass over the (up to n * 256) outputs.
+  Uninit<double> od(n * kk);
+  Uninit<std::int32_t> oi(n * kk);
+  Uninit<std::int32_t> found(n);
   const double* qd = q.data();
   const double* pd = pts.data();
   const std::int32_t* id = ids.data();
   std::atomic<bool> bad{false};
   {
     py::gil_scoped_release nogil;
+    // Rows in their own order: the candidates' ids and the outputs stream. (Visiting them in
+    // Hilbert order of the queries, so that neighbouring rows gather the same float64 points,
+    // was measured 2x slower on the UTM case: the gathers hit the cache anyway, and the rows'
+    // reads and writes scatter.)
+    const std::size_t ahead = prefetch_rows();
     over_rows(n, n * kc, [&](std::size_t a, std::size_t b) {
       std::vector<std::pair<double, std::int32_t>> row(kc);
       for (std::size_t r = a; r < b; ++r) {
+        const double* qr = qd + 3 * r;
+        const std::int32_t* ir = id + r * kc;
+        // The candidates of the row `ahead` rows on requested now, so that their cache misses
+        // overlap this row's work: perf put 3/4 of the refinement's samples on the gathers' loads
+        // (a row's points lie anywhere in the float64 copy, and the search has just been through
+        // the cache). A point's 24 bytes may straddle two cache lines: both are asked for.
+        if (ahead && r + ahead < b)
+          for (std::size_t j = 0; j < kc; ++j) {
+            const std::int32_t i = ir[ahead * kc + j];
+            if (i >= 0 && static_cast<std::size_t>(i) < np) {
+              __builtin_prefetch(pd + 3 * static_cast<std::size_t>(i));
+              __builtin_prefetch(pd + 3 * static_cast<std::size_t>(i) + 2);
+            }
+          }
         for (std::size_t j = 0; j < kc; ++j) {
-          const std::int32_t i = id[r * kc + j];
-          if (i >= 0 && static_cast<std::size_t>(i) >= np) bad = true;
-          row[j] = {i >= 0 && static_cast<std::size_t>(i) < np ? dist2_64(qd + 3 * r, pd + 3 * static_cast<std::size_t>(i))
-                                                               : HUGE_VAL,
-                    i >= 0 ? i : INT32_MAX};
+          const std::int32_t i = ir[j];
+          const bool in = i >= 0 && static_cast<std::size_t>(i) < np;
+          if (i >= 0 && !in) bad = true;
+          row[j] = {in ? dist2_64(qr, pd + 3 * static_cast<std::size_t>(i)) : HUGE_VAL, i >= 0 ? i : INT32_MAX};
         }
         // Insertion sort: the float32 order is nearly always the float64 one already.
         for (std::size_t j = 1; j < kc; ++j)
           for (std::size_t m = j; m > 0 && row[m] < row[m - 1]; --m) std::swap(row[m], row[m - 1]);
+        std::int32_t live = 0;
         for (std::size_t j = 0; j < kk; ++j) {
+          const bool missing = row[j].second == INT32_MAX;
           od[r * kk + j] = row[j].first;
-          oi[r * kk + j] = row[j].second == INT32_MAX ? -1 : row[j].second;
+          oi[r * kk + j] = missing ? -1 : row[j].second;
+          live += missing ? 0 : 1;
         }
+        found[r] = live;
       }
     });
   }
   if (bad) throw py::value_error("refine_knn: an id past the points");
   const auto rows = static_cast<py::ssize_t>(n), cols = static_cast<py::ssize_t>(kk);
-  return py::make_tuple(to_numpy(std::move(od), {rows, cols}), to_numpy(std::move(oi), {rows, cols}));
+  return py::make_tuple(std::move(od).to_numpy({rows, cols}), std::move(oi).to_numpy({rows, cols}),
+                        std::move(found).to_numpy({rows}));
 }
 
 // Squared float64 distances of pairs (q[owner[j]], points[ids[j]]); id -1 gives inf.
@@ -250,7 +404,7 @@ py::array_t<double> pair_dist2(const py::array_t<double, py::array::c_style>& q,
     throw py::value_error("pair_dist2: q (n, 3), owner (m,), points (N, 3), ids (m,)");
   const std::size_t m = static_cast<std::size_t>(ids.shape(0)), n = static_cast<std::size_t>(q.shape(0)),
                     np = static_cast<std::size_t>(pts.shape(0));
-  std::vector<double> out(m);
+  Uninit<double> out(m);  // every entry written below
   const double* qd = q.data();
   const double* pd = pts.data();
   const std::int64_t* ow = owner.data();
@@ -264,6 +418,7 @@ py::array_t<double> pair_dist2(const py::array_t<double, py::array::c_style>& q,
         const std::int64_t o = ow[j];
         if (o < 0 || static_cast<std::size_t>(o) >= n || (i >= 0 && static_cast<std::size_t>(i) >= np)) {
           bad = true;
+          out[j] = HUGE_VAL;
           continue;
         }
         out[j] = i < 0 ? HUGE_VAL : dist2_64(qd + 3 * o, pd + 3 * static_cast<std::size_t>(i));
@@ -271,7 +426,7 @@ py::array_t<double> pair_dist2(const py::array_t<double, py::array::c_style>& q,
     });
   }
   if (bad) throw py::value_error("pair_dist2: an index out of range");
-  return to_numpy(std::move(out), {static_cast<py::ssize_t>(m)});
+  return std::move(out).to_numpy({static_cast<py::ssize_t>(m)});
 }
 
 // A radius search's slices (offsets (n + 1,), ids) refined: each query's points within r2[i]
@@ -287,8 +442,9 @@ py::tuple refine_radius(const py::array_t<double, py::array::c_style>& q, const 
       static_cast<std::size_t>(r2.shape(0)) != n || offsets.data()[n] != ids.shape(0))
     throw py::value_error("refine_radius: q (n, 3), points (N, 3), offsets (n + 1,), ids (offsets[n],), r2 (n,)");
   const std::size_t total = static_cast<std::size_t>(ids.shape(0)), np = static_cast<std::size_t>(pts.shape(0));
-  std::vector<double> d2(total);
-  std::vector<std::int32_t> out_ids(total);
+  bhcl::check_radius_memory(n, total, false, 2, 0, "refine_radius");
+  Uninit<double> d2(total);  // each slice's kept entries written, the rest never read
+  Uninit<std::int32_t> out_ids(total);
   std::vector<std::int64_t> kept(n + 1, 0);
   const double* qd = q.data();
   const double* pd = pts.data();
@@ -299,9 +455,19 @@ py::tuple refine_radius(const py::array_t<double, py::array::c_style>& q, const 
   {
     py::gil_scoped_release nogil;
     // Each slice compacted in place (its kept points at its start), then the slices packed.
+    const std::size_t ahead = prefetch_rows();
     over_rows(n, total, [&](std::size_t a, std::size_t b) {
       std::vector<std::pair<double, std::int32_t>> row;
       for (std::size_t r = a; r < b; ++r) {
+        // As refine_knn: the points of the slice `ahead` rows on requested now.
+        if (ahead && r + ahead < b)
+          for (std::int64_t j = off[r + ahead]; j < off[r + ahead + 1]; ++j) {
+            const std::int32_t i = id[j];
+            if (i >= 0 && static_cast<std::size_t>(i) < np) {
+              __builtin_prefetch(pd + 3 * static_cast<std::size_t>(i));
+              __builtin_prefetch(pd + 3 * static_cast<std::size_t>(i) + 2);
+            }
+          }
         row.clear();
         for (std::int64_t j = off[r]; j < off[r + 1]; ++j) {
           const std::int32_t i = id[j];
@@ -324,19 +490,18 @@ py::tuple refine_radius(const py::array_t<double, py::array::c_style>& q, const 
     for (std::size_t r = 0; r < n; ++r) {
       const std::size_t from = static_cast<std::size_t>(off[r]), m = static_cast<std::size_t>(kept[r + 1]);
       if (from != at) {
-        std::copy(d2.begin() + from, d2.begin() + from + m, d2.begin() + at);
-        std::copy(out_ids.begin() + from, out_ids.begin() + from + m, out_ids.begin() + at);
+        std::copy(&d2[from], &d2[from] + m, &d2[at]);
+        std::copy(&out_ids[from], &out_ids[from] + m, &out_ids[at]);
       }
       at += m;
       kept[r + 1] += kept[r];
     }
-    d2.resize(at);
-    out_ids.resize(at);
   }
   if (bad) throw py::value_error("refine_radius: an id past the points");
-  const auto m = static_cast<py::ssize_t>(d2.size());
-  return py::make_tuple(to_numpy(std::move(kept), {static_cast<py::ssize_t>(n + 1)}), to_numpy(std::move(d2), {m}),
-                        to_numpy(std::move(out_ids), {m}));
+  // The first kept[n] entries (the rest of the allocation, what the radius dropped, stays unused).
+  const auto m = static_cast<py::ssize_t>(kept[n]);
+  return py::make_tuple(to_numpy(std::move(kept), {static_cast<py::ssize_t>(n + 1)}), std::move(d2).to_numpy({m}),
+                        std::move(out_ids).to_numpy({m}));
 }
 
 std::unique_ptr<bhcl::Index> make_index(const std::string& method,
@@ -595,6 +760,8 @@ void bind_index(py::module_& m) {
 void bind_refine(py::module_& m) {
   m.def("refine_knn", &refine_knn, py::arg("q").noconvert(), py::arg("points").noconvert(),
         py::arg("ids").noconvert(), py::arg("k"), "float64 refinement of kNN rows (blockhash_cl/_refine.py).");
+  m.def("query_delta", &query_delta, py::arg("q32").noconvert(), py::arg("point_rounding"), py::arg("sqrt3"),
+        py::arg("rel"), "_refine.query_delta: the widening per query.");
   m.def("pair_dist2", &pair_dist2, py::arg("q").noconvert(), py::arg("owner").noconvert(),
         py::arg("points").noconvert(), py::arg("ids").noconvert(), "float64 squared distances of pairs.");
   m.def("refine_radius", &refine_radius, py::arg("q").noconvert(), py::arg("points").noconvert(),
@@ -683,4 +850,10 @@ PYBIND11_MODULE(_core, m) {
   bind_index(m);
   bind_refine(m);
   bind_multi_device(m);
+#if BHCL_PYTHON_DISTRIBUTED
+  m.attr("HAVE_MPI") = true;
+  bind_distributed(m);
+#else
+  m.attr("HAVE_MPI") = false;
+#endif
 }

@@ -50,12 +50,13 @@ from ._checks import (  # noqa: F401
 __all__ = [
     "Error", "OpenCLError", "Runtime", "Index", "RadiusResult", "RadiusResultWithStats", "make_index",
     "load", "devices", "select_device", "get_runtime", "method_names", "build_options", "MAX_K",
-    "HAVE_FLANN", "__version__", "KDTree", "cKDTree",
+    "HAVE_FLANN", "HAVE_MPI", "__version__", "KDTree", "cKDTree", "DistributedIndex",
 ]
 
 __version__: str = _core.__version__
 MAX_K: int = _core.MAX_K  # the largest k any method answers
 HAVE_FLANN: bool = _core.HAVE_FLANN  # whether the "flann" method was built in
+HAVE_MPI: bool = _core.HAVE_MPI  # whether the MPI-distributed index (DistributedIndex) was built in
 
 
 # One runtime (OpenCL context, queue, compiled kernels) per device spec, shared by every index
@@ -130,6 +131,39 @@ class RadiusResultWithStats(NamedTuple):
     dist2: _F32A
     ids: _I32A
     stats: Dict[str, Any]
+
+
+def _search_params(method: str, k: int, options: Dict[str, Any]) -> "_core.SearchParams":
+    """kNN SearchParams of `method` from keyword arguments, refusing those it does not read."""
+    _refuse_unknown(method, options, _search_options(method), "search parameter")
+    p = _core.SearchParams()
+    p.k = _int("k", k, 1, MAX_K)
+    if options.get("A") is not None and options.get("recall_target") is not None:
+        raise ValueError("A and recall_target both given: give one (recall_target picks A)")
+    if options.get("max_radius") is not None:
+        p.max_radius = _float("max_radius", options["max_radius"])
+    _set_table_options(_core.set_search_option, p, method, _SEARCH_OPTIONS[method], options)
+    if options.get("sort_queries") is not None:
+        s = options["sort_queries"]
+        p.sort_queries = int(s) if isinstance(s, bool) else _int("sort_queries", s, -1, 1)
+    return p
+
+
+def _radius_params(method: str, search: Dict[str, Any], max_results: Optional[int], return_sorted: bool,
+                   sort_queries: Optional[Union[bool, int]]) -> "_core.RadiusParams":
+    """RadiusParams of `method` from radius_search's keyword arguments, refusing those it does not read."""
+    accepted = ("max_results", "sort_queries") + tuple(_RADIUS_OPTIONS.get(method, {}))
+    _refuse_unknown(method, dict(search, max_results=max_results, sort_queries=sort_queries),
+                    accepted, "search parameter")
+    p = _core.RadiusParams()
+    p.sorted = bool(return_sorted)
+    if max_results is not None:
+        p.max_results = _int("max_results", max_results, 0, 2**62)
+    _set_table_options(_core.set_radius_option, p, method, _RADIUS_OPTIONS[method], search)
+    if sort_queries is not None:
+        p.sort_queries = int(sort_queries) if isinstance(sort_queries, bool) else _int(
+            "sort_queries", sort_queries, -1, 1)
+    return p
 
 
 # The container Index.save writes for the methods whose structure the library does not save
@@ -298,18 +332,7 @@ class Index:
     def _search_params(self, k: int, options: Dict[str, Any]) -> "_core.SearchParams":
         """SearchParams from keyword arguments, refusing those this method does not read.
         kNN's; radius_search reads its own RadiusParams."""
-        _refuse_unknown(self.method, options, _search_options(self.method), "search parameter")
-        p = _core.SearchParams()
-        p.k = _int("k", k, 1, MAX_K)
-        if options.get("A") is not None and options.get("recall_target") is not None:
-            raise ValueError("A and recall_target both given: give one (recall_target picks A)")
-        if options.get("max_radius") is not None:
-            p.max_radius = _float("max_radius", options["max_radius"])
-        _set_table_options(_core.set_search_option, p, self.method, _SEARCH_OPTIONS[self.method], options)
-        if options.get("sort_queries") is not None:
-            s = options["sort_queries"]
-            p.sort_queries = int(s) if isinstance(s, bool) else _int("sort_queries", s, -1, 1)
-        return p
+        return _search_params(self.method, k, options)
 
     def query(
         self,
@@ -445,17 +468,7 @@ class Index:
         it runs.
         """
         method = self.method
-        accepted = ("max_results", "sort_queries") + tuple(_RADIUS_OPTIONS.get(method, {}))
-        _refuse_unknown(method, dict(search, max_results=max_results, sort_queries=sort_queries),
-                        accepted, "search parameter")
-        p = _core.RadiusParams()
-        p.sorted = bool(return_sorted)
-        if max_results is not None:
-            p.max_results = _int("max_results", max_results, 0, 2**62)
-        _set_table_options(_core.set_radius_option, p, method, _RADIUS_OPTIONS[method], search)
-        if sort_queries is not None:
-            p.sort_queries = int(sort_queries) if isinstance(sort_queries, bool) else _int(
-                "sort_queries", sort_queries, -1, 1)
+        p = _radius_params(method, search, max_results, return_sorted, sort_queries)
         radius = _float("r", r)
         a, _ = _checked(queries, "queries", single_ok=True)
         q = self._to_index(a, "queries")
@@ -813,3 +826,6 @@ make_index.__doc__ = (make_index.__doc__ or "").replace("{build_options}", _opti
 
 # scipy.spatial.KDTree's interface over an Index (_scipy.py).
 from ._scipy import KDTree, cKDTree  # noqa: E402
+# The MPI-distributed index (_distributed.py; mpi4py optional, imported only when a
+# communicator is needed).
+from ._distributed import DistributedIndex  # noqa: E402

@@ -150,6 +150,14 @@ def _origin_for(a: np.ndarray) -> np.ndarray:
     fin = np.where(np.isfinite(a), a, np.nan).astype(np.float64)
     with np.errstate(invalid="ignore"):
         lo, hi = np.nanmin(fin, axis=0), np.nanmax(fin, axis=0)
+    return _origin_from_box(lo, hi)
+
+
+def _origin_from_box(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """_origin_for's rule on a box of finite float64 coordinates (lo, hi): its centre rounded to
+    float32 where the box is more than 4 times farther from 0 than its own half-size, else 0. The
+    distributed index applies it to the box of every rank's points."""
+    zero = np.zeros(3, np.float64)
     if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
         return zero
     with np.errstate(over="ignore"):

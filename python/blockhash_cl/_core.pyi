@@ -1,12 +1,13 @@
 # Type stubs of the extension module blockhash_cl._core (python/bindings.cpp). Use the package
 # blockhash_cl; these are its building blocks.
-from typing import Any, Dict, List, Tuple, Union
+from typing import Any, Dict, List, Optional, Tuple, Union
 
 import numpy as np
 import numpy.typing as npt
 
 __version__: str
 HAVE_FLANN: bool
+HAVE_MPI: bool  # the distributed index below is bound (the build found MPI)
 MAX_K: int
 
 class Error(ValueError): ...
@@ -91,7 +92,7 @@ class Index:
 def make_index(method: str, runtime: Runtime, points: npt.NDArray[np.float32],
                options: MethodOptions) -> Index: ...
 def refine_knn(q: npt.NDArray[np.float64], points: npt.NDArray[np.float64], ids: npt.NDArray[np.int32],
-               k: int) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.int32]]: ...
+               k: int) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.int32], npt.NDArray[np.int32]]: ...
 def pair_dist2(q: npt.NDArray[np.float64], owner: npt.NDArray[np.int64], points: npt.NDArray[np.float64],
                ids: npt.NDArray[np.int32]) -> npt.NDArray[np.float64]: ...
 def refine_radius(q: npt.NDArray[np.float64], points: npt.NDArray[np.float64], offsets: npt.NDArray[np.int64],
@@ -124,3 +125,35 @@ class MultiDeviceIndex:
     def remove(self, ids: npt.NDArray[np.int32]) -> None: ...
     def contains(self, id: int) -> bool: ...
     def warm_up(self, params: SearchParams) -> float: ...
+
+# Where HAVE_MPI (distributed_bindings.cpp): communicators cross as Fortran handles (mpi4py's py2f()).
+def mpi_world() -> int: ...
+def mpi_finalize() -> None: ...
+def mpi_usable() -> bool: ...
+
+class MpiComm:
+    def __init__(self, handle: int, deadline_s: float) -> None: ...
+    rank: int
+    size: int
+    def agree(self, local_error: str, what: str) -> None: ...
+    def box(self, lo: List[float], hi: List[float]) -> Tuple[List[float], List[float]]: ...
+
+class DistributedIndex:
+    def __init__(self, comm: MpiComm, runtime: Runtime, points: npt.NDArray[np.float32], method: str,
+                 options: MethodOptions, boxes_per_rank: int, border_factor: float, deadline_s: float,
+                 id_base: int) -> None: ...
+    method: str
+    exact: bool
+    size: int
+    rank: int
+    ranks: int
+    id_base: int
+    id_bound: int
+    shard_size: int
+    shard_ids: npt.NDArray[np.int64]
+    memory_bytes: int
+    build_stats: Dict[str, Any]
+    runtime: Optional[Runtime]
+    def query(self, queries: npt.NDArray[np.float32], params: SearchParams) -> Tuple[Any, Any, Any, Dict[str, Any]]: ...
+    def radius_search(self, queries: npt.NDArray[np.float32], r: float,
+                      params: RadiusParams) -> Tuple[Any, Any, Any, Any, Dict[str, Any]]: ...

@@ -20,7 +20,10 @@ satisfy |d32 - D| <= delta + _REL max(d32, D) (the "widening" below). Hence:
   results; the float64 distances keep exactly those within r.
 
 The cost (the float64 distances, the sorts, any repeated search) is in the stats: refine_s,
-refine_share (of the call), refine_candidates, refine_requeried_rows, refine_radius_rows.
+refine_share (of the call's wall time), refine_cpu_s and refine_cpu_share (of the process's CPU
+time over the call, the device's host threads included: on a CPU shared with other work the wall
+share swings with the load, the CPU share much less), refine_candidates, refine_requeried_rows,
+refine_radius_rows.
 """
 from __future__ import annotations
 
@@ -47,8 +50,16 @@ def rounding_bound(stored: np.ndarray) -> float:
 
 def query_delta(q32: np.ndarray, point_rounding: float) -> np.ndarray:
     """Per query: sqrt(3) (eq + ep), the most float32 storage can move its distance to any point
-    (eq: half the float32 spacing at the query's largest stored coordinate). Non-finite queries
-    (answered with empty rows) get 0."""
+    (eq: half the float32 spacing at the query's largest stored coordinate), times (1 + _REL),
+    plus 1e-30. Non-finite queries (answered with empty rows) get eq = 0. One pass in the C++
+    layer (_core.query_delta)."""
+    if len(q32) == 0:
+        return np.zeros(0)
+    return _core.query_delta(np.ascontiguousarray(q32, np.float32), float(point_rounding), _SQRT3, _REL)
+
+
+def _query_delta_numpy(q32: np.ndarray, point_rounding: float) -> np.ndarray:
+    """query_delta in numpy, the definition the C++ layer's is tested against."""
     if len(q32) == 0:
         return np.zeros(0)
     with np.errstate(invalid="ignore"):
@@ -68,6 +79,11 @@ def lower(d32: Any, delta: Any) -> Any:
     return np.asarray(d32, np.float64) * (1 - 2 * _REL) - delta
 
 
+def _share(part: float, rest: float) -> float:
+    """part / (part + rest), 0 for nothing timed."""
+    return part / (part + rest) if part + rest > 0 else 0.0
+
+
 def dist2_64(q64: np.ndarray, owner: np.ndarray, p64: np.ndarray, ids: np.ndarray) -> np.ndarray:
     """Squared float64 distances (dx dx + dy dy) + dz dz of the pairs (q64[owner[j]],
     p64[ids[j]]) (the C++ layer, threads, GIL released); id -1 (missing) gives inf."""
@@ -75,8 +91,11 @@ def dist2_64(q64: np.ndarray, owner: np.ndarray, p64: np.ndarray, ids: np.ndarra
                             np.ascontiguousarray(ids, np.int32))
 
 
-def _refined_rows(q64: np.ndarray, p64: np.ndarray, ids: np.ndarray, k: int) -> Tuple[np.ndarray, np.ndarray]:
-    """The first k of each row of candidates by float64 (distance, id), missing (inf, -1) last."""
+def _refined_rows(q64: np.ndarray, p64: np.ndarray, ids: np.ndarray, k: int
+                  ) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The first k of each row of candidates by float64 (distance, id), missing (inf, -1) last,
+    and each row's count of ids found (the C++ layer: threads, GIL released, the outputs on huge
+    pages)."""
     return _core.refine_knn(np.ascontiguousarray(q64, np.float64), p64, np.ascontiguousarray(ids, np.int32), k)
 
 
@@ -92,43 +111,52 @@ def knn(search: Callable[[np.ndarray, int, Optional[float]], Tuple[np.ndarray, n
     Returns (dist2 float64 (n, k), ids int32 (n, k), counts (n,), stats of the first search with
     the refine_* fields)."""
     n = len(q64)
-    t_prep = time.perf_counter()
+    t_prep, c_prep = time.perf_counter(), time.process_time()
     delta = query_delta(q32, point_rounding)
-    prep_s = time.perf_counter() - t_prep
+    prep_s, prep_cpu = time.perf_counter() - t_prep, time.process_time() - c_prep
     kc = min(max_k, k + 1) if exact else k
     wide_r = None if max_radius is None else float(upper(max_radius, float(np.max(delta, initial=0.0))))
-    t_search = time.perf_counter()
+    t_search, c_search = time.perf_counter(), time.process_time()
     d2_32, ids32, counts, stats = search(q32, kc, wide_r)
-    first_s = time.perf_counter() - t_search
-    t0 = time.perf_counter()
+    first_s, first_cpu = time.perf_counter() - t_search, time.process_time() - c_search
+    t0, c0 = time.perf_counter(), time.process_time()
     searched = first_s
-    out_d2 = np.full((n, k), np.inf)
-    out_ids = np.full((n, k), -1, np.int32)
-    rows = np.arange(n)
+    # The first pass's rows become the output (no (n, k) arrays allocated and filled before);
+    # the rows a later pass redoes are written over theirs.
+    out_d2 = out_ids = found = None
+    rows: Optional[np.ndarray] = None  # the rows this pass refines; None: all n (no copy of q64)
     requeried = 0
     radius_rows = 0
     candidates = kc
     while True:
         kk = min(k, ids32.shape[1])
-        take_d2, take_ids = _refined_rows(q64[rows], p64, ids32, kk)
+        take_d2, take_ids, take_found = _refined_rows(q64 if rows is None else q64[rows], p64, ids32, kk)
         if max_radius is not None:
             limit = max_radius * max_radius
             outside = take_d2 >= limit if strict else take_d2 > limit
             take_d2[outside], take_ids[outside] = np.inf, -1
+            take_found = take_found - np.sum(outside, axis=1, dtype=np.int32)
+        if rows is None:
+            if kk == k:
+                out_d2, out_ids, found = take_d2, take_ids, take_found
+            else:  # fewer columns than k (not reached: k <= max_k, kc >= k): padded as missing
+                out_d2, out_ids = np.full((n, k), np.inf), np.full((n, k), -1, np.int32)
+                out_d2[:, :kk], out_ids[:, :kk], found = take_d2, take_ids, take_found
         if not exact:
-            out_d2[rows, :kk], out_ids[rows, :kk] = take_d2, take_ids
             break
         # Final where the float32 search returned fewer than it was asked (it found every point it
         # could) or no point it did not return can be nearer in float64 than the k-th.
-        u = np.sqrt(take_d2[:, kk - 1]) if kk == k else np.full(len(rows), np.inf)
+        m = n if rows is None else len(rows)
+        u = np.sqrt(take_d2[:, kk - 1]) if kk == k else np.full(m, np.inf)
         if max_radius is not None:
             u = np.minimum(u, max_radius)
         last = np.sqrt(d2_32[:, -1].astype(np.float64))
-        done = (np.asarray(counts) < ids32.shape[1]) | (lower(last, delta[rows]) > u)
-        if kk == k and len(rows) == n:  # the first pass: every row (those not done are redone)
-            out_d2, out_ids = take_d2, take_ids
+        done = (np.asarray(counts) < ids32.shape[1]) | (lower(last, delta if rows is None else delta[rows]) > u)
+        if rows is None:
+            rows = np.arange(n)
         else:
             out_d2[rows[done], :kk], out_ids[rows[done], :kk] = take_d2[done], take_ids[done]
+            found[rows[done]] = take_found[done]
         rows, u = rows[~done], u[~done]
         if not len(rows):
             break
@@ -159,11 +187,13 @@ def knn(search: Callable[[np.ndarray, int, Optional[float]], Tuple[np.ndarray, n
         out_d2[rows], out_ids[rows] = np.inf, -1
         out_d2[rows[owner[sel]], rank[sel]] = rd2[sel]
         out_ids[rows[owner[sel]], rank[sel]] = rids[sel]
+        found[rows] = np.sum(out_ids[rows] >= 0, axis=1)
         break
-    found = np.sum(out_ids >= 0, axis=1).astype(np.int32)
     refine_s = time.perf_counter() - t0 + prep_s
+    refine_cpu = time.process_time() - c0 + prep_cpu
     stats = dict(stats)
-    stats.update(refined=True, refine_exact=bool(exact), refine_s=refine_s,
+    stats.update(refined=True, refine_exact=bool(exact), refine_s=refine_s, refine_cpu_s=refine_cpu,
+                 refine_cpu_share=_share(refine_cpu, first_cpu),
                  refine_share=refine_s / (first_s + refine_s) if first_s + refine_s > 0 else 0.0,
                  refine_search_s=searched - first_s, refine_candidates=int(candidates),
                  refine_requeried_rows=int(requeried), refine_radius_rows=int(radius_rows))
@@ -179,9 +209,9 @@ def radius(search: Callable[[np.ndarray, float, int], Tuple[np.ndarray, np.ndarr
     radius r (not squared) with at most cap results per query (0: none), sorted: (offsets, dist2,
     ids, found, stats). Returns (offsets int64, dist2 float64, ids int32, found, stats)."""
     n = len(q64)
-    t_prep = time.perf_counter()
+    t_prep, c_prep = time.perf_counter(), time.process_time()
     delta = query_delta(q32, point_rounding)
-    prep_s = time.perf_counter() - t_prep
+    prep_s, prep_cpu = time.perf_counter() - t_prep, time.process_time() - c_prep
     rq = np.sqrt(r2)
     r_search = float(np.max(upper(rq, delta), initial=0.0)) if n else 0.0
     if not exact:
@@ -190,10 +220,10 @@ def radius(search: Callable[[np.ndarray, float, int], Tuple[np.ndarray, np.ndarr
     # them; a capped slice whose last kept point could still be nearer than the cap-th is
     # searched again uncapped.
     cap = 0 if not max_results else max_results + max(8, max_results // 8)
-    t_search = time.perf_counter()
+    t_search, c_search = time.perf_counter(), time.process_time()
     offsets, d2_32, ids, found32, stats = search(q32, r_search, cap)
-    first_s = time.perf_counter() - t_search
-    t0 = time.perf_counter()
+    first_s, first_cpu = time.perf_counter() - t_search, time.process_time() - c_search
+    t0, c0 = time.perf_counter(), time.process_time()
     searched = 0.0
     if not cap:  # the common case: each slice filtered (and sorted) in the C++ layer
         new_offsets, d2, ids = _core.refine_radius(np.ascontiguousarray(q64, np.float64), p64,
@@ -201,9 +231,11 @@ def radius(search: Callable[[np.ndarray, float, int], Tuple[np.ndarray, np.ndarr
                                                    np.ascontiguousarray(ids, np.int32),
                                                    np.ascontiguousarray(r2, np.float64), bool(return_sorted))
         refine_s = time.perf_counter() - t0 + prep_s
+        refine_cpu = time.process_time() - c0 + prep_cpu
         stats = dict(stats)
         stats["results"] = int(new_offsets[-1])
-        stats.update(refined=True, refine_exact=bool(exact), refine_s=refine_s,
+        stats.update(refined=True, refine_exact=bool(exact), refine_s=refine_s, refine_cpu_s=refine_cpu,
+                 refine_cpu_share=_share(refine_cpu, first_cpu),
                      refine_share=refine_s / (first_s + refine_s) if first_s + refine_s > 0 else 0.0,
                      refine_search_s=0.0, refine_candidates=int(len(d2_32)), refine_requeried_rows=0,
                      refine_radius_rows=0)
@@ -256,11 +288,13 @@ def radius(search: Callable[[np.ndarray, float, int], Tuple[np.ndarray, np.ndarr
     new_offsets = np.zeros(n + 1, np.int64)
     np.cumsum(kept, out=new_offsets[1:])
     refine_s = time.perf_counter() - t0 + prep_s
+    refine_cpu = time.process_time() - c0 + prep_cpu
     stats = dict(stats)
     stats["results"] = int(new_offsets[-1])
     if max_results:
         stats["truncated_queries"] = int(np.sum(found > max_results))
-    stats.update(refined=True, refine_exact=bool(exact), refine_s=refine_s,
+    stats.update(refined=True, refine_exact=bool(exact), refine_s=refine_s, refine_cpu_s=refine_cpu,
+                 refine_cpu_share=_share(refine_cpu, first_cpu),
                  refine_share=refine_s / (first_s + refine_s) if first_s + refine_s > 0 else 0.0,
                  refine_search_s=searched, refine_candidates=int(len(d2_32)),
                  refine_requeried_rows=int(len(again)), refine_radius_rows=0)

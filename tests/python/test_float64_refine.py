@@ -119,3 +119,31 @@ def test_refine_modes_max_radius_pickle_and_add():
     np.testing.assert_array_equal(ids, ref_i)
     np.testing.assert_allclose(np.sqrt(d2), ref_d, rtol=1e-12)
     assert index.memory_bytes >= allp.nbytes  # the float64 copy is counted
+
+
+def test_query_delta_in_cpp_equals_its_numpy_definition():
+    """_core.query_delta (one pass in C++) gives _refine's numpy definition bit for bit, at the
+    edges too: NaN, inf, 0, FLT_MAX (spacing inf), subnormals."""
+    from blockhash_cl import _refine
+    rng = np.random.default_rng(5)
+    q = (rng.random((5000, 3)) * 2e6 - 1e6).astype(np.float32)
+    q[:6] = [[np.nan, 0, 0], [np.inf, 1, 1], [0, 0, 0], [3.4028235e38, 0, 0], [1e-40, -1e-42, 0], [-7, 2, -9]]
+    with np.errstate(over="ignore"):
+        want = _refine._query_delta_numpy(q, 1.9e-6)
+    np.testing.assert_array_equal(_refine.query_delta(q, 1.9e-6), want)
+
+
+def test_refine_knn_counts_the_found_ids():
+    """_core.refine_knn's third output: per row the ids >= 0 among its first k (missing last)."""
+    from blockhash_cl import _core
+    rng = np.random.default_rng(6)
+    p64 = rng.random((50, 3))
+    q64 = rng.random((7, 3))
+    ids = rng.integers(0, 50, (7, 6)).astype(np.int32)
+    ids[2, 3:] = -1
+    ids[4, :] = -1
+    d2, out_ids, found = _core.refine_knn(q64, p64, ids, 5)
+    np.testing.assert_array_equal(found, np.sum(out_ids >= 0, axis=1))
+    assert found[4] == 0 and found[2] == 3 and np.all(np.isinf(d2[4]))
+    exact = np.sum((q64[:, None, :] - p64[np.maximum(ids, 0)]) ** 2, axis=2)
+    np.testing.assert_allclose(d2[0], np.sort(exact[0])[:5], rtol=0, atol=0)

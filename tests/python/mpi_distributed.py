@@ -1,0 +1,190 @@
+"""blockhash_cl.DistributedIndex under MPI (issue 40, part 3): run by every rank, e.g.
+
+    mpirun -np 4 --oversubscribe python -m pytest -q -p no:cacheprovider tests/python/mpi_distributed.py
+
+(.ci/python runs it at 2 and 4 ranks; tests/python/test_distributed.py at 1 rank without mpi4py).
+Not named test_*.py: a plain `pytest tests/python` does not collect it, since every test here is
+collective and must run on every rank of one job.
+
+Each rank builds the one-process index over ALL the points (the same seed everywhere) and checks
+its own queries' rows of the distributed index against it: exact methods bit for bit (ids,
+float32 squared distances, counts). Every test makes all its collective calls first and asserts
+afterwards, so a failing check on one rank cannot leave the others waiting in a collective.
+BHCL_TEST_NO_MPI4PY=1 hides mpi4py (comm=None then initialises MPI in the library).
+"""
+import os
+import sys
+
+if os.environ.get("BHCL_TEST_NO_MPI4PY"):
+    sys.modules["mpi4py"] = None  # type: ignore  # an import of mpi4py now raises ImportError
+
+import numpy as np
+import pytest
+
+import blockhash_cl as bh
+
+pytestmark = pytest.mark.skipif(not bh.HAVE_MPI, reason="blockhash_cl built without MPI")
+
+METHODS = ["kdtree", "bruteforce", "blockhash"] + (["flann"] if bh.HAVE_FLANN else [])
+N, NQ = 12000, 2500
+
+
+def _comm():
+    """mpi4py's COMM_WORLD, or None (the library's MPI_COMM_WORLD) when mpi4py is hidden or missing."""
+    try:
+        from mpi4py import MPI
+    except ImportError:
+        return None
+    return MPI.COMM_WORLD
+
+
+@pytest.fixture(scope="module")
+def world():
+    """(comm, rank, ranks) for this job."""
+    comm = _comm()
+    probe = bh.DistributedIndex("bruteforce", np.zeros((1, 3), np.float32), comm)
+    return comm, probe.rank, probe.ranks
+
+
+@pytest.fixture(scope="module")
+def data():
+    """Points in two clusters and a uniform background, queries on them and over the box (the
+    same on every rank)."""
+    rng = np.random.default_rng(40)
+    a = rng.normal(0.25, 0.03, (N // 3, 3))
+    b = rng.normal(0.7, 0.05, (N // 3, 3))
+    c = rng.random((N - 2 * (N // 3), 3))
+    pts = np.concatenate([a, b, c]).astype(np.float32)
+    rng.shuffle(pts)
+    q = np.concatenate([pts[rng.integers(0, N, NQ // 2)] + 0.002, rng.random((NQ - NQ // 2, 3)) * 1.2 - 0.1])
+    return pts, q.astype(np.float32)
+
+
+def _split(n, ranks, rank, skew=True):
+    """This rank's slice of n items: uneven parts (rank 0 the most), the last rank none when skew
+    and there are several ranks (any split must give the same answers)."""
+    if ranks == 1:
+        return slice(0, n)
+    w = np.arange(ranks, 0, -1, dtype=np.float64)
+    if skew:
+        w[-1] = 0
+    cuts = np.concatenate([[0], np.round(np.cumsum(w) / w.sum() * n).astype(int)])
+    return slice(int(cuts[rank]), int(cuts[rank + 1]))
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_knn_equals_one_process(world, data, method):
+    comm, rank, ranks = world
+    pts, q = data
+    mine_p, mine_q = pts[_split(N, ranks, rank)], q[_split(NQ, ranks, rank, skew=False)]
+    index = bh.DistributedIndex(method, mine_p, comm)
+    got = {k: index.query(mine_q, k=k, return_counts=True, return_stats=True) for k in (1, 10, 50)}
+    capped = index.query(mine_q, k=16, max_radius=0.02, return_counts=True)
+    one = bh.make_index(method, pts)
+    assert index.size == N and index.ranks == ranks and index.exact == one.exact
+    assert sum(index.build_stats["shard_points_all"]) == N
+    for k, (d2, ids, counts, stats) in got.items():
+        e_d2, e_ids, e_counts = one.query(mine_q, k=k, return_counts=True)
+        assert ids.dtype == np.int64 and d2.dtype == np.float32 and ids.shape == (len(mine_q), k)
+        np.testing.assert_array_equal(ids, e_ids.astype(np.int64))
+        np.testing.assert_array_equal(d2, e_d2)
+        np.testing.assert_array_equal(counts, e_counts)
+        assert stats["n_queries"] == len(mine_q) and stats["owner"].shape == (len(mine_q),)
+        assert np.all(stats["ranks_visited"] >= 1) and np.all(stats["ranks_visited"] <= ranks)
+        assert {"phase1_s", "phase2_s", "multi_rank_queries", "bytes_sent", "wall_s"} <= set(stats)
+        assert np.all((stats["owner"] >= 0) & (stats["owner"] < ranks))
+        if index.shard_size == 0:  # the last rank of a skewed split: every query answered elsewhere
+            assert stats["owner_sent"] == len(mine_q) and np.all(stats["owner"] != rank)
+    e = one.query(mine_q, k=16, max_radius=0.02, return_counts=True)
+    for a, b in zip(capped, e):
+        np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_radius_equals_one_process(world, data, method):
+    comm, rank, ranks = world
+    pts, q = data
+    mine_p, mine_q = pts[_split(N, ranks, rank)], q[_split(NQ, ranks, rank, skew=False)]
+    index = bh.DistributedIndex(method, mine_p, comm)
+    full = index.radius_search(mine_q, 0.03, return_stats=True)
+    cap = index.radius_search(mine_q, 0.03, max_results=5)
+    one = bh.make_index(method, pts)
+    e_full, e_cap = one.radius_search(mine_q, 0.03, return_stats=True), one.radius_search(mine_q, 0.03, max_results=5)
+    for got, exp in ((full, e_full), (cap, e_cap)):
+        np.testing.assert_array_equal(got.offsets, exp.offsets)
+        np.testing.assert_array_equal(got.ids, exp.ids.astype(np.int64))
+        np.testing.assert_array_equal(got.dist2, exp.dist2)
+    np.testing.assert_array_equal(full.stats["found"], e_full.stats["found"])
+    assert full.stats["results"] == e_full.stats["results"] > 0
+
+
+def test_float64_far_from_origin_recentred_on_all_ranks(world, data):
+    comm, rank, ranks = world
+    pts, q = data
+    base = np.array([512345.678, 4312345.678, 112.5])
+    p64, q64 = base + pts.astype(np.float64) * 100.0, base + q.astype(np.float64) * 100.0
+    mine_q = q64[_split(NQ, ranks, rank, skew=False)]
+    index = bh.DistributedIndex("kdtree", p64[_split(N, ranks, rank)], comm)
+    d2, ids = index.query(mine_q, k=10)
+    one = bh.make_index("kdtree", p64, refine=False)
+    e_d2, e_ids = one.query(mine_q, k=10)
+    assert index.coordinates["recentred"] and index.coordinates["origin"] == one.coordinates["origin"]
+    assert index.coordinates["max_rounding"] == one.coordinates["max_rounding"]
+    np.testing.assert_array_equal(ids, e_ids.astype(np.int64))
+    np.testing.assert_array_equal(d2, e_d2)
+
+
+def test_all_points_on_rank0_id_base_and_single_query(world, data):
+    comm, rank, ranks = world
+    pts, q = data
+    index = bh.DistributedIndex("kdtree", pts if rank == 0 else np.zeros((0, 3), np.float32), comm,
+                                id_base=1000, boxes_per_rank=4)
+    d2, ids = index.query(q[rank], k=7)  # one query of shape (3,) per rank
+    none_d2, none_ids = index.query(np.zeros((0, 3), np.float32), k=3)
+    one = bh.make_index("kdtree", pts)
+    e_d2, e_ids = one.query(q[rank], k=7)
+    assert ids.shape == (7,) and none_ids.shape == (0, 3) and none_d2.shape == (0, 3)
+    np.testing.assert_array_equal(ids, e_ids.astype(np.int64) + 1000)
+    np.testing.assert_array_equal(d2, e_d2)
+    assert index.id_base == 1000 and index.id_bound == 1000 + N
+    assert np.all(np.diff(index.shard_ids) > 0) and index.shard_size == len(index.shard_ids)
+
+
+def test_a_bad_argument_on_one_rank_raises_on_every_rank(world, data):
+    comm, rank, ranks = world
+    pts, q = data
+    index = bh.DistributedIndex("kdtree", pts[_split(N, ranks, rank)], comm)
+    last = ranks - 1
+    bad = q[:10, :2] if rank == last else q[:10]  # the last rank passes (n, 2) queries
+    with pytest.raises(ValueError) as shape_err:
+        index.query(bad, k=5)
+    with pytest.raises(ValueError) as k_err:
+        index.query(q[:10], k=5 if rank != last else 0)
+    # A NaN point on the last rank: the library's check, on every rank.
+    p = pts[_split(N, ranks, rank)].copy()
+    if rank == last:
+        p = np.concatenate([p, [[np.nan, 0, 0]]]).astype(np.float32)
+    with pytest.raises(bh.Error) as nan_err:
+        bh.DistributedIndex("kdtree", p, comm)
+    # The index still answers after the refused calls (no rank was left behind).
+    d2, ids = index.query(q[:10], k=3)
+    if rank == last:
+        assert "shape" in str(shape_err.value) and "k" in str(k_err.value)
+    else:
+        assert isinstance(shape_err.value, bh.Error) and f"rank {last}" in str(shape_err.value)
+        assert f"rank {last}" in str(k_err.value)
+    assert "nan" in str(nan_err.value).lower() or "finite" in str(nan_err.value).lower()
+    assert ids.shape == (10, 3)
+
+
+def test_refused_without_collective_work(world, data):
+    comm, rank, ranks = world
+    pts, _ = data
+    with pytest.raises(bh.Error, match="refine"):
+        bh.DistributedIndex("kdtree", pts[:100], comm, refine=True)
+    with pytest.raises(TypeError, match="comm"):
+        bh.DistributedIndex("kdtree", pts[:100], comm="world")
+    index = bh.DistributedIndex("bruteforce", pts[:100], comm)
+    import pickle
+    with pytest.raises(TypeError, match="pickle"):
+        pickle.dumps(index)
