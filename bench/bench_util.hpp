@@ -2,6 +2,7 @@
 #pragma once
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
@@ -17,6 +18,11 @@
 #include "blockhash_cl/runtime.hpp"
 
 namespace bhcl::bench {
+
+// Seconds on the steady clock (differences of two calls time a span).
+inline double now_s() {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
 
 // The bounding box of n x 3 points.
 struct Bounds {

@@ -31,9 +31,7 @@ using namespace bhcl;
 
 namespace {
 
-double now_s() {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
-}
+using bench::now_s;
 
 // Every voxel centre of a res^3 grid over the points' box padded by `pad` of its extent per side.
 std::vector<float> field_queries(const std::vector<float>& pts, int res, float pad) {

@@ -24,9 +24,7 @@ using namespace bhcl;
 
 namespace {
 
-double now_s() {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
-}
+using bench::now_s;
 
 struct Entry {
   const MethodInfo* info;

@@ -36,9 +36,7 @@ using namespace bhcl;
 
 namespace {
 
-double now_s() {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
-}
+using bench::now_s;
 
 #if BHCL_HAVE_NANOFLANN
 struct Cloud {

@@ -56,7 +56,7 @@ std::vector<KernelDefine> make_table() {
       {"BHCL_GRID_WALKBUF", K::Structural, 1, 64, "the far walk's queue (the kNN kernel's from BHCL_GRID_WALKCAP)",
        grid_both("32")},
       {"BHCL_GRID_WALK_DESCEND", K::Experiment, 0, 1,
-       "1: the best-first walk descends into a node's nearest child, the others queued (0: all queued)", grid_both("1")},
+       "1: the best-first walk descends into a node's nearest child, the others queued (0: all queued; the host reference follows 1)", grid_both("1")},
       {"BHCL_GRID_FILLSORT", K::Tuning, 0, 1, "1: the register list filled unordered, then sorted once", grid("(VR > 1)")},
       {"BHCL_GRID_SORT_CALL", K::Tuning, 0, 1, "1: the fill's sorting network in one function", grid("1")},
       {"BHCL_GRID_FINE_RINGS", K::Tuning, 0, kU32,
