@@ -55,6 +55,7 @@ namespace blockhash {
 struct Structure;  // the host copy of every built array (lib/src/blockhash/build.hpp)
 struct GridIdState;  // a grid file's ids and update state (lib/src/blockhash/grid_io.hpp)
 struct GridTraversal;  // the grid traversal's form (lib/src/blockhash/grid.hpp)
+struct GridInput;  // a build's points (lib/src/blockhash/grid.hpp)
 }
 
 struct BlockHashBuildParams {
@@ -269,6 +270,7 @@ class BlockHashIndex : public Index {
   void grid_insert(const float* scaled, std::size_t n, std::int32_t first);
   void grid_remove(const std::int32_t* ids, std::size_t n);
   void grid_compact();                                    // drops the holes, in place
+  // extra: m points in the structure's coordinates, ids first ...
   void grid_rebuild_live(const float* extra, std::size_t m, std::int32_t first, bool retune);
   void grid_upload_from(std::size_t point_from, std::size_t cell_from);
   void grid_positions();                                  // id -> position, from the grid's ids
@@ -300,6 +302,10 @@ class BlockHashIndex : public Index {
   const float* begin_build(const float* points, std::size_t n_points, std::vector<float>& scaled);
   void build_blocks(const float* points, std::size_t n_points);  // the block layouts' stages
   void build_grid_layout(const float* points, std::size_t n_points, double cell_size);
+  // The grid from points in the structure's coordinates (scale set, points known finite; an
+  // update's rebuild reads the old grid's arrays in place). t0: when the build began (t_total).
+  void build_grid_scaled(const blockhash::GridInput& input, double cell_size,
+                         std::chrono::steady_clock::time_point t0 = std::chrono::steady_clock::now());
   void upload_grid();
   // Host-in-place devices (Quirks::host_ptr_in_place): the grid's buffers are views of its host
   // arrays, dropped before the host changes those arrays (a build, an update) and made again after.

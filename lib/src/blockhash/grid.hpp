@@ -106,10 +106,29 @@ struct GridBuildStats {
   bool capped = false;          // the cells were grown to fit max_cells_per_point
 };
 
-// Builds g from n points (already in the index's coordinates). `reuse`: g's vectors keep their
-// capacity (rebuilds allocate nothing when n and the cell count do not grow).
-void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid& g,
-                GridBuildStats* stats);
+// A build's points (in the index's coordinates), in two parts taken in this order: first a
+// structure-of-arrays part (an existing grid's arrays, holes dropped: an update's rebuild reads
+// them where they are instead of gathering a copy), then an array-of-structures part (x, y, z per
+// point). The ids stored: soa_ids[i], then aos_ids[i] (null: the point's index in the whole input).
+struct GridInput {
+  const float *x = nullptr, *y = nullptr, *z = nullptr;
+  const std::int32_t* soa_ids = nullptr;
+  std::size_t n_soa = 0;
+  float soa_lo[3] = {0, 0, 0}, soa_hi[3] = {0, 0, 0};  // a box holding the SoA part (with n_soa)
+  const float* xyz = nullptr;
+  const std::int32_t* aos_ids = nullptr;
+  std::size_t n_aos = 0;
+  std::size_t size() const { return n_soa + n_aos; }
+};
+
+// Builds g from the points. g's vectors keep their capacity (rebuilds allocate nothing when n and
+// the cell count do not grow; past it they are freed, not copied); in must not point into g. The
+// cell side's sample is strided over an AoS-only input (a caller's order), drawn at random
+// positions of the SoA part (cell order: a stride there is a stratified sample, which gave 34
+// points per cell for a target of 24).
+void build_grid(const GridInput& in, const GridBuildParams& p, Grid& g, GridBuildStats* stats);
+// n points x, y, z, ids 0 .. n - 1.
+void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid& g, GridBuildStats* stats);
 
 // The occupancy pyramid's bytes for a geometry, and its build from g's directory (all of it, in
 // parallel over `threads`: 0 all); every path that adds points to cells calls it.

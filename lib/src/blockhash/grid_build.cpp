@@ -29,16 +29,60 @@ double since(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
+// v sized n, its old contents not kept: a vector growing past its capacity is freed first, so
+// that the build neither copies the previous build's arrays into the new ones (a 25 % insert's
+// rebuild copied 16 MB of records it then overwrote) nor holds both at once.
+template <typename T>
+void resize_discarding(GridVec<T>& v, std::size_t n) {
+  if (v.capacity() < n) GridVec<T>().swap(v);
+  v.resize(n);
+}
+
 struct Box {
   float lo[3] = {INFINITY, INFINITY, INFINITY};
   float hi[3] = {-INFINITY, -INFINITY, -INFINITY};
 };
 
-Box bounding_box(const float* xyz, std::size_t n, unsigned threads) {
-  const detail::PointScan ps = detail::scan_points(xyz, n, threads);
+// The AoS part scanned, the SoA part's box as given.
+Box bounding_box(const GridInput& in, unsigned threads) {
   Box out;
-  for (int d = 0; d < 3; ++d) out.lo[d] = ps.lo[d], out.hi[d] = ps.hi[d];
+  if (in.n_aos) {
+    const detail::PointScan ps = detail::scan_points(in.xyz, in.n_aos, threads);
+    for (int d = 0; d < 3; ++d) out.lo[d] = ps.lo[d], out.hi[d] = ps.hi[d];
+  }
+  if (in.n_soa)
+    for (int d = 0; d < 3; ++d) out.lo[d] = std::min(out.lo[d], in.soa_lo[d]), out.hi[d] = std::max(out.hi[d], in.soa_hi[d]);
   return out;
+}
+
+// Point i of the input (the SoA part first).
+void input_point(const GridInput& in, std::size_t i, float* p) {
+  if (i < in.n_soa) {
+    p[0] = in.x[i], p[1] = in.y[i], p[2] = in.z[i];
+    return;
+  }
+  const float* q = in.xyz + 3 * (i - in.n_soa);
+  p[0] = q[0], p[1] = q[1], p[2] = q[2];
+}
+
+// The tuning's sample: every n / sample-th point, or for an input with a SoA part points at
+// random positions (a fixed seed: the same input gives the same side).
+std::vector<float> tuning_sample(const GridInput& in, std::size_t sample) {
+  const std::size_t n = in.size();
+  const std::size_t stride = std::max<std::size_t>(1, n / std::max<std::size_t>(1, sample));
+  std::vector<float> s(3 * ((n + stride - 1) / stride));
+  std::uint64_t state = 0x9E3779B97F4A7C15ull ^ n;
+  for (std::size_t i = 0, k = 0; i < n; i += stride, ++k) {
+    std::size_t at = i;
+    if (in.n_soa) {  // splitmix64
+      std::uint64_t z = (state += 0x9E3779B97F4A7C15ull);
+      z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+      z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+      at = static_cast<std::size_t>((z ^ (z >> 31)) % n);
+    }
+    input_point(in, at, s.data() + 3 * k);
+  }
+  return s;
 }
 
 // The geometry for cell side h over the box (dims from the extents, margin from the magnitudes).
@@ -110,14 +154,12 @@ double estimate_population(const std::vector<float>& s, std::size_t n, const Box
 // The cell side whose point-weighted mean population is the target, within 4 %: a safeguarded
 // secant search on log h (the population grows with h, about as h^d for points on a d-dimensional
 // set), each step one count of the sample's cells. 3-6 steps where a bisection took 16.
-double choose_cell_side(const float* xyz, std::size_t n, const Box& b, const GridBuildParams& p) {
+double choose_cell_side(const GridInput& in, const Box& b, const GridBuildParams& p) {
+  const std::size_t n = in.size();
   double ext = 0;
   for (int d = 0; d < 3; ++d) ext = std::max(ext, double(b.hi[d]) - double(b.lo[d]));
   if (!(ext > 0)) return 1.0;  // every point coincident: one cell
-  const std::size_t stride = std::max<std::size_t>(1, n / std::max<std::size_t>(1, p.sample));
-  std::vector<float> s;
-  s.reserve(3 * (n / stride + 1));
-  for (std::size_t i = 0; i < n; i += stride) s.insert(s.end(), xyz + 3 * i, xyz + 3 * i + 3);
+  const std::vector<float> s = tuning_sample(in, p.sample);
   std::vector<std::uint64_t> table;
   std::vector<std::uint32_t> count;
   double vol = 1;
@@ -190,9 +232,9 @@ std::size_t cell_count(const bhcl_grid_geom& g) { return std::size_t(g.nx) * g.n
 // directory fits. A direct table of at most max_cells_per_point cells per point; past it a
 // two-level directory of up to 16x as many cells (its top level then holds as many entries as
 // the direct table would); past that (and 2^31 cells) the cells grow until the table fits.
-bhcl_grid_geom grid_shape(const float* xyz, std::size_t n, const Box& box, const GridBuildParams& p,
-                          GridBuildStats& st) {
-  double h = p.cell_size > 0 ? p.cell_size : choose_cell_side(xyz, n, box, p);
+bhcl_grid_geom grid_shape(const GridInput& in, const Box& box, const GridBuildParams& p, GridBuildStats& st) {
+  const std::size_t n = in.size();
+  double h = p.cell_size > 0 ? p.cell_size : choose_cell_side(in, box, p);
   if (!(h > 0) || !std::isfinite(h))
     throw Error("blockhash grid: the cell side came out as " + std::to_string(h) + " (internal error)");
   bhcl_grid_geom geom = geometry(box, h, true);
@@ -232,12 +274,27 @@ struct RecordCell {
   }
 };
 
+// f(i, x, y, z, id) for the input's points i in [b, e): one tight loop per part.
+template <typename F>
+void for_input(const GridInput& in, std::size_t b, std::size_t e, F&& f) {
+  const float *const X = in.x, *const Y = in.y, *const Z = in.z;
+  const std::int32_t* const SI = in.soa_ids;
+  for (std::size_t i = b, se = std::min(e, in.n_soa); i < se; ++i) f(i, X[i], Y[i], Z[i], SI[i]);
+  const float* const P = in.xyz;
+  const std::int32_t* const AI = in.aos_ids;
+  for (std::size_t i = std::max(b, in.n_soa); i < e; ++i) {
+    const std::size_t j = i - in.n_soa;
+    f(i, P[3 * j], P[3 * j + 1], P[3 * j + 2], AI ? AI[j] : static_cast<std::int32_t>(i));
+  }
+}
+
 // Passes 1 and 2: every point's cell and, per thread, the points of each bucket; then each
 // bucket's records, thread by thread in input order (so the sort is stable whatever the thread
-// count): 16-byte (x, y, z, index) records, written in one pass.
-Buckets bucket_records(const float* xyz, std::size_t n, const bhcl_grid_geom& geom, unsigned threads,
-                       GridScratch& sc, GridBuildStats& st) {
+// count): 16-byte (x, y, z, id) records, written in one pass.
+Buckets bucket_records(const GridInput& in, const bhcl_grid_geom& geom, unsigned threads, GridScratch& sc,
+                       GridBuildStats& st) {
   auto t0 = std::chrono::steady_clock::now();
+  const std::size_t n = in.size();
   Buckets bk;
   bk.ncells = cell_count(geom);
   bk.shift = geom.sparse ? BHCL_GRID_SEG_BITS : 0;
@@ -246,7 +303,7 @@ Buckets bucket_records(const float* xyz, std::size_t n, const bhcl_grid_geom& ge
   const std::size_t nb = bk.nb = ((bk.ncells - 1) >> shift) + 1;
   const unsigned T = static_cast<unsigned>(std::min<std::size_t>(threads, std::max<std::size_t>(1, n / 65536)));
   const std::size_t per = (n + T - 1) / T;
-  sc.cell.resize(n);
+  resize_discarding(sc.cell, n);
   std::vector<std::uint32_t> hist(std::size_t(T) * nb, 0);
   detail::parallel_for(
       T,
@@ -257,15 +314,14 @@ Buckets bucket_records(const float* xyz, std::size_t n, const bhcl_grid_geom& ge
         std::uint32_t* const cell = sc.cell.data();
         for (std::size_t j = tb; j < te; ++j) {
           std::uint32_t* const hj = hist.data() + j * nb;
-          const std::size_t e = std::min(n, (j + 1) * per);
-          for (std::size_t i = j * per; i < e; ++i) {
-            const std::uint32_t cx = bhcl_grid_cell(xyz[3 * i], gg.ox, gg.inv_h, gg.nx);
-            const std::uint32_t cy = bhcl_grid_cell(xyz[3 * i + 1], gg.oy, gg.inv_h, gg.ny);
-            const std::uint32_t cz = bhcl_grid_cell(xyz[3 * i + 2], gg.oz, gg.inv_h, gg.nz);
+          for_input(in, j * per, std::min(n, (j + 1) * per), [&](std::size_t i, float x, float y, float z, std::int32_t) {
+            const std::uint32_t cx = bhcl_grid_cell(x, gg.ox, gg.inv_h, gg.nx);
+            const std::uint32_t cy = bhcl_grid_cell(y, gg.oy, gg.inv_h, gg.ny);
+            const std::uint32_t cz = bhcl_grid_cell(z, gg.oz, gg.inv_h, gg.nz);
             const std::uint32_t c = (cz * gg.ny + cy) * gg.nx + cx;
             cell[i] = c;
             ++hj[c >> shift];
-          }
+          });
         }
       },
       T, 1);
@@ -283,7 +339,7 @@ Buckets bucket_records(const float* xyz, std::size_t n, const bhcl_grid_geom& ge
     }
     bstart[b + 1] = s;
   }
-  sc.rec.resize(4 * n);
+  resize_discarding(sc.rec, 4 * n);
   detail::parallel_for(
       T,
       [&](std::size_t tb, std::size_t te) {
@@ -296,20 +352,16 @@ Buckets bucket_records(const float* xyz, std::size_t n, const bhcl_grid_geom& ge
         float* const rec = sc.rec.data();
         for (std::size_t j = tb; j < te; ++j) {
           std::uint32_t* const pos = hist.data() + j * nb;
-          const std::size_t e = std::min(n, (j + 1) * per);
-          for (std::size_t i = j * per; i < e; ++i) {
-            const std::uint32_t c = cell[i];
-            const std::uint32_t k = pos[c >> shift]++;
+          for_input(in, j * per, std::min(n, (j + 1) * per), [&](std::size_t i, float x, float y, float z, std::int32_t id) {
+            const std::uint32_t k = pos[cell[i] >> shift]++;
             float* const r = rec + 4 * std::size_t(k);
-            const float x = xyz[3 * i], y = xyz[3 * i + 1], z = xyz[3 * i + 2];
             float idf;
-            const std::uint32_t id = static_cast<std::uint32_t>(i);
             std::memcpy(&idf, &id, 4);
             r[0] = x;
             r[1] = y;
             r[2] = z;
             r[3] = idf;
-          }
+          });
         }
       },
       T, 1);
@@ -470,10 +522,10 @@ void size_arrays(const Buckets& bk, const std::vector<std::uint32_t>& seg_base, 
     g.starts[bk.ncells] = static_cast<std::uint32_t>(n);
     g.starts[0] = 0;
   }
-  g.x.resize(n + kGridPad);
-  g.y.resize(n + kGridPad);
-  g.z.resize(n + kGridPad);
-  g.ids.resize(n + kGridPad);
+  resize_discarding(g.x, n + kGridPad);
+  resize_discarding(g.y, n + kGridPad);
+  resize_discarding(g.z, n + kGridPad);
+  resize_discarding(g.ids, n + kGridPad);
 }
 
 // Pass 3: each bucket on its own, in parallel over buckets: its cells' counts, its part of the
@@ -518,8 +570,15 @@ BucketCounts place_buckets(const Buckets& bk, const std::vector<std::uint32_t>& 
 
 }  // namespace
 
-void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid& g,
-                GridBuildStats* stats) {
+void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid& g, GridBuildStats* stats) {
+  GridInput in;
+  in.xyz = xyz;
+  in.n_aos = n;
+  build_grid(in, p, g, stats);
+}
+
+void build_grid(const GridInput& in, const GridBuildParams& p, Grid& g, GridBuildStats* stats) {
+  const std::size_t n = in.size();
   if (n == 0 || n >= (std::size_t(1) << 31) - 1)
     throw Error("blockhash grid: the point count must be in [1, 2^31 - 2], got " + std::to_string(n));
   if (p.directory < -1 || p.directory > 1)
@@ -528,14 +587,14 @@ void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid&
   const unsigned threads = p.threads ? p.threads : detail::default_threads();
   GridBuildStats st;
   auto t0 = std::chrono::steady_clock::now();
-  const Box box = bounding_box(xyz, n, threads);
-  const bhcl_grid_geom geom = grid_shape(xyz, n, box, p, st);
+  const Box box = bounding_box(in, threads);
+  const bhcl_grid_geom geom = grid_shape(in, box, p, st);
   const bool sparse = geom.sparse != 0;
   st.t_tune = since(t0);
 
   if (!g.scratch) g.scratch = std::make_shared<GridScratch>();
   GridScratch& sc = *g.scratch;
-  const Buckets bk = bucket_records(xyz, n, geom, threads, sc, st);
+  const Buckets bk = bucket_records(in, geom, threads, sc, st);
 
   t0 = std::chrono::steady_clock::now();
   g.geom = geom;

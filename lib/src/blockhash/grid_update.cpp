@@ -165,7 +165,7 @@ void BlockHashIndex::insert_points(const float* points, const float* scaled, std
     bool in_box = true;
     for (std::size_t i = 0; i < n && in_box; ++i) in_box = inside(s_->grid->geom, scaled + 3 * i);
     if (in_box) grid_insert(scaled, n, first);
-    else grid_rebuild_live(points, n, first, false);
+    else grid_rebuild_live(scaled, n, first, false);
   } else {
     blocks_update(points, n, first, nullptr, 0);
   }
@@ -230,9 +230,7 @@ void BlockHashIndex::grid_insert(const float* scaled, std::size_t m, std::int32_
   if (g.geom.sparse) {
     // The two-level directory is not merged in place (its segment tables would move): a fresh
     // build over the live points and the new ones, as for points off the box.
-    std::vector<float> caller(3 * m);
-    for (std::size_t i = 0; i < 3 * m; ++i) caller[i] = std::ldexp(scaled[i], s_->scale_exp);
-    grid_rebuild_live(caller.data(), m, first, false);
+    grid_rebuild_live(scaled, m, first, false);
     return;
   }
   if (info_.holes) grid_compact();
@@ -257,9 +255,7 @@ void BlockHashIndex::grid_insert(const float* scaled, std::size_t m, std::int32_
   const double mean = sum2 / double(n1);
   // The leaf split: the cells have grown too full for the side tuned at the last full build.
   if (mean > kRetuneAbove * std::max(1.0, grid_build_mean_)) {
-    std::vector<float> caller(3 * m);
-    for (std::size_t i = 0; i < 3 * m; ++i) caller[i] = std::ldexp(scaled[i], s_->scale_exp);
-    grid_rebuild_live(caller.data(), m, first, true);
+    grid_rebuild_live(scaled, m, first, true);
     return;
   }
   std::vector<std::uint32_t> order(m);
@@ -471,17 +467,15 @@ void BlockHashIndex::live_points(std::vector<float>& xyz, std::vector<std::int32
   xyz = indexed_points(&ids);
 }
 
-// The live points (caller units: 2^scale_exp) and their ids in the grid's order, with room for
-// `extra` more.
-static void grid_live_in_cell_order(const blockhash::Grid& g, int scale_exp, std::vector<float>& pts,
-                                    std::vector<std::int32_t>& ids, std::size_t extra) {
-  // In the grid's own order (cell by cell), holes dropped: two sequential parallel passes over the
-  // slots, the live ones per range, then the copy (caller units). An id-ordered gather went
-  // through the id -> slot map, a random write and a random read per point: as long as the build
-  // itself (47 of 100 ms, 1.25M points). So after such a rebuild a cell's slots follow the old
-  // grid's order, not ascending ids (putting them back in id order cost 50 ms more): exact answers
-  // are unchanged (the kernels rank by distance, then id); a budgeted query may examine other
-  // points of a cell its budget cuts into than a fresh build's would, as any input order does.
+// The live points of g (holes dropped) into x, y, z, ids, in the grid's own order (cell by cell):
+// two sequential parallel passes over the slots, the live ones per range, then the copy. An
+// id-ordered gather went through the id -> slot map, a random write and a random read per point:
+// as long as the build itself (47 of 100 ms, 1.25M points). So after such a rebuild a cell's
+// slots follow the old grid's order, not ascending ids: exact answers are unchanged (the kernels
+// rank by distance, then id); a budgeted query may examine other points of a cell its budget
+// cuts into than a fresh build's would, as any input order does.
+static void grid_live_in_cell_order(const blockhash::Grid& g, blockhash::GridVec<float>& x, blockhash::GridVec<float>& y,
+                                    blockhash::GridVec<float>& z, blockhash::GridVec<std::int32_t>& ids) {
   const std::size_t n = g.n_points;
   const unsigned T = std::max(1u, std::min<unsigned>(detail::default_threads(), unsigned(n / 65536 + 1)));
   std::vector<std::size_t> count(T + 1, 0);
@@ -492,37 +486,24 @@ static void grid_live_in_cell_order(const blockhash::Grid& g, int scale_exp, std
       for (std::size_t i = t * per, e = std::min(n, i + per); i < e; ++i) count[t + 1] += gid[i] != kHoleId;
   }, T, 1);
   for (unsigned t = 0; t < T; ++t) count[t + 1] += count[t];
-  const std::size_t live = count[T];
-  pts.resize(3 * (live + extra));
-  ids.resize(live + extra);
-  const int e2 = scale_exp;
+  x.resize(count[T]);
+  y.resize(count[T]);
+  z.resize(count[T]);
+  ids.resize(count[T]);
   detail::parallel_for(T, [&](std::size_t tb, std::size_t te) {
     for (std::size_t t = tb; t < te; ++t) {
       std::size_t w = count[t];
       for (std::size_t i = t * per, e = std::min(n, i + per); i < e; ++i) {
         if (gid[i] == kHoleId) continue;
-        float* p = pts.data() + 3 * w;
-        p[0] = e2 ? std::ldexp(g.x[i], e2) : g.x[i];
-        p[1] = e2 ? std::ldexp(g.y[i], e2) : g.y[i];
-        p[2] = e2 ? std::ldexp(g.z[i], e2) : g.z[i];
+        x[w] = g.x[i];
+        y[w] = g.y[i];
+        z[w] = g.z[i];
         ids[w++] = gid[i];
       }
     }
   }, T, 1);
 }
 
-// The build tunes its cell side from a strided sample of the points in the order given, and
-// corrects its estimate as for a random one (binomial thinning); a stride over points in cell
-// order is a stratified sample instead, which gave 34 points per cell for a target of 24. So the
-// points the stride will pick (every n / sample-th, as blockhash::choose_cell_side takes them)
-// change places with points at random positions: the sample is a random one, as a caller's
-// order gives, and the order stays cell order elsewhere.
-// The build tunes its cell side from a strided sample of the points in the order given, and
-// corrects its estimate as for a random one (binomial thinning); a stride over points in cell
-// order is a stratified sample instead, which gave 34 points per cell for a target of 24. So the
-// points the stride will pick (every n / sample-th, as blockhash::choose_cell_side takes them)
-// change places with points at random positions: the sample is a random one, as a caller's
-// order gives, and the order stays cell order elsewhere.
 // Room to grow where an insert left the grid's box (a sensor moving on: every scan's leading edge
 // lies outside the box its map was built in, and each such insert was a full build). For each
 // axis and side the new points passed, the box of the rebuild is extended by half the points'
@@ -530,8 +511,8 @@ static void grid_live_in_cell_order(const blockhash::Grid& g, int scale_exp, std
 // the hole id; after the build they become holes (+inf), so they are never returned and the live
 // points' box stays their own. The next inserts that land in the room merge. Returns the points
 // appended (0 or 2).
-static std::size_t add_growth_room(const blockhash::Grid& g, int scale_exp, const float* extra, std::size_t m,
-                                   std::vector<float>& pts, std::vector<std::int32_t>& ids) {
+static std::size_t add_growth_room(const blockhash::Grid& g, const float* extra, std::size_t m,
+                                   blockhash::GridVec<float>& pts, blockhash::GridVec<std::int32_t>& ids) {
   if (m == 0) return 0;
   double lo[3], hi[3];
   const bhcl_grid_dbox& b = g.dbox;
@@ -539,10 +520,10 @@ static std::size_t add_growth_room(const blockhash::Grid& g, int scale_exp, cons
   const double o[3] = {g.geom.ox, g.geom.oy, g.geom.oz}, nc[3] = {double(g.geom.nx), double(g.geom.ny), double(g.geom.nz)};
   double glo[3], ghi[3];
   for (int d = 0; d < 3; ++d) {
-    lo[d] = std::isfinite(blo[d]) ? std::ldexp(blo[d], scale_exp) : INFINITY;
-    hi[d] = std::isfinite(bhi[d]) ? std::ldexp(bhi[d], scale_exp) : -INFINITY;
-    glo[d] = std::ldexp(o[d], scale_exp);
-    ghi[d] = std::ldexp(o[d] + nc[d] * double(g.geom.h), scale_exp);
+    lo[d] = std::isfinite(blo[d]) ? blo[d] : INFINITY;
+    hi[d] = std::isfinite(bhi[d]) ? bhi[d] : -INFINITY;
+    glo[d] = o[d];
+    ghi[d] = o[d] + nc[d] * double(g.geom.h);
   }
   double nlo[3] = {INFINITY, INFINITY, INFINITY}, nhi[3] = {-INFINITY, -INFINITY, -INFINITY};
   for (std::size_t i = 0; i < m; ++i)
@@ -550,17 +531,18 @@ static std::size_t add_growth_room(const blockhash::Grid& g, int scale_exp, cons
       nlo[d] = std::min(nlo[d], double(extra[3 * i + d]));
       nhi[d] = std::max(nhi[d], double(extra[3 * i + d]));
     }
-  const double cell = std::ldexp(double(g.geom.h), scale_exp);
+  const double cell = double(g.geom.h);
   float c0[3], c1[3];
   bool room = false;
   for (int d = 0; d < 3; ++d) {
     const double l = std::min(lo[d], nlo[d]), h = std::max(hi[d], nhi[d]), ext = h - l;
     // Past the box: half the extent of room. Room left by an earlier rebuild is kept where the
     // new points still reach the front on that side (within a quarter of the extent of it: a
-    // rebuild for the band must not take away the moving window's room).
-    // (Room is more than the build's own slack of two cells, or each rebuild would keep it and
-    // add its own again.)
-    const double kept = std::max(ext / 4, 4.0 * cell);
+    // rebuild for the band must not take away the moving window's room), however much of it the
+    // window has used: room is what lies past the build's own slack (under a cell per axis), so
+    // past two cells (a quarter of the extent here dropped room half used, and the next scan
+    // rebuilt again).
+    const double kept = 2.0 * cell;
     double c_lo = l, c_hi = h;
     if (nlo[d] < glo[d]) c_lo = l - 0.5 * ext;
     else if (glo[d] < l - kept && nlo[d] < l + ext / 4) c_lo = glo[d];
@@ -579,68 +561,64 @@ static std::size_t add_growth_room(const blockhash::Grid& g, int scale_exp, cons
   return 2;
 }
 
-static void shuffle_tuning_sample(std::vector<float>& pts, std::vector<std::int32_t>& ids) {
-  const std::size_t n = ids.size();
-  if (n == 0) return;
-  const std::size_t stride = std::max<std::size_t>(1, n / std::max<std::size_t>(1, blockhash::GridBuildParams{}.sample));
-  std::mt19937_64 rng(n);
-  std::uniform_int_distribution<std::size_t> pick(0, n - 1);
-  for (std::size_t i = 0; i < n; i += stride) {
-    const std::size_t r = pick(rng);
-    std::swap(ids[i], ids[r]);
-    for (int d = 0; d < 3; ++d) std::swap(pts[3 * i + d], pts[3 * r + d]);
-  }
-}
-
 void BlockHashIndex::grid_rebuild_live(const float* extra, std::size_t m, std::int32_t first, bool retune) {
   // A fresh build over the live points and the new ones, with the build's own parameters (a
-  // tuned side unless the caller fixed one), done once: an update never costs more than building
-  // its result afresh plus the gather of the live points and the ids' mapping (issue 39; before,
-  // a rebuild that kept the side and then found the cells outside the band built a second time,
-  // and the gather was serial: 3.5-4.5x a fresh build across the band).
-  std::vector<float> pts;
-  std::vector<std::int32_t> ids;
-  grid_live_in_cell_order(*s_->grid, s_->scale_exp, pts, ids, m);
-  const std::size_t live = ids.size() - m;
-  std::copy(extra, extra + 3 * m, pts.begin() + 3 * live);
-  for (std::size_t i = 0; i < m; ++i) ids[live + i] = first + static_cast<std::int32_t>(i);
-  const std::size_t phantoms = add_growth_room(*s_->grid, s_->scale_exp, extra, m, pts, ids);
-  shuffle_tuning_sample(pts, ids);
-  // The old arrays are copied out: freed before the build allocates the new ones, so that the
-  // update's peak memory is a fresh build's plus the copy, not two grids.
-  {
-    blockhash::Grid& g = *s_->grid;
-    g.x = blockhash::GridVec<float>();
+  // tuned side unless the caller fixed one), done once (issue 39: before, a rebuild that kept the
+  // side and then found the cells outside the band built a second time: 3.5-4.5x a fresh build
+  // across the band). The build reads the old grid's arrays where they are (a gather of a copy,
+  // then a pass mapping the build's indices to ids, made it 2.1x), the new points and the room's
+  // corners behind them; with holes, the live points are gathered first (holes dropped).
+  blockhash::Grid& g = *s_->grid;
+  blockhash::GridVec<float> add(extra, extra + 3 * m);
+  blockhash::GridVec<std::int32_t> add_ids(m);
+  for (std::size_t i = 0; i < m; ++i) add_ids[i] = first + static_cast<std::int32_t>(i);
+  const std::size_t phantoms = add_growth_room(g, extra, m, add, add_ids);
+  blockhash::GridInput in;
+  // A box holding every live point: the live points' box (a remove does not shrink it), or where
+  // it is unset, theirs computed.
+  bhcl_grid_dbox box = g.dbox;
+  if (!(std::isfinite(box.lx) && std::isfinite(box.ly) && std::isfinite(box.lz) && std::isfinite(box.hx) &&
+        std::isfinite(box.hy) && std::isfinite(box.hz)))
+    box = blockhash::grid_points_box(g, params_.threads);
+  const float lo[3] = {box.lx, box.ly, box.lz}, hi[3] = {box.hx, box.hy, box.hz};
+  for (int d = 0; d < 3; ++d) in.soa_lo[d] = lo[d], in.soa_hi[d] = hi[d];
+  blockhash::GridVec<float> ox, oy, oz;
+  blockhash::GridVec<std::int32_t> oids;
+  if (info_.holes) {
+    grid_live_in_cell_order(g, ox, oy, oz, oids);
+    g.x = blockhash::GridVec<float>();  // freed before the build allocates the new arrays
     g.y = blockhash::GridVec<float>();
     g.z = blockhash::GridVec<float>();
     g.ids = blockhash::GridVec<std::int32_t>();
-    if (g.scratch) {  // an insert's merge arrays; the build's cells and records are kept
-      g.scratch->x = blockhash::GridVec<float>();
-      g.scratch->y = blockhash::GridVec<float>();
-      g.scratch->z = blockhash::GridVec<float>();
-      g.scratch->ids = blockhash::GridVec<std::int32_t>();
-    }
+  } else {  // moved out: the build fills g's arrays anew
+    ox = std::move(g.x), oy = std::move(g.y), oz = std::move(g.z), oids = std::move(g.ids);
+    oids.resize(g.n_points);  // the pad not read
   }
+  if (g.scratch) {  // an insert's merge arrays; the build's cells and records are kept
+    g.scratch->x = blockhash::GridVec<float>();
+    g.scratch->y = blockhash::GridVec<float>();
+    g.scratch->z = blockhash::GridVec<float>();
+    g.scratch->ids = blockhash::GridVec<std::int32_t>();
+  }
+  in.x = ox.data(), in.y = oy.data(), in.z = oz.data(), in.soa_ids = oids.data(), in.n_soa = oids.size();
+  in.xyz = add.data(), in.aos_ids = add_ids.data(), in.n_aos = add_ids.size();
   const UpdateCounters keep(info_);
   const double side_before = info_.cell_size;
   id_pos_.clear();  // every point moves; the next remove that needs the map makes it again
   const std::size_t builds_before = grid_builds_;
-  build_grid_layout(pts.data(), ids.size(), params_.cell_size);
-  pts = std::vector<float>();
-  blockhash::Grid& g = *s_->grid;
-  // build_grid numbers the points 0 .. n - 1 in the order given: their ids.
-  {
-    std::int32_t* const gid = g.ids.data();
-    const std::int32_t* const by = ids.data();
+  // In the structure's coordinates and scale (an update does not rescale), from points known
+  // finite: no validation or scale pass, the live ids stored by the build itself.
+  build_grid_scaled(in, params_.cell_size);
+  if (phantoms) {  // the corners of the room left become holes
     detail::parallel_for(g.n_points, [&](std::size_t b, std::size_t e) {
-      for (std::size_t i = b; i < e; ++i) {
-        gid[i] = by[std::size_t(gid[i])];
-        if (gid[i] == kHoleId) g.x[i] = g.y[i] = g.z[i] = INFINITY;  // a corner of the room left
-      }
+      for (std::size_t i = b; i < e; ++i)
+        if (g.ids[i] == kHoleId) g.x[i] = g.y[i] = g.z[i] = INFINITY;
     });
   }
   if (phantoms) g.dbox = blockhash::grid_points_box(g, params_.threads);  // the live points' own
-  if (!grid_in_place()) {  // a view shows the host array itself
+  // The build uploaded the arrays with their ids; only the holes made above are new (a view
+  // shows the host array itself).
+  if (phantoms && !grid_in_place()) {
     const auto& q = runtime_ptr()->queue();
     const std::size_t bytes = g.ids.size() * 4;
     check_cl(q.enqueueWriteBuffer(g_x_, CL_FALSE, 0, bytes, g.x.data()), "clEnqueueWriteBuffer", "blockhash grid x");

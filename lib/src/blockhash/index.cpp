@@ -192,11 +192,20 @@ const float* BlockHashIndex::begin_build(const float* points, std::size_t n_poin
 }
 
 void BlockHashIndex::build_grid_layout(const float* points, std::size_t n_points, double cell_size) {
-  using namespace blockhash;
   auto t0 = std::chrono::steady_clock::now();
   std::vector<float> scaled;
   points = begin_build(points, n_points, scaled);
+  blockhash::GridInput in;
+  in.xyz = points;
+  in.n_aos = n_points;
+  build_grid_scaled(in, cell_size, t0);
+}
+
+void BlockHashIndex::build_grid_scaled(const blockhash::GridInput& input, double cell_size,
+                                       std::chrono::steady_clock::time_point t0) {
+  using namespace blockhash;
   Structure& s = *s_;
+  s.n_points = input.size();
   if (!s.grid) s.grid = std::make_shared<Grid>();
   release_grid_views();  // the build rewrites the arrays a device view may still show
   GridBuildParams gp;
@@ -207,7 +216,7 @@ void BlockHashIndex::build_grid_layout(const float* points, std::size_t n_points
   gp.directory = params_.grid_directory;
   gp.threads = params_.threads;
   GridBuildStats st;
-  build_grid(points, n_points, gp, *s.grid, &st);
+  build_grid(input, gp, *s.grid, &st);
   ++grid_builds_;  // an update's stats count its builds from this (grid_update.cpp)
   BlockHashBuildInfo& in = s.info;
   in = BlockHashBuildInfo{};
