@@ -98,7 +98,6 @@ TEST_CASE("option tables: the library builds at every bound of a build option an
         mo.set(o->name, v);
         std::istringstream needs(o->needs);  // the options this one needs, from the table
         for (std::string w; needs >> w;) mo.set(w.substr(0, w.find('=')), w.substr(w.find('=') + 1));
-        if (o->name == "L" && v != "1" && v != "-1") mo.set("cell-aligned", "0");  // L > 1: the L-table layout
         CHECK_NOTHROW(make_index(m.name, test::runtime(), pts.data(), 600, mo));
       }
       for (const std::string& v : b.outside) {
@@ -186,10 +185,21 @@ TEST_CASE("option tables: bhcl accepts block hashing's build options at their bo
     for (const std::string& v : bounds_of(*o).inside) {
       INFO("--" << o->name << " " << v);
       std::string out;
-      std::string layout = o->name == "L" && v != "1" && v != "-1" ? " --cell-aligned 0" : "";
+      std::string layout;
       std::istringstream needs(o->needs);  // the options this one needs, from the table
       for (std::string w; needs >> w;) layout += " --" + w.substr(0, w.find('=')) + " " + w.substr(w.find('=') + 1);
       CHECK_MESSAGE(test::run_bhcl(base + layout + " --" + o->name + " " + v, &out) == 0, out);
     }
+  }
+}
+
+TEST_CASE("option tables: block hashing's retired layout option is refused with what replaced it") {
+  // The option of the retired layout of blocks aligned to cells: an error naming the option, the
+  // measurement that retired it and the layouts to use, never skipped as another method's option.
+  const std::vector<float> pts = datasets::uniform(300, 9);
+  for (const char* v : {"1", "0"}) {
+    INFO("cell-aligned = " << v);
+    CHECK_THROWS_WITH_AS(make_index("blockhash", test::runtime(), pts.data(), 300, MethodOptions().set("cell-aligned", v)),
+                         doctest::Contains("the cell-aligned block layout was retired"), Error);
   }
 }
