@@ -51,6 +51,40 @@ std::uint32_t scan_block(const Structure& s, long b, const float* q, float r2, s
 
 inline float box_dist2(const bhcl_bh_box& b, const float* q) { return bh_box_dist2_xyz(q[0], q[1], q[2], &b); }
 
+// 1. of the query: the query's bucket in each table (and the near-side neighbours) into cand, in
+// order of |Q|; equal |Q| keep the gathering order (table, then home, x, y, z neighbour), as the
+// kernels' bh_gather_buckets.
+void gather_buckets(const Structure& s, const float* q, bool probes, std::vector<BucketRef>& cand) {
+  const std::uint32_t P = static_cast<std::uint32_t>(s.info.P);
+  cand.clear();
+  for (int t = 0; t < s.info.L; ++t) {
+    std::uint32_t h[3];
+    long nbr[3];
+    for (int d = 0; d < 3; ++d) {
+      h[d] = hash_coord(s.thr(t, d), P, q[d]);
+      nbr[d] = probes ? bh_near_side(s.thr(t, d), P, h[d], q[d]) : -1;
+    }
+    for (int pr = 0; pr < (probes ? 4 : 1); ++pr) {
+      std::uint32_t c[3] = {h[0], h[1], h[2]};
+      if (pr > 0) {
+        if (nbr[pr - 1] < 0) continue;
+        c[pr - 1] = static_cast<std::uint32_t>(nbr[pr - 1]);
+      }
+      long b = s.find_bucket(t, s.cell_key(c));
+      if (b < 0 || s.buckets[b].n_refs == 0) continue;  // empty buckets cannot help
+      std::int32_t qv = s.buckets[b].q;
+      BucketRef r{static_cast<std::uint32_t>(qv < 0 ? -qv : qv), static_cast<std::uint32_t>(b)};
+      std::size_t pos = cand.size();
+      cand.push_back(r);
+      while (pos > 0 && cand[pos - 1].aq > r.aq) {
+        cand[pos] = cand[pos - 1];
+        --pos;
+      }
+      cand[pos] = r;
+    }
+  }
+}
+
 }  // namespace
 
 void reference_query(const Structure& s, const float* queries, std::size_t n,
@@ -61,8 +95,6 @@ void reference_query(const Structure& s, const float* queries, std::size_t n,
   const std::uint32_t budget = BlockHashIndex::budget(params);
   const float r2 = std::isinf(params.max_radius) ? INFINITY : params.max_radius * params.max_radius;
   const std::uint32_t cap = scan_cap(kmax, s.info.X);
-  const std::uint32_t P = static_cast<std::uint32_t>(s.info.P);
-  const int L = s.info.L;
   const bool box_skip = s.info.box_skip, box_order = s.info.box_order;
   const std::uint32_t keep = keep_blocks(budget, kmax, s.info.X);
   const std::uint32_t seeds = seed_side(s.info.hilbert_seed, params.k, s.info.X);
@@ -78,35 +110,7 @@ void reference_query(const Structure& s, const float* queries, std::size_t n,
     for (std::size_t qi = begin; qi < end; ++qi) {
       const float* q = queries + 3 * qi;
       if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2])) continue;
-      // 1. The query's bucket in each table (and the near-side neighbours), in order of |Q|;
-      //    equal |Q| keep the gathering order (table, then home, x, y, z neighbour).
-      cand.clear();
-      for (int t = 0; t < L; ++t) {
-        std::uint32_t h[3];
-        long nbr[3];
-        for (int d = 0; d < 3; ++d) {
-          h[d] = hash_coord(s.thr(t, d), P, q[d]);
-          nbr[d] = probes ? bh_near_side(s.thr(t, d), P, h[d], q[d]) : -1;
-        }
-        for (int pr = 0; pr < (probes ? 4 : 1); ++pr) {
-          std::uint32_t c[3] = {h[0], h[1], h[2]};
-          if (pr > 0) {
-            if (nbr[pr - 1] < 0) continue;
-            c[pr - 1] = static_cast<std::uint32_t>(nbr[pr - 1]);
-          }
-          long b = s.find_bucket(t, s.cell_key(c));
-          if (b < 0 || s.buckets[b].n_refs == 0) continue;  // empty buckets cannot help
-          std::int32_t qv = s.buckets[b].q;
-          BucketRef r{static_cast<std::uint32_t>(qv < 0 ? -qv : qv), static_cast<std::uint32_t>(b)};
-          std::size_t pos = cand.size();
-          cand.push_back(r);
-          while (pos > 0 && cand[pos - 1].aq > r.aq) {
-            cand[pos] = cand[pos - 1];
-            --pos;
-          }
-          cand[pos] = r;
-        }
-      }
+      gather_buckets(s, q, probes, cand);  // 1. the query's buckets, in order of |Q|
       std::fill(bd.begin(), bd.end(), INFINITY);
       std::fill(bi.begin(), bi.end(), BHCL_EMPTY_SLOT_ID);
       std::uint32_t ex = 0;
