@@ -135,26 +135,40 @@ TEST_CASE("option tables: block hashing's own range checks agree with its table"
 }
 
 TEST_CASE("option tables: block hashing answers at every bound of a search option") {
+  // On the grid and on auto's L tables; the L tables' probes on the grid are refused, not ignored.
   const std::vector<float> pts = datasets::uniform(600, 5), qs = datasets::uniform(20, 6);
-  auto index = make_index("blockhash", test::runtime(), pts.data(), 600);
-  for (const OptionInfo* o : method_info("blockhash").search_options()) {
-    if (o->name == "local-size" || o->name == "max-batch") continue;  // bounded by the device
-    for (const std::string& v : bounds_of(*o).inside) {
-      if (o->name == "recall" && v != "0") continue;  // a tuning run per target: covered elsewhere
-      INFO(o->name << " = " << v);
-      SearchParams p = test::knn_params(8);
-      o->set_search(&p, o->parse(v));
-      CHECK_NOTHROW(index->query(qs, p));
+  for (const char* layout : {"-1", "0"}) {
+    CAPTURE(layout);
+    auto index = make_index("blockhash", test::runtime(), pts.data(), 600, MethodOptions().set("grid", layout));
+    const bool grid = std::string(layout) == "-1";
+    for (const OptionInfo* o : method_info("blockhash").search_options()) {
+      if (o->name == "local-size" || o->name == "max-batch") continue;  // bounded by the device
+      for (const std::string& v : bounds_of(*o).inside) {
+        if (o->name == "recall" && v != "0") continue;  // a tuning run per target: covered elsewhere
+        INFO(o->name << " = " << v);
+        SearchParams p = test::knn_params(8);
+        o->set_search(&p, o->parse(v));
+        if (grid && o->name == "probes" && v != "-1")
+          CHECK_THROWS_WITH_AS(index->query(qs, p), doctest::Contains("an option of the L tables"), Error);
+        else if (!grid && o->name == "A" && v == "inf")  // the grid's exact mode: the L tables are never exact
+          CHECK_THROWS_WITH_AS(index->query(qs, p), doctest::Contains("A must be a positive finite number"), Error);
+        else
+          CHECK_NOTHROW(index->query(qs, p));
+      }
     }
-  }
-  for (const OptionInfo* o : method_info("blockhash").radius_options()) {
-    if (o->name == "local-size" || o->name == "max-batch") continue;
-    for (const std::string& v : bounds_of(*o).inside) {
-      INFO(o->name << " = " << v);
-      RadiusParams p;
-      o->set_radius(&p, o->parse(v));
-      RadiusResult r;
-      CHECK_NOTHROW(index->radius_search(qs.data(), 20, 0.1f, p, r));
+    for (const OptionInfo* o : method_info("blockhash").radius_options()) {
+      if (o->name == "local-size" || o->name == "max-batch") continue;
+      for (const std::string& v : bounds_of(*o).inside) {
+        INFO(o->name << " = " << v);
+        RadiusParams p;
+        o->set_radius(&p, o->parse(v));
+        RadiusResult r;
+        if (grid && o->name == "probes" && v != "-1")
+          CHECK_THROWS_WITH_AS(index->radius_search(qs.data(), 20, 0.1f, p, r), doctest::Contains("an option of the L tables"),
+                               Error);
+        else
+          CHECK_NOTHROW(index->radius_search(qs.data(), 20, 0.1f, p, r));
+      }
     }
   }
 }

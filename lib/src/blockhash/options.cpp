@@ -89,7 +89,7 @@ std::vector<OptionInfo> make_table() {
               .with_keyword("recall_target"),
           "SearchParams::recall_target"),
       option::search<&SearchParams::neighbour_probes, &RadiusParams::neighbour_probes>(
-          option::integer("probes", "L tables: 0 the query's cell, 1 and its near-side neighbours (the grid's "
+          option::integer("probes", "L tables: 0 the query's cell, 1 and its near-side neighbours (the grid refuses it: its "
                                     "rings need none; -1: the preset decides)", 0, 1, "-1")
               .or_unset(),
           "SearchParams::neighbour_probes"),

@@ -29,9 +29,12 @@ std::uint32_t BlockHashIndex::budget(const SearchParams& p) {
 void BlockHashIndex::check_params(const SearchParams& p) const {
   Index::check_params(p);
   if (info_.grid) {
-    // The rings reach every cell within the bound: the probes of the L tables do not apply.
-    if (p.neighbour_probes < -1 || p.neighbour_probes > 1)
-      throw Error("blockhash: neighbour_probes must be -1, 0 or 1, got " + std::to_string(p.neighbour_probes));
+    // The rings reach every cell within the bound: the probes are an option of the L tables,
+    // refused here rather than accepted and ignored.
+    if (p.neighbour_probes != -1)
+      throw Error("blockhash: neighbour_probes (probes) is an option of the L tables (grid = 0, preset paper); "
+                  "the grid's rings reach every cell within the bound: leave it -1, got " +
+                  std::to_string(p.neighbour_probes));
     if (!(p.recall_target >= 0 && p.recall_target <= 1))
       throw Error("blockhash: recall_target must be in [0, 1] (0 = use A, 1 = exact), got " + std::to_string(p.recall_target));
     if (p.recall_target > 0 && p.recall_target < 1) {
