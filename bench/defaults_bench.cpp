@@ -9,7 +9,7 @@
 // is timed apart (the tuning is done there and then cached), then `--rounds` calls whose medians
 // are reported, kd-tree and block hashing interleaved (a ratio from one process on a loaded
 // machine). Layouts: "grid" (the auto preset's default: the grid, exact by default) and "blocks"
-// (auto with grid = 0: the cell-aligned block layout, where a budget applies and the default
+// (auto with grid = 0: the L tables, where a budget applies and the default
 // tunes A for recall 0.95 on the batch). Distributions: "on" (the set's own queries: near the
 // data) and "box" (uniform over the points' bounding box).
 #include <algorithm>

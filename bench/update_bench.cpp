@@ -80,7 +80,7 @@ Options parse(int argc, char** argv, int& rc) {
   app.add_option("--k", o.k, "neighbours")->check(CLI::Range(1, kMaxK));
   app.add_option("--A", o.A, "block hashing's budget factor of the growth study")->check(CLI::Range(0.5f, 1000.0f));
   app.add_option("--data", o.data, "a generated set (uniform, clustered, cornell, ...)");
-  app.add_option("--methods", o.methods_arg, "methods of the cost study, comma separated (blockhash-cells: the cell-aligned block layout)");
+  app.add_option("--methods", o.methods_arg, "methods of the cost study, comma separated (blockhash-tables: auto's L tables, grid=0)");
   app.add_option("--csv", o.csv, "also write the figures here");
   app.add_flag("--skip-cost", o.skip_cost, "only the growth study");
   app.add_flag("--skip-growth", o.skip_growth, "only the cost study");
@@ -175,10 +175,9 @@ std::pair<double, double> time_op(const std::string& method, const Op& op, const
 #endif
   MethodOptions mo;
   std::string name = method;
-  if (method == "blockhash-cells") {
+  if (method == "blockhash-tables") {
     name = "blockhash";
-    mo.set("cell-aligned", "1");
-    mo.set("grid", "0");  // the block layouts: the grid refuses their options
+    mo.set("grid", "0");  // auto's L tables
   }
   double t0 = now_s();
   auto fresh = make_index(name, rt, after, n_after, mo);

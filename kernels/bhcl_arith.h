@@ -96,46 +96,6 @@ inline float bh_box_dist2_xyz(float qx, float qy, float qz, BHCL_GLOBAL const bh
   return ex * ex + ey * ey + ez * ez;
 }
 
-/* Cells per axis in the cell-aligned query: home, near side, second near side, far side. */
-#define BHCL_BH_AXIS_CELLS 4
-
-/* The cells one axis contributes and their squared slab distances: [0] home (0), [1] the
- * near-side neighbour, [2] the second cell on the near side, [3] the far-side neighbour; an
- * absent cell (past the outermost threshold, or not asked for) has distance +inf. */
-inline void bh_axis_cells(BHCL_GLOBAL const float* thr, bhcl_u32 P, float t, bhcl_u32 probes,
-                          bhcl_u32* c, float* dd) {
-  bhcl_u32 h = bh_hash(thr, P, t);
-  for (int i = 0; i < BHCL_BH_AXIS_CELLS; ++i) {
-    c[i] = h;
-    dd[i] = INFINITY;
-  }
-  dd[0] = 0.0f;
-  if (probes == 0) return;
-  float lo = h > 0 ? thr[h - 1] : -INFINITY;
-  float hi = h < P ? thr[h] : INFINITY;
-  float dlo = t - lo, dhi = hi - t;
-  int lower = dlo < dhi;
-  int has_lo = BHCL_ISFINITE(dlo), has_hi = BHCL_ISFINITE(dhi);
-  if (lower ? has_lo : has_hi) {
-    c[1] = lower ? h - 1 : h + 1;
-    dd[1] = lower ? dlo * dlo : dhi * dhi;
-  }
-  if (probes < 2) return;
-  if (lower && has_lo && h >= 2) {
-    float e = t - thr[h - 2];
-    c[2] = h - 2;
-    dd[2] = e * e;
-  } else if (!lower && has_hi && h + 1 < P && BHCL_ISFINITE(thr[h + 1])) {
-    float e = thr[h + 1] - t;
-    c[2] = h + 2;
-    dd[2] = e * e;
-  }
-  if (lower ? has_hi : has_lo) {
-    c[3] = lower ? h + 1 : h - 1;
-    dd[3] = lower ? dhi * dhi : dlo * dlo;
-  }
-}
-
 /* 3D Hilbert index of grid cell (x0, x1, x2), each < 2^bits, 1 <= bits <= 21 (Skilling,
  * "Programming the Hilbert curve", AIP Conf. Proc. 707, 2004: axes -> transposed index, then the
  * bits interleaved). The space-filling-curve module (lib/src/sfc) decodes it. */

@@ -1,6 +1,4 @@
-/* Block hashing: what the block-hash kernels share (blockhash_knn.cl, blockhash_cells_knn.cl, the
- * radius kernels)
- * beyond the arithmetic of bhcl_arith.h, which the host reference (lib/src/blockhash/query_ref.cpp)
+/* Block hashing: what the L-table kernels share (blockhash_knn.cl, blockhash_radius.cl) beyond the arithmetic of bhcl_arith.h, which the host reference (lib/src/blockhash/query_ref.cpp)
  * includes too. OpenCL C. */
 #ifndef BHCL_BLOCKHASH_COMMON_H
 #define BHCL_BLOCKHASH_COMMON_H
@@ -40,31 +38,6 @@ inline uint bh_block_at_key(__global const ulong* block_keys, uint n_blocks, ulo
   return base > 0 ? base - 1 : 0;
 }
 
-/* The run of a table-0 cell: from the direct table when there is one (one load: cells are
- * numbered densely over the thresholds each axis actually has), else by binary search in the sorted
- * directory. Returns 0 and sets *first, *n, or -1 for an empty cell. */
-inline int bh_cell_run(__global const uint2* direct, uint dy, uint dz, __global const uint* keys,
-                       uint n_keys, __global const bhcl_bh_bucket* buckets, uint side, uint cx,
-                       uint cy, uint cz, uint* first, uint* n) {
-  if (dz) {
-    uint2 e = direct[(cx * dy + cy) * dz + cz];
-    *first = e.x;
-    *n = e.y;
-    return e.y ? 0 : -1;
-  }
-  uint key = (cx * side + cy) * side + cz;
-  uint lo = 0, hi = n_keys;
-  while (lo < hi) {
-    uint mid = (lo + hi) >> 1;
-    if (keys[mid] < key) lo = mid + 1;
-    else hi = mid;
-  }
-  if (lo >= n_keys || keys[lo] != key) return -1;
-  *first = buckets[lo].first_ref;
-  *n = buckets[lo].n_refs;
-  return 0;
-}
-
 /* The kNN kernels' closing parameters (after each layout's own) and their close: the row and
  * the points examined (when want_examined). */
 #define BHCL_BH_KNN_PARAMS                                                               \
@@ -73,39 +46,6 @@ inline int bh_cell_run(__global const uint2* direct, uint dy, uint dz, __global 
 #define BHCL_BH_KNN_END(examined)                                         \
   bhcl_write_row(out_ids, out_d2, out_counts, row, k, best_d, best_i);    \
   if (want_examined) out_examined[row] = (int)(examined)
-
-/* The cell-aligned layout's kernel parameters (blockhash_cells_knn.cl, blockhash_cells_radius.cl;
- * the order lib/src/blockhash/cells.cpp sets them in). */
-#define BHCL_BH_CELLS_PARAMS                                                                      \
-  __global const bhcl_bh_block *blocks, __global const bhcl_bh_box *boxes,                        \
-      __global const float *thresholds, uint P, __global const uint *keys, uint n_keys,           \
-      __global const bhcl_bh_bucket *buckets, __global const uint2 *direct, uint dir_dy,          \
-      uint dir_dz, uint probes
-
-/* A query's cells along each axis (bh_axis_cells) and their slab distances: cell (a, b, c) of
- * the 4 x 4 x 4 block around the query is (cx[a], cy[b], cz[c]) at slab distance
- * (dx[a] + dy[b]) + dz[c]; a cell is named by its slots, id = (a << 4) | (b << 2) | c. */
-#define BHCL_BH_MAXCELLS (BHCL_BH_AXIS_CELLS * BHCL_BH_AXIS_CELLS * BHCL_BH_AXIS_CELLS)
-typedef struct bh_axes {
-  uint cx[BHCL_BH_AXIS_CELLS], cy[BHCL_BH_AXIS_CELLS], cz[BHCL_BH_AXIS_CELLS];
-  float dx[BHCL_BH_AXIS_CELLS], dy[BHCL_BH_AXIS_CELLS], dz[BHCL_BH_AXIS_CELLS];
-} bh_axes;
-
-inline void bh_query_axes(__global const float* thresholds, uint P, float3 q, uint probes,
-                          bh_axes* ax) {
-  bh_axis_cells(thresholds, P, q.x, probes, ax->cx, ax->dx);
-  bh_axis_cells(thresholds + P, P, q.y, probes, ax->cy, ax->dy);
-  bh_axis_cells(thresholds + 2 * P, P, q.z, probes, ax->cz, ax->dz);
-}
-
-inline float bh_slot_dist(const bh_axes* ax, uint a, uint b, uint c) {
-  return (ax->dx[a] + ax->dy[b]) + ax->dz[c];
-}
-
-/* The run of the cell named `id` (bh_cell_run over the direct table or the directory). */
-#define BH_SLOT_RUN(ax, id, first, n)                                                         \
-  bh_cell_run(direct, dir_dy, dir_dz, keys, n_keys, buckets, P + 1, (ax)->cx[(id) >> 4],      \
-              (ax)->cy[((id) >> 2) & 3u], (ax)->cz[(id) & 3u], first, n)
 
 /* The L-table layout: the bucket of a cell in a table, or -1 (BHCL_BH_DIRECT: all (P+1)^3 cells
  * of a table addressed directly). */
@@ -191,20 +131,6 @@ typedef struct bh_buckets {
 #define BH_QUERY_BUCKETS(q, out)                                                              \
   ((out)->n = bh_gather_buckets(q, BHCL_BH_L, thresholds, P, keys, table_starts, buckets, probes, \
                                 (out)->q, (out)->b))
-
-/* Inserts (cd, id) into the list ccd/cid of n entries kept ascending by cd; equal distances keep
- * their insertion order. Returns the new length. */
-inline uint bh_insert_by_distance(float* ccd, uint* cid, uint n, float cd, uint id) {
-  uint pos = n;
-  while (pos > 0 && ccd[pos - 1] > cd) {
-    ccd[pos] = ccd[pos - 1];
-    cid[pos] = cid[pos - 1];
-    --pos;
-  }
-  ccd[pos] = cd;
-  cid[pos] = id;
-  return n + 1;
-}
 
 #ifdef BHCL_RADIUS_COMMON_H
 /* Radius kernels: every point of one block within r2 emitted (bhcl_radius_emit); returns the

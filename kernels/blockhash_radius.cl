@@ -1,5 +1,5 @@
-/* Block hashing, L-table layout (blockhash_knn.cl's structure: the `paper` preset and
- * cell_aligned=0): approximate radius search, one work-item per query.
+/* Block hashing, L-table layout (blockhash_knn.cl's structure: the `paper` presets and auto
+ * with grid=0): approximate radius search, one work-item per query.
  *
  * The buckets of the query's cell in each of the L tables (and, with probes, of the near-side
  * neighbour along each axis), ordered by |Q| as the kNN kernel orders them; their blocks in that

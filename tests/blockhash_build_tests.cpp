@@ -376,28 +376,11 @@ TEST_CASE("blockhash params: the talk's formulas for paper, data-driven auto, ov
   CHECK_FALSE(s->info.keep_top_count);
   CHECK_FALSE(s->info.neighbour_probes);
 
-  // auto: cell-aligned blocks, one table, the median occupied cell near 24 points.
-  BlockHashBuildParams c = preset("auto");
-  auto sc = cut(pts, c);
-  derive_params(c, *sc);
-  CHECK(sc->info.cell_aligned);
-  CHECK(sc->info.L == 1);
-  double medc = median_cell_points(*sc, c, sc->info.P, 1);
-  CHECK(medc >= 12);
-  CHECK(medc <= 48);
-  c.L = 4;  // more tables than the cell-aligned layout has: the L-table layout, or an error
-  auto sc4 = cut(pts, c);
-  derive_params(c, *sc4);
-  CHECK_FALSE(sc4->info.cell_aligned);
-  c.cell_aligned = 1;
-  auto sc5 = cut(pts, c);
-  CHECK_THROWS_WITH_AS(derive_params(c, *sc5), doctest::Contains("one table"), Error);
-
+  // auto's L tables (the block stages run as grid = 0 builds them): four tables, the median
+  // occupied cell near 100 points.
   BlockHashBuildParams a = preset("auto");
-  a.cell_aligned = 0;
   auto sa = cut(pts, a);
   derive_params(a, *sa);
-  CHECK_FALSE(sa->info.cell_aligned);
   CHECK(sa->info.L == 4);
   CHECK(sa->info.X == 16);
   // P puts the median occupied cell near 100 points: (P+1)^3 ~ 200 cells for 20000 points.

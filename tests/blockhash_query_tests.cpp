@@ -7,14 +7,14 @@ using namespace bhcl;
 
 namespace {
 
-// The two block layouts (auto's grid has its own tests: blockhash_grid_tests.cpp and
-// grid_far_vs_bruteforce.cpp): "cells", the cell-aligned layout (auto with cell_aligned = 1,
-// auto's default before the grid), and "paper", the talk's L tables.
+// The two L-table layouts (auto's grid has its own tests: blockhash_grid_tests.cpp and
+// grid_far_vs_bruteforce.cpp): "tables", auto's L tables (grid = 0: guarded thresholds, a
+// directory, probes, box order), and "paper", the talk's.
 BlockHashBuildParams layout(const char* name) {
   BlockHashBuildParams p;
-  const bool cells = std::string(name) == "cells";
-  p.preset = BlockHashBuildParams::parse_preset(cells ? "auto" : name);
-  if (cells) p.cell_aligned = 1, p.grid = 0;
+  const bool tables = std::string(name) == "tables";
+  p.preset = BlockHashBuildParams::parse_preset(tables ? "auto" : name);
+  if (tables) p.grid = 0;
   return p;
 }
 
@@ -40,11 +40,8 @@ void kernel_equals_reference(const BlockHashIndex& index, const std::vector<floa
   REQUIRE(plain.ids == r.ids);
   REQUIRE(plain.counts == r.counts);
   test::check_contract(r, pts.data(), pts.size() / 3, qs.data(), p);
-  // The budget bounds the scan to within one block; cell-aligned queries whose cells held fewer than
-  // k points add at most the fallback window (2 max(seed, k) + 1 blocks).
-  std::uint32_t slack = std::uint32_t(index.X());
-  if (index.info().cell_aligned)
-    slack += (2 * blockhash::cells_seed_side(index.info().hilbert_seed, p.k) + 1) * std::uint32_t(index.X());
+  // The budget bounds the scan to within one block.
+  const std::uint32_t slack = std::uint32_t(index.X());
   SearchParams pb = p;
   if (pb.A == 0) pb.A = 8;  // SearchParams' default: the block layouts' 8
   for (std::size_t i = 0; i < n; ++i) REQUIRE(std::uint32_t(ex[i]) < BlockHashIndex::budget(pb) + slack);
@@ -52,7 +49,7 @@ void kernel_equals_reference(const BlockHashIndex& index, const std::vector<floa
 
 }  // namespace
 
-TEST_CASE("blockhash_vs_reference: every distribution, both block layouts, kernel == host reference") {
+TEST_CASE("blockhash_vs_reference: every distribution, both L-table layouts, kernel == host reference") {
   using Case = test::NamedCase;
   std::vector<Case> cases;
   cases.push_back({"uniform", datasets::uniform(12000, 1), datasets::uniform(400, 2)});
@@ -69,7 +66,7 @@ TEST_CASE("blockhash_vs_reference: every distribution, both block layouts, kerne
   cases.push_back({"plane", plane, datasets::uniform(300, 9)});
   cases.push_back({"cornell", datasets::cornell_photons(15000, 10), datasets::cornell_queries(400, 11, 0.5f)});
   for (const auto& c : cases) {
-    for (const char* pr : {"paper", "cells"}) {
+    for (const char* pr : {"paper", "tables"}) {
       CAPTURE(c.name);
       CAPTURE(pr);
       BlockHashIndex index(test::runtime(), c.pts.data(), c.pts.size() / 3, layout(pr));
@@ -87,7 +84,7 @@ TEST_CASE("blockhash_vs_reference: every distribution, both block layouts, kerne
 TEST_CASE("blockhash_vs_reference: radius, k > N, probes on/off, box skip off, non-finite queries") {
   auto pts = datasets::clustered(6000, 21, 5, 0.02f);
   auto qs = datasets::clustered(300, 22, 5, 0.02f);
-  BlockHashIndex a(test::runtime(), pts.data(), 6000, layout("cells"));
+  BlockHashIndex a(test::runtime(), pts.data(), 6000, layout("tables"));
   SearchParams p = test::knn_params(20);
   p.max_radius = 0.01f;
   kernel_equals_reference(a, pts, qs, p);
@@ -97,29 +94,24 @@ TEST_CASE("blockhash_vs_reference: radius, k > N, probes on/off, box skip off, n
   BlockHashIndex paper(test::runtime(), pts.data(), 6000, layout("paper"));
   p.neighbour_probes = 1;  // a paper index probes neighbours when asked
   kernel_equals_reference(paper, pts, qs, p);
-  for (int probes : {1, 2}) {  // cell-aligned: the octant, and the 4 x 4 x 4 block of cells
-    p.neighbour_probes = probes;
-    kernel_equals_reference(a, pts, qs, p);
-    p.max_radius = 0.01f;
-    kernel_equals_reference(a, pts, qs, p);
-    // The scalar block scan (the GPU form; CPUs default to the float16 scan) answers the same.
-    SearchParams scalar = p;
-    scalar.kernel_defines = "-DBHCL_BH_VECSCAN=0";
-    kernel_equals_reference(a, pts, qs, scalar);
-    p.max_radius = INFINITY;
-  }
-  BlockHashBuildParams nb = layout("cells");
+  p.neighbour_probes = 1;  // the near-side neighbours, within a radius too
+  kernel_equals_reference(a, pts, qs, p);
+  p.max_radius = 0.01f;
+  kernel_equals_reference(a, pts, qs, p);
+  p.max_radius = INFINITY;
+  // Bucket order (the talk's scan) with and without box skipping.
+  BlockHashBuildParams nb = layout("tables");
+  nb.box_order = 0;
   nb.box_skip = 0;
-  nb.cell_aligned = 0;  // the L-table layout of auto, with and without box skipping
   BlockHashIndex noskip(test::runtime(), pts.data(), 6000, nb);
   p.neighbour_probes = -1;
   kernel_equals_reference(noskip, pts, qs, p);
   nb.box_skip = 1;
-  BlockHashIndex ltables(test::runtime(), pts.data(), 6000, nb);
-  kernel_equals_reference(ltables, pts, qs, p);
+  BlockHashIndex skip(test::runtime(), pts.data(), 6000, nb);
+  kernel_equals_reference(skip, pts, qs, p);
   // k larger than N and a budget over everything: every point, -1/+inf after them.
   auto few = datasets::uniform(7, 3);
-  BlockHashIndex tiny(test::runtime(), few.data(), 7, layout("cells"));
+  BlockHashIndex tiny(test::runtime(), few.data(), 7, layout("tables"));
   SearchParams big = test::knn_params(12);
   big.A = 32;
   KnnResult r = tiny.query(qs, big);
@@ -143,7 +135,7 @@ TEST_CASE("blockhash: with unlimited budget and buckets the answer is exact") {
   // neighbours; on uniform data that contains the k nearest for nearly all queries.
   auto pts = datasets::uniform(5000, 31);
   auto qs = datasets::uniform(200, 32);
-  BlockHashBuildParams bp = layout("cells");
+  BlockHashBuildParams bp = layout("tables");
   bp.B = 1000;
   bp.P = 3;  // big cells: 64 cells of ~80 points
   bp.hilbert_seed = 0;
@@ -156,7 +148,7 @@ TEST_CASE("blockhash: with unlimited budget and buckets the answer is exact") {
   CHECK(acc.recall > 0.97);
   // Far from the data every cell is empty: the Hilbert seed still gives k answers.
   std::vector<float> far = {5.0f, 5.0f, 5.0f, -3.0f, 0.5f, 0.5f};
-  BlockHashIndex seeded(test::runtime(), pts.data(), 5000, layout("cells"));
+  BlockHashIndex seeded(test::runtime(), pts.data(), 5000, layout("tables"));
   KnnResult rf = seeded.query(far, p);
   CHECK(rf.counts[0] == 5);
   CHECK(rf.counts[1] == 5);
@@ -166,7 +158,7 @@ TEST_CASE("blockhash: recall does not fall as A grows, at a fixed build") {
   // Queries from the same clusters as the points (the first 20000 are the points).
   auto all = datasets::clustered(20500, 41, 10, 0.03f);
   std::vector<float> pts(all.begin(), all.begin() + 3 * 20000), qs(all.begin() + 3 * 20000, all.end());
-  for (const char* pr : {"paper", "cells"}) {
+  for (const char* pr : {"paper", "tables"}) {
     CAPTURE(pr);
     BlockHashIndex index(test::runtime(), pts.data(), 20000, layout(pr));
     for (int k : {10, 50}) {
@@ -182,7 +174,7 @@ TEST_CASE("blockhash: recall does not fall as A grows, at a fixed build") {
         CHECK(rec >= last);
         last = rec;
       }
-      if (std::string(pr) == "cells") CHECK(last > 0.99);
+      if (std::string(pr) == "tables") CHECK(last > 0.99);
     }
   }
 }
@@ -193,13 +185,19 @@ TEST_CASE("blockhash: Cornell walls with queries just off the surface") {
   SearchParams p = test::knn_params(10);
   p.A = 8;
   KnnResult truth = reference::knn_float(pts.data(), 20000, qs.data(), 500, p);
-  BlockHashIndex a(test::runtime(), pts.data(), 20000, layout("cells"));
+  BlockHashIndex a(test::runtime(), pts.data(), 20000);  // auto: the grid
+  REQUIRE(a.info().grid);
   KnnResult r = a.query(qs, p);
   Accuracy acc = evaluate_accuracy(r, truth);
   MESSAGE("auto on Cornell 20k, k=10 A=8: " << acc.summary() << "  " << a.info().summary());
   CHECK(acc.recall > 0.9);
   CHECK(acc.incomplete_queries == 0);
-  kernel_equals_reference(a, pts, qs, p);
+  CHECK(r.ids == a.reference_query(qs.data(), 500, p).ids);
+  BlockHashIndex t(test::runtime(), pts.data(), 20000, layout("tables"));
+  const Accuracy at = evaluate_accuracy(t.query(qs, p), truth);
+  MESSAGE("auto's L tables on Cornell 20k, k=10 A=8: " << at.summary() << "  " << t.info().summary());
+  CHECK(at.incomplete_queries == 0);
+  kernel_equals_reference(t, pts, qs, p);
   // The guard matters at fine cells (P = 40, as at 1M points): without it the thresholds crowd
   // into the walls and the home cells of queries 0.5 mm off them are empty.
   auto empty_home = [&](const BlockHashIndex& idx) {
@@ -211,7 +209,7 @@ TEST_CASE("blockhash: Cornell walls with queries just off the surface") {
     }
     return empty / 500.0;
   };
-  BlockHashBuildParams g = layout("cells");
+  BlockHashBuildParams g = layout("tables");
   g.P = 40;
   g.B = 16;
   g.hilbert_seed = 0;
@@ -230,7 +228,7 @@ TEST_CASE("blockhash: buffer-level call on the caller's queue and buffers") {
   auto rt = test::runtime();
   auto pts = datasets::uniform(4000, 61);
   auto qs = datasets::uniform(100, 62);
-  BlockHashIndex index(rt, pts.data(), 4000, layout("cells"));
+  BlockHashIndex index(rt, pts.data(), 4000, layout("tables"));
   SearchParams p = test::knn_params(8);
   cl_int err = CL_SUCCESS;
   cl::Buffer qb(rt->context(), CL_MEM_READ_ONLY | CL_MEM_COPY_HOST_PTR, qs.size() * 4, qs.data(), &err);
@@ -306,7 +304,7 @@ TEST_CASE("blockhash: a recall target is met on held-out queries") {
   sets.push_back({"uniform", datasets::uniform(40000, 61), datasets::uniform(2000, 62)});
   sets.push_back({"cornell", datasets::cornell_photons(40000, 63), datasets::cornell_queries(2000, 64, 0.5f)});
   for (const auto& set : sets)
-    for (const char* pr : {"cells", "paper"}) {
+    for (const char* pr : {"tables", "paper"}) {
       CAPTURE(set.name);
       CAPTURE(pr);
       BlockHashIndex index(test::runtime(), set.pts.data(), set.pts.size() / 3, layout(pr));
@@ -328,7 +326,7 @@ TEST_CASE("blockhash: a recall target is met on held-out queries") {
         a.A = t.A;
         CHECK(index.query(set.qs, a).ids == r.ids);
       }
-      if (std::string(pr) == "cells") CHECK(index.tune_for_recall(0.95, SearchParams{}).reached);
+      if (std::string(pr) == "tables") CHECK(index.tune_for_recall(0.95, SearchParams{}).reached);
     }
   SearchParams bad;
   bad.recall_target = 1.5;
@@ -337,7 +335,7 @@ TEST_CASE("blockhash: a recall target is met on held-out queries") {
   CHECK_THROWS_WITH_AS(index.query(pts, bad), doctest::Contains("recall_target"), Error);
 }
 
-TEST_CASE("blockhash: sorted dispatch equals the caller's order, both block layouts, extreme scales, several dispatches") {
+TEST_CASE("blockhash: sorted dispatch equals the caller's order, both L-table layouts, extreme scales, several dispatches") {
   auto rt = test::runtime();
   for (double scale : {1.0, 0x1p-70, 0x1p70}) {
     auto pts = datasets::clustered(6000, 71, 6, 0.02f);
@@ -345,7 +343,7 @@ TEST_CASE("blockhash: sorted dispatch equals the caller's order, both block layo
     for (auto& v : pts) v = static_cast<float>(v * scale);
     for (auto& v : qs) v = static_cast<float>(v * scale);
     qs[3 * 7 + 2] = INFINITY;  // a non-finite query keeps its row
-    for (const char* name : {"cells", "paper"}) {
+    for (const char* name : {"tables", "paper"}) {
       CAPTURE(scale);
       CAPTURE(name);
       BlockHashIndex index(rt, pts.data(), 6000, layout(name));
@@ -371,7 +369,7 @@ TEST_CASE("blockhash: examined counts are an option of every query path (sorted,
   auto rt = test::runtime();
   auto pts = datasets::clustered(5000, 61, 6, 0.02f);
   auto qs = datasets::clustered(300, 62, 6, 0.02f);
-  BlockHashIndex index(rt, pts.data(), 5000, layout("cells"));
+  BlockHashIndex index(rt, pts.data(), 5000, layout("tables"));
   SearchParams p = test::knn_params(10);
   p.count_examined = true;
   p.sort_queries = 0;

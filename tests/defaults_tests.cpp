@@ -129,7 +129,7 @@ TEST_CASE("defaults: bhcl knn on UTM-like text files gives the exact rows (float
 }
 
 TEST_CASE("defaults: a block layout's default meets 0.95 on the caller's queries, cached per distribution") {
-  // Clustered points, auto's block layout (grid = 0: cell-aligned blocks, a budget applies),
+  // Clustered points, auto's block layout (grid = 0: the L tables, a budget applies),
   // queries on the data and over the data's box. (The paper preset reaches recall@10 0.3-0.45 at
   // A = 128 here: tuned_reached false, which the stats say.)
   const auto pts = datasets::clustered(20000, 5, 30, 0.03f);

@@ -98,7 +98,6 @@ TEST_CASE("option tables: the library builds at every bound of a build option an
         mo.set(o->name, v);
         std::istringstream needs(o->needs);  // the options this one needs, from the table
         for (std::string w; needs >> w;) mo.set(w.substr(0, w.find('=')), w.substr(w.find('=') + 1));
-        if (o->name == "L" && v != "1" && v != "-1") mo.set("cell-aligned", "0");  // L > 1: the L-table layout
         CHECK_NOTHROW(make_index(m.name, test::runtime(), pts.data(), 600, mo));
       }
       for (const std::string& v : b.outside) {
@@ -136,26 +135,40 @@ TEST_CASE("option tables: block hashing's own range checks agree with its table"
 }
 
 TEST_CASE("option tables: block hashing answers at every bound of a search option") {
+  // On the grid and on auto's L tables; the L tables' probes on the grid are refused, not ignored.
   const std::vector<float> pts = datasets::uniform(600, 5), qs = datasets::uniform(20, 6);
-  auto index = make_index("blockhash", test::runtime(), pts.data(), 600);
-  for (const OptionInfo* o : method_info("blockhash").search_options()) {
-    if (o->name == "local-size" || o->name == "max-batch") continue;  // bounded by the device
-    for (const std::string& v : bounds_of(*o).inside) {
-      if (o->name == "recall" && v != "0") continue;  // a tuning run per target: covered elsewhere
-      INFO(o->name << " = " << v);
-      SearchParams p = test::knn_params(8);
-      o->set_search(&p, o->parse(v));
-      CHECK_NOTHROW(index->query(qs, p));
+  for (const char* layout : {"-1", "0"}) {
+    CAPTURE(layout);
+    auto index = make_index("blockhash", test::runtime(), pts.data(), 600, MethodOptions().set("grid", layout));
+    const bool grid = std::string(layout) == "-1";
+    for (const OptionInfo* o : method_info("blockhash").search_options()) {
+      if (o->name == "local-size" || o->name == "max-batch") continue;  // bounded by the device
+      for (const std::string& v : bounds_of(*o).inside) {
+        if (o->name == "recall" && v != "0") continue;  // a tuning run per target: covered elsewhere
+        INFO(o->name << " = " << v);
+        SearchParams p = test::knn_params(8);
+        o->set_search(&p, o->parse(v));
+        if (grid && o->name == "probes" && v != "-1")
+          CHECK_THROWS_WITH_AS(index->query(qs, p), doctest::Contains("an option of the L tables"), Error);
+        else if (!grid && o->name == "A" && v == "inf")  // the grid's exact mode: the L tables are never exact
+          CHECK_THROWS_WITH_AS(index->query(qs, p), doctest::Contains("A must be a positive finite number"), Error);
+        else
+          CHECK_NOTHROW(index->query(qs, p));
+      }
     }
-  }
-  for (const OptionInfo* o : method_info("blockhash").radius_options()) {
-    if (o->name == "local-size" || o->name == "max-batch") continue;
-    for (const std::string& v : bounds_of(*o).inside) {
-      INFO(o->name << " = " << v);
-      RadiusParams p;
-      o->set_radius(&p, o->parse(v));
-      RadiusResult r;
-      CHECK_NOTHROW(index->radius_search(qs.data(), 20, 0.1f, p, r));
+    for (const OptionInfo* o : method_info("blockhash").radius_options()) {
+      if (o->name == "local-size" || o->name == "max-batch") continue;
+      for (const std::string& v : bounds_of(*o).inside) {
+        INFO(o->name << " = " << v);
+        RadiusParams p;
+        o->set_radius(&p, o->parse(v));
+        RadiusResult r;
+        if (grid && o->name == "probes" && v != "-1")
+          CHECK_THROWS_WITH_AS(index->radius_search(qs.data(), 20, 0.1f, p, r), doctest::Contains("an option of the L tables"),
+                               Error);
+        else
+          CHECK_NOTHROW(index->radius_search(qs.data(), 20, 0.1f, p, r));
+      }
     }
   }
 }
@@ -186,10 +199,21 @@ TEST_CASE("option tables: bhcl accepts block hashing's build options at their bo
     for (const std::string& v : bounds_of(*o).inside) {
       INFO("--" << o->name << " " << v);
       std::string out;
-      std::string layout = o->name == "L" && v != "1" && v != "-1" ? " --cell-aligned 0" : "";
+      std::string layout;
       std::istringstream needs(o->needs);  // the options this one needs, from the table
       for (std::string w; needs >> w;) layout += " --" + w.substr(0, w.find('=')) + " " + w.substr(w.find('=') + 1);
       CHECK_MESSAGE(test::run_bhcl(base + layout + " --" + o->name + " " + v, &out) == 0, out);
     }
+  }
+}
+
+TEST_CASE("option tables: block hashing's retired layout option is refused with what replaced it") {
+  // The option of the retired layout of blocks aligned to cells: an error naming the option, the
+  // measurement that retired it and the layouts to use, never skipped as another method's option.
+  const std::vector<float> pts = datasets::uniform(300, 9);
+  for (const char* v : {"1", "0"}) {
+    INFO("cell-aligned = " << v);
+    CHECK_THROWS_WITH_AS(make_index("blockhash", test::runtime(), pts.data(), 300, MethodOptions().set("cell-aligned", v)),
+                         doctest::Contains("the cell-aligned block layout was retired"), Error);
   }
 }

@@ -486,7 +486,7 @@ TEST_CASE("updates: block hashing's block layouts equal a fresh build over the l
   for (int preset = 0; preset < 2; ++preset) {
     CAPTURE(preset);
     BlockHashBuildParams bp;
-    if (preset == 0) bp.cell_aligned = 1, bp.grid = 0;
+    if (preset == 0) bp.grid = 0;  // auto's L tables
     else bp.preset = BlockHashBuildParams::Preset::Paper;
     std::mt19937_64 rng(5);
     Model m;
@@ -694,15 +694,14 @@ void grid_reseal(std::string& d, std::size_t header) {
   poke(d, header, fnv(d, header + 8, d.size(), fnv(d, 0, header)));
 }
 
-// The configurations of block hashing that save: the grid (direct and two-level directory), the
-// cell-aligned block layout and the paper preset.
+// The configurations of block hashing that save: the grid (direct and two-level directory), auto's
+// L tables and the paper preset.
 std::vector<std::pair<std::string, BlockHashBuildParams>> blockhash_configs() {
-  BlockHashBuildParams grid, two, cells, paper;
+  BlockHashBuildParams grid, two, tables, paper;
   two.grid_directory = 1;
-  cells.cell_aligned = 1;
-  cells.grid = 0;
+  tables.grid = 0;
   paper.preset = BlockHashBuildParams::Preset::Paper;
-  return {{"grid", grid}, {"grid two-level", two}, {"cell-aligned blocks", cells}, {"paper", paper}};
+  return {{"grid", grid}, {"grid two-level", two}, {"auto's L tables", tables}, {"paper", paper}};
 }
 
 }  // namespace
@@ -856,7 +855,6 @@ TEST_CASE("updates: block layouts saved after removes: sparse ids checked, versi
   std::mt19937_64 rng(41);
   std::vector<float> p0 = uniform(rng, 900, 0.0f, 1.0f);
   BlockHashBuildParams bp;
-  bp.cell_aligned = 1;
   bp.grid = 0;
   BlockHashIndex ix(test::runtime(), p0.data(), 900, bp);
   const std::string path = test::tmp_path("update_blocks_v5.bhi"), bad = test::tmp_path("update_blocks_bad.bhi");

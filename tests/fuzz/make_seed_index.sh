@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Regenerates the seed indexes of fuzz_index_load (small block-hash indexes saved by bhcl, one
-# per block layout: cell-aligned, and paper's L-table layout) and fuzz_grid_load (the default
-# grid layout).
+# per L-table preset: auto's with grid 0, and paper's) and fuzz_grid_load (the default grid
+# layout).
 # Usage: tests/fuzz/make_seed_index.sh BUILD_DIR
 set -euo pipefail
 build=${1:-build}

@@ -226,7 +226,7 @@ def test_bad_search_parameters(indexes, data):
         bhx.query(q, k=3, recall_target=1.5)
     with pytest.raises(ValueError, match="give one"):
         bhx.query(q, k=3, A=4, recall_target=0.9)
-    with pytest.raises(ValueError, match=r"probes must be in \[0, 2\] \(or -1\), got 7"):
+    with pytest.raises(ValueError, match=r"probes must be in \[0, 1\] \(or -1\), got 7"):
         bhx.query(q, k=3, probes=7)
     with pytest.raises(ValueError, match="max_radius must be >= 0"):
         kd.query(q, k=3, max_radius=-1.0)

@@ -271,7 +271,7 @@ def test_single_index_refuses_past_int32_ids_before_allocating():
 
 @pytest.fixture(scope="module")
 def paper_case():
-    """A block layout (auto's cell-aligned blocks, grid=0: a budget A applies) over clustered
+    """A block layout (auto's L tables, grid=0: a budget A applies) over clustered
     points, with queries on the data and queries spread over the data's box. (The paper preset
     reaches recall@1 0.32 at A = 128 here: it is reported as not reached, tuned_reached False.)"""
     rng = np.random.default_rng(11)

@@ -22,12 +22,12 @@
 //          ln N, and the buckets are in a directory of the occupied cells (memory only: the same
 //          buckets). On surfaces P = ln N makes cells of hundreds of points that B blocks only
 //          sample.
-// The block layouts of the previous auto (grid = 0; their fields L, P, B, X, cell_aligned,
-// box_order, ... are refused on the grid, the grid's on them):
-//          cell_aligned (the default before the grid): blocks aligned to the cells of one table,
-//          guarded CDF thresholds, the octant then the 4 x 4 x 4 block of cells, blocks in order of
-//          box distance (kernels/blockhash_cells_knn.cl); cell_aligned = 0 (or L > 1): the talk's
-//          L-table layout with guards, probes and box-ordered scans.
+// The L tables with auto's rules (grid = 0; their fields L, P, B, X, box_order, ... are refused on
+// the grid, the grid's on them): the talk's L-table layout with guarded thresholds, a directory of
+// the occupied cells, neighbour probes and box-ordered scans (kernels/blockhash_knn.cl). The
+// layout of blocks aligned to one table's cells, auto's default before the grid, was retired: the
+// grid answered 1.40-3.64x faster at equal recall on every measured row
+// (bench/results/layouts/grid_vs_cells_1M.txt).
 // Every derived value can be overridden (-1 = derive). Query parameters (k, A or recall_target,
 // max_radius, neighbour_probes) live in SearchParams; a query examines at most ceil(A k) points
 // (counted over the runs or blocks it scans: a run is scanned while fewer were examined before it)
@@ -66,14 +66,8 @@ struct BlockHashBuildParams {
   int B = -1;  // block references per bucket
   int X = -1;  // points per block, 1..16 (16 fills the 256-byte block)
   // auto and paper-cells: P is chosen so that the median occupied cell holds about this many
-  // points (-1: 24 with cell-aligned blocks, 100 without; paper-cells design_k / 4).
+  // points (-1: the grid 24 per point's cell, auto's L tables 100; paper-cells design_k / 4).
   double target_cell_points = -1.0;
-  // auto: blocks aligned to the cells of the primary table (the points ordered by the Hilbert
-  // order of their cell, then by their own key; a bucket is the run of blocks holding exactly its
-  // cell's points), one table, threshold counts per axis from each axis's spread, and the cells
-  // visited near side first with a slab-distance skip (kernels/blockhash_cells_knn.cl).
-  // -1: on for auto, off for paper; 0 gives the L-table layout of the talk with auto's guards.
-  int cell_aligned = -1;
   // auto: B is this percentile of the distinct blocks touching an occupied cell.
   double b_percentile = 0.90;
   // paper presets: B follows the talk's rule B > A k / (X ln N) for this design A and k (B is
@@ -96,7 +90,7 @@ struct BlockHashBuildParams {
   // whose cells are all empty (far from the data) still gets k answers. -1: auto 1, paper 0.
   int hilbert_seed = -1;
   int neighbour_probes = -1;  // default for SearchParams::neighbour_probes == -1 (block layouts)
-  // The layout: -1 the preset's (auto: the grid; paper: its tables), 0 the block layouts, 1 the
+  // The layout: -1 the preset's (auto: the grid; paper: its tables), 0 auto's L tables, 1 the
   // grid. A field of another layout than the one chosen is refused (bhcl::Error), never ignored.
   int grid = -1;
   // Grid: the cells' side in the points' units (> 0), or -1 to choose it from a sample so that
@@ -126,8 +120,6 @@ struct BlockHashBuildInfo {
   bool guard_thresholds = false, keep_top_count = false, direct_addressing = false;
   bool box_skip = false, neighbour_probes = false, box_order = false;
   int hilbert_seed = 0;
-  bool cell_aligned = false;  // blocks aligned to the primary table's cells (see the params)
-  int axis_P[3] = {0, 0, 0};  // cell-aligned: thresholds per axis actually used (<= P)
   // Grid layout: cells per axis, their side (index coordinates, see knn.hpp's scaling), the
   // point-weighted mean population, whether the cells were grown to fit the table, stage times.
   bool grid = false;
@@ -293,9 +285,8 @@ class BlockHashIndex : public Index {
   void upload();
   // The library's defines of the kNN kernel variant of at most kmax (kernel_defines.hpp).
   std::vector<std::pair<const char*, long long>> kernel_options(int kmax) const;
-  std::uint32_t cells_probes(const SearchParams& params) const;  // cell-aligned: 0, 1 or 2
   bool table_probes(int neighbour_probes) const;                // the L-table layout: 0 or 1
-  // The arguments both block layouts' kernels (kNN and radius) begin with, up to the probes.
+  // The arguments the L-table kernels (kNN and radius) begin with, up to the probes.
   void add_layout_args(detail::KernelArgs& args, int neighbour_probes) const;
   // The opening of both layouts' builds: the points validated (extreme scales: a rescaled copy in
   // `scaled`), the structure's size and scale set; returns the points to build from.
@@ -333,9 +324,6 @@ class BlockHashIndex : public Index {
   std::unique_ptr<blockhash::Structure> s_;
   BlockHashBuildInfo info_;
   cl::Buffer blocks_, boxes_, thresholds_, keys_, table_starts_, buckets_, refs_, block_keys_, dummy_;
-  cl::Buffer cell_table_;                      // cell-aligned: the direct table, or one dummy entry
-  std::uint32_t cell_dy_ = 0, cell_dz_ = 0;    // its dimensions (dz = 0: none, use the directory)
-  std::size_t cell_table_bytes_ = 0;
   // Grid layout: starts, x, y, z, ids, the occupancy pyramid (grid_search.h), and the build
   // parameters a rebuild reuses.
   cl::Buffer g_starts_, g_x_, g_y_, g_z_, g_ids_, g_occ_;

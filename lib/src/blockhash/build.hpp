@@ -100,7 +100,6 @@ struct Structure {
   float q_origin[3] = {0, 0, 0};
   float q_scale = 0;
   int q_bits = 21;
-  double axis_spread[3] = {1, 1, 1};  // build only: see measure_axis_spread
   std::shared_ptr<Grid> grid;           // the grid layout (auto): the arrays above stay empty
 
   const float* thr(int table, int dim) const {
@@ -112,25 +111,11 @@ struct Structure {
   }
   // The bucket index of a cell of a table, or -1 when the cell has no bucket (auto: unoccupied).
   long find_bucket(int table, std::uint32_t key) const;
-  // Cell-aligned builds: the bits per axis of the cells' Hilbert index (block_keys).
-  int cell_bits() const {
-    int b = 1;
-    while ((1u << b) < std::uint32_t(info.P) + 1) ++b;
-    return b;
-  }
-  // The block holding sorted position i (cell-aligned blocks may be partial).
-  std::size_t block_of(std::size_t i) const {
-    if (!info.cell_aligned) return i / info.X;
-    auto it = std::upper_bound(boxes.begin(), boxes.end(), i, [](std::size_t v, const bhcl_bh_box& b) {
-      return v < static_cast<std::size_t>(b.first);
-    });
-    return static_cast<std::size_t>(it - boxes.begin()) - 1;
-  }
-  // The coordinates of a sorted point (position i in the point order).
+  // The coordinates of a sorted point (position i in the point order): blocks of X, the last partial.
   void point(std::size_t i, float p[3]) const {
-    std::size_t bi = block_of(i);
+    const std::size_t bi = i / static_cast<std::size_t>(info.X);
     const bhcl_bh_block& b = blocks[bi];
-    std::size_t j = i - static_cast<std::size_t>(boxes[bi].first);
+    const std::size_t j = i - bi * static_cast<std::size_t>(info.X);
     p[0] = b.x[j]; p[1] = b.y[j]; p[2] = b.z[j];
   }
   // The cell of a point in a table.
@@ -151,33 +136,10 @@ struct Structure {
 int derive_x(const BlockHashBuildParams& p);
 void derive_params(const BlockHashBuildParams& p, Structure& s);
 
-// The thresholds table t keeps on axis d for a candidate P: P itself, or for cell-aligned builds
-// P scaled by the axis's spread over the largest spread (a flat slab gets few slabs in its thin
-// direction, so that cells stay about as deep as they are wide). axis_spread: s's spreads.
-int axis_threshold_count(const Structure& s, int P, int d);
-// The robust spread (0.5 % to 99.5 % quantile range) of each axis, into s.axis_spread.
-void measure_axis_spread(Structure& s, std::size_t stride);
-
 // Fills s.thresholds for every table (needs s.info.P, L and the blocks).
 void build_thresholds(const BlockHashBuildParams& p, Structure& s);
 // Fills table_starts, keys, buckets, refs (needs thresholds). Returns table 0's statistics.
 TableStats build_tables(Structure& s);
-
-// Cell-aligned layout (blockhash/cells.cpp), instead of build_tables: reorders the points by the
-// Hilbert order of their table-0 cell (then by position), cuts blocks of at most X that never cross
-// a cell, sets block_keys to each block's cell index, and fills table 0 with one bucket per
-// occupied cell: first_ref = its first block, n_refs = its block count (refs stay empty).
-TableStats build_cell_aligned(const float* xyz, Structure& s);
-
-// Cell-aligned: the direct table of table 0 (the kernel's one-load cell lookup, the GPU form):
-// cells numbered densely over the thresholds each axis actually has, (first block, block count)
-// per cell, (0, 0) for an empty one. Empty (dz = 0) when it would exceed max_entries cells; the
-// kernel then searches the directory. Derived from the structure, so not saved.
-struct CellTable {
-  std::uint32_t dy = 0, dz = 0;
-  std::vector<std::uint32_t> runs;  // 2 per cell
-};
-CellTable make_cell_table(const Structure& s, std::size_t max_entries);
 
 // Population statistics of table-0-like cells for a candidate P (used by auto's bisection):
 // median points per occupied cell over every stride-th sorted point.
@@ -192,22 +154,10 @@ struct CellSample {
   double median_points(const Structure& s, const BlockHashBuildParams& p, int P) const;
 };
 
-// Cell-aligned: the fallback window's half-width in blocks (each holds at least one point, so
-// 2 k + 1 blocks hold k points whenever N >= k).
-inline std::uint32_t cells_seed_side(int hilbert_seed, int k) {
-  if (hilbert_seed <= 0) return 0;
-  return std::max<std::uint32_t>(std::uint32_t(hilbert_seed), std::uint32_t(k));
-}
-
 // The host reference query. examined may be null.
 void reference_query(const Structure& s, const float* queries, std::size_t n,
                      const SearchParams& params, bool probes, KnnResult& out,
                      std::vector<std::int32_t>* examined, unsigned threads);
-
-// The host reference of the cell-aligned query (kernels/blockhash_cells_knn.cl).
-void reference_query_cells(const Structure& s, const float* queries, std::size_t n,
-                           const SearchParams& params, std::uint32_t probes, KnnResult& out,
-                           std::vector<std::int32_t>* examined, unsigned threads);
 
 // The scan cap of a kernel variant: at most this many blocks are scanned per query (enough for
 // A <= 32 at k <= kmax; a larger budget stops here, in the kernel and the reference alike).

@@ -76,7 +76,7 @@ std::string BlockHashBuildInfo::summary() const {
                 "preset %s%s  L %d  P %d  B %d  X %d  blocks %zu  occupied cells %zu  overflowed %zu  "
                 "refs %zu (%.2f/point)  median cell %.0f points / %.0f blocks (p90 %.0f)  build %.2f s "
                 "(hilbert %.2f, blocks %.2f, params %.2f, thresholds %.2f, tables %.2f, upload %.2f)",
-                BlockHashBuildParams::preset_name(preset), cell_aligned ? " (cell-aligned)" : (box_order ? " (box order)" : ""), L, P, B, X, n_blocks, occupied_cells,
+                BlockHashBuildParams::preset_name(preset), box_order ? " (box order)" : "", L, P, B, X, n_blocks, occupied_cells,
                 overflowed_buckets, block_refs, n_points ? double(block_refs) / n_points : 0.0,
                 median_cell_points, median_cell_blocks, p90_cell_blocks, t_total, t_hilbert,
                 t_blocks, t_params, t_thresholds, t_tables, t_upload);
@@ -96,7 +96,6 @@ void grid_geometry_info(const blockhash::Structure& s, BlockHashBuildInfo& in) {
   in.cell_size = std::ldexp(double(g.h), s.scale_exp);
   in.L = 1;
   in.P = int(std::max({g.nx, g.ny, g.nz})) - 1;
-  for (int d = 0; d < 3; ++d) in.axis_P[d] = in.grid_dims[d] - 1;
   in.n_points = s.n_points;
 }
 
@@ -115,7 +114,6 @@ std::string block_fields_set(const BlockHashBuildParams& p) {
                     {p.P > 0, "P"},
                     {p.B > 0, "B"},
                     {p.X > 0, "X"},
-                    {p.cell_aligned >= 0, "cell_aligned"},
                     {p.box_order >= 0, "box_order"},
                     {p.box_skip >= 0, "box_skip"},
                     {p.direct_addressing >= 0, "direct_addressing"},
@@ -143,9 +141,8 @@ std::string grid_fields_set(const BlockHashBuildParams& p) {
               " of " + whose);
 }
 
-// Which layout a build makes, chosen explicitly: the auto preset's grid (grid -1 or 1), the
-// block layouts with grid = 0 (cell-aligned, or the L tables with cell_aligned = 0 or L > 1), the
-// paper preset's L tables. An option of another layout is refused, never obeyed silently (a
+// Which layout a build makes, chosen explicitly: the auto preset's grid (grid -1 or 1), auto's L
+// tables with grid = 0, the paper presets' L tables. An option of another layout is refused, never obeyed silently (a
 // block-layout field used to switch auto off the grid).
 bool wants_grid(const BlockHashBuildParams& p) {
   if (p.grid != -1 && p.grid != 0 && p.grid != 1)
@@ -157,8 +154,8 @@ bool wants_grid(const BlockHashBuildParams& p) {
   const bool grid = !paper && p.grid != 0;
   const std::string other = grid ? block_fields_set(p) : grid_fields_set(p);
   if (!other.empty() && grid)
-    refuse_fields(other, "the block layouts; the auto preset builds the grid (set grid = 0 for the "
-                         "cell-aligned blocks, or preset = paper for the talk's tables)");
+    refuse_fields(other, "the block layouts; the auto preset builds the grid (set grid = 0 for auto's "
+                         "L tables, or preset = paper for the talk's)");
   if (!other.empty())
     refuse_fields(other, std::string("the grid (the auto preset's layout), not of the ") +
                              (paper ? "paper preset's tables" : "block layouts (grid = 0)"));
@@ -357,13 +354,7 @@ void BlockHashIndex::build_blocks(const float* points, std::size_t n_points) {
   say("thresholds built");
 
   t = std::chrono::steady_clock::now();
-  TableStats st = s.info.cell_aligned ? build_cell_aligned(points, s) : build_tables(s);
-  if (s.info.cell_aligned) {
-    s.info.n_blocks = s.blocks.size();
-    std::uint32_t longest = 1;
-    for (const auto& b : s.buckets) longest = std::max(longest, b.n_refs);
-    s.info.B = static_cast<int>(std::min<std::uint32_t>(longest, 65535));
-  }
+  TableStats st = build_tables(s);
   s.info.median_cell_points = median_u32(st.cell_points);
   s.info.median_cell_blocks = median_u32(st.cell_blocks);
   s.info.p90_cell_blocks = percentile_u32(st.cell_blocks, 0.9);
@@ -451,8 +442,8 @@ std::unique_ptr<BlockHashIndex> BlockHashIndex::load(std::shared_ptr<Runtime> ru
   // layout's preset and kind (the others as their defaults derive them).
   bh->params_.preset = bh->info_.preset;
   if (bh->info_.preset == BlockHashBuildParams::Preset::Auto) {
-    bh->params_.cell_aligned = bh->info_.cell_aligned ? 1 : 0;
-    if (!bh->info_.cell_aligned) bh->params_.L = bh->info_.L;
+    bh->params_.grid = 0;  // auto's L tables
+    bh->params_.L = bh->info_.L;
   }
   if (bh->info_.preset == BlockHashBuildParams::Preset::PaperCells) {
     // Its P and B came from the design k and A, which the file does not hold: keep the saved ones.
@@ -548,23 +539,16 @@ void BlockHashIndex::upload() {
   refs_ = detail::upload_vector(rt, s.refs, "blockhash block references");
   block_keys_ = detail::upload_vector(rt, s.block_keys, "blockhash block keys");
   dummy_ = detail::upload_vector(rt, std::vector<std::int32_t>(1, 0), "blockhash dummy");
-  // The direct cell table where it is small: at most 2^20 cells or 2 per point (8 bytes each).
-  blockhash::CellTable ct = blockhash::make_cell_table(s, std::max<std::size_t>(std::size_t(1) << 20, 2 * s.n_points));
-  cell_dy_ = ct.dy;
-  cell_dz_ = ct.dz;
-  cell_table_bytes_ = ct.runs.size() * 4;
-  if (ct.runs.empty()) ct.runs.assign(2, 0);
-  cell_table_ = detail::upload_vector(rt, ct.runs, "blockhash cell table");
 }
 
 std::size_t BlockHashIndex::memory_bytes() const {
   if (s_->grid) return s_->grid->device_bytes();
-  return s_->device_bytes() + cell_table_bytes_;
+  return s_->device_bytes();
 }
 
 std::size_t BlockHashIndex::host_bytes() const {
   // The grid's host vectors mirror its device arrays one for one; a block layout keeps its
-  // structure's arrays and the Hilbert order (the cell table lives on the device only).
+  // structure's arrays and the Hilbert order.
   // The grid also keeps its build scratch (cells, records: 20 B per point) for rebuilds, and an
   // insert's merge arrays (16 B per point) once it has had one.
   if (s_->grid) {

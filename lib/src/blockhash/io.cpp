@@ -2,7 +2,8 @@
 //
 // File format (little-endian), version 5:
 //   "BHCLIDX\0" magic, u32 version, u32 0x01020304 (byte-order check), u32 header bytes,
-//   u32 preset (0 auto, 1 paper, 2 paper-cells), L, P, B, X, flags (guard, top count, direct, box skip, probes, box order, cell-aligned: new in 3),
+//   u32 preset (0 auto, 1 paper, 2 paper-cells), L, P, B, X, flags (guard, top count, direct, box skip, probes, box order; bit 64, new in 3, marked
+//   the retired layout of blocks aligned to cells: refused on load),
 //   u64 n_points, n_blocks, n_thresholds, n_table_starts, n_keys, n_buckets, n_refs,
 //   f64 median cell points, median cell blocks, p90 cell blocks,
 //   u64 id bound (one past the largest id issued; new in 5: after Index::remove the ids in order
@@ -127,15 +128,9 @@ void Structure::validate(const std::string& what) const {
   if (in.B < 1 || in.B > 65535) fail("B = " + std::to_string(in.B) + " out of range");
   if (in.X < 1 || in.X > BHCL_BH_BLOCK_SLOTS) fail("X = " + std::to_string(in.X) + " out of range");
   if (n_points < 1 || n_points > 0x7ffffffeu) fail("N = " + std::to_string(n_points) + " out of range");
-  const std::size_t nb = in.cell_aligned ? blocks.size() : (n_points + in.X - 1) / in.X;
+  const std::size_t nb = (n_points + in.X - 1) / in.X;
   if (order.size() != n_points) fail("order has " + std::to_string(order.size()) + " entries");
-  if (in.cell_aligned) {
-    if (nb < (n_points + in.X - 1) / in.X || nb > n_points || boxes.size() != nb)
-      fail("block count " + std::to_string(nb) + " does not fit N and X");
-    if (in.L != 1 || in.direct_addressing) fail("a cell-aligned index has one table and a directory");
-  } else if (blocks.size() != nb || boxes.size() != nb) {
-    fail("block count differs from ceil(N / X)");
-  }
+  if (blocks.size() != nb || boxes.size() != nb) fail("block count differs from ceil(N / X)");
   std::vector<bool> seen(n_points, false);
   for (std::size_t i = 0; i < n_points; ++i) {
     std::int32_t o = order[i];
@@ -144,15 +139,8 @@ void Structure::validate(const std::string& what) const {
   }
   for (std::size_t b = 0; b < nb; ++b) {
     const bhcl_bh_box& box = boxes[b];
-    std::size_t first = b * in.X;
-    std::size_t cnt = std::min<std::size_t>(in.X, n_points - first);
-    if (in.cell_aligned) {
-      // Runs of blocks: each starts where the previous ended and holds 1..X points.
-      first = b ? std::size_t(boxes[b - 1].first) + std::size_t(boxes[b - 1].count) : 0;
-      cnt = std::size_t(std::max<std::int32_t>(box.count, 0));
-      if (cnt < 1 || cnt > std::size_t(in.X) || first + cnt > n_points || (b + 1 == nb && first + cnt != n_points))
-        fail("box " + std::to_string(b) + " has count " + std::to_string(box.count));
-    }
+    const std::size_t first = b * in.X;
+    const std::size_t cnt = std::min<std::size_t>(in.X, n_points - first);
     if (box.count != std::int32_t(cnt) || box.first != std::int32_t(first))
       fail("box " + std::to_string(b) + " has count/first " + std::to_string(box.count) + "/" + std::to_string(box.first));
     for (std::size_t j = 0; j < cnt; ++j) {
@@ -196,10 +184,7 @@ void Structure::validate(const std::string& what) const {
           fail("directory keys of table " + std::to_string(t) + " are not ascending cell keys");
     }
   }
-  for (std::size_t i = 0; in.cell_aligned && i < buckets.size(); ++i)
-    if (std::uint64_t(buckets[i].first_ref) + buckets[i].n_refs > nb)
-      fail("bucket " + std::to_string(i) + " runs past the last block");
-  for (std::size_t i = 0; !in.cell_aligned && i < buckets.size(); ++i) {
+  for (std::size_t i = 0; i < buckets.size(); ++i) {
     const bhcl_bh_bucket& bk = buckets[i];
     if (bk.n_refs > std::uint32_t(in.B) || std::uint64_t(bk.first_ref) + bk.n_refs > refs.size())
       fail("bucket " + std::to_string(i) + " refers outside the reference array");
@@ -232,8 +217,7 @@ void save_structure(const Structure& s, const std::string& path, std::int64_t id
   h.put(kHeaderBytes);
   std::uint32_t flags = (in.guard_thresholds ? 1u : 0u) | (in.keep_top_count ? 2u : 0u) |
                         (in.direct_addressing ? 4u : 0u) | (in.box_skip ? 8u : 0u) |
-                        (in.neighbour_probes ? 16u : 0u) | (in.box_order ? 32u : 0u) |
-                        (in.cell_aligned ? 64u : 0u);
+                        (in.neighbour_probes ? 16u : 0u) | (in.box_order ? 32u : 0u);
   for (std::uint32_t v : {preset_code(in.preset),
                           std::uint32_t(in.L), std::uint32_t(in.P), std::uint32_t(in.B),
                           std::uint32_t(in.X), flags})
@@ -318,7 +302,9 @@ std::unique_ptr<Structure> parse_structure(const std::string& data, const std::s
   info.box_skip = flags & 8;
   info.neighbour_probes = flags & 16;
   info.box_order = flags & 32;
-  info.cell_aligned = flags & 64;
+  if (flags & 64)
+    throw Error(path + ": a block-hash index of the retired layout of blocks aligned to cells (the grid, auto's "
+                "default, replaced it): build the index again and save it");
   if (flags > 127) throw Error(path + ": block-hash index has unknown flags " + std::to_string(flags));
   for (int d = 0; d < 3; ++d) s->q_origin[d] = r.get<float>("quantiser origin");
   s->q_scale = r.get<float>("quantiser scale");

@@ -64,7 +64,6 @@ std::vector<OptionInfo> make_table() {
       BHCL_BUILD_OPTION(P, max_cells_per_point, option::number("max-cells-per-point", "grid: the most cells per point of the direct table (past it a two-level directory of up to 16x as many, then the cells grow)", 0.01, 1024, "8")),
       BHCL_BUILD_OPTION(P, grid_directory, option::integer("grid-directory", "grid: the cell directory (-1: by max-cells-per-point, 0: direct, 1: two-level)", 0, 1, "-1").or_unset()),
       BHCL_BUILD_OPTION(P, target_cell_points, option::number("target-cell-points", "auto, paper-cells: the cell population aimed at (-1: 24; grid: a point's cell, block layouts: the median occupied cell, 100 for L tables; paper-cells design-k / 4)", 1, 1e6, "-1").or_unset()),
-      block(BHCL_BUILD_OPTION(P, cell_aligned, flag("cell-aligned", "auto: blocks aligned to the cells of one table"))),
       block(BHCL_BUILD_OPTION(P, b_percentile, option::number("b-percentile", "auto: B is this percentile of the distinct blocks per occupied cell", 0, 1, "0.9", true))),
       block(BHCL_BUILD_OPTION(P, design_A, option::number("design-A", "paper presets: the A of the talk's rule for B (bhcl render and knn: the A asked)", 0, kHuge, "8", true))),
       block(BHCL_BUILD_OPTION(P, design_k, option::integer("design-k", "paper presets: the k of the talk's rule for B, and paper-cells' cell population k / 4 (bhcl render and knn: the k asked)", 1, kIntMax, "10"))),
@@ -90,8 +89,8 @@ std::vector<OptionInfo> make_table() {
               .with_keyword("recall_target"),
           "SearchParams::recall_target"),
       option::search<&SearchParams::neighbour_probes, &RadiusParams::neighbour_probes>(
-          option::integer("probes", "0 the query's cell, 1 and its near-side neighbours, 2 and the 4x4x4 block "
-                                    "when needed (auto's cell-aligned layout; the grid's rings need none; -1: the preset decides)", 0, 2, "-1")
+          option::integer("probes", "L tables: 0 the query's cell, 1 and its near-side neighbours (the grid refuses it: its "
+                                    "rings need none; -1: the preset decides)", 0, 1, "-1")
               .or_unset(),
           "SearchParams::neighbour_probes"),
       option::search<nullptr, &RadiusParams::budget>(
@@ -101,8 +100,18 @@ std::vector<OptionInfo> make_table() {
   };
 }
 
+// Options of retired layouts: refused with what replaced them, not skipped as another method's.
+void refuse_retired(const MethodOptions& options) {
+  if (options.has("cell-aligned"))
+    throw Error("blockhash: cell-aligned: the cell-aligned block layout was retired (the grid, auto's default, "
+                "answered 1.40-3.64x faster at equal recall on every row of "
+                "bench/results/layouts/grid_vs_cells_1M.txt); drop the option for the grid, or use grid=0 for "
+                "auto's L tables or preset=paper for the talk's");
+}
+
 std::unique_ptr<Index> make(std::shared_ptr<Runtime> runtime, const float* points, std::size_t n_points,
                             const MethodOptions& options) {
+  refuse_retired(options);
   // A saved index replaces the build (its build parameters are the saved ones).
   std::unique_ptr<BlockHashIndex> bh;
   const std::string load = options.load_index(), save = options.save_index();
@@ -160,8 +169,6 @@ MethodInfo::Used used_build(const BlockHashIndex& index) {
 }
 
 MethodInfo::Used used_build_fields(const BlockHashBuildInfo& i) {
-  const std::string axis = "[" + std::to_string(i.axis_P[0]) + ", " + std::to_string(i.axis_P[1]) + ", " +
-                           std::to_string(i.axis_P[2]) + "]";
   if (i.grid)
     return {{"preset", json_text(P::preset_name(i.preset))},
             {"grid", "true"},
@@ -179,8 +186,6 @@ MethodInfo::Used used_build_fields(const BlockHashBuildInfo& i) {
           {"P", std::to_string(i.P)},
           {"B", std::to_string(i.B)},
           {"X", std::to_string(i.X)},
-          {"cell_aligned", json_bool(i.cell_aligned)},
-          {"axis_P", axis},
           {"guard_thresholds", json_bool(i.guard_thresholds)},
           {"keep_top_count", json_bool(i.keep_top_count)},
           {"direct_addressing", json_bool(i.direct_addressing)},
@@ -216,7 +221,7 @@ MethodInfo::Used used_search(const BlockHashIndex& bh, const SearchParams& p) {
   }
   const BlockHashBuildInfo& i = bh.info();
   if (i.grid) return u;
-  const int probes = p.neighbour_probes >= 0 ? p.neighbour_probes : (i.neighbour_probes ? (i.cell_aligned ? 2 : 1) : 0);
+  const int probes = p.neighbour_probes >= 0 ? p.neighbour_probes : (i.neighbour_probes ? 1 : 0);
   u.emplace_back("neighbour_probes", std::to_string(probes));
   return u;
 }

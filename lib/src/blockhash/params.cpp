@@ -1,8 +1,8 @@
 // The parameters of a block-hash build. paper: the talk's formulas (L = P = round(ln N),
 // B > A k / (X ln N)); paper-cells: the same but P so that the median occupied cell holds about
-// design_k / 4 points (docs/ACCURACY.md, "Where the talk's rules do not carry over"); auto: from the data (docs/ACCURACY.md, "Choosing P": P so that the median
-// occupied cell holds ~24 points with cell-aligned blocks, ~100 in the L-table layout; B = 90th
-// percentile of distinct blocks per cell, L = 4 in the L-table layout).
+// design_k / 4 points (docs/ACCURACY.md, "Where the talk's rules do not carry over"); auto's L
+// tables (grid = 0): from the data (docs/ACCURACY.md, "Choosing P": P so that the median occupied
+// cell holds ~100 points; B = 90th percentile of distinct blocks per cell, L = 4).
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -53,10 +53,8 @@ std::vector<float> table0_thresholds(const Structure& s, const BlockHashBuildPar
                                      std::size_t stride, const std::vector<float>& pts) {
   std::vector<float> thr(3 * std::size_t(P), INFINITY);
   for (int d = 0; d < 3; ++d) {
-    const int Pd = axis_threshold_count(s, P, d);
-    if (Pd == 0) continue;
     Histogram h = histogram(pts.data(), pts.size() / 3, d, p.hist_bins, stride);
-    auto t = make_thresholds(h, Pd, p.seed, 0, d, s.info.guard_thresholds);
+    auto t = make_thresholds(h, P, p.seed, 0, d, s.info.guard_thresholds);
     std::copy(t.begin(), t.end(), thr.begin() + std::size_t(d) * P);
   }
   return thr;
@@ -92,9 +90,7 @@ CellSample::CellSample(const Structure& s, const BlockHashBuildParams& p, std::s
 double CellSample::median_points(const Structure& s, const BlockHashBuildParams& p, int P) const {
   std::vector<float> thr(3 * std::size_t(P), INFINITY);
   for (int d = 0; d < 3; ++d) {
-    const int Pd = axis_threshold_count(s, P, d);
-    if (Pd == 0) continue;
-    auto t = make_thresholds(hist[d], Pd, p.seed, 0, d, s.info.guard_thresholds);
+    auto t = make_thresholds(hist[d], P, p.seed, 0, d, s.info.guard_thresholds);
     std::copy(t.begin(), t.end(), thr.begin() + std::size_t(d) * P);
   }
   const std::uint32_t side = std::uint32_t(P) + 1;
@@ -174,11 +170,6 @@ void derive_params(const BlockHashBuildParams& p, Structure& s) {
   in.neighbour_probes = flag(p.neighbour_probes, false);
   in.box_order = flag(p.box_order, false);
   in.hilbert_seed = p.hilbert_seed < 0 ? (paper ? 0 : 1) : p.hilbert_seed;
-  // Cell-aligned blocks hold one table: the default for auto unless more tables are asked for.
-  in.cell_aligned = p.cell_aligned < 0 ? (!paper && p.L <= 1) : p.cell_aligned != 0;
-  if (in.cell_aligned && p.L > 1)
-    throw Error("blockhash: the cell-aligned layout has one table (L = 1), got L = " + std::to_string(p.L) +
-                " (set cell_aligned = 0 for the L-table layout)");
   if (in.hilbert_seed > 64) throw Error("blockhash: hilbert_seed must be in [0, 64], got " + std::to_string(p.hilbert_seed));
   const double N = double(s.n_points), lnN = std::log(std::max(N, 1.0));
   if (p.L == 0 || p.L > 64) throw Error("blockhash: L must be in [1, 64], got " + std::to_string(p.L));
@@ -214,23 +205,19 @@ void derive_params(const BlockHashBuildParams& p, Structure& s) {
     }
     return;
   }
-  in.L = in.cell_aligned ? 1 : (p.L > 0 ? p.L : 4);
+  in.L = p.L > 0 ? p.L : 4;
   // P: bisection on the median points per occupied cell (table 0, guarded thresholds), over a
   // stride sample of the Hilbert-sorted points (spatially even; bisection_stride says how large).
-  const double target_pts = p.target_cell_points > 0 ? p.target_cell_points : (in.cell_aligned ? 24.0 : 100.0);
-  const std::size_t stride = bisection_stride(s.n_points, target_pts);
-  if (in.cell_aligned) measure_axis_spread(s, stride);
+  const double target = p.target_cell_points > 0 ? p.target_cell_points : 100.0;
+  const std::size_t stride = bisection_stride(s.n_points, target);
   if (p.P > 0) {
     in.P = p.P;
   } else {
-    const double target = p.target_cell_points > 0 ? p.target_cell_points : (in.cell_aligned ? 24.0 : 100.0);
     in.P = p_for_cell_points(s, p, target, stride);
     if (p.verbose) std::fprintf(stderr, "blockhash: auto P = %d\n", in.P);
   }
   if (p.B > 0) {
     in.B = p.B;
-  } else if (in.cell_aligned) {
-    in.B = 1;  // a bucket is a run of blocks, not B references: set to the longest run after the build
   } else {
     // B: the percentile of distinct blocks per occupied cell of table 0, all points.
     std::vector<float> pts = sorted_points(s);

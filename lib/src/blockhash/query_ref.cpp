@@ -51,6 +51,40 @@ std::uint32_t scan_block(const Structure& s, long b, const float* q, float r2, s
 
 inline float box_dist2(const bhcl_bh_box& b, const float* q) { return bh_box_dist2_xyz(q[0], q[1], q[2], &b); }
 
+// 1. of the query: the query's bucket in each table (and the near-side neighbours) into cand, in
+// order of |Q|; equal |Q| keep the gathering order (table, then home, x, y, z neighbour), as the
+// kernels' bh_gather_buckets.
+void gather_buckets(const Structure& s, const float* q, bool probes, std::vector<BucketRef>& cand) {
+  const std::uint32_t P = static_cast<std::uint32_t>(s.info.P);
+  cand.clear();
+  for (int t = 0; t < s.info.L; ++t) {
+    std::uint32_t h[3];
+    long nbr[3];
+    for (int d = 0; d < 3; ++d) {
+      h[d] = hash_coord(s.thr(t, d), P, q[d]);
+      nbr[d] = probes ? bh_near_side(s.thr(t, d), P, h[d], q[d]) : -1;
+    }
+    for (int pr = 0; pr < (probes ? 4 : 1); ++pr) {
+      std::uint32_t c[3] = {h[0], h[1], h[2]};
+      if (pr > 0) {
+        if (nbr[pr - 1] < 0) continue;
+        c[pr - 1] = static_cast<std::uint32_t>(nbr[pr - 1]);
+      }
+      long b = s.find_bucket(t, s.cell_key(c));
+      if (b < 0 || s.buckets[b].n_refs == 0) continue;  // empty buckets cannot help
+      std::int32_t qv = s.buckets[b].q;
+      BucketRef r{static_cast<std::uint32_t>(qv < 0 ? -qv : qv), static_cast<std::uint32_t>(b)};
+      std::size_t pos = cand.size();
+      cand.push_back(r);
+      while (pos > 0 && cand[pos - 1].aq > r.aq) {
+        cand[pos] = cand[pos - 1];
+        --pos;
+      }
+      cand[pos] = r;
+    }
+  }
+}
+
 }  // namespace
 
 void reference_query(const Structure& s, const float* queries, std::size_t n,
@@ -61,8 +95,6 @@ void reference_query(const Structure& s, const float* queries, std::size_t n,
   const std::uint32_t budget = BlockHashIndex::budget(params);
   const float r2 = std::isinf(params.max_radius) ? INFINITY : params.max_radius * params.max_radius;
   const std::uint32_t cap = scan_cap(kmax, s.info.X);
-  const std::uint32_t P = static_cast<std::uint32_t>(s.info.P);
-  const int L = s.info.L;
   const bool box_skip = s.info.box_skip, box_order = s.info.box_order;
   const std::uint32_t keep = keep_blocks(budget, kmax, s.info.X);
   const std::uint32_t seeds = seed_side(s.info.hilbert_seed, params.k, s.info.X);
@@ -78,35 +110,7 @@ void reference_query(const Structure& s, const float* queries, std::size_t n,
     for (std::size_t qi = begin; qi < end; ++qi) {
       const float* q = queries + 3 * qi;
       if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2])) continue;
-      // 1. The query's bucket in each table (and the near-side neighbours), in order of |Q|;
-      //    equal |Q| keep the gathering order (table, then home, x, y, z neighbour).
-      cand.clear();
-      for (int t = 0; t < L; ++t) {
-        std::uint32_t h[3];
-        long nbr[3];
-        for (int d = 0; d < 3; ++d) {
-          h[d] = hash_coord(s.thr(t, d), P, q[d]);
-          nbr[d] = probes ? bh_near_side(s.thr(t, d), P, h[d], q[d]) : -1;
-        }
-        for (int pr = 0; pr < (probes ? 4 : 1); ++pr) {
-          std::uint32_t c[3] = {h[0], h[1], h[2]};
-          if (pr > 0) {
-            if (nbr[pr - 1] < 0) continue;
-            c[pr - 1] = static_cast<std::uint32_t>(nbr[pr - 1]);
-          }
-          long b = s.find_bucket(t, s.cell_key(c));
-          if (b < 0 || s.buckets[b].n_refs == 0) continue;  // empty buckets cannot help
-          std::int32_t qv = s.buckets[b].q;
-          BucketRef r{static_cast<std::uint32_t>(qv < 0 ? -qv : qv), static_cast<std::uint32_t>(b)};
-          std::size_t pos = cand.size();
-          cand.push_back(r);
-          while (pos > 0 && cand[pos - 1].aq > r.aq) {
-            cand[pos] = cand[pos - 1];
-            --pos;
-          }
-          cand[pos] = r;
-        }
-      }
+      gather_buckets(s, q, probes, cand);  // 1. the query's buckets, in order of |Q|
       std::fill(bd.begin(), bd.end(), INFINITY);
       std::fill(bi.begin(), bi.end(), BHCL_EMPTY_SLOT_ID);
       std::uint32_t ex = 0;
@@ -167,125 +171,6 @@ void reference_query(const Structure& s, const float* queries, std::size_t n,
           scan(b);
         }
         if (done) break;
-      }
-      write_row(out, qi, k, bd, bi);
-      if (examined) (*examined)[qi] = static_cast<std::int32_t>(ex);
-    }
-  };
-  detail::parallel_for(n, work, threads, 1);
-}
-
-
-namespace {
-
-
-}  // namespace
-
-void reference_query_cells(const Structure& s, const float* queries, std::size_t n,
-                           const SearchParams& params, std::uint32_t probes, KnnResult& out,
-                           std::vector<std::int32_t>* examined, unsigned threads) {
-  const std::uint32_t k = static_cast<std::uint32_t>(params.k);
-  const std::uint32_t budget = BlockHashIndex::budget(params);
-  const float r2 = std::isinf(params.max_radius) ? INFINITY : params.max_radius * params.max_radius;
-  const std::uint32_t P = static_cast<std::uint32_t>(s.info.P);
-  const std::uint32_t side = P + 1;
-  const int bits = s.cell_bits();
-  const std::uint32_t seeds = cells_seed_side(s.info.hilbert_seed, params.k);
-  const std::uint32_t keep = keep_blocks(budget, kmax_variant(params.k), s.info.X);
-  const long nb = static_cast<long>(s.blocks.size());
-  out.resize(n, params.k);
-  if (examined) examined->assign(n, 0);
-
-  auto work = [&](std::size_t begin, std::size_t end) {
-    std::vector<float> bd(k);
-    std::vector<std::int32_t> bi(k);
-    std::vector<std::pair<float, long>> order;
-    std::vector<std::pair<float, std::uint32_t>> cellv;
-    for (std::size_t qi = begin; qi < end; ++qi) {
-      const float* q = queries + 3 * qi;
-      if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2])) continue;
-      std::fill(bd.begin(), bd.end(), INFINITY);
-      std::fill(bi.begin(), bi.end(), BHCL_EMPTY_SLOT_ID);
-      std::uint32_t found = 0, ex = 0;
-      auto bound = [&] { return bd[k - 1]; };
-      auto scan = [&](long b) { ex += scan_block(s, b, q, r2, k, bd, bi, found); };
-      std::uint32_t c[3][4];
-      float dd[3][4];
-      for (int d = 0; d < 3; ++d) bh_axis_cells(s.thr(0, d), P, q[d], probes, c[d], dd[d]);
-      std::vector<std::pair<long, long>> runs;  // entered, in order
-      bool stop = false;
-      for (int phase = 0; phase <= 2 && !stop; ++phase) {
-        const std::uint32_t span = phase == 0 ? 1 : (phase == 1 ? 2 : 4);
-        const float bound0 = std::min(r2, bound());
-        if (phase == 1 && probes < 1) break;
-        if (phase == 2) {
-          if (probes < 2) break;
-          float nearest = INFINITY;
-          for (int d = 0; d < 3; ++d) nearest = std::min(nearest, std::min(dd[d][2], dd[d][3]));
-          if (!(nearest <= bound0)) break;
-        }
-        cellv.clear();
-        for (std::uint32_t a = 0; a < span; ++a)
-          for (std::uint32_t b = 0; b < span; ++b)
-            for (std::uint32_t e = 0; e < span; ++e) {
-              if (phase == 1 && a == 0 && b == 0 && e == 0) continue;
-              if (phase == 2 && a < 2 && b < 2 && e < 2) continue;
-              float cd = dd[0][a] + dd[1][b];
-              cd = cd + dd[2][e];
-              if (!(cd < INFINITY) || cd > bound0) continue;
-              cellv.emplace_back(cd, (c[0][a] * side + c[1][b]) * side + c[2][e]);
-            }
-        std::stable_sort(cellv.begin(), cellv.end(), [](const auto& x, const auto& y) { return x.first < y.first; });
-        // Gather the blocks within the bound (at most 4 keep box tests per cell), keep the `keep`
-        // nearest by (box distance, block), scan them nearest first.
-        order.clear();
-        for (const auto& [cd, key] : cellv) {
-          if (cd > bound0) break;
-          long bk = s.find_bucket(0, key);
-          if (bk < 0) continue;
-          const bhcl_bh_bucket& bucket = s.buckets[bk];
-          runs.emplace_back(long(bucket.first_ref), long(bucket.first_ref) + long(bucket.n_refs));
-          const std::uint32_t rt = std::min<std::uint32_t>(bucket.n_refs, 4 * keep);
-          for (std::uint32_t r = 0; r < rt; ++r) {
-            long blk = long(bucket.first_ref) + long(r);
-            float d = box_dist2(s.boxes[blk], q);
-            if (d > bound0) continue;
-            order.emplace_back(d, blk);
-          }
-        }
-        std::sort(order.begin(), order.end());
-        if (order.size() > keep) order.resize(keep);
-        for (const auto& [d, blk] : order) {
-          if (d > bound()) break;
-          if (ex >= budget) {
-            stop = true;
-            break;
-          }
-          scan(blk);
-        }
-      }
-      if (found < k && seeds > 0) {
-        std::uint64_t key = hilbert_encode(c[0][0], c[1][0], c[2][0], bits);
-        long j = long(std::upper_bound(s.block_keys.begin(), s.block_keys.end(), key) - s.block_keys.begin()) - 1;
-        if (j < 0) j = 0;
-        long wa = j - long(seeds), we = j + long(seeds);
-        if (wa < 0) {
-          we -= wa;
-          wa = 0;
-        }
-        if (we > nb - 1) {
-          wa -= we - (nb - 1);
-          we = nb - 1;
-          if (wa < 0) wa = 0;
-        }
-        for (long b = wa; b <= we; ++b) {
-          float d = box_dist2(s.boxes[b], q);
-          if (d > r2 || d > bound()) continue;
-          bool dup = false;
-          for (const auto& [f, e] : runs) dup = dup || (b >= f && b < e);
-          if (dup) continue;
-          scan(b);
-        }
       }
       write_row(out, qi, k, bd, bi);
       if (examined) (*examined)[qi] = static_cast<std::int32_t>(ex);

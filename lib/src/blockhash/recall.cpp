@@ -75,7 +75,7 @@ namespace bhcl {
 namespace {
 
 // The A ladder of params_for_batch: tune_for_recall's, carried on to 1024 (queries spread over a
-// clustered set's box need A = 256 at k = 10 for 0.95 on the cell-aligned blocks: measured in
+// clustered set's box need A = 256 at k = 10 for 0.95 on a block layout: measured in
 // tests/defaults_tests.cpp); bisection keeps the passes at log2 of its length.
 constexpr float kLadder[] = {1.0f,  1.5f,  2.0f,  3.0f,  4.0f,   6.0f,   8.0f,   12.0f,  16.0f,
                              24.0f, 32.0f, 48.0f, 64.0f, 128.0f, 256.0f, 512.0f, 1024.0f};

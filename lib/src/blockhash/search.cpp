@@ -12,31 +12,13 @@
 #include "blockhash_cl/kernel_forms.hpp"
 
 namespace bhcl {
-std::uint32_t BlockHashIndex::cells_probes(const SearchParams& p) const {
-  if (p.neighbour_probes >= 0) return static_cast<std::uint32_t>(p.neighbour_probes);
-  // The octant, then the rest of the 4 x 4 x 4 block only for queries whose k-th distance still
-  // reaches past the octant (phase 2 of the kernel): it costs a comparison when not needed.
-  return info_.neighbour_probes ? 2u : 0u;
-}
-
 bool BlockHashIndex::table_probes(int neighbour_probes) const {
   return neighbour_probes < 0 ? info_.neighbour_probes : neighbour_probes == 1;
 }
 
 void BlockHashIndex::add_layout_args(detail::KernelArgs& args, int neighbour_probes) const {
   args.add(blocks_).add(boxes_).add(thresholds_).add(cl_uint(info_.P)).add(keys_);
-  if (info_.cell_aligned) {
-    SearchParams sp;
-    sp.neighbour_probes = neighbour_probes;
-    args.add(cl_uint(s_->keys.size()))
-        .add(buckets_)
-        .add(cell_table_)
-        .add(cl_uint(cell_dy_))
-        .add(cl_uint(cell_dz_))
-        .add(cl_uint(cells_probes(sp)));
-  } else {
-    args.add(table_starts_).add(buckets_).add(refs_).add(cl_uint(table_probes(neighbour_probes) ? 1 : 0));
-  }
+  args.add(table_starts_).add(buckets_).add(refs_).add(cl_uint(table_probes(neighbour_probes) ? 1 : 0));
 }
 
 std::uint32_t BlockHashIndex::budget(const SearchParams& p) {
@@ -47,9 +29,12 @@ std::uint32_t BlockHashIndex::budget(const SearchParams& p) {
 void BlockHashIndex::check_params(const SearchParams& p) const {
   Index::check_params(p);
   if (info_.grid) {
-    // The rings reach every cell within the bound: the probes of the block layouts do not apply.
-    if (p.neighbour_probes < -1 || p.neighbour_probes > 2)
-      throw Error("blockhash: neighbour_probes must be -1, 0, 1 or 2, got " + std::to_string(p.neighbour_probes));
+    // The rings reach every cell within the bound: the probes are an option of the L tables,
+    // refused here rather than accepted and ignored.
+    if (p.neighbour_probes != -1)
+      throw Error("blockhash: neighbour_probes (probes) is an option of the L tables (grid = 0, preset paper); "
+                  "the grid's rings reach every cell within the bound: leave it -1, got " +
+                  std::to_string(p.neighbour_probes));
     if (!(p.recall_target >= 0 && p.recall_target <= 1))
       throw Error("blockhash: recall_target must be in [0, 1] (0 = use A, 1 = exact), got " + std::to_string(p.recall_target));
     if (p.recall_target > 0 && p.recall_target < 1) {
@@ -60,11 +45,9 @@ void BlockHashIndex::check_params(const SearchParams& p) const {
       throw Error("blockhash: A must be positive (+inf: exact; 0: the default, exact), got " + std::to_string(p.A));
     return;
   }
-  const int top = info_.cell_aligned ? 2 : 1;
-  if (p.neighbour_probes < -1 || p.neighbour_probes > top)
-    throw Error("blockhash: neighbour_probes must be -1 (preset), 0 or 1" +
-                std::string(info_.cell_aligned ? " or 2 (cell-aligned: two near-side cells and the far one)" : "") +
-                ", got " + std::to_string(p.neighbour_probes));
+  if (p.neighbour_probes < -1 || p.neighbour_probes > 1)
+    throw Error("blockhash: neighbour_probes must be -1 (preset), 0 or 1 on the L tables, got " +
+                std::to_string(p.neighbour_probes));
   if (!(p.recall_target >= 0 && p.recall_target <= 1))
     throw Error("blockhash: recall_target must be in [0, 1] (0 = use A), got " + std::to_string(p.recall_target));
   if (p.recall_target > 0) {
@@ -117,8 +100,6 @@ detail::DefineValues BlockHashIndex::kernel_options(int kmax) const {
     return v;
   }
   const long long cap = blockhash::scan_cap(kmax, info_.X);
-  if (info_.cell_aligned)
-    return {{"BHCL_KMAX", kmax}, {"BHCL_BH_MAXKEEP", cap}, {"BHCL_BH_VECSCAN", runtime().quirks().vector_scan ? 1 : 0}};
   // Only the defines the variant uses, so that indexes differing elsewhere share a program.
   return {{"BHCL_KMAX", kmax},
           {"BHCL_BH_L", info_.L},
@@ -162,25 +143,17 @@ cl::Event BlockHashIndex::enqueue_batch(const cl::CommandQueue& queue, const cl:
         .add(cl_uint(examined ? 1 : 0));
     return detail::launch_1d(queue, kernel, count, local_size, wait, gname);
   }
-  // The two layouts' kernels share their first and last arguments.
-  const char* name = info_.cell_aligned ? "blockhash_cells_knn" : "blockhash_knn";
+  const char* name = "blockhash_knn";
   const std::string file = std::string(name) + ".cl";
   cl::Kernel kernel =
       runtime().kernel(file, name, detail::kernel_build_options(file, kernel_options(kmax), params.kernel_defines));
   detail::KernelArgs args(kernel, name);
   add_layout_args(args, params.neighbour_probes);
-  if (info_.cell_aligned) {
-    args.add(block_keys_)
-        .add(cl_uint(s_->blocks.size()))
-        .add(cl_uint(s_->cell_bits()))
-        .add(cl_uint(blockhash::cells_seed_side(info_.hilbert_seed, params.k)));
-  } else {
-    args.add(block_keys_)
-        .add(cl_uint(s_->blocks.size()))
-        .add(cl_float4{{s_->q_origin[0], s_->q_origin[1], s_->q_origin[2], s_->q_scale}})
-        .add(cl_uint(s_->q_bits))
-        .add(cl_uint(blockhash::seed_side(info_.hilbert_seed, params.k, info_.X)));
-  }
+  args.add(block_keys_)
+      .add(cl_uint(s_->blocks.size()))
+      .add(cl_float4{{s_->q_origin[0], s_->q_origin[1], s_->q_origin[2], s_->q_scale}})
+      .add(cl_uint(s_->q_bits))
+      .add(cl_uint(blockhash::seed_side(info_.hilbert_seed, params.k, info_.X)));
   add_query_args(args);
   return detail::launch_1d(queue, kernel, count, local_size, wait, name);
 }
@@ -200,12 +173,11 @@ cl::Event BlockHashIndex::enqueue_radius_batch(const cl::CommandQueue& queue,
     args.add(cl_uint(params.budget)).add_radius(queries, first, count, r2, pass, out, params.count_examined);
     return detail::launch_1d(queue, kernel, count, local_size, wait, gname);
   }
-  const char* name = info_.cell_aligned ? "blockhash_cells_radius" : "blockhash_radius";
-  detail::DefineValues values;
-  if (!info_.cell_aligned)
-    values = {{"BHCL_BH_L", info_.L},
-              {"BHCL_BH_DIRECT", info_.direct_addressing ? 1 : 0},
-              {"BHCL_BH_SCANCAP", static_cast<long long>(blockhash::scan_cap(kMaxK, info_.X))}};
+  const char* name = "blockhash_radius";
+  const detail::DefineValues values = {
+      {"BHCL_BH_L", info_.L},
+      {"BHCL_BH_DIRECT", info_.direct_addressing ? 1 : 0},
+      {"BHCL_BH_SCANCAP", static_cast<long long>(blockhash::scan_cap(kMaxK, info_.X))}};
   const std::string file = std::string(name) + ".cl";
   cl::Kernel kernel = runtime().kernel(file, name, detail::kernel_build_options(file, values, params.kernel_defines));
   detail::KernelArgs args(kernel, name);
@@ -248,8 +220,6 @@ KnnResult BlockHashIndex::reference_query(const float* queries, std::size_t n,
     blockhash::reference_query_grid(*s_->grid, queries, n, params.k, detail::squared_radius(params.max_radius),
                                     blockhash::grid_budget(budget(params), s_->grid->n_points, info_.holes),
                                     traversal_for(params), out, examined, threads);
-  } else if (info_.cell_aligned) {
-    blockhash::reference_query_cells(*s_, queries, n, params, cells_probes(params), out, examined, threads);
   } else {
     blockhash::reference_query(*s_, queries, n, params, table_probes(params.neighbour_probes), out, examined,
                                threads);

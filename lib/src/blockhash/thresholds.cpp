@@ -119,11 +119,8 @@ void build_thresholds(const BlockHashBuildParams& p, Structure& s) {
   for (std::size_t i = 0; i < s.n_points; ++i) s.point(i, &pts[3 * i]);
   for (int d = 0; d < 3; ++d) {
     Histogram h = histogram(pts.data(), s.n_points, d, p.hist_bins);
-    const int Pd = axis_threshold_count(s, P, d);
-    if (s.info.cell_aligned) s.info.axis_P[d] = Pd;
-    if (Pd == 0) continue;
     for (int t = 0; t < L; ++t) {
-      std::vector<float> thr = make_thresholds(h, Pd, p.seed, t, d, s.info.guard_thresholds);
+      std::vector<float> thr = make_thresholds(h, P, p.seed, t, d, s.info.guard_thresholds);
       std::copy(thr.begin(), thr.end(), s.thresholds.begin() + (std::size_t(t) * 3 + d) * P);
     }
   }

@@ -16,10 +16,9 @@ namespace {
 using K = KernelDefine;
 constexpr long long kU32 = 0xffffffffLL;
 
-const char* const kKnn[] = {"blockhash_cells_knn.cl", "blockhash_grid_knn.cl", "blockhash_knn.cl", "bruteforce_knn.cl",
-                            "kdtree_knn.cl"};
-const char* const kRadius[] = {"blockhash_cells_radius.cl", "blockhash_grid_radius.cl", "blockhash_radius.cl",
-                               "bruteforce_radius.cl", "kdtree_radius.cl"};
+const char* const kKnn[] = {"blockhash_grid_knn.cl", "blockhash_knn.cl", "bruteforce_knn.cl", "kdtree_knn.cl"};
+const char* const kRadius[] = {"blockhash_grid_radius.cl", "blockhash_radius.cl", "bruteforce_radius.cl",
+                               "kdtree_radius.cl"};
 
 // The files, each with the same default.
 std::vector<K::Reader> with(std::initializer_list<const char*> files, const char* fallback) {
@@ -37,8 +36,7 @@ std::vector<KernelDefine> make_table() {
     return with({"blockhash_grid_knn.cl", "blockhash_grid_radius.cl"}, fallback);
   };
   const auto blocks = [](const char* fallback) {
-    return with({"blockhash_cells_knn.cl", "blockhash_cells_radius.cl", "blockhash_knn.cl", "blockhash_radius.cl"},
-                fallback);
+    return with({"blockhash_knn.cl", "blockhash_radius.cl"}, fallback);
   };
   return {
       {"BHCL_KMAX", K::Structural, 1, 256, "the longest list a kNN kernel variant keeps (k <= it)", every},
@@ -66,15 +64,11 @@ std::vector<KernelDefine> make_table() {
       {"BHCL_GRID_RING_CAP", K::Tuning, 0, 1024, "for at most this many more rings", grid_both("6u")},
       {"BHCL_GRID_ROWBUF", K::Structural, 1, 256, "the gathered runs' buffer (the kNN kernel's from BHCL_GRID_ROWCAP)",
        grid_both("32")},
-      // The block layouts (blockhash_common.h and the four kernels).
+      // The L tables (blockhash_common.h and its two kernels).
       {"BHCL_BH_L", K::Structural, 1, 64, "hash tables (the build's L)", blocks("4")},
       {"BHCL_BH_DIRECT", K::Structural, 0, 1, "1: direct addressing of every cell (the build's)", blocks("0")},
-      {"BHCL_BH_VECSCAN", K::Tuning, 0, 1, "1: a block's 16 points scanned as vectors (CPU devices)",
-       with({"blockhash_cells_knn.cl"}, "0")},
-      {"BHCL_BH_HOMEFIRST", K::Experiment, 0, 1, "0: the whole octant gathered at once (the host reference follows 1)",
-       with({"blockhash_cells_knn.cl"}, "1")},
       {"BHCL_BH_MAXKEEP", K::Structural, 1, 4096, "blocks a query keeps (from k and X)",
-       {{"blockhash_cells_knn.cl", "64"}, {"blockhash_knn.cl", "128"}}},
+       with({"blockhash_knn.cl"}, "128")},
       {"BHCL_BH_BOXSKIP", K::Structural, 0, 1, "the build's bounding-box skip", with({"blockhash_knn.cl"}, "1")},
       {"BHCL_BH_BOXORDER", K::Structural, 0, 1, "the build's box-ordered scan", with({"blockhash_knn.cl"}, "0")},
       {"BHCL_BH_SCANCAP", K::Structural, 1, 4096, "blocks a query scans (from k and X)",
