@@ -539,30 +539,26 @@ class Index : public SearchIndex {
   void distances_to_caller(float* dist2, std::size_t count) const;
 
  private:
-  // Radius search: r Euclidean (squared = false) or squared. radius.cpp.
-  QueryStats radius_impl(const float* queries, std::size_t n, float r, bool squared,
-                         const RadiusParams& params, RadiusResult& out) const;
-  void radius_on_device(const float* queries, std::size_t n, float r2, const RadiusParams& params,
-                        RadiusResult& out, QueryStats& st) const;
-  // The radius kernels' first launches (both passes), once per (local size, defines), as warm_up
-  // does for kNN; returns the seconds (0 when already done).
-  double warm_up_radius(const cl::Buffer& queries, const RadiusBuffers& rb, float r2,
-                        const RadiusParams& params, std::size_t local) const;
+  // The one host-array query pipeline (lib/src/core/query_pipeline.cpp): run_query does what
+  // every kind of query shares once (the lock, the checks, the Hilbert order, the chunks that bound
+  // memory, the upload, the warm-up, the batches, the exact re-answer of suspect rows, the stats);
+  // a QueryKind supplies what differs (the rows' shape, its passes, its suspect-row test): KnnKind
+  // (knn.cpp) and RadiusKind (radius.cpp), as nanoflann's findNeighbors takes a result set.
+  class QueryKind;
+  class KnnKind;
+  class RadiusKind;
+  QueryStats run_query(const float* queries, std::size_t n, QueryKind& kind) const;
+  void search_on_device(const float* queries, std::size_t n, const std::size_t* order, QueryKind& kind,
+                        QueryStats& st, std::vector<std::size_t>& suspects) const;
+  void search_on_host(const float* queries, std::size_t n, const std::size_t* order, QueryKind& kind,
+                      QueryStats& st, std::vector<std::size_t>& suspects) const;
+  // The kind's first launches, once per (kernel variant, local size, defines); the seconds (0
+  // when already done).
+  double warm_up_kind(const QueryKind& kind, std::size_t local) const;
   cl::Event enqueue_impl(const cl::CommandQueue& queue, const cl::Buffer& queries, std::size_t n,
                          const ResultBuffers& out, const SearchParams& params,
                          const std::vector<cl::Event>* wait, std::vector<cl::Event>* kernels,
                          double* compile_s) const;
-
-  // Exact methods: rows of `out` in [first, first + m) (distances still in the structure's
-  // coordinates, r2s the structure's squared radius) that the float search cannot vouch for
-  // (see the contract), appended to `rows`; and the double-precision answer of such rows.
-  void collect_suspect_rows(const float* caller_queries, std::size_t first, std::size_t m, float r2s,
-                            const KnnResult& out, std::vector<std::size_t>& rows) const;
-  void answer_rows_exactly(const float* caller_queries, const std::vector<std::size_t>& rows,
-                           const SearchParams& params, KnnResult& out) const;
-  void radius_exact_fallback(const float* caller_queries, std::size_t n, double r2, float r2s,
-                             const RadiusParams& params, RadiusResult& out) const;
-  bool entry_suspect(const float* q, std::int32_t id, float d) const;
 
   std::shared_ptr<Runtime> runtime_;
   std::size_t n_points_;
@@ -570,29 +566,24 @@ class Index : public SearchIndex {
   std::vector<float> caller_points_;
   int scale_exp_ = 0;
   double build_seconds_ = 0.0;
-  double warm_up_impl(const SearchParams& params) const;
   // Updates: the lock (see insert), the ids issued and those removed (a bit per id issued).
   mutable std::shared_mutex update_mutex_;
   std::int32_t id_bound_ = 0;
   std::vector<bool> removed_;
   std::size_t removed_n_ = 0;
-  // The host-array query's buffers, kept from call to call (query_on_device).
+  // A host-array query's device buffers, kept from call to call per kind (kNN rows of k; radius,
+  // k = 0: counts, offsets and the fill pass's `fill` entries).
   struct QueryBuffers {
-    cl::Buffer q, ids, dist2, counts, examined_buf;
-    std::size_t rows = 0, k = 0;
+    cl::Buffer q, ids, dist2, counts, examined_buf, offsets;
+    std::size_t rows = 0, k = 0, fill = 0;
     bool host = false;  // host memory the device uses in place (a CPU device)
     bool examined() const { return examined_buf() != nullptr; }
+    std::size_t bytes() const { return rows * (12 + 8 * k + 4 + (examined() ? 4 : 0) + (k ? 0 : 8)) + 8 * fill; }
   };
   void take_query_buffers(std::size_t rows, std::size_t k, bool examined, QueryBuffers& b) const;
   void give_back_query_buffers(QueryBuffers&& b) const;
-  // A device method's host-array query: queries gathered in `order` (null: as given) into the
-  // kernel's buffer, rows scattered back to the caller's order, suspect rows answered exactly.
-  void query_on_device(const float* caller_queries, std::size_t n, const std::size_t* order,
-                       const SearchParams& params, KnnResult& out, QueryStats& st) const;
-  QueryStats query_host_method(const float* queries, std::size_t n, const SearchParams& params,
-                               KnnResult& out, bool sort, std::chrono::steady_clock::time_point t0) const;
   mutable std::mutex io_mutex_;
-  mutable QueryBuffers io_cache_;
+  mutable QueryBuffers io_cache_[2];  // [0]: kNN, [1]: radius
   mutable std::mutex warm_mutex_;
   // (kmax, local size, defines); kmax 0: the radius kernels.
   mutable std::set<std::tuple<int, std::size_t, std::string>> warmed_;

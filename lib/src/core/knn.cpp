@@ -17,6 +17,7 @@
 #include "core/parallel.hpp"
 #include "core/point_scan.hpp"
 #include "core/query_order.hpp"
+#include "core/query_pipeline.hpp"
 
 namespace bhcl {
 
@@ -158,78 +159,6 @@ const float* Index::prepare_points(const float* points, std::size_t n, std::vect
   return storage.data();
 }
 
-namespace {
-// Below this a squared distance in the structure's coordinates may have lost precision (its
-// components' squares underflow); the float ranking is then not vouched for.
-const float kTrustedMin = std::ldexp(1.0f, -120);
-// A double squared distance as the contract reports it: rounded to float, +inf above FLT_MAX.
-float to_float_or_inf(double d) {
-  return d > double(std::numeric_limits<float>::max()) ? INFINITY : static_cast<float>(d);
-}
-}  // namespace
-
-bool Index::entry_suspect(const float* q, std::int32_t id, float d) const {
-  if (std::isinf(d)) return true;  // overflowed: ranked by index, not by the true distance
-  if (d == 0) {
-    const float* p = caller_points_.data() + 3 * static_cast<std::size_t>(id);
-    return !(p[0] == q[0] && p[1] == q[1] && p[2] == q[2]);  // flushed to zero
-  }
-  return d < kTrustedMin;
-}
-
-void Index::collect_suspect_rows(const float* caller_queries, std::size_t first, std::size_t m,
-                                 float r2s, const KnnResult& out, std::vector<std::size_t>& rows) const {
-  if (!exact() || caller_points_.empty()) return;
-  const std::size_t k = static_cast<std::size_t>(out.k);
-  const int full = static_cast<int>(std::min<std::size_t>(k, size()));
-  const bool tiny_radius = r2s > 0 && r2s < kTrustedMin;
-  for (std::size_t i = first; i < first + m; ++i) {
-    const float* q = caller_queries + 3 * i;
-    if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2])) continue;
-    const int c = out.counts[i];
-    bool bad = tiny_radius || (std::isinf(r2s) && c < full);
-    for (int j = 0; j < c && !bad; ++j) bad = entry_suspect(q, out.ids[i * k + j], out.dist2[i * k + j]);
-    if (bad) rows.push_back(i);
-  }
-}
-
-void Index::answer_rows_exactly(const float* caller_queries, const std::vector<std::size_t>& rows,
-                                const SearchParams& params, KnnResult& out) const {
-  if (rows.empty()) return;
-  const std::size_t k = static_cast<std::size_t>(params.k);
-  const double r = params.max_radius;
-  const double r2 = std::isinf(r) ? INFINITY : r * r;
-  // Every id issued: a removed one holds NaN, which `d <= r2` rejects.
-  const std::size_t N = caller_points_.size() / 3;
-  const float* pts = caller_points_.data();
-  detail::parallel_for(rows.size(), [&](std::size_t b, std::size_t e) {
-    std::vector<std::pair<double, std::int32_t>> best;
-    for (std::size_t t = b; t < e; ++t) {
-      const std::size_t row = rows[t];
-      const double qx = caller_queries[3 * row], qy = caller_queries[3 * row + 1],
-                   qz = caller_queries[3 * row + 2];
-      best.clear();
-      for (std::size_t i = 0; i < N; ++i) {
-        const double dx = qx - pts[3 * i], dy = qy - pts[3 * i + 1], dz = qz - pts[3 * i + 2];
-        const double d = dx * dx + dy * dy + dz * dz;
-        if (!(d <= r2)) continue;
-        const std::pair<double, std::int32_t> c{d, static_cast<std::int32_t>(i)};
-        if (best.size() < k) {
-          best.insert(std::upper_bound(best.begin(), best.end(), c), c);
-        } else if (c < best.back()) {
-          best.pop_back();
-          best.insert(std::upper_bound(best.begin(), best.end(), c), c);
-        }
-      }
-      for (std::size_t j = 0; j < k; ++j) {
-        out.ids[row * k + j] = j < best.size() ? best[j].second : -1;
-        out.dist2[row * k + j] = j < best.size() ? to_float_or_inf(best[j].first) : INFINITY;
-      }
-      out.counts[row] = static_cast<std::int32_t>(best.size());
-    }
-  }, 0, 1);
-}
-
 SearchParams Index::scaled(const SearchParams& p) const {
   SearchParams s = p;
   if (scale_exp_ != 0 && std::isfinite(p.max_radius)) s.max_radius = std::ldexp(p.max_radius, -scale_exp_);
@@ -280,37 +209,6 @@ void Index::save(const std::string& path) const {
 
 void Index::rebuild(const float*, std::size_t) {
   throw Error("rebuild: method '" + method() + "' has no rebuild in place (build a new index)");
-}
-
-double Index::warm_up(const SearchParams& params) const {
-  ReadLock read_lock(*this);  // the launch reads the structure's buffers (see insert)
-  check_params(params);
-  if (answers_on_host()) return 0.0;
-  std::size_t local = local_size_for(params);
-  auto key = std::make_tuple(kmax_variant(params.k), local, params.kernel_defines);
-  std::lock_guard<std::mutex> lock(warm_mutex_);
-  if (warmed_.count(key)) return 0.0;
-  auto t0 = std::chrono::steady_clock::now();
-  // A zero-count launch compiles the program (clBuildProgram) and, on PoCL, the machine code for
-  // this local size; kernels return at once for count 0.
-  cl_int err = CL_SUCCESS;
-  cl::Buffer q(runtime_->context(), CL_MEM_READ_WRITE, 16, nullptr, &err);
-  check_cl(err, "clCreateBuffer", "warm-up");
-  ResultBuffers rb;
-  rb.ids = cl::Buffer(runtime_->context(), CL_MEM_READ_WRITE, 16, nullptr, &err);
-  check_cl(err, "clCreateBuffer", "warm-up");
-  rb.dist2 = cl::Buffer(runtime_->context(), CL_MEM_READ_WRITE, 16, nullptr, &err);
-  check_cl(err, "clCreateBuffer", "warm-up");
-  rb.counts = cl::Buffer(runtime_->context(), CL_MEM_READ_WRITE, 16, nullptr, &err);
-  check_cl(err, "clCreateBuffer", "warm-up");
-  rb.examined = cl::Buffer(runtime_->context(), CL_MEM_READ_WRITE, 16, nullptr, &err);
-  check_cl(err, "clCreateBuffer", "warm-up");
-  // On the library's own queue: the caller's queue may hold commands gated by a user event.
-  cl::Event e = enqueue_batch(runtime_->warm_queue(), q, 0, 0, rb, params, local, nullptr);
-  check_cl(e.wait(), "clWaitForEvents", method() + " warm-up");
-  runtime_->keep_program_binaries();  // the launch compiled this local size: kept for later processes
-  warmed_.insert(key);
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
 cl::Event Index::enqueue_impl(const cl::CommandQueue& queue, const cl::Buffer& queries,
@@ -369,22 +267,12 @@ cl::Event Index::enqueue_query(const cl::CommandQueue& queue, const cl::Buffer& 
   const cl::Context ctx = queue.getInfo<CL_QUEUE_CONTEXT>();
   cl_int err = CL_SUCCESS;
   if (answers_on_host()) {
-    // Honest but blocking: read the queries, answer on the host, write the rows back.
+    // Honest but blocking: read the queries, answer them as the host-array call does, write the rows back.
     std::vector<float> q(n * 3);
     check_cl(queue.enqueueReadBuffer(queries, CL_TRUE, 0, q.size() * sizeof(float), q.data(), wait),
              "clEnqueueReadBuffer", method() + " queries");
     KnnResult r;
-    r.resize(n, params.k);
-    const std::vector<float> caller_q = scale_exp_ ? q : std::vector<float>();
-    if (scale_exp_)
-      ldexp_all(q.data(), q.data(), q.size(), -scale_exp_);
-    host_search(q.data(), n, sp, r);
-    const float* cq = scale_exp_ ? caller_q.data() : q.data();
-    std::vector<std::size_t> suspects;
-    collect_suspect_rows(cq, 0, n, detail::squared_radius(sp.max_radius), r, suspects);
-    if (scale_exp_)
-      ldexp_all(r.dist2.data(), r.dist2.data(), r.dist2.size(), 2 * scale_exp_);
-    answer_rows_exactly(cq, suspects, params, r);
+    query(q.data(), n, params, r);
     cl::Event e;
     check_cl(queue.enqueueWriteBuffer(out.ids, CL_TRUE, 0, nk * 4, r.ids.data()), "clEnqueueWriteBuffer", "ids");
     check_cl(queue.enqueueWriteBuffer(out.dist2, CL_TRUE, 0, nk * 4, r.dist2.data()), "clEnqueueWriteBuffer", "dist2");
@@ -408,317 +296,233 @@ cl::Event Index::enqueue_query(const cl::CommandQueue& queue, const cl::Buffer& 
   return detail::launch_1d(queue, back, nk, local, &w1, "bhcl_scale_in_place");
 }
 
+// The kNN kind of query (query_pipeline.hpp): rows of k, one pass, written to the caller's
+// place as they come off the device (no second pass over the result).
+class Index::KnnKind final : public Index::QueryKind {
+ public:
+  KnnKind(const Index& ix, const SearchParams& p, KnnResult& out)
+      : QueryKind(ix), p_(p), sp_(ix.scaled(p)), out_(out), k_(static_cast<std::size_t>(p.k)),
+        r2s_(detail::squared_radius(sp_.max_radius)) {}
+  const char* name() const override { return "query"; }
+  const DispatchParams& dispatch() const override { return p_; }
+  std::size_t row_k() const override { return k_; }
+  int kernel_variant() const override { return kmax_variant(p_.k); }
+  void check(std::size_t n, int copies) const override {
+    ix_.check_params(p_);
+    check_result_memory(n, p_.k, p_.count_examined, copies, ix_.method());
+  }
+  void begin(std::size_t n) override;
+  std::size_t chunk_rows(std::size_t n) const override;
+  void warm_launch(const QueryBuffers& b, std::size_t local) const override {
+    // On the library's own queue: the caller's queue may hold commands gated by a user event.
+    const ResultBuffers rb(b.ids, b.dist2, b.counts, b.examined_buf);
+    cl::Event e = ix_.enqueue_batch(ix_.runtime_->warm_queue(), b.q, 0, 0, rb, p_, local, nullptr);
+    check_cl(e.wait(), "clWaitForEvents", ix_.method() + " warm-up");
+  }
+  void search_chunk(QueryBuffers& b, std::size_t first, std::size_t m, const std::size_t* order, std::size_t per,
+                    std::size_t local, const float* caller_queries, QueryStats& st,
+                    std::vector<std::size_t>& suspects) override;
+  void search_host(const float* queries, std::size_t n, const std::size_t* order, const float* caller_queries,
+                   QueryStats& st, std::vector<std::size_t>& suspects) override;
+  void finish(const std::size_t*, const float*, QueryStats&, std::vector<std::size_t>&) override {}
+  void answer_exactly(const float* caller_queries, const std::vector<std::size_t>& rows) override;
+
+ private:
+  // Rows [first, first + m) of the dispatch order (ids/dist2 m x k, the structure's distances)
+  // to the caller's places, distances to the caller's scale, suspect rows noted: one parallel pass.
+  void store_rows(std::size_t first, std::size_t m, const std::size_t* order, const std::int32_t* ids,
+                  const float* dist2, const std::int32_t* counts, const std::int32_t* exam,
+                  const float* caller_queries, std::vector<std::size_t>& suspects);
+  bool row_suspect(const float* q, const std::int32_t* ids, const float* d, int count) const;
+
+  const SearchParams& p_;
+  const SearchParams sp_;  // in the structure's coordinates
+  KnnResult& out_;
+  const std::size_t k_;
+  const float r2s_;
+};
+
+void Index::KnnKind::begin(std::size_t n) {
+  if (ix_.answers_on_host()) {
+    out_.resize(n, p_.k);  // host methods fill rows they are given
+    if (p_.count_examined) out_.examined.assign(n, 0);
+    return;
+  }
+  // Every row is written by the scatter: sized, not filled (a filled result is a pass of its own;
+  // a result reused from the caller's last call costs nothing here).
+  out_.n = n;
+  out_.k = p_.k;
+  out_.ids.resize(n * k_);
+  out_.dist2.resize(n * k_);
+  out_.counts.resize(n);
+  if (p_.count_examined) out_.examined.resize(n);
+  else out_.examined.clear();
+}
+
+std::size_t Index::KnnKind::chunk_rows(std::size_t n) const {
+  // Results are 8*k bytes per query: host chunks bound the device memory of one call.
+  std::size_t chunk = std::max<std::size_t>(1, (std::size_t(256) << 20) / (8 * k_ + 12));
+  const std::size_t max_alloc = ix_.runtime_->info().max_alloc_bytes;
+  if (max_alloc) chunk = std::min<std::size_t>(chunk, std::max<std::size_t>(1, max_alloc / (4 * k_)));
+  return std::min(chunk, n);
+}
+
+bool Index::KnnKind::row_suspect(const float* q, const std::int32_t* ids, const float* d, int count) const {
+  if (!detail::finite_query(q)) return false;  // an empty row, as the contract says
+  const int full = static_cast<int>(std::min<std::size_t>(k_, ix_.size()));
+  if ((r2s_ > 0 && r2s_ < detail::trusted_min_distance()) || (std::isinf(r2s_) && count < full)) return true;
+  for (int j = 0; j < count; ++j)
+    if (entry_suspect(q, ids[j], d[j])) return true;
+  return false;
+}
+
+void Index::KnnKind::store_rows(std::size_t first, std::size_t m, const std::size_t* order, const std::int32_t* ids,
+                                const float* dist2, const std::int32_t* counts, const std::int32_t* exam,
+                                const float* caller_queries, std::vector<std::size_t>& suspects) {
+  const bool check = checks_rows();
+  const int e = scale_exponent();
+  std::mutex suspects_mutex;
+  detail::parallel_for(m, [&](std::size_t lo, std::size_t hi) {
+    std::vector<std::size_t> mine;
+    for (std::size_t i = lo; i < hi; ++i) {
+      const std::size_t row = order ? order[first + i] : first + i;
+      const std::int32_t* ri = ids + i * k_;
+      const float* rd = dist2 + i * k_;
+      if (check && row_suspect(caller_queries + 3 * row, ri, rd, counts[i])) mine.push_back(row);
+      float* od = &out_.dist2[row * k_];
+      if (ri != &out_.ids[row * k_]) std::copy_n(ri, k_, &out_.ids[row * k_]);  // in place: the host's rows
+      if (e) {
+        for (std::size_t j = 0; j < k_; ++j) od[j] = std::ldexp(rd[j], 2 * e);
+      } else if (rd != od) {
+        std::copy_n(rd, k_, od);
+      }
+      out_.counts[row] = counts[i];
+      if (exam) out_.examined[row] = exam[i];
+    }
+    if (!mine.empty()) {
+      std::lock_guard<std::mutex> lock(suspects_mutex);
+      suspects.insert(suspects.end(), mine.begin(), mine.end());
+    }
+  }, 0, 8192);
+}
+
 namespace {
+// A chunk's rows off the device: mapped in place on a CPU device (no copy), read on a GPU.
+struct DownloadedRows {
+  std::unique_ptr<detail::Mapped> mids, mdist2, mcounts, mexam;
+  std::vector<std::int32_t> ids_stage, counts_stage, exam_stage;
+  std::vector<float> dist2_stage;
+  const std::int32_t *ids = nullptr, *counts = nullptr, *exam = nullptr;
+  const float* dist2 = nullptr;
+
+  void map(const cl::CommandQueue& q, const ResultBuffers& rb, std::size_t m, std::size_t k, bool examined) {
+    mids = std::make_unique<detail::Mapped>(q, rb.ids, CL_MAP_READ, m * k * 4, "ids");
+    mdist2 = std::make_unique<detail::Mapped>(q, rb.dist2, CL_MAP_READ, m * k * 4, "dist2");
+    mcounts = std::make_unique<detail::Mapped>(q, rb.counts, CL_MAP_READ, m * 4, "counts");
+    if (examined) mexam = std::make_unique<detail::Mapped>(q, rb.examined, CL_MAP_READ, m * 4, "examined");
+    ids = mids->as<std::int32_t>();
+    dist2 = mdist2->as<float>();
+    counts = mcounts->as<std::int32_t>();
+    if (mexam) exam = mexam->as<std::int32_t>();
+  }
+  void read(const cl::CommandQueue& q, const ResultBuffers& rb, std::size_t m, std::size_t k, bool examined) {
+    ids_stage.resize(m * k);
+    dist2_stage.resize(m * k);
+    counts_stage.resize(m);
+    check_cl(q.enqueueReadBuffer(rb.ids, CL_FALSE, 0, m * k * 4, ids_stage.data()), "clEnqueueReadBuffer", "ids");
+    check_cl(q.enqueueReadBuffer(rb.dist2, CL_FALSE, 0, m * k * 4, dist2_stage.data()), "clEnqueueReadBuffer", "dist2");
+    check_cl(q.enqueueReadBuffer(rb.counts, CL_FALSE, 0, m * 4, counts_stage.data()), "clEnqueueReadBuffer", "counts");
+    if (examined) {
+      exam_stage.resize(m);
+      check_cl(q.enqueueReadBuffer(rb.examined, CL_FALSE, 0, m * 4, exam_stage.data()), "clEnqueueReadBuffer", "examined");
+      exam = exam_stage.data();
+    }
+    check_cl(q.finish(), "clFinish", "kNN results");
+    ids = ids_stage.data();
+    dist2 = dist2_stage.data();
+    counts = counts_stage.data();
+  }
+};
+
 double seconds_since(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 }  // namespace
 
+void Index::KnnKind::search_chunk(QueryBuffers& b, std::size_t first, std::size_t m, const std::size_t* order,
+                                  std::size_t per, std::size_t local, const float* caller_queries, QueryStats& st,
+                                  std::vector<std::size_t>& suspects) {
+  const cl::CommandQueue& queue = ix_.runtime_->queue();
+  ResultBuffers rb{b.ids, b.dist2, b.counts};
+  if (p_.count_examined) rb.examined = b.examined_buf;
+  std::vector<cl::Event> kernels;
+  for (std::size_t f = 0; f < m; f += per)
+    kernels.push_back(ix_.enqueue_batch(queue, b.q, f, std::min(per, m - f), rb, sp_, local, nullptr));
+  check_cl(queue.finish(), "clFinish", ix_.method() + " query");
+  for (const auto& e : kernels) st.query_s += event_seconds(e);
+  st.batches += kernels.size();
+  const auto td = std::chrono::steady_clock::now();
+  DownloadedRows rows;
+  if (b.host) rows.map(queue, rb, m, k_, p_.count_examined);
+  else rows.read(queue, rb, m, k_, p_.count_examined);
+  st.download_s += seconds_since(td);
+  const auto tw = std::chrono::steady_clock::now();
+  store_rows(first, m, order, rows.ids, rows.dist2, rows.counts, rows.exam, caller_queries, suspects);
+  st.unsort_s += seconds_since(tw);
+}
+
+void Index::KnnKind::search_host(const float* queries, std::size_t n, const std::size_t* order,
+                                 const float* caller_queries, QueryStats& st, std::vector<std::size_t>& suspects) {
+  if (!order) {  // the rows searched in place; the scan notes suspects and rescales
+    st.query_s = ix_.host_search(queries, n, sp_, out_);
+    store_rows(0, n, nullptr, out_.ids.data(), out_.dist2.data(), out_.counts.data(), nullptr, caller_queries,
+               suspects);
+    return;
+  }
+  // The rows in dispatch order, in arrays this thread keeps from call to call: fresh ones cost
+  // a page fault per 4 KiB (8 k bytes per query) on every call, more than the copy itself.
+  // (A reference: the copy below runs on other threads, where the name would mean their own.)
+  thread_local KnnResult scratch;
+  KnnResult& tmp = scratch;
+  tmp.resize(n, p_.k);
+  st.query_s = ix_.host_search(queries, n, sp_, tmp);
+  const auto tu = std::chrono::steady_clock::now();
+  const std::int32_t* exam = p_.count_examined && !tmp.examined.empty() ? tmp.examined.data() : nullptr;
+  store_rows(0, n, order, tmp.ids.data(), tmp.dist2.data(), tmp.counts.data(), exam, caller_queries, suspects);
+  if (tmp.ids.capacity() * 8 > kSortScratchBytes) tmp = KnnResult{};  // kept only up to the bound
+  st.unsort_s = seconds_since(tu);
+}
+
+void Index::KnnKind::answer_exactly(const float* caller_queries, const std::vector<std::size_t>& rows) {
+  const double r = p_.max_radius;
+  const double r2 = std::isinf(r) ? INFINITY : r * r;
+  detail::parallel_for(rows.size(), [&](std::size_t b, std::size_t e) {
+    std::vector<Candidate> best;
+    for (std::size_t t = b; t < e; ++t) {
+      const std::size_t row = rows[t];
+      exact_candidates(caller_queries + 3 * row, r2, k_, best);
+      for (std::size_t j = 0; j < k_; ++j) {
+        out_.ids[row * k_ + j] = j < best.size() ? best[j].second : -1;
+        out_.dist2[row * k_ + j] = j < best.size() ? detail::to_float_or_inf(best[j].first) : INFINITY;
+      }
+      out_.counts[row] = static_cast<std::int32_t>(best.size());
+    }
+  }, 0, 1);
+}
+
 QueryStats Index::query(const float* queries, std::size_t n, const SearchParams& params,
                         KnnResult& out) const {
-  auto t0 = std::chrono::steady_clock::now();
-  ReadLock lock(*this);  // queries share the index; insert/remove wait (see insert)
+  KnnKind kind(*this, params, out);
+  return run_query(queries, n, kind);
+}
+
+double Index::warm_up(const SearchParams& params) const {
+  ReadLock read_lock(*this);  // the launch reads the structure's buffers (see insert)
   check_params(params);
-  const bool sort = params.sort_queries > 0 || (params.sort_queries < 0 && n >= kAutoSortQueries);
-  // Sizes before allocation: a result that cannot fit is refused with what it needs, before any
-  // search (the Hilbert-ordered path holds the rows twice: the caller's and the device's).
-  check_result_memory(n, params.k, params.count_examined, sort && n > 1 ? 2 : 1, method());
-  if (answers_on_host()) return query_host_method(queries, n, params, out, sort, t0);
-  QueryStats st;
-  st.n_queries = n;
-  // Dispatch in Hilbert order (neighbouring work-items walk the same cells), rows written in the
-  // caller's order as they come off the device: no second pass over the result.
-  std::vector<std::size_t> order;
-  if (sort && n > 1) {
-    const auto ts = std::chrono::steady_clock::now();
-    order = detail::hilbert_query_order(queries, n);
-    st.sort_s = seconds_since(ts);
-  }
-  for (std::size_t i = 0; i < n; ++i) {
-    const float* q = queries + 3 * i;
-    if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2])) ++st.nonfinite_queries;
-  }
-  // Every row is written by the scatter below: sized, not filled (a filled result is a pass of
-  // its own; a result reused from the caller's last call costs nothing here).
-  const std::size_t k = static_cast<std::size_t>(params.k);
-  out.n = n;
-  out.k = params.k;
-  out.ids.resize(n * k);
-  out.dist2.resize(n * k);
-  out.counts.resize(n);
-  if (params.count_examined) out.examined.resize(n);
-  else out.examined.clear();
-  if (n > 0) query_on_device(queries, n, order.empty() ? nullptr : order.data(), params, out, st);
-  st.wall_s = seconds_since(t0);
-  return st;
-}
-
-namespace {
-// Host buffers a CPU device reads and writes in place (zero-copy: PoCL's kernels use the host
-// memory itself); a GPU gets device memory and copies.
-cl::Buffer io_buffer(const Runtime& rt, bool host_visible, std::size_t bytes, const char* what) {
-  if (!host_visible) return detail::device_buffer(rt, bytes, what);
-  cl_int err = CL_SUCCESS;
-  cl::Buffer b(rt.context(), CL_MEM_READ_WRITE | CL_MEM_ALLOC_HOST_PTR, std::max<std::size_t>(bytes, 4), nullptr, &err);
-  check_cl(err, "clCreateBuffer", std::string(what) + " (host memory), " + std::to_string(bytes) + " bytes");
-  return b;
-}
-
-// A mapped region of a buffer, unmapped when done (also on an exception).
-class Mapped {
- public:
-  Mapped(const cl::CommandQueue& q, const cl::Buffer& b, cl_map_flags flags, std::size_t bytes, const char* what)
-      : q_(q), b_(b) {
-    cl_int err = CL_SUCCESS;
-    ptr_ = q.enqueueMapBuffer(b, CL_TRUE, flags, 0, std::max<std::size_t>(bytes, 4), nullptr, nullptr, &err);
-    check_cl(err, "clEnqueueMapBuffer", what);
-  }
-  ~Mapped() {
-    if (ptr_) q_.enqueueUnmapMemObject(b_, ptr_);
-  }
-  Mapped(const Mapped&) = delete;
-  Mapped& operator=(const Mapped&) = delete;
-  void unmap(const char* what) {
-    cl::Event e;
-    check_cl(q_.enqueueUnmapMemObject(b_, ptr_, nullptr, &e), "clEnqueueUnmapMemObject", what);
-    ptr_ = nullptr;
-  }
-  template <typename T>
-  T* as() const { return static_cast<T*>(ptr_); }
-
- private:
-  const cl::CommandQueue& q_;
-  const cl::Buffer& b_;
-  void* ptr_ = nullptr;
-};
-}  // namespace
-
-void Index::take_query_buffers(std::size_t rows, std::size_t k, bool examined, QueryBuffers& b) const {
-  {
-    std::lock_guard<std::mutex> lock(io_mutex_);
-    if (io_cache_.rows >= rows && io_cache_.k == k && (io_cache_.examined() || !examined)) {
-      b = std::move(io_cache_);
-      io_cache_ = QueryBuffers{};
-      return;
-    }
-  }
-  const Runtime& rt = *runtime_;
-  b.host = (rt.info().type & CL_DEVICE_TYPE_CPU) != 0;
-  b.rows = rows;
-  b.k = k;
-  b.q = io_buffer(rt, b.host, rows * 3 * sizeof(float), "queries");
-  b.ids = io_buffer(rt, b.host, rows * k * sizeof(std::int32_t), "ids");
-  b.dist2 = io_buffer(rt, b.host, rows * k * sizeof(float), "dist2");
-  b.counts = io_buffer(rt, b.host, rows * sizeof(std::int32_t), "counts");
-  if (examined) b.examined_buf = io_buffer(rt, b.host, rows * sizeof(std::int32_t), "examined");
-}
-
-void Index::give_back_query_buffers(QueryBuffers&& b) const {
-  // Kept for the next call (its pages are mapped already: fresh ones fault on every 4 KiB),
-  // up to the bound on scratch memory.
-  if (b.rows * (8 * b.k + 20) > kSortScratchBytes) return;
-  std::lock_guard<std::mutex> lock(io_mutex_);
-  if (b.rows >= io_cache_.rows) io_cache_ = std::move(b);
-}
-
-void Index::query_on_device(const float* caller_queries, std::size_t n, const std::size_t* order,
-                            const SearchParams& params, KnnResult& out, QueryStats& st) const {
-  const Runtime& rt = *runtime_;
-  const cl::CommandQueue& queue = rt.queue();
-  const std::size_t k = static_cast<std::size_t>(params.k);
-  const SearchParams sp = scaled(params);
-  const float r2s = detail::squared_radius(sp.max_radius);
-  const bool check = exact() && !caller_points_.empty();
-  const bool tiny_radius = r2s > 0 && r2s < kTrustedMin;
-  const int full = static_cast<int>(std::min<std::size_t>(k, size()));
-  // Host chunks bound the device memory of one call: results are 8*k bytes per query.
-  std::size_t chunk = std::max<std::size_t>(1, (std::size_t(256) << 20) / (8 * k + 12));
-  if (rt.info().max_alloc_bytes)
-    chunk = std::min<std::size_t>(chunk, std::max<std::size_t>(1, rt.info().max_alloc_bytes / (4 * k)));
-  chunk = std::min(chunk, n);
-  QueryBuffers b;
-  take_query_buffers(chunk, k, params.count_examined, b);
-  ResultBuffers rb{b.ids, b.dist2, b.counts};
-  if (params.count_examined) rb.examined = b.examined_buf;
-  std::vector<float> qstage;  // device memory only: the gathered queries before their copy
-  std::vector<std::int32_t> ids_stage, counts_stage, examined_stage;
-  std::vector<float> dist2_stage;
-  std::vector<std::size_t> suspects;
-  std::mutex suspects_mutex;
-  for (std::size_t first = 0; first < n; first += chunk) {
-    const std::size_t m = std::min(chunk, n - first);
-    const auto src = [&](std::size_t i) { return order ? order[first + i] : first + i; };
-    // Upload, fused with the sort: each query gathered from the caller's array in dispatch order
-    // (and scaled, at extreme scales) straight into the buffer the kernel reads.
-    auto tu = std::chrono::steady_clock::now();
-    {
-      std::unique_ptr<Mapped> map;
-      float* dst;
-      if (b.host) {
-        map = std::make_unique<Mapped>(queue, b.q, CL_MAP_WRITE_INVALIDATE_REGION, m * 3 * sizeof(float), "queries");
-        dst = map->as<float>();
-      } else {
-        qstage.resize(3 * m);
-        dst = qstage.data();
-      }
-      detail::parallel_for(m, [&](std::size_t lo, std::size_t hi) {
-        for (std::size_t i = lo; i < hi; ++i) {
-          const float* q = caller_queries + 3 * src(i);
-          for (int d = 0; d < 3; ++d) dst[3 * i + d] = scale_exp_ ? std::ldexp(q[d], -scale_exp_) : q[d];
-        }
-      }, 0, 16384);
-      if (map) map->unmap("queries");
-      else check_cl(queue.enqueueWriteBuffer(b.q, CL_FALSE, 0, m * 3 * sizeof(float), dst), "clEnqueueWriteBuffer", "queries");
-    }
-    st.upload_s += seconds_since(tu);
-    std::vector<cl::Event> kernels;
-    enqueue_impl(queue, b.q, m, rb, sp, nullptr, &kernels, &st.compile_s);
-    check_cl(queue.finish(), "clFinish", method() + " query");
-    for (const auto& e : kernels) st.query_s += event_seconds(e);
-    st.batches += kernels.size();
-    // Download: mapped in place on a CPU device (no copy), read on a GPU.
-    auto td = std::chrono::steady_clock::now();
-    std::unique_ptr<Mapped> mids, mdist2, mcounts, mexam;
-    const std::int32_t *ids, *counts, *exam = nullptr;
-    const float* dist2;
-    if (b.host) {
-      mids = std::make_unique<Mapped>(queue, b.ids, CL_MAP_READ, m * k * 4, "ids");
-      mdist2 = std::make_unique<Mapped>(queue, b.dist2, CL_MAP_READ, m * k * 4, "dist2");
-      mcounts = std::make_unique<Mapped>(queue, b.counts, CL_MAP_READ, m * 4, "counts");
-      if (params.count_examined) mexam = std::make_unique<Mapped>(queue, b.examined_buf, CL_MAP_READ, m * 4, "examined");
-      ids = mids->as<std::int32_t>();
-      dist2 = mdist2->as<float>();
-      counts = mcounts->as<std::int32_t>();
-      if (mexam) exam = mexam->as<std::int32_t>();
-    } else {
-      ids_stage.resize(m * k);
-      dist2_stage.resize(m * k);
-      counts_stage.resize(m);
-      check_cl(queue.enqueueReadBuffer(b.ids, CL_FALSE, 0, m * k * 4, ids_stage.data()), "clEnqueueReadBuffer", "ids");
-      check_cl(queue.enqueueReadBuffer(b.dist2, CL_FALSE, 0, m * k * 4, dist2_stage.data()), "clEnqueueReadBuffer", "dist2");
-      check_cl(queue.enqueueReadBuffer(b.counts, CL_FALSE, 0, m * 4, counts_stage.data()), "clEnqueueReadBuffer", "counts");
-      if (params.count_examined) {
-        examined_stage.resize(m);
-        check_cl(queue.enqueueReadBuffer(b.examined_buf, CL_FALSE, 0, m * 4, examined_stage.data()),
-                 "clEnqueueReadBuffer", "examined");
-        exam = examined_stage.data();
-      }
-      check_cl(queue.finish(), "clFinish", method() + " results");
-      ids = ids_stage.data();
-      dist2 = dist2_stage.data();
-      counts = counts_stage.data();
-    }
-    st.download_s += seconds_since(td);
-    // Unsort: each row to the caller's place, its distances back to the caller's scale, and the
-    // rows the float search cannot vouch for noted, in one parallel pass.
-    auto tw = std::chrono::steady_clock::now();
-    detail::parallel_for(m, [&](std::size_t lo, std::size_t hi) {
-      std::vector<std::size_t> mine;
-      for (std::size_t i = lo; i < hi; ++i) {
-        const std::size_t row = src(i);
-        const std::int32_t* ri = ids + i * k;
-        const float* rd = dist2 + i * k;
-        const int c = counts[i];
-        if (check) {
-          const float* q = caller_queries + 3 * row;
-          if (std::isfinite(q[0]) && std::isfinite(q[1]) && std::isfinite(q[2])) {
-            bool bad = tiny_radius || (std::isinf(r2s) && c < full);
-            for (int j = 0; j < c && !bad; ++j) bad = entry_suspect(q, ri[j], rd[j]);
-            if (bad) mine.push_back(row);
-          }
-        }
-        std::copy_n(ri, k, &out.ids[row * k]);
-        if (scale_exp_) {
-          for (std::size_t j = 0; j < k; ++j) out.dist2[row * k + j] = std::ldexp(rd[j], 2 * scale_exp_);
-        } else {
-          std::copy_n(rd, k, &out.dist2[row * k]);
-        }
-        out.counts[row] = c;
-        if (exam) out.examined[row] = exam[i];
-      }
-      if (!mine.empty()) {
-        std::lock_guard<std::mutex> lock(suspects_mutex);
-        suspects.insert(suspects.end(), mine.begin(), mine.end());
-      }
-    }, 0, 8192);
-    st.unsort_s += seconds_since(tw);
-  }
-  // The last chunk's unmaps done before its buffers serve another call.
-  check_cl(queue.finish(), "clFinish", method() + " query");
-  give_back_query_buffers(std::move(b));
-  // The threads' lists in row order: the answers do not depend on the thread count.
-  std::sort(suspects.begin(), suspects.end());
-  answer_rows_exactly(caller_queries, suspects, params, out);
-}
-
-QueryStats Index::query_host_method(const float* queries, std::size_t n, const SearchParams& params,
-                                    KnnResult& out, bool sort,
-                                    std::chrono::steady_clock::time_point t0) const {
-  if (sort && n > 1) {
-    // Dispatch in Hilbert order, return rows in the caller's order.
-    const auto ts = std::chrono::steady_clock::now();
-    std::vector<std::size_t> order = detail::hilbert_query_order(queries, n);
-    const double sort_s = seconds_since(ts);
-    const std::vector<float> sorted = detail::queries_in_order(queries, order);
-    SearchParams p = params;
-    p.sort_queries = 0;
-    // The rows in dispatch order, in arrays this thread keeps from call to call: fresh ones cost
-    // a page fault per 4 KiB (8 k bytes per query) on every call, more than the copy itself.
-    // (A reference: the copy below runs on other threads, where the name would mean their own.)
-    thread_local KnnResult rows;
-    KnnResult& tmp = rows;
-    out.resize(n, params.k);  // before the search: a result that cannot be held fails first
-    QueryStats st = query(sorted.data(), n, p, tmp);
-    st.sort_s = sort_s;
-    const auto tu = std::chrono::steady_clock::now();
-    const std::size_t k = static_cast<std::size_t>(params.k);
-    detail::parallel_for(n, [&](std::size_t b, std::size_t e) {
-      for (std::size_t i = b; i < e; ++i) {
-        std::copy_n(&tmp.ids[i * k], k, &out.ids[order[i] * k]);
-        std::copy_n(&tmp.dist2[i * k], k, &out.dist2[order[i] * k]);
-        out.counts[order[i]] = tmp.counts[i];
-      }
-    });
-    if (params.count_examined) {
-      out.examined.resize(n);
-      for (std::size_t i = 0; i < n; ++i) out.examined[order[i]] = tmp.examined[i];
-    }
-    if (tmp.ids.capacity() * 8 > kSortScratchBytes) tmp = KnnResult{};  // kept only up to the bound
-    st.unsort_s = seconds_since(tu);
-    st.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    return st;
-  }
-  QueryStats st;
-  st.n_queries = n;
-  out.resize(n, params.k);
-  if (params.count_examined) out.examined.assign(n, 0);
-  if (n == 0) return st;
-  for (std::size_t i = 0; i < n; ++i) {
-    const float* q = queries + 3 * i;
-    if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2])) ++st.nonfinite_queries;
-  }
-  const SearchParams sp = scaled(params);
-  // Exact methods: rows the float search cannot vouch for, answered again in double at the end.
-  const float* caller_queries = queries;
-  const float r2s = detail::squared_radius(sp.max_radius);
-  std::vector<std::size_t> suspects;
-  // Queries in the structure's coordinates: the caller's, or a scaled copy (extreme scales).
-  std::vector<float> scaled_queries;
-  if (scale_exp_ != 0) {
-    scaled_queries.resize(3 * n);
-    ldexp_all(queries, scaled_queries.data(), 3 * n, -scale_exp_);
-    queries = scaled_queries.data();
-  }
-  auto unscale = [&](float* d2, std::size_t count) {
-    if (scale_exp_ != 0)
-      ldexp_all(d2, d2, count, 2 * scale_exp_);
-  };
-  st.query_s = host_search(queries, n, sp, out);
-  collect_suspect_rows(caller_queries, 0, n, r2s, out, suspects);
-  unscale(out.dist2.data(), out.dist2.size());
-  answer_rows_exactly(caller_queries, suspects, params, out);
-  st.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  return st;
+  if (answers_on_host()) return 0.0;
+  KnnResult unused;
+  KnnKind kind(*this, params, unused);
+  return warm_up_kind(kind, local_size_for(params));
 }
 
 KnnResult Index::query(const std::vector<float>& queries, const SearchParams& params,

@@ -1,5 +1,5 @@
-// Radius search for every method: parameter checks, the count and fill passes with bounded device
-// memory, and the slices' final order (sorted by (distance, index), duplicates dropped, the cap).
+// Radius search for every method: the radius kind of query (query_pipeline.hpp): the count and
+// fill passes, and the slices' final order (sorted by (distance, index), the cap).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -13,7 +13,7 @@
 #include "blockhash_cl/knn.hpp"
 #include "core/device_util.hpp"
 #include "core/parallel.hpp"
-#include "core/query_order.hpp"
+#include "core/query_pipeline.hpp"
 
 namespace bhcl {
 
@@ -103,283 +103,279 @@ void Index::check_radius_params(const RadiusParams& p) const {
     throw Error("radius_search: sort_queries must be -1 (auto), 0 or 1, got " + std::to_string(p.sort_queries));
 }
 
-QueryStats Index::radius_search(const float* queries, std::size_t n, float radius,
-                                const RadiusParams& params, RadiusResult& out) const {
-  // +inf is a radius (every point at a finite distance), as scipy's query_ball_point takes it.
-  if (std::isnan(radius) || radius < 0)
-    throw Error("radius_search: the radius must be >= 0 (+inf: every point), got " + num(radius));
-  return radius_impl(queries, n, radius, false, params, out);
-}
-
-QueryStats Index::radius_search_squared(const float* queries, std::size_t n, float r2,
-                                        const RadiusParams& params, RadiusResult& out) const {
-  if (std::isnan(r2) || r2 < 0)
-    throw Error("radius_search_squared: the squared radius must be >= 0 (+inf: every point), got " + num(r2));
-  return radius_impl(queries, n, r2, true, params, out);
-}
-
-QueryStats Index::radius_impl(const float* queries, std::size_t n, float r, bool squared,
-                              const RadiusParams& params, RadiusResult& out) const {
-  auto t0 = std::chrono::steady_clock::now();
-  ReadLock lock(*this);  // queries share the index; insert/remove wait (see Index::insert)
-  check_radius_params(params);
-  if (n > 0 && !queries) throw Error("radius_search: queries is null with n = " + std::to_string(n));
-  const bool sort = params.sort_queries > 0 || (params.sort_queries < 0 && n >= kAutoSortQueries);
-  // Sizes before allocation: what the n queries need whatever they find, before any search (the
-  // points found are checked by the count pass, radius_on_device, before they are fetched).
-  check_radius_memory(n, 0, params.count_examined, sort && n > 1 ? 2 : 1,
-                        answers_on_host() ? 0 : radius_device_bytes(n, params, runtime().info().max_alloc_bytes
-                                                                                  ? runtime().info().max_alloc_bytes
-                                                                                  : (std::size_t(1) << 30)),
-                        method());
-  if (sort && n > 1) {
-    // Dispatch in Hilbert order, return the slices in the caller's order.
-    std::vector<std::size_t> order = detail::hilbert_query_order(queries, n);
-    const std::vector<float> sorted = detail::queries_in_order(queries, order);
-    RadiusParams p = params;
-    p.sort_queries = 0;
-    RadiusResult tmp;
-    QueryStats st = radius_impl(sorted.data(), n, r, squared, p, tmp);
-    out.n = n;
-    out.offsets.assign(n + 1, 0);
-    out.found.assign(n, 0);
-    out.examined.assign(params.count_examined ? n : 0, 0);
-    out.truncated_queries = tmp.truncated_queries;
-    for (std::size_t i = 0; i < n; ++i) {
-      out.offsets[order[i] + 1] = static_cast<std::int64_t>(tmp.count(i));
-      out.found[order[i]] = tmp.found[i];
-      if (params.count_examined) out.examined[order[i]] = tmp.examined[i];
-    }
-    for (std::size_t i = 0; i < n; ++i) out.offsets[i + 1] += out.offsets[i];
-    out.ids.resize(tmp.ids.size());
-    out.dist2.resize(tmp.dist2.size());
-    for (std::size_t i = 0; i < n; ++i) {
-      const std::size_t c = tmp.count(i), from = static_cast<std::size_t>(tmp.offsets[i]);
-      const std::size_t to = static_cast<std::size_t>(out.offsets[order[i]]);
-      std::copy_n(tmp.ids.data() + from, c, out.ids.data() + to);
-      std::copy_n(tmp.dist2.data() + from, c, out.dist2.data() + to);
-    }
-    st.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    return st;
-  }
-  QueryStats st;
-  st.n_queries = n;
-  out.n = n;
-  out.offsets.assign(n + 1, 0);
-  out.ids.clear();
-  out.dist2.clear();
-  out.found.assign(n, 0);
-  out.truncated_queries = 0;
-  out.examined.assign(params.count_examined ? n : 0, 0);
-  if (n == 0) return st;
-  for (std::size_t i = 0; i < n; ++i) {
-    const float* q = queries + 3 * i;
-    if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2])) ++st.nonfinite_queries;
-  }
-  // The squared radius in the structure's coordinates (an exact power-of-two scaling). A finite
-  // Euclidean r whose square overflows becomes +inf: every point with a finite distance is within.
-  const int e = scale_exponent();
-  float r2;
-  if (squared) {
-    r2 = std::ldexp(r, -2 * e);
-  } else {
+// The radius kind of query (query_pipeline.hpp): variable slices, a count pass and a fill pass.
+class Index::RadiusKind final : public Index::QueryKind {
+ public:
+  // r Euclidean (squared = false) or squared; r2_ the squared radius in the structure's
+  // coordinates (an exact power-of-two scaling: a finite r whose square overflows becomes +inf,
+  // every point at a finite distance), r2d_ the caller's in double.
+  RadiusKind(const Index& ix, const RadiusParams& p, float r, bool squared, RadiusResult& out)
+      : QueryKind(ix), p_(p), out_(out), r2d_(squared ? double(r) : double(r) * double(r)) {
+    // +inf is a radius (every point at a finite distance), as scipy's query_ball_point takes it.
+    if (std::isnan(r) || r < 0)
+      throw Error(squared ? "radius_search_squared: the squared radius must be >= 0 (+inf: every point), got " + num(r)
+                          : "radius_search: the radius must be >= 0 (+inf: every point), got " + num(r));
+    const int e = scale_exponent();
     const float rs = std::ldexp(r, -e);
-    r2 = rs * rs;
+    r2_ = squared ? std::ldexp(r, -2 * e) : rs * rs;
   }
-  std::vector<float> storage;
-  const float* q = to_structure(queries, n, storage);
-  if (answers_on_host()) {
-    st.query_s = host_radius_search(q, n, r2, params, out);
-  } else {
-    radius_on_device(q, n, r2, params, out, st);
+  const char* name() const override { return "radius_search"; }
+  const DispatchParams& dispatch() const override { return p_; }
+  std::size_t row_k() const override { return 0; }
+  int kernel_variant() const override { return 0; }
+  void check(std::size_t n, int copies) const override;
+  void begin(std::size_t n) override;
+  std::size_t chunk_rows(std::size_t n) const override { return std::min<std::size_t>(n, std::size_t(1) << 20); }
+  void warm_launch(const QueryBuffers& b, std::size_t local) const override {
+    for (int pass = 0; pass < 2; ++pass) {
+      cl::Event w = ix_.enqueue_radius_batch(ix_.runtime_->warm_queue(), b.q, 0, 0, r2_, pass, buffers(b), p_,
+                                             local, nullptr);
+      check_cl(w.wait(), "clWaitForEvents", ix_.method() + " radius warm-up");
+    }
   }
-  finish_slices(out, params.max_results, params.sorted);
-  if (exact()) {
-    // Slices the float search cannot vouch for answered again in double (see the contract).
-    const double r2d = squared ? double(r) : double(r) * double(r);
-    radius_exact_fallback(queries, n, r2d, r2, params, out);
-  } else {
-    distances_to_caller(out.dist2.data(), out.dist2.size());
+  void search_chunk(QueryBuffers& b, std::size_t first, std::size_t m, const std::size_t* order, std::size_t per,
+                    std::size_t local, const float* caller_queries, QueryStats& st,
+                    std::vector<std::size_t>& suspects) override;
+  void search_host(const float* queries, std::size_t n, const std::size_t*, const float*, QueryStats& st,
+                   std::vector<std::size_t>&) override {
+    st.query_s = ix_.host_radius_search(queries, n, r2_, p_, out_);
   }
-  st.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  return st;
+  void finish(const std::size_t* order, const float* caller_queries, QueryStats& st,
+              std::vector<std::size_t>& suspects) override;
+  void answer_exactly(const float* caller_queries, const std::vector<std::size_t>& rows) override;
+
+ private:
+  RadiusBuffers buffers(const QueryBuffers& b) const {
+    RadiusBuffers rb;
+    rb.counts = b.counts;
+    rb.examined = p_.count_examined ? b.examined_buf : b.counts;
+    rb.offsets = b.offsets;
+    rb.ids = b.ids;
+    rb.dist2 = b.dist2;
+    return rb;
+  }
+  std::size_t max_alloc() const {
+    const std::size_t a = ix_.runtime_->info().max_alloc_bytes;
+    return a ? a : (std::size_t(1) << 30);
+  }
+  void count_pass(QueryBuffers& b, std::size_t first, std::size_t m, std::size_t per, std::size_t local,
+                  QueryStats& st);
+  void fill_pass(QueryBuffers& b, std::size_t first, std::size_t m, std::size_t per, std::size_t local,
+                 QueryStats& st);
+  std::size_t fill_group_end(std::size_t a, std::size_t m, std::size_t per, std::size_t cap) const;
+  void reorder_to_caller(const std::size_t* order);
+
+  const RadiusParams& p_;
+  RadiusResult& out_;
+  const double r2d_;
+  float r2_ = 0;
+  std::size_t n_ = 0;
+  std::vector<std::int32_t> counts_;  // the chunk's counts (count pass)
+  std::vector<cl_ulong> offs_;        // a fill group's offsets
+};
+
+void Index::RadiusKind::check(std::size_t n, int copies) const {
+  ix_.check_radius_params(p_);
+  // What the n queries need whatever they find (the points found are checked by the count pass
+  // before they are fetched).
+  const std::size_t device = ix_.answers_on_host() ? 0 : radius_device_bytes(n, p_, max_alloc());
+  check_radius_memory(n, 0, p_.count_examined, copies, device, ix_.method());
 }
 
-void Index::radius_exact_fallback(const float* caller_queries, std::size_t n, double r2, float r2s,
-                                  const RadiusParams& params, RadiusResult& out) const {
-  std::vector<std::size_t> rows;
-  const bool tiny_radius = r2s > 0 && r2s < std::ldexp(1.0f, -120);
-  for (std::size_t i = 0; i < n && !caller_points_.empty(); ++i) {
-    const float* q = caller_queries + 3 * i;
-    if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2])) continue;
-    bool bad = tiny_radius;
-    for (std::int64_t j = out.offsets[i]; j < out.offsets[i + 1] && !bad; ++j)
-      bad = entry_suspect(q, out.ids[static_cast<std::size_t>(j)], out.dist2[static_cast<std::size_t>(j)]);
-    if (bad) rows.push_back(i);
+void Index::RadiusKind::begin(std::size_t n) {
+  n_ = n;
+  out_.n = n;
+  out_.offsets.assign(n + 1, 0);
+  out_.ids.clear();
+  out_.dist2.clear();
+  out_.found.assign(n, 0);
+  out_.truncated_queries = 0;
+  out_.examined.assign(p_.count_examined ? n : 0, 0);
+}
+
+void Index::RadiusKind::search_chunk(QueryBuffers& b, std::size_t first, std::size_t m, const std::size_t*,
+                                     std::size_t per, std::size_t local, const float*, QueryStats& st,
+                                     std::vector<std::size_t>&) {
+  count_pass(b, first, m, per, local, st);
+  fill_pass(b, first, m, per, local, st);
+}
+
+void Index::RadiusKind::count_pass(QueryBuffers& b, std::size_t first, std::size_t m, std::size_t per,
+                                   std::size_t local, QueryStats& st) {
+  const cl::CommandQueue& queue = ix_.runtime_->queue();
+  const RadiusBuffers rb = buffers(b);
+  counts_.resize(m);
+  std::vector<cl::Event> kernels;
+  for (std::size_t f = 0; f < m; f += per)
+    kernels.push_back(ix_.enqueue_radius_batch(queue, b.q, f, std::min(per, m - f), r2_, 0, rb, p_, local, nullptr));
+  cl::Event rc;
+  check_cl(queue.enqueueReadBuffer(rb.counts, CL_FALSE, 0, m * sizeof(std::int32_t), counts_.data(), nullptr, &rc),
+           "clEnqueueReadBuffer", "radius counts");
+  if (p_.count_examined)
+    check_cl(queue.enqueueReadBuffer(rb.examined, CL_FALSE, 0, m * sizeof(std::int32_t), out_.examined.data() + first),
+             "clEnqueueReadBuffer", "radius examined");
+  check_cl(queue.finish(), "clFinish", ix_.method() + " radius count pass");
+  st.download_s += event_seconds(rc);
+  for (const auto& k : kernels) st.query_s += event_seconds(k);
+  st.batches += kernels.size();
+  // The chunk's slices follow the ones already written.
+  const std::size_t base = out_.ids.size();
+  std::size_t total = 0;
+  for (std::size_t i = 0; i < m; ++i) {
+    out_.offsets[first + i] = static_cast<std::int64_t>(base + total);
+    total += static_cast<std::size_t>(counts_[i]);
   }
-  distances_to_caller(out.dist2.data(), out.dist2.size());
-  if (rows.empty()) return;
-  // The suspect slices in double over the caller's points, then the layout rebuilt.
-  // Every id issued: a removed one holds NaN, which `d <= r2` rejects.
-  const std::size_t N = caller_points_.size() / 3;
-  const float* pts = caller_points_.data();
-  std::vector<std::vector<std::pair<double, std::int32_t>>> redo(rows.size());
-  detail::parallel_for(rows.size(), [&](std::size_t b, std::size_t e) {
-    for (std::size_t t = b; t < e; ++t) {
-      const float* q = caller_queries + 3 * rows[t];
-      auto& v = redo[t];
-      for (std::size_t i = 0; i < N; ++i) {
-        const double dx = double(q[0]) - pts[3 * i], dy = double(q[1]) - pts[3 * i + 1],
-                     dz = double(q[2]) - pts[3 * i + 2];
-        const double d = dx * dx + dy * dy + dz * dz;
-        if (d <= r2) v.emplace_back(d, static_cast<std::int32_t>(i));
-      }
-      std::sort(v.begin(), v.end());  // sorted whatever params.sorted says: any order is allowed
+  // Counted, not yet fetched: refused here when the points found cannot be held.
+  check_radius_memory(n_, base + total, p_.count_examined, 1, 0, ix_.method());
+  out_.offsets[first + m] = static_cast<std::int64_t>(base + total);
+  out_.ids.resize(base + total);
+  out_.dist2.resize(base + total);
+}
+
+std::size_t Index::RadiusKind::fill_group_end(std::size_t a, std::size_t m, std::size_t per, std::size_t cap) const {
+  std::size_t b = a, sum = 0;
+  while (b < m && b - a < per && (b == a || sum + static_cast<std::size_t>(counts_[b]) <= cap)) {
+    sum += static_cast<std::size_t>(counts_[b]);
+    ++b;
+  }
+  return b;
+}
+
+void Index::RadiusKind::fill_pass(QueryBuffers& b, std::size_t first, std::size_t m, std::size_t per,
+                                  std::size_t local, QueryStats& st) {
+  const cl::CommandQueue& queue = ix_.runtime_->queue();
+  const std::size_t most = max_alloc();
+  std::size_t cap = p_.max_batch_results ? p_.max_batch_results : (std::size_t(1) << 24);
+  cap = std::max<std::size_t>(1, std::min(cap, most / 4));
+  // In groups of queries whose results fit the fill buffers.
+  for (std::size_t a = 0, e; a < m; a = e) {
+    e = fill_group_end(a, m, per, cap);
+    offs_.assign(e - a, 0);
+    cl_ulong sum = 0;
+    for (std::size_t i = a; i < e; ++i) {
+      offs_[i - a] = sum;
+      sum += static_cast<cl_ulong>(counts_[i]);
     }
+    if (sum == 0) continue;
+    if (sum * sizeof(float) > most)
+      throw Error("radius_search: query " + std::to_string(first + a) + " has " + std::to_string(sum) +
+                  " points within the radius, more than one device buffer holds (" + std::to_string(most) +
+                  " bytes): use a smaller radius");
+    if (sum > b.fill) {  // grown, and kept with the call's other buffers for the next call
+      b.fill = std::max<std::size_t>(sum, std::min(cap, most / 4));
+      b.ids = detail::io_buffer(*ix_.runtime_, b.host, b.fill * sizeof(std::int32_t), "radius search ids");
+      b.dist2 = detail::io_buffer(*ix_.runtime_, b.host, b.fill * sizeof(float), "radius search dist2");
+    }
+    const RadiusBuffers rb = buffers(b);
+    cl::Event uo, d1, d2;
+    check_cl(queue.enqueueWriteBuffer(rb.offsets, CL_FALSE, 0, offs_.size() * sizeof(cl_ulong), offs_.data(), nullptr, &uo),
+             "clEnqueueWriteBuffer", "radius offsets");
+    cl::Event kf = ix_.enqueue_radius_batch(queue, b.q, a, e - a, r2_, 1, rb, p_, local, nullptr);
+    const std::size_t at = static_cast<std::size_t>(out_.offsets[first + a]);
+    check_cl(queue.enqueueReadBuffer(rb.ids, CL_FALSE, 0, sum * sizeof(std::int32_t), out_.ids.data() + at, nullptr, &d1),
+             "clEnqueueReadBuffer", "radius ids");
+    check_cl(queue.enqueueReadBuffer(rb.dist2, CL_FALSE, 0, sum * sizeof(float), out_.dist2.data() + at, nullptr, &d2),
+             "clEnqueueReadBuffer", "radius dist2");
+    check_cl(queue.finish(), "clFinish", ix_.method() + " radius fill pass");
+    st.upload_s += event_seconds(uo);
+    st.query_s += event_seconds(kf);
+    st.download_s += event_seconds(d1) + event_seconds(d2);
+    ++st.batches;
+  }
+}
+
+void Index::RadiusKind::finish(const std::size_t* order, const float* caller_queries, QueryStats& st,
+                               std::vector<std::size_t>& suspects) {
+  finish_slices(out_, p_.max_results, p_.sorted);
+  // Slices the float search cannot vouch for (see the contract), noted by the caller's row.
+  const bool tiny_radius = r2_ > 0 && r2_ < detail::trusted_min_distance();
+  for (std::size_t i = 0; i < n_ && checks_rows(); ++i) {
+    const std::size_t row = order ? order[i] : i;
+    const float* q = caller_queries + 3 * row;
+    if (!detail::finite_query(q)) continue;
+    bool bad = tiny_radius;
+    for (std::int64_t j = out_.offsets[i]; j < out_.offsets[i + 1] && !bad; ++j)
+      bad = entry_suspect(q, out_.ids[static_cast<std::size_t>(j)], out_.dist2[static_cast<std::size_t>(j)]);
+    if (bad) suspects.push_back(row);
+  }
+  ix_.distances_to_caller(out_.dist2.data(), out_.dist2.size());
+  if (!order) return;
+  const auto tu = std::chrono::steady_clock::now();
+  reorder_to_caller(order);
+  st.unsort_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - tu).count();
+}
+
+void Index::RadiusKind::reorder_to_caller(const std::size_t* order) {
+  // Slice i of the dispatch order is the caller's row order[i].
+  const RadiusResult tmp = std::move(out_);
+  const std::size_t n = n_;
+  out_ = RadiusResult{};
+  out_.n = n;
+  out_.offsets.assign(n + 1, 0);
+  out_.found.assign(n, 0);
+  out_.examined.assign(tmp.examined.empty() ? 0 : n, 0);
+  out_.truncated_queries = tmp.truncated_queries;
+  for (std::size_t i = 0; i < n; ++i) {
+    out_.offsets[order[i] + 1] = static_cast<std::int64_t>(tmp.count(i));
+    out_.found[order[i]] = tmp.found[i];
+    if (!tmp.examined.empty()) out_.examined[order[i]] = tmp.examined[i];
+  }
+  for (std::size_t i = 0; i < n; ++i) out_.offsets[i + 1] += out_.offsets[i];
+  out_.ids.resize(tmp.ids.size());
+  out_.dist2.resize(tmp.dist2.size());
+  detail::parallel_for(n, [&](std::size_t lo, std::size_t hi) {
+    for (std::size_t i = lo; i < hi; ++i) {
+      const std::size_t c = tmp.count(i), from = static_cast<std::size_t>(tmp.offsets[i]);
+      const std::size_t to = static_cast<std::size_t>(out_.offsets[order[i]]);
+      std::copy_n(tmp.ids.data() + from, c, out_.ids.data() + to);
+      std::copy_n(tmp.dist2.data() + from, c, out_.dist2.data() + to);
+    }
+  }, 0, 8192);
+}
+
+void Index::RadiusKind::answer_exactly(const float* caller_queries, const std::vector<std::size_t>& rows) {
+  // The suspect slices in double over the caller's points, then the layout rebuilt.
+  std::vector<std::vector<Candidate>> redo(rows.size());
+  detail::parallel_for(rows.size(), [&](std::size_t b, std::size_t e) {
+    // Sorted whatever params.sorted says: any order is allowed.
+    for (std::size_t t = b; t < e; ++t) exact_candidates(caller_queries + 3 * rows[t], r2d_, 0, redo[t]);
   }, 0, 1);
   RadiusResult r;
-  r.n = n;
-  r.offsets.assign(n + 1, 0);
-  r.found = out.found;
-  r.examined = out.examined;
+  r.n = n_;
+  r.offsets.assign(n_ + 1, 0);
+  r.found = out_.found;
+  r.examined = out_.examined;
   r.truncated_queries = 0;
-  const float fmax = std::numeric_limits<float>::max();
   std::size_t t = 0;
-  for (std::size_t i = 0; i < n; ++i) {
+  for (std::size_t i = 0; i < n_; ++i) {
     if (t < rows.size() && rows[t] == i) {
       const auto& v = redo[t++];
-      const std::size_t m = params.max_results ? std::min(params.max_results, v.size()) : v.size();
+      const std::size_t m = p_.max_results ? std::min(p_.max_results, v.size()) : v.size();
       for (std::size_t j = 0; j < m; ++j) {
         r.ids.push_back(v[j].second);
-        r.dist2.push_back(v[j].first > double(fmax) ? INFINITY : static_cast<float>(v[j].first));
+        r.dist2.push_back(detail::to_float_or_inf(v[j].first));
       }
       r.found[i] = static_cast<std::int64_t>(v.size());
     } else {
-      r.ids.insert(r.ids.end(), out.ids.begin() + out.offsets[i], out.ids.begin() + out.offsets[i + 1]);
-      r.dist2.insert(r.dist2.end(), out.dist2.begin() + out.offsets[i], out.dist2.begin() + out.offsets[i + 1]);
+      r.ids.insert(r.ids.end(), out_.ids.begin() + out_.offsets[i], out_.ids.begin() + out_.offsets[i + 1]);
+      r.dist2.insert(r.dist2.end(), out_.dist2.begin() + out_.offsets[i], out_.dist2.begin() + out_.offsets[i + 1]);
     }
     r.offsets[i + 1] = static_cast<std::int64_t>(r.ids.size());
     if (static_cast<std::int64_t>(r.count(i)) < r.found[i]) ++r.truncated_queries;
   }
-  out = std::move(r);
+  out_ = std::move(r);
 }
 
-double Index::warm_up_radius(const cl::Buffer& queries, const RadiusBuffers& rb, float r2,
-                             const RadiusParams& params, std::size_t local) const {
-  // The first launch compiles the program; a zero-size launch of each pass keeps that out of the
-  // timed dispatches, once per (local size, defines), in warm_up's cache (kmax 0: the radius
-  // kernels, which have no k variants).
-  const auto key = std::make_tuple(0, local, params.kernel_defines);
-  std::lock_guard<std::mutex> lock(warm_mutex_);
-  if (warmed_.count(key)) return 0.0;
-  auto t0 = std::chrono::steady_clock::now();
-  for (int pass = 0; pass < 2; ++pass) {
-    cl::Event w = enqueue_radius_batch(runtime().warm_queue(), queries, 0, 0, r2, pass, rb, params, local, nullptr);
-    check_cl(w.wait(), "clWaitForEvents", method() + " radius warm-up");
-  }
-  runtime().keep_program_binaries();  // the launches compiled this local size: kept for later processes
-  warmed_.insert(key);
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+QueryStats Index::radius_search(const float* queries, std::size_t n, float radius,
+                                const RadiusParams& params, RadiusResult& out) const {
+  RadiusKind kind(*this, params, radius, false, out);
+  return run_query(queries, n, kind);
 }
 
-void Index::radius_on_device(const float* queries, std::size_t n, float r2,
-                             const RadiusParams& params, RadiusResult& out, QueryStats& st) const {
-  const Runtime& rt = runtime();
-  const cl::CommandQueue& queue = rt.queue();
-  const std::size_t local = params.local_size ? params.local_size : rt.quirks().default_local_size;
-  std::size_t per = params.max_batch ? std::min(params.max_batch, max_dispatch_queries()) : max_dispatch_queries();
-  per = std::max<std::size_t>(per, 1);
-  const std::size_t chunk = std::min<std::size_t>(n, std::size_t(1) << 20);
-  const std::size_t max_alloc = rt.info().max_alloc_bytes ? rt.info().max_alloc_bytes : (std::size_t(1) << 30);
-  std::size_t cap_results = params.max_batch_results ? params.max_batch_results : (std::size_t(1) << 24);
-  cap_results = std::max<std::size_t>(1, std::min(cap_results, max_alloc / 4));
-  auto make = [&](std::size_t bytes, const char* what) {
-    return detail::device_buffer(rt, bytes, std::string("radius search ") + what);
-  };
-  cl::Buffer qbuf = make(chunk * 3 * sizeof(float), "queries");
-  RadiusBuffers rb;
-  rb.counts = make(chunk * sizeof(std::int32_t), "counts");
-  rb.examined = params.count_examined ? make(chunk * sizeof(std::int32_t), "examined") : rb.counts;
-  rb.offsets = make(std::min(chunk, per) * sizeof(cl_ulong), "offsets");
-  std::size_t fill_capacity = 0;  // results the fill buffers hold
-  rb.ids = rb.dist2 = make(4, "fill");
-
-  st.compile_s += warm_up_radius(qbuf, rb, r2, params, local);
-  std::vector<std::int32_t> counts(chunk);
-  std::vector<cl_ulong> offs;
-  for (std::size_t first = 0; first < n; first += chunk) {
-    const std::size_t m = std::min(chunk, n - first);
-    // Pass 0: the counts.
-    cl::Event up, rc;
-    check_cl(queue.enqueueWriteBuffer(qbuf, CL_FALSE, 0, m * 3 * sizeof(float), queries + 3 * first, nullptr, &up),
-             "clEnqueueWriteBuffer", "radius queries");
-    std::vector<cl::Event> kernels;
-    for (std::size_t f = 0; f < m; f += per)
-      kernels.push_back(enqueue_radius_batch(queue, qbuf, f, std::min(per, m - f), r2, 0, rb, params, local, nullptr));
-    check_cl(queue.enqueueReadBuffer(rb.counts, CL_FALSE, 0, m * sizeof(std::int32_t), counts.data(), nullptr, &rc),
-             "clEnqueueReadBuffer", "radius counts");
-    if (params.count_examined)
-      check_cl(queue.enqueueReadBuffer(rb.examined, CL_FALSE, 0, m * sizeof(std::int32_t), out.examined.data() + first),
-               "clEnqueueReadBuffer", "radius examined");
-    check_cl(queue.finish(), "clFinish", method() + " radius count pass");
-    st.upload_s += event_seconds(up);
-    st.download_s += event_seconds(rc);
-    for (const auto& k : kernels) st.query_s += event_seconds(k);
-    st.batches += kernels.size();
-    // The chunk's slices follow the ones already written.
-    const std::size_t base = out.ids.size();
-    std::size_t total = 0;
-    for (std::size_t i = 0; i < m; ++i) {
-      out.offsets[first + i] = static_cast<std::int64_t>(base + total);
-      total += static_cast<std::size_t>(counts[i]);
-    }
-    // Counted, not yet fetched: refused here when the points found cannot be held.
-    check_radius_memory(n, base + total, params.count_examined, 1, 0, method());
-    out.offsets[first + m] = static_cast<std::int64_t>(base + total);
-    out.ids.resize(base + total);
-    out.dist2.resize(base + total);
-    // Pass 1 in groups of queries whose results fit the fill buffers.
-    for (std::size_t a = 0; a < m;) {
-      std::size_t b = a, sum = 0;
-      while (b < m && b - a < per &&
-             (b == a || sum + static_cast<std::size_t>(counts[b]) <= cap_results)) {
-        sum += static_cast<std::size_t>(counts[b]);
-        ++b;
-      }
-      if (sum > 0) {
-        if (sum * sizeof(float) > max_alloc)
-          throw Error("radius_search: query " + std::to_string(first + a) + " has " + std::to_string(sum) +
-                      " points within the radius, more than one device buffer holds (" +
-                      std::to_string(max_alloc) + " bytes): use a smaller radius");
-        if (sum > fill_capacity) {
-          fill_capacity = std::max(sum, std::min(cap_results, max_alloc / 4));
-          rb.ids = make(fill_capacity * sizeof(std::int32_t), "ids");
-          rb.dist2 = make(fill_capacity * sizeof(float), "dist2");
-        }
-        offs.assign(b - a, 0);
-        cl_ulong o = 0;
-        for (std::size_t i = a; i < b; ++i) {
-          offs[i - a] = o;
-          o += static_cast<cl_ulong>(counts[i]);
-        }
-        cl::Event uo, d1, d2;
-        check_cl(queue.enqueueWriteBuffer(rb.offsets, CL_FALSE, 0, offs.size() * sizeof(cl_ulong), offs.data(), nullptr, &uo),
-                 "clEnqueueWriteBuffer", "radius offsets");
-        cl::Event kf = enqueue_radius_batch(queue, qbuf, a, b - a, r2, 1, rb, params, local, nullptr);
-        const std::size_t at = static_cast<std::size_t>(out.offsets[first + a]);
-        check_cl(queue.enqueueReadBuffer(rb.ids, CL_FALSE, 0, sum * sizeof(std::int32_t), out.ids.data() + at, nullptr, &d1),
-                 "clEnqueueReadBuffer", "radius ids");
-        check_cl(queue.enqueueReadBuffer(rb.dist2, CL_FALSE, 0, sum * sizeof(float), out.dist2.data() + at, nullptr, &d2),
-                 "clEnqueueReadBuffer", "radius dist2");
-        check_cl(queue.finish(), "clFinish", method() + " radius fill pass");
-        st.upload_s += event_seconds(uo);
-        st.query_s += event_seconds(kf);
-        st.download_s += event_seconds(d1) + event_seconds(d2);
-        ++st.batches;
-      }
-      a = b;
-    }
-  }
+QueryStats Index::radius_search_squared(const float* queries, std::size_t n, float r2,
+                                        const RadiusParams& params, RadiusResult& out) const {
+  RadiusKind kind(*this, params, r2, true, out);
+  return run_query(queries, n, kind);
 }
 
 }  // namespace bhcl
