@@ -20,6 +20,15 @@
 //  - global ids are int64: with an id base past 2^32 the answers are the base-0 ones plus the
 //    base, the int32 calls refuse such an index, and too many points per rank are refused from
 //    the counts alone;
+//  - insert and remove (issue 39): after each of a sequence of updates (new points inside and
+//    outside the build's box and on existing positions, spread unevenly over the ranks; a 10 %
+//    remove of old and new ids; a crop that empties a shard; points inserted where it was), every
+//    method's kNN and radius answers are those of one process's index of the same method after
+//    the same updates (ids equal, distances bit-equal), the new ids are id_bound(), ... in rank
+//    order, and the boxes bound every live point and no removed region; the errors of
+//    Index::insert / remove (a NaN point, no points, a null array, an id outside, removed,
+//    repeated across ranks, removing all) throw the same message on every rank and leave the
+//    index as it was; with an id base past 2^32 the updated answers are base 0's plus the base;
 //  - with --hang-rank R (its own CTest case): a rank that stops answering ends the job within
 //    the deadline with a message naming it, never a hang.
 #include <mpi.h>
@@ -662,6 +671,291 @@ void ids_past_int32() {
   }
 }
 
+// --- insert and remove (issue 39)
+
+// Every rank's `mine`, concatenated in rank order, on every rank.
+template <typename T>
+std::vector<T> gathered(const std::vector<T>& mine) {
+  const int n = static_cast<int>(mine.size() * sizeof(T));
+  std::vector<int> counts(static_cast<std::size_t>(g_ranks)), displ(static_cast<std::size_t>(g_ranks));
+  MPI_Allgather(&n, 1, MPI_INT, counts.data(), 1, MPI_INT, MPI_COMM_WORLD);
+  int total = 0;
+  for (int r = 0; r < g_ranks; ++r) displ[static_cast<std::size_t>(r)] = total, total += counts[static_cast<std::size_t>(r)];
+  std::vector<T> all(static_cast<std::size_t>(total) / sizeof(T));
+  MPI_Allgatherv(mine.data(), n, MPI_BYTE, all.data(), counts.data(), displ.data(), MPI_BYTE, MPI_COMM_WORLD);
+  return all;
+}
+
+// kNN (k 1 and 10, and 10 within a radius) and radius search of this rank's share of `qs`
+// through `dist`, against `single` over all of them: bit for bit. Empty when equal, else what differs.
+std::string differs_from_one_process(const bhcl::DistributedIndex& dist, const bhcl::Index& single,
+                                     const std::vector<float>& qs, float radius) {
+  const std::size_t n = qs.size() / 3;
+  auto [qf, ql] = slice(n, g_rank, g_ranks, 1);
+  std::string why;
+  for (int k : {1, 10})
+    for (bool cut : {false, true}) {
+      if (cut && k == 1) continue;
+      bhcl::SearchParams p;
+      p.k = k;
+      if (cut) p.max_radius = radius * 0.5f;
+      bhcl::KnnResult ref, got;
+      single.query(qs.data(), n, p, ref);
+      dist.query(qs.data() + 3 * qf, ql, p, got);
+      if (!identical_rows(got, ref, qf, why)) return "k=" + std::to_string(k) + (cut ? " within a radius: " : ": ") + why;
+    }
+  bhcl::RadiusResult ref, got;
+  single.radius_search(qs.data(), n, radius, {}, ref);
+  dist.radius_search(qs.data() + 3 * qf, ql, radius, {}, got);
+  if (!identical_slices(got, ref, qf, why)) return "radius: " + why;
+  return {};
+}
+
+// Every live point of every shard lies in one of its rank's boxes, and every box holds a live
+// point of its shard (a remove shrank it): checked on each rank for its own shard, with its points
+// fetched from `all` (every point issued, by id).
+std::string boxes_wrong(const bhcl::DistributedIndex& dist, const std::vector<float>& all) {
+  const std::vector<std::int64_t> live = dist.shard_live_ids();
+  const auto& boxes = dist.boxes(dist.rank());
+  std::vector<bool> used(boxes.size(), false);
+  for (std::int64_t id : live) {
+    const float* p = &all[3 * static_cast<std::size_t>(id)];
+    bool in = false;
+    for (std::size_t j = 0; j < boxes.size(); ++j) {
+      const bhcl::ShardBox& b = boxes[j];
+      const bool inside = p[0] >= b.lo[0] && p[0] <= b.hi[0] && p[1] >= b.lo[1] && p[1] <= b.hi[1] &&
+                          p[2] >= b.lo[2] && p[2] <= b.hi[2];
+      in = in || inside;
+      if (inside) used[j] = true;
+    }
+    if (!in) return "live point " + std::to_string(id) + " lies in none of its rank's boxes";
+  }
+  for (std::size_t j = 0; j < boxes.size(); ++j)
+    if (!used[j]) return "box " + std::to_string(j) + " holds no live point of its shard";
+  return {};
+}
+
+// Points around `near` (copies moved by up to `spread`), some outside the build's box.
+std::vector<float> new_points(const std::vector<float>& near, std::size_t count, float spread, std::uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::uniform_int_distribution<std::size_t> pick(0, near.size() / 3 - 1);
+  std::uniform_real_distribution<float> move(-spread, spread), box(-0.3f, 1.3f);
+  std::vector<float> out;
+  for (std::size_t i = 0; i < count; ++i) {
+    const std::size_t j = pick(rng);
+    for (int d = 0; d < 3; ++d) {
+      // A fifth exact copies (distance ties with older ids), a fifth anywhere in a grown box.
+      const float v = i % 5 == 0 ? near[3 * j + d] : i % 5 == 1 ? box(rng) : near[3 * j + d] + move(rng);
+      out.push_back(v);
+    }
+  }
+  return out;
+}
+
+// One update sequence on `dist` and `single`, checked after each step against one process.
+void update_sequence(const Set& s, const std::string& method) {
+  const std::size_t N = s.points.size() / 3;
+  auto [pf, pl] = slice(N, g_rank, g_ranks, 0);
+  bhcl::DistributedBuildParams bp;
+  bp.method = method;
+  bp.boxes_per_rank = 8;
+  bhcl::DistributedIndex dist(MPI_COMM_WORLD, runtime(), s.points.data() + 3 * pf, pl, bp);
+  std::unique_ptr<bhcl::Index> single = bhcl::make_index(method, runtime(), s.points.data(), N);
+  std::vector<float> all = s.points;  // every point issued, by id
+  const float radius = s.name == "clustered" ? 0.0008f : 0.05f;
+  const std::string tag = method + " " + s.name;
+  auto check = [&](const char* step, const std::vector<float>& extra_queries) {
+    std::vector<float> qs = s.queries;
+    qs.insert(qs.end(), extra_queries.begin(), extra_queries.end());
+    const std::string why = differs_from_one_process(dist, *single, qs, radius);
+    EXPECT(why.empty(), "%s after %s: %s", tag.c_str(), step, why.c_str());
+    EXPECT(dist.size() == single->size() && dist.id_bound() == single->id_bound(),
+           "%s after %s: size %zu vs %zu, id_bound %lld vs %d", tag.c_str(), step, dist.size(), single->size(),
+           (long long)dist.id_bound(), single->id_bound());
+    const std::string boxes = boxes_wrong(dist, all);
+    EXPECT(boxes.empty(), "%s after %s: %s", tag.c_str(), step, boxes.c_str());
+  };
+  auto insert_both = [&](const std::vector<float>& batch, int skew, const char* step) {
+    const std::size_t m = batch.size() / 3;
+    auto [f, l] = slice(m, g_rank, g_ranks, skew);
+    const std::int64_t bound = dist.id_bound();
+    bhcl::DistributedUpdateStats us;
+    const std::int64_t first = dist.insert(batch.data() + 3 * f, l, &us);
+    const std::int32_t first1 = single->insert(batch.data(), m);
+    all.insert(all.end(), batch.begin(), batch.end());
+    EXPECT(first == bound + std::int64_t(f) && first1 == bound && us.n_global == m && us.n_input == l,
+           "%s %s: first id %lld (rank's offset %zu), one process %d, id_bound before %lld", tag.c_str(), step,
+           (long long)first, f, first1, (long long)bound);
+    check(step, batch);
+  };
+  auto remove_both = [&](const std::vector<std::int64_t>& ids, int skew, const char* step) {
+    auto [f, l] = slice(ids.size(), g_rank, g_ranks, skew);
+    dist.remove(ids.data() + f, l);
+    std::vector<std::int32_t> ids32(ids.begin(), ids.end());
+    single->remove(ids32.data(), ids32.size());
+    check(step, {});
+  };
+
+  // 1. 10 % new points, uneven over the ranks (rank 1 none at 3 ranks or more).
+  insert_both(new_points(s.points, N / 10, 0.02f, 7), 2, "a 10 % insert");
+  // 2. 10 % of the issued ids removed, old and new alike, in a shuffled order.
+  {
+    std::vector<std::int64_t> ids(static_cast<std::size_t>(dist.id_bound()));
+    for (std::size_t i = 0; i < ids.size(); ++i) ids[i] = std::int64_t(i);
+    std::shuffle(ids.begin(), ids.end(), std::mt19937_64(11));
+    ids.resize(ids.size() / 10);
+    remove_both(ids, 1, "a 10 % remove");
+  }
+  // 3. The crop: every live point of the last non-empty shard removed (that rank leaves the
+  //    routing), by the rank holding them; then points inserted where they were (they go to other
+  //    ranks). At one rank: the points in the lower x half.
+  std::vector<float> where;
+  {
+    std::vector<std::int64_t> mine;
+    const auto& sizes = dist.build_stats().shard_points_all;
+    int last = -1;
+    for (int r = 0; r < g_ranks; ++r)
+      if (sizes[static_cast<std::size_t>(r)] > 0) last = r;
+    if (g_ranks > 1 && g_rank == last) mine = dist.shard_live_ids();
+    std::vector<std::int64_t> ids = gathered(mine);
+    if (g_ranks == 1)
+      for (std::int64_t id : dist.shard_live_ids())
+        if (all[3 * std::size_t(id)] < 0.5f) ids.push_back(id);
+    for (std::int64_t id : ids) where.insert(where.end(), &all[3 * std::size_t(id)], &all[3 * std::size_t(id)] + 3);
+    remove_both(ids, 0, "a crop");
+    if (g_ranks > 1 && g_rank == last) EXPECT(dist.shard_size() == 0 && !dist.local_index(), "%s: the cropped shard holds %zu", tag.c_str(), dist.shard_size());
+  }
+  // 4. New points where the crop was, then a small (1 %) insert anywhere.
+  if (!where.empty()) insert_both(new_points(where, std::max<std::size_t>(N / 20, 1), 0.01f, 13), 0, "an insert into the cropped region");
+  insert_both(new_points(s.points, N / 100, 0.02f, 17), 1, "a 1 % insert");
+}
+
+void updates_match_single_process() {
+  for (const Set& s : exact_sets())
+    for (const std::string& method : bhcl::method_names()) {
+      // Block hashing (its default search, exact) and FLANN on two sets: the rest on all four.
+      if ((method == "blockhash" || method == "flann") && s.name != "uniform" && s.name != "duplicates") continue;
+      update_sequence(s, method);
+    }
+}
+
+// Index::insert / remove's errors, through the distributed index: the same message on every
+// rank, and the index unchanged (its answers are still one process's).
+void update_errors_reach_every_rank() {
+  const std::vector<float> pts = bhcl::datasets::uniform(1000, 41);
+  const std::vector<float> qs = queries_for(pts, 42, 30);
+  const std::size_t N = pts.size() / 3;
+  auto [pf, pl] = slice(N, g_rank, g_ranks, 0);
+  bhcl::DistributedIndex dist(MPI_COMM_WORLD, runtime(), pts.data() + 3 * pf, pl);
+  auto single = bhcl::make_index("kdtree", runtime(), pts.data(), N);
+  const int last = g_ranks - 1;
+  const std::string rl = "rank " + std::to_string(last);
+  // A NaN point on the last rank: named by the id it would take, its rank and its place there.
+  {
+    std::vector<float> mine = {0.5f, 0.5f, 0.5f, 0.25f, 0.25f, 0.25f};
+    if (g_rank == last) mine.insert(mine.end(), {0.1f, std::numeric_limits<float>::quiet_NaN(), 0.1f});
+    const std::string id = std::to_string(N + 2 * std::size_t(g_ranks));  // the last rank's third point
+    expect_collective_error("a NaN point inserted on one rank",
+                            [&] { dist.insert(mine.data(), mine.size() / 3); },
+                            {"DistributedIndex::insert: " + rl + ": inserted points: point " + id +
+                             " (this rank's point 2) has a non-finite coordinate"});
+  }
+  expect_collective_error("an insert of no points", [&] { dist.insert(nullptr, 0); },
+                          {"DistributedIndex::insert: no points on any rank"});
+  expect_collective_error("a null point array", [&] { dist.insert(nullptr, g_rank == last ? 4 : 0); },
+                          {"DistributedIndex::insert: " + rl + ": points is null with n = 4"});
+  EXPECT(dist.id_bound() == std::int64_t(N) && dist.size() == N, "a refused insert changed the index: id_bound %lld",
+         (long long)dist.id_bound());
+  // Removes: one valid, then the refused ones.
+  {
+    const std::int64_t five = 5;
+    dist.remove(&five, g_rank == 0 ? 1 : 0);
+    const std::int32_t five32 = 5;
+    single->remove(&five32, 1);
+  }
+  auto remove_on = [&](int rank, std::vector<std::int64_t> ids) {
+    return [&dist, rank, ids] { dist.remove(ids.data(), g_rank == rank ? ids.size() : 0); };
+  };
+  expect_collective_error("an id outside on one rank", remove_on(last, {3, 1000}),
+                          {"DistributedIndex::remove: id 1000 (" + rl + "'s entry 1) is outside the issued ids [0, 1000)"});
+  expect_collective_error("a negative id", remove_on(0, {-1}), {"id -1 (rank 0's entry 0) is outside"});
+  expect_collective_error("an id removed before", remove_on(last, {9, 5}),
+                          {"DistributedIndex::remove: id 5 (" + rl + "'s entry 1) was already removed"});
+  {
+    // The same id from rank 0 and the last rank (at one rank: twice in rank 0's list).
+    std::vector<std::int64_t> mine;
+    if (g_rank == 0) mine.push_back(7);
+    if (g_rank == last) mine.insert(mine.end(), {8, 7});
+    const std::string again = g_ranks == 1 ? "rank 0's entry 2" : rl + "'s entry 1";
+    expect_collective_error("an id on two ranks", [&] { dist.remove(mine.data(), mine.size()); },
+                            {"DistributedIndex::remove: id 7 (rank 0's entry 0) appears twice (again as id 7 (" +
+                             again + "))"});
+  }
+  expect_collective_error("removing every point",
+                          [&] {
+                            const std::vector<std::int64_t> mine = dist.shard_live_ids();
+                            dist.remove(mine.data(), mine.size());
+                          },
+                          {"DistributedIndex::remove: removing all 999 live points would leave the index empty"});
+  expect_collective_error("a null id array", [&] { dist.remove(nullptr, g_rank == last ? 2 : 0); },
+                          {"DistributedIndex::remove: " + rl + ": ids is null with n = 2"});
+  expect_collective_error("a remove of no ids", [&] { dist.remove(nullptr, 0); },
+                          {"DistributedIndex::remove: no ids on any rank"});
+  EXPECT(dist.size() == 999 && dist.removed_count() == 1 && dist.id_bound() == 1000,
+         "refused removes changed the index: size %zu, removed %zu", dist.size(), dist.removed_count());
+  const std::string why = differs_from_one_process(dist, *single, qs, 0.05f);
+  EXPECT(why.empty(), "after the refused updates: %s", why.c_str());
+}
+
+// Fewer points than ranks (empty shards), then inserts everywhere: they go to the non-empty
+// shards; and an id base past 2^32: the updated answers are base 0's plus the base.
+void updates_with_empty_shards_and_a_wide_id_base() {
+  const std::vector<float> pts = {0, 0, 0, 1, 0, 0, 0.5f, 0.5f, 0.5f};
+  const bool last = g_rank == g_ranks - 1;
+  bhcl::DistributedIndex dist(MPI_COMM_WORLD, runtime(), last ? pts.data() : nullptr, last ? 3 : 0);
+  auto single = bhcl::make_index("kdtree", runtime(), pts.data(), 3);
+  const std::vector<float> batch = bhcl::datasets::uniform(200, 43);
+  auto [f, l] = slice(200, g_rank, g_ranks, 0);
+  dist.insert(batch.data() + 3 * f, l);
+  single->insert(batch.data(), 200);
+  std::vector<float> all = pts;
+  all.insert(all.end(), batch.begin(), batch.end());
+  std::string why = differs_from_one_process(dist, *single, queries_for(all, 44, 20), 0.1f);
+  EXPECT(why.empty(), "inserts with empty shards: %s", why.c_str());
+  why = boxes_wrong(dist, all);
+  EXPECT(why.empty(), "inserts with empty shards: %s", why.c_str());
+
+  const std::int64_t base = (std::int64_t(1) << 33) + 3;
+  const std::size_t N = 2000;
+  const std::vector<float> p2 = bhcl::datasets::uniform(N, 45);
+  auto [pf, pl] = slice(N, g_rank, g_ranks, 0);
+  bhcl::DistributedBuildParams b0, bw;
+  bw.id_base = base;
+  bhcl::DistributedIndex d0(MPI_COMM_WORLD, runtime(), p2.data() + 3 * pf, pl, b0);
+  bhcl::DistributedIndex dw(MPI_COMM_WORLD, runtime(), p2.data() + 3 * pf, pl, bw);
+  const std::vector<float> more = bhcl::datasets::uniform(300, 46);
+  auto [mf, ml] = slice(300, g_rank, g_ranks, 1);
+  const std::int64_t first0 = d0.insert(more.data() + 3 * mf, ml), firstw = dw.insert(more.data() + 3 * mf, ml);
+  EXPECT(firstw == first0 + base && dw.id_bound() == base + 2300, "wide base: first %lld, id_bound %lld",
+         (long long)firstw, (long long)dw.id_bound());
+  std::vector<std::int64_t> gone0, gonew;
+  for (std::int64_t id = g_rank; id < 2300; id += 7 * g_ranks) gone0.push_back(id), gonew.push_back(id + base);
+  d0.remove(gone0.data(), gone0.size());
+  dw.remove(gonew.data(), gonew.size());
+  const std::vector<float> qs = queries_for(p2, 47, 20);
+  bhcl::SearchParams p;
+  p.k = 8;
+  bhcl::KnnResult64 r0, rw;
+  d0.query(qs.data(), qs.size() / 3, p, r0);
+  dw.query(qs.data(), qs.size() / 3, p, rw);
+  bool same = r0.counts == rw.counts && r0.dist2 == rw.dist2;
+  for (std::size_t i = 0; same && i < r0.ids.size(); ++i) same = rw.ids[i] == (r0.ids[i] < 0 ? -1 : r0.ids[i] + base);
+  EXPECT(same, "wide base: the updated answers are not base 0's plus the base");
+  bhcl::KnnResult r32;
+  expect_collective_error("int32 kNN after updates past 2^31", [&] { dw.query(qs.data(), 0, p, r32); },
+                          {"past int32: pass a KnnResult64"});
+}
+
 // Issue 22: `--hang-rank R` (a CTest case of its own, BHCL_MPI_DEADLINE_S set short): rank R stops
 // answering before a query (it sleeps); the other ranks must not wait forever: the query's first
 // step ends the job (MPI_Abort) with a message naming rank R. Returns only if nobody noticed.
@@ -718,6 +1012,9 @@ int main(int argc, char** argv) {
   run("a failing rank fails the call on every rank", failures_reach_every_rank);
   run("ranks passing different parameters are refused on every rank", parameters_must_agree);
   run("64-bit global ids past 2^31", ids_past_int32);
+  run("inserts and removes equal one process's after the same updates", updates_match_single_process);
+  run("update errors reach every rank and change nothing", update_errors_reach_every_rank);
+  run("updates with empty shards and an id base past 2^32", updates_with_empty_shards_and_a_wide_id_base);
   int all = 0;
   MPI_Allreduce(&g_failures, &all, 1, MPI_INT, MPI_SUM, MPI_COMM_WORLD);
   if (g_rank == 0) std::printf("%s: %d failed check(s) over %d rank(s)\n", all ? "FAILED" : "passed", all, g_ranks);

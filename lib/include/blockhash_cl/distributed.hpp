@@ -47,6 +47,20 @@
 // index that cannot be built, a query that throws) makes the call throw bhcl::Error on EVERY rank,
 // with the first failing rank's message; no rank is left waiting in a collective. The index works
 // on its own duplicate of the communicator, so its messages never meet the caller's.
+//
+// Updates (insert / remove, issue 39; docs/UPDATES.md): collective, each rank passing ITS part
+// (as the constructor): the new points of all ranks take the global ids id_bound(),
+// id_bound() + 1, ... in the order of the concatenation of the ranks' parts in rank order (the
+// rule of Index::insert, the ranks' parts one batch); a removed id is never reused. A new point
+// goes to the rank that owns its region (owner_of: its Hilbert key under the build's quantiser,
+// clamped for points outside the build's box), appended to that rank's local index (Index::insert:
+// its local ids follow the shard's, as its global ids do, so ties still fall to the lower global
+// id), and that rank's shared boxes grow to hold it (the sub-run of its key); a remove goes to the
+// rank holding each id, and the boxes of the sub-runs that lost points are recomputed over their
+// live points, so the boxes every rank keeps for routing always bound the live points of each
+// shard. A shard whose points are all removed leaves the routing (its key range falls to the
+// previous non-empty shard). The partition is not re-cut: many updates in one region unbalance
+// the shards (a fresh build balances them again).
 #pragma once
 
 #include <mpi.h>
@@ -125,6 +139,19 @@ struct DistributedQueryStats {
   double phase1_s = 0, phase2_s = 0;  // wall time of each phase on this rank (routing included)
 };
 
+// What one insert or remove did, as seen from one rank.
+struct DistributedUpdateStats {
+  std::size_t n_global = 0;        // points (insert) or ids (remove) over all ranks in this call
+  std::size_t n_input = 0;         // those this rank passed in
+  std::size_t applied = 0;         // points inserted into / removed from this rank's shard
+  std::size_t sent = 0;            // of this rank's input, those that went to another rank
+  std::size_t bytes_sent = 0, bytes_received = 0;  // points or ids, to / from other ranks
+  double route_s = 0;   // checks, keys and the exchange (wall, this rank)
+  double local_s = 0;   // the local index's insert / remove (this rank)
+  double boxes_s = 0;   // the boxes' update and their sharing
+  double wall_s = 0;    // the whole call (this rank)
+};
+
 class DistributedIndex final : public SearchIndex {
  public:
   // Collective over `comm`. `points`: this rank's part, n x 3 floats (n may be 0 on some ranks,
@@ -171,27 +198,52 @@ class DistributedIndex final : public SearchIndex {
     return radius_search(queries, n, r, params, out, nullptr);
   }
 
+  // Collective updates (see the top of this file). insert: this rank's new points, n x 3 floats
+  // (n may be 0 on some ranks, not on all); returns the global id of this rank's first point
+  // (its i-th point has that + i; the call's first id over all ranks is id_bound() before it).
+  // remove: this rank's list of global ids to remove (any live ids, held by any rank; n may be 0
+  // on some ranks, not on all). Throws bhcl::Error on EVERY rank, with the same message, for the
+  // errors of Index::insert / remove over the concatenated batch: no points (ids) on any rank, a
+  // null array with n > 0, a non-finite point (named by the global id it would take, its rank and
+  // its place there), more than 2^40 - 1 ids issued in all or 2^31 - 2 on one rank, an id outside
+  // [id_base(), id_bound()), already removed, given twice (anywhere in the batch: both places are
+  // named), or removing every live point. The index is unchanged when a check fails. A failure
+  // inside a local index after the checks (a device error) undoes the insert on the ranks that
+  // made it and spends its ids (never issued to later points); a remove cannot be undone there
+  // and the message says the index must be rebuilt.
+  std::int64_t insert(const float* points, std::size_t n, DistributedUpdateStats* stats = nullptr);
+  void remove(const std::int64_t* ids, std::size_t n, DistributedUpdateStats* stats = nullptr);
+  std::size_t removed_count() const { return removed_n_; }  // ids removed so far, over all ranks
+
   std::string method() const override { return method_; }
   bool exact() const override { return exact_; }
-  std::size_t size() const override { return n_global_; }  // points over all ranks
+  std::size_t size() const override { return n_global_; }  // live points over all ranks
   std::int64_t id_base() const { return id_base_; }
-  // One past the largest global id: id_base() + size().
-  std::int64_t id_bound() const { return id_base_ + static_cast<std::int64_t>(n_global_); }
+  // One past the largest global id issued: id_base() + size() + removed_count() (+ the ids a
+  // failed insert spent); the next insert's first id.
+  std::int64_t id_bound() const { return id_bound_; }
   // True when every global id fits an int32, the largest (id_bound() - 1) <= 2^31 - 1: the
   // KnnResult / RadiusResult calls answer.
   bool ids_fit_int32() const { return id_bound() <= (std::int64_t(1) << 31); }
   int rank() const { return rank_; }
   int ranks() const { return ranks_; }
-  std::size_t shard_size() const { return shard_ids_.size(); }
+  std::size_t shard_size() const { return shard_live_; }  // live points in this rank's shard
   // The global ids of this rank's shard, ascending: local index i is global id shard_ids()[i].
+  // After removes it still holds the removed ones (local ids are never reused): shard_live_ids()
+  // holds the live ones alone.
   const std::vector<std::int64_t>& shard_ids() const { return shard_ids_; }
+  std::vector<std::int64_t> shard_live_ids() const;
+  // Host bytes this rank holds beside its local index: the shard's global ids, its copy of the
+  // points (for the boxes after a remove), their sub-runs and removed marks.
+  std::size_t host_bytes() const;
   // This rank's local index (nullptr when its shard is empty: fewer points than ranks).
   const Index* local_index() const { return local_.get(); }
   const DistributedBuildStats& build_stats() const { return build_stats_; }
   // The rank that owns a query position (phase 1's destination). Same answer on every rank.
   int owner_of(const float xyz[3]) const;
 
- // The boxes rank r shares (min(boxes_per_rank, its shard size) of them; the same on every rank).
+  // The boxes rank r shares: one per sub-run of its shard holding a live point, at most
+  // min(boxes_per_rank, its shard size at the build); the same on every rank.
   const std::vector<ShardBox>& boxes(int r) const { return boxes_.at(static_cast<std::size_t>(r)); }
 
  private:
@@ -199,7 +251,10 @@ class DistributedIndex final : public SearchIndex {
   struct Shard;  // this rank's points after the exchange, with their places over all ranks
   std::uint64_t number_points(const float* points, std::size_t n);
   Shard shard_points(const float* points, std::size_t n, std::uint64_t offset);
-  void share_boxes(const Shard& shard, int boxes_per_rank);
+  void share_boxes(Shard& shard, int boxes_per_rank);
+  // Every rank's boxes and live shard size from this rank's own (my_boxes_, shard_live_):
+  // one allgather of each; sets boxes_, rank_box_, shard_sizes_ and nonempty_.
+  void publish_boxes();
   std::vector<float> global_order(Shard shard);
   void build_local(const std::shared_ptr<Runtime>& runtime, const std::vector<float>& xyz,
                    const MethodOptions& options);
@@ -213,11 +268,25 @@ class DistributedIndex final : public SearchIndex {
   void check_radius_params(const float* queries, std::size_t n, float r, const RadiusParams& params) const;
   void require_int32_ids(const char* call) const;
   std::uint64_t key_of(const float xyz[3]) const;
+  int owner_of_key(std::uint64_t key) const;
   // Sets ds.owner and ds.ranks_visited for n queries: each finite query's owner and 1 rank; -1
   // and 0 ranks for a query with a NaN/Inf coordinate, counted in st.nonfinite_queries.
   void route_to_owners(const float* queries, std::size_t n, QueryStats& st, DistributedQueryStats& ds) const;
   // The ranks other than `skip` with a box within squared distance `bound` of q (conservative).
   void ranks_meeting(const float q[3], double bound, int skip, std::vector<int>& out) const;
+  // The updates' steps (update.cpp).
+  struct Incoming;  // the new points that came to this rank, in global-id order
+  std::uint64_t check_insert(const float* points, std::size_t n, std::uint64_t& total);
+  Incoming route_new_points(const float* points, std::size_t n, std::uint64_t offset,
+                            DistributedUpdateStats& us);
+  void insert_locally(const Incoming& in);
+  void grow_boxes(const Incoming& in);
+  std::vector<std::int64_t> gather_ids(const std::int64_t* ids, std::size_t n,
+                                       std::vector<std::uint64_t>& entry_first);
+  std::vector<std::int32_t> check_remove(const std::vector<std::int64_t>& all,
+                                         const std::vector<std::uint64_t>& entry_first);
+  void remove_locally(const std::vector<std::int32_t>& local_ids);
+  void shrink_boxes(const std::vector<std::int32_t>& local_ids);
 
   MPI_Comm comm_ = MPI_COMM_NULL;
   int rank_ = 0, ranks_ = 1;
@@ -231,6 +300,19 @@ class DistributedIndex final : public SearchIndex {
   std::int64_t id_base_ = 0;
   std::vector<std::int64_t> shard_ids_;
   std::unique_ptr<Index> local_;
+  // Updates: the ids issued (id_base_ + every point ever numbered) and removed, over all ranks;
+  // per local id of this shard its point, its sub-run (the box it counts in) and whether it was
+  // removed; the live points of the shard; per sub-run its first key (where a new point's key
+  // falls decides its sub-run) and its box over its live points (empty: lo > hi).
+  std::int64_t id_bound_ = 0;
+  std::size_t removed_n_ = 0;
+  std::vector<float> shard_xyz_;
+  std::vector<std::uint16_t> shard_run_;
+  std::vector<bool> shard_removed_;
+  std::size_t shard_live_ = 0;
+  std::vector<std::uint64_t> run_first_keys_;
+  std::vector<ShardBox> my_boxes_;
+  int boxes_per_rank_ = 16;
   // Per rank: shard size, first key, the union box and the boxes of its sub-runs.
   std::vector<std::uint64_t> shard_sizes_, first_keys_;
   std::vector<ShardBox> rank_box_;

@@ -223,21 +223,6 @@ const MethodInfo& check_build_params(MPI_Comm comm, const Runtime* runtime, cons
   return *info;  // set: a rank whose method_info threw failed mpi_agree
 }
 
-// The first of this rank's n points with a NaN/Inf coordinate, named by its global id (the first
-// point's is first_id) and its place on this rank; empty when every point is finite.
-std::string nonfinite_point(const float* points, std::size_t n, std::int64_t first_id) {
-  for (std::size_t i = 0; i < n; ++i) {
-    const float* p = points + 3 * i;
-    if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) {
-      std::ostringstream os;
-      os << "points: point " << first_id + static_cast<std::int64_t>(i) << " (this rank's point " << i
-         << ") has a non-finite coordinate (" << p[0] << ", " << p[1] << ", " << p[2] << ")";
-      return os.str();
-    }
-  }
-  return {};
-}
-
 // This rank's points as records in the order of `sorted` (its composites, ascending), cut into
 // runs by the splitters: send_counts[r] of them for rank r's shard.
 std::vector<PointRecord> records_by_shard(const std::vector<Composite>& sorted, const std::vector<Composite>& split,
@@ -282,19 +267,22 @@ DistributedIndex::DistributedIndex(MPI_Comm comm, std::shared_ptr<Runtime> runti
     method_ = info.name;
     exact_ = info.exact;
     border_factor_ = params.border_factor;
+    boxes_per_rank_ = params.boxes_per_rank;
     id_base_ = params.id_base;
     const std::uint64_t offset = number_points(points, n);
+    id_bound_ = id_base_ + static_cast<std::int64_t>(n_global_);
 
     Stopwatch shard_clock;
     Shard shard = shard_points(points, n, offset);
     share_boxes(shard, params.boxes_per_rank);
     build_stats_.shard_s = shard_clock.seconds();
 
-    const std::vector<float> xyz = global_order(std::move(shard));
+    std::vector<float> xyz = global_order(std::move(shard));
     Stopwatch build_clock;
     build_local(runtime, xyz, params.options);
     agree_global_cell_side(runtime, xyz, params.options);
     build_stats_.build_s = build_clock.seconds();
+    shard_xyz_ = std::move(xyz);  // kept: a remove recomputes the boxes of the live points
     build_stats_.wall_s = wall.seconds();
   } catch (...) {
     local_.reset();
@@ -322,7 +310,8 @@ std::uint64_t DistributedIndex::number_points(const float* points, std::size_t n
                 " points, past one index's int32 id range (2^31 - 2 points): use at least " +
                 std::to_string((total + 0x7ffffffdu) / 0x7ffffffeu) + " ranks");
   n_global_ = static_cast<std::size_t>(total);
-  mpi_agree(comm_, nonfinite_point(points, n, id_base_ + static_cast<std::int64_t>(offset)), kWhat);
+  mpi_agree(comm_, distributed::nonfinite_point(points, n, id_base_ + static_cast<std::int64_t>(offset), "points"),
+            kWhat);
   return offset;
 }
 
@@ -380,35 +369,56 @@ DistributedIndex::Shard DistributedIndex::shard_points(const float* points, std:
 }
 
 // The shared boxes: consecutive runs of the shard in Hilbert order (the key order the ranks cut
-// by, so the runs are compact pieces of the curve).
-void DistributedIndex::share_boxes(const Shard& shard, int boxes_per_rank) {
-  const std::size_t R = static_cast<std::size_t>(ranks_);
+// by, so the runs are compact pieces of the curve). Each point's run is kept in its record's pad
+// (global_order keeps it per local id: a remove recomputes the boxes of the runs it touched),
+// and each run's first key (an inserted point joins the run its key falls in).
+void DistributedIndex::share_boxes(Shard& shard, int boxes_per_rank) {
   const std::size_t m = shard.points.size();
   std::vector<float> xyz(3 * m);
-  {
-    std::vector<std::pair<Composite, std::size_t>> order(m);
-    for (std::size_t i = 0; i < m; ++i)
-      order[i] = {distributed::composite(key_of(shard.points[i].xyz), shard.points[i].position), i};
-    std::sort(order.begin(), order.end());
-    for (std::size_t i = 0; i < m; ++i) std::memcpy(&xyz[3 * i], shard.points[order[i].second].xyz, 12);
-  }
+  std::vector<std::pair<Composite, std::size_t>> order(m);
+  for (std::size_t i = 0; i < m; ++i)
+    order[i] = {distributed::composite(key_of(shard.points[i].xyz), shard.points[i].position), i};
+  std::sort(order.begin(), order.end());
+  for (std::size_t i = 0; i < m; ++i) std::memcpy(&xyz[3 * i], shard.points[order[i].second].xyz, 12);
   const std::size_t B = static_cast<std::size_t>(boxes_per_rank);
-  std::vector<distributed::Box> mine = distributed::run_boxes(xyz.data(), m, B);
-  // Fixed B slots per rank; a rank with fewer points than B fills the rest with NaN boxes.
+  my_boxes_ = distributed::run_boxes(xyz.data(), m, B);
+  const std::size_t runs = my_boxes_.size();
+  run_first_keys_.assign(runs, 0);
+  for (std::size_t j = 0; j < runs; ++j) {
+    const std::size_t first = j * m / runs, end = (j + 1) * m / runs;
+    run_first_keys_[j] = distributed::key_of(order[first].first);
+    for (std::size_t i = first; i < end; ++i) shard.points[order[i].second].pad = static_cast<std::uint32_t>(j);
+  }
+  shard_live_ = m;
+  publish_boxes();
+}
+
+void DistributedIndex::publish_boxes() {
+  const std::size_t R = static_cast<std::size_t>(ranks_);
+  const std::size_t B = static_cast<std::size_t>(boxes_per_rank_);
+  // Fixed B slots per rank: a run's box (empty, lo > hi, when its points are all removed), NaN
+  // for the slots past the rank's runs (fewer points than B).
   std::vector<float> slots(B * 6, std::numeric_limits<float>::quiet_NaN()), all(R * B * 6);
-  for (std::size_t j = 0; j < mine.size(); ++j) {
-    std::memcpy(&slots[6 * j], mine[j].lo, 12);
-    std::memcpy(&slots[6 * j + 3], mine[j].hi, 12);
+  for (std::size_t j = 0; j < my_boxes_.size(); ++j) {
+    std::memcpy(&slots[6 * j], my_boxes_[j].lo, 12);
+    std::memcpy(&slots[6 * j + 3], my_boxes_[j].hi, 12);
   }
   MPI_Allgather(slots.data(), static_cast<int>(B * 6), MPI_FLOAT, all.data(), static_cast<int>(B * 6), MPI_FLOAT,
                 comm_);
+  const std::uint64_t live = shard_live_;
+  shard_sizes_.assign(R, 0);
+  MPI_Allgather(&live, 1, MPI_UINT64_T, shard_sizes_.data(), 1, MPI_UINT64_T, comm_);
   boxes_.assign(R, {});
   rank_box_.resize(R);
+  nonempty_.clear();
   for (std::size_t r = 0; r < R; ++r) {
-    for (std::size_t j = 0; j < std::min<std::size_t>(B, shard_sizes_[r]); ++j) {
+    if (shard_sizes_[r] > 0) nonempty_.push_back(static_cast<int>(r));
+    for (std::size_t j = 0; j < B; ++j) {
       ShardBox b;
       std::memcpy(b.lo, &all[(r * B + j) * 6], 12);
       std::memcpy(b.hi, &all[(r * B + j) * 6 + 3], 12);
+      // NaN: no run; lo > hi: a run with no live point. Neither can hold a point.
+      if (std::isnan(b.lo[0]) || b.lo[0] > b.hi[0]) continue;
       boxes_[r].push_back(b);
     }
     rank_box_[r] = distributed::union_box(boxes_[r]);
@@ -425,8 +435,11 @@ std::vector<float> DistributedIndex::global_order(Shard shard) {
             [](const PointRecord& a, const PointRecord& b) { return a.position < b.position; });
   std::vector<float> xyz(3 * m);
   shard_ids_.resize(m);
+  shard_run_.resize(m);
+  shard_removed_.assign(m, false);
   for (std::size_t i = 0; i < m; ++i) {
     shard_ids_[i] = id_base_ + static_cast<std::int64_t>(points[i].position);
+    shard_run_[i] = static_cast<std::uint16_t>(points[i].pad);
     std::memcpy(&xyz[3 * i], points[i].xyz, 12);
   }
   return xyz;
@@ -494,10 +507,12 @@ std::uint64_t DistributedIndex::key_of(const float xyz[3]) const {
   return distributed::hilbert_key(q, xyz);
 }
 
-int DistributedIndex::owner_of(const float xyz[3]) const {
+int DistributedIndex::owner_of(const float xyz[3]) const { return owner_of_key(key_of(xyz)); }
+
+int DistributedIndex::owner_of_key(std::uint64_t key) const {
   // The last non-empty shard starting at or before the key (a key shared by two shards goes to
   // the later one, which holds points of that key); keys before every shard go to the first.
-  const std::uint64_t key = key_of(xyz);
+  // A shard emptied by removes is skipped: its range falls to the previous non-empty shard.
   int owner = nonempty_.front();
   for (int r : nonempty_)
     if (first_keys_[static_cast<std::size_t>(r)] <= key) owner = r;
@@ -537,8 +552,8 @@ void DistributedIndex::require_int32_ids(const char* call) const {
   // id_bound() is the same on every rank: every rank throws here or none does.
   if (!ids_fit_int32())
     throw Error(std::string(kWhat) + "::" + call + ": the global ids reach " + std::to_string(id_bound() - 1) +
-                " (id_base " + std::to_string(id_base_) + " + " + std::to_string(n_global_) +
-                " points), past int32: pass a " + (call[0] == 'q' ? "KnnResult64" : "RadiusResult64") +
+                " (id_base " + std::to_string(id_base_) + " + " + std::to_string(id_bound_ - id_base_) +
+                " ids issued), past int32: pass a " + (call[0] == 'q' ? "KnnResult64" : "RadiusResult64") +
                 " (int64 ids)");
 }
 

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <sstream>
 
 namespace bhcl::distributed {
 
@@ -102,6 +103,19 @@ bool box_may_hold(const Box& b, const float q[3], double bound) {
     d2 += g * g;
   }
   return d2 <= bound * (1.0 + 1e-5) + 1e-43;
+}
+
+std::string nonfinite_point(const float* points, std::size_t n, std::int64_t first_id, const char* label) {
+  for (std::size_t i = 0; i < n; ++i) {
+    const float* p = points + 3 * i;
+    if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) {
+      std::ostringstream os;
+      os << label << ": point " << first_id + static_cast<std::int64_t>(i) << " (this rank's point " << i
+         << ") has a non-finite coordinate (" << p[0] << ", " << p[1] << ", " << p[2] << ")";
+      return os.str();
+    }
+  }
+  return {};
 }
 
 }  // namespace bhcl::distributed

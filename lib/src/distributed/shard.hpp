@@ -6,6 +6,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <string>
 #include <vector>
 
 #include "blockhash/build.hpp"
@@ -54,5 +55,10 @@ Box union_box(const std::vector<Box>& boxes);
 // the contract's sum, and an absolute 1e-43 for subnormal results), so a box is never skipped
 // when one of its points would make the k best; an extra box only costs a visit.
 bool box_may_hold(const Box& b, const float q[3], double bound);
+
+// The first of this rank's n points with a NaN/Inf coordinate, "<label>: point G (this rank's
+// point i) has a non-finite coordinate (x, y, z)", G its global id (the first point's is
+// first_id); empty when every point is finite. The build's and the insert's check.
+std::string nonfinite_point(const float* points, std::size_t n, std::int64_t first_id, const char* label);
 
 }  // namespace bhcl::distributed
