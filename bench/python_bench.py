@@ -16,7 +16,8 @@ environment, e.g.
     /tmp/pybench/bin/python bench/python_bench.py --data bunny,cornell,autzen
 (Open3D's wheel needs Debian's libusb-1.0-0.) A package that is missing is reported and skipped.
 Two other modes (issue 40): --front compares blockhash_cl.KDTree, the scipy-compatible front,
-with scipy's KDTree, pykdtree and napf (pip install napf); --utm N measures the float64
+with scipy's KDTree (workers=-1), pykdtree and napf (pip install pykdtree napf), with recall@k
+against scipy beside every time, builds and first calls apart; --utm N measures the float64
 refinement on the UTM-like case (docs/PYTHON.md has both tables and their commands).
 """
 import argparse
@@ -98,6 +99,14 @@ def radius_recall(slices, truth):
     total = sum(len(t) for t in truth)
     hit = sum(len(np.intersect1d(a, t)) for a, t in zip(slices, truth))
     return hit / total if total else 1.0
+
+
+def recall_at_k(ids, truth_ids):
+    """The share of the reference's indices that a row returned, over all rows ((n, k) arrays of
+    indices distinct within a row, as an exact kNN answer's are): rows sorted side by side, a match
+    is a value met twice."""
+    both = np.sort(np.concatenate([ids, truth_ids], axis=1), axis=1)
+    return float(np.count_nonzero(both[:, 1:] == both[:, :-1])) / truth_ids.size
 
 
 def split(offsets, ids):
@@ -197,70 +206,105 @@ def utm(a):
 
 
 def front(a):
-    """Issue 40's drop-in comparison: blockhash_cl.KDTree (scipy's interface, float64 answers)
-    against scipy.spatial.KDTree (workers=--threads), pykdtree (OMP_NUM_THREADS) and napf
-    (nthread) where installed, all on the same float64 points and queries; per data set, k and
-    query kind ("data": the points themselves, shuffled; "box": uniform over the points' box), the
-    median time of --rounds rounds, the speed-up against scipy and the share of rows equal to
-    scipy's (indices, and distances at rel 1e-9; napf and pykdtree distances squared, then
-    rooted)."""
+    """Issue 40's drop-in comparison: blockhash_cl.KDTree (scipy's interface, float64 answers; the
+    default method "blockhash" and method="kdtree") against scipy.spatial.KDTree (workers=-1),
+    pykdtree (OMP_NUM_THREADS) and napf (nthread) where installed, all on the same float64 points
+    and queries. Per data set, query kind ("data": the points themselves, shuffled; "box": uniform
+    over the points' bounding box) and k: every variant once per round in a shuffled order, the
+    median query time, the median of the per-round ratios scipy time / variant time (> 1: faster
+    than scipy) with its min-max, recall@k against scipy's answers (the share of scipy's k indices
+    returned) and the share of rows equal to scipy's (indices, and distances at rel 1e-9, either
+    order where scipy's distances tie). Apart from the query time: each build (median of
+    --build-rounds interleaved builds) and each variant's first call on the query set at a k (the
+    query itself included), which for blockhash_cl compiles the kernels for that k: with
+    --cold-cache (the default) the kernel caches start empty, so a kernel's first compile shows in
+    the first data set's rows (later ones load it from the process's or the disk cache)."""
     from scipy.spatial import KDTree as SciKDTree
+    import scipy
     try:
         import napf
     except ImportError:
         napf = None
-    table = Table(f"# blockhash_cl {bh.__version__} KDTree on {bh.get_runtime().device['summary']}; scipy workers={a.threads}; "
-                  f"pykdtree {'yes' if PyKDTree else 'missing'} (OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}); "
-                  f"napf {'yes' if napf else 'missing'} (nthread={a.threads}); {a.rounds} rounds, median",
-                  ["data", "N", "queries", "k", "variant", "build s", "query s", "vs scipy", "rows = scipy's"])
+    threads = os.cpu_count() or 1  # what scipy's workers=-1 uses
+    os.environ["OMP_NUM_THREADS"] = os.environ.get("OMP_NUM_THREADS") or str(threads)
+    ver = lambda m: getattr(m, "__version__", "?")
+    try:
+        from importlib import metadata
+        pyk_ver = metadata.version("pykdtree") if PyKDTree else "missing"
+        napf_ver = metadata.version("napf") if napf else "missing"
+    except Exception:  # pragma: no cover - metadata of an odd install
+        pyk_ver = napf_ver = "?"
+    table = Table(f"# blockhash_cl {bh.__version__} KDTree on {bh.get_runtime().device['summary']}, "
+                  f"POCL_MAX_PTHREAD_COUNT={os.environ.get('POCL_MAX_PTHREAD_COUNT', 'unset')}; "
+                  f"scipy {ver(scipy)} KDTree workers=-1 ({threads} threads); pykdtree {pyk_ver} "
+                  f"(OMP_NUM_THREADS={os.environ['OMP_NUM_THREADS']}); napf {napf_ver} (nthread={threads}); "
+                  f"kernel caches {'cold (empty at start)' if a.cold_cache else 'as found'}; "
+                  f"{a.rounds} query rounds, {a.build_rounds} build rounds, interleaved, median; "
+                  f"load average at start {os.getloadavg()[0]:.1f}",
+                  ["data", "N", "queries", "k", "variant", "build s", "first call s", "query s",
+                   "vs scipy (median, min-max)", "recall@k", "rows = scipy's"])
     lines, row = table.lines, table.row
     rng = np.random.default_rng(40)
+    ks = [int(x) for x in a.k.split(",")]
+
+    builders = {
+        "scipy KDTree": lambda p: SciKDTree(p),
+        "blockhash_cl KDTree": lambda p: bh.KDTree(p),
+        "blockhash_cl KDTree (kdtree)": lambda p: bh.KDTree(p, method="kdtree"),
+    }
+    if PyKDTree:
+        builders["pykdtree"] = lambda p: PyKDTree(p, leafsize=16)
+    if napf:
+        builders["napf"] = lambda p: napf.KDT(p, metric=2)
+
+    def querier(v, tree, qs, k):
+        """The variant's call, returning (distances, indices): Euclidean distances everywhere
+        (napf returns squared ones)."""
+        if v == "scipy KDTree":
+            return lambda: tree.query(qs, k=k, workers=-1)
+        if v == "pykdtree":
+            return lambda: tree.query(qs, k=k)
+        if v == "napf":
+            def napf_q():
+                d2, i = tree.knn_search(qs, k, threads)
+                return np.sqrt(d2), i
+            return napf_q
+        return lambda: tree.query(qs, k=k)
 
     for name in a.data.split(","):
         pts, _ = load(a.make_dataset, name, a.N, 1, a.data_dir)
         if pts is None:
             continue
-        pts = np.asarray(pts, np.float64)
+        pts = np.ascontiguousarray(pts, np.float64)
         n = min(a.queries, len(pts))
         lo, hi = pts.min(axis=0), pts.max(axis=0)
         query_sets = {"data": pts[rng.permutation(len(pts))[:n]], "box": lo + rng.random((n, 3)) * (hi - lo)}
-        builds = {}
-        builds["scipy KDTree"], sci = timed(lambda: SciKDTree(pts))
-        builds["blockhash_cl KDTree (blockhash)"], fb = timed(lambda: bh.KDTree(pts))
-        builds["blockhash_cl KDTree (kdtree)"], fk = timed(lambda: bh.KDTree(pts, method="kdtree"))
-        if PyKDTree:
-            builds["pykdtree"], pyk = timed(lambda: PyKDTree(pts, leafsize=16))
-        if napf:
-            builds["napf"], nap = timed(lambda: napf.KDT(pts, metric=2))
+        # Builds: interleaved rounds, the last round's trees kept.
+        build_st = run_rounds({v: (lambda f=f: timed(lambda: f(pts))) for v, f in builders.items()},
+                              a.build_rounds, "scipy KDTree")
+        trees = {v: res for v, (_, _, res) in build_st.items()}
+        build_s = {v: float(np.median(t)) for v, (t, _, _) in build_st.items()}
         for qname, qs in query_sets.items():
-            for k in [int(x) for x in a.k.split(",")]:
-                fb.query(qs[:16], k=k)
-                fk.query(qs[:16], k=k)
-                variants = {
-                    "scipy KDTree": lambda: sci.query(qs, k=k, workers=a.threads),
-                    "blockhash_cl KDTree (blockhash)": lambda: fb.query(qs, k=k),
-                    "blockhash_cl KDTree (kdtree)": lambda: fk.query(qs, k=k),
-                }
-                if PyKDTree:
-                    def pyk_q():
-                        d, i = pyk.query(qs, k=k)
-                        return d, i
-                    variants["pykdtree"] = pyk_q
-                if napf:
-                    def napf_q():
-                        d2, i = nap.knn_search(qs, k, a.threads)
-                        return np.sqrt(d2), i
-                    variants["napf"] = napf_q
+            for k in ks:
+                # The first call of each variant on the whole set, untimed in the rounds: for
+                # blockhash_cl it compiles the kernels this k needs (the kNN kernel, and the radius
+                # kernel where the float64 refinement searches a near-tie row again), which a call
+                # of a few queries does not reach.
+                first = {v: timed(querier(v, trees[v], qs, k))[0] for v in builders}
+                variants = {v: querier(v, trees[v], qs, k) for v in builders}
                 st = run_rounds({v: (lambda f=f: timed(f)) for v, f in variants.items()}, a.rounds, "scipy KDTree")
-                rd, ri = st["scipy KDTree"][2]
-                rd, ri = np.asarray(rd).reshape(n, k), np.asarray(ri).reshape(n, k)
+                rd, ri = (np.asarray(x).reshape(n, k) for x in st["scipy KDTree"][2])
+                tie = (rd == np.roll(rd, 1, axis=1)) | (rd == np.roll(rd, -1, axis=1))
                 for v, (times, ratios, res) in st.items():
                     d, i = (np.asarray(x).reshape(n, k) for x in res)
                     close = np.abs(d - rd) <= 1e-9 * np.maximum(rd, 1e-300)
-                    tie = (rd == np.roll(rd, 1, axis=1)) | (rd == np.roll(rd, -1, axis=1))
                     same = float(np.mean(np.all(close & ((i == ri) | tie), axis=1)))
-                    row(name, len(pts), qname, k, v, f"{builds.get(v, 0):.2f}", f"{np.median(times):.3f}",
-                        f"{np.median(ratios):.2f} ({min(ratios):.2f}-{max(ratios):.2f})", f"{same:.4f}")
+                    recall = recall_at_k(i.astype(np.int64), ri.astype(np.int64))
+                    row(name, len(pts), qname, k, v, f"{build_s[v]:.3f}", f"{first[v]:.3f}", f"{np.median(times):.3f}",
+                        f"{np.median(ratios):.2f} ({min(ratios):.2f}-{max(ratios):.2f})", f"{recall:.4f}", f"{same:.4f}")
+        del trees, build_st
+    lines.append(f"(load average at the end {os.getloadavg()[0]:.1f})")
+    print(lines[-1], flush=True)
     if a.markdown:
         write_atomic(a.markdown, "\n".join(lines) + "\n")
 
@@ -285,12 +329,22 @@ def main():
     ap.add_argument("--threads", type=int, default=os.cpu_count() or 1,
                     help="threads for cKDTree (workers) and pykdtree/Open3D (OMP_NUM_THREADS)")
     ap.add_argument("--markdown", default="", help="also write the table here")
+    ap.add_argument("--build-rounds", type=int, default=3, help="--front: interleaved builds per data set")
+    ap.add_argument("--cold-cache", type=int, default=1,
+                    help="--front: 1 (default) starts with empty kernel caches (BHCL_CACHE_DIR and POCL_CACHE_DIR in a "
+                         "temporary directory, removed at exit), so the first calls include the kernels' compile; 0 "
+                         "uses the caches as found")
     a = ap.parse_args()
     os.environ.setdefault("OMP_NUM_THREADS", str(a.threads))
     if a.utm:
         return utm(a)
     if a.front:
-        return front(a)
+        if not a.cold_cache:
+            return front(a)
+        with tempfile.TemporaryDirectory(prefix="bhcl-bench-cache-") as d:
+            os.environ["BHCL_CACHE_DIR"] = os.path.join(d, "blockhash_cl")
+            os.environ["POCL_CACHE_DIR"] = os.path.join(d, "pocl")
+            return front(a)
     random.seed(12345)
     ks = [int(x) for x in a.k.split(",")]
     As = [float(x) for x in a.A.split(",")]
