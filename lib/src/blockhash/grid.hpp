@@ -127,8 +127,6 @@ struct GridInput {
 // positions of the SoA part (cell order: a stride there is a stratified sample, which gave 34
 // points per cell for a target of 24).
 void build_grid(const GridInput& in, const GridBuildParams& p, Grid& g, GridBuildStats* stats);
-// n points x, y, z, ids 0 .. n - 1.
-void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid& g, GridBuildStats* stats);
 
 // The occupancy pyramid's bytes for a geometry, and its build from g's directory (all of it, in
 // parallel over `threads`: 0 all); every path that adds points to cells calls it.

@@ -570,13 +570,6 @@ BucketCounts place_buckets(const Buckets& bk, const std::vector<std::uint32_t>& 
 
 }  // namespace
 
-void build_grid(const float* xyz, std::size_t n, const GridBuildParams& p, Grid& g, GridBuildStats* stats) {
-  GridInput in;
-  in.xyz = xyz;
-  in.n_aos = n;
-  build_grid(in, p, g, stats);
-}
-
 void build_grid(const GridInput& in, const GridBuildParams& p, Grid& g, GridBuildStats* stats) {
   const std::size_t n = in.size();
   if (n == 0 || n >= (std::size_t(1) << 31) - 1)
