@@ -52,6 +52,9 @@ void declare_render(Args& a) {
              "kth", "NAME");
   a.add_text("filter", "photon weights in the disc: box, cone or epanechnikov; with --compare a comma list", "cone",
              "NAME");
+  a.add_text("boundary", "density estimates near walls, corners and the glass's footprint: surface (only the photons "
+                         "on the gather point's surface, over the part of the disc on it; planar scenes) or none "
+                         "(the whole disc, biased low within a disc of an edge)", "none", "NAME");
   a.add_flag("quiet", "no progress bars");
   a.add_flag("lists", "shade from the k-nearest lists read back to the host (8 k + 4 bytes a query) instead of the "
                       "density estimate made inside the query (16 bytes a query); for measurement");
@@ -124,6 +127,10 @@ RenderOptions render_options(const Args& args) {
   long long batch = args.integer("batch", 262144);
   if (!(ropt.caustic_radius >= 0)) throw UsageError("--caustic-radius must be >= 0");
   ropt.batch_queries = static_cast<std::size_t>(batch);
+  const std::string boundary = args.str("boundary", "none");
+  if (boundary != "none" && boundary != "surface")
+    throw UsageError("--boundary must be none or surface, got '" + boundary + "'");
+  ropt.boundary_correction = boundary == "surface";
   return ropt;
 }
 

@@ -84,6 +84,7 @@ int run_progressive(const RenderSetup& s) {
     j["gather"] = ropt.gather;
     j["k"] = ropt.search.k;
     j["estimator"] = estimator_name(ropt.estimator);
+    j["boundary"] = ropt.boundary_correction ? "surface" : "none";
     j["seed"] = ropt.seed;
     j["method"] = method;
     j["photons_requested"] = s.popt.photons;

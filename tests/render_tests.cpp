@@ -1159,4 +1159,187 @@ TEST_CASE("render: shading with the fused estimate matches shading from the list
     CHECK(fused.rgb[i] == doctest::Approx(lists.rgb[i]).epsilon(1e-4).scale(1e-3));
 }
 
+
+namespace {
+
+// A 100 x 100 mm floor (y = 0, facing up), optionally a wall along its edge x = 0 (facing +x), and
+// a light off to the side facing up (so that no point of the floor or wall gets direct light).
+Scene boundary_scene(bool wall) {
+  Scene s;
+  s.name = wall ? "floor and wall" : "floor";
+  Material white, light;
+  white.name = "white";
+  white.kd = {1, 1, 1};
+  light.name = "light";
+  light.kd = {0, 0, 0};
+  light.emission = {1, 1, 1};
+  const auto w = s.add_material(white), l = s.add_material(light);
+  s.add_quad({0, 0, 0}, {0, 0, 100}, {100, 0, 100}, {100, 0, 0}, w);
+  if (wall) s.add_quad({0, 0, 0}, {0, 100, 0}, {0, 100, 100}, {0, 0, 100}, w);
+  s.add_quad({200, 300, 40}, {200, 300, 60}, {220, 300, 60}, {220, 300, 40}, l);
+  return s;
+}
+
+// Photons of power 1 on a 100 x 100 square, one per 0.5 mm cell (jittered): at(u, v) maps the
+// square to the surface; dir is where they came from; cls the surface's orientation class.
+void add_surface_photons(std::vector<PhotonRecord>& recs, Rng& rng, Vec3 (*at)(float, float), Vec3 dir, int cls) {
+  for (int j = 0; j < 200; ++j)
+    for (int i = 0; i < 200; ++i) {
+      const Vec3 x = at((i + rng.uniform()) * 0.5f, (j + rng.uniform()) * 0.5f);
+      PhotonRecord r;
+      r.position[0] = x.x;
+      r.position[1] = x.y;
+      r.position[2] = x.z;
+      r.set_power({1, 1, 1});
+      r.set_direction(normalize(dir));
+      r.flags = 0;
+      r.set_surface_class(cls);
+      recs.push_back(r);
+    }
+}
+
+// The caustic-map estimate (the only light these scenes give: no gather, no direct light) at floor
+// points; lists or fused, with or without the boundary correction.
+std::vector<double> floor_estimates(const EmbreeScene& es, const LightSampler& lights, const PhotonMap& map,
+                                    const std::vector<Vec3>& xs, bool fused, bool boundary) {
+  RenderOptions ro;
+  ro.gather = 0;
+  ro.shadow_rays = 1;
+  ro.caustic_k = 64;
+  ro.threads = 2;
+  ro.fused_estimate = fused;
+  ro.boundary_correction = boundary;
+  const PhotonMap empty("global", {}, 1.0f);
+  FinalGatherRenderer fg(es, lights, empty, &map, ro);
+  std::vector<SurfacePoint> pts;
+  for (const Vec3& x : xs) {
+    SurfacePoint p;
+    p.x = x;
+    p.n = {0, 1, 0};
+    p.kd = {1, 1, 1};
+    p.prim = 0;  // the floor's first triangle (the plane raster covers both)
+    pts.push_back(p);
+  }
+  RenderStats st;
+  std::vector<double> out;
+  for (const Vec3& l : fg.shade(pts, st)) out.push_back(l.x);
+  return out;
+}
+
+double mean_of(const std::vector<double>& v, std::size_t b, std::size_t e) {
+  double s = 0;
+  for (std::size_t i = b; i < e; ++i) s += v[i];
+  return s / static_cast<double>(e - b);
+}
+
+// Interior points (x, z in [30, 70]), then points on the edge x = 0 (z in [20, 80]), then the
+// four corners: counts 40, 60, 4.
+std::vector<Vec3> interior_edge_corner_points() {
+  std::vector<Vec3> xs;
+  for (int i = 0; i < 40; ++i) xs.push_back({30 + (i % 8) * 5.0f, 0, 30 + (i / 8) * 10.0f});
+  for (int i = 0; i < 60; ++i) xs.push_back({0, 0, 20 + i * 1.0f});
+  for (Vec3 c : {Vec3{0, 0, 0}, Vec3{100, 0, 0}, Vec3{0, 0, 100}, Vec3{100, 0, 100}}) xs.push_back(c);
+  return xs;
+}
+
+}  // namespace
+
+TEST_CASE("render: the boundary-corrected estimate at a lit quad's edge and corner equals its interior's") {
+  // Uniform irradiance on a lone quad: a disc at the edge has half its area on the quad, at a
+  // corner a quarter, so the plain estimate reads 1/2 and 1/4 of the interior's there; divided by
+  // the disc's area on the quad it reads the interior's.
+  Scene scene = boundary_scene(false);
+  EmbreeScene es(scene, 2);
+  LightSampler lights(scene);
+  Rng rng(41, 41, 41);
+  std::vector<PhotonRecord> recs;
+  add_surface_photons(recs, rng, [](float u, float v) { return Vec3{u, 0, v}; }, {0.3f, 1, 0.2f}, 2);
+  PhotonMap map("floor", recs, 1.0f);
+  map.build_index(has_method("kdtree") ? "kdtree" : "bruteforce", test::runtime());
+  const std::vector<Vec3> xs = interior_edge_corner_points();
+  for (bool fused : {false, true}) {
+    CAPTURE(fused);
+    const std::vector<double> plain = floor_estimates(es, lights, map, xs, fused, false);
+    const std::vector<double> fixed = floor_estimates(es, lights, map, xs, fused, true);
+    const double in_plain = mean_of(plain, 0, 40), in_fixed = mean_of(fixed, 0, 40);
+    // In the interior the correction changes nothing (every disc wholly on the quad).
+    CHECK(in_fixed == doctest::Approx(in_plain).epsilon(1e-6));
+    const double edge_plain = mean_of(plain, 40, 100) / in_plain, corner_plain = mean_of(plain, 100, 104) / in_plain;
+    const double edge_fixed = mean_of(fixed, 40, 100) / in_fixed, corner_fixed = mean_of(fixed, 100, 104) / in_fixed;
+    MESSAGE("edge / interior: plain " << edge_plain << ", corrected " << edge_fixed << "; corner / interior: plain "
+                                      << corner_plain << ", corrected " << corner_fixed);
+    CHECK(edge_plain == doctest::Approx(0.5).epsilon(0.06));
+    CHECK(corner_plain == doctest::Approx(0.25).epsilon(0.12));
+    CHECK(edge_fixed == doctest::Approx(1.0).epsilon(0.02));
+    CHECK(corner_fixed == doctest::Approx(1.0).epsilon(0.03));
+  }
+}
+
+TEST_CASE("render: the boundary-corrected estimate leaves out the photons of an adjoining wall") {
+  // A wall stands on the floor's edge x = 0; its photons arrive from above it, so they pass the
+  // floor's facing test: without the correction the floor's edge reads its own half disc plus the
+  // wall's photons in the sphere; with it, the floor's photons over the floor's half disc only.
+  Scene scene = boundary_scene(true);
+  EmbreeScene es(scene, 2);
+  LightSampler lights(scene);
+  Rng rng(42, 42, 42);
+  std::vector<PhotonRecord> recs;
+  add_surface_photons(recs, rng, [](float u, float v) { return Vec3{u, 0, v}; }, {0.3f, 1, 0.2f}, 2);
+  add_surface_photons(recs, rng, [](float u, float v) { return Vec3{0, u, v}; }, {0.6f, 0.8f, 0}, 0);
+  PhotonMap map("floor and wall", recs, 1.0f);
+  map.build_index(has_method("kdtree") ? "kdtree" : "bruteforce", test::runtime());
+  const std::vector<Vec3> xs = interior_edge_corner_points();
+  for (bool fused : {false, true}) {
+    CAPTURE(fused);
+    const std::vector<double> plain = floor_estimates(es, lights, map, xs, fused, false);
+    const std::vector<double> fixed = floor_estimates(es, lights, map, xs, fused, true);
+    const double edge_plain = mean_of(plain, 40, 100) / mean_of(plain, 0, 40);
+    const double edge_fixed = mean_of(fixed, 40, 100) / mean_of(fixed, 0, 40);
+    MESSAGE("floor edge by the wall / interior: plain " << edge_plain << ", corrected " << edge_fixed);
+    CHECK(edge_plain > 0.6);  // the wall's photons counted
+    CHECK(edge_fixed == doctest::Approx(1.0).epsilon(0.02));
+  }
+}
+
+TEST_CASE("render: the boundary correction's rasters: the floor under an open-bottomed block is closed, under glass is glass") {
+  // The specular Cornell box: its mirror block stands on the floor with no bottom face, the glass
+  // block likewise. A disc on the floor just outside the mirror block's foot has part of its area
+  // under the block (no photon lands there); a disc just inside the glass block's foot has part
+  // outside the glass (its photons are keyed apart); a disc at a wall's foot half. All get a factor
+  // above 1 (the cone filter's integral over the whole disc over that over its part on the
+  // surface); a disc in the open floor none.
+  Scene scene = load_scene("cornell-specular");
+  EmbreeScene es(scene, 2);
+  const SurfaceAreaMap areas(es, 2);
+  std::uint32_t floor = 0;
+  for (std::uint32_t t = 0; t < scene.triangles.size(); ++t)
+    if (scene.material_of(t).is_diffuse() && scene.geometric_normal(t).y > 0.99f &&
+        scene.vertices[scene.triangles[t][0]].y < 1) floor = t;
+  const float r2 = 10.0f * 10.0f;
+  auto f = [&](Vec3 x, bool in_glass) { return areas.factor(floor, false, x, in_glass, r2, DensityFilter::Cone); };
+  CHECK(f({400, 0, 100}, false) == 1.0f);  // the open floor
+  CHECK(f({185, 0, 169}, true) == 1.0f);   // the middle of the glass block's footprint
+  CHECK(f({0, 0, 300}, false) == doctest::Approx(2.0).epsilon(0.03));  // the right wall's foot: half a disc
+  CHECK(f({0, 0, 559.2f}, false) == doctest::Approx(4.0).epsilon(0.05));  // the back corner: a quarter
+  // 2 mm outside the mirror block's face (423, 247) - (472, 406): part of the disc is under it.
+  const float fm = f({449.4f, 0, 325.9f}, false);
+  CHECK(fm > 1.3f);
+  CHECK(fm < 1.8f);
+  // 2 mm inside the glass block's face (130, 65) - (290, 114): part of the disc is outside the glass.
+  const float fg = f({209.4f, 0, 91.4f}, true);
+  CHECK(fg > 1.3f);
+  CHECK(fg < 1.8f);
+  // The ceiling above the light (closed by the light's back) against the open ceiling beside it.
+  std::uint32_t ceiling = 0;
+  for (std::uint32_t t = 0; t < scene.triangles.size(); ++t)
+    if (scene.material_of(t).is_diffuse() && scene.geometric_normal(t).y < -0.99f) ceiling = t;
+  CHECK(areas.factor(ceiling, false, {213 - 2.0f, 548.8f, 280}, false, r2, DensityFilter::Cone) > 1.3f);
+  CHECK(areas.factor(ceiling, false, {100, 548.8f, 280}, false, r2, DensityFilter::Cone) == 1.0f);
+  // Back sides, unknown triangles and no disc: no correction.
+  CHECK(areas.factor(floor, true, {0, 0, 300}, false, r2, DensityFilter::Cone) == 1.0f);
+  CHECK(areas.factor(static_cast<std::uint32_t>(scene.triangles.size()), false, {0, 0, 300}, false, r2,
+                     DensityFilter::Cone) == 1.0f);
+  CHECK(areas.factor(floor, false, {0.0f, 0, 300}, false, 0.0f, DensityFilter::Cone) == 1.0f);
+}
+
 #endif  // BHCL_HAVE_RENDER

@@ -16,7 +16,7 @@ constexpr std::uint64_t kGatherStream = 0x474154;  // "GAT"
 using Clock = std::chrono::steady_clock;
 double since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
-constexpr std::uint32_t kBackSide = 0x80000000u;  // GatherQuery::prim_side: arrived on the back
+constexpr std::uint32_t kBackSide = GatherQuery::kBack;  // GatherQuery::prim_side: arrived on the back
 
 template <typename T>
 std::size_t vec_bytes(const std::vector<T>& v) {
@@ -81,10 +81,26 @@ FinalGatherRenderer::FinalGatherRenderer(const EmbreeScene& scene, const LightSa
   if (opt_.batch_queries == 0) opt_.batch_queries = 262144;
   if (!(opt_.radius_scale2 > 0) || !(opt_.radius_scale2 <= 1))
     throw Error("render: the progressive radius scale must be in (0, 1], got " + std::to_string(opt_.radius_scale2));
+  if (es_.scene().triangles.size() >= GatherQuery::kPrim)
+    throw Error("render: at most " + std::to_string(GatherQuery::kPrim - 1) + " triangles, the scene has " +
+                std::to_string(es_.scene().triangles.size()));
+  if (opt_.boundary_correction && !opt_.surface_areas)
+    opt_.surface_areas = std::make_shared<const SurfaceAreaMap>(es_, opt_.threads);
+}
+
+float FinalGatherRenderer::boundary_factor(std::uint32_t prim_side, const float* key, float r2,
+                                           const DensityEstimator& est) const {
+  if (!opt_.boundary_correction || (prim_side & GatherQuery::kPrim) == GatherQuery::kPrim) return 1.0f;
+  const bool in_glass = (prim_side & GatherQuery::kInGlass) != 0;
+  // The point itself: medium_key moved it by the separation along x when inside glass.
+  const float sep = in_glass ? medium_separation(es_.scene().diagonal()) : 0.0f;
+  return opt_.surface_areas->factor(prim_side & GatherQuery::kPrim, (prim_side & GatherQuery::kBack) != 0,
+                                    Vec3{key[0] - sep, key[1], key[2]}, in_glass, r2, est.filter);
 }
 
 std::size_t TracedPass::bytes() const {
   return vec_bytes(emitted) + vec_bytes(vis_slot) + vec_bytes(direct) + vec_bytes(vis_xyz) + vec_bytes(vis_n) +
+         vec_bytes(vis_prim) +
          vec_bytes(vis_kd) + vec_bytes(vis_weight) + vec_bytes(q_begin) + vec_bytes(gather_xyz) + vec_bytes(gather);
 }
 
@@ -116,7 +132,12 @@ void fill_visible_points(const std::vector<SurfacePoint>& pts, float separation,
   pass.vis_n.resize(n);
   pass.vis_kd.resize(n);
   pass.vis_weight.resize(n);
+  pass.vis_prim.resize(n);
   for (std::size_t i = 0; i < n; ++i) {
+    pass.vis_prim[i] = pts[i].prim >= GatherQuery::kPrim
+                           ? GatherQuery::kPrim
+                           : pts[i].prim | (pts[i].back ? GatherQuery::kBack : 0u) |
+                                 (pts[i].in_glass ? GatherQuery::kInGlass : 0u);
     const Vec3 key = medium_key(pts[i].x, pts[i].in_glass, separation);  // the caustic query
     pass.vis_xyz[3 * i] = key.x;
     pass.vis_xyz[3 * i + 1] = key.y;
@@ -197,7 +218,7 @@ std::uint32_t gather_queries(const EmbreeScene& es, const SurfacePoint& p, Vec3 
     const Vec3 y = medium_key(ro + rd * hit.t, glass > 0, separation);
     const bool back = dot(scene.geometric_normal(hit.prim), rd) >= 0;
     o.xyz.insert(o.xyz.end(), {y.x, y.y, y.z});
-    o.q.push_back({hit.prim | (back ? kBackSide : 0u), w0 * beta});
+    o.q.push_back({hit.prim | (back ? kBackSide : 0u) | (glass > 0 ? GatherQuery::kInGlass : 0u), w0 * beta});
     ++queries;
   }
   return queries;
@@ -293,21 +314,33 @@ void FinalGatherRenderer::shade_pass(const TracedPass& pass, std::size_t slots,
       nrm.resize(3 * nq);
       for (std::size_t q = 0; q < nq; ++q) {
         const GatherQuery& g = pass.gather[q];
-        const Vec3 ng = scene.geometric_normal(g.prim_side & ~kBackSide);
-        const Vec3 n = (g.prim_side & kBackSide) ? -ng : ng;
+        const Vec3 ng = scene.geometric_normal(g.prim_side & GatherQuery::kPrim);
+        Vec3 n = (g.prim_side & kBackSide) ? -ng : ng;
+        if (opt_.boundary_correction) n = surface_class_vector(surface_class(n));
         nrm[3 * q] = n.x;
         nrm[3 * q + 1] = n.y;
         nrm[3 * q + 2] = n.z;
       }
       stats.add_query(global_.estimate(pass.gather_xyz.data(), nrm.data(), nq, opt_.search, estimators[0],
-                                       opt_.radius_scale2, scratch.global_est));
+                                       opt_.radius_scale2, scratch.global_est, opt_.boundary_correction));
       stats.result_bytes += scratch.global_est.bytes_read_back;
       stats.queries += nq;
     }
     if (caustic_) {
       static_assert(sizeof(Vec3) == 3 * sizeof(float), "normals are read as n x 3 floats");
-      stats.add_query(caustic_->estimate(pass.vis_xyz.data(), reinterpret_cast<const float*>(pass.vis_n.data()), n,
-                                         cparams, estimators[0], opt_.radius_scale2, scratch.caustic_est));
+      const float* cn = reinterpret_cast<const float*>(pass.vis_n.data());
+      if (opt_.boundary_correction) {
+        scratch.caustic_normals.resize(3 * n);
+        for (std::size_t i = 0; i < n; ++i) {
+          const Vec3 c = surface_class_vector(surface_class(pass.vis_n[i]));
+          scratch.caustic_normals[3 * i] = c.x;
+          scratch.caustic_normals[3 * i + 1] = c.y;
+          scratch.caustic_normals[3 * i + 2] = c.z;
+        }
+        cn = scratch.caustic_normals.data();
+      }
+      stats.add_query(caustic_->estimate(pass.vis_xyz.data(), cn, n, cparams, estimators[0], opt_.radius_scale2,
+                                         scratch.caustic_est, opt_.boundary_correction));
       stats.result_bytes += scratch.caustic_est.bytes_read_back;
       stats.caustic_queries += n;
     }
@@ -340,22 +373,33 @@ void FinalGatherRenderer::shade_pass(const TracedPass& pass, std::size_t slots,
         if (have_global)
           for (std::size_t q = pass.q_begin[i]; q < pass.q_begin[i + 1]; ++q) {
             const GatherQuery& g = pass.gather[q];
-            const std::uint32_t prim = g.prim_side & ~kBackSide;
+            const std::uint32_t prim = g.prim_side & GatherQuery::kPrim;
+            const float* key = pass.gather_xyz.data() + 3 * q;
             if (fused) {
-              indirect += g.weight * (scene.material_of(prim).kd * est3(scratch.global_est, q) * gscale);
+              const float f = boundary_factor(g.prim_side, key, scratch.global_est.radius2[q], est);
+              indirect += g.weight * (scene.material_of(prim).kd * est3(scratch.global_est, q) * (gscale * f));
               continue;
             }
             const Vec3 ng = scene.geometric_normal(prim);
-            indirect += g.weight * global_.radiance(gres, q, (g.prim_side & kBackSide) ? -ng : ng,
-                                                    scene.material_of(prim).kd, opt_.search.max_radius, est,
-                                                    opt_.radius_scale2);
+            float r2 = 0;
+            const Vec3 l = global_.radiance(gres, q, (g.prim_side & kBackSide) ? -ng : ng, scene.material_of(prim).kd,
+                                            opt_.search.max_radius, est, opt_.radius_scale2,
+                                            opt_.boundary_correction, &r2);
+            indirect += g.weight * (l * boundary_factor(g.prim_side, key, r2, est));
           }
         Vec3 caustic{0, 0, 0};
-        if (caustic_)
-          caustic = pass.vis_weight[i] *
-                    (fused ? pass.vis_kd[i] * est3(scratch.caustic_est, i) * cscale
-                           : caustic_->radiance(cres, i, pass.vis_n[i], pass.vis_kd[i], cparams.max_radius, est,
-                                                opt_.radius_scale2));
+        if (caustic_) {
+          const float* key = pass.vis_xyz.data() + 3 * i;
+          if (fused) {
+            const float f = boundary_factor(pass.vis_prim[i], key, scratch.caustic_est.radius2[i], est);
+            caustic = pass.vis_weight[i] * (pass.vis_kd[i] * est3(scratch.caustic_est, i) * (cscale * f));
+          } else {
+            float r2 = 0;
+            const Vec3 l = caustic_->radiance(cres, i, pass.vis_n[i], pass.vis_kd[i], cparams.max_radius, est,
+                                              opt_.radius_scale2, opt_.boundary_correction, &r2);
+            caustic = pass.vis_weight[i] * (l * boundary_factor(pass.vis_prim[i], key, r2, est));
+          }
+        }
         out[k][pass.vis_slot[i]] += pass.direct[i] + (indirect + caustic);
       }
     }
@@ -440,6 +484,8 @@ TracedPass FinalGatherRenderer::trace_pass(int y0, int y1, RenderStats& stats) c
               sp.kd = m.kd;
               sp.weight = beta;
               sp.in_glass = glass > 0;
+              sp.prim = hit.prim;
+              sp.back = !front;
               sp.rng_index = slot0 + s;
               vis_chunks[c].push_back(sp);
               vis_slot_chunks[c].push_back(static_cast<std::uint32_t>(s));

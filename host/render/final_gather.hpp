@@ -20,6 +20,7 @@
 #pragma once
 
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "embree_scene.hpp"
@@ -27,6 +28,7 @@
 #include "lights.hpp"
 #include "photon_map.hpp"
 #include "progress.hpp"
+#include "surface_area.hpp"
 
 namespace bhcl::render {
 
@@ -56,6 +58,14 @@ struct RenderOptions {
   // up to float rounding, not bit for bit: off by default, so that shade() with several estimators
   // (which needs the lists) and render() agree exactly; bhcl render turns it on.
   bool fused_estimate = false;
+  // The boundary correction (surface_area.hpp): every estimate counts only the photons on its
+  // gather point's surface and divides by the filter's integral over the part of its disc on that
+  // surface, not over the whole disc. Off here (a struct default that hand-made photon maps of the
+  // tests need: their records carry no surface class); bhcl render's --boundary chooses.
+  bool boundary_correction = false;
+  // Its surface rasters, shared by the passes of a progressive render; built by the renderer when
+  // null and the correction is on.
+  std::shared_ptr<const SurfaceAreaMap> surface_areas;
 };
 
 struct RenderStats {
@@ -73,7 +83,9 @@ struct RenderStats {
 
 // One gather query of a traced pass: the diffuse surface it ended on (triangle, and in the top bit
 // whether the ray arrived on its back side) and the throughput to the pixel.
+// prim_side also says (bit 30) whether the point is inside glass (its position medium-keyed).
 struct GatherQuery {
+  static constexpr std::uint32_t kBack = 0x80000000u, kInGlass = 0x40000000u, kPrim = 0x3FFFFFFFu;
   std::uint32_t prim_side = 0;
   Vec3 weight;
 };
@@ -88,6 +100,7 @@ struct TracedPass {
   std::vector<Vec3> direct;                 // per visible point, weighted
   std::vector<float> vis_xyz;               // 3 per visible point: the caustic queries
   std::vector<Vec3> vis_n, vis_kd, vis_weight;
+  std::vector<std::uint32_t> vis_prim;      // per visible point, as GatherQuery::prim_side (kPrim: none)
   std::vector<std::size_t> q_begin;         // visible points + 1
   std::vector<float> gather_xyz;            // 3 per gather query
   std::vector<GatherQuery> gather;
@@ -109,6 +122,8 @@ struct SurfacePoint {
   Vec3 kd;                    // albedo
   Vec3 weight{1, 1, 1};       // path throughput up to x
   bool in_glass = false;      // x lies inside glass (its queries are keyed by medium_key)
+  std::uint32_t prim = GatherQuery::kPrim;  // its triangle (kPrim: not known: no boundary correction)
+  bool back = false;          // n is the triangle's back side
   std::uint64_t rng_index = 0;
 };
 
@@ -154,8 +169,10 @@ class FinalGatherRenderer {
   struct QueryScratch {
     KnnResult global, caustic;
     DensityResult global_est, caustic_est;  // RenderOptions::fused_estimate
-    std::vector<float> normals;
+    std::vector<float> normals, caustic_normals;
   };
+  // The boundary correction's factor of one estimate (1 when it is off).
+  float boundary_factor(std::uint32_t prim_side, const float* key, float r2, const DensityEstimator& est) const;
   void shade_pass(const TracedPass& pass, std::size_t slots, const std::vector<DensityEstimator>& estimators,
                   std::vector<std::vector<Vec3>>& out, RenderStats& stats, QueryScratch& scratch) const;
   void film(const TracedPass& pass, const std::vector<Vec3>& radiance, Image& img, RenderStats& stats) const;

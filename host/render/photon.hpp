@@ -19,10 +19,20 @@ struct PhotonRecord {
   std::uint16_t power[3];  // Imath::half bits
   std::int16_t direction[2];
   std::uint16_t flags;     // bits 0-7: diffuse/specular bounces before this hit; bit 8: caustic;
-                           // bit 9: stored inside glass (position keyed by medium_key)
+                           // bit 9: stored inside glass (position keyed by medium_key);
+                           // bits 10-12: the surface's orientation class + 1 (surface_area.hpp;
+                           // 0: not known)
 
   static constexpr std::uint16_t kCaustic = 0x100;
   static constexpr std::uint16_t kInGlass = 0x200;
+  static constexpr int kClassShift = 10;
+  static constexpr std::uint16_t kClassMask = 0x1C00;
+
+  // The orientation class (0..5) of the surface the photon landed on, on its lit side; -1 unknown.
+  int surface_class() const { return ((flags & kClassMask) >> kClassShift) - 1; }
+  void set_surface_class(int c) {
+    flags = static_cast<std::uint16_t>((flags & ~kClassMask) | (((c + 1) << kClassShift) & kClassMask));
+  }
 
   void set_power(Vec3 p) {
     power[0] = Imath::half(p.x).bits();

@@ -55,16 +55,22 @@ class PhotonMap {
   // the normal, without the lists coming back; the radiance is then kd * estimate * power_scale /
   // pi, equal to radiance() from the lists up to float rounding. The photons' power and direction
   // go to the device at the first call after each (re)build.
+  // same_surface (the boundary correction, surface_area.hpp): the normals are the queries'
+  // surface_class_vector and only the photons of that orientation class count.
   QueryStats estimate(const float* xyz, const float* normals, std::size_t n, const SearchParams& params,
-                      const DensityEstimator& estimator, float scale2, DensityResult& out) const;
+                      const DensityEstimator& estimator, float scale2, DensityResult& out,
+                      bool same_surface = false) const;
 
   // The radiance estimate (see top of file) from row `row` of a query result. scale2 < 1 shrinks
   // the disc to scale2 times the estimator's squared radius (a progressive pass, see
   // progressive.hpp): only the photons of the list inside the shrunk disc count (the list is
   // sorted, so they are its first entries), every filter included. scale2 = 1 is the plain
   // estimate, bit for bit.
+  // same_surface: only the photons whose surface has n's orientation class count (instead of the
+  // facing test); r2_used (when given) gets the disc's squared radius (0: none).
   Vec3 radiance(const KnnResult& r, std::size_t row, Vec3 n, Vec3 kd, float max_radius,
-               const DensityEstimator& estimator = {}, float scale2 = 1.0f) const;
+               const DensityEstimator& estimator = {}, float scale2 = 1.0f, bool same_surface = false,
+               float* r2_used = nullptr) const;
 
  private:
   std::string name_;
@@ -73,9 +79,12 @@ class PhotonMap {
   // Decoded once per map (each photon is read by about k x queries / photons estimates, ~100s of
   // times per render): the half-float power and the unpacked (not normalised) incoming direction.
   std::vector<Vec3> power_, direction_;
+  std::vector<Vec3> class_dir_;  // surface_class_vector of each photon's surface (0: unknown)
+  std::vector<std::int8_t> class_;
   float power_scale_;
   std::unique_ptr<Index> index_;
   mutable std::unique_ptr<DensityWeights> weights_;  // for estimate(); reset by every (re)build
+  mutable std::unique_ptr<DensityWeights> surface_weights_;  // the same with class_dir_ (same_surface)
   double build_seconds_ = 0;
 };
 

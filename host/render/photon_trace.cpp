@@ -7,6 +7,7 @@
 
 #include "blockhash_cl/error.hpp"
 #include "parallel.hpp"
+#include "surface_area.hpp"
 
 namespace bhcl::render {
 namespace {
@@ -63,6 +64,7 @@ void trace_one(const EmbreeScene& es, const LightSampler& lights, const PhotonTr
       bool caustic = only_specular && had_specular;
       if (caustic) r.flags |= PhotonRecord::kCaustic;
       if (glass > 0) r.flags |= PhotonRecord::kInGlass;
+      r.set_surface_class(surface_class(n));  // the boundary-corrected estimate's surface test
       out.global.push_back(r);
       out.stored += power;
       if (caustic) out.caustic.push_back(r);

@@ -47,6 +47,9 @@ ProgressiveResult render_progressive(const EmbreeScene& es, const LightSampler& 
   ProgressiveResult res;
   res.image = Image(ropt.width, ropt.height);
   std::vector<double> sum(res.image.rgb.size(), 0.0);  // double: hundreds of passes add up exactly enough
+  // The boundary correction's rasters depend on the scene only: built once, shared by every pass.
+  if (ropt.boundary_correction && !ropt.surface_areas)
+    ropt.surface_areas = std::make_shared<const SurfaceAreaMap>(es, ropt.threads);
   PhotonMaps prev;
   for (int pass = 1; pass <= opt.passes; ++pass) {
     if (pass > 1 && opt.time_s > 0 && since(t_start) >= opt.time_s) break;
