@@ -38,6 +38,7 @@ import numpy.typing as npt
 
 from . import _container, _core
 from . import _refine
+from ._base import _IndexFront, _checked_ids, _forwarded
 from ._core import Error, OpenCLError, Runtime
 # The method tables as keyword arguments and the checks of arrays and values (_checks.py).
 from ._checks import (  # noqa: F401
@@ -192,7 +193,7 @@ def _append_rows(buf: Optional[np.ndarray], view: np.ndarray, rows: np.ndarray) 
     out.flags.writeable = False
     return buf, out
 
-class Index:
+class Index(_IndexFront):
     """A built index of one method over (N, 3) points. Made by make_index() or load().
 
     Attributes: method, exact, size (also len()), memory_bytes, build_seconds, device (a dict as
@@ -238,21 +239,6 @@ class Index:
         self._coords = _precision(self._origin, extent)
 
     @property
-    def method(self) -> str:
-        return self._impl.method
-
-    @property
-    def exact(self) -> bool:
-        return self._impl.exact
-
-    @property
-    def size(self) -> int:
-        return self._impl.size
-
-    def __len__(self) -> int:
-        return self._impl.size
-
-    @property
     def memory_bytes(self) -> int:
         """Bytes this index holds, as the process's resident memory grows by them on PoCL (where
         device memory is host memory): the library's structure (device arrays, points included),
@@ -263,9 +249,7 @@ class Index:
             own += buf.nbytes if buf is not None else view.nbytes if view is not None else 0
         return int(self._impl.memory_bytes) + int(self._impl.host_bytes) + own
 
-    @property
-    def build_seconds(self) -> float:
-        return self._impl.build_seconds
+    build_seconds = _forwarded("build_seconds", "Seconds the build took.")
 
     @property
     def device(self) -> Dict[str, Any]:
@@ -295,14 +279,6 @@ class Index:
         return info
 
     @property
-    def coordinates(self) -> Dict[str, Any]:
-        """How the caller's coordinates are stored: origin (float64 input far from 0 for its size
-        is stored in float32 relative to its box's centre, computed in double precision; else 0),
-        max_abs_relative, float32_step and max_rounding (the largest rounding of a stored
-        coordinate, in caller units), recentred. Distances are always in caller units."""
-        return dict(self._coords)
-
-    @property
     def refined(self) -> bool:
         """Whether answers are refined in float64 from the caller's float64 points (make_index's
         refine): distances come back float64, each row recomputed and re-sorted in double."""
@@ -320,14 +296,6 @@ class Index:
 
     def __repr__(self) -> str:
         return f"<blockhash_cl.Index {self.method} of {self.size} points on {self.device['summary']}>"
-
-    # --- coordinates
-    def _to_index(self, a: np.ndarray, what: str) -> "npt.NDArray[np.float32]":
-        """Queries in the index's stored coordinates: as they are (no copy for C-contiguous
-        float32) when the origin is 0, else relative to it, computed in float64."""
-        if not np.any(self._origin):
-            return _xyz(a, what)
-        return _relative(a, self._origin, what)
 
     def _search_params(self, k: int, options: Dict[str, Any]) -> "_core.SearchParams":
         """SearchParams from keyword arguments, refusing those this method does not read.
@@ -377,16 +345,7 @@ class Index:
             dist2, ids, counts, stats = self._query64(a, q, p.k, max_radius, search, sort_queries)
         else:
             dist2, ids, counts, stats = self._impl.query(q, p)
-        stats["coordinates"] = dict(self._coords)
-        self.last_stats = stats
-        if single:
-            dist2, ids, counts = dist2[0], ids[0], counts[0]
-        out: Tuple[Any, ...] = (dist2, ids)
-        if return_counts:
-            out += (counts,)
-        if return_stats:
-            out += (stats,)
-        return out
+        return self._knn_result(dist2, ids, counts, stats, single, return_counts, return_stats)
 
     def _query64(self, a: np.ndarray, q: np.ndarray, k: int, max_radius: Optional[float],
                  search: Dict[str, Any], sort_queries: Any, strict: bool = False) -> Tuple[Any, ...]:
@@ -481,12 +440,7 @@ class Index:
                                                                exact)
         else:
             offsets, dist2, ids, found, stats = self._impl.radius_search(q, radius, bool(squared), p)
-        stats["found"] = found
-        stats["coordinates"] = dict(self._coords)
-        self.last_stats = stats
-        if return_stats:
-            return RadiusResultWithStats(offsets, dist2, ids, stats)
-        return RadiusResult(offsets, dist2, ids)
+        return self._radius_result(offsets, dist2, ids, found, stats, return_stats)
 
     def warm_up(self, k: int = 10, **search: Any) -> float:
         """Compiles the kernel variant the search parameters need and launches it once, so that
@@ -515,11 +469,7 @@ class Index:
     def remove(self, ids: Any) -> None:
         """Removes the points of these ids (a 1-D integer array or sequence). Raises Error for an
         id never issued, already removed or given twice, and for removing every point."""
-        arr = np.asarray(ids)
-        if arr.ndim != 1 or not (arr.size == 0 or np.issubdtype(arr.dtype, np.integer)):
-            raise ValueError(f"remove: ids must be a 1-D array of integers, got shape {arr.shape} dtype {arr.dtype}")
-        if arr.size and (arr.min() < -2**31 or arr.max() >= 2**31):
-            raise ValueError("remove: an id is outside the int32 range")
+        arr = _checked_ids(ids, -2**31, 2**31 - 1, "remove")
         self._impl.remove(np.ascontiguousarray(arr, dtype=np.int32))
         # The rows stay (ids are never reused); the removed ids travel with them (see the class).
         # Kept as the calls gave them and merged when read: a sorted union on every remove grew
@@ -533,11 +483,6 @@ class Index:
             self._removed_sorted = np.sort(np.concatenate([self._removed_sorted] + self._removed_parts)).astype(np.int32)
             self._removed_parts = []
         return self._removed_sorted
-
-    @property
-    def id_bound(self) -> int:
-        """One past the largest id issued (the next add's first id)."""
-        return self._impl.id_bound
 
     def contains(self, id: int) -> bool:
         """True when id was issued and not removed."""
