@@ -294,13 +294,10 @@ void bind_distributed(py::module_& m) {
       .def("box", &Comm::box, py::arg("lo"), py::arg("hi"));
 
   using D = bhcl::DistributedIndex;
-  py::class_<D, std::unique_ptr<D>>(m, "DistributedIndex")
+  py::class_<D, bhcl::SearchIndex, std::unique_ptr<D>>(m, "DistributedIndex")
       .def(py::init(&build), py::arg("comm"), py::arg("runtime"), py::arg("points").noconvert(),
            py::arg("method"), py::arg("options"), py::arg("boxes_per_rank"), py::arg("border_factor"),
            py::arg("deadline_s"), py::arg("id_base"))
-      .def_property_readonly("method", &D::method)
-      .def_property_readonly("exact", &D::exact)
-      .def_property_readonly("size", &D::size)
       .def_property_readonly("rank", &D::rank)
       .def_property_readonly("ranks", &D::ranks)
       .def_property_readonly("id_base", &D::id_base)

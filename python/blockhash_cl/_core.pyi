@@ -29,24 +29,23 @@ class Runtime:
     @property
     def build_seconds(self) -> float: ...
 
-class SearchParams:
-    k: int
-    max_radius: float
-    A: float
-    recall_target: float
-    local_size: int
-    max_batch: int
-    sort_queries: int
-    def __init__(self) -> None: ...
-
-class RadiusParams:
-    budget: int
-    max_results: int
-    sorted: bool
+class DispatchParams:  # the base of both below (knn.hpp)
     local_size: int
     max_batch: int
     sort_queries: int
     count_examined: bool
+
+class SearchParams(DispatchParams):
+    k: int
+    max_radius: float
+    A: float
+    recall_target: float
+    def __init__(self) -> None: ...
+
+class RadiusParams(DispatchParams):
+    budget: int
+    max_results: int
+    sorted: bool
     max_batch_results: int
     def __init__(self) -> None: ...
 
@@ -55,13 +54,15 @@ class MethodOptions:
     def set(self, name: str, text: str) -> None: ...
     def __init__(self) -> None: ...
 
-class Index:
+class SearchIndex:  # the base of Index, MultiDeviceIndex and DistributedIndex (knn.hpp)
     @property
     def method(self) -> str: ...
     @property
     def exact(self) -> bool: ...
     @property
     def size(self) -> int: ...
+
+class Index(SearchIndex):
     @property
     def memory_bytes(self) -> int: ...
     @property
@@ -101,12 +102,9 @@ def refine_radius(q: npt.NDArray[np.float64], points: npt.NDArray[np.float64], o
                   ids: npt.NDArray[np.int32], r2: npt.NDArray[np.float64],
                   sorted: bool) -> Tuple[npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.int32]]: ...
 
-class MultiDeviceIndex:
+class MultiDeviceIndex(SearchIndex):
     def __init__(self, runtimes: List[Runtime], method: str, points: npt.NDArray[np.float32],
                  options: MethodOptions) -> None: ...
-    method: str
-    exact: bool
-    size: int
     devices: int
     memory_bytes: int
     host_bytes: int
@@ -140,13 +138,10 @@ class MpiComm:
     def agree(self, local_error: str, what: str) -> None: ...
     def box(self, lo: List[float], hi: List[float]) -> Tuple[List[float], List[float]]: ...
 
-class DistributedIndex:
+class DistributedIndex(SearchIndex):
     def __init__(self, comm: MpiComm, runtime: Runtime, points: npt.NDArray[np.float32], method: str,
                  options: MethodOptions, boxes_per_rank: int, border_factor: float, deadline_s: float,
                  id_base: int) -> None: ...
-    method: str
-    exact: bool
-    size: int
     rank: int
     ranks: int
     id_base: int
