@@ -12,10 +12,10 @@ noisy); it is a report.
     POCL_MAX_PTHREAD_COUNT=2 PYTHONPATH=<the built package> /usr/bin/python3 bench/update_bench_python.py
 
 --distributed: the same on a blockhash_cl.DistributedIndex, run under mpirun (every rank adds
-its share of each add, a point set over the whole box, and removes its share of the ids); each
-rank times its own calls, rank 0 prints every rank's rows. The Python side there includes the
-layer's agreement over the ranks (one mpi_agree and one allreduce per call), the C++ side is the
-library's collective insert / remove.
+its share of each add, a point set over the whole box, and removes its share of the ids; a
+barrier before each timed call); each rank times its own calls, rank 0 prints every rank's rows.
+The Python side there includes the layer's agreement over the ranks (one mpi_agree and one
+allreduce per call), the C++ side is the library's collective insert / remove.
 
     mpirun -np 2 --oversubscribe -x POCL_MAX_PTHREAD_COUNT=1 -x PYTHONPATH /usr/bin/python3 \\
         bench/update_bench_python.py --distributed --method kdtree
@@ -52,14 +52,16 @@ class Timed:
         return timed
 
 
-def timed_calls(ix, timed, calls, m, rng, share, id_dtype):
+def timed_calls(ix, timed, calls, m, rng, share, id_dtype, sync):
     """`calls` adds of m points then `calls` removes of m live ids (of the index's id type):
     {op: [(python_s, cpp_s)]}. share(a) is this process's part of an array every process draws
-    alike."""
+    alike; sync() runs before each timed call (the ranks' barrier: a rank that arrives first
+    would otherwise count its wait for the others as the Python layer's time)."""
     rows = {"add": [], "remove": []}
     alive = np.ones(ix.id_bound, bool)
     for _ in range(calls):
         pts = share(rng.random((m, 3), dtype=np.float32))
+        sync()
         t0 = time.perf_counter()
         ix.add(pts)
         rows["add"].append((time.perf_counter() - t0, timed.last))
@@ -68,6 +70,7 @@ def timed_calls(ix, timed, calls, m, rng, share, id_dtype):
         ids = rng.choice(np.flatnonzero(alive), size=m, replace=False)
         alive[ids] = False
         mine = share(ids).astype(id_dtype)
+        sync()
         t0 = time.perf_counter()
         ix.remove(mine)
         rows["remove"].append((time.perf_counter() - t0, timed.last))
@@ -110,6 +113,7 @@ def main(argv):
             return x[rank * len(x) // ranks:(rank + 1) * len(x) // ranks]
 
         ix = bh.DistributedIndex(a.method, share(pts), comm)
+        sync = comm.Barrier
     else:
         rank, ranks = 0, 1
 
@@ -117,9 +121,12 @@ def main(argv):
             return x
 
         ix = bh.make_index(a.method, pts)
+
+        def sync():
+            pass
     timed = Timed(ix._impl)
     ix._impl = timed
-    rows = timed_calls(ix, timed, a.calls, m, rng, share, np.int64 if a.distributed else np.int32)
+    rows = timed_calls(ix, timed, a.calls, m, rng, share, np.int64 if a.distributed else np.int32, sync)
     kind = f"DistributedIndex over {ranks} ranks" if a.distributed else "Index"
     lines = table(rows, f"{rank}" if a.distributed else "")
     if a.distributed:
