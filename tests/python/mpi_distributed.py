@@ -141,12 +141,18 @@ def test_float64_far_from_origin_recentred_on_all_ranks(world, data):
     mine_q = q64[_split(NQ, ranks, rank, skew=False)]
     index = bh.DistributedIndex("kdtree", p64[_split(N, ranks, rank)], comm)
     d2, ids = index.query(mine_q, k=10)
+    # float64 points added later are stored relative to the same origin, as make_index's add does.
+    more = base + np.random.default_rng(7).random((500, 3)) * 100.0
+    index.add(more[_split(len(more), ranks, rank)])
+    after = index.query(mine_q, k=10, return_counts=True)
     one = bh.make_index("kdtree", p64, refine=False)
     e_d2, e_ids = one.query(mine_q, k=10)
     assert index.coordinates["recentred"] and index.coordinates["origin"] == one.coordinates["origin"]
     assert index.coordinates["max_rounding"] == one.coordinates["max_rounding"]
     np.testing.assert_array_equal(ids, e_ids.astype(np.int64))
     np.testing.assert_array_equal(d2, e_d2)
+    one.add(more)
+    _assert_same_knn(after, one, mine_q, 10)
 
 
 def test_all_points_on_rank0_id_base_and_single_query(world, data):
