@@ -212,7 +212,8 @@ class Index(_IndexFront):
     """
 
     __slots__ = ("_impl", "last_stats", "_origin", "_points_merged", "_points_parts", "_options", "_coords",
-                 "_removed_sorted", "_points64", "_p_round", "_devices", "_points64_buf", "_removed_parts")
+                 "_removed_sorted", "_points64", "_p_round", "_devices", "_points64_buf", "_removed_parts",
+                 "_points_lock")
 
     def __init__(self, impl: "_core.Index", origin: Optional[np.ndarray] = None,
                  points: Optional[np.ndarray] = None, options: Optional[Dict[str, Any]] = None,
@@ -236,6 +237,7 @@ class Index(_IndexFront):
         # adds' rows since, one read-only array per add.
         self._points_merged = points
         self._points_parts: List[np.ndarray] = []
+        self._points_lock = threading.Lock()  # an add's append against a merge in another thread
         self._options = dict(options or {})
         extent = float(np.max(np.abs(points))) if points is not None and points.size else 0.0
         self._coords = _precision(self._origin, extent)
@@ -257,11 +259,12 @@ class Index(_IndexFront):
         """The host copy of the stored points pickling and save send, a row per id issued,
         read-only (None: a loaded index without one): the rows of the adds since the last read
         merged into one array on this read, so that an add copies its own rows only."""
-        if self._points_parts:
-            merged = np.concatenate([self._points_merged] + self._points_parts)
-            merged.flags.writeable = False
-            self._points_merged, self._points_parts = merged, []
-        return self._points_merged
+        with self._points_lock:
+            if self._points_parts:
+                merged = np.concatenate([self._points_merged] + self._points_parts)
+                merged.flags.writeable = False
+                self._points_merged, self._points_parts = merged, []
+            return self._points_merged
 
     @property
     def device(self) -> Dict[str, Any]:
@@ -473,7 +476,9 @@ class Index(_IndexFront):
         # (6.5x the insert's time on that call; issue 39). The float64 one, which every refined
         # query reads, stays one array, appended in place into a store grown by half.
         if self._points_merged is not None:
-            self._points_parts.append(_own_copy(stored.reshape(-1, 3), points))
+            part = _own_copy(stored.reshape(-1, 3), points)
+            with self._points_lock:
+                self._points_parts.append(part)
         if self._points64 is not None:
             a, _ = _checked(points, "points")
             self._points64_buf, self._points64 = _append_rows(self._points64_buf, self._points64,
