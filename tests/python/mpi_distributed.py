@@ -318,3 +318,33 @@ def test_memory_bytes_counts_host_arrays(world, data, method):
     host = len(shard) * (8 + 12 + 2)  # global id, float32 copy, sub-run of each point
     assert local_bytes + host <= before <= local_bytes + 2 * host + 4096, (before, local_bytes, host)
     assert grown > before
+
+
+def test_a_shard_emptied_by_removes_then_refilled(world, data):
+    comm, rank, ranks = world
+    pts, _ = data
+    mine_p, mine_q = _mine(world, data)
+    index = bh.DistributedIndex("kdtree", mine_p, comm)
+    last = ranks - 1
+    # The last rank removes its whole shard (at one rank: half of it, not every point).
+    gone = index.shard_live_ids if rank == last else np.zeros(0, np.int64)
+    if ranks == 1:
+        gone = gone[::2]
+    index.remove(gone)
+    emptied = (index.shard_size, index.device, index.memory_bytes, len(index.shard_live_ids))
+    got = index.query(mine_q, k=10, return_counts=True)
+    refill = pts[:200] + np.float32(0.0005)  # points near old ones, wherever their owner is now
+    ids = index.add(refill if rank == 0 else np.zeros((0, 3), np.float32))
+    got_after = index.query(mine_q, k=10, return_counts=True)
+    all_gone = np.concatenate(comm.allgather(gone)) if comm is not None else gone
+    one = bh.make_index("kdtree", pts)
+    one.remove(all_gone)
+    _assert_same_knn(got, one, mine_q, 10)
+    e_ids = one.add(refill)
+    _assert_same_knn(got_after, one, mine_q, 10)
+    if rank == 0:
+        np.testing.assert_array_equal(ids, e_ids.astype(np.int64))
+    if rank == last and ranks > 1:
+        shard_size, device, memory, live = emptied
+        assert shard_size == 0 and device is None and live == 0
+        assert memory > 0  # the host arrays stay (ids are never reused)
