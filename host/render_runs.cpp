@@ -225,6 +225,7 @@ Json render_header(const Runtime& rt, const Args& args, const std::string& scene
   j["shadow_rays"] = ropt.shadow_rays;
   j["k"] = ropt.search.k;
   j["estimator"] = estimator_name(ropt.estimator);
+  j["boundary"] = ropt.boundary_correction ? "surface" : "none";
   j["caustic_k"] = ropt.caustic_k;
   j["caustic_radius"] = ropt.caustic_radius;
   j["batch"] = ropt.batch_queries;

@@ -183,6 +183,50 @@ void SurfaceAreaMap::mark_edges(Plane& p) const {
       }
       p.edge[static_cast<std::size_t>(j) * p.nu + i] = static_cast<std::uint8_t>(e | (on << 2));
     }
+  const Scene& scene = es_->scene();
+  p.edges.clear();
+  for (std::uint32_t t : p.tris) {
+    const auto& tri = scene.triangles[t];
+    float ta[3], tb[3];
+    for (int k = 0; k < 3; ++k) {
+      ta[k] = dot(scene.vertices[tri[k]], p.u);
+      tb[k] = dot(scene.vertices[tri[k]], p.v);
+    }
+    const float area2 = (ta[1] - ta[0]) * (tb[2] - tb[0]) - (ta[2] - ta[0]) * (tb[1] - tb[0]);
+    const float sg = area2 > 0 ? 1.0f : area2 < 0 ? -1.0f : 0.0f;  // 0: degenerate, never inside
+    std::array<float, 9> e{};
+    for (int k = 0; k < 3; ++k) {
+      const int k1 = (k + 1) % 3;
+      // (ta1 - ta0)(b - tb0) - (a - ta0)(tb1 - tb0) >= 0 inside (counter-clockwise)
+      e[3 * k] = -sg * (tb[k1] - tb[k]);
+      e[3 * k + 1] = sg * (ta[k1] - ta[k]);
+      e[3 * k + 2] = sg * ((tb[k1] - tb[k]) * ta[k] - (ta[k1] - ta[k]) * tb[k]);
+    }
+    if (sg == 0) e[2] = -1;  // a degenerate triangle holds nothing
+    p.edges.push_back(e);
+  }
+  p.sub_of.assign(p.code.size(), ~0u);
+  p.sub.clear();
+  for (std::size_t c = 0; c < p.code.size(); ++c) {
+    if (!(p.edge[c] & kEdgeMedium)) continue;
+    const int i = static_cast<int>(c % p.nu), j = static_cast<int>(c / p.nu);
+    p.sub_of[c] = static_cast<std::uint32_t>(p.sub.size());
+    for (int sj = 0; sj < 4; ++sj)
+      for (int si = 0; si < 4; ++si) {
+        const float a = p.a0 + (i + (si + 0.5f) / 4) * h_, b = p.b0 + (j + (sj + 0.5f) / 4) * h_;
+        const std::uint32_t t = holder_of(p, a, b);
+        p.sub.push_back(t == ~0u ? kOff : medium_by_ray(p, t, a, b));
+      }
+  }
+}
+
+std::uint32_t SurfaceAreaMap::holder_of(const Plane& p, float a, float b) {
+  for (std::size_t k = 0; k < p.edges.size(); ++k) {
+    const std::array<float, 9>& e = p.edges[k];
+    if (e[0] * a + e[1] * b + e[2] >= 0 && e[3] * a + e[4] * b + e[5] >= 0 && e[6] * a + e[7] * b + e[8] >= 0)
+      return p.tris[k];
+  }
+  return ~0u;
 }
 
 // The medium on the front side of triangle tri at plane coordinates (a, b), as rasterise finds it.
@@ -205,30 +249,13 @@ std::uint8_t SurfaceAreaMap::code_at(const Plane& p, float a, float b) const {
   const std::size_t c = static_cast<std::size_t>(j) * p.nu + i;
   const std::uint8_t e = p.edge[c];
   if (!(e & (kEdgeCover | kEdgeMedium)) || p.tris.size() > kExactTriangles) return p.code[c];
-  // Which triangle holds the point, exactly (in the plane's projection).
-  const Scene& scene = es_->scene();
-  std::uint32_t holder = ~0u;
-  for (std::uint32_t t : p.tris) {
-    const auto& tri = scene.triangles[t];
-    float ta[3], tb[3];
-    for (int k = 0; k < 3; ++k) {
-      ta[k] = dot(scene.vertices[tri[k]], p.u);
-      tb[k] = dot(scene.vertices[tri[k]], p.v);
-    }
-    const float area2 = (ta[1] - ta[0]) * (tb[2] - tb[0]) - (ta[2] - ta[0]) * (tb[1] - tb[0]);
-    bool inside = area2 != 0;
-    for (int k = 0; k < 3 && inside; ++k) {
-      const int k1 = (k + 1) % 3;
-      const float ed = (ta[k1] - ta[k]) * (b - tb[k]) - (a - ta[k]) * (tb[k1] - tb[k]);
-      inside = (area2 > 0 ? ed : -ed) >= 0;
-    }
-    if (inside) {
-      holder = t;
-      break;
-    }
+  if (e & kEdgeMedium) {
+    const int si = std::min(3, std::max(0, static_cast<int>(((a - p.a0) / h_ - i) * 4)));
+    const int sj = std::min(3, std::max(0, static_cast<int>(((b - p.b0) / h_ - j) * 4)));
+    return p.sub[p.sub_of[c] + static_cast<std::size_t>(sj) * 4 + si];
   }
+  const std::uint32_t holder = holder_of(p, a, b);
   if (holder == ~0u) return kOff;
-  if (e & kEdgeMedium) return medium_by_ray(p, holder, a, b);
   const std::uint8_t own = p.code[c];
   return own != kOff ? own : static_cast<std::uint8_t>(e >> 2);
 }

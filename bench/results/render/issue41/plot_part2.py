@@ -7,7 +7,8 @@ POINTS.txt: part2.sh's lines "scene method samples seconds tile_rmse worst regio
 stats of the 16-pass runs (their pass_reports: each pass's worst 16-px tile and tile RMSE against
 the reference, by elapsed time). One panel per scene, log-log: per method the worst tile (solid),
 the tile RMSE (dashed) and, on the specular scene, the caustic region's error (dotted, the
-ladder's points), with the 5 % and 2 % lines of the issue's goal. The file is written to a
+ladder's points), with the 5 % and 2 % lines of the issue's goal. Stats with a "boundary" entry
+(part2_boundary.sh) are a method of their own: ppm-blockhash-surface, ppm-blockhash-none. The file is written to a
 temporary beside it and renamed into place.
 """
 import json
@@ -18,10 +19,12 @@ import sys
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
 from svg_plot import svg_open, write_svg  # noqa: E402  (bench/results/svg_plot.py)
 
-COLOURS = {"pathtrace": "#d95f02", "ppm-blockhash": "#1b9e77", "ppm-kdtree": "#7570b3"}
+COLOURS = {"pathtrace": "#d95f02", "ppm-blockhash": "#1b9e77", "ppm-kdtree": "#7570b3",
+           # part2_boundary.sh's runs: the boundary-corrected estimate and the plain one beside it
+           "ppm-blockhash-surface": "#1b9e77", "ppm-kdtree-surface": "#7570b3", "ppm-blockhash-none": "#999999"}
 W, H = 560, 360
 ML, MR, MT, MB = 60, 170, 34, 46
-X_LO, X_HI = 0.02, 100.0
+X_LO, X_HI = 0.02, 1000.0
 Y_LO, Y_HI = 0.2, 100.0
 
 
@@ -57,7 +60,8 @@ def main():
             series.setdefault((scene, method, "region"), []).append((t, 100 * region))
     for p in jsons:
         j = json.load(open(p))
-        m = "ppm-" + j["method"]
+        # Runs with --boundary (part2_boundary.sh) are told apart by it; earlier stats have none.
+        m = "ppm-" + j["method"] + ("-" + j["boundary"] if "boundary" in j else "")
         for r in j["pass_reports"]:
             series.setdefault((j["scene"], m, "worst"), []).append((r["elapsed_s"], 100 * r["block_worst"]))
             series.setdefault((j["scene"], m, "rmse"), []).append((r["elapsed_s"], 100 * r["block_rmse"]))
@@ -68,7 +72,7 @@ def main():
         svg.append(f'<text x="{ox + ML}" y="18" font-size="13">{scene}, 128x128: error against the path-traced '
                    f'reference by wall time</text>')
         svg.append(f'<rect x="{ox + ML}" y="{MT}" width="{W - ML - MR}" height="{H - MT - MB}" fill="none" stroke="#999"/>')
-        for t in [0.1, 1, 10, 100]:
+        for t in [0.1, 1, 10, 100, 1000]:
             svg.append(f'<line x1="{ox + xs(t):.1f}" y1="{MT}" x2="{ox + xs(t):.1f}" y2="{H - MB}" stroke="#eee"/>')
             svg.append(f'<text x="{ox + xs(t):.1f}" y="{H - MB + 14}" text-anchor="middle">{t:g} s</text>')
         for e in [0.5, 1, 2, 5, 10, 20, 50, 100]:
