@@ -233,7 +233,8 @@ TEST_CASE("updates: block hashing's grid (exact mode) after random inserts and r
   std::mt19937_64 rng(11);
   Model m;
   std::vector<float> p0 = uniform(rng, 2000, 0.0f, 1.0f);
-  BlockHashIndex ix(test::runtime(), p0.data(), 2000);
+  const auto ix_owned = BlockHashIndex::build(test::runtime(), p0.data(), 2000);
+  BlockHashIndex& ix = *ix_owned;
   REQUIRE(ix.info().grid);
   m.add(p0);
   for (std::size_t step = 0; step < 12; ++step) {
@@ -271,7 +272,8 @@ TEST_CASE("updates: the grid's budget counts live points, and thinned cells retu
   std::mt19937_64 rng(5);
   Model m;
   std::vector<float> p0 = uniform(rng, 20000, 0.0f, 1.0f);
-  BlockHashIndex ix(test::runtime(), p0.data(), 20000);
+  const auto ix_owned = BlockHashIndex::build(test::runtime(), p0.data(), 20000);
+  BlockHashIndex& ix = *ix_owned;
   REQUIRE(ix.info().grid);
   m.add(p0);
   std::vector<std::int32_t> all(20000);
@@ -333,13 +335,14 @@ TEST_CASE("updates: an insert across the grid's retune band is one fresh build, 
   std::mt19937_64 rng(39);
   Model m;
   std::vector<float> p0 = uniform(rng, 36000, 0.0f, 1.0f);
-  BlockHashIndex ix(test::runtime(), p0.data(), 36000);
+  const auto ix_owned = BlockHashIndex::build(test::runtime(), p0.data(), 36000);
+  BlockHashIndex& ix = *ix_owned;
   REQUIRE(ix.info().grid);
   m.add(p0);
   auto fresh_of_model = [&] {
     std::vector<std::int32_t> ids;
     std::vector<float> pts = m.points(ids);
-    return std::make_unique<BlockHashIndex>(test::runtime(), pts.data(), ids.size());
+    return BlockHashIndex::build(test::runtime(), pts.data(), ids.size());
   };
   // 5 % more: the point-weighted mean grows by about 5 %, inside the band: a merge.
   std::vector<float> more = uniform(rng, 1800, 0.02f, 0.98f);
@@ -411,7 +414,8 @@ TEST_CASE("updates: the grid leaves room where inserts passed its box, so a slid
   std::mt19937_64 rng(391);
   Model m;
   std::vector<float> p0 = uniform(rng, 20000, 0.0f, 1.0f);
-  BlockHashIndex ix(test::runtime(), p0.data(), 20000);
+  const auto ix_owned = BlockHashIndex::build(test::runtime(), p0.data(), 20000);
+  BlockHashIndex& ix = *ix_owned;
   REQUIRE(ix.info().grid);
   m.add(p0);
   // Scan s: 1000 points in [0.1 s, 1 + 0.1 s] x [0, 1]^2 (0.1 of the extent past the old edge: the
@@ -454,7 +458,8 @@ TEST_CASE("updates: block hashing's two-level grid directory after random insert
   std::vector<float> p0 = uniform(rng, 2000, 0.0f, 1.0f);
   BlockHashBuildParams bp;
   bp.grid_directory = 1;  // updates rebuild it over the live points (no in-place merge)
-  BlockHashIndex ix(test::runtime(), p0.data(), 2000, bp);
+  const auto ix_owned = BlockHashIndex::build(test::runtime(), p0.data(), 2000, bp);
+  BlockHashIndex& ix = *ix_owned;
   REQUIRE(ix.info().grid_two_level);
   m.add(p0);
   for (std::size_t step = 0; step < 8; ++step) {
@@ -467,7 +472,8 @@ TEST_CASE("updates: block hashing's two-level grid directory after random insert
   // Its inserts rebuild with the side kept, inside the retune band: grown 3x in steps of a tenth,
   // the cells stay within 1.1x of the tuned population (before, the side was never retuned there).
   const std::size_t retunes = ix.info().retunes;
-  BlockHashIndex fresh_of_first(test::runtime(), p0.data(), 2000, bp);
+  const auto fresh_of_first_owned = BlockHashIndex::build(test::runtime(), p0.data(), 2000, bp);
+  BlockHashIndex& fresh_of_first = *fresh_of_first_owned;
   const double tuned = fresh_of_first.info().mean_cell_points;  // what the tuning aims at here
   for (std::size_t step = 0; step < 12; ++step) {
     CAPTURE(step);
@@ -491,14 +497,16 @@ TEST_CASE("updates: block hashing's block layouts equal a fresh build over the l
     std::mt19937_64 rng(5);
     Model m;
     std::vector<float> p0 = uniform(rng, 1200, 0.0f, 1.0f);
-    BlockHashIndex ix(test::runtime(), p0.data(), 1200, bp);
+    const auto ix_owned = BlockHashIndex::build(test::runtime(), p0.data(), 1200, bp);
+    BlockHashIndex& ix = *ix_owned;
     REQUIRE(!ix.info().grid);
     m.add(p0);
     for (std::size_t step = 0; step < 4; ++step) {
       random_step(ix, m, rng, step);
       std::vector<std::int32_t> ids;
       std::vector<float> pts = m.points(ids);
-      BlockHashIndex fresh(test::runtime(), pts.data(), ids.size(), bp);
+      const auto fresh_owned = BlockHashIndex::build(test::runtime(), pts.data(), ids.size(), bp);
+      BlockHashIndex& fresh = *fresh_owned;
       std::vector<float> qs = uniform(rng, 100, 0.0f, 1.0f);
       SearchParams sp = test::knn_params(10);
       KnnResult want = fresh.query(qs, sp), got = ix.query(qs, sp);
@@ -714,7 +722,8 @@ TEST_CASE("updates: block hashing saved and loaded after random inserts and remo
       std::mt19937_64 rng(seed);
       Model m;
       std::vector<float> p0 = uniform(rng, 1500, 0.0f, 1.0f);
-      BlockHashIndex ix(test::runtime(), p0.data(), 1500, bp);
+      const auto ix_owned = BlockHashIndex::build(test::runtime(), p0.data(), 1500, bp);
+      BlockHashIndex& ix = *ix_owned;
       m.add(p0);
       const std::size_t steps = bp.preset == BlockHashBuildParams::Preset::Paper ? 3 : 6;
       for (std::size_t step = 0; step < steps; ++step) random_step(ix, m, rng, step + seed);
@@ -772,7 +781,8 @@ TEST_CASE("updates: a saved grid after removes: damage refused, version 2 files 
   std::mt19937_64 rng(31);
   Model m;
   std::vector<float> p0 = uniform(rng, 1000, 0.0f, 1.0f);
-  BlockHashIndex ix(test::runtime(), p0.data(), 1000);
+  const auto ix_owned = BlockHashIndex::build(test::runtime(), p0.data(), 1000);
+  BlockHashIndex& ix = *ix_owned;
   m.add(p0);
   std::vector<float> add = uniform(rng, 200, 0.0f, 1.0f);
   ix.insert(add.data(), 200);
@@ -834,7 +844,8 @@ TEST_CASE("updates: a saved grid after removes: damage refused, version 2 files 
     CHECK_THROWS_WITH_AS(BlockHashIndex::load(test::runtime(), bad), doctest::Contains("truncated"), Error);
   }
   // A version 2 file (written before the id state existed) of an index never updated loads.
-  BlockHashIndex plain(test::runtime(), p0.data(), 1000);
+  const auto plain_owned = BlockHashIndex::build(test::runtime(), p0.data(), 1000);
+  BlockHashIndex& plain = *plain_owned;
   plain.save(path);
   const std::string v3 = slurp_file(path);
   std::string v2 = v3.substr(0, kGridHeaderV2) + std::string(8, '\0') + v3.substr(kGridHeaderV3 + 8);
@@ -856,7 +867,8 @@ TEST_CASE("updates: block layouts saved after removes: sparse ids checked, versi
   std::vector<float> p0 = uniform(rng, 900, 0.0f, 1.0f);
   BlockHashBuildParams bp;
   bp.grid = 0;
-  BlockHashIndex ix(test::runtime(), p0.data(), 900, bp);
+  const auto ix_owned = BlockHashIndex::build(test::runtime(), p0.data(), 900, bp);
+  BlockHashIndex& ix = *ix_owned;
   const std::string path = test::tmp_path("update_blocks_v5.bhi"), bad = test::tmp_path("update_blocks_bad.bhi");
   ix.save(path);
   const std::string fresh = slurp_file(path);
