@@ -169,14 +169,14 @@ struct PresetIndexes {
       auto& slot = by_b[{B, cells ? k : 0}];
       if (!slot) {
         std::fprintf(stderr, "  %s %s build (B = %d) ...\n", d.name.c_str(), BlockHashBuildParams::preset_name(bp.preset), B);
-        slot = std::make_unique<BlockHashIndex>(rt, d.points.data(), N, pb);
+        slot = BlockHashIndex::build(rt, d.points.data(), N, pb);
         std::fprintf(stderr, "  %s\n", slot->info().summary().c_str());
       }
       return slot.get();
     }
     if (!single) {
       std::fprintf(stderr, "  %s auto build ...\n", d.name.c_str());
-      single = std::make_unique<BlockHashIndex>(rt, d.points.data(), N, bp);
+      single = BlockHashIndex::build(rt, d.points.data(), N, bp);
       std::fprintf(stderr, "  %s\n", single->info().summary().c_str());
     }
     return single.get();

@@ -376,7 +376,8 @@ int run(const Options& o, int argc, char** argv) {
   p.at(0, o.step, sx, sy);
   const std::vector<float> scan0 = make_scan(survey, o, sx, sy, 0);
   map.append(scan0);
-  BlockHashIndex bh(rt, scan0.data(), scan0.size() / 3);
+  const auto bh_owned = BlockHashIndex::build(rt, scan0.data(), scan0.size() / 3);
+  BlockHashIndex& bh = *bh_owned;
   SearchParams sp;
   sp.k = o.k;  // A = 0: the grid's exact default
   bh.warm_up(sp);

@@ -218,7 +218,8 @@ struct GrowthStudy {
   void compare(const char* stage, const std::vector<float>& live, const std::vector<std::int32_t>& ids) const {
     const int k = o.k;
     const float A = o.A;
-    BlockHashIndex fresh(rt, live.data(), ids.size());
+    const auto fresh_owned = BlockHashIndex::build(rt, live.data(), ids.size());
+    BlockHashIndex& fresh = *fresh_owned;
     SearchParams exact;
     exact.k = k;
     exact.A = INFINITY;
@@ -314,7 +315,8 @@ void shrink(const GrowthStudy& g, const std::vector<float>& all) {
 void growth_study(const Options& o, const std::shared_ptr<Runtime>& rt, const std::vector<float>& all, std::FILE* out) {
   const std::size_t n0 = o.N / 10;
   const double t0 = now_s();
-  BlockHashIndex ix(rt, all.data(), n0);
+  const auto ix_owned = BlockHashIndex::build(rt, all.data(), n0);
+  BlockHashIndex& ix = *ix_owned;
   const double t_first = now_s() - t0;
   const GrowthStudy g{o, rt, out, ix, datasets::queries_by_name(o.data, o.n_queries, 2)};
   grow(g, all, n0, t_first);

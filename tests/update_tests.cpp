@@ -59,7 +59,7 @@ std::vector<float> first_points(Model& m, std::mt19937_64& rng, std::size_t n) {
 
 // Block hashing over p: the one construction of a BlockHashIndex the update cases share.
 std::unique_ptr<BlockHashIndex> blockhash_over(const std::vector<float>& p, const BlockHashBuildParams& bp = {}) {
-  return std::make_unique<BlockHashIndex>(test::runtime(), p.data(), p.size() / 3, bp);
+  return BlockHashIndex::build(test::runtime(), p.data(), p.size() / 3, bp);
 }
 
 // method's index over the first n points of a case.
