@@ -113,11 +113,7 @@ Options parse(int argc, char** argv) {
   bench::BenchCli cli("blockhash_accuracy", "Block hashing's accuracy and cost against exact kNN, both presets, the talk's A sweep");
   cli.names("data", o.data, "data sets: uniform, cornell, dragon");
   cli.integer("N", o.n, "points per data set", 1, 2147483646.0);
-  cli.queries(o.queries);
-  cli.As(o.A);
-  cli.ks(o.k);
-  cli.names("presets", o.presets, "blockhash presets (auto, paper, paper-cells)")
-      ->check(CLI::IsMember({"auto", "paper", "paper-cells"}));
+  cli.budget_sweep(o.queries, o.k, o.A, o.presets);
   cli.reps(o.reps);
   cli.csv(o.csv);
   cli.data_dir(o.data_dir);

@@ -18,6 +18,20 @@ BlockHashBuildParams layout(const char* name) {
   return p;
 }
 
+// body(case, layout name, index over the case's points) for every case and each layout, both
+// captured for the checks' messages: the one construction the case-by-layout tests share.
+template <class Body>
+void each_case_and_layout(const std::vector<test::NamedCase>& cases, std::initializer_list<const char*> layouts,
+                          Body&& body) {
+  for (const test::NamedCase& c : cases)
+    for (const char* pr : layouts) {
+      CAPTURE(c.name);
+      CAPTURE(pr);
+      auto index = BlockHashIndex::build(test::runtime(), c.pts.data(), c.pts.size() / 3, layout(pr));
+      body(c, pr, *index);
+    }
+}
+
 // Kernel == reference exactly (ids, distances, counts, points examined), and the contract.
 void kernel_equals_reference(const BlockHashIndex& index, const std::vector<float>& pts,
                              const std::vector<float>& qs, const SearchParams& p) {
@@ -65,20 +79,15 @@ TEST_CASE("blockhash_vs_reference: every distribution, both L-table layouts, ker
   for (std::size_t i = 0; i < 8000; ++i) plane[3 * i + 2] = 0.25f;  // flat: a zero extent
   cases.push_back({"plane", plane, datasets::uniform(300, 9)});
   cases.push_back({"cornell", datasets::cornell_photons(15000, 10), datasets::cornell_queries(400, 11, 0.5f)});
-  for (const auto& c : cases) {
-    for (const char* pr : {"paper", "tables"}) {
-      CAPTURE(c.name);
-      CAPTURE(pr);
-      auto index = BlockHashIndex::build(test::runtime(), c.pts.data(), c.pts.size() / 3, layout(pr));
-      for (int k : {1, 10, 50}) {
-        CAPTURE(k);
-        SearchParams p = test::knn_params(k);
-        p.A = k == 10 ? 8.0f : 2.5f;
-        if (k == 1 && std::string(c.name) != "uniform") continue;  // a kernel variant of its own
-        kernel_equals_reference(*index, c.pts, c.qs, p);
-      }
+  each_case_and_layout(cases, {"paper", "tables"}, [](const Case& c, const char*, const BlockHashIndex& index) {
+    for (int k : {1, 10, 50}) {
+      CAPTURE(k);
+      SearchParams p = test::knn_params(k);
+      p.A = k == 10 ? 8.0f : 2.5f;
+      if (k == 1 && std::string(c.name) != "uniform") continue;  // a kernel variant of its own
+      kernel_equals_reference(index, c.pts, c.qs, p);
     }
-  }
+  });
 }
 
 TEST_CASE("blockhash_vs_reference: radius, k > N, probes on/off, box skip off, non-finite queries") {
@@ -304,31 +313,27 @@ TEST_CASE("blockhash: a recall target is met on held-out queries") {
   std::vector<Set> sets;
   sets.push_back({"uniform", datasets::uniform(40000, 61), datasets::uniform(2000, 62)});
   sets.push_back({"cornell", datasets::cornell_photons(40000, 63), datasets::cornell_queries(2000, 64, 0.5f)});
-  for (const auto& set : sets)
-    for (const char* pr : {"tables", "paper"}) {
-      CAPTURE(set.name);
-      CAPTURE(pr);
-      auto index = BlockHashIndex::build(test::runtime(), set.pts.data(), set.pts.size() / 3, layout(pr));
-      for (double target : {0.9, 0.95, 0.99}) {
-        CAPTURE(target);
-        SearchParams p = test::knn_params(10);
-        p.recall_target = target;
-        BlockHashIndex::RecallTuning t = index->tune_for_recall(target, p);
-        MESSAGE(std::string(set.name) << " " << std::string(pr) << " target " << target << ": A " << t.A << " sample recall "
-                         << t.recall << std::string(t.reached ? "" : " (not reached)"));
-        if (!t.reached) continue;  // paper's fixed buckets may cap recall below the target
-        KnnResult r = index->query(set.qs, p);
-        KnnResult truth = reference::knn_float(set.pts.data(), set.pts.size() / 3, set.qs.data(), 2000, p);
-        double rec = evaluate_accuracy(r, truth).recall;
-        CHECK(rec >= target - 0.01);
-        // The query used the tuned A: the same answer as asking for that A.
-        SearchParams a = p;
-        a.recall_target = 0;
-        a.A = t.A;
-        CHECK(index->query(set.qs, a).ids == r.ids);
-      }
-      if (std::string(pr) == "tables") CHECK(index->tune_for_recall(0.95, SearchParams{}).reached);
+  each_case_and_layout(sets, {"tables", "paper"}, [](const Set& set, const char* pr, BlockHashIndex& index) {
+    for (double target : {0.9, 0.95, 0.99}) {
+      CAPTURE(target);
+      SearchParams p = test::knn_params(10);
+      p.recall_target = target;
+      BlockHashIndex::RecallTuning t = index.tune_for_recall(target, p);
+      MESSAGE(std::string(set.name) << " " << std::string(pr) << " target " << target << ": A " << t.A << " sample recall "
+                       << t.recall << std::string(t.reached ? "" : " (not reached)"));
+      if (!t.reached) continue;  // paper's fixed buckets may cap recall below the target
+      KnnResult r = index.query(set.qs, p);
+      KnnResult truth = reference::knn_float(set.pts.data(), set.pts.size() / 3, set.qs.data(), 2000, p);
+      double rec = evaluate_accuracy(r, truth).recall;
+      CHECK(rec >= target - 0.01);
+      // The query used the tuned A: the same answer as asking for that A.
+      SearchParams a = p;
+      a.recall_target = 0;
+      a.A = t.A;
+      CHECK(index.query(set.qs, a).ids == r.ids);
     }
+    if (std::string(pr) == "tables") CHECK(index.tune_for_recall(0.95, SearchParams{}).reached);
+  });
   SearchParams bad;
   bad.recall_target = 1.5;
   auto pts = datasets::uniform(1000, 65);
