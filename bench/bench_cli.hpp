@@ -113,6 +113,17 @@ class BenchCli {
   CLI::Option* As(std::vector<float>& v) {
     return numbers("A", v, "blockhash: examine at most A*k points per query", 1e-3, 1e6);
   }
+  CLI::Option* presets(std::vector<std::string>& v) {
+    return names("presets", v, "blockhash presets (auto, paper, paper-cells)")->check(CLI::IsMember({"auto", "paper", "paper-cells"}));
+  }
+  // The query side of a sweep of block hashing's budget (knn_bench, blockhash_accuracy): --queries,
+  // --k, --A and --presets.
+  void budget_sweep(std::size_t& queries, std::vector<int>& ks, std::vector<float>& As, std::vector<std::string>& preset_list) {
+    this->queries(queries);
+    this->ks(ks);
+    this->As(As);
+    presets(preset_list);
+  }
   CLI::Option* reps(int& v) { return integer("reps", v, "timed repetitions (the median is reported)", 1, 1000); }
   CLI::Option* csv(std::string& v) { return text("csv", v, "write the rows here as CSV", "FILE"); }
   CLI::Option* methods(std::vector<std::string>& v) {

@@ -113,11 +113,7 @@ Options parse(int argc, char** argv) {
   bench::BenchCli cli("blockhash_accuracy", "Block hashing's accuracy and cost against exact kNN, both presets, the talk's A sweep");
   cli.names("data", o.data, "data sets: uniform, cornell, dragon");
   cli.integer("N", o.n, "points per data set", 1, 2147483646.0);
-  cli.queries(o.queries);
-  cli.As(o.A);
-  cli.ks(o.k);
-  cli.names("presets", o.presets, "blockhash presets (auto, paper, paper-cells)")
-      ->check(CLI::IsMember({"auto", "paper", "paper-cells"}));
+  cli.budget_sweep(o.queries, o.k, o.A, o.presets);
   cli.reps(o.reps);
   cli.csv(o.csv);
   cli.data_dir(o.data_dir);
@@ -173,14 +169,14 @@ struct PresetIndexes {
       auto& slot = by_b[{B, cells ? k : 0}];
       if (!slot) {
         std::fprintf(stderr, "  %s %s build (B = %d) ...\n", d.name.c_str(), BlockHashBuildParams::preset_name(bp.preset), B);
-        slot = std::make_unique<BlockHashIndex>(rt, d.points.data(), N, pb);
+        slot = BlockHashIndex::build(rt, d.points.data(), N, pb);
         std::fprintf(stderr, "  %s\n", slot->info().summary().c_str());
       }
       return slot.get();
     }
     if (!single) {
       std::fprintf(stderr, "  %s auto build ...\n", d.name.c_str());
-      single = std::make_unique<BlockHashIndex>(rt, d.points.data(), N, bp);
+      single = BlockHashIndex::build(rt, d.points.data(), N, bp);
       std::fprintf(stderr, "  %s\n", single->info().summary().c_str());
     }
     return single.get();

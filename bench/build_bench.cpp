@@ -68,7 +68,7 @@ int main(int argc, char** argv) try {
           auto t0 = std::chrono::steady_clock::now();
           double c0 = cpu_seconds();
           if (methods[i] == "blockhash-rebuild") {
-            if (!frame) frame = std::make_unique<BlockHashIndex>(rt, pts.data(), n);
+            if (!frame) frame = BlockHashIndex::build(rt, pts.data(), n);
             t0 = std::chrono::steady_clock::now();
             c0 = cpu_seconds();
             frame->rebuild(pts.data(), n);

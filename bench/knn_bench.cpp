@@ -53,12 +53,8 @@ Options parse(int argc, char** argv) {
   bench::BenchCli cli("knn_bench", "Run time against error of every method, side by side in one process");
   cli.data_sets(o.data_dir, o.data, "data sets: uniform, clustered, duplicates, cornell (generated) or bunny, dragon, autzen (files)");
   cli.integers("N", o.sizes, "points per data set (file sets: the first N; 0: all)", 0, 2147483646.0);
-  cli.queries(o.queries);
-  cli.ks(o.ks);
-  cli.As(o.As);
+  cli.budget_sweep(o.queries, o.ks, o.As, o.presets);
   cli.methods(o.methods);
-  cli.names("presets", o.presets, "blockhash presets (auto, paper, paper-cells)")
-      ->check(CLI::IsMember({"auto", "paper", "paper-cells"}));
   cli.reps(o.reps);
   cli.text("sort", o.sort, "dispatch in Hilbert order: off, on or both", "WHEN")->check(CLI::IsMember({"off", "on", "both"}));
   cli.csv(o.csv);

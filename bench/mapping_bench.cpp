@@ -33,19 +33,13 @@
 #include <CLI/CLI.hpp>
 
 #include "bench_util.hpp"
+#include "nanoflann_cloud.hpp"
 #include "blockhash_cl/blockhash.hpp"
 #include "blockhash_cl/bruteforce.hpp"
 #include "blockhash_cl/error.hpp"
 #include "blockhash_cl/io.hpp"
 #include "blockhash_cl/metrics.hpp"
 #include "blockhash_cl/runtime.hpp"
-
-#if __has_include(<nanoflann.hpp>)
-#include <nanoflann.hpp>
-#define BHCL_HAVE_NANOFLANN 1
-#else
-#define BHCL_HAVE_NANOFLANN 0
-#endif
 
 using namespace bhcl;
 
@@ -136,18 +130,10 @@ std::vector<float> make_scan(const std::vector<float>& survey, const Options& o,
 }
 
 #if BHCL_HAVE_NANOFLANN
-// Every point ever inserted, by id (nanoflann's dynamic adaptor reads the dataset by index).
-struct Cloud {
-  const std::vector<float>* p = nullptr;
-  std::size_t n = 0;
-  std::size_t kdtree_get_point_count() const { return n; }
-  float kdtree_get_pt(std::size_t i, std::size_t d) const { return (*p)[3 * i + d]; }
-  template <class B>
-  bool kdtree_get_bbox(B&) const { return false; }
-};
-using NfMetric = nanoflann::L2_Simple_Adaptor<float, Cloud>;
-using NfStatic = nanoflann::KDTreeSingleIndexAdaptor<NfMetric, Cloud, 3>;
-using NfDynamic = nanoflann::KDTreeSingleIndexDynamicAdaptor<NfMetric, Cloud, 3>;
+// Cloud over every point ever inserted, by id (nanoflann's dynamic adaptor reads the dataset by index).
+using bench::Cloud;
+using bench::NfDynamic;
+using bench::NfStatic;
 
 // k nearest of each query, on `threads` host threads over ranges of queries; ids through `map`
 // (null: the tree's own indices).
@@ -249,6 +235,130 @@ void print_summary(const std::vector<ScanRow>& rows, bool have_nf) {
   if (have_nf) line("nanoflann dynamic adaptor", nu, nq, nr);
 }
 
+// What scan s does to the map: its points (ids from `first` on) and the live ids its crop drops.
+struct ScanStep {
+  std::vector<float> scan;
+  std::int32_t first = 0;
+  std::vector<std::int32_t> drop;
+};
+
+// Scan s appended to the map, and the crop after its insert decided now (outside the timing; the
+// scan's own points lie within range <= crop, so they stay). An empty scan changes nothing.
+ScanStep next_step(const std::vector<float>& survey, const Path& p, const Options& o, int s, MapState& map) {
+  double sx, sy;
+  p.at(s, o.step, sx, sy);
+  ScanStep st;
+  st.scan = make_scan(survey, o, sx, sy, s);
+  if (st.scan.empty()) return st;
+  st.first = map.append(st.scan);
+  st.drop = map.crop(sx, sy, o.crop);
+  return st;
+}
+
+// Block hashing's part of a scan: the scan's queries against the map, then its insert and the crop.
+KnnResult bh_step(BlockHashIndex& bh, const SearchParams& sp, const ScanStep& st, ScanRow& row) {
+  double t0 = now_s();
+  KnnResult rb = bh.query(st.scan, sp);
+  row.bh_query_s = now_s() - t0;
+  t0 = now_s();
+  const std::int32_t got = bh.insert(st.scan.data(), st.scan.size() / 3);
+  if (!st.drop.empty()) bh.remove(st.drop.data(), st.drop.size());
+  row.bh_update_s = now_s() - t0;
+  if (got != st.first)
+    throw Error("mapping_bench: block hashing issued id " + std::to_string(got) + ", expected " + std::to_string(st.first));
+  return rb;
+}
+
+#if BHCL_HAVE_NANOFLANN
+// nanoflann's part of a scan, the same steps on its dynamic adaptor.
+KnnResult nf_step(NfDynamic& nf, Cloud& cloud, const MapState& map, const ScanStep& st, const Options& o, ScanRow& row) {
+  double t0 = now_s();
+  KnnResult rn = nf_query(nf, st.scan, o.k, o.threads, nullptr);
+  row.nf_query_s = now_s() - t0;
+  t0 = now_s();
+  cloud.n = map.all.size() / 3;  // the adaptor now sees the scan's points
+  nf.addPoints(std::size_t(st.first), cloud.n - 1);
+  for (std::int32_t id : st.drop) nf.removePoint(std::size_t(id));
+  row.nf_update_s = now_s() - t0;
+  return rn;
+}
+#endif
+
+// The live ids the scan was queried against: before this scan's insert and crop, i.e. now's live
+// ids plus the dropped ones minus the scan's own (ascending).
+std::vector<std::int32_t> ids_before(const MapState& map, const ScanStep& st) {
+  std::vector<std::int32_t> ids;
+  ids.reserve(map.live_ids.size() + st.drop.size());
+  std::merge(map.live_ids.begin(), map.live_ids.end(), st.drop.begin(), st.drop.end(), std::back_inserter(ids));
+  ids.erase(std::remove_if(ids.begin(), ids.end(), [&](std::int32_t id) { return id >= st.first; }), ids.end());
+  return ids;
+}
+
+// The exact k nearest of the scan's points over the map it was queried against, ids in the map's
+// numbering: a fresh static nanoflann tree (a fresh brute force without nanoflann's header).
+KnnResult fresh_truth(const std::shared_ptr<Runtime>& rt, const MapState& map, const ScanStep& st, const Options& o,
+                      const SearchParams& sp) {
+  std::vector<std::int32_t> ids = ids_before(map, st);
+  std::vector<float> pts(3 * ids.size());
+  for (std::size_t i = 0; i < ids.size(); ++i)
+    for (int d = 0; d < 3; ++d) pts[3 * i + d] = map.all[3 * std::size_t(ids[i]) + d];
+#if BHCL_HAVE_NANOFLANN
+  (void)rt;
+  (void)sp;
+  Cloud fc{&pts, ids.size()};
+  NfStatic fresh(3, fc, nanoflann::KDTreeSingleIndexAdaptorParams(10));
+  fresh.buildIndex();
+  return nf_query(fresh, st.scan, o.k, o.threads, &ids);
+#else
+  (void)o;
+  BruteForceIndex fresh(rt, pts.data(), ids.size());
+  KnnResult truth = fresh.query(st.scan, sp);
+  for (auto& id : truth.ids)
+    if (id >= 0) id = ids[std::size_t(id)];
+  return truth;
+#endif
+}
+
+void print_row_header() {
+  std::printf("%5s %8s %8s %9s %11s %11s %11s %11s %9s %9s\n", "scan", "points", "removed", "live", "bh_upd_ms", "bh_q_us",
+              "nf_upd_ms", "nf_q_us", "bh_rec", "nf_rec");
+}
+
+void print_row(const ScanRow& row) {
+  std::printf("%5d %8zu %8zu %9zu %11.2f %11.3f %11.2f %11.3f %9.4f %9.4f\n", row.scan, row.scan_points, row.removed, row.live,
+              1e3 * row.bh_update_s, 1e6 * row.bh_query_s / double(row.scan_points), 1e3 * row.nf_update_s,
+              1e6 * row.nf_query_s / double(row.scan_points), row.bh_recall, row.nf_recall);
+  std::fflush(stdout);
+}
+
+void print_index_after(const BlockHashIndex& bh) {
+  std::printf("# blockhash after the sequence: %s\n#   holes %zu merges %zu compactions %zu rebuilds %zu retunes %zu\n",
+              bh.info().summary().c_str(), bh.info().holes, bh.info().merges, bh.info().compactions,
+              bh.info().update_rebuilds, bh.info().retunes);
+}
+
+void write_csv(const std::string& path, const std::vector<ScanRow>& rows) {
+  std::string text = "scan,scan_points,removed,live,bh_update_s,bh_query_s,nf_update_s,nf_query_s,bh_recall,nf_recall\n";
+  char buf[256];
+  for (const ScanRow& r : rows) {
+    std::snprintf(buf, sizeof buf, "%d,%zu,%zu,%zu,%.6f,%.6f,%.6f,%.6f,%.4f,%.4f\n", r.scan, r.scan_points, r.removed, r.live,
+                  r.bh_update_s, r.bh_query_s, r.nf_update_s, r.nf_query_s, r.bh_recall, r.nf_recall);
+    text += buf;
+  }
+  write_file(path, {text}, "mapping_bench per-scan figures");
+}
+
+// The exact default promises exact answers: a recall short of 1 fails the run (exit 3: the tiny
+// CTest run), 0 otherwise.
+int exact_status(const std::vector<ScanRow>& rows) {
+  for (const ScanRow& r : rows)
+    if (r.bh_recall >= 0 && r.bh_recall < 1.0) {
+      std::printf("# FAIL: block hashing's recall at scan %d is %.6f, not 1 (the exact default)\n", r.scan, r.bh_recall);
+      return 3;
+    }
+  return 0;
+}
+
 int run(const Options& o, int argc, char** argv) {
   const std::string path = o.data_dir + "/autzen.xyz.f32";
   if (!std::ifstream(path).good()) {
@@ -266,7 +376,8 @@ int run(const Options& o, int argc, char** argv) {
   p.at(0, o.step, sx, sy);
   const std::vector<float> scan0 = make_scan(survey, o, sx, sy, 0);
   map.append(scan0);
-  BlockHashIndex bh(rt, scan0.data(), scan0.size() / 3);
+  const auto bh_owned = BlockHashIndex::build(rt, scan0.data(), scan0.size() / 3);
+  BlockHashIndex& bh = *bh_owned;
   SearchParams sp;
   sp.k = o.k;  // A = 0: the grid's exact default
   bh.warm_up(sp);
@@ -278,104 +389,39 @@ int run(const Options& o, int argc, char** argv) {
   std::printf("# nanoflann.hpp not found: its dynamic adaptor skipped (Debian: libnanoflann-dev)\n");
 #endif
   std::vector<ScanRow> rows;
-  std::printf("%5s %8s %8s %9s %11s %11s %11s %11s %9s %9s\n", "scan", "points", "removed", "live", "bh_upd_ms", "bh_q_us",
-              "nf_upd_ms", "nf_q_us", "bh_rec", "nf_rec");
+  print_row_header();
   for (int s = 1; s < o.scans; ++s) {
-    p.at(s, o.step, sx, sy);
-    const std::vector<float> scan = make_scan(survey, o, sx, sy, s);
+    const ScanStep st = next_step(survey, p, o, s, map);
+    if (st.scan.empty()) continue;
     ScanRow row;
     row.scan = s;
-    row.scan_points = scan.size() / 3;
-    if (row.scan_points == 0) continue;
-    // The crop after this scan's insert, decided now (outside the timing; the scan's own points
-    // lie within range <= crop, so they stay).
-    const std::int32_t first = map.append(scan);
-    const std::vector<std::int32_t> drop = map.crop(sx, sy, o.crop);
-    row.removed = drop.size();
+    row.scan_points = st.scan.size() / 3;
+    row.removed = st.drop.size();
     row.live = map.live_ids.size();
     KnnResult rb, rn;
-    auto do_bh = [&] {
-      double t0 = now_s();
-      rb = bh.query(scan, sp);
-      row.bh_query_s = now_s() - t0;
-      t0 = now_s();
-      const std::int32_t got = bh.insert(scan.data(), scan.size() / 3);
-      if (!drop.empty()) bh.remove(drop.data(), drop.size());
-      row.bh_update_s = now_s() - t0;
-      if (got != first) throw Error("mapping_bench: block hashing issued id " + std::to_string(got) + ", expected " + std::to_string(first));
-    };
 #if BHCL_HAVE_NANOFLANN
-    auto do_nf = [&] {
-      double t0 = now_s();
-      rn = nf_query(nf, scan, o.k, o.threads, nullptr);
-      row.nf_query_s = now_s() - t0;
-      t0 = now_s();
-      cloud.n = map.all.size() / 3;  // the adaptor now sees the scan's points
-      nf.addPoints(std::size_t(first), cloud.n - 1);
-      for (std::int32_t id : drop) nf.removePoint(std::size_t(id));
-      row.nf_update_s = now_s() - t0;
-    };
-    if (s % 2) {
-      do_bh();
-      do_nf();
+    if (s % 2) {  // alternating order: neither method always runs on a cache the other warmed
+      rb = bh_step(bh, sp, st, row);
+      rn = nf_step(nf, cloud, map, st, o, row);
     } else {
-      do_nf();
-      do_bh();
+      rn = nf_step(nf, cloud, map, st, o, row);
+      rb = bh_step(bh, sp, st, row);
     }
 #else
-    do_bh();
+    rb = bh_step(bh, sp, st, row);
 #endif
     if (s % o.check_every == 0 || s + 1 == o.scans) {
-      // The truth: a fresh static tree over the map the scan was queried against (before this
-      // scan's insert and crop: the live ids then, i.e. now's plus the dropped minus the scan's).
-      std::vector<std::int32_t> ids;
-      ids.reserve(map.live_ids.size() + drop.size());
-      std::merge(map.live_ids.begin(), map.live_ids.end(), drop.begin(), drop.end(), std::back_inserter(ids));
-      ids.erase(std::remove_if(ids.begin(), ids.end(), [&](std::int32_t id) { return id >= first; }), ids.end());
-      std::vector<float> pts(3 * ids.size());
-      for (std::size_t i = 0; i < ids.size(); ++i)
-        for (int d = 0; d < 3; ++d) pts[3 * i + d] = map.all[3 * std::size_t(ids[i]) + d];
-#if BHCL_HAVE_NANOFLANN
-      Cloud fc{&pts, ids.size()};
-      NfStatic fresh(3, fc, nanoflann::KDTreeSingleIndexAdaptorParams(10));
-      fresh.buildIndex();
-      const KnnResult truth = nf_query(fresh, scan, o.k, o.threads, &ids);
-      row.nf_recall = evaluate_accuracy(rn, truth).recall;
-#else
-      BruteForceIndex fresh(rt, pts.data(), ids.size());
-      KnnResult truth = fresh.query(scan, sp);
-      for (auto& id : truth.ids)
-        if (id >= 0) id = ids[std::size_t(id)];
-#endif
+      const KnnResult truth = fresh_truth(rt, map, st, o, sp);
+      if (have_nf) row.nf_recall = evaluate_accuracy(rn, truth).recall;
       row.bh_recall = evaluate_accuracy(rb, truth).recall;
     }
-    std::printf("%5d %8zu %8zu %9zu %11.2f %11.3f %11.2f %11.3f %9.4f %9.4f\n", s, row.scan_points, row.removed, row.live,
-                1e3 * row.bh_update_s, 1e6 * row.bh_query_s / double(row.scan_points), 1e3 * row.nf_update_s,
-                1e6 * row.nf_query_s / double(row.scan_points), row.bh_recall, row.nf_recall);
-    std::fflush(stdout);
+    print_row(row);
     rows.push_back(row);
   }
   print_summary(rows, have_nf);
-  std::printf("# blockhash after the sequence: %s\n#   holes %zu merges %zu compactions %zu rebuilds %zu retunes %zu\n",
-              bh.info().summary().c_str(), bh.info().holes, bh.info().merges, bh.info().compactions,
-              bh.info().update_rebuilds, bh.info().retunes);
-  if (!o.csv.empty()) {
-    std::string text = "scan,scan_points,removed,live,bh_update_s,bh_query_s,nf_update_s,nf_query_s,bh_recall,nf_recall\n";
-    char buf[256];
-    for (const ScanRow& r : rows) {
-      std::snprintf(buf, sizeof buf, "%d,%zu,%zu,%zu,%.6f,%.6f,%.6f,%.6f,%.4f,%.4f\n", r.scan, r.scan_points, r.removed, r.live,
-                    r.bh_update_s, r.bh_query_s, r.nf_update_s, r.nf_query_s, r.bh_recall, r.nf_recall);
-      text += buf;
-    }
-    write_file(o.csv, {text}, "mapping_bench per-scan figures");
-  }
-  // The exact default promises exact answers: a recall short of 1 fails the run (the tiny CTest run).
-  for (const ScanRow& r : rows)
-    if (r.bh_recall >= 0 && r.bh_recall < 1.0) {
-      std::printf("# FAIL: block hashing's recall at scan %d is %.6f, not 1 (the exact default)\n", r.scan, r.bh_recall);
-      return 3;
-    }
-  return 0;
+  print_index_after(bh);
+  if (!o.csv.empty()) write_csv(o.csv, rows);
+  return exact_status(rows);
 }
 
 }  // namespace

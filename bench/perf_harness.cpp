@@ -535,7 +535,7 @@ void run_set(const Options& o, const std::shared_ptr<Runtime>& rt, const std::st
   std::printf("# build flann   %7.3f s (%d threads)\n", fl.build_seconds(), fl.threads());
   std::vector<std::unique_ptr<BlockHashIndex>> bh;
   for (const auto& b : o.builds) {
-    bh.push_back(std::make_unique<BlockHashIndex>(rt, pts.data(), N, b.params));
+    bh.push_back(BlockHashIndex::build(rt, pts.data(), N, b.params));
     std::printf("# build %-7s %7.3f s  %s\n", b.name.c_str(), bh.back()->build_seconds(),
                 bh.back()->info().summary().c_str());
   }

@@ -22,12 +22,16 @@ Set POCL_MAX_PTHREAD_COUNT to the cores to use and quote it with the figures.
 import argparse
 import os
 import platform
+import sys
 import time
 
 import numpy as np
 
 import blockhash_cl as bh
 from blockhash_cl import _refine
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from python_bench import write_atomic  # noqa: E402  (the benches' one atomic writer)
 
 
 def run_variant(name, index, q, k):
@@ -101,10 +105,7 @@ def main():
                 lines.append(line)
                 print(line, flush=True)
     if a.markdown:
-        tmp = a.markdown + ".tmp"
-        with open(tmp, "w") as f:
-            f.write("\n".join(lines) + "\n")
-        os.replace(tmp, a.markdown)
+        write_atomic(a.markdown, "\n".join(lines) + "\n")
 
 
 if __name__ == "__main__":

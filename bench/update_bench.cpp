@@ -19,18 +19,12 @@
 #include <CLI/CLI.hpp>
 
 #include "bench_util.hpp"
+#include "nanoflann_cloud.hpp"
 #include "blockhash_cl/blockhash.hpp"
 #include "blockhash_cl/datasets.hpp"
 #include "blockhash_cl/factory.hpp"
 #include "blockhash_cl/metrics.hpp"
 #include "blockhash_cl/runtime.hpp"
-
-#if __has_include(<nanoflann.hpp>)
-#include <nanoflann.hpp>
-#define BHCL_HAVE_NANOFLANN 1
-#else
-#define BHCL_HAVE_NANOFLANN 0
-#endif
 
 using namespace bhcl;
 
@@ -39,17 +33,9 @@ namespace {
 using bench::now_s;
 
 #if BHCL_HAVE_NANOFLANN
-struct Cloud {
-  const std::vector<float>* p = nullptr;
-  std::size_t n = 0;  // points visible to the adaptor
-  std::size_t kdtree_get_point_count() const { return n; }
-  float kdtree_get_pt(std::size_t i, std::size_t d) const { return (*p)[3 * i + d]; }
-  template <class B>
-  bool kdtree_get_bbox(B&) const { return false; }
-};
-using NfMetric = nanoflann::L2_Simple_Adaptor<float, Cloud>;
-using NfStatic = nanoflann::KDTreeSingleIndexAdaptor<NfMetric, Cloud, 3>;
-using NfDynamic = nanoflann::KDTreeSingleIndexDynamicAdaptor<NfMetric, Cloud, 3>;
+using bench::Cloud;
+using bench::NfDynamic;
+using bench::NfStatic;
 #endif
 
 struct Op {
@@ -232,7 +218,8 @@ struct GrowthStudy {
   void compare(const char* stage, const std::vector<float>& live, const std::vector<std::int32_t>& ids) const {
     const int k = o.k;
     const float A = o.A;
-    BlockHashIndex fresh(rt, live.data(), ids.size());
+    const auto fresh_owned = BlockHashIndex::build(rt, live.data(), ids.size());
+    BlockHashIndex& fresh = *fresh_owned;
     SearchParams exact;
     exact.k = k;
     exact.A = INFINITY;
@@ -328,7 +315,8 @@ void shrink(const GrowthStudy& g, const std::vector<float>& all) {
 void growth_study(const Options& o, const std::shared_ptr<Runtime>& rt, const std::vector<float>& all, std::FILE* out) {
   const std::size_t n0 = o.N / 10;
   const double t0 = now_s();
-  BlockHashIndex ix(rt, all.data(), n0);
+  const auto ix_owned = BlockHashIndex::build(rt, all.data(), n0);
+  BlockHashIndex& ix = *ix_owned;
   const double t_first = now_s() - t0;
   const GrowthStudy g{o, rt, out, ix, datasets::queries_by_name(o.data, o.n_queries, 2)};
   grow(g, all, n0, t_first);

@@ -690,27 +690,27 @@ void bind_registry(py::module_& m) {
   }, "The process-wide runtime (BHCL_DEVICE, read once, else PoCL, else the first device).");
 }
 
-// SearchParams, RadiusParams and MethodOptions.
+// SearchParams, RadiusParams (both a DispatchParams, as in knn.hpp: its fields bound once, on the
+// base) and MethodOptions.
 void bind_params(py::module_& m) {
-  py::class_<bhcl::SearchParams>(m, "SearchParams")
+  py::class_<bhcl::DispatchParams>(m, "DispatchParams")
+      .def_readwrite("local_size", &bhcl::DispatchParams::local_size)
+      .def_readwrite("max_batch", &bhcl::DispatchParams::max_batch)
+      .def_readwrite("sort_queries", &bhcl::DispatchParams::sort_queries)
+      .def_readwrite("count_examined", &bhcl::DispatchParams::count_examined);
+
+  py::class_<bhcl::SearchParams, bhcl::DispatchParams>(m, "SearchParams")
       .def(py::init<>())
       .def_readwrite("k", &bhcl::SearchParams::k)
       .def_readwrite("max_radius", &bhcl::SearchParams::max_radius)
       .def_readwrite("A", &bhcl::SearchParams::A)
-      .def_readwrite("recall_target", &bhcl::SearchParams::recall_target)
-      .def_readwrite("local_size", &bhcl::SearchParams::local_size)
-      .def_readwrite("max_batch", &bhcl::SearchParams::max_batch)
-      .def_readwrite("sort_queries", &bhcl::SearchParams::sort_queries);
+      .def_readwrite("recall_target", &bhcl::SearchParams::recall_target);
 
-  py::class_<bhcl::RadiusParams>(m, "RadiusParams")
+  py::class_<bhcl::RadiusParams, bhcl::DispatchParams>(m, "RadiusParams")
       .def(py::init<>())
       .def_readwrite("budget", &bhcl::RadiusParams::budget)
       .def_readwrite("max_results", &bhcl::RadiusParams::max_results)
       .def_readwrite("sorted", &bhcl::RadiusParams::sorted)
-      .def_readwrite("local_size", &bhcl::RadiusParams::local_size)
-      .def_readwrite("max_batch", &bhcl::RadiusParams::max_batch)
-      .def_readwrite("sort_queries", &bhcl::RadiusParams::sort_queries)
-      .def_readwrite("count_examined", &bhcl::RadiusParams::count_examined)
       .def_readwrite("max_batch_results", &bhcl::RadiusParams::max_batch_results);
 
   py::class_<bhcl::MethodOptions>(m, "MethodOptions")
@@ -720,12 +720,18 @@ void bind_params(py::module_& m) {
            py::arg("name"), py::arg("text"));
 }
 
+// bhcl::SearchIndex, the base of Index, MultiDeviceIndex and DistributedIndex: what every one
+// has, bound once (the three derive from it in Python as in C++).
+void bind_search_index(py::module_& m) {
+  py::class_<bhcl::SearchIndex>(m, "SearchIndex")
+      .def_property_readonly("method", &bhcl::SearchIndex::method)
+      .def_property_readonly("exact", &bhcl::SearchIndex::exact)
+      .def_property_readonly("size", &bhcl::SearchIndex::size);
+}
+
 // bhcl::Index: the calls the package's Index wraps.
 void bind_index(py::module_& m) {
-  py::class_<bhcl::Index, std::unique_ptr<bhcl::Index>>(m, "Index")
-      .def_property_readonly("method", &bhcl::Index::method)
-      .def_property_readonly("exact", &bhcl::Index::exact)
-      .def_property_readonly("size", &bhcl::Index::size)
+  py::class_<bhcl::Index, bhcl::SearchIndex, std::unique_ptr<bhcl::Index>>(m, "Index")
       .def_property_readonly("memory_bytes", &bhcl::Index::memory_bytes)
       .def_property_readonly("host_bytes", &bhcl::Index::host_bytes)
       .def_property_readonly("saves", &bhcl::Index::saves)
@@ -776,7 +782,7 @@ void bind_multi_device(py::module_& m) {
   // bhcl::MultiDeviceIndex with the attributes and calls of Index above that the package's Index
   // uses (it wraps either): one copy per runtime, a batch split among them by their throughput.
   using Multi = bhcl::MultiDeviceIndex;
-  py::class_<Multi, std::unique_ptr<Multi>>(m, "MultiDeviceIndex")
+  py::class_<Multi, bhcl::SearchIndex, std::unique_ptr<Multi>>(m, "MultiDeviceIndex")
       .def(py::init([](std::vector<std::shared_ptr<bhcl::Runtime>> runtimes, const std::string& method,
                        const py::array_t<float, py::array::c_style>& points, const bhcl::MethodOptions& options) {
              const std::size_t n = rows_of(points, "points");
@@ -784,9 +790,6 @@ void bind_multi_device(py::module_& m) {
              return std::make_unique<Multi>(std::move(runtimes), method, points.data(), n, options);
            }),
            py::arg("runtimes"), py::arg("method"), py::arg("points").noconvert(), py::arg("options"))
-      .def_property_readonly("method", &Multi::method)
-      .def_property_readonly("exact", &Multi::exact)
-      .def_property_readonly("size", &Multi::size)
       .def_property_readonly("devices", &Multi::devices)
       .def_property_readonly("memory_bytes", [](const Multi& x) {
         std::size_t b = 0;
@@ -847,6 +850,7 @@ PYBIND11_MODULE(_core, m) {
   bind_errors(m);
   bind_registry(m);
   bind_params(m);
+  bind_search_index(m);
   bind_index(m);
   bind_refine(m);
   bind_multi_device(m);

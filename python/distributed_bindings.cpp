@@ -16,6 +16,7 @@
 
 #include <cmath>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -97,11 +98,14 @@ class Comm {
   MPI_Comm get() const { return comm_; }
   int rank() const { return rank_; }
   int size() const { return size_; }
-  // Collective: Error on every rank when any rank's message is non-empty (the first's, named).
+  // Collective: Error on every rank when any rank's message is non-empty (the first's, named),
+  // or when the ranks are not in the same call (`what` differs: one rank in add, another in
+  // query), which would otherwise pair one call's messages with another's and hang or corrupt.
   void agree(const std::string& local_error, const std::string& what) const {
     require_mpi(what.c_str());
     py::gil_scoped_release nogil;
     bhcl::mpi_agree(comm_, local_error, what);
+    agree_call(what);
   }
   // Collective: the element-wise minimum of lo and maximum of hi over the ranks (a box of all
   // the ranks' points; +inf / -inf for a rank with none).
@@ -118,6 +122,24 @@ class Comm {
   }
 
  private:
+  // One allreduce of the call's name hash (its minimum and, as ~h, its maximum); only when they
+  // differ, the names themselves are gathered so that the message says which rank is where.
+  void agree_call(const std::string& what) const {
+    const std::uint64_t h = std::hash<std::string>{}(what);
+    std::uint64_t mine[2] = {h, ~h}, all[2] = {0, 0};
+    MPI_Allreduce(mine, all, 2, MPI_UINT64_T, MPI_MIN, comm_);
+    if (all[0] == ~all[1]) return;
+    constexpr int kName = 64;
+    std::vector<char> name(kName, '\0'), names(static_cast<std::size_t>(kName) * size_, '\0');
+    what.copy(name.data(), kName - 1);
+    MPI_Allgather(name.data(), kName, MPI_CHAR, names.data(), kName, MPI_CHAR, comm_);
+    std::string msg = "the ranks are not in the same collective call (every rank makes the same calls in the "
+                      "same order):";
+    for (int r = 0; r < size_; ++r)
+      msg += std::string(r ? "," : "") + " rank " + std::to_string(r) + " in " + (names.data() + r * kName);
+    throw bhcl::Error(what + ": " + msg);
+  }
+
   MPI_Comm comm_ = MPI_COMM_NULL;
   int rank_ = 0, size_ = 1;
 };
@@ -199,6 +221,48 @@ py::tuple radius(const bhcl::DistributedIndex& index, const py::array_t<float, p
                         to_numpy(std::move(out.ids), {total}), to_numpy(std::move(out.found), {rows}), stats);
 }
 
+// Collective updates (DistributedIndex::insert / remove), the GIL released while they run.
+py::dict update_stats_dict(const bhcl::DistributedUpdateStats& u) {
+  py::dict o;
+  o["n_global"] = u.n_global;
+  o["n_input"] = u.n_input;
+  o["applied"] = u.applied;
+  o["sent"] = u.sent;
+  o["bytes_sent"] = u.bytes_sent;
+  o["bytes_received"] = u.bytes_received;
+  o["route_s"] = u.route_s;
+  o["local_s"] = u.local_s;
+  o["boxes_s"] = u.boxes_s;
+  o["wall_s"] = u.wall_s;
+  return o;
+}
+
+// (the global id of this rank's first point, the call's stats).
+py::tuple insert_points(bhcl::DistributedIndex& index, const py::array_t<float, py::array::c_style>& points) {
+  const std::size_t n = rows_of(points, "points");
+  require_mpi("DistributedIndex.add");
+  bhcl::DistributedUpdateStats us;
+  std::int64_t first = 0;
+  {
+    py::gil_scoped_release nogil;
+    first = index.insert(points.data(), n, &us);
+  }
+  return py::make_tuple(first, update_stats_dict(us));
+}
+
+py::dict remove_ids(bhcl::DistributedIndex& index, const py::array_t<std::int64_t, py::array::c_style>& ids) {
+  if (ids.ndim() != 1)
+    throw bhcl::Error("DistributedIndex.remove: ids must be a 1-D array, got " + std::to_string(ids.ndim()) +
+                      " dimensions");
+  require_mpi("DistributedIndex.remove");
+  bhcl::DistributedUpdateStats us;
+  {
+    py::gil_scoped_release nogil;
+    index.remove(ids.data(), static_cast<std::size_t>(ids.shape(0)), &us);
+  }
+  return update_stats_dict(us);
+}
+
 py::dict build_stats(const bhcl::DistributedIndex& index) {
   const bhcl::DistributedBuildStats& b = index.build_stats();
   py::dict o;
@@ -230,13 +294,10 @@ void bind_distributed(py::module_& m) {
       .def("box", &Comm::box, py::arg("lo"), py::arg("hi"));
 
   using D = bhcl::DistributedIndex;
-  py::class_<D, std::unique_ptr<D>>(m, "DistributedIndex")
+  py::class_<D, bhcl::SearchIndex, std::unique_ptr<D>>(m, "DistributedIndex")
       .def(py::init(&build), py::arg("comm"), py::arg("runtime"), py::arg("points").noconvert(),
            py::arg("method"), py::arg("options"), py::arg("boxes_per_rank"), py::arg("border_factor"),
            py::arg("deadline_s"), py::arg("id_base"))
-      .def_property_readonly("method", &D::method)
-      .def_property_readonly("exact", &D::exact)
-      .def_property_readonly("size", &D::size)
       .def_property_readonly("rank", &D::rank)
       .def_property_readonly("ranks", &D::ranks)
       .def_property_readonly("id_base", &D::id_base)
@@ -247,16 +308,27 @@ void bind_distributed(py::module_& m) {
         const auto n = static_cast<py::ssize_t>(ids.size());
         return to_numpy(std::move(ids), {n});
       })
+      .def_property_readonly("shard_live_ids", [](const D& x) {
+        std::vector<std::int64_t> ids = x.shard_live_ids();
+        const auto n = static_cast<py::ssize_t>(ids.size());
+        return to_numpy(std::move(ids), {n});
+      })
+      .def_property_readonly("removed_count", &D::removed_count)
+      // This rank's: the local index's structure and host copies (as Index's memory_bytes +
+      // host_bytes), and the distributed index's own host arrays (host_bytes: the shard's global
+      // ids, its copy of the points, their sub-runs and removed marks).
       .def_property_readonly("memory_bytes", [](const D& x) {
         const bhcl::Index* l = x.local_index();
-        return l ? l->memory_bytes() + l->host_bytes() + x.shard_ids().size() * sizeof(std::int64_t)
-                 : std::size_t(0);
+        return (l ? l->memory_bytes() + l->host_bytes() : std::size_t(0)) + x.host_bytes();
       })
+      .def_property_readonly("host_bytes", &D::host_bytes)
       .def_property_readonly("build_stats", &build_stats)
       .def_property_readonly("runtime", [](const D& x) -> std::shared_ptr<bhcl::Runtime> {
         const bhcl::Index* l = x.local_index();
         return l ? l->runtime_ptr() : nullptr;
       })
       .def("query", &knn, py::arg("queries").noconvert(), py::arg("params"))
-      .def("radius_search", &radius, py::arg("queries").noconvert(), py::arg("r"), py::arg("params"));
+      .def("radius_search", &radius, py::arg("queries").noconvert(), py::arg("r"), py::arg("params"))
+      .def("insert", &insert_points, py::arg("points").noconvert())
+      .def("remove", &remove_ids, py::arg("ids").noconvert());
 }

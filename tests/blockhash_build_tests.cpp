@@ -355,8 +355,8 @@ TEST_CASE("blockhash options: the paper presets' B is sized for the search asked
   auto pts = datasets::cornell_photons(20000, 5);
   BlockHashBuildParams bp;
   apply_build_options(blockhash::option_table(), paper_options_for_search(paper, p), &bp, "blockhash");
-  BlockHashIndex idx(test::runtime(), pts.data(), 20000, bp);
-  CHECK(idx.B() == int(std::ceil(4.0 * 50 / (10 * std::log(20000.0)))) + 1);
+  auto idx = BlockHashIndex::build(test::runtime(), pts.data(), 20000, bp);
+  CHECK(idx->B() == int(std::ceil(4.0 * 50 / (10 * std::log(20000.0)))) + 1);
 }
 
 TEST_CASE("blockhash params: the talk's formulas for paper, data-driven auto, overrides") {

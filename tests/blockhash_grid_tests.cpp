@@ -35,8 +35,8 @@ void kernel_equals_reference(const BlockHashIndex& index, const std::vector<floa
 TEST_CASE("blockhash_grid_vs_bruteforce: the exact mode equals brute force on every exact set") {
   for (const test::PointSet& s : test::exact_point_sets()) {
     CAPTURE(s.name);
-    BlockHashIndex index(test::runtime(), s.points.data(), s.points.size() / 3);
-    REQUIRE(index.info().grid);
+    auto index = BlockHashIndex::build(test::runtime(), s.points.data(), s.points.size() / 3);
+    REQUIRE(index->info().grid);
     const std::size_t N = s.points.size() / 3, n = s.queries.size() / 3;
     const float radius = test::cutting_radius(s);
     for (float r : {INFINITY, radius})
@@ -45,7 +45,7 @@ TEST_CASE("blockhash_grid_vs_bruteforce: the exact mode equals brute force on ev
         CAPTURE(r);
         SearchParams p = exact_params(k, r);
         KnnResult got;
-        index.query(s.queries.data(), n, p, got);
+        index->query(s.queries.data(), n, p, got);
         KnnResult ref = reference::knn_float(s.points.data(), N, s.queries.data(), n, p);
         test::require_identical(got, ref, "grid exact on " + s.name);
         // recall_target = 1 is the same exact mode.
@@ -53,7 +53,7 @@ TEST_CASE("blockhash_grid_vs_bruteforce: the exact mode equals brute force on ev
         SearchParams pr = p;
         pr.A = 8;
         pr.recall_target = 1.0;
-        KnnResult got1 = index.query(s.queries, pr);
+        KnnResult got1 = index->query(s.queries, pr);
         test::require_identical(got1, ref, "grid recall_target 1 on " + s.name);
       }
   }
@@ -70,7 +70,7 @@ TEST_CASE("blockhash_grid_vs_reference: kernel == host reference at every budget
   for (std::size_t i = 0; i < wall.size() / 3; ++i) wall[3 * i + (i % 3)] = (i % 2) ? 0.0f : 1.0f;  // box walls
   cases.push_back({"walls", wall, datasets::uniform(500, 6)});
   for (const Case& c : cases) {
-    BlockHashIndex index(test::runtime(), c.pts.data(), c.pts.size() / 3);
+    auto index = BlockHashIndex::build(test::runtime(), c.pts.data(), c.pts.size() / 3);
     // The list forms' edges: one register (k <= 16), four (<= 64), the scalar list past them.
     for (int k : {1, 16, 17, 64, 65})
       for (float A : {1.0f, 2.0f, 8.0f, INFINITY}) {
@@ -79,11 +79,11 @@ TEST_CASE("blockhash_grid_vs_reference: kernel == host reference at every budget
         CAPTURE(c.name);
         CAPTURE(k);
         CAPTURE(A);
-        kernel_equals_reference(index, c.qs, p, c.name);
+        kernel_equals_reference(*index, c.qs, p, c.name);
         // The scalar list (the GPU form) gives the same rows as the register list.
         SearchParams ps = p;
         ps.kernel_defines = "-DBHCL_GRID_VTOPK=0 -DBHCL_GRID_PREFETCH=0 -DBHCL_GRID_ROWCAP=0";
-        if (k <= 16 || A == 8.0f) kernel_equals_reference(index, c.qs, ps, std::string(c.name) + " scalar list");
+        if (k <= 16 || A == 8.0f) kernel_equals_reference(*index, c.qs, ps, std::string(c.name) + " scalar list");
         // The register list's other fills give the same rows as the default: k insertions, or
         // appended then sorted once (the default past 16), the sort in a function or inlined.
         const char* const fills_one[] = {"-DBHCL_GRID_FILLSORT=1", "-DBHCL_GRID_FILLSORT=1 -DBHCL_GRID_SORT_CALL=0"};
@@ -92,13 +92,13 @@ TEST_CASE("blockhash_grid_vs_reference: kernel == host reference at every budget
           for (const char* fill : k <= 16 ? fills_one : fills_four) {
             SearchParams pf = p;
             pf.kernel_defines = fill;
-            kernel_equals_reference(index, c.qs, pf, std::string(c.name) + " " + fill);
+            kernel_equals_reference(*index, c.qs, pf, std::string(c.name) + " " + fill);
           }
         // The budget bounds the points examined to within one run.
         if (std::isfinite(A)) {
           SearchParams pe = p;
           pe.count_examined = true;
-          KnnResult r = index.query(c.qs, pe);
+          KnnResult r = index->query(c.qs, pe);
           const std::uint32_t b = BlockHashIndex::budget(p);
           for (std::size_t i = 0; i < r.n; ++i) {
             if (std::uint32_t(r.examined[i]) <= b) continue;
@@ -112,11 +112,11 @@ TEST_CASE("blockhash_grid_vs_reference: kernel == host reference at every budget
 TEST_CASE("blockhash_grid_radius_vs_bruteforce: radius search is exact by default") {
   for (const test::PointSet& s : test::exact_point_sets()) {
     CAPTURE(s.name);
-    BlockHashIndex index(test::runtime(), s.points.data(), s.points.size() / 3);
+    auto index = BlockHashIndex::build(test::runtime(), s.points.data(), s.points.size() / 3);
     const std::size_t N = s.points.size() / 3, n = s.queries.size() / 3;
     const float r = test::cutting_radius(s);
     RadiusResult got;
-    index.radius_search(s.queries.data(), n, r, RadiusParams{}, got);
+    index->radius_search(s.queries.data(), n, r, RadiusParams{}, got);
     // Brute force through the kNN reference with k = N and the radius.
     SearchParams p = exact_params(static_cast<int>(std::min<std::size_t>(N, 256)), r);
     KnnResult ref = reference::knn_float(s.points.data(), N, s.queries.data(), n, p);
@@ -137,10 +137,10 @@ TEST_CASE("blockhash_grid_build: independent of threads, stable, every point in 
   one.threads = 1;
   BlockHashBuildParams two;
   two.threads = 2;
-  BlockHashIndex a(test::runtime(), pts.data(), pts.size() / 3, one);
-  BlockHashIndex b(test::runtime(), pts.data(), pts.size() / 3, two);
-  const blockhash::Grid& ga = *a.structure().grid;
-  const blockhash::Grid& gb = *b.structure().grid;
+  auto a = BlockHashIndex::build(test::runtime(), pts.data(), pts.size() / 3, one);
+  auto b = BlockHashIndex::build(test::runtime(), pts.data(), pts.size() / 3, two);
+  const blockhash::Grid& ga = *a->structure().grid;
+  const blockhash::Grid& gb = *b->structure().grid;
   REQUIRE(ga.starts == gb.starts);
   REQUIRE(ga.ids == gb.ids);
   REQUIRE(ga.x == gb.x);
@@ -149,12 +149,12 @@ TEST_CASE("blockhash_grid_build: independent of threads, stable, every point in 
   for (std::size_t c = 0; c < ga.ncells(); ++c)
     for (std::uint32_t i = ga.start(c) + 1; i < ga.start(c + 1); ++i) REQUIRE(ga.ids[i - 1] < ga.ids[i]);
   // The tuning aims at 24 points per point's cell; the sample estimate lands near it.
-  CHECK(a.info().mean_cell_points > 8);
-  CHECK(a.info().mean_cell_points < 72);
-  REQUIRE(a.first_mismatch(pts.data(), pts.size() / 3) == -1);
+  CHECK(a->info().mean_cell_points > 8);
+  CHECK(a->info().mean_cell_points < 72);
+  REQUIRE(a->first_mismatch(pts.data(), pts.size() / 3) == -1);
   auto other = pts;
   other[3 * 777 + 1] += 1e-3f;
-  REQUIRE(a.first_mismatch(other.data(), other.size() / 3) == 777);
+  REQUIRE(a->first_mismatch(other.data(), other.size() / 3) == 777);
 }
 
 TEST_CASE("blockhash_grid_two_level_vs_bruteforce: the two-level directory answers as the direct one") {
@@ -165,35 +165,35 @@ TEST_CASE("blockhash_grid_two_level_vs_bruteforce: the two-level directory answe
   for (const test::PointSet& s : test::exact_point_sets()) {
     CAPTURE(s.name);
     const std::size_t N = s.points.size() / 3, n = s.queries.size() / 3;
-    BlockHashIndex a(test::runtime(), s.points.data(), N, two);
-    REQUIRE(a.info().grid_two_level);
-    a.structure().grid->validate("two-level");
+    auto a = BlockHashIndex::build(test::runtime(), s.points.data(), N, two);
+    REQUIRE(a->info().grid_two_level);
+    a->structure().grid->validate("two-level");
     BlockHashBuildParams d = direct;
-    d.cell_size = a.info().cell_size;  // the same cells, so the same sorted order
+    d.cell_size = a->info().cell_size;  // the same cells, so the same sorted order
     d.max_cells_per_point = 1024;      // and no growing to fit a direct table
-    BlockHashIndex b(test::runtime(), s.points.data(), N, d);
-    REQUIRE_FALSE(b.info().grid_two_level);
-    REQUIRE_FALSE(b.info().grid_capped);
-    REQUIRE(a.structure().grid->ids == b.structure().grid->ids);
-    for (std::size_t c = 0; c <= a.structure().grid->ncells(); ++c)
-      REQUIRE(a.structure().grid->start(c) == b.structure().grid->start(c));
+    auto b = BlockHashIndex::build(test::runtime(), s.points.data(), N, d);
+    REQUIRE_FALSE(b->info().grid_two_level);
+    REQUIRE_FALSE(b->info().grid_capped);
+    REQUIRE(a->structure().grid->ids == b->structure().grid->ids);
+    for (std::size_t c = 0; c <= a->structure().grid->ncells(); ++c)
+      REQUIRE(a->structure().grid->start(c) == b->structure().grid->start(c));
     for (int k : {1, 10, 50}) {
       CAPTURE(k);
       SearchParams p = exact_params(k);
       KnnResult ref = reference::knn_float(s.points.data(), N, s.queries.data(), n, p);
-      test::require_identical(a.query(s.queries, p), ref, "two-level exact on " + s.name);
+      test::require_identical(a->query(s.queries, p), ref, "two-level exact on " + s.name);
       SearchParams pa = p;
       pa.A = 2;
-      test::require_identical(a.query(s.queries, pa), b.query(s.queries, pa), "two-level A 2 on " + s.name);
-      kernel_equals_reference(a, s.queries, pa, "two-level reference");
+      test::require_identical(a->query(s.queries, pa), b->query(s.queries, pa), "two-level A 2 on " + s.name);
+      kernel_equals_reference(*a, s.queries, pa, "two-level reference");
       SearchParams ps = pa;
       ps.kernel_defines = "-DBHCL_GRID_VTOPK=0 -DBHCL_GRID_PREFETCH=0 -DBHCL_GRID_ROWCAP=0";
-      kernel_equals_reference(a, s.queries, ps, "two-level scalar list");
+      kernel_equals_reference(*a, s.queries, ps, "two-level scalar list");
     }
     RadiusResult ra, rb;
     const float r = test::cutting_radius(s);
-    a.radius_search(s.queries.data(), n, r, RadiusParams{}, ra);
-    b.radius_search(s.queries.data(), n, r, RadiusParams{}, rb);
+    a->radius_search(s.queries.data(), n, r, RadiusParams{}, ra);
+    b->radius_search(s.queries.data(), n, r, RadiusParams{}, rb);
     REQUIRE(ra.ids == rb.ids);
     REQUIRE(ra.offsets == rb.offsets);
   }
@@ -207,22 +207,22 @@ TEST_CASE("blockhash_grid_two_level: chosen for sparse sets, saved and loaded, d
   BlockHashBuildParams bp;
   bp.max_cells_per_point = 0.05;  // a direct table of 65536 cells at most (the floor)
   bp.target_cell_points = 2;      // small cells: ~357k of them
-  BlockHashIndex index(test::runtime(), pts.data(), pts.size() / 3, bp);
-  REQUIRE(index.info().grid_two_level);
-  const double cells = double(index.info().grid_dims[0]) * index.info().grid_dims[1] * index.info().grid_dims[2];
+  auto index = BlockHashIndex::build(test::runtime(), pts.data(), pts.size() / 3, bp);
+  REQUIRE(index->info().grid_two_level);
+  const double cells = double(index->info().grid_dims[0]) * index->info().grid_dims[1] * index->info().grid_dims[2];
   REQUIRE(cells > 65536);  // more cells than a direct table may have
-  REQUIRE(index.info().grid_directory_bytes < cells * 4);
+  REQUIRE(index->info().grid_directory_bytes < cells * 4);
   SearchParams p = exact_params(10);
   KnnResult ref = reference::knn_float(pts.data(), pts.size() / 3, qs.data(), qs.size() / 3, p);
-  test::require_identical(index.query(qs, p), ref, "two-level faces");
+  test::require_identical(index->query(qs, p), ref, "two-level faces");
   const std::string path = test::tmp_path("grid_two_level.bhcl");
-  index.save(path);
+  index->save(path);
   auto loaded = BlockHashIndex::load(test::runtime(), path);
   REQUIRE(loaded->info().grid_two_level);
-  REQUIRE(loaded->info().occupied_cells == index.info().occupied_cells);
+  REQUIRE(loaded->info().occupied_cells == index->info().occupied_cells);
   test::require_identical(loaded->query(qs, p), ref, "loaded two-level");
   // A segment entry pointing past the directory is refused by name.
-  blockhash::Grid g = *index.structure().grid;
+  blockhash::Grid g = *index->structure().grid;
   std::size_t seg = 0;
   while (g.starts[seg] & BHCL_GRID_EMPTY_SEG) ++seg;
   g.starts[seg] = static_cast<std::uint32_t>(g.starts.size());
@@ -233,16 +233,16 @@ TEST_CASE("blockhash_grid_two_level: chosen for sparse sets, saved and loaded, d
 TEST_CASE("blockhash_grid_io: save and load answer identically, damage is refused") {
   auto pts = datasets::uniform(30000, 21);
   auto qs = datasets::uniform(400, 22);
-  BlockHashIndex index(test::runtime(), pts.data(), pts.size() / 3);
+  auto index = BlockHashIndex::build(test::runtime(), pts.data(), pts.size() / 3);
   const std::string path = test::tmp_path("grid_index.bhcl");
-  index.save(path);
+  index->save(path);
   auto loaded = BlockHashIndex::load(test::runtime(), path);
   REQUIRE(loaded->info().grid);
   REQUIRE(loaded->first_mismatch(pts.data(), pts.size() / 3) == -1);
   for (float A : {2.0f, INFINITY}) {
     SearchParams p = test::knn_params(10);
     p.A = A;
-    test::require_identical(loaded->query(qs, p), index.query(qs, p), "loaded grid");
+    test::require_identical(loaded->query(qs, p), index->query(qs, p), "loaded grid");
   }
   // One flipped byte in the payload: the checksum refuses it.
   std::string bytes;
@@ -263,69 +263,69 @@ TEST_CASE("blockhash_grid_rebuild: the next frame equals a fresh build with the 
   auto f2 = datasets::clustered(30000, 32, 6, 0.05f);
   auto f3 = datasets::uniform(60000, 33, -2.0f, 2.0f);
   auto qs = datasets::uniform(300, 34);
-  BlockHashIndex index(test::runtime(), f1.data(), f1.size() / 3);
-  const double h = index.info().cell_size;
+  auto index = BlockHashIndex::build(test::runtime(), f1.data(), f1.size() / 3);
+  const double h = index->info().cell_size;
   for (const auto* f : {&f2, &f3}) {
-    index.rebuild(f->data(), f->size() / 3);
-    REQUIRE(index.size() == f->size() / 3);
-    REQUIRE(index.info().cell_size == doctest::Approx(h));
+    index->rebuild(f->data(), f->size() / 3);
+    REQUIRE(index->size() == f->size() / 3);
+    REQUIRE(index->info().cell_size == doctest::Approx(h));
     BlockHashBuildParams bp;
     bp.cell_size = h;
-    BlockHashIndex fresh(test::runtime(), f->data(), f->size() / 3, bp);
+    auto fresh = BlockHashIndex::build(test::runtime(), f->data(), f->size() / 3, bp);
     for (float A : {4.0f, INFINITY}) {
       SearchParams p = test::knn_params(12);
       p.A = A;
-      test::require_identical(index.query(qs, p), fresh.query(qs, p), "rebuild");
+      test::require_identical(index->query(qs, p), fresh->query(qs, p), "rebuild");
     }
   }
 }
 
 TEST_CASE("blockhash_grid_params: the layouts and the checks") {
   auto pts = datasets::uniform(5000, 41);
-  BlockHashIndex def(test::runtime(), pts.data(), pts.size() / 3);
-  CHECK(def.info().grid);
+  auto def = BlockHashIndex::build(test::runtime(), pts.data(), pts.size() / 3);
+  CHECK(def->info().grid);
   // A block-layout option on the auto preset is refused, never obeyed by switching layouts.
   BlockHashBuildParams old;
   old.P = 8;
-  REQUIRE_THROWS_WITH_AS(BlockHashIndex(test::runtime(), pts.data(), pts.size() / 3, old),
+  REQUIRE_THROWS_WITH_AS(BlockHashIndex::build(test::runtime(), pts.data(), pts.size() / 3, old),
                          doctest::Contains("P is an option of the block layouts"), Error);
   old.grid = 0;
-  BlockHashIndex blocks(test::runtime(), pts.data(), pts.size() / 3, old);
-  CHECK_FALSE(blocks.info().grid);
+  auto blocks = BlockHashIndex::build(test::runtime(), pts.data(), pts.size() / 3, old);
+  CHECK_FALSE(blocks->info().grid);
   BlockHashBuildParams bad = old;
   bad.grid = 1;
-  REQUIRE_THROWS_WITH_AS(BlockHashIndex(test::runtime(), pts.data(), pts.size() / 3, bad),
+  REQUIRE_THROWS_WITH_AS(BlockHashIndex::build(test::runtime(), pts.data(), pts.size() / 3, bad),
                          doctest::Contains("P is an option of the block layouts"), Error);
   BlockHashBuildParams paper_grid;
   paper_grid.preset = BlockHashBuildParams::Preset::Paper;
   paper_grid.grid = 1;
-  REQUIRE_THROWS_WITH_AS(BlockHashIndex(test::runtime(), pts.data(), pts.size() / 3, paper_grid),
+  REQUIRE_THROWS_WITH_AS(BlockHashIndex::build(test::runtime(), pts.data(), pts.size() / 3, paper_grid),
                          doctest::Contains("grid = 1"), Error);
   // And the grid's options on a block layout.
   BlockHashBuildParams side = old;
   side.cell_size = 0.1;
-  REQUIRE_THROWS_WITH_AS(BlockHashIndex(test::runtime(), pts.data(), pts.size() / 3, side),
+  REQUIRE_THROWS_WITH_AS(BlockHashIndex::build(test::runtime(), pts.data(), pts.size() / 3, side),
                          doctest::Contains("cell_size is an option of the grid"), Error);
   BlockHashBuildParams cs;
   cs.cell_size = -3;
-  REQUIRE_THROWS_WITH_AS(BlockHashIndex(test::runtime(), pts.data(), pts.size() / 3, cs),
+  REQUIRE_THROWS_WITH_AS(BlockHashIndex::build(test::runtime(), pts.data(), pts.size() / 3, cs),
                          doctest::Contains("cell"), Error);
   SearchParams p;
   p.A = -1;
-  REQUIRE_THROWS_WITH_AS(def.query(pts, p), doctest::Contains("A must be positive"), Error);
+  REQUIRE_THROWS_WITH_AS(def->query(pts, p), doctest::Contains("A must be positive"), Error);
   // The default search (A = 0) is the exact mode on the grid.
   SearchParams d = test::knn_params(7);
-  test::require_identical(def.query(pts, d), reference::knn_float(pts.data(), 5000, pts.data(), 5000, d),
+  test::require_identical(def->query(pts, d), reference::knn_float(pts.data(), 5000, pts.data(), 5000, d),
                           "the default search");
   // One point, coincident points, k above N.
   std::vector<float> one = {0.5f, 0.5f, 0.5f};
-  BlockHashIndex single(test::runtime(), one.data(), 1);
+  auto single = BlockHashIndex::build(test::runtime(), one.data(), 1);
   SearchParams p3 = test::knn_params(3);
-  KnnResult r = single.query(std::vector<float>{0, 0, 0, 1, 1, 1}, p3);
+  KnnResult r = single->query(std::vector<float>{0, 0, 0, 1, 1, 1}, p3);
   REQUIRE(r.counts == std::vector<std::int32_t>{1, 1});
   REQUIRE(r.id(0, 1) == -1);
   std::vector<float> same(3 * 5000, 0.25f);
-  BlockHashIndex dup(test::runtime(), same.data(), 5000);
-  KnnResult rd = dup.query(std::vector<float>{0.25f, 0.25f, 0.25f}, exact_params(20));
+  auto dup = BlockHashIndex::build(test::runtime(), same.data(), 5000);
+  KnnResult rd = dup->query(std::vector<float>{0.25f, 0.25f, 0.25f}, exact_params(20));
   for (int j = 0; j < 20; ++j) REQUIRE(rd.id(0, j) == j);  // ties by index
 }

@@ -47,21 +47,21 @@ TEST_CASE("blockhash io: save and load give the same index and the same answers"
     CAPTURE(pr);
     BlockHashBuildParams bp;
     bp.preset = BlockHashBuildParams::parse_preset(pr);
-    BlockHashIndex a(test::runtime(), pts.data(), 6000, bp);
+    auto a = BlockHashIndex::build(test::runtime(), pts.data(), 6000, bp);
     std::string path = test::tmp_path(std::string("bh_io_") + pr + ".bhi");
-    a.save(path);
+    a->save(path);
     auto b = BlockHashIndex::load(test::runtime(), path);
-    CHECK(b->L() == a.L());
-    CHECK(b->P() == a.P());
-    CHECK(b->B() == a.B());
-    CHECK(b->X() == a.X());
-    CHECK(b->info().preset == a.info().preset);
-    CHECK(b->memory_bytes() == a.memory_bytes());
-    CHECK(b->info().occupied_cells == a.info().occupied_cells);
-    CHECK(b->structure().refs == a.structure().refs);
-    CHECK(b->structure().thresholds == a.structure().thresholds);
+    CHECK(b->L() == a->L());
+    CHECK(b->P() == a->P());
+    CHECK(b->B() == a->B());
+    CHECK(b->X() == a->X());
+    CHECK(b->info().preset == a->info().preset);
+    CHECK(b->memory_bytes() == a->memory_bytes());
+    CHECK(b->info().occupied_cells == a->info().occupied_cells);
+    CHECK(b->structure().refs == a->structure().refs);
+    CHECK(b->structure().thresholds == a->structure().thresholds);
     SearchParams p = test::knn_params(10);
-    KnnResult ra = a.query(qs, p), rb = b->query(qs, p);
+    KnnResult ra = a->query(qs, p), rb = b->query(qs, p);
     CHECK(ra.ids == rb.ids);
     CHECK(ra.dist2 == rb.dist2);
   }
@@ -69,9 +69,9 @@ TEST_CASE("blockhash io: save and load give the same index and the same answers"
 
 TEST_CASE("blockhash io: truncated, corrupt, foreign and missing files are errors") {
   auto pts = datasets::uniform(1500, 3);
-  BlockHashIndex a(test::runtime(), pts.data(), 1500);
+  auto a = BlockHashIndex::build(test::runtime(), pts.data(), 1500);
   std::string path = test::tmp_path("bh_io_good.bhi"), bad = test::tmp_path("bh_io_bad.bhi");
-  a.save(path);
+  a->save(path);
   const std::string good = slurp(path);
   CHECK_THROWS_WITH_AS(BlockHashIndex::load(test::runtime(), test::tmp_path("no_such.bhi")),
                        doctest::Contains("cannot open"), Error);
@@ -119,9 +119,9 @@ TEST_CASE("blockhash io: truncated, corrupt, foreign and missing files are error
 
 TEST_CASE("blockhash io: every header byte is covered: any change to it is refused") {
   auto pts = datasets::clustered(1200, 5, 4, 0.02f);
-  BlockHashIndex a(test::runtime(), pts.data(), 1200);
+  auto a = BlockHashIndex::build(test::runtime(), pts.data(), 1200);
   const std::string path = test::tmp_path("bh_io_hdr.bhi"), bad = test::tmp_path("bh_io_hdr_bad.bhi");
-  a.save(path);
+  a->save(path);
   const std::string good = slurp(path);
   // The block layouts' header is the first 160 bytes (io.cpp): flags, B, the quantiser, the
   // Hilbert seed, the medians, the high bits of L/P/B/X. Version 3 checked the payload only.
@@ -137,15 +137,15 @@ TEST_CASE("blockhash io: every header byte is covered: any change to it is refus
   // A version 3 file of the block layouts is refused naming both versions.
   BlockHashBuildParams blocks;
   blocks.grid = 0;
-  BlockHashIndex c(test::runtime(), pts.data(), 1200, blocks);
-  c.save(path);
+  auto c = BlockHashIndex::build(test::runtime(), pts.data(), 1200, blocks);
+  c->save(path);
   std::string v3 = slurp(path);
   v3[8] = 3;
   spit(bad, v3);
   CHECK_THROWS_WITH_AS(BlockHashIndex::load(test::runtime(), bad),
                        doctest::Contains("version 3, this library reads versions 4 and 5"), Error);
   // The grid's header (80 bytes with its checksum) likewise.
-  REQUIRE(a.info().grid);
+  REQUIRE(a->info().grid);
   for (std::size_t byte = 0; byte < 80; ++byte) {
     std::string d = good;
     d[byte] = char(d[byte] ^ 0x01);
@@ -175,17 +175,17 @@ TEST_CASE("blockhash io: a consistent file with broken invariants is refused by 
   BlockHashBuildParams bp;
   bp.P = 4;
   bp.grid = 0;  // auto's L tables
-  BlockHashIndex a(test::runtime(), pts.data(), 800, bp);
-  blockhash::Structure s = a.structure();
+  auto a = BlockHashIndex::build(test::runtime(), pts.data(), 800, bp);
+  blockhash::Structure s = a->structure();
   s.refs[0] = 1 << 20;  // a block that does not exist
   std::string path = test::tmp_path("bh_io_invalid.bhi");
   blockhash::save_structure(s, path);
   CHECK_THROWS_WITH_AS(BlockHashIndex::load(test::runtime(), path), doctest::Contains("holds block"), Error);
-  s = a.structure();
+  s = a->structure();
   s.order[3] = s.order[4];
   blockhash::save_structure(s, path);
   CHECK_THROWS_WITH_AS(BlockHashIndex::load(test::runtime(), path), doctest::Contains("permutation"), Error);
-  s = a.structure();
+  s = a->structure();
   REQUIRE(s.thresholds[0] < s.thresholds[1]);
   std::swap(s.thresholds[0], s.thresholds[1]);
   blockhash::save_structure(s, path);
@@ -197,9 +197,9 @@ TEST_CASE("blockhash io: a saved index of the retired layout of blocks aligned t
   auto pts = datasets::uniform(600, 5);
   BlockHashBuildParams bp;
   bp.grid = 0;
-  BlockHashIndex a(test::runtime(), pts.data(), 600, bp);
+  auto a = BlockHashIndex::build(test::runtime(), pts.data(), 600, bp);
   const std::string path = test::tmp_path("bh_io_retired.bhi"), old = test::tmp_path("bh_io_retired_cells.bhi");
-  a.save(path);
+  a->save(path);
   spit(old, with_flags(slurp(path), 64));
   const std::string why = old + ": a block-hash index of the retired layout";
   CHECK_THROWS_WITH_AS(BlockHashIndex::load(test::runtime(), old), doctest::Contains(why.c_str()), Error);

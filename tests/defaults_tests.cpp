@@ -140,7 +140,7 @@ TEST_CASE("defaults: a block layout's default meets 0.95 on the caller's queries
   for (auto& v : spread) v = u(rng);
   BlockHashBuildParams bp;
   bp.grid = 0;
-  BlockHashIndex index(test::runtime(), pts.data(), pts.size() / 3, bp);
+  auto index = BlockHashIndex::build(test::runtime(), pts.data(), pts.size() / 3, bp);
   KdTreeIndex exact(test::runtime(), pts.data(), pts.size() / 3);
   const std::vector<float>* batches[] = {&on, &spread};
   for (const std::vector<float>* qs : batches) {
@@ -149,13 +149,13 @@ TEST_CASE("defaults: a block layout's default meets 0.95 on the caller's queries
       INFO("k = " << k << ", " << where);
       SearchParams p = test::knn_params(k);
       BlockHashIndex::BatchTuning bt;
-      const SearchParams run = index.params_for_batch(qs->data(), qs->size() / 3, p, &bt);
+      const SearchParams run = index->params_for_batch(qs->data(), qs->size() / 3, p, &bt);
       REQUIRE(bt.tuned);
       CHECK_FALSE(bt.cached);
       CHECK(bt.target == BlockHashIndex::kDefaultRecallTarget);
       REQUIRE(run.A == bt.tuning.A);
       CHECK(run.recall_target == 0);
-      const KnnResult got = index.query(*qs, run);
+      const KnnResult got = index->query(*qs, run);
       const KnnResult truth = exact.query(*qs, p);
       const double recall = evaluate_accuracy(got, truth).recall;
       MESSAGE("recall " << recall << " at A = " << run.A << ", sample " << bt.tuning.sample << " ("
@@ -166,7 +166,7 @@ TEST_CASE("defaults: a block layout's default meets 0.95 on the caller's queries
       if (bt.tuning.reached) CHECK(recall >= 0.95);
       else CHECK(run.A == 1024.0f);
       BlockHashIndex::BatchTuning again;
-      const SearchParams run2 = index.params_for_batch(qs->data(), qs->size() / 3, p, &again);
+      const SearchParams run2 = index->params_for_batch(qs->data(), qs->size() / 3, p, &again);
       CHECK(again.cached);
       CHECK(run2.A == run.A);
       // (No timing assertion: `cached` says no sample was answered; a check that the cached call
@@ -177,7 +177,7 @@ TEST_CASE("defaults: a block layout's default meets 0.95 on the caller's queries
   SearchParams a8;
   a8.A = 8;
   BlockHashIndex::BatchTuning none;
-  CHECK(index.params_for_batch(on.data(), 10, a8, &none).A == 8);
+  CHECK(index->params_for_batch(on.data(), 10, a8, &none).A == 8);
   CHECK_FALSE(none.tuned);
 }
 

@@ -93,15 +93,15 @@ TEST_CASE("grid_far_vs_bruteforce: the exact default equals brute force wherever
       CAPTURE(directory);
       BlockHashBuildParams bp;
       bp.grid_directory = directory;
-      BlockHashIndex index(test::runtime(), c.pts.data(), c.pts.size() / 3, bp);
-      REQUIRE(index.info().grid);
-      knn_equals_bruteforce(index, c.pts, c.qs, c.name);
+      auto index = BlockHashIndex::build(test::runtime(), c.pts.data(), c.pts.size() / 3, bp);
+      REQUIRE(index->info().grid);
+      knn_equals_bruteforce(*index, c.pts, c.qs, c.name);
     }
 }
 
 TEST_CASE("grid_far_vs_reference: kernel == host reference, walk from ring 0, after the rings, or never") {
   for (const FarCase& c : far_cases()) {
-    BlockHashIndex index(test::runtime(), c.pts.data(), c.pts.size() / 3);
+    auto index = BlockHashIndex::build(test::runtime(), c.pts.data(), c.pts.size() / 3);
     const std::size_t N = c.pts.size() / 3, n = c.qs.size() / 3;
     for (const char* d : {"-DBHCL_GRID_FINE_RINGS=0", "-DBHCL_GRID_FINE_RINGS=1", "-DBHCL_GRID_FINE_RINGS=0xffffffff",
                           "-DBHCL_GRID_VTOPK=0 -DBHCL_GRID_PREFETCH=0 -DBHCL_GRID_ROWCAP=0",
@@ -117,9 +117,9 @@ TEST_CASE("grid_far_vs_reference: kernel == host reference, walk from ring 0, af
           p.A = A;
           SearchParams pe = p;
           pe.count_examined = true;
-          const KnnResult r = index.query(c.qs, pe);
+          const KnnResult r = index->query(c.qs, pe);
           std::vector<std::int32_t> ex_ref;
-          const KnnResult ref = index.reference_query(c.qs.data(), n, p, &ex_ref);
+          const KnnResult ref = index->reference_query(c.qs.data(), n, p, &ex_ref);
           test::require_identical(r, ref, c.name + " " + d);
           REQUIRE(r.examined == ex_ref);
           if (std::isinf(A))
@@ -134,14 +134,14 @@ TEST_CASE("grid_far_best_first: the best-first walk examines fewer points betwee
   // the other. Same rows either way (checked above).
   const FarCase c = far_cases()[1];
   REQUIRE(c.name == "two clusters");
-  BlockHashIndex index(test::runtime(), c.pts.data(), c.pts.size() / 3);
+  auto index = BlockHashIndex::build(test::runtime(), c.pts.data(), c.pts.size() / 3);
   for (int k : {1, 10}) {
     CAPTURE(k);
     long long examined[2] = {0, 0};
     for (int best_first : {0, 1}) {
       SearchParams p = exact(k, best_first ? "-DBHCL_GRID_WALKCAP=32" : "-DBHCL_GRID_WALKCAP=0");
       p.count_examined = true;
-      const KnnResult r = index.query(c.qs, p);
+      const KnnResult r = index->query(c.qs, p);
       for (std::int32_t e : r.examined) examined[best_first] += e;
     }
     MESSAGE("k = " << k << ": points examined depth-first " << examined[0] << ", best-first " << examined[1]);
@@ -153,12 +153,12 @@ TEST_CASE("grid_far_vs_bruteforce: the best-first walk without its descent (the 
   // BHCL_GRID_WALK_DESCEND=0 queues every child instead of following the nearest; the host
   // reference walks the default, so only the exact rows can be compared, against brute force.
   for (const FarCase& c : far_cases()) {
-    BlockHashIndex index(test::runtime(), c.pts.data(), c.pts.size() / 3);
+    auto index = BlockHashIndex::build(test::runtime(), c.pts.data(), c.pts.size() / 3);
     for (int k : {1, 17}) {
       CAPTURE(c.name);
       CAPTURE(k);
       const SearchParams p = exact(k, "-DBHCL_GRID_WALK_DESCEND=0 -DBHCL_GRID_WALKCAP=3");
-      test::require_identical(index.query(c.qs, p),
+      test::require_identical(index->query(c.qs, p),
                               reference::knn_float(c.pts.data(), c.pts.size() / 3, c.qs.data(), c.qs.size() / 3, p),
                               c.name + " no descent");
     }
@@ -168,11 +168,11 @@ TEST_CASE("grid_far_vs_bruteforce: the best-first walk without its descent (the 
 TEST_CASE("grid_far_radius_vs_bruteforce: radius search exact where the query is far") {
   for (const FarCase& c : far_cases()) {
     CAPTURE(c.name);
-    BlockHashIndex index(test::runtime(), c.pts.data(), c.pts.size() / 3);
+    auto index = BlockHashIndex::build(test::runtime(), c.pts.data(), c.pts.size() / 3);
     for (float r : {0.05f, 0.3f, 1.5f}) {
       CAPTURE(r);
       RadiusResult got;
-      index.radius_search(c.qs.data(), c.qs.size() / 3, r, RadiusParams{}, got);
+      index->radius_search(c.qs.data(), c.qs.size() / 3, r, RadiusParams{}, got);
       test::require_same_slices(got, test::reference_radius_slices(c.pts, c.qs, {r * r}), c.name);
     }
   }
@@ -188,24 +188,24 @@ TEST_CASE("grid_far_after_updates: exact after inserts and removes, queried far 
   for (int i = 0; i < 8000; ++i) pts.insert(pts.end(), {g(rng) + float(i % 2), g(rng), g(rng)});
   std::vector<float> qs;
   for (int i = 0; i < 300; ++i) qs.insert(qs.end(), {u(rng), u(rng) * 0.3f, u(rng) * 0.3f});
-  BlockHashIndex index(test::runtime(), pts.data(), pts.size() / 3);
+  auto index = BlockHashIndex::build(test::runtime(), pts.data(), pts.size() / 3);
   // Inside the box (a merge into the cells) and outside it (a rebuild).
   std::vector<float> add;
   for (int i = 0; i < 2000; ++i) add.insert(add.end(), {g(rng) + 0.5f, g(rng) + 0.005f, g(rng)});
-  index.insert(add.data(), add.size() / 3);
+  index->insert(add.data(), add.size() / 3);
   pts.insert(pts.end(), add.begin(), add.end());
-  knn_equals_bruteforce(index, pts, qs, "after an insert inside the box");
+  knn_equals_bruteforce(*index, pts, qs, "after an insert inside the box");
   // Removed: the first cluster's first 3000; their brute-force stand-ins are moved out of reach.
   std::vector<std::int32_t> gone;
   for (std::int32_t i = 0; i < 6000; i += 2) gone.push_back(i);
-  index.remove(gone.data(), gone.size());
+  index->remove(gone.data(), gone.size());
   for (std::int32_t i : gone) pts[3 * i] = pts[3 * i + 1] = pts[3 * i + 2] = 1e6f;
-  knn_equals_bruteforce(index, pts, qs, "after a remove");
+  knn_equals_bruteforce(*index, pts, qs, "after a remove");
   std::vector<float> off;
   for (int i = 0; i < 500; ++i) off.insert(off.end(), {g(rng) + 4.0f, g(rng) + 2.0f, g(rng)});
-  index.insert(off.data(), off.size() / 3);
+  index->insert(off.data(), off.size() / 3);
   pts.insert(pts.end(), off.begin(), off.end());
-  knn_equals_bruteforce(index, pts, qs, "after an insert off the box");
+  knn_equals_bruteforce(*index, pts, qs, "after an insert off the box");
 }
 
 TEST_CASE("grid_far_batches_vs_bruteforce: batches all near, all far, mixed and empty, every home-skip arm") {

@@ -173,10 +173,10 @@ std::vector<float> cloud(std::size_t n, unsigned seed) {
 
 TEST_CASE("grid index: a changed cell side with its checksum recomputed is refused naming the field") {
   const std::vector<float> pts = cloud(3000, 1);
-  BlockHashIndex a(test::runtime(), pts.data(), 3000, BlockHashBuildParams{});
-  REQUIRE(a.info().grid);
+  auto a = BlockHashIndex::build(test::runtime(), pts.data(), 3000, BlockHashBuildParams{});
+  REQUIRE(a->info().grid);
   const std::string path = test::tmp_path("crafted_h.bhidx"), bad = test::tmp_path("crafted_h_bad.bhidx");
-  a.save(path);
+  a->save(path);
   const std::string good = slurp_file(path);
   {  // h alone (inv_h as saved): the search bounds cells by h and assigns them by inv_h
     std::string d = good;
@@ -197,7 +197,7 @@ TEST_CASE("grid index: a changed cell side with its checksum recomputed is refus
   {  // the saved file itself still loads and answers as the index that saved it
     auto b = BlockHashIndex::load(test::runtime(), path);
     const std::vector<float> qs = cloud(200, 2);
-    test::require_identical(b->query(qs, test::knn_params(8)), a.query(qs, test::knn_params(8)),
+    test::require_identical(b->query(qs, test::knn_params(8)), a->query(qs, test::knn_params(8)),
                             "the reloaded grid");
   }
   std::remove(path.c_str());
@@ -237,8 +237,8 @@ TEST_CASE("grid and block index: an id bound of 2^31 - 2 allocates nothing by it
   const std::vector<float> pts = cloud(2000, 3);
   const std::string path = test::tmp_path("crafted_bound.bhidx"), bad = test::tmp_path("crafted_bound_bad.bhidx");
   {  // the grid
-    BlockHashIndex a(test::runtime(), pts.data(), 2000, BlockHashBuildParams{});
-    a.save(path);
+    auto a = BlockHashIndex::build(test::runtime(), pts.data(), 2000, BlockHashBuildParams{});
+    a->save(path);
     std::string d = slurp_file(path);
     set_field<std::uint64_t>(d, kGridBound, 0x7ffffffeull);
     grid_checksum(d);
@@ -251,8 +251,8 @@ TEST_CASE("grid and block index: an id bound of 2^31 - 2 allocates nothing by it
   {  // the block layouts: the id bound is the header's field before its checksum (io.cpp)
     BlockHashBuildParams bp;
     bp.grid = 0;
-    BlockHashIndex a(test::runtime(), pts.data(), 2000, bp);
-    a.save(path);
+    auto a = BlockHashIndex::build(test::runtime(), pts.data(), 2000, bp);
+    a->save(path);
     std::string d = slurp_file(path);
     const std::uint32_t hb = field_at<std::uint32_t>(d, 16);
     set_field<std::uint64_t>(d, hb - 16, 0x7ffffffeull);

@@ -63,6 +63,35 @@ struct KnnRun {
   }
 };
 
+// A case with both caches in fresh folders of its own (PoCL's and the library's program binaries),
+// filled by a first run whose ids every later run must give again.
+struct BothCaches {
+  std::string pocl, mine, env;
+  KnnRun k;
+  std::string want;
+  explicit BothCaches(const std::string& stem)
+      : pocl(fresh_folder(stem + "_pocl")),
+        mine(fresh_folder(stem + "_lib")),
+        env("POCL_CACHE_DIR=" + pocl + " BHCL_CACHE_DIR=" + mine),
+        k(stem) {
+    std::string out;
+    REQUIRE(k.run(env, &out) == 0);
+    want = test::slurp(k.ids);
+  }
+  ~BothCaches() {
+    fs::remove_all(pocl);
+    fs::remove_all(mine);
+  }
+  // A run after damage: status 0, `told` said exactly once, the first run's ids; its output in out.
+  void expect_recovered(const std::string& told, std::string& out) const {
+    const int rc = k.run(env, &out);
+    INFO(out);
+    CHECK(rc == 0);
+    CHECK(occurrences(out, told) == 1);
+    CHECK(test::slurp(k.ids) == want);
+  }
+};
+
 }  // namespace
 
 TEST_CASE("pocl_cache_cut_short_or_emptied_is_recompiled_not_a_crash") {
@@ -97,58 +126,34 @@ TEST_CASE("pocl_cache_cut_short_or_emptied_is_recompiled_not_a_crash") {
 }
 
 TEST_CASE("pocl_cache_damage_under_a_cached_program_binary_is_recompiled") {
-  const std::string pocl = fresh_folder("pcache_bin_pocl"), mine = fresh_folder("pcache_bin_lib");
-  const std::string env = "POCL_CACHE_DIR=" + pocl + " BHCL_CACHE_DIR=" + mine;
-  const KnnRun k("pcache_bin");
+  const BothCaches c("pcache_bin");
+  REQUIRE(!files_ending(c.mine, ".bin").empty());
+  for (const auto& p : files_ending(c.pocl, ".so")) cut_to_half(p);
   std::string out;
-  REQUIRE(k.run(env, &out) == 0);
-  REQUIRE(!files_ending(mine, ".bin").empty());
-  const std::string want = test::slurp(k.ids);
-  for (const auto& p : files_ending(pocl, ".so")) cut_to_half(p);
-  const int rc = k.run(env, &out);
-  INFO(out);
-  CHECK(rc == 0);
-  CHECK(occurrences(out, "damaged compiled kernel") == 1);
-  CHECK(test::slurp(k.ids) == want);
-  fs::remove_all(pocl);
-  fs::remove_all(mine);
+  c.expect_recovered("damaged compiled kernel", out);
 }
 
 TEST_CASE("program_binary_cut_short_or_emptied_is_recompiled_and_replaced") {
-  const std::string pocl = fresh_folder("pbin_pocl"), mine = fresh_folder("pbin_lib");
-  const std::string env = "POCL_CACHE_DIR=" + pocl + " BHCL_CACHE_DIR=" + mine;
-  const KnnRun k("pbin");
-  std::string out;
-  REQUIRE(k.run(env, &out) == 0);
-  const std::string want = test::slurp(k.ids);
-  const auto bins = files_ending(mine, ".bin");
+  const BothCaches c("pbin");
+  const auto bins = files_ending(c.mine, ".bin");
   REQUIRE(bins.size() == 1);  // one program: bruteforce at k <= 8
+  std::string out;
   for (const bool empty : {false, true}) {
     CAPTURE(empty);
     if (empty) fs::resize_file(bins[0], 0);
     else cut_to_half(bins[0]);
-    const int rc = k.run(env, &out);
-    INFO(out);
-    CHECK(rc == 0);
-    CHECK(occurrences(out, "is damaged") == 1);
+    c.expect_recovered("is damaged", out);
     CHECK(out.find(bins[0].string()) != std::string::npos);
-    CHECK(test::slurp(k.ids) == want);
     // Replaced by the recompiled program: the next run loads it, silently.
     REQUIRE(fs::exists(bins[0]));
-    CHECK(k.run(env, &out) == 0);
+    CHECK(c.k.run(c.env, &out) == 0);
     CHECK(out.find("damaged") == std::string::npos);
   }
   // One flipped byte: the checksum catches it.
   std::string bytes = test::slurp(bins[0].string());
   bytes[bytes.size() / 2] = static_cast<char>(bytes[bytes.size() / 2] ^ 0x40);
   test::spit(bins[0].string(), bytes);
-  const int rc = k.run(env, &out);
-  INFO(out);
-  CHECK(rc == 0);
-  CHECK(out.find("checksum does not match") != std::string::npos);
-  CHECK(test::slurp(k.ids) == want);
-  fs::remove_all(pocl);
-  fs::remove_all(mine);
+  c.expect_recovered("checksum does not match", out);
 }
 
 TEST_CASE("unmakeable_pocl_cache_folder_falls_back_to_a_private_one") {

@@ -78,6 +78,24 @@ float radius_for(const std::vector<float>& pts, const std::vector<float>& qs, st
   return std::sqrt(d[d.size() / 2]);
 }
 
+// A case: the points, their queries (queries_for's `each` of every kind, seeded) and a radius
+// holding about `target` points a query.
+struct RadiusCase {
+  std::vector<float> pts, qs;
+  float r;
+};
+RadiusCase radius_case(std::vector<float> pts, std::uint64_t seed, std::size_t each, std::size_t target) {
+  RadiusCase c{std::move(pts), {}, 0.0f};
+  c.qs = queries_for(c.pts, seed, each);
+  c.r = radius_for(c.pts, c.qs, target);
+  return c;
+}
+
+// method's index over pts (the registry's build, as bhcl makes it).
+std::unique_ptr<Index> index_over(const std::string& method, const std::vector<float>& pts) {
+  return make_index(method, runtime(), pts.data(), pts.size() / 3);
+}
+
 }  // namespace
 
 TEST_CASE("radius: exact methods equal the float reference, checked in double (every set)") {
@@ -86,7 +104,7 @@ TEST_CASE("radius: exact methods equal the float reference, checked in double (e
     const RadiusResult ref = reference_radius(s.points, s.queries, r * r);
     check_boundary_in_double(ref, s.points, s.queries, r * r);
     for (const auto& m : exact_method_names()) {
-      auto index = make_index(m, runtime(), s.points.data(), s.points.size() / 3);
+      auto index = index_over(m, s.points);
       RadiusResult got;
       index->radius_search(s.queries.data(), s.queries.size() / 3, r, {}, got);
       require_same_slices(got, ref, m + " on " + s.name + ", r = " + std::to_string(r));
@@ -100,9 +118,7 @@ TEST_CASE("radius: exact methods equal the float reference, checked in double (e
 }
 
 TEST_CASE("radius: block hashing, every layout: the grid exact, the block layouts a subset within r") {
-  const auto pts = datasets::uniform(20000, 7);
-  const auto qs = queries_for(pts, 11, 100);
-  const float r = radius_for(pts, qs, 30);
+  const auto [pts, qs, r] = radius_case(datasets::uniform(20000, 7), 11, 100, 30);
   const RadiusResult ref = reference_radius(pts, qs, r * r);
   // auto: the grid (exact); tables: auto's L tables (grid = 0); paper.
   for (const std::string preset : {"auto", "tables", "paper"}) {
@@ -138,11 +154,9 @@ TEST_CASE("radius: block hashing, every layout: the grid exact, the block layout
 }
 
 TEST_CASE("radius: every method, the cap keeps the nearest and reports truncation") {
-  const auto pts = datasets::clustered(5000, 3);
-  const auto qs = queries_for(pts, 5, 40);
-  const float r = radius_for(pts, qs, 40);
+  const auto [pts, qs, r] = radius_case(datasets::clustered(5000, 3), 5, 40, 40);
   for (const auto& m : method_names()) {
-    auto index = make_index(m, runtime(), pts.data(), pts.size() / 3);
+    auto index = index_over(m, pts);
     RadiusResult full, capped;
     index->radius_search(qs.data(), qs.size() / 3, r, {}, full);
     RadiusParams p;
@@ -166,11 +180,9 @@ TEST_CASE("radius: every method, the cap keeps the nearest and reports truncatio
 }
 
 TEST_CASE("radius: every method, results do not depend on batching, sorting or the squared form") {
-  const auto pts = datasets::uniform(4000, 9);
-  const auto qs = queries_for(pts, 13, 60);
-  const float r = radius_for(pts, qs, 25);
+  const auto [pts, qs, r] = radius_case(datasets::uniform(4000, 9), 13, 60, 25);
   for (const auto& m : method_names()) {
-    auto index = make_index(m, runtime(), pts.data(), pts.size() / 3);
+    auto index = index_over(m, pts);
     RadiusParams p;
     p.sort_queries = 0;
     RadiusResult a, b, c, d;
@@ -214,7 +226,7 @@ TEST_CASE("radius: every method, degenerate input") {
   const float nan = std::numeric_limits<float>::quiet_NaN(), inf = std::numeric_limits<float>::infinity();
   for (const auto& m : method_names()) {
     INFO(m);
-    auto index = make_index(m, runtime(), pts.data(), pts.size() / 3);
+    auto index = index_over(m, pts);
     const std::vector<float> qs = {pts[0], pts[1], pts[2], nan, 0, 0, 0, inf, 0, pts[3], pts[4], pts[5]};
     RadiusResult r;
     QueryStats st = index->radius_search(qs.data(), 4, 0.2f, {}, r);
@@ -270,8 +282,8 @@ TEST_CASE("radius: extreme scales give the unscaled answer") {
     for (auto& v : pts) v *= scale;
     for (auto& v : qs) v *= scale;
     for (const auto& m : exact_method_names()) {
-      auto a = make_index(m, runtime(), base.data(), base.size() / 3);
-      auto b = make_index(m, runtime(), pts.data(), pts.size() / 3);
+      auto a = index_over(m, base);
+      auto b = index_over(m, pts);
       RadiusResult ra, rb;
       a->radius_search(qs0.data(), qs0.size() / 3, r, {}, ra);
       b->radius_search(qs.data(), qs.size() / 3, r * scale, {}, rb);
@@ -300,7 +312,7 @@ TEST_CASE("radius: bhcl knn --radius writes the library's three arrays, and refu
                       &out);
     INFO(m << ": " << out);
     REQUIRE(rc == 0);
-    auto index = make_index(m, runtime(), pts.data(), pts.size() / 3);
+    auto index = index_over(m, pts);
     RadiusParams p;
     p.max_results = 12;
     RadiusResult ref;

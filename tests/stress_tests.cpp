@@ -101,18 +101,18 @@ TEST_SUITE("stress") {
         CAPTURE(c.name);
         BlockHashBuildParams bp;
         bp.preset = BlockHashBuildParams::parse_preset(preset);
-        BlockHashIndex index(rt, c.pts.data(), N, bp);
+        auto index = BlockHashIndex::build(rt, c.pts.data(), N, bp);
         for (int k : c.ks) {
           CAPTURE(k);
           SearchParams p = test::knn_params(k);
           p.max_radius = c.max_radius;
           p.sort_queries = 0;
-          KnnResult r = index.query(c.qs, p);
+          KnnResult r = index->query(c.qs, p);
           std::vector<std::int32_t> ex_ref;
-          KnnResult ref = index.reference_query(c.qs.data(), n, p, &ex_ref);
+          KnnResult ref = index->reference_query(c.qs.data(), n, p, &ex_ref);
           SearchParams pe = p;
           pe.count_examined = true;
-          KnnResult rex = index.query(c.qs, pe);
+          KnnResult rex = index->query(c.qs, pe);
           const std::vector<std::int32_t>& ex = rex.examined;
           REQUIRE(ref.ids == r.ids);
           REQUIRE(rex.ids == r.ids);

@@ -50,6 +50,58 @@ std::vector<float> uniform(std::mt19937_64& rng, std::size_t n, float lo, float 
   return p;
 }
 
+// The first n points of a case, uniform in the unit cube, already in the model.
+std::vector<float> first_points(Model& m, std::mt19937_64& rng, std::size_t n) {
+  std::vector<float> p0 = uniform(rng, n, 0.0f, 1.0f);
+  m.add(p0);
+  return p0;
+}
+
+// Block hashing over p: the one construction of a BlockHashIndex the update cases share.
+std::unique_ptr<BlockHashIndex> blockhash_over(const std::vector<float>& p, const BlockHashBuildParams& bp = {}) {
+  return BlockHashIndex::build(test::runtime(), p.data(), p.size() / 3, bp);
+}
+
+// method's index over the first n points of a case.
+std::unique_ptr<Index> index_over(const std::string& method, Model& m, std::mt19937_64& rng, std::size_t n) {
+  const std::vector<float> p0 = first_points(m, rng, n);
+  return make_index(method, test::runtime(), p0.data(), n);
+}
+
+// body(method, index, model, rng) for every exact method, each from the same seeded start of n
+// points (the method captured for the checks' messages).
+template <class Body>
+void each_exact_method(std::uint64_t seed, std::size_t n, Body&& body) {
+  for (const auto& method : exact_method_names()) {
+    CAPTURE(method);
+    std::mt19937_64 rng(seed);
+    Model m;
+    auto ix = index_over(method, m, rng, n);
+    body(method, *ix, m, rng);
+  }
+}
+
+// The default block hashing (the grid) over the first n points of a case.
+std::unique_ptr<BlockHashIndex> grid_over(Model& m, std::mt19937_64& rng, std::size_t n) {
+  auto ix = blockhash_over(first_points(m, rng, n));
+  REQUIRE(ix->info().grid);
+  return ix;
+}
+
+// An insert into the index and the model alike: the index must issue the model's next id.
+template <class Ix>
+void insert_both(Ix& ix, Model& m, const std::vector<float>& p) {
+  REQUIRE(ix.insert(p.data(), p.size() / 3) == m.next);
+  m.add(p);
+}
+
+// A remove from the index and the model alike.
+template <class Ix>
+void remove_both(Ix& ix, Model& m, const std::vector<std::int32_t>& ids) {
+  ix.remove(ids.data(), ids.size());
+  for (std::int32_t id : ids) m.live.erase(id);
+}
+
 // A fresh brute force over the model's live points, ids mapped to the stable ones.
 KnnResult fresh_answer(const Model& m, const std::vector<float>& qs, const SearchParams& sp) {
   std::vector<std::int32_t> ids;
@@ -72,17 +124,13 @@ void random_step(Index& ix, Model& m, std::mt19937_64& rng, std::size_t step) {
   if (step % 3 != 2) {
     const std::size_t n = 1 + rng() % 300;
     const float spread = step % 4 == 1 ? 1.6f : 1.0f;  // now and then past the box
-    std::vector<float> p = uniform(rng, n, -0.3f * spread, spread);
-    const std::int32_t first = ix.insert(p.data(), n);
-    REQUIRE(first == m.next);
-    m.add(p);
+    insert_both(ix, m, uniform(rng, n, -0.3f * spread, spread));
   } else {
     std::vector<std::int32_t> all;
     for (const auto& kv : m.live) all.push_back(kv.first);
     std::shuffle(all.begin(), all.end(), rng);
     all.resize(std::min<std::size_t>(all.size() - 1, 1 + rng() % 400));
-    ix.remove(all.data(), all.size());
-    for (std::int32_t id : all) m.live.erase(id);
+    remove_both(ix, m, all);
   }
   REQUIRE(ix.size() == m.live.size());
   REQUIRE(ix.id_bound() == m.next);
@@ -122,21 +170,15 @@ void check_exact(const Index& ix, const Model& m, std::mt19937_64& rng) {
 }  // namespace
 
 TEST_CASE("updates: exact methods after random inserts and removes equal a fresh build") {
-  for (const auto& method : exact_method_names()) {
-    CAPTURE(method);
-    std::mt19937_64 rng(7);
-    Model m;
-    std::vector<float> p0 = uniform(rng, 1500, 0.0f, 1.0f);
-    auto ix = make_index(method, test::runtime(), p0.data(), 1500);
-    m.add(p0);
+  each_exact_method(7, 1500, [](const std::string&, Index& ix, Model& m, std::mt19937_64& rng) {
     for (std::size_t step = 0; step < 9; ++step) {
       CAPTURE(step);
-      random_step(*ix, m, rng, step);
-      check_exact(*ix, m, rng);
+      random_step(ix, m, rng, step);
+      check_exact(ix, m, rng);
     }
-    REQUIRE(!ix->contains(-1));
-    REQUIRE(!ix->contains(m.next));
-  }
+    REQUIRE(!ix.contains(-1));
+    REQUIRE(!ix.contains(m.next));
+  });
 }
 
 // FLANN's updates (issue 39): small inserts go to a delta tree of their own and removes become
@@ -165,15 +207,13 @@ TEST_CASE("updates: FLANN's delta tree and removed marks, duplicates included, e
         std::copy(it->second.begin(), it->second.end(), p.begin() + 3 * i);
       }
       std::copy(p.begin() + 30, p.begin() + 33, p.begin() + 33);
-      REQUIRE(ix->insert(p.data(), 40) == m.next);
-      m.add(p);
+      insert_both(*ix, m, p);
     } else {
       std::vector<std::int32_t> all;
       for (const auto& kv : m.live) all.push_back(kv.first);
       std::shuffle(all.begin(), all.end(), rng);
       all.resize(90);
-      ix->remove(all.data(), all.size());
-      for (std::int32_t id : all) m.live.erase(id);
+      remove_both(*ix, m, all);
     }
     check_exact(*ix, m, rng);
   }
@@ -188,16 +228,12 @@ TEST_CASE("updates: FLANN's delta tree and removed marks, duplicates included, e
 TEST_CASE("updates: brute force's holes are never returned, at any radius or k") {
   std::mt19937_64 rng(392);
   Model m;
-  std::vector<float> p0 = uniform(rng, 400, 0.0f, 1.0f);
+  const std::vector<float> p0 = first_points(m, rng, 400);
   BruteForceIndex ix(test::runtime(), p0.data(), 400);
-  m.add(p0);
   std::vector<std::int32_t> drop;
   for (std::int32_t id = 0; id < 400; id += 9) drop.push_back(id);  // 45 of 400: holes, no compaction
-  ix.remove(drop.data(), drop.size());
-  for (std::int32_t id : drop) m.live.erase(id);
-  std::vector<float> more = uniform(rng, 20, 0.0f, 1.0f);
-  ix.insert(more.data(), 20);
-  m.add(more);
+  remove_both(ix, m, drop);
+  insert_both(ix, m, uniform(rng, 20, 0.0f, 1.0f));
   const std::vector<float> qs = uniform(rng, 40, -0.5f, 1.5f);
   RadiusResult rr;
   ix.radius_search(qs.data(), 40, 1e30f, RadiusParams{}, rr);
@@ -206,12 +242,9 @@ TEST_CASE("updates: brute force's holes are never returned, at any radius or k")
   SearchParams sp = test::knn_params(64);
   check_exact(ix, m, rng);
   Model few;  // k above the live points: the rows end with empty entries, never a hole
-  std::vector<float> p1 = uniform(rng, 40, 0.0f, 1.0f);
+  const std::vector<float> p1 = first_points(few, rng, 40);
   BruteForceIndex small(test::runtime(), p1.data(), 40);
-  few.add(p1);
-  const std::int32_t gone[] = {5};
-  small.remove(gone, 1);
-  few.live.erase(5);
+  remove_both(small, few, {5});
   KnnResult r = small.query(qs, sp);
   for (std::size_t q = 0; q < 40; ++q) REQUIRE(r.counts[q] == 39);
   require_no_removed(r, few);
@@ -232,23 +265,18 @@ void budget_kernel_equals_reference(const BlockHashIndex& ix, const Model& m, Rn
 TEST_CASE("updates: block hashing's grid (exact mode) after random inserts and removes") {
   std::mt19937_64 rng(11);
   Model m;
-  std::vector<float> p0 = uniform(rng, 2000, 0.0f, 1.0f);
-  BlockHashIndex ix(test::runtime(), p0.data(), 2000);
-  REQUIRE(ix.info().grid);
-  m.add(p0);
+  auto ix = grid_over(m, rng, 2000);
   for (std::size_t step = 0; step < 12; ++step) {
     CAPTURE(step);
-    random_step(ix, m, rng, step);
-    check_exact(ix, m, rng);  // A = 0: the grid's exact mode
+    random_step(*ix, m, rng, step);
+    check_exact(*ix, m, rng);  // A = 0: the grid's exact mode
     // The host reference sees the same arrays as the kernel.
-    budget_kernel_equals_reference(ix, m, rng, "grid budget A = 2, kernel vs reference");
+    budget_kernel_equals_reference(*ix, m, rng, "grid budget A = 2, kernel vs reference");
   }
   // A growth past twice the tuned population retunes; removes past 1/8 holes compact.
-  std::vector<float> big = uniform(rng, 6000, 0.0f, 1.0f);
-  ix.insert(big.data(), 6000);
-  m.add(big);
-  check_exact(ix, m, rng);
-  const BlockHashBuildInfo& in = ix.info();
+  insert_both(*ix, m, uniform(rng, 6000, 0.0f, 1.0f));
+  check_exact(*ix, m, rng);
+  const BlockHashBuildInfo& in = ix->info();
   MESSAGE("merges " << in.merges << " compactions " << in.compactions << " rebuilds " << in.update_rebuilds
                     << " retunes " << in.retunes << " holes " << in.holes);
   CHECK(in.merges > 0);
@@ -260,34 +288,29 @@ TEST_CASE("updates: block hashing's grid (exact mode) after random inserts and r
   for (const auto& kv : m.live)
     if (few.size() < 5) few.push_back(kv.first);
   const std::size_t compactions = in.compactions;
-  ix.remove(few.data(), few.size());
-  for (std::int32_t id : few) m.live.erase(id);
-  CHECK(ix.info().holes == 5);
-  CHECK(ix.info().compactions == compactions);
-  check_exact(ix, m, rng);
+  remove_both(*ix, m, few);
+  CHECK(ix->info().holes == 5);
+  CHECK(ix->info().compactions == compactions);
+  check_exact(*ix, m, rng);
 }
 
 TEST_CASE("updates: the grid's budget counts live points, and thinned cells retune before the holes compact") {
   std::mt19937_64 rng(5);
   Model m;
-  std::vector<float> p0 = uniform(rng, 20000, 0.0f, 1.0f);
-  BlockHashIndex ix(test::runtime(), p0.data(), 20000);
-  REQUIRE(ix.info().grid);
-  m.add(p0);
+  auto ix = grid_over(m, rng, 20000);
   std::vector<std::int32_t> all(20000);
   for (std::int32_t i = 0; i < 20000; ++i) all[std::size_t(i)] = i;
   std::shuffle(all.begin(), all.end(), rng);
   // 7.5 % removed: holes in place (fewer than the 1/8 that compacts; the cells thinned to about
   // 0.93x of the tuned population, inside the band).
   std::vector<std::int32_t> drop(all.begin(), all.begin() + 1500);
-  ix.remove(drop.data(), drop.size());
-  for (std::int32_t id : drop) m.live.erase(id);
-  REQUIRE(ix.info().holes == 1500);
-  REQUIRE(ix.info().retunes == 0);
+  remove_both(*ix, m, drop);
+  REQUIRE(ix->info().holes == 1500);
+  REQUIRE(ix->info().retunes == 0);
   // The kernel's budget is A k live points: over the stored slots, A k stored / live. The host
   // reference given that budget examines exactly the slots the kernel did, and the plain A k
   // examines fewer.
-  const blockhash::Grid& g = *ix.structure().grid;
+  const blockhash::Grid& g = *ix->structure().grid;
   REQUIRE(g.n_points == 20000);
   CHECK(blockhash::grid_budget(16, 20000, 1500) == 18);  // ceil(16 * 20000 / 18500)
   CHECK(blockhash::grid_budget(16, 20000, 0) == 16);
@@ -296,7 +319,7 @@ TEST_CASE("updates: the grid's budget counts live points, and thinned cells retu
   SearchParams sp = test::knn_params(8);
   sp.A = 2;
   sp.count_examined = true;
-  KnnResult dev = ix.query(qs, sp);
+  KnnResult dev = ix->query(qs, sp);
   require_no_removed(dev, m);
   const bool cpu = test::runtime()->quirks().vector_scan;  // the row cap the kernel was built with
   KnnResult widened, plain;
@@ -313,15 +336,14 @@ TEST_CASE("updates: the grid's budget counts live points, and thinned cells retu
   // population (1 + (p - 1) 0.885) is below 0.9x of the tuned one: the side is retuned over the
   // live points, and the holes are gone.
   std::vector<std::int32_t> more(all.begin() + 1500, all.begin() + 2300);
-  const std::size_t compactions = ix.info().compactions;
-  ix.remove(more.data(), more.size());
-  for (std::int32_t id : more) m.live.erase(id);
-  CHECK(ix.info().retunes == 1);
-  CHECK(ix.info().holes == 0);
-  CHECK(ix.info().compactions == compactions);
-  CHECK(ix.size() == 17700);
-  check_exact(ix, m, rng);
-  budget_kernel_equals_reference(ix, m, rng, "grid budget A = 2 after the retune, kernel vs reference");
+  const std::size_t compactions = ix->info().compactions;
+  remove_both(*ix, m, more);
+  CHECK(ix->info().retunes == 1);
+  CHECK(ix->info().holes == 0);
+  CHECK(ix->info().compactions == compactions);
+  CHECK(ix->size() == 17700);
+  check_exact(*ix, m, rng);
+  budget_kernel_equals_reference(*ix, m, rng, "grid budget A = 2 after the retune, kernel vs reference");
 }
 
 // Issue 39: an insert that crosses the retune band (900k + 100k uniform from Python: built twice,
@@ -332,75 +354,67 @@ TEST_CASE("updates: the grid's budget counts live points, and thinned cells retu
 TEST_CASE("updates: an insert across the grid's retune band is one fresh build, equal to a fresh build of the result") {
   std::mt19937_64 rng(39);
   Model m;
-  std::vector<float> p0 = uniform(rng, 36000, 0.0f, 1.0f);
-  BlockHashIndex ix(test::runtime(), p0.data(), 36000);
-  REQUIRE(ix.info().grid);
-  m.add(p0);
+  auto ix = grid_over(m, rng, 36000);
   auto fresh_of_model = [&] {
     std::vector<std::int32_t> ids;
     std::vector<float> pts = m.points(ids);
-    return std::make_unique<BlockHashIndex>(test::runtime(), pts.data(), ids.size());
+    return blockhash_over(pts);
   };
   // 5 % more: the point-weighted mean grows by about 5 %, inside the band: a merge.
   std::vector<float> more = uniform(rng, 1800, 0.02f, 0.98f);
-  ix.insert(more.data(), 1800);
-  m.add(more);
-  REQUIRE(ix.info().merges == 1);
-  REQUIRE(ix.info().update_rebuilds == 0);
+  insert_both(*ix, m, more);
+  REQUIRE(ix->info().merges == 1);
+  REQUIRE(ix->info().update_rebuilds == 0);
   // Another 25 %, inside the box: past 1.1x, so the side is retuned, by one build.
   std::vector<float> cross = uniform(rng, 9900, 0.02f, 0.98f);
-  ix.insert(cross.data(), 9900);
-  m.add(cross);
-  CHECK(ix.info().merges == 1);
-  CHECK(ix.info().update_rebuilds == 1);
-  CHECK(ix.info().retunes == 1);
+  insert_both(*ix, m, cross);
+  CHECK(ix->info().merges == 1);
+  CHECK(ix->info().update_rebuilds == 1);
+  CHECK(ix->info().retunes == 1);
   {
     auto fresh = fresh_of_model();
-    CHECK(ix.info().cell_size == doctest::Approx(fresh->info().cell_size).epsilon(0.05));
-    CHECK(ix.info().mean_cell_points == doctest::Approx(fresh->info().mean_cell_points).epsilon(0.1));
-    CHECK(double(ix.info().occupied_cells) == doctest::Approx(double(fresh->info().occupied_cells)).epsilon(0.15));
+    CHECK(ix->info().cell_size == doctest::Approx(fresh->info().cell_size).epsilon(0.05));
+    CHECK(ix->info().mean_cell_points == doctest::Approx(fresh->info().mean_cell_points).epsilon(0.1));
+    CHECK(double(ix->info().occupied_cells) == doctest::Approx(double(fresh->info().occupied_cells)).epsilon(0.15));
   }
-  check_exact(ix, m, rng);
+  check_exact(*ix, m, rng);
   // Off the box and large (the set doubles into a neighbouring region): before, a build with the
   // side kept whose cells then fell outside the band, and a second build. Now one, as fresh.
   std::vector<float> off = uniform(rng, 49500, 0.0f, 1.0f);
   for (std::size_t i = 0; i < off.size(); i += 3) off[i] += 1.0f;
-  ix.insert(off.data(), 49500);
-  m.add(off);
-  CHECK(ix.info().update_rebuilds == 2);
+  insert_both(*ix, m, off);
+  CHECK(ix->info().update_rebuilds == 2);
   {
     auto fresh = fresh_of_model();
-    CHECK(ix.info().cell_size == doctest::Approx(fresh->info().cell_size).epsilon(0.05));
-    CHECK(double(ix.info().occupied_cells) == doctest::Approx(double(fresh->info().occupied_cells)).epsilon(0.15));
-    CHECK(ix.info().mean_cell_points == doctest::Approx(fresh->info().mean_cell_points).epsilon(0.1));
+    CHECK(ix->info().cell_size == doctest::Approx(fresh->info().cell_size).epsilon(0.05));
+    CHECK(double(ix->info().occupied_cells) == doctest::Approx(double(fresh->info().occupied_cells)).epsilon(0.15));
+    CHECK(ix->info().mean_cell_points == doctest::Approx(fresh->info().mean_cell_points).epsilon(0.1));
   }
-  check_exact(ix, m, rng);
+  check_exact(*ix, m, rng);
   // Small, off the box and dense (5 % of the set in a cube a few cells wide): the population the
   // kept side would give is far past the band although the set grew by 5 %; before, the build
   // with the side kept was followed by a second one (counted as one rebuild). update_rebuilds
   // counts the builds themselves.
-  std::vector<float> dense = uniform(rng, std::size_t(ix.size() / 20), 2.1f, 2.2f);
-  const std::size_t before = ix.info().update_rebuilds;
-  ix.insert(dense.data(), dense.size() / 3);
-  m.add(dense);
-  CHECK(ix.info().update_rebuilds == before + 1);
+  std::vector<float> dense = uniform(rng, std::size_t(ix->size() / 20), 2.1f, 2.2f);
+  const std::size_t before = ix->info().update_rebuilds;
+  insert_both(*ix, m, dense);
+  CHECK(ix->info().update_rebuilds == before + 1);
   {
     auto fresh = fresh_of_model();
-    CHECK(ix.info().cell_size == doctest::Approx(fresh->info().cell_size).epsilon(0.05));
-    CHECK(double(ix.info().occupied_cells) == doctest::Approx(double(fresh->info().occupied_cells)).epsilon(0.15));
+    CHECK(ix->info().cell_size == doctest::Approx(fresh->info().cell_size).epsilon(0.05));
+    CHECK(double(ix->info().occupied_cells) == doctest::Approx(double(fresh->info().occupied_cells)).epsilon(0.15));
   }
-  check_exact(ix, m, rng);
+  check_exact(*ix, m, rng);
   // A large remove (past 1/8 holes and below the band): one build, no compaction before it
   // counted as a second pass over the points' structure.
   std::vector<std::int32_t> drop;
   for (const auto& kv : m.live)
     if (rng() % 2) drop.push_back(kv.first);
-  const std::size_t rebuilds = ix.info().update_rebuilds;
-  ix.remove(drop.data(), drop.size());
-  for (std::int32_t id : drop) m.live.erase(id);
-  CHECK(ix.info().update_rebuilds == rebuilds + 1);
-  CHECK(ix.info().holes == 0);
-  check_exact(ix, m, rng);
+  const std::size_t rebuilds = ix->info().update_rebuilds;
+  remove_both(*ix, m, drop);
+  CHECK(ix->info().update_rebuilds == rebuilds + 1);
+  CHECK(ix->info().holes == 0);
+  check_exact(*ix, m, rng);
 }
 
 // Issue 39: a sensor moving on inserts past the box's edge every scan; the rebuild that takes
@@ -410,10 +424,7 @@ TEST_CASE("updates: an insert across the grid's retune band is one fresh build, 
 TEST_CASE("updates: the grid leaves room where inserts passed its box, so a sliding window merges") {
   std::mt19937_64 rng(391);
   Model m;
-  std::vector<float> p0 = uniform(rng, 20000, 0.0f, 1.0f);
-  BlockHashIndex ix(test::runtime(), p0.data(), 20000);
-  REQUIRE(ix.info().grid);
-  m.add(p0);
+  auto ix = grid_over(m, rng, 20000);
   // Scan s: 1000 points in [0.1 s, 1 + 0.1 s] x [0, 1]^2 (0.1 of the extent past the old edge: the
   // build's slack of two cells, 0.21, is passed every other scan).
   std::size_t rebuilds = 0, merges = 0;
@@ -421,23 +432,21 @@ TEST_CASE("updates: the grid leaves room where inserts passed its box, so a slid
     CAPTURE(s);
     std::vector<float> scan = uniform(rng, 1000, 0.0f, 1.0f);
     for (std::size_t i = 0; i < scan.size(); i += 3) scan[i] = 0.1f * float(s) + scan[i];
-    const std::size_t r0 = ix.info().update_rebuilds, g0 = ix.info().merges;
-    REQUIRE(ix.insert(scan.data(), 1000) == m.next);
-    m.add(scan);
-    rebuilds += ix.info().update_rebuilds - r0;
-    merges += ix.info().merges - g0;
-    if (ix.info().update_rebuilds > r0 && rebuilds == 1) CHECK(ix.info().holes == 2);  // the room's corners
+    const std::size_t r0 = ix->info().update_rebuilds, g0 = ix->info().merges;
+    insert_both(*ix, m, scan);
+    rebuilds += ix->info().update_rebuilds - r0;
+    merges += ix->info().merges - g0;
+    if (ix->info().update_rebuilds > r0 && rebuilds == 1) CHECK(ix->info().holes == 2);  // the room's corners
     // The crop: the 1000 live points of smallest x leave (the population stays in the band).
     std::vector<std::pair<float, std::int32_t>> by_x;
     for (const auto& kv : m.live) by_x.emplace_back(kv.second[0], kv.first);
     std::partial_sort(by_x.begin(), by_x.begin() + 1000, by_x.end());
     std::vector<std::int32_t> drop;
     for (std::size_t i = 0; i < 1000; ++i) drop.push_back(by_x[i].second);
-    const std::size_t r1 = ix.info().update_rebuilds;
-    ix.remove(drop.data(), drop.size());
-    for (std::int32_t id : drop) m.live.erase(id);
-    CHECK(ix.info().update_rebuilds == r1);  // holes or a compaction, no build
-    check_exact(ix, m, rng);
+    const std::size_t r1 = ix->info().update_rebuilds;
+    remove_both(*ix, m, drop);
+    CHECK(ix->info().update_rebuilds == r1);  // holes or a compaction, no build
+    check_exact(*ix, m, rng);
   }
   // The scans within the build's slack merge; the first past it rebuilds with half the extent of
   // room in +x, and the next ones land in it (one more rebuild at most: the band, as the
@@ -445,41 +454,37 @@ TEST_CASE("updates: the grid leaves room where inserts passed its box, so a slid
   CHECK(rebuilds >= 1);
   CHECK(rebuilds <= 2);
   CHECK(merges >= 4);
-  CHECK(ix.size() == m.live.size());
+  CHECK(ix->size() == m.live.size());
 }
 
 TEST_CASE("updates: block hashing's two-level grid directory after random inserts and removes") {
   std::mt19937_64 rng(12);
   Model m;
-  std::vector<float> p0 = uniform(rng, 2000, 0.0f, 1.0f);
+  const std::vector<float> p0 = first_points(m, rng, 2000);
   BlockHashBuildParams bp;
   bp.grid_directory = 1;  // updates rebuild it over the live points (no in-place merge)
-  BlockHashIndex ix(test::runtime(), p0.data(), 2000, bp);
-  REQUIRE(ix.info().grid_two_level);
-  m.add(p0);
+  auto ix = blockhash_over(p0, bp);
+  REQUIRE(ix->info().grid_two_level);
   for (std::size_t step = 0; step < 8; ++step) {
     CAPTURE(step);
-    random_step(ix, m, rng, step);
-    REQUIRE(ix.info().grid_two_level);
-    check_exact(ix, m, rng);
-    budget_kernel_equals_reference(ix, m, rng, "two-level grid A = 2, kernel vs reference");
+    random_step(*ix, m, rng, step);
+    REQUIRE(ix->info().grid_two_level);
+    check_exact(*ix, m, rng);
+    budget_kernel_equals_reference(*ix, m, rng, "two-level grid A = 2, kernel vs reference");
   }
   // Its inserts rebuild with the side kept, inside the retune band: grown 3x in steps of a tenth,
   // the cells stay within 1.1x of the tuned population (before, the side was never retuned there).
-  const std::size_t retunes = ix.info().retunes;
-  BlockHashIndex fresh_of_first(test::runtime(), p0.data(), 2000, bp);
-  const double tuned = fresh_of_first.info().mean_cell_points;  // what the tuning aims at here
+  const std::size_t retunes = ix->info().retunes;
+  const double tuned = blockhash_over(p0, bp)->info().mean_cell_points;  // what the tuning aims at here
   for (std::size_t step = 0; step < 12; ++step) {
     CAPTURE(step);
-    std::vector<float> more = uniform(rng, ix.size() / 10, 0.0f, 1.0f);
-    ix.insert(more.data(), more.size() / 3);
-    m.add(more);
+    insert_both(*ix, m, uniform(rng, ix->size() / 10, 0.0f, 1.0f));
     // Without the band on this path the population grows with the set (3x by the end).
-    CHECK(ix.info().mean_cell_points <= 1.35 * tuned);
+    CHECK(ix->info().mean_cell_points <= 1.35 * tuned);
   }
-  CHECK(ix.info().retunes > retunes);
-  REQUIRE(ix.info().grid_two_level);
-  check_exact(ix, m, rng);
+  CHECK(ix->info().retunes > retunes);
+  REQUIRE(ix->info().grid_two_level);
+  check_exact(*ix, m, rng);
 }
 
 TEST_CASE("updates: block hashing's block layouts equal a fresh build over the live points") {
@@ -490,24 +495,21 @@ TEST_CASE("updates: block hashing's block layouts equal a fresh build over the l
     else bp.preset = BlockHashBuildParams::Preset::Paper;
     std::mt19937_64 rng(5);
     Model m;
-    std::vector<float> p0 = uniform(rng, 1200, 0.0f, 1.0f);
-    BlockHashIndex ix(test::runtime(), p0.data(), 1200, bp);
-    REQUIRE(!ix.info().grid);
-    m.add(p0);
+    auto ix = blockhash_over(first_points(m, rng, 1200), bp);
+    REQUIRE(!ix->info().grid);
     for (std::size_t step = 0; step < 4; ++step) {
-      random_step(ix, m, rng, step);
+      random_step(*ix, m, rng, step);
       std::vector<std::int32_t> ids;
       std::vector<float> pts = m.points(ids);
-      BlockHashIndex fresh(test::runtime(), pts.data(), ids.size(), bp);
       std::vector<float> qs = uniform(rng, 100, 0.0f, 1.0f);
       SearchParams sp = test::knn_params(10);
-      KnnResult want = fresh.query(qs, sp), got = ix.query(qs, sp);
+      KnnResult want = blockhash_over(pts, bp)->query(qs, sp), got = ix->query(qs, sp);
       for (auto& id : want.ids)
         if (id >= 0) id = ids[std::size_t(id)];
       require_no_removed(got, m);
       test::require_identical(got, want, "block layout after updates");
     }
-    CHECK(ix.info().update_rebuilds == 4);
+    CHECK(ix->info().update_rebuilds == 4);
   }
 }
 
@@ -547,9 +549,7 @@ TEST_CASE("updates: queries concurrent with inserts and removes see one state or
     CAPTURE(method);
     std::mt19937_64 rng(21);
     Model m;
-    std::vector<float> p0 = uniform(rng, 3000, 0.0f, 1.0f);
-    auto ix = make_index(method, test::runtime(), p0.data(), 3000);
-    m.add(p0);
+    auto ix = index_over(method, m, rng, 3000);
     const std::vector<float> qs = uniform(rng, 200, 0.0f, 1.0f);
     SearchParams sp = test::knn_params(5);
     // The answers of every state the sequence passes through, computed beforehand.
@@ -604,15 +604,10 @@ TEST_CASE("updates: queries concurrent with inserts and removes see one state or
 TEST_CASE("updates: the multi-device index updates every replica") {
   std::mt19937_64 rng(9);
   Model m;
-  std::vector<float> p0 = uniform(rng, 800, 0.0f, 1.0f);
+  const std::vector<float> p0 = first_points(m, rng, 800);
   MultiDeviceIndex md({test::runtime(), test::runtime()}, "kdtree", p0.data(), 800);
-  m.add(p0);
-  std::vector<float> add = uniform(rng, 100, 0.0f, 1.2f);
-  REQUIRE(md.insert(add.data(), 100) == 800);
-  m.add(add);
-  std::vector<std::int32_t> drop = {0, 5, 850};
-  md.remove(drop.data(), drop.size());
-  for (std::int32_t id : drop) m.live.erase(id);
+  insert_both(md, m, uniform(rng, 100, 0.0f, 1.2f));
+  remove_both(md, m, {0, 5, 850});
   REQUIRE(md.size() == m.live.size());
   std::vector<float> qs = uniform(rng, 300, 0.0f, 1.0f);
   SearchParams sp = test::knn_params(7);
@@ -713,49 +708,43 @@ TEST_CASE("updates: block hashing saved and loaded after random inserts and remo
       CAPTURE(seed);
       std::mt19937_64 rng(seed);
       Model m;
-      std::vector<float> p0 = uniform(rng, 1500, 0.0f, 1.0f);
-      BlockHashIndex ix(test::runtime(), p0.data(), 1500, bp);
-      m.add(p0);
+      auto ix = blockhash_over(first_points(m, rng, 1500), bp);
       const std::size_t steps = bp.preset == BlockHashBuildParams::Preset::Paper ? 3 : 6;
-      for (std::size_t step = 0; step < steps; ++step) random_step(ix, m, rng, step + seed);
+      for (std::size_t step = 0; step < steps; ++step) random_step(*ix, m, rng, step + seed);
       // A few removes the grid keeps as holes in place (below 1/8: no compaction).
       std::vector<std::int32_t> few;
       for (const auto& kv : m.live)
         if (few.size() < 7 && rng() % 5 == 0) few.push_back(kv.first);
-      ix.remove(few.data(), few.size());
-      for (std::int32_t id : few) m.live.erase(id);
-      REQUIRE(ix.removed_count() > 0);
-      if (name == std::string("grid")) REQUIRE(ix.info().holes > 0);
+      remove_both(*ix, m, few);
+      REQUIRE(ix->removed_count() > 0);
+      if (name == std::string("grid")) REQUIRE(ix->info().holes > 0);
       const std::string path = test::tmp_path("update_saved_" + std::to_string(seed) + ".bhi");
-      ix.save(path);
+      ix->save(path);
       // Through the registry as bhcl --load-index and Python load it: a row per id issued.
       std::vector<float> rows = rows_of(m);
       MethodOptions lo;
       lo.set("load-index", path);
       auto loaded_any = make_index("blockhash", test::runtime(), rows.data(), std::size_t(m.next), lo);
       auto& loaded = dynamic_cast<BlockHashIndex&>(*loaded_any);
-      REQUIRE(loaded.info().grid == ix.info().grid);
-      if (ix.info().grid) {  // the grid file keeps the update state and counters
-        REQUIRE(loaded.info().holes == ix.info().holes);
-        REQUIRE(loaded.info().merges == ix.info().merges);
-        REQUIRE(loaded.info().compactions == ix.info().compactions);
-        REQUIRE(loaded.info().update_rebuilds == ix.info().update_rebuilds);
-        REQUIRE(loaded.info().retunes == ix.info().retunes);
+      REQUIRE(loaded.info().grid == ix->info().grid);
+      if (ix->info().grid) {  // the grid file keeps the update state and counters
+        REQUIRE(loaded.info().holes == ix->info().holes);
+        REQUIRE(loaded.info().merges == ix->info().merges);
+        REQUIRE(loaded.info().compactions == ix->info().compactions);
+        REQUIRE(loaded.info().update_rebuilds == ix->info().update_rebuilds);
+        REQUIRE(loaded.info().retunes == ix->info().retunes);
       }
-      require_same_index(ix, loaded, m, rng, {0.0, 2.0, 5.0}, name + " loaded");
+      require_same_index(*ix, loaded, m, rng, {0.0, 2.0, 5.0}, name + " loaded");
       // The next update continues where the saved index stopped, on both alike.
       std::vector<float> more = uniform(rng, 120, 0.0f, 1.0f);
-      const std::int32_t f1 = ix.insert(more.data(), 120), f2 = loaded.insert(more.data(), 120);
-      REQUIRE(f1 == m.next);
-      REQUIRE(f2 == f1);
-      m.add(more);
+      REQUIRE(loaded.insert(more.data(), 120) == m.next);
+      insert_both(*ix, m, more);
       std::vector<std::int32_t> drop;
       for (const auto& kv : m.live)
         if (drop.size() < 30 && rng() % 7 == 0) drop.push_back(kv.first);
-      ix.remove(drop.data(), drop.size());
       loaded.remove(drop.data(), drop.size());
-      for (std::int32_t id : drop) m.live.erase(id);
-      require_same_index(ix, loaded, m, rng, {0.0, 2.0}, name + " loaded, then updated");
+      remove_both(*ix, m, drop);
+      require_same_index(*ix, loaded, m, rng, {0.0, 2.0}, name + " loaded, then updated");
       // A live point that differs is refused; a removed id's row is not read.
       std::vector<float> wrong = rows;
       const std::int32_t live_id = m.live.begin()->first;
@@ -771,18 +760,14 @@ TEST_CASE("updates: block hashing saved and loaded after random inserts and remo
 TEST_CASE("updates: a saved grid after removes: damage refused, version 2 files still load") {
   std::mt19937_64 rng(31);
   Model m;
-  std::vector<float> p0 = uniform(rng, 1000, 0.0f, 1.0f);
-  BlockHashIndex ix(test::runtime(), p0.data(), 1000);
-  m.add(p0);
-  std::vector<float> add = uniform(rng, 200, 0.0f, 1.0f);
-  ix.insert(add.data(), 200);
-  m.add(add);
-  std::int32_t drop[] = {3, 500, 1100, 1199};
-  ix.remove(drop, 4);
-  for (std::int32_t id : drop) m.live.erase(id);
-  REQUIRE(ix.info().holes == 4);
+  const std::vector<float> p0 = first_points(m, rng, 1000);
+  auto ix = blockhash_over(p0);
+  const std::vector<float> add = uniform(rng, 200, 0.0f, 1.0f);
+  insert_both(*ix, m, add);
+  remove_both(*ix, m, {3, 500, 1100, 1199});
+  REQUIRE(ix->info().holes == 4);
   const std::string path = test::tmp_path("update_grid_v3.bhi"), bad = test::tmp_path("update_grid_bad.bhi");
-  ix.save(path);
+  ix->save(path);
   const std::string good = slurp_file(path);
   REQUIRE(peek<std::uint32_t>(good, 8) == 3u);
   const std::uint64_t slots = peek<std::uint64_t>(good, 16);
@@ -834,8 +819,8 @@ TEST_CASE("updates: a saved grid after removes: damage refused, version 2 files 
     CHECK_THROWS_WITH_AS(BlockHashIndex::load(test::runtime(), bad), doctest::Contains("truncated"), Error);
   }
   // A version 2 file (written before the id state existed) of an index never updated loads.
-  BlockHashIndex plain(test::runtime(), p0.data(), 1000);
-  plain.save(path);
+  auto plain = blockhash_over(p0);
+  plain->save(path);
   const std::string v3 = slurp_file(path);
   std::string v2 = v3.substr(0, kGridHeaderV2) + std::string(8, '\0') + v3.substr(kGridHeaderV3 + 8);
   poke(v2, 8, std::uint32_t(2));
@@ -847,7 +832,7 @@ TEST_CASE("updates: a saved grid after removes: damage refused, version 2 files 
   std::vector<float> qs = uniform(rng, 100, 0.0f, 1.0f);
   SearchParams sp = test::knn_params(10);
   sp.A = 2;
-  test::require_identical(old->query(qs, sp), plain.query(qs, sp), "version 2 grid file");
+  test::require_identical(old->query(qs, sp), plain->query(qs, sp), "version 2 grid file");
   REQUIRE(old->insert(add.data(), 200) == 1000);
 }
 
@@ -856,9 +841,9 @@ TEST_CASE("updates: block layouts saved after removes: sparse ids checked, versi
   std::vector<float> p0 = uniform(rng, 900, 0.0f, 1.0f);
   BlockHashBuildParams bp;
   bp.grid = 0;
-  BlockHashIndex ix(test::runtime(), p0.data(), 900, bp);
+  auto ix = blockhash_over(p0, bp);
   const std::string path = test::tmp_path("update_blocks_v5.bhi"), bad = test::tmp_path("update_blocks_bad.bhi");
-  ix.save(path);
+  ix->save(path);
   const std::string fresh = slurp_file(path);
   // The block layouts' header (io.cpp): version 5 is 168 bytes, the id bound at 152, the checksum
   // at 160; version 4's is 160 bytes, its checksum at 152.
@@ -872,11 +857,11 @@ TEST_CASE("updates: block layouts saved after removes: sparse ids checked, versi
   auto old = BlockHashIndex::load(test::runtime(), bad);
   std::vector<float> qs = uniform(rng, 100, 0.0f, 1.0f);
   SearchParams sp = test::knn_params(10);
-  test::require_identical(old->query(qs, sp), ix.query(qs, sp), "version 4 block file");
+  test::require_identical(old->query(qs, sp), ix->query(qs, sp), "version 4 block file");
   // After removes: the order holds sparse ids; one out of the bound or twice is refused.
   std::int32_t drop[] = {0, 450, 899};
-  ix.remove(drop, 3);
-  ix.save(path);
+  ix->remove(drop, 3);
+  ix->save(path);
   const std::string good = slurp_file(path);
   REQUIRE(peek<std::uint64_t>(good, 152) == 900u);
   REQUIRE(peek<std::uint64_t>(good, 72) == 897u);
@@ -885,7 +870,7 @@ TEST_CASE("updates: block layouts saved after removes: sparse ids checked, versi
   REQUIRE(loaded->size() == 897);
   REQUIRE(!loaded->contains(450));
   REQUIRE(loaded->contains(451));
-  test::require_identical(loaded->query(qs, sp), ix.query(qs, sp), "block file after removes");
+  test::require_identical(loaded->query(qs, sp), ix->query(qs, sp), "block file after removes");
   auto reseal = [&](std::string d) {
     poke(d, 160, fnv(d, 168, d.size(), fnv(d, 0, 160)));
     return d;
@@ -909,14 +894,8 @@ TEST_CASE("updates: exact methods restored after updates (a row per id built, th
   // The way the Python package saves and pickles a kd-tree, brute force or FLANN index after
   // updates (their structures rebuild faster than they read): the rows of every id issued, a
   // removed id's row a live point, built and the removed ids removed again.
-  for (const auto& method : exact_method_names()) {
-    CAPTURE(method);
-    std::mt19937_64 rng(51);
-    Model m;
-    std::vector<float> p0 = uniform(rng, 1200, 0.0f, 1.0f);
-    auto ix = make_index(method, test::runtime(), p0.data(), 1200);
-    m.add(p0);
-    for (std::size_t step = 0; step < 7; ++step) random_step(*ix, m, rng, step);
+  each_exact_method(51, 1200, [](const std::string& method, Index& ix, Model& m, std::mt19937_64& rng) {
+    for (std::size_t step = 0; step < 7; ++step) random_step(ix, m, rng, step);
     std::vector<float> rows = rows_of(m);
     const std::vector<std::int32_t> removed = removed_of(m);
     const auto& first_live = m.live.begin()->second;
@@ -924,12 +903,12 @@ TEST_CASE("updates: exact methods restored after updates (a row per id built, th
       for (int a = 0; a < 3; ++a) rows[3 * std::size_t(id) + a] = first_live[a];
     auto back = make_index(method, test::runtime(), rows.data(), std::size_t(m.next));
     back->remove(removed.data(), removed.size());
-    require_same_index(*ix, *back, m, rng, {0.0}, method + " restored");
+    require_same_index(ix, *back, m, rng, {0.0}, method + " restored");
     std::vector<float> more = uniform(rng, 50, 0.0f, 1.3f);
-    REQUIRE(back->insert(more.data(), 50) == ix->insert(more.data(), 50));
+    REQUIRE(back->insert(more.data(), 50) == ix.insert(more.data(), 50));
     m.add(more);
-    require_same_index(*ix, *back, m, rng, {0.0}, method + " restored, then updated");
-  }
+    require_same_index(ix, *back, m, rng, {0.0}, method + " restored, then updated");
+  });
 }
 
 TEST_CASE("updates: the build stats report holes, merges and rebuilds after updates") {

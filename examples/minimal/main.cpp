@@ -25,12 +25,12 @@ int main(int argc, char** argv) try {
   const std::size_t n = queries.size() / 3;
 
   auto rt = std::make_shared<bhcl::Runtime>();  // BHCL_DEVICE, else PoCL
-  bhcl::BlockHashIndex approx(rt, points.data(), N, bhcl::BlockHashBuildParams{});
+  auto approx = bhcl::BlockHashIndex::build(rt, points.data(), N, bhcl::BlockHashBuildParams{});
   bhcl::KdTreeIndex exact(rt, points.data(), N);
   bhcl::SearchParams p;
   p.k = 8;
   p.A = 8;  // block hashing examines at most A*k points per query
-  bhcl::KnnResult a = approx.query(queries, p);
+  bhcl::KnnResult a = approx->query(queries, p);
   bhcl::KnnResult e = exact.query(queries, p);
   const bhcl::Accuracy acc = bhcl::evaluate_accuracy(a, e);
   std::printf("blockhash_cl %s on %s: N=%zu n=%zu k=%d: recall %.4f; query 0's nearest: %d (d2 %g)\n",

@@ -27,6 +27,7 @@
 #pragma once
 
 #include <cmath>
+#include <cstddef>
 #include <string>
 
 namespace bhcl::render {
@@ -42,22 +43,34 @@ struct DensityEstimator {
   bool operator==(const DensityEstimator& o) const { return radius == o.radius && filter == o.filter; }
 };
 
-inline const char* radius_estimator_name(RadiusEstimator e) {
-  switch (e) {
-    case RadiusEstimator::Kth: return "kth";
-    case RadiusEstimator::Mean: return "mean";
-    case RadiusEstimator::Variance: return "var";
-  }
+// Each estimator's and filter's command-line name, one table per enum: the names and the parsers
+// read the same table, so a value added to one cannot be missing from the other.
+template <class E>
+struct NamedValue {
+  E value;
+  const char* name;
+};
+inline constexpr NamedValue<RadiusEstimator> kRadiusEstimatorNames[] = {
+    {RadiusEstimator::Kth, "kth"}, {RadiusEstimator::Mean, "mean"}, {RadiusEstimator::Variance, "var"}};
+inline constexpr NamedValue<DensityFilter> kDensityFilterNames[] = {
+    {DensityFilter::Box, "box"}, {DensityFilter::Cone, "cone"}, {DensityFilter::Epanechnikov, "epanechnikov"}};
+
+template <class E, std::size_t N>
+const char* name_in(const NamedValue<E> (&table)[N], E e) {
+  for (const NamedValue<E>& v : table)
+    if (v.value == e) return v.name;
   return "?";
 }
-inline const char* density_filter_name(DensityFilter f) {
-  switch (f) {
-    case DensityFilter::Box: return "box";
-    case DensityFilter::Cone: return "cone";
-    case DensityFilter::Epanechnikov: return "epanechnikov";
-  }
-  return "?";
+// false when the name is not in the table (out unchanged).
+template <class E, std::size_t N>
+bool parse_name_in(const NamedValue<E> (&table)[N], const std::string& s, E& out) {
+  for (const NamedValue<E>& v : table)
+    if (s == v.name) return out = v.value, true;
+  return false;
 }
+
+inline const char* radius_estimator_name(RadiusEstimator e) { return name_in(kRadiusEstimatorNames, e); }
+inline const char* density_filter_name(DensityFilter f) { return name_in(kDensityFilterNames, f); }
 // "kth/cone", "var/epanechnikov", ...
 inline std::string estimator_name(const DensityEstimator& e) {
   return std::string(radius_estimator_name(e.radius)) + "/" + density_filter_name(e.filter);
@@ -65,14 +78,10 @@ inline std::string estimator_name(const DensityEstimator& e) {
 
 // Parsers for the command line; false when the name is unknown.
 inline bool parse_radius_estimator(const std::string& s, RadiusEstimator& out) {
-  for (RadiusEstimator e : {RadiusEstimator::Kth, RadiusEstimator::Mean, RadiusEstimator::Variance})
-    if (s == radius_estimator_name(e)) return out = e, true;
-  return false;
+  return parse_name_in(kRadiusEstimatorNames, s, out);
 }
 inline bool parse_density_filter(const std::string& s, DensityFilter& out) {
-  for (DensityFilter f : {DensityFilter::Box, DensityFilter::Cone, DensityFilter::Epanechnikov})
-    if (s == density_filter_name(f)) return out = f, true;
-  return false;
+  return parse_name_in(kDensityFilterNames, s, out);
 }
 
 // Filter weight of a photon at squared distance d2 from the query, for a disc of squared radius

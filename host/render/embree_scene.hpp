@@ -57,25 +57,7 @@ class EmbreeScene {
   mutable std::string error_;
 };
 
-// Fills a single RTCRayHit for a stream.
-inline void set_ray(RTCRayHit& r, Vec3 org, Vec3 dir, float tnear, float tfar) {
-  r.ray.org_x = org.x;
-  r.ray.org_y = org.y;
-  r.ray.org_z = org.z;
-  r.ray.dir_x = dir.x;
-  r.ray.dir_y = dir.y;
-  r.ray.dir_z = dir.z;
-  r.ray.tnear = tnear;
-  r.ray.tfar = tfar;
-  r.ray.time = 0;
-  r.ray.mask = 0xFFFFFFFFu;
-  r.ray.id = 0;
-  r.ray.flags = 0;
-  r.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-  r.hit.primID = RTC_INVALID_GEOMETRY_ID;
-  r.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-}
-
+// Fills a single RTCRay (an occlusion ray, or the ray of an RTCRayHit) for a stream.
 inline void set_shadow_ray(RTCRay& r, Vec3 org, Vec3 dir, float tnear, float tfar) {
   r.org_x = org.x;
   r.org_y = org.y;
@@ -89,6 +71,14 @@ inline void set_shadow_ray(RTCRay& r, Vec3 org, Vec3 dir, float tnear, float tfa
   r.mask = 0xFFFFFFFFu;
   r.id = 0;
   r.flags = 0;
+}
+
+// Fills a single RTCRayHit for a stream: its ray, and its hit as none yet.
+inline void set_ray(RTCRayHit& r, Vec3 org, Vec3 dir, float tnear, float tfar) {
+  set_shadow_ray(r.ray, org, dir, tnear, tfar);
+  r.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+  r.hit.primID = RTC_INVALID_GEOMETRY_ID;
+  r.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
 }
 
 }  // namespace bhcl::render

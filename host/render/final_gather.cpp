@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <tuple>
 
 #include "blockhash_cl/error.hpp"
 #include "parallel.hpp"
@@ -497,15 +498,16 @@ Image FinalGatherRenderer::render(RenderStats& stats, Progress* progress) const 
   return img;
 }
 
+// The settings a traced frame's passes depend on (RenderOptions' and TracedFrame's fields of those
+// names), as one tuple: trace() records them and shade() compares them, so the two cannot drift.
+template <class Settings>
+static auto frame_settings(Settings& s) {
+  return std::tie(s.width, s.height, s.spp, s.gather, s.shadow_rays, s.max_specular_depth, s.seed);
+}
+
 TracedFrame FinalGatherRenderer::trace(RenderStats& stats, Progress* progress) const {
   TracedFrame f;
-  f.width = opt_.width;
-  f.height = opt_.height;
-  f.spp = opt_.spp;
-  f.gather = opt_.gather;
-  f.shadow_rays = opt_.shadow_rays;
-  f.max_specular_depth = opt_.max_specular_depth;
-  f.seed = opt_.seed;
+  frame_settings(f) = frame_settings(opt_);
   f.scene = &es_;
   const int H = opt_.height, rows = rows_per_pass();
   for (int y0 = 0; y0 < H; y0 += rows) {
@@ -517,9 +519,7 @@ TracedFrame FinalGatherRenderer::trace(RenderStats& stats, Progress* progress) c
 
 std::vector<Image> FinalGatherRenderer::shade(const TracedFrame& f, const std::vector<DensityEstimator>& estimators,
                                               RenderStats& stats, Progress* progress) const {
-  if (f.scene != &es_ || f.width != opt_.width || f.height != opt_.height || f.spp != opt_.spp ||
-      f.gather != opt_.gather || f.shadow_rays != opt_.shadow_rays ||
-      f.max_specular_depth != opt_.max_specular_depth || f.seed != opt_.seed)
+  if (f.scene != &es_ || frame_settings(f) != frame_settings(opt_))
     throw Error("render: the traced frame was made with another scene or other image, sampling or seed settings");
   std::vector<Image> images(estimators.size(), Image(opt_.width, opt_.height));
   stats.pixels += images.empty() ? 0 : images[0].pixels();

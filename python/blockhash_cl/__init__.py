@@ -38,6 +38,7 @@ import numpy.typing as npt
 
 from . import _container, _core
 from . import _refine
+from ._base import _IndexFront, _checked_ids, _forwarded
 from ._core import Error, OpenCLError, Runtime
 # The method tables as keyword arguments and the checks of arrays and values (_checks.py).
 from ._checks import (  # noqa: F401
@@ -192,7 +193,7 @@ def _append_rows(buf: Optional[np.ndarray], view: np.ndarray, rows: np.ndarray) 
     out.flags.writeable = False
     return buf, out
 
-class Index:
+class Index(_IndexFront):
     """A built index of one method over (N, 3) points. Made by make_index() or load().
 
     Attributes: method, exact, size (also len()), memory_bytes, build_seconds, device (a dict as
@@ -210,8 +211,9 @@ class Index:
     add continues there) and the same answers.
     """
 
-    __slots__ = ("_impl", "last_stats", "_origin", "_points", "_options", "_coords", "_removed_sorted", "_points64",
-                 "_p_round", "_devices", "_points_buf", "_points64_buf", "_removed_parts")
+    __slots__ = ("_impl", "last_stats", "_origin", "_points_merged", "_points_parts", "_options", "_coords",
+                 "_removed_sorted", "_points64", "_p_round", "_devices", "_points64_buf", "_removed_parts",
+                 "_points_lock")
 
     def __init__(self, impl: "_core.Index", origin: Optional[np.ndarray] = None,
                  points: Optional[np.ndarray] = None, options: Optional[Dict[str, Any]] = None,
@@ -227,30 +229,18 @@ class Index:
         # The ids removed so far (ascending int32): their rows of _points are not live.
         self._removed_sorted = np.zeros(0, np.int32) if removed is None else np.asarray(removed, np.int32)
         self._removed_parts: List[np.ndarray] = []  # removes not yet merged into _removed_sorted
-        # The growable stores behind _points / _points64 once an add appended to them (None before).
-        self._points_buf: Optional[np.ndarray] = None
+        # The growable store behind _points64 once an add appended to it (None before).
         self._points64_buf: Optional[np.ndarray] = None
         self.last_stats: Optional[Dict[str, Any]] = None
         self._origin = np.zeros(3, np.float64) if origin is None else np.asarray(origin, np.float64)
-        self._points = points
+        # The host copy of the stored points (see _points): the rows up to the last merge and the
+        # adds' rows since, one read-only array per add.
+        self._points_merged = points
+        self._points_parts: List[np.ndarray] = []
+        self._points_lock = threading.Lock()  # an add's append against a merge in another thread
         self._options = dict(options or {})
         extent = float(np.max(np.abs(points))) if points is not None and points.size else 0.0
         self._coords = _precision(self._origin, extent)
-
-    @property
-    def method(self) -> str:
-        return self._impl.method
-
-    @property
-    def exact(self) -> bool:
-        return self._impl.exact
-
-    @property
-    def size(self) -> int:
-        return self._impl.size
-
-    def __len__(self) -> int:
-        return self._impl.size
 
     @property
     def memory_bytes(self) -> int:
@@ -258,14 +248,23 @@ class Index:
         device memory is host memory): the library's structure (device arrays, points included),
         its host copies (block hashing's structure, an exact method's copy of the points) and the
         package's host copy of the points (12 B each, for pickling and save)."""
-        own = 0
-        for buf, view in ((self._points_buf, self._points), (self._points64_buf, self._points64)):
-            own += buf.nbytes if buf is not None else view.nbytes if view is not None else 0
+        p64 = self._points64_buf if self._points64_buf is not None else self._points64
+        own = sum(a.nbytes for a in [self._points_merged, p64] + self._points_parts if a is not None)
         return int(self._impl.memory_bytes) + int(self._impl.host_bytes) + own
 
+    build_seconds = _forwarded("build_seconds", "Seconds the build took.")
+
     @property
-    def build_seconds(self) -> float:
-        return self._impl.build_seconds
+    def _points(self) -> Optional[np.ndarray]:
+        """The host copy of the stored points pickling and save send, a row per id issued,
+        read-only (None: a loaded index without one): the rows of the adds since the last read
+        merged into one array on this read, so that an add copies its own rows only."""
+        with self._points_lock:
+            if self._points_parts:
+                merged = np.concatenate([self._points_merged] + self._points_parts)
+                merged.flags.writeable = False
+                self._points_merged, self._points_parts = merged, []
+            return self._points_merged
 
     @property
     def device(self) -> Dict[str, Any]:
@@ -295,14 +294,6 @@ class Index:
         return info
 
     @property
-    def coordinates(self) -> Dict[str, Any]:
-        """How the caller's coordinates are stored: origin (float64 input far from 0 for its size
-        is stored in float32 relative to its box's centre, computed in double precision; else 0),
-        max_abs_relative, float32_step and max_rounding (the largest rounding of a stored
-        coordinate, in caller units), recentred. Distances are always in caller units."""
-        return dict(self._coords)
-
-    @property
     def refined(self) -> bool:
         """Whether answers are refined in float64 from the caller's float64 points (make_index's
         refine): distances come back float64, each row recomputed and re-sorted in double."""
@@ -320,14 +311,6 @@ class Index:
 
     def __repr__(self) -> str:
         return f"<blockhash_cl.Index {self.method} of {self.size} points on {self.device['summary']}>"
-
-    # --- coordinates
-    def _to_index(self, a: np.ndarray, what: str) -> "npt.NDArray[np.float32]":
-        """Queries in the index's stored coordinates: as they are (no copy for C-contiguous
-        float32) when the origin is 0, else relative to it, computed in float64."""
-        if not np.any(self._origin):
-            return _xyz(a, what)
-        return _relative(a, self._origin, what)
 
     def _search_params(self, k: int, options: Dict[str, Any]) -> "_core.SearchParams":
         """SearchParams from keyword arguments, refusing those this method does not read.
@@ -377,16 +360,7 @@ class Index:
             dist2, ids, counts, stats = self._query64(a, q, p.k, max_radius, search, sort_queries)
         else:
             dist2, ids, counts, stats = self._impl.query(q, p)
-        stats["coordinates"] = dict(self._coords)
-        self.last_stats = stats
-        if single:
-            dist2, ids, counts = dist2[0], ids[0], counts[0]
-        out: Tuple[Any, ...] = (dist2, ids)
-        if return_counts:
-            out += (counts,)
-        if return_stats:
-            out += (stats,)
-        return out
+        return self._knn_result(dist2, ids, counts, stats, single, return_counts, return_stats)
 
     def _query64(self, a: np.ndarray, q: np.ndarray, k: int, max_radius: Optional[float],
                  search: Dict[str, Any], sort_queries: Any, strict: bool = False) -> Tuple[Any, ...]:
@@ -481,12 +455,7 @@ class Index:
                                                                exact)
         else:
             offsets, dist2, ids, found, stats = self._impl.radius_search(q, radius, bool(squared), p)
-        stats["found"] = found
-        stats["coordinates"] = dict(self._coords)
-        self.last_stats = stats
-        if return_stats:
-            return RadiusResultWithStats(offsets, dist2, ids, stats)
-        return RadiusResult(offsets, dist2, ids)
+        return self._radius_result(offsets, dist2, ids, found, stats, return_stats)
 
     def warm_up(self, k: int = 10, **search: Any) -> float:
         """Compiles the kernel variant the search parameters need and launches it once, so that
@@ -500,26 +469,29 @@ class Index:
         float64 points are stored relative to the index's origin, as the build's were."""
         stored = self._to_index(points, "points")
         ids = self._impl.insert(stored)
-        # The copies pickling and save rebuild from (a row per id issued), appended in place into
-        # stores grown by half when full: a copy of every row on each add cost more than the
-        # library's insert itself (12 MB per add at 1M points; issue 39).
-        if self._points is not None:
-            self._points_buf, self._points = _append_rows(self._points_buf, self._points, stored.reshape(-1, 3))
+        # The copies pickling and save rebuild from (a row per id issued). The float32 one keeps
+        # this add's rows as a part (a private copy only where `stored` is the caller's array),
+        # merged when read: a copy of every row per add cost more than the library's insert (12 MB
+        # per add at 1M points), and even a store grown by half copied them all on each growth
+        # (6.5x the insert's time on that call; issue 39). The float64 one, which every refined
+        # query reads, stays one array, appended in place into a store grown by half.
+        if self._points_merged is not None:
+            part = _own_copy(stored.reshape(-1, 3), points)
+            with self._points_lock:
+                self._points_parts.append(part)
         if self._points64 is not None:
             a, _ = _checked(points, "points")
             self._points64_buf, self._points64 = _append_rows(self._points64_buf, self._points64,
                                                               np.asarray(a, np.float64).reshape(-1, 3))
-        self._p_round = max(self._p_round, _refine.rounding_bound(stored))
+            # The search's widening, read by refined answers only: a pass over the new rows that
+            # an unrefined index skips (0.15 ms per 100k rows, 4 % of a 10 % insert at 1M).
+            self._p_round = max(self._p_round, _refine.rounding_bound(stored))
         return ids
 
     def remove(self, ids: Any) -> None:
         """Removes the points of these ids (a 1-D integer array or sequence). Raises Error for an
         id never issued, already removed or given twice, and for removing every point."""
-        arr = np.asarray(ids)
-        if arr.ndim != 1 or not (arr.size == 0 or np.issubdtype(arr.dtype, np.integer)):
-            raise ValueError(f"remove: ids must be a 1-D array of integers, got shape {arr.shape} dtype {arr.dtype}")
-        if arr.size and (arr.min() < -2**31 or arr.max() >= 2**31):
-            raise ValueError("remove: an id is outside the int32 range")
+        arr = _checked_ids(ids, -2**31, 2**31 - 1, "remove")
         self._impl.remove(np.ascontiguousarray(arr, dtype=np.int32))
         # The rows stay (ids are never reused); the removed ids travel with them (see the class).
         # Kept as the calls gave them and merged when read: a sorted union on every remove grew
@@ -533,11 +505,6 @@ class Index:
             self._removed_sorted = np.sort(np.concatenate([self._removed_sorted] + self._removed_parts)).astype(np.int32)
             self._removed_parts = []
         return self._removed_sorted
-
-    @property
-    def id_bound(self) -> int:
-        """One past the largest id issued (the next add's first id)."""
-        return self._impl.id_bound
 
     def contains(self, id: int) -> bool:
         """True when id was issued and not removed."""

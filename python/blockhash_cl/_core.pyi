@@ -29,24 +29,23 @@ class Runtime:
     @property
     def build_seconds(self) -> float: ...
 
-class SearchParams:
-    k: int
-    max_radius: float
-    A: float
-    recall_target: float
-    local_size: int
-    max_batch: int
-    sort_queries: int
-    def __init__(self) -> None: ...
-
-class RadiusParams:
-    budget: int
-    max_results: int
-    sorted: bool
+class DispatchParams:  # the base of both below (knn.hpp)
     local_size: int
     max_batch: int
     sort_queries: int
     count_examined: bool
+
+class SearchParams(DispatchParams):
+    k: int
+    max_radius: float
+    A: float
+    recall_target: float
+    def __init__(self) -> None: ...
+
+class RadiusParams(DispatchParams):
+    budget: int
+    max_results: int
+    sorted: bool
     max_batch_results: int
     def __init__(self) -> None: ...
 
@@ -55,13 +54,15 @@ class MethodOptions:
     def set(self, name: str, text: str) -> None: ...
     def __init__(self) -> None: ...
 
-class Index:
+class SearchIndex:  # the base of Index, MultiDeviceIndex and DistributedIndex (knn.hpp)
     @property
     def method(self) -> str: ...
     @property
     def exact(self) -> bool: ...
     @property
     def size(self) -> int: ...
+
+class Index(SearchIndex):
     @property
     def memory_bytes(self) -> int: ...
     @property
@@ -87,6 +88,8 @@ class Index:
     def remove(self, ids: npt.NDArray[np.int32]) -> None: ...
     @property
     def id_bound(self) -> int: ...
+    @property
+    def removed_count(self) -> int: ...
     def contains(self, id: int) -> bool: ...
 
 def make_index(method: str, runtime: Runtime, points: npt.NDArray[np.float32],
@@ -99,12 +102,9 @@ def refine_radius(q: npt.NDArray[np.float64], points: npt.NDArray[np.float64], o
                   ids: npt.NDArray[np.int32], r2: npt.NDArray[np.float64],
                   sorted: bool) -> Tuple[npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.int32]]: ...
 
-class MultiDeviceIndex:
+class MultiDeviceIndex(SearchIndex):
     def __init__(self, runtimes: List[Runtime], method: str, points: npt.NDArray[np.float32],
                  options: MethodOptions) -> None: ...
-    method: str
-    exact: bool
-    size: int
     devices: int
     memory_bytes: int
     host_bytes: int
@@ -138,22 +138,24 @@ class MpiComm:
     def agree(self, local_error: str, what: str) -> None: ...
     def box(self, lo: List[float], hi: List[float]) -> Tuple[List[float], List[float]]: ...
 
-class DistributedIndex:
+class DistributedIndex(SearchIndex):
     def __init__(self, comm: MpiComm, runtime: Runtime, points: npt.NDArray[np.float32], method: str,
                  options: MethodOptions, boxes_per_rank: int, border_factor: float, deadline_s: float,
                  id_base: int) -> None: ...
-    method: str
-    exact: bool
-    size: int
     rank: int
     ranks: int
     id_base: int
     id_bound: int
     shard_size: int
     shard_ids: npt.NDArray[np.int64]
+    shard_live_ids: npt.NDArray[np.int64]
+    removed_count: int
     memory_bytes: int
+    host_bytes: int
     build_stats: Dict[str, Any]
     runtime: Optional[Runtime]
+    def insert(self, points: npt.NDArray[np.float32]) -> Tuple[int, Dict[str, Any]]: ...
+    def remove(self, ids: npt.NDArray[np.int64]) -> Dict[str, Any]: ...
     def query(self, queries: npt.NDArray[np.float32], params: SearchParams) -> Tuple[Any, Any, Any, Dict[str, Any]]: ...
     def radius_search(self, queries: npt.NDArray[np.float32], r: float,
                       params: RadiusParams) -> Tuple[Any, Any, Any, Any, Dict[str, Any]]: ...

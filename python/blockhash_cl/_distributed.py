@@ -5,6 +5,8 @@ library's bhcl::DistributedIndex (docs/DISTRIBUTED.md), one process per rank, un
     import blockhash_cl as bh
     index = bh.DistributedIndex("kdtree", my_points, comm=MPI.COMM_WORLD)   # this rank's part
     dist2, ids = index.query(my_queries, k=10)   # this rank's rows; ids are global (int64)
+    new_ids = index.add(my_new_points)           # collective, as every call; ids continue at id_bound
+    index.remove(some_ids)                       # any live global ids, held by any rank
 
 The communicator crosses to the C++ layer as its Fortran handle (mpi4py's Comm.py2f()): the package
 needs mpi4py neither to build nor to import, and without it comm=None initialises MPI itself
@@ -24,8 +26,9 @@ from typing import Any, Dict, List, Optional, Tuple, Union
 import numpy as np
 
 from . import _core
+from ._base import _IndexFront, _checked_ids, _forwarded
 from ._checks import (_BUILD_OPTIONS, _check_count, _checked, _float, _int, _origin_from_box, _precision,
-                      _refuse_unknown, _relative, _set_table_options, _xyz)
+                      _refuse_unknown, _set_table_options)
 
 _finalize_registered = False
 _finalize_lock = threading.Lock()
@@ -68,7 +71,7 @@ def _own_world() -> int:
     return h
 
 
-class DistributedIndex:
+class DistributedIndex(_IndexFront):
     """An index of one method over the points of every rank of an MPI communicator: the points
     sharded by Hilbert-key range (balanced by count), a local index of `method` per rank, queries
     routed to the ranks whose shards can hold their neighbours (the library's DistributedIndex;
@@ -87,14 +90,16 @@ class DistributedIndex:
     queries taken relative to it: distances stay in caller units. Answers are float32 (no float64
     refinement: refine=True raises).
 
-    Calls (collective): query, radius_search, as Index's, with int64 ids. Attributes: method,
-    exact, size (points over all ranks; len()), rank, ranks, shard_size, shard_ids (the global ids
-    this rank's shard holds), id_base, id_bound, build_stats (the sharding: n_global, shard sizes,
-    balance, times), memory_bytes (this rank's), device, coordinates, last_stats. The library's
-    distributed index has no add/remove, save or pickling: none is offered here.
+    Calls (collective): query, radius_search, add and remove, as Index's, with int64 global ids.
+    Attributes: method, exact, size (live points over all ranks; len()), rank, ranks, shard_size
+    (live points in this rank's shard), shard_ids (the global ids of its local index, removed ones
+    included), shard_live_ids, id_base, id_bound, removed_count, build_stats (the sharding:
+    n_global, shard sizes, balance, times), memory_bytes (this rank's), device, coordinates,
+    last_stats, last_update_stats. The library's distributed index has no save or pickling: none
+    is offered here.
     """
 
-    __slots__ = ("_impl", "_comm", "_origin", "_coords", "last_stats", "__weakref__")
+    __slots__ = ("_impl", "_comm", "_origin", "_coords", "last_stats", "last_update_stats", "__weakref__")
 
     def __init__(self, method: str, points: Any, comm: Any = None, *, device: Any = None,
                  boxes_per_rank: int = 16, border_factor: float = 2.0, deadline_s: Optional[float] = None,
@@ -106,6 +111,7 @@ class DistributedIndex:
         self._comm = _core.MpiComm(_handle(comm), deadline)
         self._impl = None
         self.last_stats: Optional[Dict[str, Any]] = None
+        self.last_update_stats: Optional[Dict[str, Any]] = None
         a = None
         opts = _core.MethodOptions()
 
@@ -129,10 +135,7 @@ class DistributedIndex:
         assert a is not None
         self._origin = self._global_origin(a)
 
-        def convert() -> np.ndarray:
-            return _relative(a, self._origin, "points") if np.any(self._origin) else _xyz(a, "points")
-
-        pts = self._agreed(convert, "DistributedIndex")
+        pts = self._agreed(lambda: self._to_index(a, "points"), "DistributedIndex")
         from . import get_runtime  # the package's runtimes, one per device spec
         rt = self._agreed(lambda: get_runtime(device), "DistributedIndex")
         self._impl = _core.DistributedIndex(self._comm, rt, pts, method, opts, int(boxes_per_rank),
@@ -183,47 +186,14 @@ class DistributedIndex:
         m = float(np.max(np.abs(pts), initial=0.0, where=np.isfinite(pts))) if pts.size else 0.0
         return [inf, inf, inf], [m, -inf, -inf]
 
-    # --- attributes
-    @property
-    def method(self) -> str:
-        return self._impl.method
-
-    @property
-    def exact(self) -> bool:
-        return self._impl.exact
-
-    @property
-    def size(self) -> int:
-        """Points over all ranks."""
-        return self._impl.size
-
-    def __len__(self) -> int:
-        return self._impl.size
-
-    @property
-    def rank(self) -> int:
-        return self._impl.rank
-
-    @property
-    def ranks(self) -> int:
-        return self._impl.ranks
-
-    @property
-    def shard_size(self) -> int:
-        return self._impl.shard_size
-
-    @property
-    def shard_ids(self) -> np.ndarray:
-        """The global ids of this rank's shard, ascending (int64)."""
-        return self._impl.shard_ids
-
-    @property
-    def id_base(self) -> int:
-        return self._impl.id_base
-
-    @property
-    def id_bound(self) -> int:
-        return self._impl.id_bound
+    # --- attributes (method, exact, size, id_bound, removed_count, coordinates: _IndexFront)
+    rank = _forwarded("rank", "This process's rank in the communicator.")
+    ranks = _forwarded("ranks", "The communicator's size.")
+    shard_size = _forwarded("shard_size", "Live points in this rank's shard.")
+    shard_ids = _forwarded("shard_ids", "The global ids of this rank's local index, ascending (int64): its local "
+                           "id i is shard_ids[i]; removed ones stay (local ids are never reused), see shard_live_ids.")
+    shard_live_ids = _forwarded("shard_live_ids", "The live global ids of this rank's shard, ascending (int64).")
+    id_base = _forwarded("id_base", "The first point's global id (the build's id_base).")
 
     @property
     def build_stats(self) -> Dict[str, Any]:
@@ -231,7 +201,11 @@ class DistributedIndex:
 
     @property
     def memory_bytes(self) -> int:
-        """This rank's: its local index (structure and host copies) and its shard's global ids."""
+        """Bytes this rank holds, counted as Index.memory_bytes counts them: its local index's
+        structure (device arrays, points included) and host copies, and the distributed index's
+        own host arrays (the shard's global ids, its float32 copy of the points for the routing
+        boxes after a remove, their sub-runs and removed marks). The package keeps no copy of the
+        points here (no pickling or save), so nothing of its own is added."""
         return int(self._impl.memory_bytes)
 
     @property
@@ -239,11 +213,6 @@ class DistributedIndex:
         """This rank's device (None when its shard is empty: fewer points than ranks)."""
         rt = self._impl.runtime
         return None if rt is None else dict(rt.device)
-
-    @property
-    def coordinates(self) -> Dict[str, Any]:
-        """As Index.coordinates: the origin (the same on every rank) and the rounding left."""
-        return dict(self._coords)
 
     def __repr__(self) -> str:
         return (f"<blockhash_cl.DistributedIndex {self.method} of {self.size} points, rank {self.rank} of "
@@ -256,8 +225,7 @@ class DistributedIndex:
     # --- searches
     def _queries(self, queries: Any) -> Tuple[np.ndarray, bool]:
         a, single = _checked(queries, "queries", single_ok=True)
-        q = _relative(a, self._origin, "queries") if np.any(self._origin) else _xyz(a, "queries")
-        return q, single
+        return self._to_index(a, "queries"), single
 
     def query(self, queries: Any, k: int = 10, *, max_radius: Optional[float] = None,
               sort_queries: Optional[Union[bool, int]] = None, return_counts: bool = False,
@@ -277,16 +245,7 @@ class DistributedIndex:
 
         p, q, single = self._agreed(prepare, "DistributedIndex.query")
         dist2, ids, counts, stats = self._impl.query(q, p)
-        stats["coordinates"] = dict(self._coords)
-        self.last_stats = stats
-        if single:
-            dist2, ids, counts = dist2[0], ids[0], counts[0]
-        out: Tuple[Any, ...] = (dist2, ids)
-        if return_counts:
-            out += (counts,)
-        if return_stats:
-            out += (stats,)
-        return out
+        return self._knn_result(dist2, ids, counts, stats, single, return_counts, return_stats)
 
     def radius_search(self, queries: Any, r: float, *, max_results: Optional[int] = None,
                       return_sorted: bool = True, sort_queries: Optional[Union[bool, int]] = None,
@@ -295,7 +254,7 @@ class DistributedIndex:
         queries, as Index.radius_search (a RadiusResult: offsets, float32 squared dist2, int64
         ids; each slice sorted by (distance, id); max_results keeps the nearest). Every rank must
         pass the same r and options. Stats as query's, plus results, truncated_queries, found."""
-        from . import RadiusResult, RadiusResultWithStats, _radius_params
+        from . import _radius_params
 
         def prepare() -> Tuple[Any, float, np.ndarray]:
             p = _radius_params(self.method, search, max_results, return_sorted, sort_queries)
@@ -307,12 +266,33 @@ class DistributedIndex:
 
         p, radius, q = self._agreed(prepare, "DistributedIndex.radius_search")
         offsets, dist2, ids, found, stats = self._impl.radius_search(q, radius, p)
-        stats["found"] = found
-        stats["coordinates"] = dict(self._coords)
-        self.last_stats = stats
-        if return_stats:
-            return RadiusResultWithStats(offsets, dist2, ids, stats)
-        return RadiusResult(offsets, dist2, ids)
+        return self._radius_result(offsets, dist2, ids, found, stats, return_stats)
+
+    # --- updates
+    def add(self, points: Any) -> np.ndarray:
+        """Collective: adds THIS rank's new points ((n, 3) float32 or float64; n may be 0 on some
+        ranks, not on all) without a fresh build, as Index.add; returns their global ids (int64):
+        the call's points over all ranks take id_bound, id_bound + 1, ... in rank order (this
+        rank's i-th point: its first id + i), never reused after a remove. Each point goes to the
+        rank owning its region (clamped for points outside the build's box). float64 points are
+        stored relative to the index's origin, as the build's were. Raises on every rank for a
+        wrong shape on any rank (that rank its own ValueError / TypeError), a non-finite point
+        (named by the id it would take and its rank) and no points on any rank; the index is then
+        unchanged. last_update_stats: n_global, n_input, applied (points this rank's shard
+        took), sent, bytes_sent/received, route_s, local_s, boxes_s, wall_s."""
+        pts = self._agreed(lambda: self._to_index(points, "points"), "DistributedIndex.add")
+        first, self.last_update_stats = self._impl.insert(pts)
+        return np.arange(first, first + len(pts), dtype=np.int64)
+
+    def remove(self, ids: Any) -> None:
+        """Collective: removes the points of THIS rank's list of global ids (1-D integers; any
+        live ids, held by any rank; none on some ranks, not on all), as Index.remove. Raises on
+        every rank, the index unchanged, for ids of the wrong shape or kind on any rank, an id
+        never issued, already removed or given twice (anywhere in the call: both places named),
+        and removing every point. last_update_stats as add's (applied: removed from this shard)."""
+        what = "DistributedIndex.remove"
+        arr = self._agreed(lambda: _checked_ids(ids, -2**63, 2**63 - 1, what), what)
+        self.last_update_stats = self._impl.remove(np.ascontiguousarray(arr, dtype=np.int64))
 
 
 class _warnings_off:

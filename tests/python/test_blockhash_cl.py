@@ -553,9 +553,10 @@ def test_pickle_and_save_after_add_and_remove(tmp_path, method, options):
 
 
 def test_add_appends_in_place_and_remove_merges_lazily():
-    """Issue 39: add appends into a store grown by half (no copy of every row per add), remove
-    keeps its ids until read; the rows and removed ids are those of the calls, in order, and a
-    view of the rows taken earlier is unchanged and read-only after later adds."""
+    """Issue 39: add keeps its own rows as a part merged when read (no copy of the rows before
+    it), remove keeps its ids until read; the rows and removed ids are those of the calls, in
+    order, a view of the rows taken earlier is unchanged and read-only after later adds, and the
+    caller's array changed after its add does not change the copy."""
     rng = np.random.default_rng(391)
     base = rng.random((1000, 3), dtype=np.float32)
     index = bh.make_index("blockhash", base)
@@ -568,8 +569,11 @@ def test_add_appends_in_place_and_remove_merges_lazily():
             early = index._points
     assert early is not None and early.shape == (1310, 3) and not early.flags.writeable
     np.testing.assert_array_equal(early, np.concatenate([base] + adds[:2]))
-    np.testing.assert_array_equal(index._points, np.concatenate([base] + adds))
+    expected = np.concatenate([base] + adds)
+    adds[3][:] = -1.0  # the caller's array after its add
+    np.testing.assert_array_equal(index._points, expected)
     assert not index._points.flags.writeable
+    assert index.memory_bytes >= expected.nbytes + index._impl.memory_bytes
     index.remove(np.array([2200, 3, 1200]))
     index.remove([7, 1001])
     np.testing.assert_array_equal(index._removed, [3, 7, 1001, 1200, 2200])

@@ -11,7 +11,11 @@ Usage: plot_convergence.py OUT.svg ppm_SCENE_METHOD.json ...
 """
 import json
 import math
+import os
 import sys
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+from svg_plot import svg_open, write_svg  # noqa: E402  (bench/results/svg_plot.py)
 
 COLOURS = ["#1b9e77", "#d95f02", "#7570b3", "#e7298a", "#666666"]
 
@@ -34,11 +38,8 @@ def main():
         j = json.load(open(p))
         runs.setdefault(j["scene"], []).append(j)
     scenes = sorted(runs)
-    svg = []
     total_w, total_h = 2 * W, len(scenes) * H + 40
-    svg.append(f'<svg xmlns="http://www.w3.org/2000/svg" width="{total_w}" height="{total_h}" '
-               f'font-family="DejaVu Sans, sans-serif" font-size="12">')
-    svg.append(f'<rect width="{total_w}" height="{total_h}" fill="white"/>')
+    svg = svg_open(total_w, total_h, 12)
     for si, scene in enumerate(scenes):
         for pi, xkey in enumerate(("pass", "elapsed_s")):
             ox, oy = pi * W, si * H
@@ -98,12 +99,7 @@ def main():
     svg.append(f'<text x="8" y="{total_h - 12}" fill="#444">32-px tiles of luminance, the tiles where the reference '
                f'sees the emitter left out; progressive photon mapping (Knaus-Zwicker, alpha 2/3), k = 50, 32 gather rays, '
                f'camera samples (spp) and gather rays as labelled.</text>')
-    svg.append("</svg>")
-    tmp = out + ".tmp"
-    with open(tmp, "w") as f:
-        f.write("\n".join(svg) + "\n")
-    import os
-    os.replace(tmp, out)
+    write_svg(out, svg)
 
 
 if __name__ == "__main__":

@@ -4,27 +4,12 @@
 // Usage: tile_errors IMAGE.exr REFERENCE.exr [BLOCK=32]
 // Prints a grid of signed relative errors (per cent, (img - ref) / ref) and the reference's tile
 // means; tiles where the reference sees an emitter (a pixel > 8x the median) are marked "L".
-#include <ImfArray.h>
-#include <ImfRgbaFile.h>
-
 #include <algorithm>
 #include <cstdio>
 #include <string>
 #include <vector>
 
-static std::vector<float> lum(const char* path, int& W, int& H) {
-  Imf::RgbaInputFile in(path);
-  Imath::Box2i dw = in.dataWindow();
-  W = dw.max.x - dw.min.x + 1;
-  H = dw.max.y - dw.min.y + 1;
-  Imf::Array2D<Imf::Rgba> px(H, W);
-  in.setFrameBuffer(&px[0][0] - dw.min.x - dw.min.y * W, 1, W);
-  in.readPixels(dw.min.y, dw.max.y);
-  std::vector<float> l(static_cast<std::size_t>(W) * H);
-  for (int y = 0; y < H; ++y)
-    for (int x = 0; x < W; ++x) l[y * W + x] = 0.2126f * px[y][x].r + 0.7152f * px[y][x].g + 0.0722f * px[y][x].b;
-  return l;
-}
+#include "../exr_luminance.hpp"
 
 int main(int argc, char** argv) {
   if (argc < 3) {
@@ -33,7 +18,7 @@ int main(int argc, char** argv) {
   }
   try {
     int W, H, W2, H2;
-    std::vector<float> a = lum(argv[1], W, H), r = lum(argv[2], W2, H2);
+    std::vector<float> a = exr_luminance<float>(argv[1], W, H), r = exr_luminance<float>(argv[2], W2, H2);
     if (W != W2 || H != H2) throw std::runtime_error("sizes differ");
     const int b = argc > 3 ? std::stoi(argv[3]) : 32;
     std::vector<float> s = r;

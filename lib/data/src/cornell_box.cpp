@@ -32,50 +32,45 @@ Quad make(std::string name, Material m, std::array<Vec3, 4> v, const Vec3& ref, 
 }
 
 std::vector<Quad> build() {
+  // The light and the room's walls, each facing the room's centre.
+  struct Wall {
+    const char* name;
+    Material m;
+    std::array<Vec3, 4> v;
+  };
+  const Wall walls[] = {
+      {"light", Material::Light, {{{343.0f, 548.8f, 227.0f}, {343.0f, 548.8f, 332.0f}, {213.0f, 548.8f, 332.0f}, {213.0f, 548.8f, 227.0f}}}},
+      {"floor", Material::White, {{{552.8f, 0.0f, 0.0f}, {0.0f, 0.0f, 0.0f}, {0.0f, 0.0f, 559.2f}, {549.6f, 0.0f, 559.2f}}}},
+      {"ceiling", Material::White, {{{556.0f, 548.8f, 0.0f}, {556.0f, 548.8f, 559.2f}, {0.0f, 548.8f, 559.2f}, {0.0f, 548.8f, 0.0f}}}},
+      {"back wall", Material::White, {{{549.6f, 0.0f, 559.2f}, {0.0f, 0.0f, 559.2f}, {0.0f, 548.8f, 559.2f}, {556.0f, 548.8f, 559.2f}}}},
+      {"right wall", Material::Green, {{{0.0f, 0.0f, 559.2f}, {0.0f, 0.0f, 0.0f}, {0.0f, 548.8f, 0.0f}, {0.0f, 548.8f, 559.2f}}}},
+      {"left wall", Material::Red, {{{552.8f, 0.0f, 0.0f}, {549.6f, 0.0f, 559.2f}, {556.0f, 548.8f, 559.2f}, {556.0f, 548.8f, 0.0f}}}},
+  };
   const Vec3 room{278.0f, 274.4f, 279.6f};
   std::vector<Quad> q;
-  q.push_back(make("light", Material::Light,
-                   {{{343.0f, 548.8f, 227.0f}, {343.0f, 548.8f, 332.0f}, {213.0f, 548.8f, 332.0f},
-                     {213.0f, 548.8f, 227.0f}}},
-                   room, true));
-  q.push_back(make("floor", Material::White,
-                   {{{552.8f, 0.0f, 0.0f}, {0.0f, 0.0f, 0.0f}, {0.0f, 0.0f, 559.2f}, {549.6f, 0.0f, 559.2f}}},
-                   room, true));
-  q.push_back(make("ceiling", Material::White,
-                   {{{556.0f, 548.8f, 0.0f}, {556.0f, 548.8f, 559.2f}, {0.0f, 548.8f, 559.2f},
-                     {0.0f, 548.8f, 0.0f}}},
-                   room, true));
-  q.push_back(make("back wall", Material::White,
-                   {{{549.6f, 0.0f, 559.2f}, {0.0f, 0.0f, 559.2f}, {0.0f, 548.8f, 559.2f},
-                     {556.0f, 548.8f, 559.2f}}},
-                   room, true));
-  q.push_back(make("right wall", Material::Green,
-                   {{{0.0f, 0.0f, 559.2f}, {0.0f, 0.0f, 0.0f}, {0.0f, 548.8f, 0.0f}, {0.0f, 548.8f, 559.2f}}},
-                   room, true));
-  q.push_back(make("left wall", Material::Red,
-                   {{{552.8f, 0.0f, 0.0f}, {549.6f, 0.0f, 559.2f}, {556.0f, 548.8f, 559.2f},
-                     {556.0f, 548.8f, 0.0f}}},
-                   room, true));
-  const Vec3 short_c{186.0f, 82.5f, 168.5f}, tall_c{368.5f, 165.0f, 351.5f};
-  const std::array<std::array<Vec3, 4>, 5> short_block = {{
+  for (const Wall& w : walls) q.push_back(make(w.name, w.m, w.v, room, true));
+  // The two blocks' faces as published (a top, then four sides), each facing away from its
+  // block's centre: the short block's five, then the tall block's.
+  const char* block_names[2] = {"short block ", "tall block "};
+  const Vec3 block_centres[2] = {{186.0f, 82.5f, 168.5f}, {368.5f, 165.0f, 351.5f}};
+  const std::array<Vec3, 4> block_faces[2 * 5] = {
+      // short block
       {{{130.0f, 165.0f, 65.0f}, {82.0f, 165.0f, 225.0f}, {240.0f, 165.0f, 272.0f}, {290.0f, 165.0f, 114.0f}}},
       {{{290.0f, 0.0f, 114.0f}, {290.0f, 165.0f, 114.0f}, {240.0f, 165.0f, 272.0f}, {240.0f, 0.0f, 272.0f}}},
       {{{130.0f, 0.0f, 65.0f}, {130.0f, 165.0f, 65.0f}, {290.0f, 165.0f, 114.0f}, {290.0f, 0.0f, 114.0f}}},
       {{{82.0f, 0.0f, 225.0f}, {82.0f, 165.0f, 225.0f}, {130.0f, 165.0f, 65.0f}, {130.0f, 0.0f, 65.0f}}},
       {{{240.0f, 0.0f, 272.0f}, {240.0f, 165.0f, 272.0f}, {82.0f, 165.0f, 225.0f}, {82.0f, 0.0f, 225.0f}}},
-  }};
-  const std::array<std::array<Vec3, 4>, 5> tall_block = {{
+      // tall block
       {{{423.0f, 330.0f, 247.0f}, {265.0f, 330.0f, 296.0f}, {314.0f, 330.0f, 456.0f}, {472.0f, 330.0f, 406.0f}}},
       {{{423.0f, 0.0f, 247.0f}, {423.0f, 330.0f, 247.0f}, {472.0f, 330.0f, 406.0f}, {472.0f, 0.0f, 406.0f}}},
       {{{472.0f, 0.0f, 406.0f}, {472.0f, 330.0f, 406.0f}, {314.0f, 330.0f, 456.0f}, {314.0f, 0.0f, 456.0f}}},
       {{{314.0f, 0.0f, 456.0f}, {314.0f, 330.0f, 456.0f}, {265.0f, 330.0f, 296.0f}, {265.0f, 0.0f, 296.0f}}},
       {{{265.0f, 0.0f, 296.0f}, {265.0f, 330.0f, 296.0f}, {423.0f, 330.0f, 247.0f}, {423.0f, 0.0f, 247.0f}}},
-  }};
+  };
   const char* sides[5] = {"top", "side 1", "side 2", "side 3", "side 4"};
-  for (int i = 0; i < 5; ++i)
-    q.push_back(make(std::string("short block ") + sides[i], Material::White, short_block[i], short_c, false));
-  for (int i = 0; i < 5; ++i)
-    q.push_back(make(std::string("tall block ") + sides[i], Material::White, tall_block[i], tall_c, false));
+  for (int b = 0; b < 2; ++b)
+    for (int i = 0; i < 5; ++i)
+      q.push_back(make(std::string(block_names[b]) + sides[i], Material::White, block_faces[5 * b + i], block_centres[b], false));
   return q;
 }
 

@@ -156,6 +156,12 @@ struct BlockHashBuildInfo {
 
 class BlockHashIndex : public Index {
  public:
+  // The one way to build block hashing: the layout the parameters choose (the grid by default and
+  // for grid = 1; grid = 0 or a paper preset the L tables), a field of the other layout refused
+  // with a bhcl::Error naming it. points: N x 3 floats in the caller's order (copied). Throws for
+  // N == 0, N >= 2^31, non-finite points or parameters out of range.
+  static std::unique_ptr<BlockHashIndex> build(std::shared_ptr<Runtime> runtime, const float* points,
+                                               std::size_t n_points, const BlockHashBuildParams& params = {});
   // points: N x 3 floats in the caller's order (copied). Throws for N == 0, N >= 2^31,
   // non-finite points or parameters out of range.
   BlockHashIndex(std::shared_ptr<Runtime> runtime, const float* points, std::size_t n_points,

@@ -181,6 +181,11 @@ BlockHashIndex::BlockHashIndex(std::shared_ptr<Runtime> runtime, const float* po
   }
 }
 
+std::unique_ptr<BlockHashIndex> BlockHashIndex::build(std::shared_ptr<Runtime> runtime, const float* points,
+                                                      std::size_t n_points, const BlockHashBuildParams& params) {
+  return std::make_unique<BlockHashIndex>(std::move(runtime), points, n_points, params);
+}
+
 const float* BlockHashIndex::begin_build(const float* points, std::size_t n_points, std::vector<float>& scaled) {
   points = prepare_points(points, n_points, scaled);  // validates; extreme scales
   s_->n_points = n_points;

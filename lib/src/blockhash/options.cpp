@@ -130,7 +130,7 @@ std::unique_ptr<Index> make(std::shared_ptr<Runtime> runtime, const float* point
   } else {
     BlockHashBuildParams bp;
     apply_build_options(option_table(), options, &bp, "blockhash");
-    bh = std::make_unique<BlockHashIndex>(std::move(runtime), points, n_points, bp);
+    bh = BlockHashIndex::build(std::move(runtime), points, n_points, bp);
   }
   if (!save.empty()) bh->save(save);
   return bh;

@@ -50,6 +50,18 @@ ShardBox empty_box() {
   return b;
 }
 
+// The two stages both updates run after routing, each timed into us: the local index's update,
+// then the routing boxes' (changed, then published to every rank).
+template <class LocalStep, class BoxStep>
+void timed_stages(DistributedUpdateStats& us, LocalStep&& local_step, BoxStep&& box_step) {
+  Stopwatch local;
+  local_step();
+  us.local_s = local.seconds();
+  Stopwatch boxes;
+  box_step();
+  us.boxes_s = boxes.seconds();
+}
+
 }  // namespace
 
 // The new points that came to this rank: ascending global ids, their points and Hilbert keys.
@@ -219,13 +231,10 @@ std::int64_t DistributedIndex::insert(const float* points, std::size_t n, Distri
   Incoming in = route_new_points(points, n, offset, us);
   in.total = total;
   us.route_s = wall.seconds();
-  Stopwatch local;
-  insert_locally(in);
-  us.local_s = local.seconds();
-  Stopwatch boxes;
-  grow_boxes(in);
-  publish_boxes();
-  us.boxes_s = boxes.seconds();
+  timed_stages(us, [&] { insert_locally(in); }, [&] {
+    grow_boxes(in);
+    publish_boxes();
+  });
   us.applied = in.ids.size();
   n_global_ += total;
   id_bound_ += static_cast<std::int64_t>(total);
@@ -359,13 +368,10 @@ void DistributedIndex::remove(const std::int64_t* ids, std::size_t n, Distribute
   us.bytes_sent = n * sizeof(std::int64_t) * static_cast<std::size_t>(ranks_ - 1);
   us.bytes_received = (all.size() - n) * sizeof(std::int64_t);
   us.route_s = wall.seconds();
-  Stopwatch local;
-  remove_locally(local_ids);
-  us.local_s = local.seconds();
-  Stopwatch boxes;
-  shrink_boxes(local_ids);
-  publish_boxes();
-  us.boxes_s = boxes.seconds();
+  timed_stages(us, [&] { remove_locally(local_ids); }, [&] {
+    shrink_boxes(local_ids);
+    publish_boxes();
+  });
   n_global_ -= all.size();
   removed_n_ += all.size();
   us.wall_s = wall.seconds();

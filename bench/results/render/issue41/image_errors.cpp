@@ -7,9 +7,6 @@
 //   g++ -O2 -std=c++17 image_errors.cpp $(pkg-config --cflags --libs OpenEXR) -o image_errors
 // Usage: image_errors IMAGE.exr REFERENCE.exr TILE X0,Y0,X1,Y1   (region in fractions of the image)
 // Prints: tile_rmse worst_tile region_error   (fractions, not per cent)
-#include <ImfArray.h>
-#include <ImfRgbaFile.h>
-
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -17,22 +14,9 @@
 #include <string>
 #include <vector>
 
-namespace {
+#include "../../exr_luminance.hpp"
 
-std::vector<double> luminance(const char* path, int& W, int& H) {
-  Imf::RgbaInputFile in(path);
-  Imath::Box2i dw = in.dataWindow();
-  W = dw.max.x - dw.min.x + 1;
-  H = dw.max.y - dw.min.y + 1;
-  Imf::Array2D<Imf::Rgba> px(H, W);
-  in.setFrameBuffer(&px[0][0] - dw.min.x - dw.min.y * W, 1, W);
-  in.readPixels(dw.min.y, dw.max.y);
-  std::vector<double> l(static_cast<std::size_t>(W) * H);
-  for (int y = 0; y < H; ++y)
-    for (int x = 0; x < W; ++x)
-      l[std::size_t(y) * W + x] = 0.2126 * px[y][x].r + 0.7152 * px[y][x].g + 0.0722 * px[y][x].b;
-  return l;
-}
+namespace {
 
 double mean_of(const std::vector<double>& l, int W, int x0, int y0, int x1, int y1) {
   double s = 0;
@@ -50,7 +34,7 @@ int main(int argc, char** argv) {
   }
   try {
     int W, H, RW, RH;
-    const std::vector<double> img = luminance(argv[1], W, H), ref = luminance(argv[2], RW, RH);
+    const std::vector<double> img = exr_luminance<double>(argv[1], W, H), ref = exr_luminance<double>(argv[2], RW, RH);
     if (W != RW || H != RH) throw std::runtime_error("the images' sizes differ");
     const int T = std::stoi(argv[3]);
     if (T < 1) throw std::runtime_error("TILE must be >= 1");

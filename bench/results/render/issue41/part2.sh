@@ -9,10 +9,7 @@
 # -o OUTDIR/image_errors). Prints one line per image: scene method samples seconds tile_rmse worst region.
 set -eu
 out=${1:?usage: part2.sh OUTDIR}
-export POCL_MAX_PTHREAD_COUNT=2
-B=build/host/bhcl
-SIZE=128x128
-REGION=0.50,0.89,0.72,0.925
+. "$(dirname "$0")/part2_common.sh"
 for scene in cornell-specular cornell; do
   ref="$out/ref_$scene.exr"
   if [ ! -f "$ref" ]; then
@@ -30,24 +27,12 @@ for scene in cornell-specular cornell; do
     fi
   fi
   for spp in 4 16 64 256 1024; do
-    name="$out/pt_${scene}_$spp"
-    $B pathtrace --scene "$scene" --size $SIZE --spp $spp --threads 2 --seed 7 --quiet --out "$name.exr" \
-      --stats "$name.json" 2> "$name.txt"
-    t=$(/usr/bin/python3 -c "import json,sys; print(json.load(open(sys.argv[1]))['total_s'])" "$name.json")
-    echo "$scene pathtrace $spp $t $("$out/image_errors" "$name.exr" "$ref" 16 $REGION)"
+    pathtrace_point "$scene" $spp "$ref"
   done
   for method in blockhash kdtree; do
     for passes in 1 4 16; do
       [ "$scene" = cornell ] && [ "$passes" != 16 ] && continue
-      name="$out/ppm_${scene}_${method}_$passes"
-      # Per pass against the reference (the stats' pass_reports) only in a progressive render.
-      refopt=""
-      [ "$passes" -gt 1 ] && refopt="--reference $ref --reference-block 16"
-      # shellcheck disable=SC2086
-      $B render --scene "$scene" --size $SIZE --spp 4 --gather 8 --photons 250000 --passes $passes --seed 7 \
-        --method $method $refopt --quiet --out "$name.exr" --stats "$name.json" 2> "$name.txt"
-      t=$(/usr/bin/python3 -c "import json,sys; print(json.load(open(sys.argv[1]))['total_s'])" "$name.json")
-      echo "$scene ppm-$method $passes $t $("$out/image_errors" "$name.exr" "$ref" 16 $REGION)"
+      ppm_point "$scene" $method $passes "$ref"
     done
   done
 done

@@ -15,6 +15,9 @@ import math
 import os
 import sys
 
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
+from svg_plot import svg_open, write_svg  # noqa: E402  (bench/results/svg_plot.py)
+
 COLOURS = {"pathtrace": "#d95f02", "ppm-blockhash": "#1b9e77", "ppm-kdtree": "#7570b3"}
 W, H = 560, 360
 ML, MR, MT, MB = 60, 170, 34, 46
@@ -59,8 +62,7 @@ def main():
             series.setdefault((j["scene"], m, "worst"), []).append((r["elapsed_s"], 100 * r["block_worst"]))
             series.setdefault((j["scene"], m, "rmse"), []).append((r["elapsed_s"], 100 * r["block_rmse"]))
     scenes = ["cornell-specular", "cornell"]
-    svg = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{2 * W}" height="{H}" '
-           f'font-family="DejaVu Sans, sans-serif" font-size="11">', f'<rect width="{2 * W}" height="{H}" fill="white"/>']
+    svg = svg_open(2 * W, H, 11)
     for i, scene in enumerate(scenes):
         ox = i * W
         svg.append(f'<text x="{ox + ML}" y="18" font-size="13">{scene}, 128x128: error against the path-traced '
@@ -87,11 +89,7 @@ def main():
                            f'stroke-width="1.8"{d}/>')
                 svg.append(f'<text x="{ox + W - MR + 34}" y="{ly + 4}">{method}: {name}</text>')
                 ly += 15
-    svg.append("</svg>")
-    tmp = out + ".tmp"
-    with open(tmp, "w") as f:
-        f.write("\n".join(svg) + "\n")
-    os.replace(tmp, out)
+    write_svg(out, svg)
 
 
 if __name__ == "__main__":
