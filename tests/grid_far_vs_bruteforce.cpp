@@ -224,21 +224,21 @@ TEST_CASE("grid_far_batches_vs_bruteforce: batches all near, all far, mixed and 
     far_q.insert(far_q.end(), b, b + 3);
     mixed_q.insert(mixed_q.end(), (i % 3 == 0) ? b : a, ((i % 3 == 0) ? b : a) + 3);
   }
-  BlockHashIndex index(test::runtime(), pts.data(), pts.size() / 3);
-  REQUIRE(index.info().grid);
+  auto index = BlockHashIndex::build(test::runtime(), pts.data(), pts.size() / 3);
+  REQUIRE(index->info().grid);
   const std::size_t N = pts.size() / 3;
-  for (const char* d : {"", "-DBHCL_GRID_HOME_SKIP=1", "-DBHCL_GRID_HOME_SKIP=0",})
+  for (const char* d : {"", "-DBHCL_GRID_HOME_SKIP=1", "-DBHCL_GRID_HOME_SKIP=0"})
     for (int k : {1, 10, 50}) {
       CAPTURE(d);
       CAPTURE(k);
       const SearchParams p = exact(k, d);
       for (const auto* qs : {&near_q, &far_q, &mixed_q}) {
         const std::string what = std::string(qs == &near_q ? "all near" : qs == &far_q ? "all far" : "mixed") + " " + d;
-        test::require_identical(index.query(*qs, p), reference::knn_float(pts.data(), N, qs->data(), qs->size() / 3, p),
+        test::require_identical(index->query(*qs, p), reference::knn_float(pts.data(), N, qs->data(), qs->size() / 3, p),
                                 what);
       }
       KnnResult none;
-      index.query(near_q.data(), 0, p, none);
+      index->query(near_q.data(), 0, p, none);
       CHECK(none.counts.empty());
       CHECK(none.ids.empty());
     }
@@ -246,8 +246,8 @@ TEST_CASE("grid_far_batches_vs_bruteforce: batches all near, all far, mixed and 
   SearchParams pe = exact(10);
   pe.count_examined = true;
   std::vector<std::int32_t> ex_ref;
-  const KnnResult r = index.query(mixed_q, pe);
-  const KnnResult ref = index.reference_query(mixed_q.data(), mixed_q.size() / 3, exact(10), &ex_ref);
+  const KnnResult r = index->query(mixed_q, pe);
+  const KnnResult ref = index->reference_query(mixed_q.data(), mixed_q.size() / 3, exact(10), &ex_ref);
   test::require_identical(r, ref, "mixed, kernel vs reference");
   CHECK(r.examined == ex_ref);
 }
