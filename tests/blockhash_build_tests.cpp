@@ -14,7 +14,7 @@ using namespace bhcl::blockhash;
 namespace {
 
 // A structure with its blocks cut (stages 1-2), ready for params/thresholds/tables.
-std::unique_ptr<Structure> cut(const std::vector<float>& pts, const BlockHashBuildParams& p) {
+std::unique_ptr<Structure> cut(const std::vector<float>& pts, const TableBuildParams& p) {
   auto s = std::make_unique<Structure>();
   s->n_points = pts.size() / 3;
   s->info.preset = p.preset;
@@ -25,8 +25,8 @@ std::unique_ptr<Structure> cut(const std::vector<float>& pts, const BlockHashBui
   return s;
 }
 
-BlockHashBuildParams preset(const char* name) {
-  BlockHashBuildParams p;
+TableBuildParams preset(const char* name) {
+  TableBuildParams p;
   p.preset = BlockHashBuildParams::parse_preset(name);
   return p;
 }
@@ -236,7 +236,7 @@ TEST_CASE("blockhash tables: every point's block is in its cell's bucket unless 
       CAPTURE(pr);
       CAPTURE(B);
       auto pts = datasets::clustered(8000, 7, 6, 0.03f);
-      BlockHashBuildParams p = preset(pr);
+      TableBuildParams p = preset(pr);
       p.B = B;
       auto s = cut(pts, p);
       derive_params(p, *s);
@@ -298,8 +298,8 @@ TEST_CASE("blockhash tables: every point's block is in its cell's bucket unless 
 TEST_CASE("blockhash params: paper-cells keeps the talk's L, X and B and puts k / 4 points in the median cell") {
   // Points on the faces of a box, like a photon map (at 200k photons P = ln N puts 180 in a cell).
   auto pts = datasets::cornell_photons(40000, 3);
-  BlockHashBuildParams paper = preset("paper"), cells = preset("paper-cells");
-  for (BlockHashBuildParams* p : {&paper, &cells}) {
+  TableBuildParams paper = preset("paper"), cells = preset("paper-cells");
+  for (TableBuildParams* p : {&paper, &cells}) {
     p->design_A = 16;
     p->design_k = 50;
   }
@@ -361,7 +361,7 @@ TEST_CASE("blockhash options: the paper presets' B is sized for the search asked
 
 TEST_CASE("blockhash params: the talk's formulas for paper, data-driven auto, overrides") {
   auto pts = datasets::uniform(20000, 4);
-  BlockHashBuildParams p = preset("paper");
+  TableBuildParams p = preset("paper");
   p.design_A = 16;
   p.design_k = 50;
   auto s = cut(pts, p);
@@ -378,7 +378,7 @@ TEST_CASE("blockhash params: the talk's formulas for paper, data-driven auto, ov
 
   // auto's L tables (the block stages run as grid = 0 builds them): four tables, the median
   // occupied cell near 100 points.
-  BlockHashBuildParams a = preset("auto");
+  TableBuildParams a = preset("auto");
   auto sa = cut(pts, a);
   derive_params(a, *sa);
   CHECK(sa->info.L == 4);
@@ -391,7 +391,7 @@ TEST_CASE("blockhash params: the talk's formulas for paper, data-driven auto, ov
   CHECK_FALSE(sa->info.direct_addressing);
   CHECK(sa->info.B >= 1);
 
-  BlockHashBuildParams o = preset("auto");
+  TableBuildParams o = preset("auto");
   o.L = 3;
   o.P = 7;
   o.B = 5;

@@ -6,6 +6,8 @@
 #include <fstream>
 
 #include "blockhash/build.hpp"
+#include "blockhash_cl/block_tables.hpp"
+#include "blockhash_cl/grid_index.hpp"
 #include "test_util.hpp"
 
 using namespace bhcl;
@@ -278,6 +280,64 @@ TEST_CASE("blockhash_grid_rebuild: the next frame equals a fresh build with the 
       test::require_identical(index->query(qs, p), fresh->query(qs, p), "rebuild");
     }
   }
+}
+
+TEST_CASE("blockhash_factory: the grid a GridIndex, the L tables a BlockTablesIndex, the other's fields refused") {
+  auto rt = test::runtime();
+  auto pts = datasets::uniform(3000, 43);
+  auto qs = datasets::uniform(200, 44);
+  const std::size_t n = pts.size() / 3;
+  auto is_grid = [](const BlockHashIndex& ix) { return dynamic_cast<const GridIndex*>(&ix) != nullptr; };
+  auto is_tables = [](const BlockHashIndex& ix) { return dynamic_cast<const BlockTablesIndex*>(&ix) != nullptr; };
+  BlockHashBuildParams one, zero, paper, cells;
+  one.grid = 1;
+  zero.grid = 0;
+  paper.preset = BlockHashBuildParams::Preset::Paper;
+  cells.preset = BlockHashBuildParams::Preset::PaperCells;
+  auto def = BlockHashIndex::build(rt, pts.data(), n);
+  CHECK(is_grid(*def));
+  CHECK(is_grid(*BlockHashIndex::build(rt, pts.data(), n, one)));
+  auto tables = BlockHashIndex::build(rt, pts.data(), n, zero);
+  CHECK(is_tables(*tables));
+  CHECK(is_tables(*BlockHashIndex::build(rt, pts.data(), n, paper)));
+  CHECK(is_tables(*BlockHashIndex::build(rt, pts.data(), n, cells)));
+  // A grid field on the tables, table fields on the grid: refused, naming them.
+  BlockHashBuildParams side = paper;
+  side.max_cells_per_point = 2;
+  REQUIRE_THROWS_WITH_AS(BlockHashIndex::build(rt, pts.data(), n, side),
+                         doctest::Contains("max_cells_per_point is an option of the grid (the auto preset's layout), "
+                                           "not of the paper preset's tables"),
+                         Error);
+  BlockHashBuildParams lx = one;
+  lx.L = 2;
+  lx.X = 8;
+  REQUIRE_THROWS_WITH_AS(BlockHashIndex::build(rt, pts.data(), n, lx),
+                         doctest::Contains("L, X are options of the block layouts"), Error);
+  // Each class built from its own parameters answers as the factory's.
+  SearchParams p = test::knn_params(8);
+  p.A = 4;
+  GridIndex grid(rt, pts.data(), n, GridBuildParams{});
+  BlockTablesIndex own(rt, pts.data(), n, TableBuildParams{});
+  test::require_identical(grid.query(qs, p), def->query(qs, p), "GridIndex vs the factory's default");
+  test::require_identical(own.query(qs, p), tables->query(qs, p), "BlockTablesIndex vs the factory's grid = 0");
+  // Their own ranges, checked when built directly.
+  GridBuildParams gd;
+  gd.grid_directory = 3;
+  CHECK_THROWS_WITH_AS(GridIndex(rt, pts.data(), n, gd), doctest::Contains("grid_directory"), Error);
+  TableBuildParams hb;
+  hb.hilbert_bits = 40;
+  CHECK_THROWS_WITH_AS(BlockTablesIndex(rt, pts.data(), n, hb), doctest::Contains("hilbert_bits must be"), Error);
+  // load() gives back the class the file holds.
+  const std::string gpath = test::tmp_path("factory_grid.bhi"), tpath = test::tmp_path("factory_tables.bhi");
+  def->save(gpath);
+  tables->save(tpath);
+  auto gl = BlockHashIndex::load(rt, gpath);
+  auto tl = BlockHashIndex::load(rt, tpath);
+  CHECK(is_grid(*gl));
+  CHECK(is_tables(*tl));
+  test::require_identical(tl->query(qs, p), tables->query(qs, p), "loaded tables");
+  std::remove(gpath.c_str());
+  std::remove(tpath.c_str());
 }
 
 TEST_CASE("blockhash_grid_params: the layouts and the checks") {

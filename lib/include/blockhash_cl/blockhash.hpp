@@ -1,6 +1,8 @@
 // Block Hashing (Ma & McCool, Graphics Hardware 2002): approximate kNN through locality-sensitive
 // hash tables of 256-byte blocks of points, answered by an OpenCL kernel, one work-item per query.
-// Presets of one index (docs/DESIGN.md, "Block hashing, as we build it"):
+// One method (`blockhash`), two algorithms, each its own class behind BlockHashIndex::build: the
+// grid (GridIndex, blockhash_cl/grid_index.hpp) and the L tables (BlockTablesIndex,
+// blockhash_cl/block_tables.hpp). Presets (docs/DESIGN.md, "Block hashing, as we build it"):
 //   auto   (default) the grid layout, the talk's "alternative clustering" future work
 //          (docs/DESIGN.md, "The grid"): the blocks are the cells of one grid of equal cubic cells
 //          (side from a sample, so that a point's cell holds ~24 points), the points sorted by
@@ -36,6 +38,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -53,11 +56,11 @@ class KernelArgs;
 }
 namespace blockhash {
 struct Structure;  // the host copy of every built array (lib/src/blockhash/build.hpp)
-struct GridIdState;  // a grid file's ids and update state (lib/src/blockhash/grid_io.hpp)
-struct GridTraversal;  // the grid traversal's form (lib/src/blockhash/grid.hpp)
-struct GridInput;  // a build's points (lib/src/blockhash/grid.hpp)
 }
 
+// The user's parameters of either layout (the option table, lib/src/blockhash/options.cpp, fills
+// them): BlockHashIndex::build refuses the other layout's fields and hands the chosen one its own
+// (GridBuildParams, TableBuildParams).
 struct BlockHashBuildParams {
   enum class Preset { Auto, Paper, PaperCells };
   Preset preset = Preset::Auto;
@@ -154,33 +157,33 @@ struct BlockHashBuildInfo {
   std::string summary() const;  // one line
 };
 
+// Block hashing's family: what the grid (GridIndex, blockhash_cl/grid_index.hpp) and the L
+// tables (BlockTablesIndex, blockhash_cl/block_tables.hpp) share: the built structure and its
+// info, the coordinate scaling, the recall tuning and its caches, the batch tuning and its exact
+// kd-tree, save / load dispatch and the host reference's path. What differs is virtual.
 class BlockHashIndex : public Index {
  public:
-  // The one way to build block hashing: the layout the parameters choose (the grid by default and
-  // for grid = 1; grid = 0 or a paper preset the L tables), a field of the other layout refused
-  // with a bhcl::Error naming it. points: N x 3 floats in the caller's order (copied). Throws for
-  // N == 0, N >= 2^31, non-finite points or parameters out of range.
-  static std::unique_ptr<BlockHashIndex> build(std::shared_ptr<Runtime> runtime, const float* points,
-                                               std::size_t n_points, const BlockHashBuildParams& params = {});
+  // The one way to build block hashing from the user's parameters: the layout they choose (the
+  // grid by default and for grid = 1; grid = 0 or a paper preset the L tables), built from that
+  // layout's own parameters; a field of the other layout is refused with a bhcl::Error naming it.
   // points: N x 3 floats in the caller's order (copied). Throws for N == 0, N >= 2^31,
   // non-finite points or parameters out of range.
-  BlockHashIndex(std::shared_ptr<Runtime> runtime, const float* points, std::size_t n_points,
-                 const BlockHashBuildParams& params = {});
+  static std::unique_ptr<BlockHashIndex> build(std::shared_ptr<Runtime> runtime, const float* points,
+                                               std::size_t n_points, const BlockHashBuildParams& params = {});
   ~BlockHashIndex() override;
 
-  // A saved index (versioned, checksummed). Throws bhcl::Error naming the file and the field for a
-  // missing, truncated, corrupt or foreign file. rows >= 0: the caller's point count, which must be
-  // the file's id bound; checked before the index allocates anything by that bound (its id table).
+  // A saved index (versioned, checksummed), as the class its file holds. Throws bhcl::Error naming
+  // the file and the field for a missing, truncated, corrupt or foreign file. rows >= 0: the
+  // caller's point count, which must be the file's id bound; checked before the index allocates
+  // anything by that bound (its id table).
   static std::unique_ptr<BlockHashIndex> load(std::shared_ptr<Runtime> runtime,
                                               const std::string& path, std::int64_t rows = -1);
   bool saves() const override { return true; }
-  void save(const std::string& path) const override;
-  // The next frame's points with this build's parameters (the grid keeps its cell side), the
-  // host and device arrays reused (no reallocation when n and the cell count do not grow): the
-  // same answers as a fresh build with those parameters. Block layouts: a fresh build with the
-  // same build parameters. Not safe concurrently with queries on this index.
+  // rebuild(): the next frame's points with this build's parameters (the grid keeps its cell
+  // side), the host and device arrays reused (no reallocation when n and the cell count do not
+  // grow): the same answers as a fresh build with those parameters. The L tables: a fresh build
+  // with the same build parameters. Not safe concurrently with queries on this index.
   bool rebuilds_in_place() const override { return true; }
-  void rebuild(const float* points, std::size_t n_points) override;
 
   // The first caller index whose point differs from the indexed one (bit for bit), -1 when the
   // index holds exactly these n points, -2 when n is not id_bound() (no point compared). points
@@ -190,19 +193,18 @@ class BlockHashIndex : public Index {
 
   std::string method() const override { return "blockhash"; }
   bool exact() const override { return false; }
-  std::size_t memory_bytes() const override;  // every device array, points included
-  // Host memory the index keeps besides its device arrays: the host copy of the structure (its
-  // reference search, save() and first_mismatch() read it). On PoCL both are the process's memory;
-  // the Python package's memory_bytes reports their sum.
-  std::size_t host_bytes() const override;
+  // Whether A = +inf is an exact search and the default (A = 0) is it (the grid's rings); where
+  // not (the L tables), A = 0 means 8 and A must be finite.
+  virtual bool exact_mode() const = 0;
+  // memory_bytes(): every device array, points included. host_bytes(): host memory the index
+  // keeps besides them (its reference search, save() and first_mismatch() read it). On PoCL both
+  // are the process's memory; the Python package's memory_bytes reports their sum.
   std::string build_summary() const override { return info_.summary(); }
-  UsedFields build_used() const override;          // blockhash/options.cpp
-  UsedFields search_used(const SearchParams& params) const override;
   double memory_per_point() const { return double(memory_bytes()) / double(size()); }
   // The talk's memory overhead (4 (Ak/X)(ln N)^3 + 12 (ln N)^2 + 1.6 N) / 24N, and ours measured
   // the same way: bytes beyond the points' own (24 B per talk photon) over 24 N.
   static double talk_overhead(std::size_t N, double A, int k, int X);
-  double measured_overhead() const;
+  virtual double measured_overhead() const = 0;
 
   const BlockHashBuildInfo& info() const { return info_; }
   int L() const { return info_.L; }
@@ -232,7 +234,7 @@ class BlockHashIndex : public Index {
 
   // Recall on the caller's queries. The search parameters a host-array batch should run with:
   // when a recall is asked (params.recall_target in (0, 1)), or when neither A nor a target is
-  // given on a layout where a budget applies (the block layouts; their default target is
+  // given on a layout where a budget applies (the L tables; their default target is
   // kDefaultRecallTarget), A is tuned on a sample of THIS batch: at most 2000 of its finite
   // queries, evenly spread over it, and at most an eighth of it (the bound on the tuning's share
   // of the call; at least min(n, 256)), answered exactly by a kd-tree over the indexed points
@@ -244,8 +246,8 @@ class BlockHashIndex : public Index {
   // point over the points' mean spacing, quantised to half octaves), so a later batch of the
   // same kind costs the signature only. Returns params with A set and recall_target 0; `info`
   // (optional) says what was done. Other parameters (an explicit A, the grid's exact default)
-  // come back as they are. Index::query itself keeps A = 0 as 8 on the block layouts (its
-  // callers' parameters are not changed under them): the Python package and bhcl call this.
+  // come back as they are. Index::query itself keeps A = 0 as 8 on the L tables (its callers'
+  // parameters are not changed under them): the Python package and bhcl call this.
   static constexpr double kDefaultRecallTarget = 0.95;
   using BatchTuning = bhcl::BatchTuning;
   SearchParams params_for_batch(const float* queries, std::size_t n, const SearchParams& params,
@@ -259,65 +261,61 @@ class BlockHashIndex : public Index {
   bool counts_examined() const override { return true; }
 
  protected:
-  BHCL_INDEX_DEVICE_HOOKS
-  void check_params(const SearchParams& params) const override;
-  BHCL_INDEX_UPDATE_HOOKS
-
- private:
-  // Updates (grid_update.cpp): the grid natively, the block layouts by a rebuild.
-  void grid_insert(const float* scaled, std::size_t n, std::int32_t first);
-  void grid_remove(const std::int32_t* ids, std::size_t n);
-  void grid_compact();                                    // drops the holes, in place
-  // extra: m points in the structure's coordinates, ids first ...
-  void grid_rebuild_live(const float* extra, std::size_t m, std::int32_t first, bool retune);
-  void grid_upload_from(std::size_t point_from, std::size_t cell_from);
-  void grid_positions();                                  // id -> position, from the grid's ids
-  // The removed ids' slots found by one pass over the stored ids (many ids, or no position map).
-  void grid_mark_holes_by_scan(const std::int32_t* ids, std::size_t n, std::size_t& lo, std::size_t& hi,
-                               bool& on_box);
-  void blocks_update(const float* scaled, std::size_t n, std::int32_t first, const std::int32_t* ids,
-                     std::size_t n_removed);
-  void live_points(std::vector<float>& caller_xyz, std::vector<std::int32_t>& ids) const;
-  // Save / load after updates (grid_update.cpp): the state a grid file keeps, and the id state
-  // (and for the grid its holes and counters) of a loaded file.
-  blockhash::GridIdState grid_update_state() const;
-  void loaded_update_state(const blockhash::GridIdState& st);
-  void loaded_update_state(std::int64_t id_bound);
-  std::vector<std::int32_t> id_pos_;  // grid after updates: id -> sorted position (-1: none)
-  double grid_build_mean_ = 0;        // the mean cell population of the last full grid build
-  std::size_t grid_builds_ = 0;       // grid builds made (the constructor's, rebuilds, updates')
-
+  // A build: an empty structure for n points. A load: the saved structure, its scale kept.
+  BlockHashIndex(std::shared_ptr<Runtime> runtime, std::size_t n_points);
   BlockHashIndex(std::shared_ptr<Runtime> runtime, std::unique_ptr<blockhash::Structure> s);
-  void upload();
-  // The library's defines of the kNN kernel variant of at most kmax (kernel_defines.hpp).
-  std::vector<std::pair<const char*, long long>> kernel_options(int kmax) const;
-  bool table_probes(int neighbour_probes) const;                // the L-table layout: 0 or 1
-  // The arguments the L-table kernels (kNN and radius) begin with, up to the probes.
-  void add_layout_args(detail::KernelArgs& args, int neighbour_probes) const;
+
+  // Updates: the shared part (the device idle, the recall tunings dropped, the time counted)
+  // around the layout's own.
+  BHCL_INDEX_UPDATE_HOOKS
+  virtual void insert_stored(const float* points, const float* scaled, std::size_t n, std::int32_t first) = 0;
+  virtual void remove_stored(const std::int32_t* ids, std::size_t n) = 0;
+  // The host reference on queries and parameters already in the structure's coordinates.
+  virtual void reference_scaled(const float* queries, std::size_t n, const SearchParams& params, KnnResult& out,
+                                std::vector<std::int32_t>* examined, unsigned threads) const = 0;
+  // first_mismatch() past the size check; every stored point (id and the structure's
+  // coordinates), holes skipped.
+  virtual long first_stored_mismatch(const float* points) const = 0;
+  using PointVisitor = std::function<void(std::int32_t id, float x, float y, float z)>;
+  virtual void visit_stored_points(const PointVisitor& visit) const = 0;
+
   // The opening of both layouts' builds: the points validated (extreme scales: a rescaled copy in
   // `scaled`), the structure's size and scale set; returns the points to build from.
   const float* begin_build(const float* points, std::size_t n_points, std::vector<float>& scaled);
-  void build_blocks(const float* points, std::size_t n_points);  // the block layouts' stages
-  void build_grid_layout(const float* points, std::size_t n_points, double cell_size);
-  // The grid from points in the structure's coordinates (scale set, points known finite; an
-  // update's rebuild reads the old grid's arrays in place). t0: when the build began (t_total).
-  void build_grid_scaled(const blockhash::GridInput& input, double cell_size,
-                         std::chrono::steady_clock::time_point t0 = std::chrono::steady_clock::now());
-  void upload_grid();
-  // Host-in-place devices (Quirks::host_ptr_in_place): the grid's buffers are views of its host
-  // arrays, dropped before the host changes those arrays (a build, an update) and made again after.
-  bool grid_in_place() const;
-  void release_grid_views();
-  void add_grid_args(detail::KernelArgs& args) const;
-  // The traversal the kNN kernel runs for p (the device's form, a caller's defines over it): the
-  // host reference follows the same.
-  blockhash::GridTraversal traversal_for(const SearchParams& p) const;
+  // A saved file's id bound against the caller's rows (load's rows), before anything is sized by it.
+  static void check_rows(const std::string& path, std::int64_t rows, std::int64_t bound, std::size_t live);
+  // SearchParams::recall_target: the A tuned per (k, probes, target), computed on first use; A = 0
+  // the layout's default (exact_mode()). resolved(): params with that A and no target.
+  float resolved_A(const SearchParams& params) const;
+  SearchParams resolved(const SearchParams& params) const;
   // The indexed points in ascending id order and the caller's coordinates; ids (optional) gets
   // their ids (0 .. N - 1 unless updates removed some).
   std::vector<float> indexed_points(std::vector<std::int32_t>* ids = nullptr) const;
+  // The one-int buffer a kernel's unused examined-count argument points at.
+  void upload_dummy();
+  // Radius search, one dispatch for both layouts: the layout's kernel (its name and the library's
+  // defines) and the arguments it begins with, then the budget and the radius arguments.
+  cl::Event enqueue_radius_batch(const cl::CommandQueue& queue, const cl::Buffer& queries, std::size_t first,
+                                 std::size_t count, float r2, int pass, const RadiusBuffers& out,
+                                 const RadiusParams& params, std::size_t local_size,
+                                 const std::vector<cl::Event>* wait) const override;
+  struct RadiusKernel {
+    const char* name;
+    std::vector<std::pair<const char*, long long>> defines;
+  };
+  virtual RadiusKernel radius_kernel() const = 0;
+  virtual void add_radius_layout_args(detail::KernelArgs& args, const RadiusParams& params) const = 0;
+  // The kernel `name` (in name.cl) with the library's defines and the caller's (kernel_defines.hpp).
+  cl::Kernel layout_kernel(const char* name, const std::vector<std::pair<const char*, long long>>& defines,
+                           const std::string& caller_defines) const;
+  // The arguments a kNN kernel ends with: the results and the examined counts (or the dummy).
+  void add_knn_results(detail::KernelArgs& args, const ResultBuffers& out, bool count_examined) const;
 
-  // SearchParams::recall_target: the A tuned per (k, probes, target), computed on first use.
-  float resolved_A(const SearchParams& params) const;
+  std::unique_ptr<blockhash::Structure> s_;
+  BlockHashBuildInfo info_;
+  cl::Buffer dummy_;
+
+ private:
   mutable std::mutex tune_mutex_;
   mutable std::map<std::tuple<int, int, double>, RecallTuning> tuned_;
   // params_for_batch: tunings per (k, probes, target, distribution), and the exact kd-tree
@@ -326,16 +324,32 @@ class BlockHashIndex : public Index {
   mutable std::shared_ptr<const Index> exact_;
   mutable double exact_box_[6] = {0, 0, 0, 0, 0, 0};  // the indexed points' box (lo, hi)
   mutable double exact_spacing_ = 0;                  // their mean spacing (box measure / N)^(1/d)
-
-  std::unique_ptr<blockhash::Structure> s_;
-  BlockHashBuildInfo info_;
-  cl::Buffer blocks_, boxes_, thresholds_, keys_, table_starts_, buckets_, refs_, block_keys_, dummy_;
-  // Grid layout: starts, x, y, z, ids, the occupancy pyramid (grid_search.h), and the build
-  // parameters a rebuild reuses.
-  cl::Buffer g_starts_, g_x_, g_y_, g_z_, g_ids_, g_occ_;
-  std::size_t g_starts_cap_ = 0, g_points_cap_ = 0, g_occ_cap_ = 0;
-  BlockHashBuildParams params_;
 };
+
+// What each layout (GridIndex, BlockTablesIndex) implements: BHCL_BLOCKHASH_LAYOUT_API in its
+// public part, BHCL_BLOCKHASH_LAYOUT_HOOKS in its protected part.
+#define BHCL_BLOCKHASH_LAYOUT_API                                                                   \
+  void save(const std::string& path) const override;                                               \
+  void rebuild(const float* points, std::size_t n_points) override;                                \
+  std::size_t memory_bytes() const override;                                                        \
+  std::size_t host_bytes() const override;                                                          \
+  double measured_overhead() const override;                                                        \
+  UsedFields build_used() const override; /* blockhash/options.cpp */                               \
+  UsedFields search_used(const SearchParams& params) const override;
+#define BHCL_BLOCKHASH_LAYOUT_HOOKS                                                                 \
+  cl::Event enqueue_batch(const cl::CommandQueue& queue, const cl::Buffer& queries, std::size_t first, \
+                          std::size_t count, const ResultBuffers& out, const SearchParams& params,  \
+                          std::size_t local_size, const std::vector<cl::Event>* wait) const override; \
+  RadiusKernel radius_kernel() const override;                                                      \
+  void add_radius_layout_args(detail::KernelArgs& args, const RadiusParams& params) const override; \
+  void check_params(const SearchParams& params) const override;                                     \
+  void insert_stored(const float* points, const float* scaled, std::size_t n, std::int32_t first)  \
+      override;                                                                                     \
+  void remove_stored(const std::int32_t* ids, std::size_t n) override;                              \
+  void reference_scaled(const float* queries, std::size_t n, const SearchParams& params, KnnResult& out, \
+                        std::vector<std::int32_t>* examined, unsigned threads) const override;      \
+  long first_stored_mismatch(const float* points) const override;                                   \
+  void visit_stored_points(const PointVisitor& visit) const override;
 
 // The paper presets size B at build from design_A and design_k (the talk: B > A k / (X ln N)),
 // so a query with a larger A k than the build's examines no more. For a search of `params` the

@@ -3,6 +3,8 @@
 
 #include "blockhash_cl/config.hpp"
 #include "blockhash_cl/blockhash.hpp"
+#include "blockhash_cl/block_tables.hpp"
+#include "blockhash_cl/grid_index.hpp"
 #include "blockhash_cl/bruteforce.hpp"
 #include "blockhash_cl/error.hpp"
 #include "blockhash_cl/factory.hpp"

@@ -16,6 +16,7 @@
 #include <string>
 #include <vector>
 
+#include "blockhash_cl/block_tables.hpp"
 #include "blockhash_cl/blockhash.hpp"
 #include "bhcl_arith.h"
 #include "blockhash_layout.h"
@@ -131,27 +132,32 @@ struct Structure {
   void validate(const std::string& what) const;
 };
 
+// The L tables' fields of the user's parameters (BlockHashIndex::build), and the user's
+// parameters of an L-table build (the option table, which checks every range, reads those).
+TableBuildParams table_params(const BlockHashBuildParams& p);
+BlockHashBuildParams user_params(const TableBuildParams& p);
+
 // Derives L, P, B, X and the flags (stage "params"): paper formulas, or auto from the data. The
 // structure's blocks must be built (X is decided first, by derive_x).
-int derive_x(const BlockHashBuildParams& p);
-void derive_params(const BlockHashBuildParams& p, Structure& s);
+int derive_x(const TableBuildParams& p);
+void derive_params(const TableBuildParams& p, Structure& s);
 
 // Fills s.thresholds for every table (needs s.info.P, L and the blocks).
-void build_thresholds(const BlockHashBuildParams& p, Structure& s);
+void build_thresholds(const TableBuildParams& p, Structure& s);
 // Fills table_starts, keys, buckets, refs (needs thresholds). Returns table 0's statistics.
 TableStats build_tables(Structure& s);
 
 // Population statistics of table-0-like cells for a candidate P (used by auto's bisection):
 // median points per occupied cell over every stride-th sorted point.
-double median_cell_points(const Structure& s, const BlockHashBuildParams& p, int P,
+double median_cell_points(const Structure& s, const TableBuildParams& p, int P,
                           std::size_t stride);
 // The same for many P over one sample: the stride-th sorted points and their histograms.
 struct CellSample {
   std::size_t stride;
   std::vector<float> pts;
   Histogram hist[3];
-  CellSample(const Structure& s, const BlockHashBuildParams& p, std::size_t stride);
-  double median_points(const Structure& s, const BlockHashBuildParams& p, int P) const;
+  CellSample(const Structure& s, const TableBuildParams& p, std::size_t stride);
+  double median_points(const Structure& s, const TableBuildParams& p, int P) const;
 };
 
 // The host reference query. examined may be null.

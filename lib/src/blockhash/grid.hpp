@@ -87,7 +87,7 @@ struct Grid {
   void validate(const std::string& what) const;
 };
 
-struct GridBuildParams {
+struct GridBuildArgs {
   double cell_size = -1;        // > 0: this side; else chosen from target_cell_points
   double target_cell_points = 24;  // the point-weighted mean cell population aimed at
   std::size_t sample = 16384;   // points the tuning looks at
@@ -126,7 +126,7 @@ struct GridInput {
 // cell side's sample is strided over an AoS-only input (a caller's order), drawn at random
 // positions of the SoA part (cell order: a stride there is a stratified sample, which gave 34
 // points per cell for a target of 24).
-void build_grid(const GridInput& in, const GridBuildParams& p, Grid& g, GridBuildStats* stats);
+void build_grid(const GridInput& in, const GridBuildArgs& p, Grid& g, GridBuildStats* stats);
 
 // The occupancy pyramid's bytes for a geometry, and its build from g's directory (all of it, in
 // parallel over `threads`: 0 all); every path that adds points to cells calls it.

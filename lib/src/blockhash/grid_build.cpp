@@ -154,7 +154,7 @@ double estimate_population(const std::vector<float>& s, std::size_t n, const Box
 // The cell side whose point-weighted mean population is the target, within 4 %: a safeguarded
 // secant search on log h (the population grows with h, about as h^d for points on a d-dimensional
 // set), each step one count of the sample's cells. 3-6 steps where a bisection took 16.
-double choose_cell_side(const GridInput& in, const Box& b, const GridBuildParams& p) {
+double choose_cell_side(const GridInput& in, const Box& b, const GridBuildArgs& p) {
   const std::size_t n = in.size();
   double ext = 0;
   for (int d = 0; d < 3; ++d) ext = std::max(ext, double(b.hi[d]) - double(b.lo[d]));
@@ -232,7 +232,7 @@ std::size_t cell_count(const bhcl_grid_geom& g) { return std::size_t(g.nx) * g.n
 // directory fits. A direct table of at most max_cells_per_point cells per point; past it a
 // two-level directory of up to 16x as many cells (its top level then holds as many entries as
 // the direct table would); past that (and 2^31 cells) the cells grow until the table fits.
-bhcl_grid_geom grid_shape(const GridInput& in, const Box& box, const GridBuildParams& p, GridBuildStats& st) {
+bhcl_grid_geom grid_shape(const GridInput& in, const Box& box, const GridBuildArgs& p, GridBuildStats& st) {
   const std::size_t n = in.size();
   double h = p.cell_size > 0 ? p.cell_size : choose_cell_side(in, box, p);
   if (!(h > 0) || !std::isfinite(h))
@@ -570,7 +570,7 @@ BucketCounts place_buckets(const Buckets& bk, const std::vector<std::uint32_t>& 
 
 }  // namespace
 
-void build_grid(const GridInput& in, const GridBuildParams& p, Grid& g, GridBuildStats* stats) {
+void build_grid(const GridInput& in, const GridBuildArgs& p, Grid& g, GridBuildStats* stats) {
   const std::size_t n = in.size();
   if (n == 0 || n >= (std::size_t(1) << 31) - 1)
     throw Error("blockhash grid: the point count must be in [1, 2^31 - 2], got " + std::to_string(n));

@@ -1,4 +1,4 @@
-// Block hashing: points added and removed without a fresh build (issue 23; Index::insert/remove).
+// GridIndex: points added and removed without a fresh build (issue 23; Index::insert/remove).
 //
 // The grid layout natively, through the Grid's public arrays and build_grid only (the grid's
 // build, its file format and its kernels are unchanged):
@@ -25,8 +25,8 @@
 //  - device buffers: the changed tail of each array written in place where it fits, reallocated
 //    with capacity grown by half where not (upload_grid); on a host-in-place device (PoCL's CPU
 //    device, Quirks::host_ptr_in_place) views of the host arrays, made again after the update.
-// The block layouts (the previous auto and the paper preset) are rebuilt over the live points on
-// every update (their Hilbert blocks and tables have no cheap insert), ids mapped.
+// The L tables are rebuilt over the live points on every update (BlockTablesIndex::blocks_update,
+// tables_index.cpp): their Hilbert blocks and tables have no cheap insert.
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -39,6 +39,8 @@
 #include "bhcl_shared.h"
 #include "blockhash/build.hpp"
 #include "blockhash/grid_io.hpp"
+#include "blockhash/update_counters.hpp"
+#include "blockhash_cl/grid_index.hpp"
 #include "blockhash_cl/error.hpp"
 #include "core/device_util.hpp"
 #include "core/parallel.hpp"
@@ -57,10 +59,6 @@ constexpr std::int32_t kHoleId = BHCL_EMPTY_SLOT_ID;
 // rebuilding; growth by 1.1x per retune still amortises the rebuilds to O(1) per point.
 constexpr double kRetuneAbove = 1.10, kRetuneBelow = 0.90;
 
-double since(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-}
-
 std::uint32_t cell_of(const bhcl_grid_geom& g, const float* p) {
   std::uint32_t cx = bhcl_grid_cell(p[0], g.ox, g.inv_h, g.nx);
   std::uint32_t cy = bhcl_grid_cell(p[1], g.oy, g.inv_h, g.ny);
@@ -77,22 +75,6 @@ bool inside(const bhcl_grid_geom& g, const float* p) {
     if (!(double(p[d]) >= o[d] && double(p[d]) <= o[d] + n[d] * double(g.h))) return false;
   return true;
 }
-
-// The update counters survive the full builds an update makes (which reset the build info).
-struct UpdateCounters {
-  std::size_t merges, compactions, update_rebuilds, retunes;
-  double t_update;
-  explicit UpdateCounters(const BlockHashBuildInfo& in)
-      : merges(in.merges), compactions(in.compactions), update_rebuilds(in.update_rebuilds),
-        retunes(in.retunes), t_update(in.t_update) {}
-  void put(BlockHashBuildInfo& in) const {
-    in.merges = merges;
-    in.compactions = compactions;
-    in.update_rebuilds = update_rebuilds;
-    in.retunes = retunes;
-    in.t_update = t_update;
-  }
-};
 
 // The merge of an insert, out of place, in parallel over ranges of cells: each cell's run copied
 // to its new start (the old start plus the new points of the cells before it, add[c]) with its
@@ -156,41 +138,22 @@ void merge_into_scratch(const blockhash::Grid& g, const float* scaled, std::size
 
 }  // namespace
 
-void BlockHashIndex::insert_points(const float* points, const float* scaled, std::size_t n, std::int32_t first) {
-  auto t0 = std::chrono::steady_clock::now();
-  if (info_.grid && grid_build_mean_ <= 0) grid_build_mean_ = info_.mean_cell_points;  // the build's
-  check_cl(runtime_ptr()->queue().finish(), "clFinish", "blockhash insert");
-  if (info_.grid) {
-    release_grid_views();  // the update writes the arrays; grid_upload_from makes them again
-    bool in_box = true;
-    for (std::size_t i = 0; i < n && in_box; ++i) in_box = inside(s_->grid->geom, scaled + 3 * i);
-    if (in_box) grid_insert(scaled, n, first);
-    else grid_rebuild_live(scaled, n, first, false);
-  } else {
-    blocks_update(points, n, first, nullptr, 0);
-  }
-  {
-    std::lock_guard<std::mutex> lock(tune_mutex_);
-    tuned_.clear();  // a recall tuning belongs to the point set it was measured on
-  }
-  info_.t_update += since(t0);
+void GridIndex::insert_stored(const float*, const float* scaled, std::size_t n, std::int32_t first) {
+  if (grid_build_mean_ <= 0) grid_build_mean_ = info_.mean_cell_points;  // the build's
+  release_grid_views();  // the update writes the arrays; grid_upload_from makes them again
+  bool in_box = true;
+  for (std::size_t i = 0; i < n && in_box; ++i) in_box = inside(s_->grid->geom, scaled + 3 * i);
+  if (in_box) grid_insert(scaled, n, first);
+  else grid_rebuild_live(scaled, n, first, false);
 }
 
-void BlockHashIndex::remove_points(const std::int32_t* ids, std::size_t n) {
-  auto t0 = std::chrono::steady_clock::now();
-  if (info_.grid && grid_build_mean_ <= 0) grid_build_mean_ = info_.mean_cell_points;  // the build's
-  check_cl(runtime_ptr()->queue().finish(), "clFinish", "blockhash remove");
-  if (info_.grid) release_grid_views();
-  if (info_.grid) grid_remove(ids, n);
-  else blocks_update(nullptr, 0, 0, ids, n);
-  {
-    std::lock_guard<std::mutex> lock(tune_mutex_);
-    tuned_.clear();
-  }
-  info_.t_update += since(t0);
+void GridIndex::remove_stored(const std::int32_t* ids, std::size_t n) {
+  if (grid_build_mean_ <= 0) grid_build_mean_ = info_.mean_cell_points;  // the build's
+  release_grid_views();
+  grid_remove(ids, n);
 }
 
-void BlockHashIndex::grid_positions() {
+void GridIndex::grid_positions() {
   const blockhash::Grid& g = *s_->grid;
   id_pos_.assign(std::size_t(id_bound()), -1);
   std::int32_t* const pos = id_pos_.data();
@@ -202,7 +165,7 @@ void BlockHashIndex::grid_positions() {
   });
 }
 
-void BlockHashIndex::grid_upload_from(std::size_t point_from, std::size_t cell_from) {
+void GridIndex::grid_upload_from(std::size_t point_from, std::size_t cell_from) {
   const blockhash::Grid& g = *s_->grid;
   const std::size_t pb = g.x.size() * 4, sb = g.starts.size() * 4;
   if (grid_in_place() || pb > g_points_cap_ || sb > g_starts_cap_ || g.occ.size() > g_occ_cap_ || !g_x_()) {
@@ -225,7 +188,7 @@ void BlockHashIndex::grid_upload_from(std::size_t point_from, std::size_t cell_f
   check_cl(q.finish(), "clFinish", "blockhash grid update");
 }
 
-void BlockHashIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t first) {
+void GridIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t first) {
   blockhash::Grid& g = *s_->grid;
   if (g.geom.sparse) {
     // The two-level directory is not merged in place (its segment tables would move): a fresh
@@ -302,7 +265,7 @@ void BlockHashIndex::grid_insert(const float* scaled, std::size_t m, std::int32_
   ++info_.merges;
 }
 
-void BlockHashIndex::grid_mark_holes_by_scan(const std::int32_t* ids, std::size_t n, std::size_t& lo, std::size_t& hi,
+void GridIndex::grid_mark_holes_by_scan(const std::int32_t* ids, std::size_t n, std::size_t& lo, std::size_t& hi,
                                              bool& on_box) {
   blockhash::Grid& g = *s_->grid;
   std::vector<std::uint8_t> gone(std::size_t(id_bound()), 0);
@@ -345,7 +308,7 @@ void BlockHashIndex::grid_mark_holes_by_scan(const std::int32_t* ids, std::size_
     id_pos_.clear();
 }
 
-void BlockHashIndex::grid_remove(const std::int32_t* ids, std::size_t n) {
+void GridIndex::grid_remove(const std::int32_t* ids, std::size_t n) {
   blockhash::Grid& g = *s_->grid;
   std::size_t lo = g.n_points, hi = 0;
   // The points' box (grid_search.h) stays the live points' own, as a load of the saved index
@@ -406,7 +369,7 @@ void BlockHashIndex::grid_remove(const std::int32_t* ids, std::size_t n) {
   check_cl(q.finish(), "clFinish", "blockhash grid remove");
 }
 
-void BlockHashIndex::grid_compact() {
+void GridIndex::grid_compact() {
   blockhash::Grid& g = *s_->grid;
   if (g.geom.sparse) {  // the two-level directory: a fresh build over the live points
     grid_rebuild_live(nullptr, 0, 0, false);
@@ -461,10 +424,6 @@ void BlockHashIndex::grid_compact() {
   // The cell table changes from the first cell holding a hole on; simplest to write it whole.
   blockhash::build_grid_occupancy(g, params_.threads);  // cells emptied (the live box is as it was)
   grid_upload_from(std::min(first_moved, w), 0);
-}
-
-void BlockHashIndex::live_points(std::vector<float>& xyz, std::vector<std::int32_t>& ids) const {
-  xyz = indexed_points(&ids);
 }
 
 // The live points of g (holes dropped) into x, y, z, ids, in the grid's own order (cell by cell):
@@ -561,7 +520,7 @@ static std::size_t add_growth_room(const blockhash::Grid& g, const float* extra,
   return 2;
 }
 
-void BlockHashIndex::grid_rebuild_live(const float* extra, std::size_t m, std::int32_t first, bool retune) {
+void GridIndex::grid_rebuild_live(const float* extra, std::size_t m, std::int32_t first, bool retune) {
   // A fresh build over the live points and the new ones, with the build's own parameters (a
   // tuned side unless the caller fixed one), done once (issue 39: before, a rebuild that kept the
   // side and then found the cells outside the band built a second time: 3.5-4.5x a fresh build
@@ -602,13 +561,13 @@ void BlockHashIndex::grid_rebuild_live(const float* extra, std::size_t m, std::i
   }
   in.x = ox.data(), in.y = oy.data(), in.z = oz.data(), in.soa_ids = oids.data(), in.n_soa = oids.size();
   in.xyz = add.data(), in.aos_ids = add_ids.data(), in.n_aos = add_ids.size();
-  const UpdateCounters keep(info_);
+  const blockhash::UpdateCounters keep(info_);
   const double side_before = info_.cell_size;
   id_pos_.clear();  // every point moves; the next remove that needs the map makes it again
   const std::size_t builds_before = grid_builds_;
   // In the structure's coordinates and scale (an update does not rescale), from points known
   // finite: no validation or scale pass, the live ids stored by the build itself.
-  build_grid_scaled(in, params_.cell_size);
+  build_scaled(in, params_.cell_size);
   if (phantoms) {  // the corners of the room left become holes
     detail::parallel_for(g.n_points, [&](std::size_t b, std::size_t e) {
       for (std::size_t i = b; i < e; ++i)
@@ -634,51 +593,10 @@ void BlockHashIndex::grid_rebuild_live(const float* extra, std::size_t m, std::i
   grid_build_mean_ = info_.mean_cell_points;
 }
 
-void BlockHashIndex::blocks_update(const float* points, std::size_t n, std::int32_t first,
-                                   const std::int32_t* removed, std::size_t n_removed) {
-  std::vector<float> pts, kept;
-  std::vector<std::int32_t> ids, kept_ids;
-  live_points(pts, ids);
-  if (n_removed) {  // removed: ascending, as ids
-    kept.reserve(pts.size());
-    std::size_t j = 0;
-    for (std::size_t i = 0; i < ids.size(); ++i) {
-      while (j < n_removed && removed[j] < ids[i]) ++j;
-      if (j < n_removed && removed[j] == ids[i]) continue;
-      kept.insert(kept.end(), pts.begin() + 3 * i, pts.begin() + 3 * i + 3);
-      kept_ids.push_back(ids[i]);
-    }
-    pts.swap(kept);
-    ids.swap(kept_ids);
-  }
-  pts.insert(pts.end(), points, points + 3 * n);
-  for (std::size_t i = 0; i < n; ++i) ids.push_back(first + static_cast<std::int32_t>(i));
-  const UpdateCounters keep(info_);
-  auto fresh = std::make_unique<blockhash::Structure>();
-  std::swap(s_, fresh);
-  try {
-    build_blocks(pts.data(), ids.size());
-  } catch (...) {
-    std::swap(s_, fresh);
-    upload();
-    throw;
-  }
-  // The build numbers the points 0 .. n - 1 in the order given (ascending ids): their ids, in the
-  // blocks the kernels read and in the order a reference query and a save read.
-  blockhash::Structure& s = *s_;
-  for (auto& o : s.order) o = ids[std::size_t(o)];
-  for (std::size_t b = 0; b < s.blocks.size(); ++b)
-    for (std::int32_t j = 0; j < s.boxes[b].count; ++j) s.blocks[b].id[j] = ids[std::size_t(s.blocks[b].id[j])];
-  upload();
-  keep.put(info_);
-  ++info_.update_rebuilds;
-  s.info = info_;
-}
-
 // Saved and loaded after updates (grid_io.cpp's version 3, io.cpp's version 5): the ids issued,
 // the holes where they are, the population the retune band is measured from and the counters, so
 // that a loaded index answers as the saved one and its next updates continue where it stopped.
-blockhash::GridIdState BlockHashIndex::grid_update_state() const {
+blockhash::GridIdState GridIndex::grid_update_state() const {
   blockhash::GridIdState st;
   st.id_bound = id_bound();
   st.tuned_mean = grid_build_mean_ > 0 ? grid_build_mean_ : 0.0;
@@ -689,7 +607,7 @@ blockhash::GridIdState BlockHashIndex::grid_update_state() const {
   return st;
 }
 
-void BlockHashIndex::loaded_update_state(const blockhash::GridIdState& st) {
+void GridIndex::loaded_update_state(const blockhash::GridIdState& st) {
   info_.merges = st.merges;
   info_.compactions = st.compactions;
   info_.update_rebuilds = st.update_rebuilds;
@@ -705,12 +623,6 @@ void BlockHashIndex::loaded_update_state(const blockhash::GridIdState& st) {
     if (g.ids[i] != kHoleId) live.push_back(g.ids[i]);
   std::sort(live.begin(), live.end());
   set_id_state(static_cast<std::int32_t>(st.id_bound), live);
-}
-
-void BlockHashIndex::loaded_update_state(std::int64_t bound) {
-  std::vector<std::int32_t> live(s_->order.begin(), s_->order.end());
-  std::sort(live.begin(), live.end());
-  set_id_state(static_cast<std::int32_t>(bound), live);
 }
 
 }  // namespace bhcl

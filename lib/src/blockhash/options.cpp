@@ -10,7 +10,9 @@
 #include <cstdint>
 #include <limits>
 
+#include "blockhash_cl/block_tables.hpp"
 #include "blockhash_cl/blockhash.hpp"
+#include "blockhash_cl/grid_index.hpp"
 #include "blockhash_cl/error.hpp"
 #include "blockhash_cl/factory.hpp"
 #include "blockhash_cl/knn.hpp"
@@ -148,13 +150,10 @@ std::string json_text(const std::string& t) {
   return s + "\"";
 }
 
-MethodInfo::Used used_build_fields(const BlockHashBuildInfo& i);
-
-// The build's figures, and after updates (Index::insert/remove) their statistics too (only then:
-// an index never updated reports what it did before).
-MethodInfo::Used used_build(const BlockHashIndex& index) {
+// After updates (Index::insert/remove) their statistics beside the build's figures (only then: an
+// index never updated reports what it did before).
+MethodInfo::Used with_updates(const BlockHashIndex& index, MethodInfo::Used u) {
   const BlockHashBuildInfo& i = index.info();
-  MethodInfo::Used u = used_build_fields(i);
   if (i.holes || i.merges || i.compactions || i.update_rebuilds) {
     u.insert(u.end() - 1, {{"holes", std::to_string(i.holes)},
                            {"merges", std::to_string(i.merges)},
@@ -168,19 +167,21 @@ MethodInfo::Used used_build(const BlockHashIndex& index) {
   return u;
 }
 
-MethodInfo::Used used_build_fields(const BlockHashBuildInfo& i) {
-  if (i.grid)
-    return {{"preset", json_text(P::preset_name(i.preset))},
-            {"grid", "true"},
-            {"grid_dims", "[" + std::to_string(i.grid_dims[0]) + ", " + std::to_string(i.grid_dims[1]) + ", " +
-                              std::to_string(i.grid_dims[2]) + "]"},
-            {"cell_size", json_real(i.cell_size)},
-            {"occupied_cells", std::to_string(i.occupied_cells)},
-            {"mean_cell_points", json_real(i.mean_cell_points)},
-            {"cells_grown", json_bool(i.grid_capped)},
-            {"two_level_directory", json_bool(i.grid_two_level)},
-            {"directory_bytes", std::to_string(i.grid_directory_bytes)},
-            {"summary", json_text(i.summary())}};
+MethodInfo::Used grid_build_fields(const BlockHashBuildInfo& i) {
+  return {{"preset", json_text(P::preset_name(i.preset))},
+          {"grid", "true"},
+          {"grid_dims", "[" + std::to_string(i.grid_dims[0]) + ", " + std::to_string(i.grid_dims[1]) + ", " +
+                            std::to_string(i.grid_dims[2]) + "]"},
+          {"cell_size", json_real(i.cell_size)},
+          {"occupied_cells", std::to_string(i.occupied_cells)},
+          {"mean_cell_points", json_real(i.mean_cell_points)},
+          {"cells_grown", json_bool(i.grid_capped)},
+          {"two_level_directory", json_bool(i.grid_two_level)},
+          {"directory_bytes", std::to_string(i.grid_directory_bytes)},
+          {"summary", json_text(i.summary())}};
+}
+
+MethodInfo::Used table_build_fields(const BlockHashBuildInfo& i) {
   return {{"preset", json_text(P::preset_name(i.preset))},
           {"L", std::to_string(i.L)},
           {"P", std::to_string(i.P)},
@@ -201,29 +202,23 @@ MethodInfo::Used used_build_fields(const BlockHashBuildInfo& i) {
           {"summary", json_text(i.summary())}};
 }
 
-MethodInfo::Used used_search(const BlockHashIndex& bh, const SearchParams& p) {
-  MethodInfo::Used u;
+// The A a search ran with (both layouts; the L tables add their probes).
+MethodInfo::Used used_A(const BlockHashIndex& bh, const SearchParams& p) {
   if (p.recall_target > 0) {
     // The A the index tuned for this target (cached by the query that ran: no second tuning).
     const BlockHashIndex::RecallTuning t = *bh.recall_tuning(p);
-    u = {{"recall_target", json_real(p.recall_target)},
-         {"A", std::isinf(t.A) ? json_text("inf") : json_real(t.A)},
-         {"tuned_sample_recall", json_real(t.recall)},
-         {"tuned_reached", json_bool(t.reached)}};
-  } else if (p.A == 0) {
-    // The index's default: the grid's exact mode (JSON has no infinity: "exact"), 8 elsewhere.
-    if (bh.info().grid) u = {{"A", json_text("inf")}, {"exact", "true"}};
-    else u = {{"A", json_real(8.0)}};
-  } else if (std::isinf(p.A)) {
-    u = {{"A", json_text("inf")}, {"exact", json_bool(bh.info().grid)}};
-  } else {
-    u = {{"A", json_real(p.A)}};
+    return {{"recall_target", json_real(p.recall_target)},
+            {"A", std::isinf(t.A) ? json_text("inf") : json_real(t.A)},
+            {"tuned_sample_recall", json_real(t.recall)},
+            {"tuned_reached", json_bool(t.reached)}};
   }
-  const BlockHashBuildInfo& i = bh.info();
-  if (i.grid) return u;
-  const int probes = p.neighbour_probes >= 0 ? p.neighbour_probes : (i.neighbour_probes ? 1 : 0);
-  u.emplace_back("neighbour_probes", std::to_string(probes));
-  return u;
+  if (p.A == 0) {
+    // The index's default: the exact mode (JSON has no infinity: "exact"), else 8.
+    if (bh.exact_mode()) return {{"A", json_text("inf")}, {"exact", "true"}};
+    return {{"A", json_real(8.0)}};
+  }
+  if (std::isinf(p.A)) return {{"A", json_text("inf")}, {"exact", json_bool(bh.exact_mode())}};
+  return {{"A", json_real(p.A)}};
 }
 
 }  // namespace
@@ -247,8 +242,17 @@ MethodInfo describe() {
 
 namespace bhcl {
 
-UsedFields BlockHashIndex::build_used() const { return blockhash::used_build(*this); }
-UsedFields BlockHashIndex::search_used(const SearchParams& p) const { return blockhash::used_search(*this, p); }
+UsedFields GridIndex::build_used() const { return blockhash::with_updates(*this, blockhash::grid_build_fields(info_)); }
+UsedFields GridIndex::search_used(const SearchParams& p) const { return blockhash::used_A(*this, p); }
+UsedFields BlockTablesIndex::build_used() const {
+  return blockhash::with_updates(*this, blockhash::table_build_fields(info_));
+}
+UsedFields BlockTablesIndex::search_used(const SearchParams& p) const {
+  UsedFields u = blockhash::used_A(*this, p);
+  const int probes = p.neighbour_probes >= 0 ? p.neighbour_probes : (info_.neighbour_probes ? 1 : 0);
+  u.emplace_back("neighbour_probes", std::to_string(probes));
+  return u;
+}
 
 MethodOptions paper_options_for_search(const MethodOptions& options, const SearchParams& params) {
   const std::string preset = options.text("preset", "auto");

@@ -49,7 +49,7 @@ double median_of(std::vector<std::uint32_t> v) {
 }
 
 // Table-0 thresholds for a candidate P over every stride-th sorted point.
-std::vector<float> table0_thresholds(const Structure& s, const BlockHashBuildParams& p, int P,
+std::vector<float> table0_thresholds(const Structure& s, const TableBuildParams& p, int P,
                                      std::size_t stride, const std::vector<float>& pts) {
   std::vector<float> thr(3 * std::size_t(P), INFINITY);
   for (int d = 0; d < 3; ++d) {
@@ -68,7 +68,7 @@ std::vector<float> sorted_points(const Structure& s) {
 
 }  // namespace
 
-int derive_x(const BlockHashBuildParams& p) {
+int derive_x(const TableBuildParams& p) {
   int X = p.X > 0 ? p.X : (BlockHashBuildParams::is_paper(p.preset) ? 10 : BHCL_BH_BLOCK_SLOTS);
   if (p.X == 0 || X > BHCL_BH_BLOCK_SLOTS)
     throw Error("blockhash: X must be in [1, " + std::to_string(BHCL_BH_BLOCK_SLOTS) +
@@ -76,7 +76,7 @@ int derive_x(const BlockHashBuildParams& p) {
   return X;
 }
 
-CellSample::CellSample(const Structure& s, const BlockHashBuildParams& p, std::size_t stride)
+CellSample::CellSample(const Structure& s, const TableBuildParams& p, std::size_t stride)
     : stride(stride) {
   pts.reserve(3 * (s.n_points / stride + 1));
   for (std::size_t i = 0; i < s.n_points; i += stride) {
@@ -87,7 +87,7 @@ CellSample::CellSample(const Structure& s, const BlockHashBuildParams& p, std::s
   for (int d = 0; d < 3; ++d) hist[d] = histogram(pts.data(), pts.size() / 3, d, p.hist_bins);
 }
 
-double CellSample::median_points(const Structure& s, const BlockHashBuildParams& p, int P) const {
+double CellSample::median_points(const Structure& s, const TableBuildParams& p, int P) const {
   std::vector<float> thr(3 * std::size_t(P), INFINITY);
   for (int d = 0; d < 3; ++d) {
     auto t = make_thresholds(hist[d], P, p.seed, 0, d, s.info.guard_thresholds);
@@ -117,14 +117,14 @@ double CellSample::median_points(const Structure& s, const BlockHashBuildParams&
   return median_of(np) * double(stride);
 }
 
-double median_cell_points(const Structure& s, const BlockHashBuildParams& p, int P,
+double median_cell_points(const Structure& s, const TableBuildParams& p, int P,
                           std::size_t stride) {
   return CellSample(s, p, stride).median_points(s, p, P);
 }
 
 // The P whose median occupied cell (table 0, over a stride sample) is nearest `target` points in
 // ratio: a bisection for the smallest P at or below it, then P - 1 if that is nearer.
-int p_for_cell_points(const Structure& s, const BlockHashBuildParams& p, double target, std::size_t stride) {
+int p_for_cell_points(const Structure& s, const TableBuildParams& p, double target, std::size_t stride) {
   // One sample and its histograms for every candidate P: only the inversion depends on P.
   const CellSample sample(s, p, stride);
   auto f = [&](int P) { return sample.median_points(s, p, P); };
@@ -154,8 +154,32 @@ std::size_t bisection_stride(std::size_t n, double target) {
   return std::max<std::size_t>(1, std::min<std::size_t>(n >> 18, static_cast<std::size_t>(target / 4)));
 }
 
-void derive_params(const BlockHashBuildParams& p, Structure& s) {
-  check_build_fields(option_table(), &p, "blockhash");  // every range, from the option table
+// The fields the L tables share with the user's parameters: one list for both directions, so that
+// a field cannot be carried one way only.
+#define BHCL_TABLE_FIELDS(F)                                                                     \
+  F(preset) F(L) F(P) F(B) F(X) F(target_cell_points) F(b_percentile) F(design_A) F(design_k)    \
+  F(hist_bins) F(hilbert_bits) F(guard_thresholds) F(keep_top_count) F(direct_addressing)        \
+  F(box_skip) F(box_order) F(hilbert_seed) F(neighbour_probes) F(seed) F(verbose)
+#define BHCL_COPY_FIELD(f) to.f = from.f;
+
+TableBuildParams table_params(const BlockHashBuildParams& from) {
+  TableBuildParams to;
+  BHCL_TABLE_FIELDS(BHCL_COPY_FIELD)
+  return to;
+}
+
+BlockHashBuildParams user_params(const TableBuildParams& from) {
+  BlockHashBuildParams to;
+  BHCL_TABLE_FIELDS(BHCL_COPY_FIELD)
+  to.grid = BlockHashBuildParams::is_paper(from.preset) ? -1 : 0;  // auto's tables are grid = 0
+  return to;
+}
+#undef BHCL_COPY_FIELD
+#undef BHCL_TABLE_FIELDS
+
+void derive_params(const TableBuildParams& p, Structure& s) {
+  const BlockHashBuildParams user = user_params(p);
+  check_build_fields(option_table(), &user, "blockhash");  // every range, from the option table
   BlockHashBuildInfo& in = s.info;
   const bool paper = BlockHashBuildParams::is_paper(p.preset);
   const bool paper_cells = p.preset == BlockHashBuildParams::Preset::PaperCells;

@@ -55,7 +55,7 @@ BlockHashIndex::RecallTuning BlockHashIndex::tune_for_recall(double target, cons
   // The grid's exact mode (A = +inf) ends its list: any target is reached.
   const float kInf = std::numeric_limits<float>::infinity();
   for (float A : {1.0f, 1.5f, 2.0f, 3.0f, 4.0f, 6.0f, 8.0f, 12.0f, 16.0f, 24.0f, 32.0f, 48.0f, 64.0f, 128.0f, kInf}) {
-    if (std::isinf(A) && !info_.grid) break;
+    if (std::isinf(A) && !exact_mode()) break;
     p.A = A;
     KnnResult r = query(qs, p);
     out.A = A;
@@ -168,7 +168,7 @@ std::string batch_distribution(const std::vector<float>& qs, const Index& exact,
 // over the sample answer it (a linear scan took up to 17). Not reached: the largest A, or on the
 // grid its exact mode, which reaches any target.
 RecallTuning tune_on_sample(const Index& index, const Index& exact, const std::vector<float>& qs,
-                            const SearchParams& params, double target, bool grid, double* compile_s) {
+                            const SearchParams& params, double target, bool has_exact_mode, double* compile_s) {
   const auto t1 = std::chrono::steady_clock::now();
   const double compile0 = *compile_s;
   const std::size_t m = qs.size() / 3;
@@ -206,7 +206,7 @@ RecallTuning tune_on_sample(const Index& index, const Index& exact, const std::v
   t.A = kLadder[lo];
   t.recall = recall_at(lo);
   t.reached = t.recall >= target + margin;
-  if (!t.reached && grid) {
+  if (!t.reached && has_exact_mode) {
     t.A = std::numeric_limits<float>::infinity();
     t.recall = 1.0;
     t.reached = true;
@@ -225,7 +225,7 @@ SearchParams BlockHashIndex::params_for_batch(const float* queries, std::size_t 
   SearchParams p = params;
   double target = 0;
   if (params.recall_target > 0 && params.recall_target < 1) target = params.recall_target;
-  else if (params.recall_target == 0 && params.A == 0 && !info_.grid) target = kDefaultRecallTarget;
+  else if (params.recall_target == 0 && params.A == 0 && !exact_mode()) target = kDefaultRecallTarget;
   // Nothing to tune (an explicit A, the grid's exact default or exact target, no queries): the
   // parameters as given, which the query validates.
   if (info) *info = bt;
@@ -249,7 +249,7 @@ SearchParams BlockHashIndex::params_for_batch(const float* queries, std::size_t 
   const auto key = std::make_tuple(params.k, params.neighbour_probes, target, bt.distribution);
   auto it = batch_tuned_.find(key);
   bt.cached = it != batch_tuned_.end();
-  bt.tuning = bt.cached ? it->second : (batch_tuned_[key] = tune_on_sample(*this, *exact_, qs, params, target, info_.grid, &compile_s));
+  bt.tuning = bt.cached ? it->second : (batch_tuned_[key] = tune_on_sample(*this, *exact_, qs, params, target, exact_mode(), &compile_s));
   p.A = bt.tuning.A;
   p.recall_target = 0;
   bt.compile_s = compile_s;

@@ -111,7 +111,7 @@ std::vector<float> make_thresholds(const Histogram& h, int P, std::uint64_t seed
   return out;
 }
 
-void build_thresholds(const BlockHashBuildParams& p, Structure& s) {
+void build_thresholds(const TableBuildParams& p, Structure& s) {
   const int L = s.info.L, P = s.info.P;
   s.thresholds.assign(std::size_t(L) * 3 * std::size_t(P), INFINITY);
   // Histograms over the sorted points (any order gives the same histogram).
