@@ -186,6 +186,17 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_occ_near(bhcl_u32 cx, bhcl_u32 cy, bhcl_u32 
 #define BHCL_GRID_RING_CAP 6u
 #endif
 
+/* Where the walk takes over at once for a query whose home cell's 4^3 block (a level-2 node of
+ * the pyramid) holds no point: 2, after ring 0 found the home cell empty (one cell looked up
+ * first); 1, before the rings; 0, never (the first rings run). Same rows either way. Tested
+ * before the rings (1), the test cost the kernel on queries among the points 10-16 % (k = 10,
+ * Cornell, sorted: bench/results/harness/home_skip_perf.txt): not the test's own instructions
+ * (under 1 % of the samples) but the code the compiler made of the search around a way into the
+ * walk ahead of the rings; after ring 0 the rings compile as without it. */
+#ifndef BHCL_GRID_HOME_SKIP
+#define BHCL_GRID_HOME_SKIP 2
+#endif
+
 /* The order in which the walk visits a node's 8 children: child BHCL_GRID_OCC_ORDER(p) ^ near
  * (near: the child on the query's side along each axis) at position p, i.e. the near child, the
  * three across one face, across an edge, the far one. The order is its own inverse (it swaps 3
@@ -467,9 +478,11 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search(BHCL_GLOBAL const bhcl_u32* starts,
    * (0xffffffff: none), kNoWalk while the rings answer alone. */
   const bhcl_u32 kNoWalk = 0xfffffffeu;
   bhcl_u32 walk_r0 = kNoWalk;
-  /* No point within the home cell's 4^3 block of the pyramid's level 2 (nor, then, within a ring
-   * of it in most cases): the walk alone, the rings would only look up empty rows. */
-  if (fine_rings != 0xffffffffu && rmax > fine_rings && bhcl_grid_occ_size(g, 1u) > 1u) { /* level 2 exists */
+  /* BHCL_GRID_HOME_SKIP 1: no point within the home cell's 4^3 block of the pyramid's level 2
+   * (nor, then, within a ring of it in most cases): the walk alone, the rings would only look up
+   * empty rows. */
+  if (BHCL_GRID_HOME_SKIP == 1 && fine_rings != 0xffffffffu && rmax > fine_rings &&
+      bhcl_grid_occ_size(g, 1u) > 1u) { /* level 2 exists */
     if (occ[bhcl_grid_occ_index(g, bhcl_grid_occ_size(g, 1u), 2u, cx >> 2, cy >> 2, cz >> 2)] == 0u)
       walk_r0 = 0xffffffffu;
   }
@@ -538,6 +551,11 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search(BHCL_GLOBAL const bhcl_u32* starts,
     w = BHCL_FMIN(w, bhcl_grid_reach(qy, g.oy, g.h, g.margin, cy, r, g.ny));
     w = BHCL_FMIN(w, bhcl_grid_reach(qz, g.oz, g.h, g.margin, cz, r, g.nz));
     if (w > 0.0f && BHCL_GRID_BOUND(st) < w * w) return examined;
+    /* BHCL_GRID_HOME_SKIP 2: the same test after ring 0, for a query whose home cell was empty. */
+    if (BHCL_GRID_HOME_SKIP == 2 && r == 0u && examined == 0u && fine_rings != 0xffffffffu && rmax > fine_rings &&
+        bhcl_grid_occ_size(g, 1u) > 1u &&
+        occ[bhcl_grid_occ_index(g, bhcl_grid_occ_size(g, 1u), 2u, cx >> 2, cy >> 2, cz >> 2)] == 0u)
+      walk_r0 = 0u;
     /* Past fine_rings, the rings go on only while the stop is near (the bound within
      * BHCL_GRID_RING_SLACK more rings' reach, at most BHCL_GRID_RING_CAP rings past fine_rings):
      * a query among the points at a large k keeps its nearest-first rings, one far from them (no

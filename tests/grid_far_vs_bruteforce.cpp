@@ -207,3 +207,47 @@ TEST_CASE("grid_far_after_updates: exact after inserts and removes, queried far 
   pts.insert(pts.end(), off.begin(), off.end());
   knn_equals_bruteforce(*index, pts, qs, "after an insert off the box");
 }
+
+TEST_CASE("grid_far_batches_vs_bruteforce: batches all near, all far, mixed and empty, every home-skip arm") {
+  // The walk's entry (BHCL_GRID_HOME_SKIP: after ring 0, before the rings, never) changes only
+  // where the search goes, never its rows: each arm
+  // bit-exact against brute force on a batch of queries among the points, one far from them
+  // (home 4^3 blocks empty), both interleaved, and an empty batch.
+  const std::vector<float> pts = datasets::uniform(20000, 5);
+  std::mt19937_64 rng(36);
+  std::uniform_real_distribution<float> near(0.0f, 1.0f), far(2.0f, 6.0f);
+  std::vector<float> near_q, far_q, mixed_q;
+  for (int i = 0; i < 400; ++i) {
+    const float a[3] = {near(rng), near(rng), near(rng)};
+    const float b[3] = {far(rng), -far(rng), near(rng)};
+    near_q.insert(near_q.end(), a, a + 3);
+    far_q.insert(far_q.end(), b, b + 3);
+    mixed_q.insert(mixed_q.end(), (i % 3 == 0) ? b : a, ((i % 3 == 0) ? b : a) + 3);
+  }
+  auto index = BlockHashIndex::build(test::runtime(), pts.data(), pts.size() / 3);
+  REQUIRE(index->info().grid);
+  const std::size_t N = pts.size() / 3;
+  for (const char* d : {"", "-DBHCL_GRID_HOME_SKIP=1", "-DBHCL_GRID_HOME_SKIP=0"})
+    for (int k : {1, 10, 50}) {
+      CAPTURE(d);
+      CAPTURE(k);
+      const SearchParams p = exact(k, d);
+      for (const auto* qs : {&near_q, &far_q, &mixed_q}) {
+        const std::string what = std::string(qs == &near_q ? "all near" : qs == &far_q ? "all far" : "mixed") + " " + d;
+        test::require_identical(index->query(*qs, p), reference::knn_float(pts.data(), N, qs->data(), qs->size() / 3, p),
+                                what);
+      }
+      KnnResult none;
+      index->query(near_q.data(), 0, p, none);
+      CHECK(none.counts.empty());
+      CHECK(none.ids.empty());
+    }
+  // The default's examined counts equal its host reference's (the same entry into the walk).
+  SearchParams pe = exact(10);
+  pe.count_examined = true;
+  std::vector<std::int32_t> ex_ref;
+  const KnnResult r = index->query(mixed_q, pe);
+  const KnnResult ref = index->reference_query(mixed_q.data(), mixed_q.size() / 3, exact(10), &ex_ref);
+  test::require_identical(r, ref, "mixed, kernel vs reference");
+  CHECK(r.examined == ex_ref);
+}
