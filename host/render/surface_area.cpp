@@ -37,6 +37,23 @@ const DiscPattern& pattern() {
   return p;
 }
 
+// Triangle t's corners in a plane's (u, v) coordinates and twice its signed area there (0:
+// degenerate): what the raster's cover test and the exact edge equations both start from.
+struct PlaneTriangle {
+  float a[3], b[3];
+  float area2;
+};
+PlaneTriangle project_triangle(const Scene& scene, std::uint32_t t, Vec3 u, Vec3 v) {
+  const auto& tri = scene.triangles[t];
+  PlaneTriangle pt{};
+  for (int k = 0; k < 3; ++k) {
+    pt.a[k] = dot(scene.vertices[tri[k]], u);
+    pt.b[k] = dot(scene.vertices[tri[k]], v);
+  }
+  pt.area2 = (pt.a[1] - pt.a[0]) * (pt.b[2] - pt.b[0]) - (pt.a[2] - pt.a[0]) * (pt.b[1] - pt.b[0]);
+  return pt;
+}
+
 Vec3 any_perpendicular(Vec3 n) {
   const Vec3 a = std::fabs(n.x) < 0.6f ? Vec3{1, 0, 0} : (std::fabs(n.y) < 0.6f ? Vec3{0, 1, 0} : Vec3{0, 0, 1});
   return normalize(cross(n, a));
@@ -120,13 +137,8 @@ void SurfaceAreaMap::rasterise(const EmbreeScene& es, Plane& p, int threads) {
   p.code.assign(n, kOff);
   std::vector<std::uint32_t> cover(n, ~0u);  // the triangle covering each cell
   for (std::uint32_t t : p.tris) {
-    const auto& tri = scene.triangles[t];
-    float a[3], b[3];
-    for (int k = 0; k < 3; ++k) {
-      a[k] = dot(scene.vertices[tri[k]], p.u);
-      b[k] = dot(scene.vertices[tri[k]], p.v);
-    }
-    const float area2 = (a[1] - a[0]) * (b[2] - b[0]) - (a[2] - a[0]) * (b[1] - b[0]);
+    const PlaneTriangle pt = project_triangle(scene, t, p.u, p.v);
+    const float *a = pt.a, *b = pt.b, area2 = pt.area2;
     if (area2 == 0) continue;
     const int i0 = std::max(0, static_cast<int>((std::min({a[0], a[1], a[2]}) - p.a0) / h_) - 1);
     const int i1 = std::min(p.nu - 1, static_cast<int>((std::max({a[0], a[1], a[2]}) - p.a0) / h_) + 1);
@@ -144,24 +156,11 @@ void SurfaceAreaMap::rasterise(const EmbreeScene& es, Plane& p, int threads) {
         if (inside) cover[static_cast<std::size_t>(j) * p.nu + i] = t;
       }
   }
-  const float eps = es.ray_epsilon();
   parallel_chunks(static_cast<std::size_t>(p.nv), 8, threads, [&](std::size_t, std::size_t jb, std::size_t je) {
     for (std::size_t j = jb; j < je; ++j)
       for (int i = 0; i < p.nu; ++i) {
         const std::size_t c = j * p.nu + i;
-        const std::uint32_t t = cover[c];
-        if (t == ~0u) continue;
-        // The cell centre on the covering triangle itself (a plane's triangles may lie up to
-        // kPlaneTol off its plane), then along that triangle's normal.
-        const Vec3 nt = scene.geometric_normal(t);
-        const Vec3 on_plane = p.n * p.d + p.u * (p.a0 + (i + 0.5f) * h_) + p.v * (p.b0 + (j + 0.5f) * h_);
-        const float s = (dot(scene.vertices[scene.triangles[t][0]], nt) - dot(on_plane, nt)) / dot(p.n, nt);
-        const Vec3 x = on_plane + p.n * s;
-        EmbreeScene::Hit hit;
-        std::uint8_t code = kAir;
-        if (es.intersect(x + nt * eps, nt, 0.0f, INFINITY, hit) && dot(scene.geometric_normal(hit.prim), nt) > 0)
-          code = scene.material_of(hit.prim).type == MaterialType::Glass ? kGlass : kClosed;
-        p.code[c] = code;
+        if (cover[c] != ~0u) p.code[c] = medium_by_ray(p, cover[c], p.a0 + (i + 0.5f) * h_, p.b0 + (j + 0.5f) * h_);
       }
   });
   es.check("boundary correction rasters");
@@ -186,13 +185,8 @@ void SurfaceAreaMap::mark_edges(Plane& p) const {
   const Scene& scene = es_->scene();
   p.edges.clear();
   for (std::uint32_t t : p.tris) {
-    const auto& tri = scene.triangles[t];
-    float ta[3], tb[3];
-    for (int k = 0; k < 3; ++k) {
-      ta[k] = dot(scene.vertices[tri[k]], p.u);
-      tb[k] = dot(scene.vertices[tri[k]], p.v);
-    }
-    const float area2 = (ta[1] - ta[0]) * (tb[2] - tb[0]) - (ta[2] - ta[0]) * (tb[1] - tb[0]);
+    const PlaneTriangle pt = project_triangle(scene, t, p.u, p.v);
+    const float *ta = pt.a, *tb = pt.b, area2 = pt.area2;
     const float sg = area2 > 0 ? 1.0f : area2 < 0 ? -1.0f : 0.0f;  // 0: degenerate, never inside
     std::array<float, 9> e{};
     for (int k = 0; k < 3; ++k) {
@@ -229,7 +223,9 @@ std::uint32_t SurfaceAreaMap::holder_of(const Plane& p, float a, float b) {
   return ~0u;
 }
 
-// The medium on the front side of triangle tri at plane coordinates (a, b), as rasterise finds it.
+// The medium on the front side of triangle tri at plane coordinates (a, b): the point on the
+// triangle itself (a plane's triangles may lie up to kPlaneTol off its plane), then one ray along
+// that triangle's normal (rasterise's per cell, mark_edges' per sub-cell).
 std::uint8_t SurfaceAreaMap::medium_by_ray(const Plane& p, std::uint32_t tri, float a, float b) const {
   const Scene& scene = es_->scene();
   const Vec3 nt = scene.geometric_normal(tri);
