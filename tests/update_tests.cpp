@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <fstream>
 #include <iterator>
@@ -18,6 +19,7 @@
 #include "blockhash_cl/bruteforce.hpp"
 #include "blockhash_cl/factory.hpp"
 #include "blockhash_cl/kdtree.hpp"
+#include "blockhash_cl/metrics.hpp"
 #include "blockhash_cl/multi_device.hpp"
 #include "test_util.hpp"
 
@@ -934,3 +936,52 @@ TEST_CASE("updates: the build stats report holes, merges and rebuilds after upda
     CHECK(field(u, "update_rebuilds") == "0");
   }
 }
+
+// Issue 39: params_for_batch caches its tunings and the exact kd-tree it checks them against.
+// After an insert, a remove or a rebuild both belong to another point set: the next batch is
+// tuned again, against the live points' exact answers with their stable ids (the tuning's recall
+// is the recall its A gives on the sample, checked here against brute force over the live points).
+TEST_CASE("updates: params_for_batch tunes again after every update, against the live points") {
+  std::mt19937_64 rng(394);
+  Model m;
+  auto ix = grid_over(m, rng, 20000);
+  const std::vector<float> qs = uniform(rng, 256, 0.0f, 1.0f);  // the whole batch is the sample
+  SearchParams sp = test::knn_params(10);
+  sp.recall_target = 0.8;
+  auto tune_and_check = [&](const char* after, bool expect_cached) {
+    CAPTURE(after);
+    BatchTuning bt;
+    const SearchParams got = ix->params_for_batch(qs.data(), qs.size() / 3, sp, &bt);
+    REQUIRE(bt.tuned);
+    CHECK(bt.cached == expect_cached);
+    // A finite A reaches 0.8 on uniform points: an exact tree of other points (or its answers'
+    // positions taken for ids) reaches it only at the exact mode.
+    CHECK(std::isfinite(got.A));
+    CHECK(bt.tuning.reached);
+    SearchParams at = test::knn_params(10);
+    at.A = got.A;
+    at.sort_queries = 0;
+    const KnnResult r = ix->query(qs, at);
+    require_no_removed(r, m);
+    SearchParams exact = test::knn_params(10);
+    exact.sort_queries = 0;
+    CHECK(bt.tuning.recall == doctest::Approx(evaluate_accuracy(r, fresh_answer(m, qs, exact)).recall).epsilon(1e-12));
+  };
+  tune_and_check("the build", false);
+  tune_and_check("the build, again", true);
+  // A remove of half of the points (the side retuned), then a 10 % insert (a merge).
+  std::vector<std::int32_t> drop;
+  for (const auto& kv : m.live)
+    if (rng() % 2) drop.push_back(kv.first);
+  remove_both(*ix, m, drop);
+  tune_and_check("a remove", false);
+  tune_and_check("a remove, again", true);
+  insert_both(*ix, m, uniform(rng, ix->size() / 10, 0.0f, 1.0f));
+  tune_and_check("an insert", false);
+  // A rebuild over another set: ids 0 .. n - 1 again.
+  m = Model{};
+  std::vector<float> next = first_points(m, rng, 15000);
+  ix->rebuild(next.data(), 15000);
+  tune_and_check("a rebuild", false);
+}
+
