@@ -464,7 +464,7 @@ TEST_CASE("updates: block hashing's two-level grid directory after random insert
   Model m;
   const std::vector<float> p0 = first_points(m, rng, 2000);
   BlockHashBuildParams bp;
-  bp.grid_directory = 1;  // updates rebuild it over the live points (no in-place merge)
+  bp.grid_directory = 1;  // inserts inside its box merge, those past it rebuild
   auto ix = blockhash_over(p0, bp);
   REQUIRE(ix->info().grid_two_level);
   for (std::size_t step = 0; step < 8; ++step) {
@@ -474,8 +474,8 @@ TEST_CASE("updates: block hashing's two-level grid directory after random insert
     check_exact(*ix, m, rng);
     budget_kernel_equals_reference(*ix, m, rng, "two-level grid A = 2, kernel vs reference");
   }
-  // Its inserts rebuild with the side kept, inside the retune band: grown 3x in steps of a tenth,
-  // the cells stay within 1.1x of the tuned population (before, the side was never retuned there).
+  // Its inserts merge inside the retune band and retune past it: grown 3x in steps of a tenth,
+  // the cells stay within 1.1x of the tuned population (once, the side was never retuned there).
   const std::size_t retunes = ix->info().retunes;
   const double tuned = blockhash_over(p0, bp)->info().mean_cell_points;  // what the tuning aims at here
   for (std::size_t step = 0; step < 12; ++step) {
@@ -985,3 +985,65 @@ TEST_CASE("updates: params_for_batch tunes again after every update, against the
   tune_and_check("a rebuild", false);
 }
 
+// Issue 39: inserts into the two-level directory merge (they were full builds): inserts of every
+// size inside the box (one point, into segments that had none, a tenth of the set, with holes
+// present) leave the answers bit-exact against brute force over the live points, the kernel
+// equal to the host reference at a budget, and a saved copy (whose load checks every kernel
+// invariant of the directory) answering alike.
+TEST_CASE("updates: the two-level grid directory merges inserts, exact against brute force") {
+  std::mt19937_64 rng(393);
+  Model m;
+  // Two tight clusters in the unit cube: most of the directory's segments empty.
+  std::vector<float> p0 = uniform(rng, 6000, 0.1f, 0.2f);
+  const std::vector<float> c2 = uniform(rng, 6000, 0.7f, 0.8f);
+  p0.insert(p0.end(), c2.begin(), c2.end());
+  const std::vector<float> corner = {0.0f, 0.0f, 0.0f, 1.0f, 1.0f, 1.0f};  // the box: the unit cube
+  p0.insert(p0.end(), corner.begin(), corner.end());
+  m.add(p0);
+  BlockHashBuildParams bp;
+  bp.grid_directory = 1;
+  auto ix = blockhash_over(p0, bp);
+  REQUIRE(ix->info().grid_two_level);
+  const std::size_t rebuilds = ix->info().update_rebuilds;
+  std::size_t merges = 0;
+  auto insert_merged = [&](const std::vector<float>& p, const char* what) {
+    CAPTURE(what);
+    const std::size_t bytes = ix->info().grid_directory_bytes;
+    insert_both(*ix, m, p);
+    CHECK(ix->info().merges == ++merges);
+    CHECK(ix->info().update_rebuilds == rebuilds);
+    REQUIRE(ix->info().grid_two_level);
+    CHECK(ix->info().grid_directory_bytes >= bytes);
+    check_exact(*ix, m, rng);
+    budget_kernel_equals_reference(*ix, m, rng, "two-level merge A = 2, kernel vs reference");
+  };
+  insert_merged({0.15f, 0.15f, 0.15f}, "one point in a cluster");
+  insert_merged({0.45f, 0.55f, 0.35f}, "one point where no segment was occupied");
+  insert_merged(uniform(rng, 40, 0.45f, 0.5f), "a small cluster in empty space");
+  insert_merged(uniform(rng, 400, 0.1f, 0.2f), "3 % into the first cluster");
+  // Holes present: a few removes (below 1/8: kept in place), then an insert merged past them.
+  std::vector<std::int32_t> drop;
+  for (const auto& kv : m.live)
+    if (drop.size() < 300 && rng() % 20 == 0) drop.push_back(kv.first);
+  remove_both(*ix, m, drop);
+  REQUIRE(ix->info().holes == drop.size());
+  std::vector<float> mixed = uniform(rng, 400, 0.7f, 0.8f);
+  const std::vector<float> spread = uniform(rng, 100, 0.0f, 1.0f);
+  mixed.insert(mixed.end(), spread.begin(), spread.end());
+  insert_merged(mixed, "4 % over a cluster and empty space, holes present");
+  CHECK(ix->info().holes == drop.size());
+  // Saved and loaded: the load validates the merged directory; the copy answers alike.
+  const std::string path = test::tmp_path("update_two_level_merge.bhi");
+  ix->save(path);
+  std::vector<float> rows = rows_of(m);
+  MethodOptions lo;
+  lo.set("load-index", path);
+  auto loaded = make_index("blockhash", test::runtime(), rows.data(), std::size_t(m.next), lo);
+  require_same_index(*ix, *loaded, m, rng, {0.0, 2.0}, "two-level merged, loaded");
+  std::remove(path.c_str());
+  // Past the band: one fresh build, no merge.
+  insert_both(*ix, m, uniform(rng, ix->size(), 0.1f, 0.2f));
+  CHECK(ix->info().merges == merges);
+  CHECK(ix->info().update_rebuilds == rebuilds + 1);
+  check_exact(*ix, m, rng);
+}

@@ -136,6 +136,124 @@ void merge_into_scratch(const blockhash::Grid& g, const float* scaled, std::size
   }
 }
 
+// The two-level directory's merge (issue 39: every insert there was a full build, 100 inserts
+// growing a clustered set 10x took 8 s). The new points sorted by cell (key: cell << 32 | index,
+// so stable), then one pass over the segments writing the new directory (a segment receiving its
+// first points gets its table; every start moves right by the new points before it) and a merge
+// of the points out of place, in parallel over ranges of the sorted new points. The old point at
+// slot p of cell c goes to p + (new points in cells < c); the j-th new point (sorted) of cell c to
+// start(c + 1) + j: behind the cell's old points, ids ascending as a fresh build's stable scatter
+// puts them. Holes move with their cells (a remove compacts past 1/8 of them, as before).
+struct TwoLevelAdd {
+  std::vector<std::uint64_t> key;  // cell << 32 | index, ascending
+  double sum2 = 0;                 // the squared cell populations' sum after the insert
+  std::size_t occupied = 0;        // occupied cells after it
+  std::size_t new_segments = 0;    // segments that receive their first points
+};
+
+TwoLevelAdd two_level_additions(const blockhash::Grid& g, const float* scaled, std::size_t m, double sum2_before,
+                                std::size_t occupied_before) {
+  TwoLevelAdd a;
+  a.key.resize(m);
+  for (std::size_t i = 0; i < m; ++i) a.key[i] = (std::uint64_t(cell_of(g.geom, scaled + 3 * i)) << 32) | i;
+  std::sort(a.key.begin(), a.key.end());
+  a.sum2 = sum2_before;
+  a.occupied = occupied_before;
+  std::size_t last_seg = SIZE_MAX;
+  for (std::size_t j = 0; j < m;) {
+    const std::uint32_t c = static_cast<std::uint32_t>(a.key[j] >> 32);
+    std::size_t e = j;
+    while (e < m && (a.key[e] >> 32) == c) ++e;
+    const double old = double(g.start(c + 1) - g.start(c)), v = old + double(e - j);
+    a.sum2 += v * v - old * old;
+    a.occupied += old == 0 ? 1 : 0;
+    const std::size_t seg = c >> BHCL_GRID_SEG_BITS;
+    if (seg != last_seg && (g.starts[seg] & BHCL_GRID_EMPTY_SEG)) ++a.new_segments;
+    last_seg = seg;
+    j = e;
+  }
+  return a;
+}
+
+// The directory after the insert: every segment in order, its table ranked in segment order as
+// the build ranks them; start(c) + (new points in cells < c) for every cell.
+blockhash::GridVec<std::uint32_t> two_level_directory(const blockhash::Grid& g, const TwoLevelAdd& a) {
+  constexpr std::uint32_t kSeg = 1u << BHCL_GRID_SEG_BITS;
+  const std::size_t top = blockhash::Grid::top_entries(g.ncells()), m = a.key.size();
+  const std::size_t tables = (g.starts.size() - top) / kSeg + a.new_segments;
+  blockhash::GridVec<std::uint32_t> ns(top + tables * kSeg);
+  std::uint32_t added = 0, rank = 0;
+  std::size_t j = 0;
+  for (std::size_t sg = 0; sg < top; ++sg) {
+    const std::uint32_t e = g.starts[sg];
+    const bool empty = (e & BHCL_GRID_EMPTY_SEG) != 0;
+    const bool gets = j < m && (a.key[j] >> (32 + BHCL_GRID_SEG_BITS)) == sg;
+    if (empty && !gets) {
+      ns[sg] = BHCL_GRID_EMPTY_SEG | ((e & ~BHCL_GRID_EMPTY_SEG) + added);
+      continue;
+    }
+    const std::uint32_t slot = static_cast<std::uint32_t>(top) + rank++ * kSeg;
+    ns[sg] = slot;
+    for (std::uint32_t c = 0; c < kSeg; ++c) {
+      const std::uint64_t cell = (std::uint64_t(sg) << BHCL_GRID_SEG_BITS) | c;
+      ns[slot + c] = (empty ? (e & ~BHCL_GRID_EMPTY_SEG) : g.starts[e + c]) + added;
+      while (j < m && (a.key[j] >> 32) == cell) ++added, ++j;
+    }
+  }
+  return ns;
+}
+
+// The points merged into the scratch arrays (n + m + pad), in parallel over ranges of the sorted
+// new points cut at cell boundaries: a range copies the old slots of its cells, each cell's new
+// points behind its old ones.
+void merge_two_level_points(const blockhash::Grid& g, const float* scaled, std::int32_t first, const TwoLevelAdd& a,
+                            blockhash::GridScratch& sc) {
+  const std::size_t m = a.key.size(), n1 = g.n_points + m;
+  const unsigned T = static_cast<unsigned>(std::min<std::size_t>(detail::default_threads(), std::max<std::size_t>(1, n1 / 65536)));
+  // Range t: new points [kb[t], kb[t + 1]), cells [cb[t], cb[t + 1]).
+  std::vector<std::size_t> kb(T + 1, m), cb(T + 1, g.ncells());
+  kb[0] = 0, cb[0] = 0;
+  for (unsigned t = 1; t < T; ++t) {
+    std::size_t k = std::max(kb[t - 1], std::size_t(t) * m / T);
+    while (k > kb[t - 1] && k < m && (a.key[k] >> 32) == (a.key[k - 1] >> 32)) ++k;  // a cell's first
+    kb[t] = k;
+    cb[t] = k < m ? std::size_t(a.key[k] >> 32) : g.ncells();
+  }
+  const float *const X = g.x.data(), *const Y = g.y.data(), *const Z = g.z.data();
+  const std::int32_t* const I = g.ids.data();
+  float *const X2 = sc.x.data(), *const Y2 = sc.y.data(), *const Z2 = sc.z.data();
+  std::int32_t* const I2 = sc.ids.data();
+  auto copy_old = [&](std::size_t from, std::size_t to, std::size_t shift) {
+    std::memcpy(X2 + from + shift, X + from, (to - from) * 4);
+    std::memcpy(Y2 + from + shift, Y + from, (to - from) * 4);
+    std::memcpy(Z2 + from + shift, Z + from, (to - from) * 4);
+    std::memcpy(I2 + from + shift, I + from, (to - from) * 4);
+  };
+  detail::parallel_for(
+      T,
+      [&](std::size_t tb, std::size_t te) {
+        for (std::size_t t = tb; t < te; ++t) {
+          std::size_t at = g.start(cb[t]);  // the next old slot to copy
+          const std::size_t end = g.start(cb[t + 1]);
+          for (std::size_t j = kb[t]; j < kb[t + 1];) {
+            const std::uint32_t c = static_cast<std::uint32_t>(a.key[j] >> 32);
+            const std::size_t cell_end = g.start(c + 1);
+            copy_old(at, cell_end, j);  // shifted by the new points before this cell
+            at = cell_end;
+            for (; j < kb[t + 1] && (a.key[j] >> 32) == c; ++j) {
+              const std::size_t i = std::size_t(a.key[j] & 0xffffffffu), p = cell_end + j;
+              X2[p] = scaled[3 * i];
+              Y2[p] = scaled[3 * i + 1];
+              Z2[p] = scaled[3 * i + 2];
+              I2[p] = first + static_cast<std::int32_t>(i);
+            }
+          }
+          copy_old(at, end, kb[t + 1]);
+        }
+      },
+      T, 1);
+}
+
 }  // namespace
 
 void GridIndex::insert_stored(const float*, const float* scaled, std::size_t n, std::int32_t first) {
@@ -191,9 +309,7 @@ void GridIndex::grid_upload_from(std::size_t point_from, std::size_t cell_from) 
 void GridIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t first) {
   blockhash::Grid& g = *s_->grid;
   if (g.geom.sparse) {
-    // The two-level directory is not merged in place (its segment tables would move): a fresh
-    // build over the live points and the new ones, as for points off the box.
-    grid_rebuild_live(scaled, m, first, false);
+    grid_insert_two_level(scaled, m, first);
     return;
   }
   if (info_.holes) grid_compact();
@@ -262,6 +378,50 @@ void GridIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t fir
   info_.n_points = n1;
   info_.occupied_cells = occupied;
   info_.mean_cell_points = mean;
+  ++info_.merges;
+}
+
+void GridIndex::grid_insert_two_level(const float* scaled, std::size_t m, std::int32_t first) {
+  blockhash::Grid& g = *s_->grid;
+  const std::size_t n0 = g.n_points, n1 = n0 + m;
+  // The populations counted over the stored slots (holes included), as the build's mean is.
+  const TwoLevelAdd add = two_level_additions(g, scaled, m, info_.mean_cell_points * double(n0), info_.occupied_cells);
+  const double mean = add.sum2 / double(n1);
+  const double entries = double(g.starts.size()) + double(add.new_segments) * double(1u << BHCL_GRID_SEG_BITS);
+  // Past the band (the leaf split), or a directory past its 2^31 entries: one fresh build.
+  if (mean > kRetuneAbove * std::max(1.0, grid_build_mean_) || entries >= double(BHCL_GRID_EMPTY_SEG)) {
+    grid_rebuild_live(scaled, m, first, true);
+    return;
+  }
+  if (!g.scratch) g.scratch = std::make_shared<blockhash::GridScratch>();
+  blockhash::GridScratch& sc = *g.scratch;
+  sc.x.resize(n1 + blockhash::kGridPad);
+  sc.y.resize(n1 + blockhash::kGridPad);
+  sc.z.resize(n1 + blockhash::kGridPad);
+  sc.ids.resize(n1 + blockhash::kGridPad);
+  id_pos_.clear();  // nearly every point moves (as grid_insert's merge)
+  merge_two_level_points(g, scaled, first, add, sc);
+  blockhash::GridVec<std::uint32_t> starts = two_level_directory(g, add);
+  const std::size_t p_from = g.start(std::size_t(add.key.front() >> 32));
+  std::swap(g.starts, starts);
+  std::swap(g.x, sc.x);
+  std::swap(g.y, sc.y);
+  std::swap(g.z, sc.z);
+  std::swap(g.ids, sc.ids);
+  for (std::size_t i = n1; i < n1 + blockhash::kGridPad; ++i) {
+    g.x[i] = g.y[i] = g.z[i] = INFINITY;
+    g.ids[i] = -1;
+  }
+  g.n_points = n1;
+  s_->n_points = n1;
+  for (std::size_t i = 0; i < m; ++i)  // the live points' box
+    blockhash::widen_box(g.dbox, scaled[3 * i], scaled[3 * i + 1], scaled[3 * i + 2]);
+  blockhash::build_grid_occupancy(g, params_.threads);
+  grid_upload_from(p_from, 0);  // the directory's tables moved: all of it
+  info_.n_points = n1;
+  info_.occupied_cells = add.occupied;
+  info_.mean_cell_points = mean;
+  info_.grid_directory_bytes = g.starts.size() * 4;
   ++info_.merges;
 }
 
