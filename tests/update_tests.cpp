@@ -253,6 +253,14 @@ TEST_CASE("updates: brute force's holes are never returned, at any radius or k")
   test::require_identical(r, fresh_answer(few, qs, sp), "bruteforce k 64 over 39 live");
 }
 
+// An insert sets the occupancy pyramid's new bits in place: the pyramid equals one built afresh
+// from the grid's directory.
+void require_pyramid_as_built(const BlockHashIndex& ix) {
+  blockhash::Grid copy = *ix.structure().grid;
+  blockhash::build_grid_occupancy(copy, 1);
+  REQUIRE(copy.occ == ix.structure().grid->occ);
+}
+
 // 64 random queries at A = 2: the kernel equals the host reference and returns no removed id.
 template <typename Rng>
 void budget_kernel_equals_reference(const BlockHashIndex& ix, const Model& m, Rng& rng, const char* what) {
@@ -271,6 +279,7 @@ TEST_CASE("updates: block hashing's grid (exact mode) after random inserts and r
   for (std::size_t step = 0; step < 12; ++step) {
     CAPTURE(step);
     random_step(*ix, m, rng, step);
+    require_pyramid_as_built(*ix);
     check_exact(*ix, m, rng);  // A = 0: the grid's exact mode
     // The host reference sees the same arrays as the kernel.
     budget_kernel_equals_reference(*ix, m, rng, "grid budget A = 2, kernel vs reference");
@@ -1014,6 +1023,7 @@ TEST_CASE("updates: the two-level grid directory merges inserts, exact against b
     CHECK(ix->info().update_rebuilds == rebuilds);
     REQUIRE(ix->info().grid_two_level);
     CHECK(ix->info().grid_directory_bytes >= bytes);
+    require_pyramid_as_built(*ix);
     check_exact(*ix, m, rng);
     budget_kernel_equals_reference(*ix, m, rng, "two-level merge A = 2, kernel vs reference");
   };
