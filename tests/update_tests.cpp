@@ -1057,3 +1057,35 @@ TEST_CASE("updates: the two-level grid directory merges inserts, exact against b
   CHECK(ix->info().update_rebuilds == rebuilds + 1);
   check_exact(*ix, m, rng);
 }
+
+// Issue 39: a large insert that a sample shows past the band goes to one fresh build without the
+// exact count of its cells; the build reads the new points where they are (ids first + i, no
+// copy): one build, answers bit-exact against brute force.
+TEST_CASE("updates: a large insert past the grid's band is one fresh build, exact against brute force") {
+  std::mt19937_64 rng(395);
+  Model m;
+  // The points fill x < 0.5 of the unit cube (its corners are points too: the grid spans it).
+  std::vector<float> p0 = uniform(rng, 200000, 0.0f, 1.0f);
+  for (std::size_t i = 0; i < p0.size(); i += 3) p0[i] *= 0.5f;
+  const std::vector<float> corners = {0.0f, 0.0f, 0.0f, 1.0f, 1.0f, 1.0f};
+  p0.insert(p0.end(), corners.begin(), corners.end());
+  m.add(p0);
+  auto ix = blockhash_over(p0);
+  REQUIRE(ix->info().grid);
+  auto half = [&](std::size_t n, float x0) {
+    std::vector<float> p = uniform(rng, n, 0.01f, 0.99f);
+    for (std::size_t i = 0; i < p.size(); i += 3) p[i] = x0 + 0.49f * p[i];
+    return p;
+  };
+  insert_both(*ix, m, half(80000, 0.0f));  // 40 % more where the points are
+  CHECK(ix->info().update_rebuilds == 1);
+  CHECK(ix->info().retunes == 1);
+  CHECK(ix->info().merges == 0);
+  check_exact(*ix, m, rng);
+  budget_kernel_equals_reference(*ix, m, rng, "grid A = 2 after a large insert's build, kernel vs reference");
+  // As many again, sparser, into the empty half: the population falls, so the insert merges.
+  insert_both(*ix, m, half(70000, 0.5f));
+  CHECK(ix->info().update_rebuilds == 1);
+  CHECK(ix->info().merges == 1);
+  check_exact(*ix, m, rng);
+}

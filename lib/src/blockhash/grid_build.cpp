@@ -282,9 +282,10 @@ void for_input(const GridInput& in, std::size_t b, std::size_t e, F&& f) {
   for (std::size_t i = b, se = std::min(e, in.n_soa); i < se; ++i) f(i, X[i], Y[i], Z[i], SI[i]);
   const float* const P = in.xyz;
   const std::int32_t* const AI = in.aos_ids;
+  const std::int64_t id0 = in.aos_first >= 0 ? in.aos_first - std::int64_t(in.n_soa) : 0;  // id = i + id0
   for (std::size_t i = std::max(b, in.n_soa); i < e; ++i) {
     const std::size_t j = i - in.n_soa;
-    f(i, P[3 * j], P[3 * j + 1], P[3 * j + 2], AI ? AI[j] : static_cast<std::int32_t>(i));
+    f(i, P[3 * j], P[3 * j + 1], P[3 * j + 2], AI ? AI[j] : static_cast<std::int32_t>(std::int64_t(i) + id0));
   }
 }
 
