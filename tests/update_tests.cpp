@@ -1088,4 +1088,15 @@ TEST_CASE("updates: a large insert past the grid's band is one fresh build, exac
   CHECK(ix->info().update_rebuilds == 1);
   CHECK(ix->info().merges == 1);
   check_exact(*ix, m, rng);
+  // Two more, 5 % each over the whole cube: the arrays' room (an eighth, kept by the merge above)
+  // takes them in place, in parallel over ranges of cells whose heads the range before overwrites.
+  for (int i = 0; i < 2; ++i) {
+    CAPTURE(i);
+    insert_both(*ix, m, uniform(rng, 17500, 0.01f, 0.99f));
+    CHECK(ix->info().update_rebuilds == 1);
+    CHECK(ix->info().merges == std::size_t(2 + i));
+    require_pyramid_as_built(*ix);
+    check_exact(*ix, m, rng);
+    budget_kernel_equals_reference(*ix, m, rng, "grid A = 2 after a merge in place, kernel vs reference");
+  }
 }

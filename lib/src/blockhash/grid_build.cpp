@@ -32,9 +32,15 @@ double since(std::chrono::steady_clock::time_point t0) {
 // v sized n, its old contents not kept: a vector growing past its capacity is freed first, so
 // that the build neither copies the previous build's arrays into the new ones (a 25 % insert's
 // rebuild copied 16 MB of records it then overwrote) nor holds both at once.
+// room: the capacity an allocation reserves past n, in eighths of n (the point arrays keep an
+// eighth so that an insert merges in place, grid_update.cpp; capacity never written is never
+// faulted in, so it costs address space only).
 template <typename T>
-void resize_discarding(GridVec<T>& v, std::size_t n) {
-  if (v.capacity() < n) GridVec<T>().swap(v);
+void resize_discarding(GridVec<T>& v, std::size_t n, std::size_t room_eighths = 0) {
+  if (v.capacity() < n) {
+    GridVec<T>().swap(v);
+    v.reserve(n + n / 8 * room_eighths);
+  }
   v.resize(n);
 }
 
@@ -523,10 +529,10 @@ void size_arrays(const Buckets& bk, const std::vector<std::uint32_t>& seg_base, 
     g.starts[bk.ncells] = static_cast<std::uint32_t>(n);
     g.starts[0] = 0;
   }
-  resize_discarding(g.x, n + kGridPad);
-  resize_discarding(g.y, n + kGridPad);
-  resize_discarding(g.z, n + kGridPad);
-  resize_discarding(g.ids, n + kGridPad);
+  resize_discarding(g.x, n + kGridPad, 1);
+  resize_discarding(g.y, n + kGridPad, 1);
+  resize_discarding(g.z, n + kGridPad, 1);
+  resize_discarding(g.ids, n + kGridPad, 1);
 }
 
 // Pass 3: each bucket on its own, in parallel over buckets: its cells' counts, its part of the

@@ -303,6 +303,101 @@ void merge_two_level_points(const blockhash::Grid& g, const float* scaled, std::
       T, 1);
 }
 
+// v's capacity at least n, with an eighth more when it must grow: a merge's arrays keep room for
+// the next insert's merge in place (room not written is never faulted in).
+template <typename T>
+void reserve_with_room(blockhash::GridVec<T>& v, std::size_t n) {
+  if (v.capacity() < n) {
+    blockhash::GridVec<T>().swap(v);  // the old contents are not kept (the caller writes all of it)
+    v.reserve(n + n / 8);
+  }
+}
+
+// The merge in place, into the arrays' room past their points: each cell's run moved right by the
+// new points of the cells before it (add[c]), from the last cell down, its new points behind it.
+// In parallel over ranges of cells: range t writes up to add[c0] slots into the head of range
+// t + 1's slots, so those heads are saved first and read from the copy. No fresh memory is
+// faulted in but the room the new points take (the out-of-place merge's four new arrays, 17.6 MB
+// for a 10 % insert into 1M points, were most of its time: the kernel zeroes every new page).
+// Returns false (nothing changed) where the arrays have no room or a range is shorter than the
+// head it must save.
+bool merge_in_place(blockhash::Grid& g, const float* scaled, std::size_t m, std::int32_t first,
+                    const std::vector<std::uint32_t>& add, const std::vector<std::uint32_t>& order, std::size_t first_cell) {
+  const std::size_t nc = g.ncells(), n1 = g.n_points + m, want = n1 + blockhash::kGridPad;
+  if (g.x.capacity() < want || g.y.capacity() < want || g.z.capacity() < want || g.ids.capacity() < want) return false;
+  const std::uint32_t* const st = g.starts.data();
+  const unsigned T = static_cast<unsigned>(std::min<std::size_t>(detail::default_threads(), std::max<std::size_t>(1, n1 / 65536)));
+  std::vector<std::size_t> cut(T + 1, nc);
+  cut[0] = first_cell;
+  for (unsigned t = 1, c = unsigned(first_cell); t < T; ++t) {
+    const std::size_t from = std::size_t(st[first_cell]) + add[first_cell];
+    const std::size_t want_out = from + std::size_t(t) * (n1 - from) / T;
+    while (c < nc && std::size_t(st[c]) + add[c] < want_out) ++c;
+    cut[t] = std::max<std::size_t>(c, cut[t - 1]);
+  }
+  // The heads range t - 1 writes over: [st[c0], st[c0] + add[c0]) of each range t >= 1.
+  struct Head {
+    std::size_t lo = 0, n = 0;
+    std::vector<float> x, y, z;
+    std::vector<std::int32_t> ids;
+  };
+  std::vector<Head> head(T);
+  for (unsigned t = 1; t < T; ++t) {
+    const std::size_t c0 = cut[t], lo = st[c0], n = add[c0];
+    if (n > std::size_t(st[cut[t + 1]]) - lo) return false;  // a range shorter than its head
+    Head& h = head[t];
+    h.lo = lo, h.n = n;
+    h.x.assign(g.x.begin() + lo, g.x.begin() + lo + n);
+    h.y.assign(g.y.begin() + lo, g.y.begin() + lo + n);
+    h.z.assign(g.z.begin() + lo, g.z.begin() + lo + n);
+    h.ids.assign(g.ids.begin() + lo, g.ids.begin() + lo + n);
+  }
+  g.x.resize(want);  // within capacity: the pointers stay
+  g.y.resize(want);
+  g.z.resize(want);
+  g.ids.resize(want);
+  float *const X = g.x.data(), *const Y = g.y.data(), *const Z = g.z.data();
+  std::int32_t* const I = g.ids.data();
+  const std::uint32_t* const ad = add.data();
+  const std::uint32_t* const ord = order.data();
+  detail::parallel_for(
+      T,
+      [&](std::size_t tb, std::size_t te) {
+        for (std::size_t t = tb; t < te; ++t) {
+          const Head& h = head[t];
+          const std::size_t saved_end = h.lo + h.n;
+          for (std::size_t c = cut[t + 1]; c-- > cut[t];) {
+            const std::size_t a = st[c], len = st[c + 1] - a, dst = a + ad[c], k = ad[c + 1] - ad[c];
+            for (std::size_t j = 0; j < k; ++j) {  // the new points, behind the cell's old ones
+              const std::uint32_t i = ord[ad[c] + j];
+              const std::size_t p = dst + len + j;
+              X[p] = scaled[3 * i];
+              Y[p] = scaled[3 * i + 1];
+              Z[p] = scaled[3 * i + 2];
+              I[p] = first + static_cast<std::int32_t>(i);
+            }
+            if (ad[c] == 0 || len == 0) continue;  // the run stays where it is
+            // The run's slots past the saved head move within the arrays (right, overlapping:
+            // memmove); those in it come from the copy.
+            const std::size_t from = std::max(a, std::min(saved_end, a + len));
+            std::memmove(X + dst + (from - a), X + from, (a + len - from) * 4);
+            std::memmove(Y + dst + (from - a), Y + from, (a + len - from) * 4);
+            std::memmove(Z + dst + (from - a), Z + from, (a + len - from) * 4);
+            std::memmove(I + dst + (from - a), I + from, (a + len - from) * 4);
+            if (from > a) {
+              const std::size_t o = a - h.lo;
+              std::memcpy(X + dst, h.x.data() + o, (from - a) * 4);
+              std::memcpy(Y + dst, h.y.data() + o, (from - a) * 4);
+              std::memcpy(Z + dst, h.z.data() + o, (from - a) * 4);
+              std::memcpy(I + dst, h.ids.data() + o, (from - a) * 4);
+            }
+          }
+        }
+      },
+      T, 1);
+  return true;
+}
+
 // Whether the cells' point-weighted mean population after inserting the m points is, by a
 // strided sample of 16384 of them, more than 1.1x past `limit`: a sample cell's count a' of a
 // cell's a new points is binomial(a, f), so sum 2 o a' / f + (sum a'^2 - (1 - f) s) / f^2
@@ -433,28 +528,32 @@ void GridIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t fir
     std::vector<std::uint32_t> at(add.begin(), add.end() - 1);
     for (std::size_t i = 0; i < m; ++i) order[at[cell[i]]++] = static_cast<std::uint32_t>(i);
   }
-  // Out of place, in parallel over ranges of cells: each cell's run is copied to its new start
-  // (the old start plus the new points of the cells before it) with its new points behind it,
-  // into the scratch arrays, which then change places with the grid's. The in-place backward
-  // pass this replaces was serial (half a fresh build's time for a 10 % insert).
-  if (!g.scratch) g.scratch = std::make_shared<blockhash::GridScratch>();
-  blockhash::GridScratch& sc = *g.scratch;
-  sc.x.resize(n1 + blockhash::kGridPad);
-  sc.y.resize(n1 + blockhash::kGridPad);
-  sc.z.resize(n1 + blockhash::kGridPad);
-  sc.ids.resize(n1 + blockhash::kGridPad);
   // An insert moves nearly every point: the id -> position map is dropped, and the next remove
   // (the one reader) makes it again in one parallel pass. Kept up to date here, its random
   // writes cost more than the merge itself.
   id_pos_.clear();
-  merge_into_scratch(g, scaled, m, first, add, order, first_cell, sc);
+  // In place where the arrays have room (the build reserves an eighth more), else out of place
+  // into the scratch arrays (room reserved there too), which then change places with the grid's.
+  // Both in parallel over ranges of cells (the in-place backward pass they replace was serial:
+  // half a fresh build's time for a 10 % insert).
+  if (!merge_in_place(g, scaled, m, first, add, order, first_cell)) {
+    if (!g.scratch) g.scratch = std::make_shared<blockhash::GridScratch>();
+    blockhash::GridScratch& sc = *g.scratch;
+    for (auto* v : {&sc.x, &sc.y, &sc.z}) reserve_with_room(*v, n1 + blockhash::kGridPad);
+    reserve_with_room(sc.ids, n1 + blockhash::kGridPad);
+    sc.x.resize(n1 + blockhash::kGridPad);
+    sc.y.resize(n1 + blockhash::kGridPad);
+    sc.z.resize(n1 + blockhash::kGridPad);
+    sc.ids.resize(n1 + blockhash::kGridPad);
+    merge_into_scratch(g, scaled, m, first, add, order, first_cell, sc);
+    std::swap(g.x, sc.x);
+    std::swap(g.y, sc.y);
+    std::swap(g.z, sc.z);
+    std::swap(g.ids, sc.ids);
+  }
   // The new starts, once every range has read the old ones.
   for (std::size_t c = first_cell; c < nc; ++c) g.starts[c] += add[c];
   g.starts[nc] = static_cast<std::uint32_t>(n1);
-  std::swap(g.x, sc.x);
-  std::swap(g.y, sc.y);
-  std::swap(g.z, sc.z);
-  std::swap(g.ids, sc.ids);
   for (std::size_t i = n1; i < n1 + blockhash::kGridPad; ++i) {
     g.x[i] = g.y[i] = g.z[i] = INFINITY;
     g.ids[i] = -1;
