@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <new>
 #include <string>
@@ -121,6 +122,9 @@ struct GridInput {
   const std::int32_t* aos_ids = nullptr;
   std::int64_t aos_first = -1;
   std::size_t n_aos = 0;
+  // Called once the build has read the points (before it sizes its arrays): an update's rebuild
+  // frees the old grid's arrays there, so that the new ones may take their memory.
+  std::function<void()> release;
   std::size_t size() const { return n_soa + n_aos; }
 };
 

@@ -310,7 +310,7 @@ Buckets bucket_records(const GridInput& in, const bhcl_grid_geom& geom, unsigned
   const std::size_t nb = bk.nb = ((bk.ncells - 1) >> shift) + 1;
   const unsigned T = static_cast<unsigned>(std::min<std::size_t>(threads, std::max<std::size_t>(1, n / 65536)));
   const std::size_t per = (n + T - 1) / T;
-  resize_discarding(sc.cell, n);
+  resize_discarding(sc.cell, n, 2);  // a quarter of room: a rebuild after a large insert reuses it
   std::vector<std::uint32_t> hist(std::size_t(T) * nb, 0);
   detail::parallel_for(
       T,
@@ -346,7 +346,7 @@ Buckets bucket_records(const GridInput& in, const bhcl_grid_geom& geom, unsigned
     }
     bstart[b + 1] = s;
   }
-  resize_discarding(sc.rec, 4 * n);
+  resize_discarding(sc.rec, 4 * n, 2);
   detail::parallel_for(
       T,
       [&](std::size_t tb, std::size_t te) {
@@ -595,6 +595,7 @@ void build_grid(const GridInput& in, const GridBuildArgs& p, Grid& g, GridBuildS
   if (!g.scratch) g.scratch = std::make_shared<GridScratch>();
   GridScratch& sc = *g.scratch;
   const Buckets bk = bucket_records(in, geom, threads, sc, st);
+  if (in.release) in.release();  // the input is read: its memory can go before the arrays are sized
 
   t0 = std::chrono::steady_clock::now();
   g.geom = geom;

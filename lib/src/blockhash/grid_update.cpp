@@ -911,6 +911,10 @@ void GridIndex::grid_rebuild_live(const float* extra, std::size_t m, std::int32_
     g.scratch->ids = blockhash::GridVec<std::int32_t>();
   }
   in.x = ox.data(), in.y = oy.data(), in.z = oz.data(), in.soa_ids = oids.data(), in.n_soa = oids.size();
+  in.release = [&] {  // read by the build's first pass: freed before it allocates the new arrays
+    ox = blockhash::GridVec<float>(), oy = blockhash::GridVec<float>(), oz = blockhash::GridVec<float>();
+    oids = blockhash::GridVec<std::int32_t>();
+  };
   if (phantoms) in.xyz = add.data(), in.aos_ids = add_ids.data(), in.n_aos = add_ids.size();
   else in.xyz = extra, in.aos_first = first, in.n_aos = m;
   const blockhash::UpdateCounters keep(info_);
