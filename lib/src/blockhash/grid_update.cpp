@@ -9,18 +9,19 @@
 //    points they are compacted (one stable pass, in place).
 //  - insert, points inside the grid's box: the B+ tree's leaf insert done in bulk. A counting
 //    sort of the new points alone into the existing cells, then one parallel pass over ranges of
-//    cells copying each cell's run to its new start (moved right by the new points before it) with
-//    its new points behind it, into scratch arrays that then change places with the grid's (O(N)
-//    copies, no tuning, no sort of the old points; 16 B per point of scratch kept for the next
-//    insert). Ids stay ascending inside a cell (new ids are larger), as a fresh build's stable
-//    scatter gives them.
+//    cells moving each cell's run to its new start (moved right by the new points before it) with
+//    its new points behind it: in place where the arrays have room (the build reserves an eighth),
+//    else into scratch arrays that then change places with the grid's (O(N) moves, no tuning, no
+//    sort of the old points). The two-level directory merges the same way (merge_two_level_points,
+//    its starts moved in place). Ids stay ascending inside a cell (new ids are larger), as a fresh
+//    build's stable scatter gives them.
 //  - the leaf split: a cell side tuned for a population (target_cell_points) stops fitting when
 //    the set grows or shrinks; once the point-weighted mean cell population drifts past 1.1x (or
 //    below 0.9x) of the last full build's, the grid is rebuilt over the live points with a freshly
 //    tuned side. Growth by doubling keeps the amortised cost per point O(1).
 //  - points outside the grid's box: a full build over the live points (the slab bounds, and so
 //    the exact mode, rely on every point lying inside its cell). Every full build an update makes
-//    (this one, the band's, the two-level directory's) is one fresh build with the build's own
+//    (this one, the band's) is one fresh build with the build's own
 //    parameters, never two: no update costs more than building its result afresh (issue 39).
 //  - device buffers: the changed tail of each array written in place where it fits, reallocated
 //    with capacity grown by half where not (upload_grid); on a host-in-place device (PoCL's CPU
