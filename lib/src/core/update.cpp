@@ -179,13 +179,19 @@ void Index::remove(const std::int32_t* ids, std::size_t n) {
   std::vector<float> saved;
   const bool keep_points = exact() && !caller_points_.empty();
   if (keep_points) {
-    saved.reserve(3 * n);
-    for (std::int32_t id : sorted)
+    saved.resize(3 * n);
+    // Each id's row is a cache miss (a tenth of 1M ids: 43 % of a brute-force remove, perf); a
+    // prefetch some ids ahead overlaps them.
+    constexpr std::size_t kAhead = 64;
+    float* cp = caller_points_.data();
+    for (std::size_t i = 0; i < n; ++i) {
+      if (i + kAhead < n) __builtin_prefetch(cp + 3 * std::size_t(sorted[i + kAhead]), 1);
+      float* c = cp + 3 * std::size_t(sorted[i]);
       for (int d = 0; d < 3; ++d) {
-        float& c = caller_points_[3 * std::size_t(id) + d];
-        saved.push_back(c);
-        c = NAN;
+        saved[3 * i + std::size_t(d)] = c[d];
+        c[d] = NAN;
       }
+    }
   }
   try {
     remove_points(sorted.data(), n);
