@@ -1,0 +1,45 @@
+#!/usr/bin/env python3
+"""Summarises frame_build_ab.sh's rounds: per row, block hashing's ratio to the kd-tree in each
+process (build: build_bench's x_kdtree; frame: frame_bench's /kdtree), the median over the
+alternations for before (7f729ba) and after (today), and after / before (< 1: faster today)."""
+import glob
+import os
+import statistics
+import sys
+
+d = sys.argv[1] if len(sys.argv) > 1 else "bench/results/far/frame_build_rounds"
+
+
+def build_rows(path):
+    out = {}
+    for line in open(path):
+        f = line.split()
+        if len(f) > 6 and f[2] == "blockhash" and f[1].isdigit():
+            out[f"build {f[0]} {f[1]}"] = float(f[6])
+    return out
+
+
+def frame_rows(path):
+    out = {}
+    for line in open(path):
+        f = line.split()
+        if len(f) >= 5 and f[0].startswith("blockhash"):
+            out[f"frame cornell 1M k50 ({f[0]})"] = float(f[4])
+    return out
+
+
+table = {}
+for side in ("before", "after"):
+    for p in sorted(glob.glob(os.path.join(d, f"build_{side}_*.txt"))):
+        for k, v in build_rows(p).items():
+            table.setdefault(k, {}).setdefault(side, []).append(v)
+    for p in sorted(glob.glob(os.path.join(d, f"frame_{side}_*.txt"))):
+        for k, v in frame_rows(p).items():
+            table.setdefault(k, {}).setdefault(side, []).append(v)
+print(f"{'row':34s} {'before/kd':>10s} {'after/kd':>10s} {'after/before':>13s} {'n':>3s}")
+for k, v in table.items():
+    b, a = v.get("before", []), v.get("after", [])
+    if not b or not a:
+        continue
+    mb, ma = statistics.median(b), statistics.median(a)
+    print(f"{k:34s} {mb:10.3f} {ma:10.3f} {ma / mb:13.3f} {min(len(a), len(b)):3d}")
