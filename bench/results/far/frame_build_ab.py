@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Summarises frame_build_ab.sh's rounds: per row, block hashing's ratio to the kd-tree in each
-process (build: build_bench's x_kdtree; frame: frame_bench's /kdtree), the median over the
+process (build: build_bench's build_s over the kd-tree's; frame: frame_bench's /kdtree), the median over the
 alternations for before (7f729ba) and after (today), and after / before (< 1: faster today)."""
 import glob
 import os
@@ -11,12 +11,14 @@ d = sys.argv[1] if len(sys.argv) > 1 else "bench/results/far/frame_build_rounds"
 
 
 def build_rows(path):
-    out = {}
+    # build_s of block hashing over the kd-tree's in the same run (x_kdtree is printed to 2 decimals)
+    s = {}
     for line in open(path):
         f = line.split()
-        if len(f) > 6 and f[2] == "blockhash" and f[1].isdigit():
-            out[f"build {f[0]} {f[1]}"] = float(f[6])
-    return out
+        if len(f) > 6 and f[1].isdigit() and f[2] in ("blockhash", "kdtree"):
+            s[(f[0], f[1], f[2])] = float(f[3])
+    return {f"build {d} {n}": v / s[(d, n, "kdtree")] for (d, n, m), v in s.items()
+            if m == "blockhash" and (d, n, "kdtree") in s}
 
 
 def frame_rows(path):
