@@ -233,7 +233,10 @@ struct QueryStats {
   // The call's stages, in order (host clock unless said): the queries' Hilbert order, the upload
   // (the queries gathered in that order into the buffer the kernel reads: zero-copy on a CPU
   // device), the kernel (query_s), the download (results mapped, or copied from a GPU), the
-  // unsort (rows scattered to the caller's order with the exact check), the rest in wall_s.
+  // unsort (on a CPU device the kernel wrote each row at the caller's row: only the exact check
+  // over the rows and a rescale at extreme scales; on a GPU the rows' scatter to the caller's
+  // order with that check), the rest in wall_s. The first call's program load (compile_s) runs
+  // beside the sort, so the stages can sum to more than wall_s.
   double sort_s = 0.0;
   double upload_s = 0.0;
   double query_s = 0.0;    // kernel execution (event times), compile excluded
