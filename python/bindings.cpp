@@ -325,6 +325,52 @@ std::size_t prefetch_rows() {
   return static_cast<std::size_t>(v[0] - '0');
 }
 
+// Whether refine_knn checks each row for already being in float64 (distance, id) order and then
+// copies its first k out without sorting (the default): BHCL_REFINE_IN_ORDER=0 sends every row
+// through the sort as before, for measuring the difference in one process (bench/refine_bench.py).
+bool in_order_path() {
+  const char* v = std::getenv("BHCL_REFINE_IN_ORDER");
+  return !(v && v[0] == '0');
+}
+
+// The float64 points of one row of candidates asked for ahead of their use. An id outside the
+// points (-1: missing, or bad: reported by the row's own pass) is skipped by one unsigned compare.
+// A point's 24 bytes may straddle two cache lines: both are asked for.
+inline void prefetch_points(const double* pd, std::size_t np, const std::int32_t* ir, std::size_t kc) {
+  for (std::size_t j = 0; j < kc; ++j) {
+    const auto i = static_cast<std::uint32_t>(ir[j]);
+    if (i < np) {
+      __builtin_prefetch(pd + 3 * static_cast<std::size_t>(i));
+      __builtin_prefetch(pd + 3 * static_cast<std::size_t>(i) + 2);
+    }
+  }
+}
+
+// A row's float64 distances, the first k written to od (the output row), the rest to tail; a
+// missing id (< 0) gives HUGE_VAL, an id past the points HUGE_VAL and `bad`. Returns whether the
+// row is in (distance, id) order with missing last (the float32 order nearly always is), so that
+// its first k are its k nearest as they stand. One pass, no (distance, id) pairs built: the
+// rows' sort and pair copies took about half of the refinement's instructions.
+inline bool distances_in_order(const double* qr, const double* pd, std::size_t np, const std::int32_t* ir,
+                               std::size_t kc, std::size_t kk, double* od, double* tail, bool& bad) {
+  double prev = -HUGE_VAL;
+  std::int32_t prev_key = INT32_MIN;
+  bool ordered = true;
+  for (std::size_t j = 0; j < kc; ++j) {
+    const std::int32_t i = ir[j];
+    const auto u = static_cast<std::uint32_t>(i);
+    const bool in = u < np;
+    bad |= i >= 0 && !in;
+    const double d = in ? dist2_64(qr, pd + 3 * static_cast<std::size_t>(u)) : HUGE_VAL;
+    const std::int32_t key = i >= 0 ? i : INT32_MAX;  // the sort's key for missing: after every id
+    ordered &= (d > prev) | ((d == prev) & (key >= prev_key));  // false for NaN: the sort decides
+    prev = d;
+    prev_key = key;
+    (j < kk ? od[j] : tail[j - kk]) = d;
+  }
+  return ordered;
+}
+
 // ids (n, kc) int32 (-1: missing) -> the first k of each row by float64 (distance, id): (d2 (n, k)
 // float64, ids (n, k) int32, found (n,) int32: the ids >= 0 of each row); missing are inf and -1.
 py::tuple refine_knn(const py::array_t<double, py::array::c_style>& q, const py::array_t<double, py::array::c_style>& pts,
@@ -351,41 +397,47 @@ py::tuple refine_knn(const py::array_t<double, py::array::c_style>& q, const py:
     // was measured 2x slower on the UTM case: the gathers hit the cache anyway, and the rows'
     // reads and writes scatter.)
     const std::size_t ahead = prefetch_rows();
+    const bool in_order = in_order_path();
     over_rows(n, n * kc, [&](std::size_t a, std::size_t b) {
       std::vector<std::pair<double, std::int32_t>> row(kc);
+      std::vector<double> tail(kc - kk + 1);
+      bool row_bad = false;
       for (std::size_t r = a; r < b; ++r) {
         const double* qr = qd + 3 * r;
         const std::int32_t* ir = id + r * kc;
+        double* odr = &od[r * kk];
+        std::int32_t* oir = &oi[r * kk];
         // The candidates of the row `ahead` rows on requested now, so that their cache misses
         // overlap this row's work: perf put 3/4 of the refinement's samples on the gathers' loads
         // (a row's points lie anywhere in the float64 copy, and the search has just been through
-        // the cache). A point's 24 bytes may straddle two cache lines: both are asked for.
-        if (ahead && r + ahead < b)
-          for (std::size_t j = 0; j < kc; ++j) {
-            const std::int32_t i = ir[ahead * kc + j];
-            if (i >= 0 && static_cast<std::size_t>(i) < np) {
-              __builtin_prefetch(pd + 3 * static_cast<std::size_t>(i));
-              __builtin_prefetch(pd + 3 * static_cast<std::size_t>(i) + 2);
-            }
+        // the cache).
+        if (ahead && r + ahead < b) prefetch_points(pd, np, ir + ahead * kc, kc);
+        if (distances_in_order(qr, pd, np, ir, kc, kk, odr, tail.data(), row_bad) && in_order) {
+          std::int32_t live = 0;
+          for (std::size_t j = 0; j < kk; ++j) {
+            const std::int32_t i = ir[j];
+            oir[j] = i < 0 ? -1 : i;
+            live += i >= 0 ? 1 : 0;
           }
-        for (std::size_t j = 0; j < kc; ++j) {
-          const std::int32_t i = ir[j];
-          const bool in = i >= 0 && static_cast<std::size_t>(i) < np;
-          if (i >= 0 && !in) bad = true;
-          row[j] = {in ? dist2_64(qr, pd + 3 * static_cast<std::size_t>(i)) : HUGE_VAL, i >= 0 ? i : INT32_MAX};
+          found[r] = live;
+          continue;
         }
+        // Out of order (a near-tie the float64 distances reorder): (distance, id) pairs sorted.
+        for (std::size_t j = 0; j < kc; ++j)
+          row[j] = {j < kk ? odr[j] : tail[j - kk], ir[j] >= 0 ? ir[j] : INT32_MAX};
         // Insertion sort: the float32 order is nearly always the float64 one already.
         for (std::size_t j = 1; j < kc; ++j)
           for (std::size_t m = j; m > 0 && row[m] < row[m - 1]; --m) std::swap(row[m], row[m - 1]);
         std::int32_t live = 0;
         for (std::size_t j = 0; j < kk; ++j) {
           const bool missing = row[j].second == INT32_MAX;
-          od[r * kk + j] = row[j].first;
-          oi[r * kk + j] = missing ? -1 : row[j].second;
+          odr[j] = row[j].first;
+          oir[j] = missing ? -1 : row[j].second;
           live += missing ? 0 : 1;
         }
         found[r] = live;
       }
+      if (row_bad) bad = true;
     });
   }
   if (bad) throw py::value_error("refine_knn: an id past the points");
