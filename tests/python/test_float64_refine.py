@@ -194,3 +194,24 @@ def test_refine_knn_ordered_and_shuffled_rows_vs_numpy(monkeypatch, in_order):
     bad[3, 2] = 400
     with pytest.raises(ValueError, match="id past the points"):
         _core.refine_knn(q64, p64, bad, k)
+
+
+@pytest.mark.parametrize("method", EXACT)
+def test_refined_max_radius_counts_are_the_ids_found_vs_scipy(utm, method):
+    """A refined query with max_radius: each row's count is its ids found within it (rows with
+    fewer than k there included: their missing entries are not subtracted again), the rows as
+    scipy's distance_upper_bound gives them (scipy's is strict: its bound just above r)."""
+    pts, q, tree = utm
+    index = bh.make_index(method, pts)
+    r, k = 5.0, 10
+    d2, ids, counts = index.query(q, k=k, max_radius=r, return_counts=True)
+    assert np.all(counts >= 0)
+    np.testing.assert_array_equal(counts, np.sum(ids >= 0, axis=1))
+    ref_d, ref_i = tree.query(q, k=k, distance_upper_bound=np.nextafter(r, np.inf))
+    np.testing.assert_array_equal(counts, np.sum(np.isfinite(ref_d), axis=1))
+    assert 0 < np.mean(counts < k) < 1  # rows short of k and full rows both met
+    d = np.sqrt(d2)
+    np.testing.assert_array_equal(np.isfinite(d), np.isfinite(ref_d))  # missing where scipy's are
+    fin = np.isfinite(ref_d)
+    d, ref_d = np.where(fin, d, 1.0), np.where(fin, ref_d, 1.0)  # missing entries compared as equal
+    assert np.all(rows_right(d, np.where(ids >= 0, ids, len(pts)), ref_d, ref_i))
