@@ -85,7 +85,7 @@ def main():
             # Warm-up: the kernels of k + 1 and of a re-search's 2 (k + 1) candidates compiled.
             for idx, kk in ((refined, k), (plain, k), (plain, min(bh.MAX_K, 2 * (k + 1)))):
                 idx.query(qs[:64], k=kk)
-            rec = {v: {"wall": [], "share": [], "cshare": [], "rs": [], "ratio": [], "cratio": []} for v in variants}
+            rec = {v: {"wall": [], "share": [], "cshare": [], "rs": [], "rcpu": [], "ratio": [], "cratio": []} for v in variants}
             for r in range(a.rounds):
                 order = variants if r % 2 == 0 else variants[::-1]
                 walls, cpus = {}, {}
@@ -96,6 +96,7 @@ def main():
                     rec[v]["share"].append(st.get("refine_share", 0.0))
                     rec[v]["cshare"].append(st.get("refine_cpu_share", 0.0))
                     rec[v]["rs"].append(st.get("refine_s", 0.0))
+                    rec[v]["rcpu"].append(st.get("refine_cpu_s", 0.0))
                 for v in variants:
                     rec[v]["ratio"].append(walls[v] / walls["float32"])
                     rec[v]["cratio"].append(cpus[v] / cpus["float32"])

@@ -3,8 +3,11 @@
 
 Runs bench/refine_bench.py one round at a time, alternately with PYTHONPATH set to an old build's
 package and to a new one's (a process each: two builds of the _core module cannot share one
-process), and gives per method and k the medians over the rounds of each build's refine_share and
-refine_s (the default refined query) and of the per-round ratios new / old of refine_s and of
+process; each process runs two rounds and the second is kept: a fresh process's first call of a
+variant faults in its output pages, the buffer pool being empty, which hid the difference), and
+gives per method and k the medians over the rounds of each build's refine_share and
+refine_s (the default refined query) and of the per-round ratios new / old of refine_s, of
+refine_cpu_s (the process's CPU time over the refinement: less swayed by the load) and of
 the refined wall time over the same process's float32 wall time (the whole cost of float64
 answers). On a shared machine the per-round ratios are the figures to quote.
 
@@ -29,12 +32,12 @@ from python_bench import write_atomic  # noqa: E402  (the benches' one atomic wr
 
 
 def one_round(pythonpath, bench_args):
-    """refine_bench.py's records of one round run with this PYTHONPATH."""
+    """refine_bench.py's records of two rounds run with this PYTHONPATH (the second is used)."""
     fd, out = tempfile.mkstemp(prefix="refine_old_new.", suffix=".json")
     os.close(fd)
     try:
         env = dict(os.environ, PYTHONPATH=pythonpath)
-        subprocess.run([sys.executable, os.path.join(HERE, "refine_bench.py"), "--rounds", "1", "--json", out]
+        subprocess.run([sys.executable, os.path.join(HERE, "refine_bench.py"), "--rounds", "2", "--json", out]
                        + bench_args, env=env, check=True, stdout=subprocess.DEVNULL)
         with open(out) as f:
             return json.load(f)
@@ -60,20 +63,23 @@ def main():
             header = header or got["header"]
             runs[build].append({(x["method"], x["k"]): x["rec"] for x in got["records"]})
         print(f"round {r + 1}/{a.rounds} done", file=sys.stderr, flush=True)
-    lines = [header.replace("median of 1 rounds", f"old and new build alternated, {a.rounds} rounds each"),
+    lines = [header.replace("median of 2 rounds", f"old and new build alternated, {a.rounds} rounds each (a process "
+                                                 "each, its second round kept)"),
              "| method | k | old refine_share | new refine_share | old refine_s | new refine_s | "
-             "new / old refine_s (min-max) | old wall / float32 | new wall / float32 | "
-             "new / old of wall / float32 |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "new / old refine_s (min-max) | new / old refine_cpu_s (min-max) | old wall / float32 | "
+             "new wall / float32 | new / old of wall / float32 |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for key in runs["new"][0]:
         def per_round(build, field):
-            return np.array([rnd[key]["refined"][field][0] for rnd in runs[build]])
+            return np.array([rnd[key]["refined"][field][-1] for rnd in runs[build]])
         rs_ratio = per_round("new", "rs") / per_round("old", "rs")
         wall_ratio = per_round("new", "ratio") / per_round("old", "ratio")
+        cpu_ratio = per_round("new", "rcpu") / per_round("old", "rcpu")
         lines.append(f"| {key[0]} | {key[1]} | {np.median(per_round('old', 'share')):.3f} | "
                      f"{np.median(per_round('new', 'share')):.3f} | {np.median(per_round('old', 'rs')):.4f} | "
                      f"{np.median(per_round('new', 'rs')):.4f} | {np.median(rs_ratio):.2f} "
-                     f"({rs_ratio.min():.2f}-{rs_ratio.max():.2f}) | {np.median(per_round('old', 'ratio')):.2f} | "
+                     f"({rs_ratio.min():.2f}-{rs_ratio.max():.2f}) | {np.median(cpu_ratio):.2f} "
+                     f"({cpu_ratio.min():.2f}-{cpu_ratio.max():.2f}) | {np.median(per_round('old', 'ratio')):.2f} | "
                      f"{np.median(per_round('new', 'ratio')):.2f} | {np.median(wall_ratio):.2f} |")
     print("\n".join(lines))
     if a.markdown:
