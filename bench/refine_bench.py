@@ -20,6 +20,7 @@ in the same round (the whole cost of float64 answers, the k + 1-th candidate inc
 Set POCL_MAX_PTHREAD_COUNT to the cores to use and quote it with the figures.
 """
 import argparse
+import json
 import os
 import platform
 import sys
@@ -60,6 +61,7 @@ def main():
     ap.add_argument("--methods", default="kdtree,flann,blockhash")
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--markdown", default="")
+    ap.add_argument("--json", default="", help="also write the per-round records here (refine_old_new.py)")
     a = ap.parse_args()
     rng = np.random.default_rng(40)
     base = np.array([512345.678, 4312345.678, 112.5])
@@ -74,6 +76,7 @@ def main():
              "|---|---|---|---|---|---|---|---|---|"]
     print("\n".join(lines), flush=True)
     variants = ["refined", "refined-plain", "float32"]
+    records = []
     for method in [m for m in a.methods.split(",") if m in bh.method_names()]:
         refined = bh.make_index(method, pts)
         plain = bh.make_index(method, pts, refine=False)
@@ -82,7 +85,7 @@ def main():
             # Warm-up: the kernels of k + 1 and of a re-search's 2 (k + 1) candidates compiled.
             for idx, kk in ((refined, k), (plain, k), (plain, min(bh.MAX_K, 2 * (k + 1)))):
                 idx.query(qs[:64], k=kk)
-            rec = {v: {"wall": [], "share": [], "cshare": [], "rs": [], "ratio": [], "cratio": []} for v in variants}
+            rec = {v: {"wall": [], "share": [], "cshare": [], "rs": [], "rcpu": [], "ratio": [], "cratio": []} for v in variants}
             for r in range(a.rounds):
                 order = variants if r % 2 == 0 else variants[::-1]
                 walls, cpus = {}, {}
@@ -93,9 +96,11 @@ def main():
                     rec[v]["share"].append(st.get("refine_share", 0.0))
                     rec[v]["cshare"].append(st.get("refine_cpu_share", 0.0))
                     rec[v]["rs"].append(st.get("refine_s", 0.0))
+                    rec[v]["rcpu"].append(st.get("refine_cpu_s", 0.0))
                 for v in variants:
                     rec[v]["ratio"].append(walls[v] / walls["float32"])
                     rec[v]["cratio"].append(cpus[v] / cpus["float32"])
+            records.append({"method": method, "k": k, "rec": rec})
             for v in variants:
                 x = rec[v]
                 line = (f"| {method} | {k} | {v} | {np.median(x['share']):.3f} | {np.median(x['cshare']):.3f} | "
@@ -106,6 +111,8 @@ def main():
                 print(line, flush=True)
     if a.markdown:
         write_atomic(a.markdown, "\n".join(lines) + "\n")
+    if a.json:
+        write_atomic(a.json, json.dumps({"header": lines[0], "records": records}))
 
 
 if __name__ == "__main__":

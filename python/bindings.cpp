@@ -350,21 +350,135 @@ std::size_t prefetch_rows() {
   return static_cast<std::size_t>(v[0] - '0');
 }
 
+// Whether refine_knn checks each row for already being in float64 (distance, id) order and then
+// copies its first k out without sorting (the default): BHCL_REFINE_IN_ORDER=0 sends every row
+// through the sort as before, for measuring the difference in one process (bench/refine_bench.py).
+bool in_order_path() {
+  const char* v = std::getenv("BHCL_REFINE_IN_ORDER");
+  return !(v && v[0] == '0');
+}
+
+// The float64 points of one row of candidates asked for ahead of their use. An id outside the
+// points (-1: missing, or bad: reported by the row's own pass) is skipped by one unsigned compare.
+// A point's 24 bytes may straddle two cache lines: both are asked for.
+inline void prefetch_points(const double* pd, std::size_t np, const std::int32_t* ir, std::size_t kc) {
+  for (std::size_t j = 0; j < kc; ++j) {
+    const auto i = static_cast<std::uint32_t>(ir[j]);
+    if (i < np) {
+      __builtin_prefetch(pd + 3 * static_cast<std::size_t>(i));
+      __builtin_prefetch(pd + 3 * static_cast<std::size_t>(i) + 2);
+    }
+  }
+}
+
+// A row's float64 distances, the first k written to od (the output row), the rest to tail; a
+// missing id (< 0) gives HUGE_VAL, an id past the points HUGE_VAL and `bad`. Returns whether the
+// row is in (distance, id) order with missing last (the float32 order nearly always is), so that
+// its first k are its k nearest as they stand. One pass, no (distance, id) pairs built: the
+// rows' sort and pair copies took about half of the refinement's instructions.
+inline bool distances_in_order(const double* qr, const double* pd, std::size_t np, const std::int32_t* ir,
+                               std::size_t kc, std::size_t kk, double* od, double* tail, bool& bad) {
+  double prev = -HUGE_VAL;
+  std::int32_t prev_key = INT32_MIN;
+  bool ordered = true;
+  for (std::size_t j = 0; j < kc; ++j) {
+    const std::int32_t i = ir[j];
+    const auto u = static_cast<std::uint32_t>(i);
+    const bool in = u < np;
+    bad |= i >= 0 && !in;
+    const double d = in ? dist2_64(qr, pd + 3 * static_cast<std::size_t>(u)) : HUGE_VAL;
+    const std::int32_t key = i >= 0 ? i : INT32_MAX;  // the sort's key for missing: after every id
+    ordered &= (d > prev) | ((d == prev) & (key >= prev_key));  // false for NaN: the sort decides
+    prev = d;
+    prev_key = key;
+    (j < kk ? od[j] : tail[j - kk]) = d;
+  }
+  return ordered;
+}
+
+// What refine_knn decides per row beyond its first k (python/blockhash_cl/_refine.py's knn): the
+// entries outside a max_radius dropped, and whether the row is final (no point the float32 search
+// did not return can be among its k nearest in float64). Done here because the row's k-th distance
+// and its last float32 candidate are at hand: in numpy the two columns' strided reads and the
+// filter's passes over the (n, k) outputs cost about a fifth of the refinement at k = 50.
+struct KnnRowTests {
+  double limit = HUGE_VAL;  // squared: entries beyond (strict: at or beyond) it are missing
+  bool strict = false;
+  // The final test, when d2_32 is given: count[r] < kc (the search found every point it could),
+  // or lower(sqrt(d2_32[r, kc - 1])) = sqrt(d2_32[r, kc - 1]) lower_scale - delta[r] above
+  // min(sqrt(k-th float64 d2), max_radius).
+  const float* d2_32 = nullptr;
+  const std::int32_t* count = nullptr;
+  const double* delta = nullptr;
+  double lower_scale = 1.0;
+  double max_radius = HUGE_VAL;
+};
+
+// The row's first k (written) filtered by the limit; returns its live count.
+inline std::int32_t drop_outside(double* odr, std::int32_t* oir, std::size_t kk, std::int32_t live,
+                                 const KnnRowTests& t) {
+  for (std::size_t j = 0; j < kk; ++j) {
+    const bool outside = t.strict ? odr[j] >= t.limit : odr[j] > t.limit;
+    if (!outside) continue;
+    live -= oir[j] >= 0 ? 1 : 0;
+    odr[j] = HUGE_VAL;
+    oir[j] = -1;
+  }
+  return live;
+}
+
+inline bool row_final(std::size_t r, std::size_t kc, double kth, const KnnRowTests& t) {
+  if (t.count[r] < static_cast<std::int32_t>(kc)) return true;
+  const double u = std::min(std::sqrt(kth), t.max_radius);
+  const double last = std::sqrt(static_cast<double>(t.d2_32[r * kc + kc - 1]));
+  return last * t.lower_scale - t.delta[r] > u;
+}
+
 // ids (n, kc) int32 (-1: missing) -> the first k of each row by float64 (distance, id): (d2 (n, k)
-// float64, ids (n, k) int32, found (n,) int32: the ids >= 0 of each row); missing are inf and -1.
+// float64, ids (n, k) int32, found (n,) int32: the ids >= 0 of each row); missing are inf and -1;
+// entries past `limit` (squared; strict: at it too) missing. With d2_32 (the float32 search's (n,
+// kc) squared distances), counts (its found per row), delta (the widening per row), lower_scale
+// and max_radius: a fourth output, final (n,) bool (KnnRowTests).
 py::tuple refine_knn(const py::array_t<double, py::array::c_style>& q, const py::array_t<double, py::array::c_style>& pts,
-                     const py::array_t<std::int32_t, py::array::c_style>& ids, int k) {
+                     const py::array_t<std::int32_t, py::array::c_style>& ids, int k, double limit, bool strict,
+                     const py::object& d2_32_obj, const py::object& counts_obj, const py::object& delta_obj,
+                     double lower_scale, double max_radius) {
   if (q.ndim() != 2 || q.shape(1) != 3 || pts.ndim() != 2 || pts.shape(1) != 3 || ids.ndim() != 2 ||
       ids.shape(0) != q.shape(0) || k < 1 || k > ids.shape(1))
     throw py::value_error("refine_knn: q (n, 3), points (N, 3), ids (n, kc) with 1 <= k <= kc");
   const std::size_t n = static_cast<std::size_t>(q.shape(0)), kc = static_cast<std::size_t>(ids.shape(1)),
                     np = static_cast<std::size_t>(pts.shape(0)), kk = static_cast<std::size_t>(k);
+  KnnRowTests tests;
+  tests.limit = limit;
+  tests.strict = strict;
+  const bool filter = !(limit == HUGE_VAL && !strict);
+  const bool with_final = !d2_32_obj.is_none();
+  py::array_t<float, py::array::c_style> d2_32;
+  py::array_t<std::int32_t, py::array::c_style> counts;
+  py::array_t<double, py::array::c_style> delta;
+  if (with_final) {
+    if (counts_obj.is_none() || delta_obj.is_none())
+      throw py::value_error("refine_knn: d2_32 needs counts and delta");
+    d2_32 = py::array_t<float, py::array::c_style>::ensure(d2_32_obj);
+    counts = py::array_t<std::int32_t, py::array::c_style | py::array::forcecast>::ensure(counts_obj);
+    delta = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(delta_obj);
+    if (!d2_32 || d2_32.ndim() != 2 || d2_32.shape(0) != ids.shape(0) || d2_32.shape(1) != ids.shape(1) || !counts ||
+        counts.ndim() != 1 || counts.shape(0) != ids.shape(0) || !delta || delta.ndim() != 1 ||
+        delta.shape(0) != ids.shape(0))
+      throw py::value_error("refine_knn: d2_32 float32 (n, kc), counts (n,), delta (n,) as ids (n, kc)");
+    tests.d2_32 = d2_32.data();
+    tests.count = counts.data();
+    tests.delta = delta.data();
+    tests.lower_scale = lower_scale;
+    tests.max_radius = max_radius;
+  }
   // The memory before allocating: 12 bytes per entry, within two copies of a kNN result's 8.
   bhcl::check_result_memory(n, k, false, 2, "refine_knn");
   // Every entry is written below: no zeroing pass over the (up to n * 256) outputs.
   Uninit<double> od(n * kk);
   Uninit<std::int32_t> oi(n * kk);
   Uninit<std::int32_t> found(n);
+  Uninit<bool> final_rows(with_final ? n : 1);
   const double* qd = q.data();
   const double* pd = pts.data();
   const std::int32_t* id = ids.data();
@@ -376,47 +490,59 @@ py::tuple refine_knn(const py::array_t<double, py::array::c_style>& q, const py:
     // was measured 2x slower on the UTM case: the gathers hit the cache anyway, and the rows'
     // reads and writes scatter.)
     const std::size_t ahead = prefetch_rows();
+    const bool in_order = in_order_path();
     over_rows(n, n * kc, [&](std::size_t a, std::size_t b) {
       std::vector<std::pair<double, std::int32_t>> row(kc);
+      std::vector<double> tail(kc - kk + 1);
+      bool row_bad = false;
       for (std::size_t r = a; r < b; ++r) {
         const double* qr = qd + 3 * r;
         const std::int32_t* ir = id + r * kc;
+        double* odr = &od[r * kk];
+        std::int32_t* oir = &oi[r * kk];
         // The candidates of the row `ahead` rows on requested now, so that their cache misses
         // overlap this row's work: perf put 3/4 of the refinement's samples on the gathers' loads
         // (a row's points lie anywhere in the float64 copy, and the search has just been through
-        // the cache). A point's 24 bytes may straddle two cache lines: both are asked for.
-        if (ahead && r + ahead < b)
-          for (std::size_t j = 0; j < kc; ++j) {
-            const std::int32_t i = ir[ahead * kc + j];
-            if (i >= 0 && static_cast<std::size_t>(i) < np) {
-              __builtin_prefetch(pd + 3 * static_cast<std::size_t>(i));
-              __builtin_prefetch(pd + 3 * static_cast<std::size_t>(i) + 2);
-            }
-          }
-        for (std::size_t j = 0; j < kc; ++j) {
-          const std::int32_t i = ir[j];
-          const bool in = i >= 0 && static_cast<std::size_t>(i) < np;
-          if (i >= 0 && !in) bad = true;
-          row[j] = {in ? dist2_64(qr, pd + 3 * static_cast<std::size_t>(i)) : HUGE_VAL, i >= 0 ? i : INT32_MAX};
+        // the cache).
+        if (ahead && r + ahead < b) {
+          prefetch_points(pd, np, ir + ahead * kc, kc);
+          if (with_final) __builtin_prefetch(tests.d2_32 + (r + ahead) * kc + kc - 1);
         }
-        // Insertion sort: the float32 order is nearly always the float64 one already.
-        for (std::size_t j = 1; j < kc; ++j)
-          for (std::size_t m = j; m > 0 && row[m] < row[m - 1]; --m) std::swap(row[m], row[m - 1]);
         std::int32_t live = 0;
-        for (std::size_t j = 0; j < kk; ++j) {
-          const bool missing = row[j].second == INT32_MAX;
-          od[r * kk + j] = row[j].first;
-          oi[r * kk + j] = missing ? -1 : row[j].second;
-          live += missing ? 0 : 1;
+        if (distances_in_order(qr, pd, np, ir, kc, kk, odr, tail.data(), row_bad) && in_order) {
+          for (std::size_t j = 0; j < kk; ++j) {
+            const std::int32_t i = ir[j];
+            oir[j] = i < 0 ? -1 : i;
+            live += i >= 0 ? 1 : 0;
+          }
+        } else {
+          // Out of order (a near-tie the float64 distances reorder): (distance, id) pairs sorted.
+          for (std::size_t j = 0; j < kc; ++j)
+            row[j] = {j < kk ? odr[j] : tail[j - kk], ir[j] >= 0 ? ir[j] : INT32_MAX};
+          // Insertion sort: the float32 order is nearly always the float64 one already.
+          for (std::size_t j = 1; j < kc; ++j)
+            for (std::size_t m = j; m > 0 && row[m] < row[m - 1]; --m) std::swap(row[m], row[m - 1]);
+          for (std::size_t j = 0; j < kk; ++j) {
+            const bool missing = row[j].second == INT32_MAX;
+            odr[j] = row[j].first;
+            oir[j] = missing ? -1 : row[j].second;
+            live += missing ? 0 : 1;
+          }
         }
+        if (filter) live = drop_outside(odr, oir, kk, live, tests);
         found[r] = live;
+        if (with_final) final_rows[r] = row_final(r, kc, odr[kk - 1], tests);
       }
+      if (row_bad) bad = true;
     });
   }
   if (bad) throw py::value_error("refine_knn: an id past the points");
   const auto rows = static_cast<py::ssize_t>(n), cols = static_cast<py::ssize_t>(kk);
-  return py::make_tuple(std::move(od).to_numpy({rows, cols}), std::move(oi).to_numpy({rows, cols}),
-                        std::move(found).to_numpy({rows}));
+  py::array_t<double> out_d = std::move(od).to_numpy({rows, cols});
+  py::array_t<std::int32_t> out_i = std::move(oi).to_numpy({rows, cols});
+  py::array_t<std::int32_t> out_found = std::move(found).to_numpy({rows});
+  if (!with_final) return py::make_tuple(out_d, out_i, out_found);
+  return py::make_tuple(out_d, out_i, out_found, std::move(final_rows).to_numpy({rows}));
 }
 
 // Squared float64 distances of pairs (q[owner[j]], points[ids[j]]); id -1 gives inf.
@@ -790,7 +916,9 @@ void bind_index(py::module_& m) {
 // The float64 refinement helpers and make_index.
 void bind_refine(py::module_& m) {
   m.def("refine_knn", &refine_knn, py::arg("q").noconvert(), py::arg("points").noconvert(),
-        py::arg("ids").noconvert(), py::arg("k"), "float64 refinement of kNN rows (blockhash_cl/_refine.py).");
+        py::arg("ids").noconvert(), py::arg("k"), py::arg("limit") = HUGE_VAL, py::arg("strict") = false,
+        py::arg("d2_32") = py::none(), py::arg("counts") = py::none(), py::arg("delta") = py::none(),
+        py::arg("lower_scale") = 1.0, py::arg("max_radius") = HUGE_VAL, "float64 refinement of kNN rows (blockhash_cl/_refine.py).");
   m.def("query_delta", &query_delta, py::arg("q32").noconvert(), py::arg("point_rounding"), py::arg("sqrt3"),
         py::arg("rel"), "_refine.query_delta: the widening per query.");
   m.def("pair_dist2", &pair_dist2, py::arg("q").noconvert(), py::arg("owner").noconvert(),

@@ -91,12 +91,21 @@ def dist2_64(q64: np.ndarray, owner: np.ndarray, p64: np.ndarray, ids: np.ndarra
                             np.ascontiguousarray(ids, np.int32))
 
 
-def _refined_rows(q64: np.ndarray, p64: np.ndarray, ids: np.ndarray, k: int
-                  ) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _refined_rows(q64: np.ndarray, p64: np.ndarray, ids: np.ndarray, k: int, limit: float, strict: bool,
+                  final_test: Optional[Tuple[np.ndarray, np.ndarray, np.ndarray, float]]) -> Tuple[np.ndarray, ...]:
     """The first k of each row of candidates by float64 (distance, id), missing (inf, -1) last,
-    and each row's count of ids found (the C++ layer: threads, GIL released, the outputs on huge
-    pages)."""
-    return _core.refine_knn(np.ascontiguousarray(q64, np.float64), p64, np.ascontiguousarray(ids, np.int32), k)
+    those beyond limit (squared; strict: at it too) missing, and each row's count of ids found
+    (the C++ layer: threads, GIL released, the outputs from a reused pool). With final_test
+    (the search's float32 d2, its counts, the rows' delta, max_radius or inf): a fourth output,
+    whether each row is final (knn below)."""
+    q = np.ascontiguousarray(q64, np.float64)
+    ids = np.ascontiguousarray(ids, np.int32)
+    if final_test is None:
+        return _core.refine_knn(q, p64, ids, k, limit, strict)
+    d2_32, counts, delta, max_radius = final_test
+    return _core.refine_knn(q, p64, ids, k, limit, strict, np.ascontiguousarray(d2_32, np.float32),
+                            np.ascontiguousarray(counts, np.int32), np.ascontiguousarray(delta, np.float64),
+                            1 - 2 * _REL, max_radius)
 
 
 def knn(search: Callable[[np.ndarray, int, Optional[float]], Tuple[np.ndarray, np.ndarray, np.ndarray, Dict[str, Any]]],
@@ -128,14 +137,19 @@ def knn(search: Callable[[np.ndarray, int, Optional[float]], Tuple[np.ndarray, n
     requeried = 0
     radius_rows = 0
     candidates = kc
+    limit = np.inf if max_radius is None else max_radius * max_radius
     while True:
         kk = min(k, ids32.shape[1])
-        take_d2, take_ids, take_found = _refined_rows(q64 if rows is None else q64[rows], p64, ids32, kk)
-        if max_radius is not None:
-            limit = max_radius * max_radius
-            outside = take_d2 >= limit if strict else take_d2 > limit
-            take_d2[outside], take_ids[outside] = np.inf, -1
-            take_found = take_found - np.sum(outside, axis=1, dtype=np.int32)
+        # Final where the float32 search returned fewer than it was asked (it found every point it
+        # could) or no point it did not return can be nearer in float64 than the k-th: decided
+        # per row in the C++ layer with the refinement (lower(last float32 candidate) above
+        # min(k-th float64 distance, max_radius)), as the entries beyond max_radius dropped.
+        final_test = None
+        if exact and kk == k:
+            final_test = (d2_32, counts, delta if rows is None else delta[rows],
+                          np.inf if max_radius is None else float(max_radius))
+        got = _refined_rows(q64 if rows is None else q64[rows], p64, ids32, kk, limit, strict, final_test)
+        take_d2, take_ids, take_found = got[0], got[1], got[2]
         if rows is None:
             if kk == k:
                 out_d2, out_ids, found = take_d2, take_ids, take_found
@@ -144,20 +158,22 @@ def knn(search: Callable[[np.ndarray, int, Optional[float]], Tuple[np.ndarray, n
                 out_d2[:, :kk], out_ids[:, :kk], found = take_d2, take_ids, take_found
         if not exact:
             break
-        # Final where the float32 search returned fewer than it was asked (it found every point it
-        # could) or no point it did not return can be nearer in float64 than the k-th.
-        m = n if rows is None else len(rows)
-        u = np.sqrt(take_d2[:, kk - 1]) if kk == k else np.full(m, np.inf)
-        if max_radius is not None:
-            u = np.minimum(u, max_radius)
-        last = np.sqrt(d2_32[:, -1].astype(np.float64))
-        done = (np.asarray(counts) < ids32.shape[1]) | (lower(last, delta if rows is None else delta[rows]) > u)
+        if final_test is not None:
+            done = got[3]
+        else:  # fewer columns than k: a row is final where the search found every point it could
+            done = np.asarray(counts) < ids32.shape[1]
         if rows is None:
             rows = np.arange(n)
         else:
             out_d2[rows[done], :kk], out_ids[rows[done], :kk] = take_d2[done], take_ids[done]
             found[rows[done]] = take_found[done]
-        rows, u = rows[~done], u[~done]
+        rest = np.flatnonzero(~done)
+        # The rows still open: the k-th float64 distance so far (bounded by max_radius), which a
+        # radius search to upper(u) below reaches past.
+        u = np.sqrt(take_d2[rest, kk - 1]) if kk == k else np.full(len(rest), np.inf)
+        if max_radius is not None:
+            u = np.minimum(u, max_radius)
+        rows = rows[rest]
         if not len(rows):
             break
         if kc < max_k:

@@ -147,3 +147,71 @@ def test_refine_knn_counts_the_found_ids():
     assert found[4] == 0 and found[2] == 3 and np.all(np.isinf(d2[4]))
     exact = np.sum((q64[:, None, :] - p64[np.maximum(ids, 0)]) ** 2, axis=2)
     np.testing.assert_allclose(d2[0], np.sort(exact[0])[:5], rtol=0, atol=0)
+
+
+def _refine_knn_reference(q64, p64, ids, k):
+    """refine_knn's definition in numpy: per row the candidates by (float64 distance, id), missing
+    (id < 0) last as (inf, -1), the first k, and the count of ids found among them."""
+    d = np.where(ids >= 0, np.sum((q64[:, None, :] - p64[np.maximum(ids, 0)]) ** 2, axis=2), np.inf)
+    key = np.where(ids >= 0, ids, np.iinfo(np.int32).max)
+    order = np.lexsort((key, d), axis=1)[:, :k]
+    out_d = np.take_along_axis(d, order, axis=1)
+    out_i = np.take_along_axis(ids, order, axis=1)
+    out_i = np.where(out_i >= 0, out_i, -1).astype(np.int32)
+    return out_d, out_i, np.sum(out_i >= 0, axis=1)
+
+
+@pytest.mark.parametrize("in_order", ["1", "0"])
+def test_refine_knn_ordered_and_shuffled_rows_vs_numpy(monkeypatch, in_order):
+    """_core.refine_knn against its numpy definition, bit for bit, on rows the float32 order left
+    in float64 order (copied out without a sort), rows out of order (shuffled: sorted), exact
+    distance ties (sorted by id), missing ids (< 0, last) and rows of missing only; the same with
+    BHCL_REFINE_IN_ORDER=0 (every row through the sort)."""
+    from blockhash_cl import _core
+    monkeypatch.setenv("BHCL_REFINE_IN_ORDER", in_order)
+    rng = np.random.default_rng(7)
+    p64 = rng.random((400, 3))
+    p64[300:310] = p64[0]  # duplicates of point 0: exact ties
+    q64 = rng.random((600, 3))
+    q64[:20] = p64[0]
+    kc, k = 12, 9
+    d_all = np.sum((q64[:, None, :] - p64[None, :, :]) ** 2, axis=2)
+    ids = np.argsort(d_all, axis=1, kind="stable")[:, :kc].astype(np.int32)  # in order
+    shuffled = np.arange(100, 250)
+    for r in shuffled:
+        rng.shuffle(ids[r])
+    ids[20:40, 1:] = ids[20:40, 1:][:, ::-1]  # the k + 1-th first: out of order past k too
+    ids[250:260, 7:] = -1
+    ids[260:265, :] = -1
+    ids[265:270, 3] = -1  # a missing id inside a row: out of order
+    for r in [0, 5, 10]:  # ties listed by descending id: out of order
+        ids[r] = np.sort(ids[r])[::-1]
+    got = _core.refine_knn(q64, p64, ids, k)
+    want = _refine_knn_reference(q64, p64, ids, k)
+    for g, w in zip(got, want):
+        np.testing.assert_array_equal(g, w)
+    bad = ids.copy()
+    bad[3, 2] = 400
+    with pytest.raises(ValueError, match="id past the points"):
+        _core.refine_knn(q64, p64, bad, k)
+
+
+@pytest.mark.parametrize("method", EXACT)
+def test_refined_max_radius_counts_are_the_ids_found_vs_scipy(utm, method):
+    """A refined query with max_radius: each row's count is its ids found within it (rows with
+    fewer than k there included: their missing entries are not subtracted again), the rows as
+    scipy's distance_upper_bound gives them (scipy's is strict: its bound just above r)."""
+    pts, q, tree = utm
+    index = bh.make_index(method, pts)
+    r, k = 5.0, 10
+    d2, ids, counts = index.query(q, k=k, max_radius=r, return_counts=True)
+    assert np.all(counts >= 0)
+    np.testing.assert_array_equal(counts, np.sum(ids >= 0, axis=1))
+    ref_d, ref_i = tree.query(q, k=k, distance_upper_bound=np.nextafter(r, np.inf))
+    np.testing.assert_array_equal(counts, np.sum(np.isfinite(ref_d), axis=1))
+    assert 0 < np.mean(counts < k) < 1  # rows short of k and full rows both met
+    d = np.sqrt(d2)
+    np.testing.assert_array_equal(np.isfinite(d), np.isfinite(ref_d))  # missing where scipy's are
+    fin = np.isfinite(ref_d)
+    d, ref_d = np.where(fin, d, 1.0), np.where(fin, ref_d, 1.0)  # missing entries compared as equal
+    assert np.all(rows_right(d, np.where(ids >= 0, ids, len(pts)), ref_d, ref_i))
