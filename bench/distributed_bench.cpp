@@ -13,6 +13,14 @@
 // Input modes: `root` (rank 0 reads everything and passes all points and queries, the bhcl tool's
 // mode) and `split` (each rank passes a contiguous slice of the file order, as if each read its
 // part; no check then, the rows are spread over the ranks).
+// --update (issue 39): the distributed index's insert and remove instead (update_bench's ratio):
+// per set a base of 1/1.1 of the (shuffled) points, and per method and round, for each of
+// insert 1 %, insert 10 % (of the base) and remove 10 % (random base ids): a fresh distributed
+// build of the result, then a distributed build of the base and the update, timed (the slowest
+// rank); the ratio update / fresh build per round, the median over rounds. Every rank passes a
+// contiguous slice of the base, of the new points and of the ids. After each update the answers
+// (the index's default search: exact) are compared with one process's index (rank 0) after the
+// same update: ids and distances must be identical.
 #include <mpi.h>
 #include <unistd.h>
 
@@ -22,6 +30,7 @@
 #include <cstdio>
 #include <fstream>
 #include <memory>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -79,6 +88,7 @@ struct Options {
   std::string input = "root";
   int reps = 3;
   bool no_baseline = false;
+  bool update = false;
   std::string data_dir, csv;
 };
 
@@ -99,6 +109,9 @@ int parse(int argc, char** argv, int rank, Options& o) {
       ->check(CLI::IsMember({"root", "split"}));
   cli.reps(o.reps);
   cli.app().add_flag("--no-baseline", o.no_baseline, "skip the one-process baseline and check");
+  cli.app().add_flag("--update", o.update,
+                     "time insert 1 %, insert 10 % and remove 10 % against fresh distributed builds of the result, "
+                     "answers (the default search) checked against one process after the same update");
   cli.data_dir(o.data_dir);
   cli.csv(o.csv);
   try {
@@ -111,7 +124,7 @@ int parse(int argc, char** argv, int rank, Options& o) {
     }
     return help ? 0 : 2;
   }
-  if (o.input != "root") o.no_baseline = true;
+  if (o.input != "root" && !o.update) o.no_baseline = true;
   return -1;
 }
 
@@ -346,6 +359,172 @@ void run_set(const Options& o, const std::shared_ptr<bhcl::Runtime>& rt, const s
     }
 }
 
+
+// --update: the distributed index's insert and remove against fresh distributed builds.
+struct UpdateOp {
+  const char* name;
+  double frac;
+  bool insert;
+};
+const UpdateOp kUpdateOps[] = {{"insert 1%", 0.01, true}, {"insert 10%", 0.10, true}, {"remove 10%", 0.10, false}};
+
+// Every rank's copy of one set: the points shuffled (so that a prefix is a uniform sample: files
+// are in scan order), the base (the first B), the ids a remove drops and the points kept then.
+struct UpdateSet {
+  std::vector<float> all, qs, kept;
+  std::size_t B = 0;
+  std::vector<std::int64_t> drop;  // ascending
+};
+
+bool load_update_set(const Options& o, const std::string& set, UpdateSet& u) {
+  std::vector<float> pts;
+  const std::size_t N = o.N ? o.N + o.N / 10 : (set == "autzen" ? 0 : 1100000);
+  int ok = bhcl::bench::load_set(o.data_dir, set, N, o.queries, pts, u.qs), all_ok = 0;
+  MPI_Allreduce(&ok, &all_ok, 1, MPI_INT, MPI_MIN, MPI_COMM_WORLD);
+  if (!all_ok) return false;
+  const std::size_t n = pts.size() / 3;
+  std::vector<std::size_t> perm(n);
+  for (std::size_t i = 0; i < n; ++i) perm[i] = i;
+  std::shuffle(perm.begin(), perm.end(), std::mt19937_64(3));
+  u.all.resize(pts.size());
+  for (std::size_t i = 0; i < n; ++i) std::copy_n(&pts[3 * perm[i]], 3, &u.all[3 * i]);
+  u.B = static_cast<std::size_t>(double(n) / 1.1);
+  std::vector<std::int64_t> ids(u.B);
+  for (std::size_t i = 0; i < u.B; ++i) ids[i] = std::int64_t(i);
+  std::shuffle(ids.begin(), ids.end(), std::mt19937_64(5));
+  u.drop.assign(ids.begin(), ids.begin() + std::ptrdiff_t(u.B / 10));
+  std::sort(u.drop.begin(), u.drop.end());
+  std::vector<char> gone(u.B, 0);
+  for (auto id : u.drop) gone[std::size_t(id)] = 1;
+  for (std::size_t i = 0; i < u.B; ++i)
+    if (!gone[i]) u.kept.insert(u.kept.end(), u.all.begin() + std::ptrdiff_t(3 * i), u.all.begin() + std::ptrdiff_t(3 * i + 3));
+  return true;
+}
+
+// This rank's contiguous slice [first, end) of n items.
+std::pair<std::size_t, std::size_t> slice(std::size_t n, int rank, int R) {
+  return {n * std::size_t(rank) / std::size_t(R), n * std::size_t(rank + 1) / std::size_t(R)};
+}
+
+// A distributed index over this rank's slice of the n points pts.
+std::unique_ptr<bhcl::DistributedIndex> build_sliced(const std::shared_ptr<bhcl::Runtime>& rt, const float* pts,
+                                                     std::size_t n, const bhcl::DistributedBuildParams& bp, int rank,
+                                                     int R) {
+  const auto [a, b] = slice(n, rank, R);
+  return std::make_unique<bhcl::DistributedIndex>(MPI_COMM_WORLD, rt, pts + 3 * a, b - a, bp);
+}
+
+// The update `op` on the index over the base, each rank passing its slice (collective).
+void apply_update(bhcl::DistributedIndex& ix, const UpdateSet& u, const UpdateOp& op, int rank, int R,
+                  bhcl::DistributedUpdateStats* st) {
+  if (op.insert) {
+    const std::size_t m = static_cast<std::size_t>(op.frac * double(u.B));
+    const auto [a, b] = slice(m, rank, R);
+    ix.insert(u.all.data() + 3 * (u.B + a), b - a, st);
+  } else {
+    const auto [a, b] = slice(u.drop.size(), rank, R);
+    ix.remove(u.drop.data() + a, b - a, st);
+  }
+}
+
+// Rank 0: one process's index of the base after the same update, queried; "identical x/n" of
+// the distributed rows (gathered to rank 0 by query, int64 ids) against it; status 1 if any differ.
+std::string check_update(const std::shared_ptr<bhcl::Runtime>& rt, const UpdateSet& u, const UpdateOp& op,
+                         const std::string& method, const bhcl::SearchParams& p, const bhcl::KnnResult64& dist,
+                         int& status) {
+  auto single = bhcl::make_index(method, rt, u.all.data(), u.B);
+  if (op.insert) {
+    single->insert(u.all.data() + 3 * u.B, static_cast<std::size_t>(op.frac * double(u.B)));
+  } else {
+    std::vector<std::int32_t> ids(u.drop.begin(), u.drop.end());
+    single->remove(ids.data(), ids.size());
+  }
+  bhcl::KnnResult one;
+  const std::size_t nq = u.qs.size() / 3;
+  single->query(u.qs.data(), nq, p, one);
+  std::size_t same = 0;
+  for (std::size_t i = 0; i < nq; ++i) {
+    bool eq = dist.counts[i] == one.counts[i];
+    for (int j = 0; eq && j < p.k; ++j) {
+      const std::size_t at = i * std::size_t(p.k) + std::size_t(j);
+      eq = dist.ids[at] == std::int64_t(one.ids[at]) && std::memcmp(&dist.dist2[at], &one.dist2[at], 4) == 0;
+    }
+    same += eq;
+  }
+  if (same != nq) status = 1;
+  return "identical " + std::to_string(same) + "/" + std::to_string(nq);
+}
+
+// One (method, op): rounds of a fresh build of the result and the update, then the check.
+void run_update_op(const Options& o, const std::shared_ptr<bhcl::Runtime>& rt, const UpdateSet& u,
+                   const std::string& set, const std::string& method, const UpdateOp& op, int rank, int R,
+                   std::FILE* csv, int& status) {
+  using bhcl::bench::median;
+  bhcl::DistributedBuildParams bp;
+  bp.method = method;
+  bp.boxes_per_rank = o.boxes;
+  bhcl::SearchParams p;
+  p.k = o.k;  // A: the index's default (block hashing's exact grid)
+  const std::size_t m = static_cast<std::size_t>(op.frac * double(u.B));
+  const float* after = op.insert ? u.all.data() : u.kept.data();
+  const std::size_t n_after = op.insert ? u.B + m : u.kept.size() / 3;
+  std::vector<double> fresh_s, update_s, ratio, route_s, local_s, boxes_s;
+  bhcl::KnnResult64 rows;
+  for (int rep = 0; rep < o.reps; ++rep) {
+    sleepy_barrier(MPI_COMM_WORLD);
+    auto t0 = Clock::now();
+    build_sliced(rt, after, n_after, bp, rank, R).reset();
+    const double tf = max_over_ranks(since(t0));
+    auto ix = build_sliced(rt, u.all.data(), u.B, bp, rank, R);
+    bhcl::DistributedUpdateStats st;
+    sleepy_barrier(MPI_COMM_WORLD);
+    t0 = Clock::now();
+    apply_update(*ix, u, op, rank, R, &st);
+    const double tu = max_over_ranks(since(t0));
+    fresh_s.push_back(tf);
+    update_s.push_back(tu);
+    ratio.push_back(tu / tf);
+    route_s.push_back(max_over_ranks(st.route_s));
+    local_s.push_back(max_over_ranks(st.local_s));
+    boxes_s.push_back(max_over_ranks(st.boxes_s));
+    // The last round's index answers for the check: rank 0 passes every query (its rows come back
+    // to it in its order).
+    if (rep + 1 == o.reps) ix->query(u.qs.data(), rank == 0 ? u.qs.size() / 3 : 0, p, rows);
+  }
+  std::string check = "-";
+  if (!o.no_baseline && rank == 0) check = check_update(rt, u, op, method, p, rows, status);
+  sleepy_barrier(MPI_COMM_WORLD);
+  if (rank != 0) return;
+  std::printf("| %s | %s | %d | %s | %zu | %zu | %.4f | %.4f | **%.3f** | %.4f | %.4f | %.4f | %s |\n", set.c_str(),
+              method.c_str(), R, op.name, u.B, m, median(fresh_s), median(update_s), median(ratio), median(route_s),
+              median(local_s), median(boxes_s), check.c_str());
+  std::fflush(stdout);
+  if (csv)
+    std::fprintf(csv, "%s,%s,%d,%s,%zu,%zu,%.6f,%.6f,%.4f,%.6f,%.6f,%.6f,%s\n", set.c_str(), method.c_str(), R, op.name,
+                 u.B, m, median(fresh_s), median(update_s), median(ratio), median(route_s), median(local_s),
+                 median(boxes_s), check.c_str());
+}
+
+void run_update_set(const Options& o, const std::shared_ptr<bhcl::Runtime>& rt, const std::string& set, int rank,
+                    int R, std::FILE* csv, int& status) {
+  UpdateSet u;
+  if (!load_update_set(o, set, u)) return;
+  for (const std::string& method : o.methods)
+    for (const UpdateOp& op : kUpdateOps) run_update_op(o, rt, u, set, method, op, rank, R, csv, status);
+}
+
+void print_update_header(const Options& o, int R, const bhcl::Runtime& rt, std::FILE* csv) {
+  std::printf("# distributed_bench --update: %d rank(s), k %d, %zu queries, boxes %d, device %s\n"
+              "# each rank passes a contiguous slice of the base, the new points and the ids; times: the slowest rank;\n"
+              "# ratio: median over %d round(s) of update / a fresh distributed build of the result; route/local/boxes:\n"
+              "# the update's stages (DistributedUpdateStats, slowest rank); check: the default search's rows\n"
+              "# against one process's index after the same update\n",
+              R, o.k, o.queries, o.boxes, rt.info().summary().c_str(), o.reps);
+  std::printf("| data | method | ranks | update | base N | points/ids | fresh build s | update s | ratio | route s | "
+              "local s | boxes s | check |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+  if (csv) std::fprintf(csv, "data,method,ranks,op,base_n,m,fresh_s,update_s,ratio,route_s,local_s,boxes_s,check\n");
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -361,6 +540,15 @@ int main(int argc, char** argv) {
   int status = 0;
   try {
     auto rt = std::make_shared<bhcl::Runtime>();
+    if (o.update) {
+      std::FILE* csv = rank == 0 && !o.csv.empty() ? std::fopen(o.csv.c_str(), "w") : nullptr;
+      if (rank == 0 && !o.csv.empty() && !csv) throw bhcl::Error("cannot write " + o.csv);
+      if (rank == 0) print_update_header(o, R, *rt, csv);
+      for (const std::string& set : o.data) run_update_set(o, rt, set, rank, R, csv, status);
+      if (csv) std::fclose(csv);
+      MPI_Finalize();
+      return status;
+    }
     std::FILE* csv = open_csv(o, rank);
     if (rank == 0) print_header(o, R, *rt);
     for (const std::string& set : o.data) run_set(o, rt, set, rank, R, csv, status);

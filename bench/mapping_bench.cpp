@@ -16,7 +16,11 @@
 // and recall@5 (ties tolerated) against a fresh exact index over the live map (nanoflann's static
 // KDTreeSingleIndexAdaptor, built every --check-every scans; exit 3 when block hashing's is short
 // of 1). Without the data file it says so and exits 0 (skipped); without nanoflann's header only
-// block hashing runs (its truth then a fresh brute force).
+// block hashing runs (its truth then a fresh brute force). Where CMake was given ikd-Tree's source
+// (-DBHCL_IKDTREE_DIR, bench/ikdtree_baseline.hpp), ikd-Tree takes the same sequence too: its
+// inserts without downsampling, the crop as Delete_Points of the same points, its queries on
+// --threads host threads; its rows' neighbours are mapped back to ids by their coordinates among
+// the live points (a deleted point it still returned counts as a miss).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -34,6 +38,15 @@
 
 #include "bench_util.hpp"
 #include "nanoflann_cloud.hpp"
+#ifndef BHCL_HAVE_IKDTREE
+#define BHCL_HAVE_IKDTREE 0
+#endif
+#if BHCL_HAVE_IKDTREE
+#include <cstring>
+#include <unordered_map>
+
+#include "ikdtree_baseline.hpp"
+#endif
 #include "blockhash_cl/blockhash.hpp"
 #include "blockhash_cl/bruteforce.hpp"
 #include "blockhash_cl/error.hpp"
@@ -169,8 +182,8 @@ KnnResult nf_query(const Tree& tree, const std::vector<float>& qs, int k, int th
 struct ScanRow {
   int scan = 0;
   std::size_t scan_points = 0, removed = 0, live = 0;
-  double bh_update_s = 0, bh_query_s = 0, nf_update_s = 0, nf_query_s = 0;
-  double bh_recall = -1, nf_recall = -1;
+  double bh_update_s = 0, bh_query_s = 0, nf_update_s = 0, nf_query_s = 0, ik_update_s = 0, ik_query_s = 0;
+  double bh_recall = -1, nf_recall = -1, ik_recall = -1;
 };
 
 double percentile(std::vector<double> v, double p) {
@@ -212,8 +225,8 @@ struct MapState {
   }
 };
 
-void print_summary(const std::vector<ScanRow>& rows, bool have_nf) {
-  std::vector<double> bu, bq, nu, nq, br, nr;
+void print_summary(const std::vector<ScanRow>& rows, bool have_nf, bool have_ik) {
+  std::vector<double> bu, bq, nu, nq, br, nr, iu, iq, ir;
   std::size_t pts = 0, live_max = 0;
   for (const ScanRow& r : rows) {
     bu.push_back(1e3 * r.bh_update_s);
@@ -222,6 +235,9 @@ void print_summary(const std::vector<ScanRow>& rows, bool have_nf) {
     nq.push_back(1e6 * r.nf_query_s / double(r.scan_points));
     if (r.bh_recall >= 0) br.push_back(r.bh_recall);
     if (r.nf_recall >= 0) nr.push_back(r.nf_recall);
+    iu.push_back(1e3 * r.ik_update_s);
+    iq.push_back(1e6 * r.ik_query_s / double(r.scan_points));
+    if (r.ik_recall >= 0) ir.push_back(r.ik_recall);
     pts += r.scan_points;
     live_max = std::max(live_max, r.live);
   }
@@ -233,6 +249,7 @@ void print_summary(const std::vector<ScanRow>& rows, bool have_nf) {
   };
   line("blockhash (grid, exact)", bu, bq, br);
   if (have_nf) line("nanoflann dynamic adaptor", nu, nq, nr);
+  if (have_ik) line("ikd-Tree", iu, iq, ir);
 }
 
 // What scan s does to the map: its points (ids from `first` on) and the live ids its crop drops.
@@ -284,6 +301,55 @@ KnnResult nf_step(NfDynamic& nf, Cloud& cloud, const MapState& map, const ScanSt
 }
 #endif
 
+#if BHCL_HAVE_IKDTREE
+// ikd-Tree's part of a scan: the queries, the insert, the crop as a delete of the same points.
+// Returns the rows' neighbours as coordinates (mapped to ids afterwards, outside the timing).
+void ik_step(bench::IkdTree& ik, const MapState& map, const ScanStep& st, const Options& o, ScanRow& row,
+             std::vector<float>& xyz, KnnResult& r) {
+  r.resize(st.scan.size() / 3, o.k);
+  double t0 = now_s();
+  ik.query(st.scan, o.k, o.threads, xyz, r.dist2, r.counts);
+  row.ik_query_s = now_s() - t0;
+  std::vector<float> drop(3 * st.drop.size());  // the crop's points, gathered before the timing
+  for (std::size_t i = 0; i < st.drop.size(); ++i)
+    for (int d = 0; d < 3; ++d) drop[3 * i + d] = map.all[3 * std::size_t(st.drop[i]) + d];
+  t0 = now_s();
+  ik.add(st.scan.data(), st.scan.size() / 3);
+  if (!drop.empty()) ik.remove(drop.data(), drop.size() / 3);
+  row.ik_update_s = now_s() - t0;
+}
+
+// ikd-Tree's neighbours as ids of the live points the scan was queried against (matched by their
+// coordinates' bits); a point it returned that is not among them gets id -1 and an infinite
+// distance, so it counts as a miss.
+void ik_ids(const MapState& map, const std::vector<std::int32_t>& live, const std::vector<float>& xyz, KnnResult& r) {
+  struct Key {
+    std::uint32_t c[3];
+    bool operator==(const Key& o) const { return c[0] == o.c[0] && c[1] == o.c[1] && c[2] == o.c[2]; }
+  };
+  struct Hash {
+    std::size_t operator()(const Key& k) const {
+      return (std::size_t(k.c[0]) * 0x9E3779B97F4A7C15ull) ^ (std::size_t(k.c[1]) * 0xC2B2AE3D27D4EB4Full) ^ k.c[2];
+    }
+  };
+  auto key = [](const float* p) {
+    Key k;
+    std::memcpy(k.c, p, sizeof k.c);
+    return k;
+  };
+  std::unordered_map<Key, std::int32_t, Hash> at;
+  at.reserve(live.size());
+  for (std::int32_t id : live) at.emplace(key(&map.all[3 * std::size_t(id)]), id);
+  for (std::size_t i = 0; i < r.n; ++i)
+    for (int j = 0; j < r.counts[i]; ++j) {
+      const std::size_t e = i * std::size_t(r.k) + std::size_t(j);
+      const auto it = at.find(key(&xyz[3 * e]));
+      r.ids[e] = it == at.end() ? -1 : it->second;
+      if (it == at.end()) r.dist2[e] = INFINITY;
+    }
+}
+#endif
+
 // The live ids the scan was queried against: before this scan's insert and crop, i.e. now's live
 // ids plus the dropped ones minus the scan's own (ascending).
 std::vector<std::int32_t> ids_before(const MapState& map, const ScanStep& st) {
@@ -320,14 +386,16 @@ KnnResult fresh_truth(const std::shared_ptr<Runtime>& rt, const MapState& map, c
 }
 
 void print_row_header() {
-  std::printf("%5s %8s %8s %9s %11s %11s %11s %11s %9s %9s\n", "scan", "points", "removed", "live", "bh_upd_ms", "bh_q_us",
-              "nf_upd_ms", "nf_q_us", "bh_rec", "nf_rec");
+  std::printf("%5s %8s %8s %9s %11s %11s %11s %11s %11s %11s %9s %9s %9s\n", "scan", "points", "removed", "live", "bh_upd_ms",
+              "bh_q_us", "nf_upd_ms", "nf_q_us", "ik_upd_ms", "ik_q_us", "bh_rec", "nf_rec", "ik_rec");
 }
 
 void print_row(const ScanRow& row) {
-  std::printf("%5d %8zu %8zu %9zu %11.2f %11.3f %11.2f %11.3f %9.4f %9.4f\n", row.scan, row.scan_points, row.removed, row.live,
-              1e3 * row.bh_update_s, 1e6 * row.bh_query_s / double(row.scan_points), 1e3 * row.nf_update_s,
-              1e6 * row.nf_query_s / double(row.scan_points), row.bh_recall, row.nf_recall);
+  const double n = double(row.scan_points);
+  std::printf("%5d %8zu %8zu %9zu %11.2f %11.3f %11.2f %11.3f %11.2f %11.3f %9.4f %9.4f %9.4f\n", row.scan, row.scan_points,
+              row.removed, row.live, 1e3 * row.bh_update_s, 1e6 * row.bh_query_s / n, 1e3 * row.nf_update_s,
+              1e6 * row.nf_query_s / n, 1e3 * row.ik_update_s, 1e6 * row.ik_query_s / n, row.bh_recall, row.nf_recall,
+              row.ik_recall);
   std::fflush(stdout);
 }
 
@@ -338,11 +406,14 @@ void print_index_after(const BlockHashIndex& bh) {
 }
 
 void write_csv(const std::string& path, const std::vector<ScanRow>& rows) {
-  std::string text = "scan,scan_points,removed,live,bh_update_s,bh_query_s,nf_update_s,nf_query_s,bh_recall,nf_recall\n";
-  char buf[256];
+  std::string text =
+      "scan,scan_points,removed,live,bh_update_s,bh_query_s,nf_update_s,nf_query_s,bh_recall,nf_recall,ik_update_s,ik_query_s,"
+      "ik_recall\n";
+  char buf[320];
   for (const ScanRow& r : rows) {
-    std::snprintf(buf, sizeof buf, "%d,%zu,%zu,%zu,%.6f,%.6f,%.6f,%.6f,%.4f,%.4f\n", r.scan, r.scan_points, r.removed, r.live,
-                  r.bh_update_s, r.bh_query_s, r.nf_update_s, r.nf_query_s, r.bh_recall, r.nf_recall);
+    std::snprintf(buf, sizeof buf, "%d,%zu,%zu,%zu,%.6f,%.6f,%.6f,%.6f,%.4f,%.4f,%.6f,%.6f,%.4f\n", r.scan, r.scan_points,
+                  r.removed, r.live, r.bh_update_s, r.bh_query_s, r.nf_update_s, r.nf_query_s, r.bh_recall, r.nf_recall,
+                  r.ik_update_s, r.ik_query_s, r.ik_recall);
     text += buf;
   }
   write_file(path, {text}, "mapping_bench per-scan figures");
@@ -381,12 +452,18 @@ int run(const Options& o, int argc, char** argv) {
   SearchParams sp;
   sp.k = o.k;  // A = 0: the grid's exact default
   bh.warm_up(sp);
-  const bool have_nf = BHCL_HAVE_NANOFLANN != 0;
+  const bool have_nf = BHCL_HAVE_NANOFLANN != 0, have_ik = BHCL_HAVE_IKDTREE != 0;
 #if BHCL_HAVE_NANOFLANN
   Cloud cloud{&map.all, scan0.size() / 3};
   NfDynamic nf(3, cloud, nanoflann::KDTreeSingleIndexAdaptorParams(10));
 #else
   std::printf("# nanoflann.hpp not found: its dynamic adaptor skipped (Debian: libnanoflann-dev)\n");
+#endif
+#if BHCL_HAVE_IKDTREE
+  bench::IkdTree ik;
+  ik.build(scan0.data(), scan0.size() / 3);
+#else
+  std::printf("# ikd-Tree not built in (cmake -DBHCL_IKDTREE_DIR=<hku-mars/ikd-Tree>/ikd-Tree): skipped\n");
 #endif
   std::vector<ScanRow> rows;
   print_row_header();
@@ -398,27 +475,32 @@ int run(const Options& o, int argc, char** argv) {
     row.scan_points = st.scan.size() / 3;
     row.removed = st.drop.size();
     row.live = map.live_ids.size();
-    KnnResult rb, rn;
+    KnnResult rb, rn, ri;
+    std::vector<float> ik_xyz;
+    // The methods' order rotates per scan: none always runs on a cache another warmed.
+    for (int m = 0; m < 3; ++m) {
+      const int which = (m + s) % 3;
+      if (which == 0) rb = bh_step(bh, sp, st, row);
 #if BHCL_HAVE_NANOFLANN
-    if (s % 2) {  // alternating order: neither method always runs on a cache the other warmed
-      rb = bh_step(bh, sp, st, row);
-      rn = nf_step(nf, cloud, map, st, o, row);
-    } else {
-      rn = nf_step(nf, cloud, map, st, o, row);
-      rb = bh_step(bh, sp, st, row);
-    }
-#else
-    rb = bh_step(bh, sp, st, row);
+      if (which == 1) rn = nf_step(nf, cloud, map, st, o, row);
 #endif
+#if BHCL_HAVE_IKDTREE
+      if (which == 2) ik_step(ik, map, st, o, row, ik_xyz, ri);
+#endif
+    }
     if (s % o.check_every == 0 || s + 1 == o.scans) {
       const KnnResult truth = fresh_truth(rt, map, st, o, sp);
       if (have_nf) row.nf_recall = evaluate_accuracy(rn, truth).recall;
+#if BHCL_HAVE_IKDTREE
+      ik_ids(map, ids_before(map, st), ik_xyz, ri);
+      row.ik_recall = evaluate_accuracy(ri, truth).recall;
+#endif
       row.bh_recall = evaluate_accuracy(rb, truth).recall;
     }
     print_row(row);
     rows.push_back(row);
   }
-  print_summary(rows, have_nf);
+  print_summary(rows, have_nf, have_ik);
   print_index_after(bh);
   if (!o.csv.empty()) write_csv(o.csv, rows);
   return exact_status(rows);

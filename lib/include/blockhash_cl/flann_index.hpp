@@ -59,7 +59,9 @@ class FlannIndex : public Index {
  private:
   // The tree over n points (index coordinates); ext: their ids (empty: 0 .. n - 1).
   void build_tree(const float* pts, std::size_t n, std::vector<std::int32_t> ext);
-  void rebuild_live();
+  // One full build over the stored points not marked in `dead` (n_dead of them) and m new ones.
+  void rebuild_live(const std::vector<std::uint8_t>& dead, std::size_t n_dead, const float* added, std::size_t m,
+                    std::int32_t first);
   // Answers rows [0, n) into raw arrays (n*k ids and distances, n counts), in the index's own
   // (possibly scaled) coordinates; returns how many queries had a non-finite coordinate.
   std::size_t search(const float* queries, std::size_t n, const SearchParams& params,

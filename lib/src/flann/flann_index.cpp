@@ -299,9 +299,11 @@ FlannIndex::FlannIndex(std::shared_ptr<Runtime> runtime, const float* points,
 
 namespace {
 
-// A part's tree over pts (index coordinates), its coincident points grouped where there are many.
-void build_part(FlannPart& part, const float* pts, std::size_t n, int leaf_max_size) {
-  part.points.assign(pts, pts + 3 * n);
+// A part's tree over pts (index coordinates, taken over: no copy), its coincident points grouped
+// where there are many.
+void build_part(FlannPart& part, std::vector<float> pts, int leaf_max_size) {
+  const std::size_t n = pts.size() / 3;
+  part.points = std::move(pts);
   const bool grouped = group_coincident(part.points, part.unique_points, part.groups);
   try {
     flann::Matrix<float> m(const_cast<float*>(grouped ? part.unique_points.data() : part.points.data()),
@@ -319,67 +321,83 @@ void build_part(FlannPart& part, const float* pts, std::size_t n, int leaf_max_s
 void FlannIndex::build_tree(const float* pts, std::size_t n_points, std::vector<std::int32_t> ext) {
   auto fresh = std::make_unique<Impl>();
   fresh->leaf_max_size = impl_->leaf_max_size;
-  build_part(fresh->main, pts, n_points, fresh->leaf_max_size);
+  build_part(fresh->main, std::vector<float>(pts, pts + 3 * n_points), fresh->leaf_max_size);
   fresh->ext = std::move(ext);
   impl_ = std::move(fresh);  // only once built: a failed update leaves the index as it was
 }
 
-// A fresh tree over the live points, ids mapped (the wrapper's coincident-point groups are
-// rebuilt with the tree).
-void FlannIndex::rebuild_live() {
-  const std::vector<float>& cp = caller_points();
-  std::vector<float> live;
+// A fresh tree over the live points and `m` new ones (index coordinates), ids mapped, built from
+// the points the parts hold in one pass (no re-read of the caller's points, no re-scaling or
+// re-validation: a fresh build does those, this does not need to). The ids stay the identity
+// (ext empty, as after a fresh build) while no stored point was ever dropped. The wrapper's coincident-point
+// groups are rebuilt with the tree.
+void FlannIndex::rebuild_live(const std::vector<std::uint8_t>& dead, std::size_t n_dead, const float* added,
+                              std::size_t m, std::int32_t first) {
+  const Impl& im = *impl_;
+  const std::size_t live = im.stored() - n_dead;
+  const bool identity = im.ext.empty() && n_dead == 0;  // every stored point live, ids = local numbers
+  std::vector<float> pts;
   std::vector<std::int32_t> ids;
-  live.reserve(3 * size());
-  ids.reserve(size());
-  for (std::size_t i = 0; i < cp.size() / 3; ++i)
-    if (!std::isnan(cp[3 * i])) {
-      live.insert(live.end(), cp.begin() + 3 * i, cp.begin() + 3 * i + 3);
-      ids.push_back(static_cast<std::int32_t>(i));
+  pts.reserve(3 * (live + m));
+  if (!identity) ids.reserve(live + m);
+  for (const FlannPart* p : {&im.main, &im.delta}) {
+    const float* src = p->points.data();
+    for (std::size_t i = 0; i < p->n(); ++i) {
+      const std::size_t at = p->offset + i;
+      if (!dead.empty() && dead[at]) continue;
+      pts.insert(pts.end(), src + 3 * i, src + 3 * i + 3);
+      if (!identity) ids.push_back(im.id(static_cast<std::int32_t>(at)));
     }
-  std::vector<float> storage;
-  const float* pts = to_structure(live.data(), ids.size(), storage);
-  const std::size_t n = ids.size();
-  build_tree(pts, n, std::move(ids));
+  }
+  pts.insert(pts.end(), added, added + 3 * m);
+  if (!identity)
+    for (std::size_t i = 0; i < m; ++i) ids.push_back(first + static_cast<std::int32_t>(i));
+  auto fresh = std::make_unique<Impl>();
+  fresh->leaf_max_size = im.leaf_max_size;
+  build_part(fresh->main, std::move(pts), fresh->leaf_max_size);
+  fresh->ext = std::move(ids);
+  impl_ = std::move(fresh);  // only once built: a failed update leaves the index as it was
 }
 
 // Updates, as FLANN's own KDTreeIndex::addPoints does them (a rebuild only past a threshold;
 // its KDTreeSingleIndex, the exact tree used here, rebuilds on every addPoints, and its
 // removePoint keeps a removed mark that every search skips): an insert rebuilds only the delta
-// tree over the points inserted since the last full build, until they pass an eighth of the
-// main tree's (then one full build over the live points); a remove marks the points removed
-// until a quarter of the stored ones are (then one full build). No update costs more than a
-// fresh build of its result; bench/update_bench.cpp measures them.
+// tree over the points inserted since the last full build, until they pass half of the main
+// tree's (then one full build over the live points); a remove marks the points removed until a
+// quarter of the stored ones are (then one full build). A full build costs what a fresh build of
+// its result does (FLANN's buildIndex is nearly all of both: 1.05x measured for a 25 % insert
+// when an eighth was the threshold), so the threshold is where inserts stop merging: a delta of
+// half the main tree is built in about a third of a full build, and a query searches it after
+// the main tree with the k-th distance found there, so it visits few of its leaves.
+// bench/update_bench.cpp measures them.
 void FlannIndex::insert_points(const float*, const float* scaled, std::size_t m, std::int32_t first) {
   Impl& im = *impl_;
   const std::size_t nd = im.delta.n() + m;
-  if (8 * nd > im.main.n()) {
-    rebuild_live();
+  if (2 * nd > im.main.n()) {
+    rebuild_live(im.dead, im.n_dead, scaled, m, first);
     return;
   }
   FlannPart delta;
   std::vector<float> pts(im.delta.points);
   pts.insert(pts.end(), scaled, scaled + 3 * m);
-  build_part(delta, pts.data(), nd, im.leaf_max_size);
+  build_part(delta, std::move(pts), im.leaf_max_size);
   delta.offset = im.main.n();
-  // Nothing of the index changed until here: a failed build leaves it as it was.
-  std::vector<std::int32_t> ext = im.ext;
-  if (ext.empty()) {
-    ext.resize(im.stored());
-    for (std::size_t i = 0; i < ext.size(); ++i) ext[i] = static_cast<std::int32_t>(i);
+  // Nothing of the index changed until here: a failed build leaves it as it was. An empty ext
+  // (ids = local numbers: no stored point dropped since the last build, so the next id is the
+  // next local number) stays empty; a map grows by the new ids.
+  if (!im.ext.empty()) {
+    im.ext.reserve(im.main.n() + nd);
+    for (std::size_t i = 0; i < m; ++i) im.ext.push_back(first + static_cast<std::int32_t>(i));
+  } else if (std::size_t(first) != im.stored()) {
+    throw Error("flann: insert: id " + std::to_string(first) + " does not follow the " + std::to_string(im.stored()) +
+                " stored points (internal)");
   }
-  for (std::size_t i = 0; i < m; ++i) ext.push_back(first + static_cast<std::int32_t>(i));
   if (!im.dead.empty()) im.dead.resize(im.main.n() + nd, 0);
-  im.ext = std::move(ext);
   im.delta = std::move(delta);
 }
 
 void FlannIndex::remove_points(const std::int32_t* ids, std::size_t n) {
   Impl& im = *impl_;
-  if (4 * (im.n_dead + n) > im.stored()) {
-    rebuild_live();
-    return;
-  }
   // Local numbers first (ext ascending), so that an internal error leaves the marks as they were.
   std::vector<std::size_t> local(n);
   for (std::size_t i = 0; i < n; ++i) {
@@ -388,6 +406,14 @@ void FlannIndex::remove_points(const std::int32_t* ids, std::size_t n) {
     if (at >= im.stored() || im.id(static_cast<std::int32_t>(at)) != ids[i] || (!im.dead.empty() && im.dead[at]))
       throw Error("flann: remove: id " + std::to_string(ids[i]) + " is not stored (internal)");
     local[i] = at;
+  }
+  if (4 * (im.n_dead + n) > im.stored()) {
+    // One full build over what stays (the marks on a copy: a failed build leaves the index as it was).
+    std::vector<std::uint8_t> dead = im.dead;
+    if (dead.empty()) dead.assign(im.stored(), 0);
+    for (std::size_t at : local) dead[at] = 1;
+    rebuild_live(dead, im.n_dead + n, nullptr, 0, 0);
+    return;
   }
   if (im.dead.empty()) im.dead.assign(im.stored(), 0);
   for (std::size_t at : local) im.dead[at] = 1;
