@@ -31,6 +31,14 @@ import tempfile
 
 import numpy as np
 
+# What the table's "search wall" is, written under its command.
+SEARCH_WALL = ("Search wall: for `bhcl knn`, the stats file's `stages.wall_s`: the query call with its output "
+               "files' appends (ids and dist2 written as binary .npy, into the page cache), not their commit "
+               "(flush to the disk and rename, `stages.commit_s`); for Python, the stats dict's `wall_s`: the "
+               "library call (the arrays go to numpy without a copy). kernel: the kernel's event time. "
+               "other: the wall less every named stage (the call's set-up, locks, the first touch of fresh "
+               "result pages outside the kernel).")
+
 STAGES = ["compile_s", "sort_s", "upload_s", "kernel_s", "download_s", "unsort_s", "write_s", "other_s"]
 
 
@@ -129,6 +137,9 @@ def main():
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--python-path", default="", help="folder holding the blockhash_cl package (empty: skip Python)")
     ap.add_argument("--out", default="")
+    ap.add_argument("--title", default="Cornell 1M", help="the table's title (the data set)")
+    ap.add_argument("--cpu", default="AVX-512", help="the machine, for the title")
+    ap.add_argument("--note", default="", help="a line under the command: the inputs, the code measured")
     args = ap.parse_args()
     random.seed(1)
     sizes = [int(x) for x in args.sizes.split(",")]
@@ -141,10 +152,11 @@ def main():
     text = table(rows)
     print(text)
     if args.out:
-        header = (f"# End to end, Cornell 1M (AVX-512, {os.environ.get('POCL_MAX_PTHREAD_COUNT', '?')} threads)\n\n"
+        threads = os.environ.get('POCL_MAX_PTHREAD_COUNT', '?')
+        header = (f"# End to end, {args.title} ({args.cpu}, {threads} threads)\n\n"
                   f"Command: `POCL_MAX_PTHREAD_COUNT={os.environ.get('POCL_MAX_PTHREAD_COUNT', '')} "
-                  + " ".join(["python3"] + sys.argv) + f"`\n\nMedian of {args.rounds} rounds "
-                  "(min-max); stages: block hashing's median, ms.\n\n")
+                  + " ".join(["python3"] + sys.argv) + f"`\n\n{args.note}\n\n" + SEARCH_WALL
+                  + f"\n\nMedian of {args.rounds} rounds (min-max); stages: block hashing's median, ms.\n\n")
         tmp_out = args.out + ".tmp"
         with open(tmp_out, "w") as f:
             f.write(header + text + "\n")

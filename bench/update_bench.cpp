@@ -7,8 +7,10 @@
 //  2. Block hashing's grid after the set grows 10x in 100 inserts, then after half of it is
 //     removed in 10 removes: recall@k at the same A and query speed against a fresh build over the
 //     same live points (truth: the exact grid mode of the fresh build, ids mapped).
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <stdexcept>
 #include <fstream>
 #include <memory>
 #include <numeric>
@@ -53,8 +55,11 @@ struct Options {
   int rounds = 5, k = 10;
   float A = 2;
   std::string data = "uniform", methods_arg = "blockhash,kdtree,bruteforce,flann", csv;
-  bool skip_cost = false, skip_growth = false;
+  std::string ops_arg = "insert-1,insert-10,remove-10,insert-25";
+  bool skip_cost = false, skip_growth = false, no_nanoflann = false, stats = false;
 };
+
+std::vector<int> selected_ops(const std::string& arg);
 
 // Parses the command line (CLI11's own messages and exit codes; `rc` >= 0: exit with it).
 Options parse(int argc, char** argv, int& rc) {
@@ -68,6 +73,9 @@ Options parse(int argc, char** argv, int& rc) {
   app.add_option("--data", o.data, "a generated set (uniform, clustered, cornell, ...)");
   app.add_option("--methods", o.methods_arg, "methods of the cost study, comma separated (blockhash-tables: auto's L tables, grid=0)");
   app.add_option("--csv", o.csv, "also write the figures here");
+  app.add_option("--ops", o.ops_arg, "operations of the cost study, comma separated (insert-1, insert-10, remove-10, insert-25)");
+  app.add_flag("--stats", o.stats, "block hashing: print the build stats of each fresh build and update (stderr)");
+  app.add_flag("--no-nanoflann", o.no_nanoflann, "leave nanoflann's dynamic adaptor out of the cost study (profiling one method)");
   app.add_flag("--skip-cost", o.skip_cost, "only the growth study");
   app.add_flag("--skip-growth", o.skip_growth, "only the cost study");
   rc = -1;
@@ -75,6 +83,13 @@ Options parse(int argc, char** argv, int& rc) {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     rc = app.exit(e);
+    return o;
+  }
+  try {
+    selected_ops(o.ops_arg);  // named now, before any set is made
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "%s\n", e.what());
+    rc = 2;
   }
   return o;
 }
@@ -92,20 +107,43 @@ std::vector<float> shuffled_set(const std::string& data, std::size_t N) {
   return sh;
 }
 
-std::vector<std::string> split_methods(const std::string& methods_arg) {
-  std::vector<std::string> methods;
-  for (std::size_t a = 0; a <= methods_arg.size();) {
-    std::size_t b = methods_arg.find(',', a);
-    if (b == std::string::npos) b = methods_arg.size();
-    if (b > a) methods.push_back(methods_arg.substr(a, b - a));
+std::vector<std::string> split_list(const std::string& arg) {
+  std::vector<std::string> items;
+  for (std::size_t a = 0; a <= arg.size();) {
+    std::size_t b = arg.find(',', a);
+    if (b == std::string::npos) b = arg.size();
+    if (b > a) items.push_back(arg.substr(a, b - a));
     a = b + 1;
   }
+  return items;
+}
+
+std::vector<std::string> split_methods(const std::string& methods_arg, bool no_nanoflann) {
+  std::vector<std::string> methods = split_list(methods_arg);
 #if BHCL_HAVE_NANOFLANN
-  methods.push_back("nanoflann-dynamic");
+  if (!no_nanoflann) methods.push_back("nanoflann-dynamic");
 #else
   std::printf("# nanoflann.hpp not found: its dynamic adaptor skipped (Debian: libnanoflann-dev)\n");
 #endif
   return methods;
+}
+
+// The operations --ops names ("insert 10%" as insert-10), in kOps' order; an unknown name is an error.
+std::vector<int> selected_ops(const std::string& arg) {
+  std::vector<int> ops;
+  for (const std::string& name : split_list(arg)) {
+    int found = -1;
+    for (int op = 0; op < kNumOps; ++op) {
+      std::string key = kOps[op].name;
+      std::replace(key.begin(), key.end(), ' ', '-');
+      key.erase(std::remove(key.begin(), key.end(), '%'), key.end());
+      if (key == name) found = op;
+    }
+    if (found < 0) throw std::runtime_error("update_bench: --ops: unknown operation '" + name + "'");
+    ops.push_back(found);
+  }
+  std::sort(ops.begin(), ops.end());
+  return ops;
 }
 
 // The cost study's sets: all (the first N, then the inserted ones), the ids a remove drops and the
@@ -134,7 +172,7 @@ CostSets cost_sets(const std::vector<float>& all, std::size_t N) {
 
 // One method's fresh build of the set after `op` and the update that makes it: (fresh_s, update_s).
 std::pair<double, double> time_op(const std::string& method, const Op& op, const CostSets& c,
-                                  const std::shared_ptr<Runtime>& rt) {
+                                  const std::shared_ptr<Runtime>& rt, bool stats) {
   const std::size_t N = c.N, m = static_cast<std::size_t>(op.frac * double(N));
   const std::size_t n_after = op.insert ? N + m : N - m;
   const float* after = op.insert ? c.all.data() : c.kept.data();
@@ -168,27 +206,37 @@ std::pair<double, double> time_op(const std::string& method, const Op& op, const
   double t0 = now_s();
   auto fresh = make_index(name, rt, after, n_after, mo);
   tf = now_s() - t0;
+  auto say = [&](const char* what, const Index& ix) {
+    if (!stats) return;
+    if (const auto* bh = dynamic_cast<const BlockHashIndex*>(&ix))
+      std::fprintf(stderr, "# %s %s: %s  merges %zu rebuilds %zu retunes %zu holes %zu update %.4f s\n", op.name, what,
+                   bh->info().summary().c_str(), bh->info().merges, bh->info().update_rebuilds, bh->info().retunes,
+                   bh->info().holes, bh->info().t_update);
+  };
+  say("fresh", *fresh);
   fresh.reset();
   auto ix = make_index(name, rt, c.all.data(), N, mo);
   t0 = now_s();
   if (op.insert) ix->insert(c.all.data() + 3 * N, m);
   else ix->remove(c.drop.data(), c.drop.size());
   tu = now_s() - t0;
+  say("updated", *ix);
   return {tf, tu};
 }
 
 // 1. Each method's inserts and remove against fresh builds, in interleaved rounds.
 void cost_study(const Options& o, const std::shared_ptr<Runtime>& rt, const std::vector<float>& all, std::FILE* out) {
   const std::size_t N = o.N;
-  const std::vector<std::string> methods = split_methods(o.methods_arg);
+  const std::vector<std::string> methods = split_methods(o.methods_arg, o.no_nanoflann);
+  const std::vector<int> ops = selected_ops(o.ops_arg);
   // ratios[method][op] over rounds, and the times
   std::vector<std::vector<std::vector<double>>> ratio(methods.size(), std::vector<std::vector<double>>(kNumOps)),
       fresh_t = ratio, upd_t = ratio;
   const CostSets c = cost_sets(all, N);
   for (int r = 0; r < o.rounds; ++r) {
     for (std::size_t mi = 0; mi < methods.size(); ++mi)
-      for (int op = 0; op < kNumOps; ++op) {
-        const auto [tf, tu] = time_op(methods[mi], kOps[op], c, rt);
+      for (int op : ops) {
+        const auto [tf, tu] = time_op(methods[mi], kOps[op], c, rt, o.stats);
         ratio[mi][op].push_back(tu / tf);
         fresh_t[mi][op].push_back(tf);
         upd_t[mi][op].push_back(tu);
@@ -198,7 +246,7 @@ void cost_study(const Options& o, const std::shared_ptr<Runtime>& rt, const std:
   std::printf("\n## Cost of an update against a fresh build of the resulting set (N = %zu, median of %d interleaved rounds)\n", N, o.rounds);
   std::printf("%-20s %-11s %10s %10s %8s\n", "method", "op", "fresh_s", "update_s", "ratio");
   for (std::size_t mi = 0; mi < methods.size(); ++mi)
-    for (int op = 0; op < kNumOps; ++op) {
+    for (int op : ops) {
       const double f = bench::median(fresh_t[mi][op]), u = bench::median(upd_t[mi][op]), q = bench::median(ratio[mi][op]);
       std::printf("%-20s %-11s %10.4f %10.4f %8.3f\n", methods[mi].c_str(), kOps[op].name, f, u, q);
       if (out) std::fprintf(out, "cost,%s,%s,%.6f,%.6f,%.4f\n", methods[mi].c_str(), kOps[op].name, f, u, q);

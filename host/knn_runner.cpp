@@ -99,13 +99,20 @@ Answered answer_knn(const Args& args, const SearchIndex& index, const RunPlace& 
                        place.writes && !args.flag("quiet"));
   const std::size_t rows = knn_slice_rows(n, a.params.k, a.params.count_examined, bar.enabled());
   auto files = open_outputs<KnnOutputs>(args, place, n, a.params.k);
-  a.st = slices_to_files<KnnOutputs, KnnRows<Id>>(
-      place, n, rows, bar, std::move(files), a, [&](std::size_t first, std::size_t m, KnnRows<Id>& part) {
-        if constexpr (std::is_same_v<Id, std::int64_t>)
+  if constexpr (std::is_same_v<Id, std::int64_t>) {
+    a.st = slices_to_files<KnnOutputs, KnnRows<Id>>(
+        place, n, rows, bar, std::move(files), a, [&](std::size_t first, std::size_t m, KnnRows<Id>& part) {
           return place.query64(queries.data() + 3 * first, m, a.params, part);
-        else
-          return index.query(queries.data() + 3 * first, m, a.params, part);
-      });
+        });
+  } else {
+    // int32 ids: each slice written by the search into the runner's own rows (no fill first).
+    a.st = slices_to_files<KnnOutputs, KnnSlice>(
+        place, n, rows, bar, std::move(files), a, [&](std::size_t first, std::size_t m, KnnSlice& part) {
+          part.reserve(rows, a.params.k, a.params.count_examined);
+          part.n = m;
+          return index.query_into(queries.data() + 3 * first, m, a.params, part.view());
+        });
+  }
   return a;
 }
 

@@ -6,6 +6,7 @@
 
 #include "blockhash_cl/error.hpp"
 #include "blockhash_cl/io.hpp"
+#include "blockhash_cl/parallel.hpp"
 #include "cli.hpp"
 
 namespace bhcl::cli {
@@ -72,19 +73,54 @@ KnnOutputs::KnnOutputs(const Args& args, std::size_t n, int k, bool ids64) : ids
   if (args.has("out-counts")) counts_ = std::make_unique<ArrayOutput>(args.str("out-counts"), "<i4", 4, rows, 0);
 }
 
+void KnnSlice::reserve(std::size_t rows, int k_, bool examined) {
+  const std::size_t kk = static_cast<std::size_t>(k_);
+  if (rows <= capacity_ && k_ == k && (examined_ || !examined)) return;
+  check_result_memory(rows, k_, examined, 1, "bhcl knn");
+  // new T[] default-initialises: the pages stay untouched until the search writes them.
+  ids_.reset(new std::int32_t[std::max<std::size_t>(1, rows * kk)]);
+  dist2_.reset(new float[std::max<std::size_t>(1, rows * kk)]);
+  counts_.reset(new std::int32_t[std::max<std::size_t>(1, rows)]);
+  examined_.reset(examined ? new std::int32_t[std::max<std::size_t>(1, rows)] : nullptr);
+  capacity_ = rows;
+  k = k_;
+}
+
 void KnnOutputs::append(const KnnResult& part) { append_part(part); }
+
+void KnnOutputs::append(const KnnSlice& part) {
+  const std::size_t nk = part.n * static_cast<std::size_t>(part.k);
+  const KnnRowsView v = part.view();
+  if (ids64_) {
+    std::vector<std::int64_t> wide(v.ids, v.ids + nk);
+    ids_->append(wide.data(), nk);
+  } else {
+    append_ids_and_dist2(v.ids, v.dist2, nk);
+  }
+  if (ids64_) dist2_->append(v.dist2, nk);
+  if (counts_) counts_->append(v.counts, part.n);
+  for (std::size_t i = 0; i < part.n; ++i) found_ += static_cast<std::size_t>(v.counts[i]);
+}
+
+void KnnOutputs::append_ids_and_dist2(const void* ids, const float* dist2, std::size_t items) {
+  // Two files, two threads: the copy into the page cache (most of a large slice's write) runs on
+  // both cores instead of one.
+  detail::parallel_tasks(2, [&](std::size_t t) {
+    if (t == 0) ids_->append(ids, items);
+    else dist2_->append(dist2, items);
+  });
+}
 void KnnOutputs::append(const KnnResult64& part) { append_part(part); }
 
 template <typename Part>
 void KnnOutputs::append_part(const Part& part) {
   if (ids64_) {
     std::vector<std::int64_t> tmp;
-    ids_->append(ids_as(part.ids, part.ids.size(), tmp), part.ids.size());
+    append_ids_and_dist2(ids_as(part.ids, part.ids.size(), tmp), part.dist2.data(), part.ids.size());
   } else {
     std::vector<std::int32_t> tmp;
-    ids_->append(ids_as(part.ids, part.ids.size(), tmp), part.ids.size());
+    append_ids_and_dist2(ids_as(part.ids, part.ids.size(), tmp), part.dist2.data(), part.ids.size());
   }
-  dist2_->append(part.dist2.data(), part.dist2.size());
   if (counts_) counts_->append(part.counts.data(), part.counts.size());
   for (auto c : part.counts) found_ += static_cast<std::size_t>(c);
 }

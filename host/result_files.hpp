@@ -36,6 +36,22 @@ class ArrayOutput {
   std::size_t header_bytes_ = 0;
 };
 
+// A slice's kNN rows in memory kept across the slices of a run and never filled before the search
+// writes it (SearchIndex::query_into): a KnnResult's resize is a single-threaded pass over every
+// page first. Sized for the largest slice at the first use.
+class KnnSlice {
+ public:
+  void reserve(std::size_t rows, int k, bool examined);
+  KnnRowsView view() const { return {ids_.get(), dist2_.get(), counts_.get(), examined_.get()}; }
+  std::size_t n = 0;  // the rows of the current slice
+  int k = 0;
+
+ private:
+  std::unique_ptr<std::int32_t[]> ids_, counts_, examined_;
+  std::unique_ptr<float[]> dist2_;
+  std::size_t capacity_ = 0;
+};
+
 // --out-ids, --out-dist2 and --out-counts of a kNN call of n queries and k. ids64: the ids are
 // written as int64 ('<i8', 8 bytes raw), for ids past 2^31 (bhcl knn --distributed); else int32.
 class KnnOutputs {
@@ -43,12 +59,14 @@ class KnnOutputs {
   KnnOutputs(const Args& args, std::size_t n, int k, bool ids64 = false);
   void append(const KnnResult& part);  // the next rows, in order
   void append(const KnnResult64& part);  // the same with int64 ids (each fits when !ids64)
+  void append(const KnnSlice& part);
   void commit();
   std::size_t found() const { return found_; }
 
  private:
   template <typename Part>
   void append_part(const Part& part);
+  void append_ids_and_dist2(const void* ids, const float* dist2, std::size_t items);
   std::unique_ptr<ArrayOutput> ids_, dist2_, counts_;
   bool ids64_ = false;
   std::size_t found_ = 0;

@@ -43,9 +43,10 @@ inline uint bh_block_at_key(__global const ulong* block_keys, uint n_blocks, ulo
 #define BHCL_BH_KNN_PARAMS                                                               \
   BHCL_KNN_QUERY_PARAMS, uint budget, uint keep, BHCL_KNN_RESULT_PARAMS,                 \
       __global int *out_examined, uint want_examined
-#define BHCL_BH_KNN_END(examined)                                         \
-  bhcl_write_row(out_ids, out_d2, out_counts, row, k, best_d, best_i);    \
-  if (want_examined) out_examined[row] = (int)(examined)
+#define BHCL_BH_KNN_END(examined)                                      \
+  ulong orow = bhcl_out_row(out_rows, remap, row);                     \
+  bhcl_write_row(out_ids, out_d2, out_counts, orow, k, best_d, best_i); \
+  if (want_examined) out_examined[orow] = (int)(examined)
 
 /* The L-table layout: the bucket of a cell in a table, or -1 (BHCL_BH_DIRECT: all (P+1)^3 cells
  * of a table addressed directly). */

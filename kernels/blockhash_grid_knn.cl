@@ -440,8 +440,7 @@ __kernel void blockhash_grid_knn(__global const uint* starts, __global const flo
 #undef BHCL_GRID_PF_ROWS
 #endif
   uint examined = 0;
-  size_t base = (size_t)row * (size_t)k;
-  int found = 0;
+  const ulong orow = bhcl_out_row(out_rows, remap, row);
 #if BHCL_GRID_VTOPK
   bhcl_vtopk t;
   float fill_d[16 * VR];
@@ -453,13 +452,7 @@ __kernel void blockhash_grid_knn(__global const uint* starts, __global const flo
   int ti[16 * VR];
   VT_STORE(t., td, ti);
   const uint off = 16u * VR - k;
-  for (uint j = 0; j < k; ++j) {
-    int id = ti[off + j];
-    int empty = id == BHCL_EMPTY_SLOT_ID;
-    out_ids[base + j] = empty ? BHCL_MISSING_ID : id;
-    out_d2[base + j] = empty ? INFINITY : td[off + j];
-    found += empty ? 0 : 1;
-  }
+  bhcl_write_row(out_ids, out_d2, out_counts, orow, k, td + off, ti + off);
 #else
   bhcl_stopk t;
   t.k = k;
@@ -467,13 +460,7 @@ __kernel void blockhash_grid_knn(__global const uint* starts, __global const flo
   t.max_r2 = max_r2;
   bhcl_topk_init(t.d, t.i, k);
   if (bhcl_query_is_finite(q)) examined = bhcl_grid_search(starts, px, py, pz, pid, occ, g, db, qx, qy, qz, budget, BHCL_GRID_ROWCAP, BHCL_GRID_FINE_RINGS, BHCL_GRID_WALKCAP, &t);
-  for (uint j = 0; j < k; ++j) {
-    int empty = t.i[j] == BHCL_EMPTY_SLOT_ID;
-    out_ids[base + j] = empty ? BHCL_MISSING_ID : t.i[j];
-    out_d2[base + j] = empty ? INFINITY : t.d[j];
-    found += empty ? 0 : 1;
-  }
+  bhcl_write_row(out_ids, out_d2, out_counts, orow, k, t.d, t.i);
 #endif
-  out_counts[row] = found;
-  if (want_examined) out_examined[row] = (int)examined;
+  if (want_examined) out_examined[orow] = (int)examined;
 }

@@ -33,5 +33,5 @@ __kernel void bruteforce_knn(__global const float4* points, uint n_points, BHCL_
       }
     }
   }
-  if (active) bhcl_write_row(out_ids, out_d2, out_counts, row, k, best_d, best_i);
+  if (active) bhcl_write_row(out_ids, out_d2, out_counts, bhcl_out_row(out_rows, remap, row), k, best_d, best_i);
 }

@@ -51,5 +51,5 @@ __kernel void kdtree_knn(__global const bhcl_kd_node* nodes, __global const floa
     kd_topk t = {best_d, best_i, k, nfound, max_r2};
     bhcl_kd_search(nodes, points, q, &t);
   }
-  bhcl_write_row(out_ids, out_d2, out_counts, row, k, best_d, best_i);
+  bhcl_write_row(out_ids, out_d2, out_counts, bhcl_out_row(out_rows, remap, row), k, best_d, best_i);
 }

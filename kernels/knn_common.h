@@ -18,7 +18,10 @@ inline float bhcl_dist2(float3 q, float4 p) { return bhcl_dist2_xyz(q.x, q.y, q.
  * sets them (lib/src/core/device_util.hpp), and the result buffers (add_results). */
 #define BHCL_KNN_QUERY_PARAMS \
   __global const float *queries, ulong first, uint count, uint k, float max_r2
-#define BHCL_KNN_RESULT_PARAMS __global int *out_ids, __global float *out_d2, __global int *out_counts
+/* out_rows (when remap): the output row of each dispatch row (the caller's row of a query sent in
+ * Hilbert order), so that results land in the caller's order with no pass after the kernel. */
+#define BHCL_KNN_RESULT_PARAMS \
+  __global int *out_ids, __global float *out_d2, __global int *out_counts, __global const uint *out_rows, uint remap
 
 /* The opening of a kernel with one work-item per query and no barriers: the work-item's `row` and
  * query `q`, and an empty top-k list (best_d, best_i, nfound). The warm-up launch (count 0) and the
@@ -52,6 +55,11 @@ inline void bhcl_topk_init(float* d, int* id, uint k) {
 
 /* The squared distance a candidate must beat: the k-th entry's. */
 inline float bhcl_topk_bound(const float* d, uint k) { return d[k - 1]; }
+
+/* The output row of dispatch row `row` (BHCL_KNN_RESULT_PARAMS). */
+inline ulong bhcl_out_row(__global const uint* out_rows, uint remap, ulong row) {
+  return remap ? (ulong)out_rows[row] : row;
+}
 
 /* Writes row `row` of the results under the contract: -1/+inf for empty slots, and the count. */
 inline void bhcl_write_row(__global int* out_ids, __global float* out_d2, __global int* out_counts,

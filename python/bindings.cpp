@@ -23,6 +23,7 @@
 #include <cstdlib>
 #include <limits>
 #include <memory>
+#include <optional>
 #include <cstddef>
 #include <unordered_map>
 #include <mutex>
@@ -100,50 +101,6 @@ void add_resolved(py::dict& o, const bhcl::SearchIndex& index, const bhcl::Searc
     used = index.search_used(p);  // a recall tuning is cached by the query that just ran
   }
   add_used(o, used);
-}
-
-// kNN: (dist2 (n, k) float32, ids (n, k) int32, counts (n,) int32, stats dict).
-template <typename IndexT>
-py::tuple knn_query(const IndexT& index, const py::array_t<float, py::array::c_style>& queries,
-                    const bhcl::SearchParams& params) {
-  const std::size_t n = rows_of(queries, "queries");
-  bhcl::KnnResult r;
-  bhcl::QueryStats st;
-  // The batch's own parameters (SearchIndex::params_for_batch; block hashing: a recall asked for,
-  // or the default one on a layout where a budget applies, tuned on a sample of this batch, not on
-  // the index's points).
-  bhcl::BatchTuning bt;
-  bhcl::SearchParams run = params;
-  double wall = 0;
-  {
-    py::gil_scoped_release nogil;
-    const auto t0 = std::chrono::steady_clock::now();
-    run = index.params_for_batch(queries.data(), n, params, &bt);
-    st = index.query(queries.data(), n, run, r);
-    wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  }
-  const auto rows = static_cast<py::ssize_t>(n), k = static_cast<py::ssize_t>(params.k);
-  py::dict stats = stats_dict(st);
-  add_resolved(stats, index, run);
-  if (bt.tuned) {
-    // What the tuning chose and measured, and its cost within this call (wall_s covers the
-    // query only; tuning_share is the tuning's part of both, compiles excluded).
-    stats["recall_target"] = bt.target;
-    stats["A"] = bt.tuning.A;
-    stats["tuned_on"] = "queries";
-    stats["tuned_sample_recall"] = bt.tuning.recall;
-    stats["tuned_reached"] = bt.tuning.reached;
-    stats["tuning_sample"] = bt.tuning.sample;
-    stats["tuning_cached"] = bt.cached;
-    stats["tuning_distribution"] = bt.distribution;
-    stats["tuning_s"] = bt.seconds;
-    stats["tuning_compile_s"] = bt.compile_s;
-    // Of the call's time without first-launch compiles (they happen once per process).
-    const double warm = wall - bt.compile_s - st.compile_s;
-    stats["tuning_share"] = warm > 0 ? std::min(1.0, bt.seconds / warm) : 0.0;
-  }
-  return py::make_tuple(to_numpy(std::move(r.dist2), {rows, k}), to_numpy(std::move(r.ids), {rows, k}),
-                        to_numpy(std::move(r.counts), {rows}), stats);
 }
 
 // Radius search: (offsets (n + 1,) int64, dist2 (total,) float32, ids (total,) int32,
@@ -285,6 +242,74 @@ class Uninit {
  private:
   T* p_ = nullptr;
 };
+
+// kNN: (dist2 (n, k) float32, ids (n, k) int32, counts (n,) int32, stats dict).
+template <typename IndexT>
+py::tuple knn_query(const IndexT& index, const py::array_t<float, py::array::c_style>& queries,
+                    const bhcl::SearchParams& params) {
+  const std::size_t n = rows_of(queries, "queries");
+  const auto rows = static_cast<py::ssize_t>(n), k = static_cast<py::ssize_t>(params.k);
+  const std::size_t nk = n * static_cast<std::size_t>(std::max(params.k, 0));
+  // An Index writes straight into the arrays numpy gets (from the pool: a buffer reused from an
+  // earlier call's freed result has its pages mapped already; a fresh one is first touched by the
+  // search's threads, not by a fill before it); another index kind fills a KnnResult.
+  constexpr bool into = std::is_same_v<IndexT, bhcl::Index>;
+  std::optional<Uninit<float>> d2;
+  std::optional<Uninit<std::int32_t>> ids, counts;
+  if constexpr (into) {
+    // The result's memory checked before it is taken (the call checks it again, with its scratch).
+    if (params.k >= 1) bhcl::check_result_memory(n, params.k, false, 1, index.method());
+    d2.emplace(nk);
+    ids.emplace(nk);
+    counts.emplace(n);
+  }
+  bhcl::KnnResult r;
+  bhcl::QueryStats st;
+  // The batch's own parameters (SearchIndex::params_for_batch; block hashing: a recall asked for,
+  // or the default one on a layout where a budget applies, tuned on a sample of this batch, not on
+  // the index's points).
+  bhcl::BatchTuning bt;
+  bhcl::SearchParams run = params;
+  double wall = 0;
+  {
+    py::gil_scoped_release nogil;
+    const auto t0 = std::chrono::steady_clock::now();
+    run = index.params_for_batch(queries.data(), n, params, &bt);
+    if constexpr (into) {
+      std::optional<Uninit<std::int32_t>> examined;  // asked for, not returned: written and dropped
+      if (run.count_examined) examined.emplace(n);
+      st = index.query_into(queries.data(), n, run,
+                            {&(*ids)[0], &(*d2)[0], &(*counts)[0], examined ? &(*examined)[0] : nullptr});
+    }
+    else st = index.query(queries.data(), n, run, r);
+    wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  }
+  py::dict stats = stats_dict(st);
+  add_resolved(stats, index, run);
+  if (bt.tuned) {
+    // What the tuning chose and measured, and its cost within this call (wall_s covers the
+    // query only; tuning_share is the tuning's part of both, compiles excluded).
+    stats["recall_target"] = bt.target;
+    stats["A"] = bt.tuning.A;
+    stats["tuned_on"] = "queries";
+    stats["tuned_sample_recall"] = bt.tuning.recall;
+    stats["tuned_reached"] = bt.tuning.reached;
+    stats["tuning_sample"] = bt.tuning.sample;
+    stats["tuning_cached"] = bt.cached;
+    stats["tuning_distribution"] = bt.distribution;
+    stats["tuning_s"] = bt.seconds;
+    stats["tuning_compile_s"] = bt.compile_s;
+    // Of the call's time without first-launch compiles (they happen once per process).
+    const double warm = wall - bt.compile_s - st.compile_s;
+    stats["tuning_share"] = warm > 0 ? std::min(1.0, bt.seconds / warm) : 0.0;
+  }
+  if constexpr (into)
+    return py::make_tuple(std::move(*d2).to_numpy({rows, k}), std::move(*ids).to_numpy({rows, k}),
+                          std::move(*counts).to_numpy({rows}), stats);
+  else
+    return py::make_tuple(to_numpy(std::move(r.dist2), {rows, k}), to_numpy(std::move(r.ids), {rows, k}),
+                          to_numpy(std::move(r.counts), {rows}), stats);
+}
 
 inline double dist2_64(const double* q, const double* p) {
   const double dx = q[0] - p[0], dy = q[1] - p[1], dz = q[2] - p[2];

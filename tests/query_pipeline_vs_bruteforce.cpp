@@ -2,6 +2,8 @@
 // split by the batch bound, the Hilbert order, the buffers kept from call to call, the exact
 // re-answer of suspect rows) give the same answers for both kinds of query, kNN and radius, on
 // every method, checked against brute force (the float reference).
+#include <cstring>
+
 #include "test_util.hpp"
 
 namespace bhcl::test {
@@ -150,6 +152,49 @@ TEST_CASE("pipeline: kNN and radius, exact methods: suspect rows re-answered in 
         CHECK(tiny.dist2[tiny.offsets[q]] == 0.0f);
       }
     }
+  }
+}
+
+// query_into's rows into memory filled with a pattern first (the call must write every entry and
+// read none), against query's rows: sorted and not, split into many dispatches (the kernel's
+// result rows offset within a chunk), examined counts, and points at 2^100 (the distances scaled
+// back where the kernel wrote them).
+void check_query_into(const Index& ix, const std::vector<float>& qs, const SearchParams& p, const std::string& what) {
+  const std::size_t n = qs.size() / 3, nk = n * static_cast<std::size_t>(p.k);
+  KnnResult want;
+  ix.query(qs.data(), n, p, want);
+  std::vector<std::int32_t> ids(nk, 0x5a5a5a5a), counts(n, -7), examined(n, -7);
+  std::vector<float> d2(nk, -1.0f);
+  ix.query_into(qs.data(), n, p, {ids.data(), d2.data(), counts.data(), p.count_examined ? examined.data() : nullptr});
+  REQUIRE_MESSAGE(ids == want.ids, what);
+  REQUIRE_MESSAGE(counts == want.counts, what);
+  for (std::size_t i = 0; i < nk; ++i)
+    REQUIRE_MESSAGE(std::memcmp(&d2[i], &want.dist2[i], 4) == 0, what << " entry " << i);
+  if (p.count_examined) REQUIRE_MESSAGE(examined == want.examined, what);
+}
+
+TEST_CASE("pipeline: query_into writes query's rows into caller memory, sorted, split, scaled, every method") {
+  Case c;
+  c.qs.insert(c.qs.end(), {NAN, 0.5f, 0.5f});  // a non-finite query: its empty row written too
+  std::vector<float> big_pts = c.pts, big_qs = c.qs;
+  for (float& v : big_pts) v = std::ldexp(v, 100);
+  for (float& v : big_qs) v = std::ldexp(v, 100);
+  for (const auto& m : method_names()) {
+    INFO("method " << m);
+    auto ix = make_index(m, runtime(), c.pts.data(), c.pts.size() / 3);
+    auto big = make_index(m, runtime(), big_pts.data(), big_pts.size() / 3);
+    for (int sort : {0, 1})
+      for (std::size_t batch : {std::size_t(0), std::size_t(13)}) {
+        SearchParams p = knn_params(7);
+        p.sort_queries = sort;
+        p.max_batch = batch;
+        p.count_examined = ix->counts_examined();
+        const std::string what = m + ": sort " + std::to_string(sort) + ", max_batch " + std::to_string(batch);
+        check_query_into(*ix, c.qs, p, what);
+        check_query_into(*big, big_qs, p, what + ", points at 2^100");
+      }
+    SearchParams p = knn_params(3);
+    CHECK_THROWS_WITH_AS(ix->query_into(c.qs.data(), c.n(), p, {}), doctest::Contains("null output array"), Error);
   }
 }
 

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <fstream>
 #include <iterator>
@@ -18,6 +19,7 @@
 #include "blockhash_cl/bruteforce.hpp"
 #include "blockhash_cl/factory.hpp"
 #include "blockhash_cl/kdtree.hpp"
+#include "blockhash_cl/metrics.hpp"
 #include "blockhash_cl/multi_device.hpp"
 #include "test_util.hpp"
 
@@ -251,6 +253,14 @@ TEST_CASE("updates: brute force's holes are never returned, at any radius or k")
   test::require_identical(r, fresh_answer(few, qs, sp), "bruteforce k 64 over 39 live");
 }
 
+// An insert sets the occupancy pyramid's new bits in place: the pyramid equals one built afresh
+// from the grid's directory.
+void require_pyramid_as_built(const BlockHashIndex& ix) {
+  blockhash::Grid copy = *ix.structure().grid;
+  blockhash::build_grid_occupancy(copy, 1);
+  REQUIRE(copy.occ == ix.structure().grid->occ);
+}
+
 // 64 random queries at A = 2: the kernel equals the host reference and returns no removed id.
 template <typename Rng>
 void budget_kernel_equals_reference(const BlockHashIndex& ix, const Model& m, Rng& rng, const char* what) {
@@ -269,6 +279,7 @@ TEST_CASE("updates: block hashing's grid (exact mode) after random inserts and r
   for (std::size_t step = 0; step < 12; ++step) {
     CAPTURE(step);
     random_step(*ix, m, rng, step);
+    require_pyramid_as_built(*ix);
     check_exact(*ix, m, rng);  // A = 0: the grid's exact mode
     // The host reference sees the same arrays as the kernel.
     budget_kernel_equals_reference(*ix, m, rng, "grid budget A = 2, kernel vs reference");
@@ -462,7 +473,7 @@ TEST_CASE("updates: block hashing's two-level grid directory after random insert
   Model m;
   const std::vector<float> p0 = first_points(m, rng, 2000);
   BlockHashBuildParams bp;
-  bp.grid_directory = 1;  // updates rebuild it over the live points (no in-place merge)
+  bp.grid_directory = 1;  // inserts inside its box merge, those past it rebuild
   auto ix = blockhash_over(p0, bp);
   REQUIRE(ix->info().grid_two_level);
   for (std::size_t step = 0; step < 8; ++step) {
@@ -472,8 +483,8 @@ TEST_CASE("updates: block hashing's two-level grid directory after random insert
     check_exact(*ix, m, rng);
     budget_kernel_equals_reference(*ix, m, rng, "two-level grid A = 2, kernel vs reference");
   }
-  // Its inserts rebuild with the side kept, inside the retune band: grown 3x in steps of a tenth,
-  // the cells stay within 1.1x of the tuned population (before, the side was never retuned there).
+  // Its inserts merge inside the retune band and retune past it: grown 3x in steps of a tenth,
+  // the cells stay within 1.1x of the tuned population (once, the side was never retuned there).
   const std::size_t retunes = ix->info().retunes;
   const double tuned = blockhash_over(p0, bp)->info().mean_cell_points;  // what the tuning aims at here
   for (std::size_t step = 0; step < 12; ++step) {
@@ -932,5 +943,160 @@ TEST_CASE("updates: the build stats report holes, merges and rebuilds after upda
     CHECK(field(u, "removed") == "3");
     CHECK(field(u, method == std::string("kdtree") ? "update_merges" : "merges") == "1");
     CHECK(field(u, "update_rebuilds") == "0");
+  }
+}
+
+// Issue 39: params_for_batch caches its tunings and the exact kd-tree it checks them against.
+// After an insert, a remove or a rebuild both belong to another point set: the next batch is
+// tuned again, against the live points' exact answers with their stable ids (the tuning's recall
+// is the recall its A gives on the sample, checked here against brute force over the live points).
+TEST_CASE("updates: params_for_batch tunes again after every update, against the live points") {
+  std::mt19937_64 rng(394);
+  Model m;
+  auto ix = grid_over(m, rng, 20000);
+  const std::vector<float> qs = uniform(rng, 256, 0.0f, 1.0f);  // the whole batch is the sample
+  SearchParams sp = test::knn_params(10);
+  sp.recall_target = 0.8;
+  auto tune_and_check = [&](const char* after, bool expect_cached) {
+    CAPTURE(after);
+    BatchTuning bt;
+    const SearchParams got = ix->params_for_batch(qs.data(), qs.size() / 3, sp, &bt);
+    REQUIRE(bt.tuned);
+    CHECK(bt.cached == expect_cached);
+    // A finite A reaches 0.8 on uniform points: an exact tree of other points (or its answers'
+    // positions taken for ids) reaches it only at the exact mode.
+    CHECK(std::isfinite(got.A));
+    CHECK(bt.tuning.reached);
+    SearchParams at = test::knn_params(10);
+    at.A = got.A;
+    at.sort_queries = 0;
+    const KnnResult r = ix->query(qs, at);
+    require_no_removed(r, m);
+    SearchParams exact = test::knn_params(10);
+    exact.sort_queries = 0;
+    CHECK(bt.tuning.recall == doctest::Approx(evaluate_accuracy(r, fresh_answer(m, qs, exact)).recall).epsilon(1e-12));
+  };
+  tune_and_check("the build", false);
+  tune_and_check("the build, again", true);
+  // A remove of half of the points (the side retuned), then a 10 % insert (a merge).
+  std::vector<std::int32_t> drop;
+  for (const auto& kv : m.live)
+    if (rng() % 2) drop.push_back(kv.first);
+  remove_both(*ix, m, drop);
+  tune_and_check("a remove", false);
+  tune_and_check("a remove, again", true);
+  insert_both(*ix, m, uniform(rng, ix->size() / 10, 0.0f, 1.0f));
+  tune_and_check("an insert", false);
+  // A rebuild over another set: ids 0 .. n - 1 again.
+  m = Model{};
+  std::vector<float> next = first_points(m, rng, 15000);
+  ix->rebuild(next.data(), 15000);
+  tune_and_check("a rebuild", false);
+}
+
+// Issue 39: inserts into the two-level directory merge (they were full builds): inserts of every
+// size inside the box (one point, into segments that had none, a tenth of the set, with holes
+// present) leave the answers bit-exact against brute force over the live points, the kernel
+// equal to the host reference at a budget, and a saved copy (whose load checks every kernel
+// invariant of the directory) answering alike.
+TEST_CASE("updates: the two-level grid directory merges inserts, exact against brute force") {
+  std::mt19937_64 rng(393);
+  Model m;
+  // Two tight clusters in the unit cube: most of the directory's segments empty.
+  std::vector<float> p0 = uniform(rng, 6000, 0.1f, 0.2f);
+  const std::vector<float> c2 = uniform(rng, 6000, 0.7f, 0.8f);
+  p0.insert(p0.end(), c2.begin(), c2.end());
+  const std::vector<float> corner = {0.0f, 0.0f, 0.0f, 1.0f, 1.0f, 1.0f};  // the box: the unit cube
+  p0.insert(p0.end(), corner.begin(), corner.end());
+  m.add(p0);
+  BlockHashBuildParams bp;
+  bp.grid_directory = 1;
+  auto ix = blockhash_over(p0, bp);
+  REQUIRE(ix->info().grid_two_level);
+  const std::size_t rebuilds = ix->info().update_rebuilds;
+  std::size_t merges = 0;
+  auto insert_merged = [&](const std::vector<float>& p, const char* what) {
+    CAPTURE(what);
+    const std::size_t bytes = ix->info().grid_directory_bytes;
+    insert_both(*ix, m, p);
+    CHECK(ix->info().merges == ++merges);
+    CHECK(ix->info().update_rebuilds == rebuilds);
+    REQUIRE(ix->info().grid_two_level);
+    CHECK(ix->info().grid_directory_bytes >= bytes);
+    require_pyramid_as_built(*ix);
+    check_exact(*ix, m, rng);
+    budget_kernel_equals_reference(*ix, m, rng, "two-level merge A = 2, kernel vs reference");
+  };
+  insert_merged({0.15f, 0.15f, 0.15f}, "one point in a cluster");
+  insert_merged({0.45f, 0.55f, 0.35f}, "one point where no segment was occupied");
+  insert_merged(uniform(rng, 40, 0.45f, 0.5f), "a small cluster in empty space");
+  insert_merged(uniform(rng, 400, 0.1f, 0.2f), "3 % into the first cluster");
+  // Holes present: a few removes (below 1/8: kept in place), then an insert merged past them.
+  std::vector<std::int32_t> drop;
+  for (const auto& kv : m.live)
+    if (drop.size() < 300 && rng() % 20 == 0) drop.push_back(kv.first);
+  remove_both(*ix, m, drop);
+  REQUIRE(ix->info().holes == drop.size());
+  std::vector<float> mixed = uniform(rng, 400, 0.7f, 0.8f);
+  const std::vector<float> spread = uniform(rng, 100, 0.0f, 1.0f);
+  mixed.insert(mixed.end(), spread.begin(), spread.end());
+  insert_merged(mixed, "4 % over a cluster and empty space, holes present");
+  CHECK(ix->info().holes == drop.size());
+  // Saved and loaded: the load validates the merged directory; the copy answers alike.
+  const std::string path = test::tmp_path("update_two_level_merge.bhi");
+  ix->save(path);
+  std::vector<float> rows = rows_of(m);
+  MethodOptions lo;
+  lo.set("load-index", path);
+  auto loaded = make_index("blockhash", test::runtime(), rows.data(), std::size_t(m.next), lo);
+  require_same_index(*ix, *loaded, m, rng, {0.0, 2.0}, "two-level merged, loaded");
+  std::remove(path.c_str());
+  // Past the band: one fresh build, no merge.
+  insert_both(*ix, m, uniform(rng, ix->size(), 0.1f, 0.2f));
+  CHECK(ix->info().merges == merges);
+  CHECK(ix->info().update_rebuilds == rebuilds + 1);
+  check_exact(*ix, m, rng);
+}
+
+// Issue 39: a large insert that a sample shows past the band goes to one fresh build without the
+// exact count of its cells; the build reads the new points where they are (ids first + i, no
+// copy): one build, answers bit-exact against brute force.
+TEST_CASE("updates: a large insert past the grid's band is one fresh build, exact against brute force") {
+  std::mt19937_64 rng(395);
+  Model m;
+  // The points fill x < 0.5 of the unit cube (its corners are points too: the grid spans it).
+  std::vector<float> p0 = uniform(rng, 200000, 0.0f, 1.0f);
+  for (std::size_t i = 0; i < p0.size(); i += 3) p0[i] *= 0.5f;
+  const std::vector<float> corners = {0.0f, 0.0f, 0.0f, 1.0f, 1.0f, 1.0f};
+  p0.insert(p0.end(), corners.begin(), corners.end());
+  m.add(p0);
+  auto ix = blockhash_over(p0);
+  REQUIRE(ix->info().grid);
+  auto half = [&](std::size_t n, float x0) {
+    std::vector<float> p = uniform(rng, n, 0.01f, 0.99f);
+    for (std::size_t i = 0; i < p.size(); i += 3) p[i] = x0 + 0.49f * p[i];
+    return p;
+  };
+  insert_both(*ix, m, half(80000, 0.0f));  // 40 % more where the points are
+  CHECK(ix->info().update_rebuilds == 1);
+  CHECK(ix->info().retunes == 1);
+  CHECK(ix->info().merges == 0);
+  check_exact(*ix, m, rng);
+  budget_kernel_equals_reference(*ix, m, rng, "grid A = 2 after a large insert's build, kernel vs reference");
+  // As many again, sparser, into the empty half: the population falls, so the insert merges.
+  insert_both(*ix, m, half(70000, 0.5f));
+  CHECK(ix->info().update_rebuilds == 1);
+  CHECK(ix->info().merges == 1);
+  check_exact(*ix, m, rng);
+  // Two more, 5 % each over the whole cube: the arrays' room (an eighth, kept by the merge above)
+  // takes them in place, in parallel over ranges of cells whose heads the range before overwrites.
+  for (int i = 0; i < 2; ++i) {
+    CAPTURE(i);
+    insert_both(*ix, m, uniform(rng, 17500, 0.01f, 0.99f));
+    CHECK(ix->info().update_rebuilds == 1);
+    CHECK(ix->info().merges == std::size_t(2 + i));
+    require_pyramid_as_built(*ix);
+    check_exact(*ix, m, rng);
+    budget_kernel_equals_reference(*ix, m, rng, "grid A = 2 after a merge in place, kernel vs reference");
   }
 }

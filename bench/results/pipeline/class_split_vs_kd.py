@@ -2,13 +2,14 @@
 """The class split's A/B in load-free terms: per cell (data, order, k, variant), block hashing's
 speed over the kd-tree kernel measured in the same process and rounds (perf_harness's
 ratio_kd_median), after over before, the median over the alternations' runs.
-Reads class_split_rounds/{before,after}_*.csv (class_split_ab.sh); > 1: the branch faster.
+Reads class_split_rounds/{before,after}_*.csv (class_split_ab.sh), or the folder given as the
+first argument; > 1: the branch faster.
 call_ab.py keys its cells without the query order, so its table shows one order per cell and
 moves with the machine's load (FLANN and the kd-tree, unchanged code, move as much); this one
 keeps both orders and cancels the load."""
 import csv, glob, os, statistics, sys
 
-here = os.path.join(os.path.dirname(os.path.abspath(__file__)), "class_split_rounds")
+here = sys.argv[1] if len(sys.argv) > 1 else os.path.join(os.path.dirname(os.path.abspath(__file__)), "class_split_rounds")
 runs = {"before": [], "after": []}
 for name in runs:
     for path in sorted(glob.glob(os.path.join(here, name + "_*.csv"))):

@@ -316,12 +316,16 @@ class BlockHashIndex : public Index {
   cl::Buffer dummy_;
 
  private:
+  // Drops every tuning and the exact kd-tree they were checked against: they belong to the point
+  // set they were measured on (every build, rebuild, insert and remove calls it).
+  void forget_tunings();
   mutable std::mutex tune_mutex_;
   mutable std::map<std::tuple<int, int, double>, RecallTuning> tuned_;
   // params_for_batch: tunings per (k, probes, target, distribution), and the exact kd-tree
   // (over indexed_points(), built on the first tuning) they are checked against.
   mutable std::map<std::tuple<int, int, double, std::string>, RecallTuning> batch_tuned_;
   mutable std::shared_ptr<const Index> exact_;
+  mutable std::vector<std::int32_t> exact_ids_;  // exact_'s point i is the index's id exact_ids_[i]
   mutable double exact_box_[6] = {0, 0, 0, 0, 0, 0};  // the indexed points' box (lo, hi)
   mutable double exact_spacing_ = 0;                  // their mean spacing (box measure / N)^(1/d)
 };

@@ -80,6 +80,7 @@ class GridIndex final : public BlockHashIndex {
 
   // Updates (grid_update.cpp).
   void grid_insert(const float* scaled, std::size_t n, std::int32_t first);
+  void grid_insert_two_level(const float* scaled, std::size_t n, std::int32_t first);  // merged, not rebuilt
   void grid_remove(const std::int32_t* ids, std::size_t n);
   void grid_compact();  // drops the holes, in place
   // extra: m points in the structure's coordinates, ids first ...

@@ -133,6 +133,17 @@ struct KnnRows {
 };
 using KnnResult = KnnRows<std::int32_t>;
 using KnnResult64 = KnnRows<std::int64_t>;
+
+// Caller-owned memory for the rows of a kNN call of n queries (Index::query_into): ids and dist2
+// n*k entries, counts n, examined n where SearchParams::count_examined (else null). Every entry is
+// written (the KnnRows contract); nothing is read, so the memory may be fresh (untouched pages are
+// first touched by the search's own threads on a CPU device, not by a fill before it).
+struct KnnRowsView {
+  std::int32_t* ids = nullptr;
+  float* dist2 = nullptr;
+  std::int32_t* counts = nullptr;
+  std::int32_t* examined = nullptr;
+};
 extern template struct KnnRows<std::int32_t>;  // lib/src/core/knn.cpp
 extern template struct KnnRows<std::int64_t>;
 
@@ -147,6 +158,9 @@ struct ResultBuffers {
         examined(std::move(examined_)) {}
   cl::Buffer ids, dist2, counts;
   cl::Buffer examined;
+  // Optional: the result row of each query of the queries buffer (uint32, one per query): query
+  // i's row, count and examined count go to row rows[i]. Empty: row i (the usual layout).
+  cl::Buffer rows;
 };
 
 // Radius search (Index::radius_search): every point within a radius of each query, a variable
@@ -219,7 +233,10 @@ struct QueryStats {
   // The call's stages, in order (host clock unless said): the queries' Hilbert order, the upload
   // (the queries gathered in that order into the buffer the kernel reads: zero-copy on a CPU
   // device), the kernel (query_s), the download (results mapped, or copied from a GPU), the
-  // unsort (rows scattered to the caller's order with the exact check), the rest in wall_s.
+  // unsort (on a CPU device the kernel wrote each row at the caller's row: only the exact check
+  // over the rows and a rescale at extreme scales; on a GPU the rows' scatter to the caller's
+  // order with that check), the rest in wall_s. The first call's program load (compile_s) runs
+  // beside the sort, so the stages can sum to more than wall_s.
   double sort_s = 0.0;
   double upload_s = 0.0;
   double query_s = 0.0;    // kernel execution (event times), compile excluded
@@ -316,6 +333,10 @@ class SearchIndex {
   // Host arrays: queries n x 3 floats; out gets n rows (resized). Returns the call's stats.
   virtual QueryStats query(const float* queries, std::size_t n, const SearchParams& params,
                            KnnResult& out) const = 0;
+  // The same rows into caller-owned memory (KnnRowsView: nothing resized or filled first). This
+  // default answers into a KnnResult and copies it; an Index writes the caller's memory in place.
+  virtual QueryStats query_into(const float* queries, std::size_t n, const SearchParams& params,
+                                const KnnRowsView& out) const;
   // Every point within `radius` of each query (Index::radius_search's contract and layout).
   virtual QueryStats radius_search(const float* queries, std::size_t n, float radius,
                                    const RadiusParams& params, RadiusResult& out) const = 0;
@@ -373,6 +394,10 @@ class Index : public SearchIndex {
   // Convenience overload (std::vector of n*3 floats).
   KnnResult query(const std::vector<float>& queries, const SearchParams& params,
                   QueryStats* stats = nullptr) const;
+  // The same rows into caller-owned memory (KnnRowsView): no resize, no value-initialisation of
+  // the result (a pass of its own over up to gigabytes); on a CPU device the kernel writes them.
+  QueryStats query_into(const float* queries, std::size_t n, const SearchParams& params,
+                        const KnnRowsView& out) const override;
 
   // Buffer level: queries is a caller-owned buffer of at least n*3 floats, the results go to the
   // caller's buffers. Enqueued on the caller's queue (same context as the index; in order or out
@@ -575,10 +600,16 @@ class Index : public SearchIndex {
   // k = 0: counts, offsets and the fill pass's `fill` entries).
   struct QueryBuffers {
     cl::Buffer q, ids, dist2, counts, examined_buf, offsets;
+    cl::Buffer result_rows;  // kNN on a host-memory device: each dispatch row's caller row (uint32)
     std::size_t rows = 0, k = 0, fill = 0;
     bool host = false;  // host memory the device uses in place (a CPU device)
     bool examined() const { return examined_buf() != nullptr; }
-    std::size_t bytes() const { return rows * (12 + 8 * k + 4 + (examined() ? 4 : 0) + (k ? 0 : 8)) + 8 * fill; }
+    // kNN on a host-memory device, at most 2^32 queries: the kernel writes each row at the
+    // caller's row, which travels with the queries (result_rows, uint32).
+    bool writes_caller_rows(std::size_t n) const { return result_rows() != nullptr && n <= 0xffffffffull; }
+    std::size_t bytes() const {
+      return rows * (12 + 8 * k + 4 + (examined() ? 4 : 0) + (k ? 0 : 8) + (result_rows() ? 4 : 0)) + 8 * fill;
+    }
   };
   void take_query_buffers(std::size_t rows, std::size_t k, bool examined, QueryBuffers& b) const;
   void give_back_query_buffers(QueryBuffers&& b) const;

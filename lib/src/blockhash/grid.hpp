@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <new>
 #include <string>
@@ -109,7 +110,9 @@ struct GridBuildStats {
 // A build's points (in the index's coordinates), in two parts taken in this order: first a
 // structure-of-arrays part (an existing grid's arrays, holes dropped: an update's rebuild reads
 // them where they are instead of gathering a copy), then an array-of-structures part (x, y, z per
-// point). The ids stored: soa_ids[i], then aos_ids[i] (null: the point's index in the whole input).
+// point). The ids stored: soa_ids[i], then aos_ids[i] (null: aos_first + i where aos_first >= 0,
+// an update's consecutive new ids without an array of them; else the point's index in the whole
+// input).
 struct GridInput {
   const float *x = nullptr, *y = nullptr, *z = nullptr;
   const std::int32_t* soa_ids = nullptr;
@@ -117,7 +120,11 @@ struct GridInput {
   float soa_lo[3] = {0, 0, 0}, soa_hi[3] = {0, 0, 0};  // a box holding the SoA part (with n_soa)
   const float* xyz = nullptr;
   const std::int32_t* aos_ids = nullptr;
+  std::int64_t aos_first = -1;
   std::size_t n_aos = 0;
+  // Called once the build has read the points (before it sizes its arrays): an update's rebuild
+  // frees the old grid's arrays there, so that the new ones may take their memory.
+  std::function<void()> release;
   std::size_t size() const { return n_soa + n_aos; }
 };
 

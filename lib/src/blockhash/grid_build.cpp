@@ -32,9 +32,15 @@ double since(std::chrono::steady_clock::time_point t0) {
 // v sized n, its old contents not kept: a vector growing past its capacity is freed first, so
 // that the build neither copies the previous build's arrays into the new ones (a 25 % insert's
 // rebuild copied 16 MB of records it then overwrote) nor holds both at once.
+// room: the capacity an allocation reserves past n, in eighths of n (the point arrays keep an
+// eighth so that an insert merges in place, grid_update.cpp; capacity never written is never
+// faulted in, so it costs address space only).
 template <typename T>
-void resize_discarding(GridVec<T>& v, std::size_t n) {
-  if (v.capacity() < n) GridVec<T>().swap(v);
+void resize_discarding(GridVec<T>& v, std::size_t n, std::size_t room_eighths = 0) {
+  if (v.capacity() < n) {
+    GridVec<T>().swap(v);
+    v.reserve(n + n / 8 * room_eighths);
+  }
   v.resize(n);
 }
 
@@ -282,9 +288,10 @@ void for_input(const GridInput& in, std::size_t b, std::size_t e, F&& f) {
   for (std::size_t i = b, se = std::min(e, in.n_soa); i < se; ++i) f(i, X[i], Y[i], Z[i], SI[i]);
   const float* const P = in.xyz;
   const std::int32_t* const AI = in.aos_ids;
+  const std::int64_t id0 = in.aos_first >= 0 ? in.aos_first - std::int64_t(in.n_soa) : 0;  // id = i + id0
   for (std::size_t i = std::max(b, in.n_soa); i < e; ++i) {
     const std::size_t j = i - in.n_soa;
-    f(i, P[3 * j], P[3 * j + 1], P[3 * j + 2], AI ? AI[j] : static_cast<std::int32_t>(i));
+    f(i, P[3 * j], P[3 * j + 1], P[3 * j + 2], AI ? AI[j] : static_cast<std::int32_t>(std::int64_t(i) + id0));
   }
 }
 
@@ -303,7 +310,7 @@ Buckets bucket_records(const GridInput& in, const bhcl_grid_geom& geom, unsigned
   const std::size_t nb = bk.nb = ((bk.ncells - 1) >> shift) + 1;
   const unsigned T = static_cast<unsigned>(std::min<std::size_t>(threads, std::max<std::size_t>(1, n / 65536)));
   const std::size_t per = (n + T - 1) / T;
-  resize_discarding(sc.cell, n);
+  resize_discarding(sc.cell, n, 2);  // a quarter of room: a rebuild after a large insert reuses it
   std::vector<std::uint32_t> hist(std::size_t(T) * nb, 0);
   detail::parallel_for(
       T,
@@ -339,7 +346,7 @@ Buckets bucket_records(const GridInput& in, const bhcl_grid_geom& geom, unsigned
     }
     bstart[b + 1] = s;
   }
-  resize_discarding(sc.rec, 4 * n);
+  resize_discarding(sc.rec, 4 * n, 2);
   detail::parallel_for(
       T,
       [&](std::size_t tb, std::size_t te) {
@@ -522,10 +529,10 @@ void size_arrays(const Buckets& bk, const std::vector<std::uint32_t>& seg_base, 
     g.starts[bk.ncells] = static_cast<std::uint32_t>(n);
     g.starts[0] = 0;
   }
-  resize_discarding(g.x, n + kGridPad);
-  resize_discarding(g.y, n + kGridPad);
-  resize_discarding(g.z, n + kGridPad);
-  resize_discarding(g.ids, n + kGridPad);
+  resize_discarding(g.x, n + kGridPad, 1);
+  resize_discarding(g.y, n + kGridPad, 1);
+  resize_discarding(g.z, n + kGridPad, 1);
+  resize_discarding(g.ids, n + kGridPad, 1);
 }
 
 // Pass 3: each bucket on its own, in parallel over buckets: its cells' counts, its part of the
@@ -588,6 +595,7 @@ void build_grid(const GridInput& in, const GridBuildArgs& p, Grid& g, GridBuildS
   if (!g.scratch) g.scratch = std::make_shared<GridScratch>();
   GridScratch& sc = *g.scratch;
   const Buckets bk = bucket_records(in, geom, threads, sc, st);
+  if (in.release) in.release();  // the input is read: its memory can go before the arrays are sized
 
   t0 = std::chrono::steady_clock::now();
   g.geom = geom;

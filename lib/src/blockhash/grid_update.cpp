@@ -9,18 +9,19 @@
 //    points they are compacted (one stable pass, in place).
 //  - insert, points inside the grid's box: the B+ tree's leaf insert done in bulk. A counting
 //    sort of the new points alone into the existing cells, then one parallel pass over ranges of
-//    cells copying each cell's run to its new start (moved right by the new points before it) with
-//    its new points behind it, into scratch arrays that then change places with the grid's (O(N)
-//    copies, no tuning, no sort of the old points; 16 B per point of scratch kept for the next
-//    insert). Ids stay ascending inside a cell (new ids are larger), as a fresh build's stable
-//    scatter gives them.
+//    cells moving each cell's run to its new start (moved right by the new points before it) with
+//    its new points behind it: in place where the arrays have room (the build reserves an eighth),
+//    else into scratch arrays that then change places with the grid's (O(N) moves, no tuning, no
+//    sort of the old points). The two-level directory merges the same way (merge_two_level_points,
+//    its starts moved in place). Ids stay ascending inside a cell (new ids are larger), as a fresh
+//    build's stable scatter gives them.
 //  - the leaf split: a cell side tuned for a population (target_cell_points) stops fitting when
 //    the set grows or shrinks; once the point-weighted mean cell population drifts past 1.1x (or
 //    below 0.9x) of the last full build's, the grid is rebuilt over the live points with a freshly
 //    tuned side. Growth by doubling keeps the amortised cost per point O(1).
 //  - points outside the grid's box: a full build over the live points (the slab bounds, and so
 //    the exact mode, rely on every point lying inside its cell). Every full build an update makes
-//    (this one, the band's, the two-level directory's) is one fresh build with the build's own
+//    (this one, the band's) is one fresh build with the build's own
 //    parameters, never two: no update costs more than building its result afresh (issue 39).
 //  - device buffers: the changed tail of each array written in place where it fits, reallocated
 //    with capacity grown by half where not (upload_grid); on a host-in-place device (PoCL's CPU
@@ -44,6 +45,7 @@
 #include "blockhash_cl/error.hpp"
 #include "core/device_util.hpp"
 #include "core/parallel.hpp"
+#include "core/point_scan.hpp"
 
 namespace bhcl {
 namespace {
@@ -136,13 +138,306 @@ void merge_into_scratch(const blockhash::Grid& g, const float* scaled, std::size
   }
 }
 
+// The two-level directory's merge (issue 39: every insert there was a full build, 100 inserts
+// growing a clustered set 10x took 8 s). The new points sorted by cell (key: cell << 32 | index,
+// so stable), then one pass over the segments writing the new directory (a segment receiving its
+// first points gets its table; every start moves right by the new points before it) and a merge
+// of the points out of place, in parallel over ranges of the sorted new points. The old point at
+// slot p of cell c goes to p + (new points in cells < c); the j-th new point (sorted) of cell c to
+// start(c + 1) + j: behind the cell's old points, ids ascending as a fresh build's stable scatter
+// puts them. Holes move with their cells (a remove compacts past 1/8 of them, as before).
+struct TwoLevelAdd {
+  std::vector<std::uint64_t> key;        // cell << 32 | index, ascending
+  double sum2 = 0;                       // the squared cell populations' sum after the insert
+  std::size_t occupied = 0;              // occupied cells after it
+  std::vector<std::uint32_t> new_cells;  // cells that were empty and receive points, ascending
+  std::vector<std::uint32_t> new_segs;   // segments that receive their first points, ascending
+};
+
+TwoLevelAdd two_level_additions(const blockhash::Grid& g, const float* scaled, std::size_t m, double sum2_before,
+                                std::size_t occupied_before) {
+  TwoLevelAdd a;
+  a.key.resize(m);
+  for (std::size_t i = 0; i < m; ++i) a.key[i] = (std::uint64_t(cell_of(g.geom, scaled + 3 * i)) << 32) | i;
+  std::sort(a.key.begin(), a.key.end());
+  a.sum2 = sum2_before;
+  a.occupied = occupied_before;
+  for (std::size_t j = 0; j < m;) {
+    const std::uint32_t c = static_cast<std::uint32_t>(a.key[j] >> 32);
+    std::size_t e = j;
+    while (e < m && (a.key[e] >> 32) == c) ++e;
+    const double old = double(g.start(c + 1) - g.start(c)), v = old + double(e - j);
+    a.sum2 += v * v - old * old;
+    if (old == 0) {
+      ++a.occupied;
+      a.new_cells.push_back(c);
+    }
+    const std::uint32_t seg = c >> BHCL_GRID_SEG_BITS;
+    if ((g.starts[seg] & BHCL_GRID_EMPTY_SEG) && (a.new_segs.empty() || a.new_segs.back() != seg)) a.new_segs.push_back(seg);
+    j = e;
+  }
+  return a;
+}
+
+// The directory updated in place: every start from the first receiving segment on moves right by
+// the new points before it (an empty segment's run value, an occupied one's 16 entries), and a
+// segment receiving its first points gets a table appended past the others (the kernels follow
+// the top entry, in any order). Parallel over ranges of segments, each starting from the new
+// points before it (a binary search in the sorted keys). The whole directory was written anew
+// before: 30 MB for a clustered 1M set whose cells number 117M, more than the merge of the points.
+void two_level_directory_in_place(blockhash::Grid& g, const TwoLevelAdd& a, unsigned threads) {
+  constexpr std::uint32_t kSeg = 1u << BHCL_GRID_SEG_BITS;
+  const std::size_t top = blockhash::Grid::top_entries(g.ncells()), m = a.key.size();
+  const std::size_t old_size = g.starts.size(), new_size = old_size + a.new_segs.size() * kSeg;
+  if (new_size > g.starts.capacity()) g.starts.reserve(new_size + new_size / 8);  // room for the next inserts' tables
+  g.starts.resize(new_size);
+  std::uint32_t* const st = g.starts.data();
+  const std::size_t s_first = std::size_t(a.key.front() >> (32 + BHCL_GRID_SEG_BITS));
+  detail::parallel_chunks(top - s_first, std::size_t(1) << 16, threads, [&](std::size_t, std::size_t sb, std::size_t se) {
+    sb += s_first, se += s_first;
+    const std::uint64_t from = std::uint64_t(sb) << (32 + BHCL_GRID_SEG_BITS);
+    std::size_t j = std::size_t(std::lower_bound(a.key.begin(), a.key.end(), from) - a.key.begin());
+    std::size_t r = std::size_t(std::lower_bound(a.new_segs.begin(), a.new_segs.end(), std::uint32_t(sb)) - a.new_segs.begin());
+    std::uint32_t added = static_cast<std::uint32_t>(j);
+    for (std::size_t sg = sb; sg < se; ++sg) {
+      const std::uint32_t e = st[sg];
+      const bool gets = j < m && (a.key[j] >> (32 + BHCL_GRID_SEG_BITS)) == sg;
+      if (!gets) {  // no new point here: every start moves by the same count
+        if (e & BHCL_GRID_EMPTY_SEG) st[sg] = BHCL_GRID_EMPTY_SEG | ((e & ~BHCL_GRID_EMPTY_SEG) + added);
+        else if (added)
+          for (std::uint32_t c = 0; c < kSeg; ++c) st[e + c] += added;
+        continue;
+      }
+      std::uint32_t* table;
+      if (e & BHCL_GRID_EMPTY_SEG) {  // its first points: a table of the run's start
+        const std::uint32_t slot = static_cast<std::uint32_t>(old_size + r++ * kSeg);
+        table = st + slot;
+        std::fill(table, table + kSeg, e & ~BHCL_GRID_EMPTY_SEG);
+        st[sg] = slot;
+      } else {
+        table = st + e;
+      }
+      for (std::uint32_t c = 0; c < kSeg; ++c) {
+        const std::uint64_t cell = (std::uint64_t(sg) << BHCL_GRID_SEG_BITS) | c;
+        table[c] += added;
+        while (j < m && (a.key[j] >> 32) == cell) ++added, ++j;
+      }
+    }
+  });
+}
+
+// Inserts only add points, so the occupancy pyramid (grid_search.h) only gains bits: each cell
+// that held no point and holds some now sets its bit at every level up to the first byte that
+// already had one (its parent's bit is set then). O(new cells x levels); build_grid_occupancy
+// reads every cell (most of a merge's time for a two-level directory of 117M cells).
+void occupancy_add_cells(blockhash::Grid& g, const std::vector<std::uint32_t>& cells, unsigned threads) {
+  const bhcl_grid_geom& gm = g.geom;
+  std::uint32_t top_off = 0, total = 0;
+  const std::uint32_t top = bhcl_grid_occ_top(gm, &top_off, &total);
+  if (g.occ.size() != total) {  // not built for this geometry: all of it
+    blockhash::build_grid_occupancy(g, threads);
+    return;
+  }
+  std::vector<std::uint32_t> off(top + 1, 0);
+  for (std::uint32_t l = 2; l <= top; ++l) off[l] = off[l - 1] + bhcl_grid_occ_size(gm, l - 1);
+  const std::size_t nx = gm.nx, nxy = std::size_t(gm.nx) * gm.ny;
+  for (const std::uint32_t c : cells) {
+    const std::uint32_t x = std::uint32_t(c % nx), y = std::uint32_t((c % nxy) / nx), z = std::uint32_t(c / nxy);
+    for (std::uint32_t l = 1; l <= top; ++l) {
+      const std::uint32_t bit = ((x >> (l - 1)) & 1u) | (((y >> (l - 1)) & 1u) << 1) | (((z >> (l - 1)) & 1u) << 2);
+      std::uint8_t& b = g.occ[bhcl_grid_occ_index(gm, off[l], l, x >> l, y >> l, z >> l)];
+      const bool had = b != 0;
+      b = std::uint8_t(b | (1u << bit));
+      if (had) break;
+    }
+  }
+}
+
+// The points merged into the scratch arrays (n + m + pad), in parallel over ranges of the sorted
+// new points cut at cell boundaries: a range copies the old slots of its cells, each cell's new
+// points behind its old ones.
+void merge_two_level_points(const blockhash::Grid& g, const float* scaled, std::int32_t first, const TwoLevelAdd& a,
+                            blockhash::GridScratch& sc) {
+  const std::size_t m = a.key.size(), n1 = g.n_points + m;
+  const unsigned T = static_cast<unsigned>(std::min<std::size_t>(detail::default_threads(), std::max<std::size_t>(1, n1 / 65536)));
+  // Range t: new points [kb[t], kb[t + 1]), cells [cb[t], cb[t + 1]).
+  std::vector<std::size_t> kb(T + 1, m), cb(T + 1, g.ncells());
+  kb[0] = 0, cb[0] = 0;
+  for (unsigned t = 1; t < T; ++t) {
+    std::size_t k = std::max(kb[t - 1], std::size_t(t) * m / T);
+    while (k > kb[t - 1] && k < m && (a.key[k] >> 32) == (a.key[k - 1] >> 32)) ++k;  // a cell's first
+    kb[t] = k;
+    cb[t] = k < m ? std::size_t(a.key[k] >> 32) : g.ncells();
+  }
+  const float *const X = g.x.data(), *const Y = g.y.data(), *const Z = g.z.data();
+  const std::int32_t* const I = g.ids.data();
+  float *const X2 = sc.x.data(), *const Y2 = sc.y.data(), *const Z2 = sc.z.data();
+  std::int32_t* const I2 = sc.ids.data();
+  auto copy_old = [&](std::size_t from, std::size_t to, std::size_t shift) {
+    std::memcpy(X2 + from + shift, X + from, (to - from) * 4);
+    std::memcpy(Y2 + from + shift, Y + from, (to - from) * 4);
+    std::memcpy(Z2 + from + shift, Z + from, (to - from) * 4);
+    std::memcpy(I2 + from + shift, I + from, (to - from) * 4);
+  };
+  detail::parallel_for(
+      T,
+      [&](std::size_t tb, std::size_t te) {
+        for (std::size_t t = tb; t < te; ++t) {
+          std::size_t at = g.start(cb[t]);  // the next old slot to copy
+          const std::size_t end = g.start(cb[t + 1]);
+          for (std::size_t j = kb[t]; j < kb[t + 1];) {
+            const std::uint32_t c = static_cast<std::uint32_t>(a.key[j] >> 32);
+            const std::size_t cell_end = g.start(c + 1);
+            copy_old(at, cell_end, j);  // shifted by the new points before this cell
+            at = cell_end;
+            for (; j < kb[t + 1] && (a.key[j] >> 32) == c; ++j) {
+              const std::size_t i = std::size_t(a.key[j] & 0xffffffffu), p = cell_end + j;
+              X2[p] = scaled[3 * i];
+              Y2[p] = scaled[3 * i + 1];
+              Z2[p] = scaled[3 * i + 2];
+              I2[p] = first + static_cast<std::int32_t>(i);
+            }
+          }
+          copy_old(at, end, kb[t + 1]);
+        }
+      },
+      T, 1);
+}
+
+// v's capacity at least n, with an eighth more when it must grow: a merge's arrays keep room for
+// the next insert's merge in place (room not written is never faulted in).
+template <typename T>
+void reserve_with_room(blockhash::GridVec<T>& v, std::size_t n) {
+  if (v.capacity() < n) {
+    blockhash::GridVec<T>().swap(v);  // the old contents are not kept (the caller writes all of it)
+    v.reserve(n + n / 8);
+  }
+}
+
+// The merge in place, into the arrays' room past their points: each cell's run moved right by the
+// new points of the cells before it (add[c]), from the last cell down, its new points behind it.
+// In parallel over ranges of cells: range t writes up to add[c0] slots into the head of range
+// t + 1's slots, so those heads are saved first and read from the copy. No fresh memory is
+// faulted in but the room the new points take (the out-of-place merge's four new arrays, 17.6 MB
+// for a 10 % insert into 1M points, were most of its time: the kernel zeroes every new page).
+// Returns false (nothing changed) where the arrays have no room or a range is shorter than the
+// head it must save.
+bool merge_in_place(blockhash::Grid& g, const float* scaled, std::size_t m, std::int32_t first,
+                    const std::vector<std::uint32_t>& add, const std::vector<std::uint32_t>& order, std::size_t first_cell) {
+  const std::size_t nc = g.ncells(), n1 = g.n_points + m, want = n1 + blockhash::kGridPad;
+  if (g.x.capacity() < want || g.y.capacity() < want || g.z.capacity() < want || g.ids.capacity() < want) return false;
+  const std::uint32_t* const st = g.starts.data();
+  const unsigned T = static_cast<unsigned>(std::min<std::size_t>(detail::default_threads(), std::max<std::size_t>(1, n1 / 65536)));
+  std::vector<std::size_t> cut(T + 1, nc);
+  cut[0] = first_cell;
+  for (unsigned t = 1, c = unsigned(first_cell); t < T; ++t) {
+    const std::size_t from = std::size_t(st[first_cell]) + add[first_cell];
+    const std::size_t want_out = from + std::size_t(t) * (n1 - from) / T;
+    while (c < nc && std::size_t(st[c]) + add[c] < want_out) ++c;
+    cut[t] = std::max<std::size_t>(c, cut[t - 1]);
+  }
+  // The heads range t - 1 writes over: [st[c0], st[c0] + add[c0]) of each range t >= 1.
+  struct Head {
+    std::size_t lo = 0, n = 0;
+    std::vector<float> x, y, z;
+    std::vector<std::int32_t> ids;
+  };
+  std::vector<Head> head(T);
+  for (unsigned t = 1; t < T; ++t) {
+    const std::size_t c0 = cut[t], lo = st[c0], n = add[c0];
+    if (n > std::size_t(st[cut[t + 1]]) - lo) return false;  // a range shorter than its head
+    Head& h = head[t];
+    h.lo = lo, h.n = n;
+    h.x.assign(g.x.begin() + lo, g.x.begin() + lo + n);
+    h.y.assign(g.y.begin() + lo, g.y.begin() + lo + n);
+    h.z.assign(g.z.begin() + lo, g.z.begin() + lo + n);
+    h.ids.assign(g.ids.begin() + lo, g.ids.begin() + lo + n);
+  }
+  g.x.resize(want);  // within capacity: the pointers stay
+  g.y.resize(want);
+  g.z.resize(want);
+  g.ids.resize(want);
+  float *const X = g.x.data(), *const Y = g.y.data(), *const Z = g.z.data();
+  std::int32_t* const I = g.ids.data();
+  const std::uint32_t* const ad = add.data();
+  const std::uint32_t* const ord = order.data();
+  detail::parallel_for(
+      T,
+      [&](std::size_t tb, std::size_t te) {
+        for (std::size_t t = tb; t < te; ++t) {
+          const Head& h = head[t];
+          const std::size_t saved_end = h.lo + h.n;
+          for (std::size_t c = cut[t + 1]; c-- > cut[t];) {
+            const std::size_t a = st[c], len = st[c + 1] - a, dst = a + ad[c], k = ad[c + 1] - ad[c];
+            for (std::size_t j = 0; j < k; ++j) {  // the new points, behind the cell's old ones
+              const std::uint32_t i = ord[ad[c] + j];
+              const std::size_t p = dst + len + j;
+              X[p] = scaled[3 * i];
+              Y[p] = scaled[3 * i + 1];
+              Z[p] = scaled[3 * i + 2];
+              I[p] = first + static_cast<std::int32_t>(i);
+            }
+            if (ad[c] == 0 || len == 0) continue;  // the run stays where it is
+            // The run's slots past the saved head move within the arrays (right, overlapping:
+            // memmove); those in it come from the copy.
+            const std::size_t from = std::max(a, std::min(saved_end, a + len));
+            std::memmove(X + dst + (from - a), X + from, (a + len - from) * 4);
+            std::memmove(Y + dst + (from - a), Y + from, (a + len - from) * 4);
+            std::memmove(Z + dst + (from - a), Z + from, (a + len - from) * 4);
+            std::memmove(I + dst + (from - a), I + from, (a + len - from) * 4);
+            if (from > a) {
+              const std::size_t o = a - h.lo;
+              std::memcpy(X + dst, h.x.data() + o, (from - a) * 4);
+              std::memcpy(Y + dst, h.y.data() + o, (from - a) * 4);
+              std::memcpy(Z + dst, h.z.data() + o, (from - a) * 4);
+              std::memcpy(I + dst, h.ids.data() + o, (from - a) * 4);
+            }
+          }
+        }
+      },
+      T, 1);
+  return true;
+}
+
+// Whether the cells' point-weighted mean population after inserting the m points is, by a
+// strided sample of 16384 of them, more than 1.1x past `limit`: a sample cell's count a' of a
+// cell's a new points is binomial(a, f), so sum 2 o a' / f + (sum a'^2 - (1 - f) s) / f^2
+// estimates the growth of the squared populations' sum (o: the cell's stored points). Only for
+// inserts of 4 samples or more; a borderline insert is counted exactly by the caller.
+bool band_clearly_passed(const blockhash::Grid& g, const float* scaled, std::size_t m, double mean_before, double limit) {
+  constexpr std::size_t kSample = 16384;
+  if (m < 4 * kSample) return false;
+  const std::size_t stride = m / kSample;
+  std::vector<std::uint32_t> cells(kSample);
+  for (std::size_t i = 0; i < kSample; ++i) cells[i] = cell_of(g.geom, scaled + 3 * (i * stride));
+  std::sort(cells.begin(), cells.end());
+  const double f = double(kSample) / double(m);
+  double cross = 0, sq = 0;
+  for (std::size_t j = 0; j < kSample;) {
+    std::size_t e = j;
+    while (e < kSample && cells[e] == cells[j]) ++e;
+    const double a = double(e - j), o = double(g.start(cells[j] + 1) - g.start(cells[j]));
+    cross += 2 * o * a;
+    sq += a * a;
+    j = e;
+  }
+  const double grow = cross / f + (sq - (1 - f) * double(kSample)) / (f * f);
+  const double n0 = double(g.n_points), mean = (mean_before * n0 + grow) / (n0 + double(m));
+  return mean > 1.1 * limit;
+}
+
 }  // namespace
 
 void GridIndex::insert_stored(const float*, const float* scaled, std::size_t n, std::int32_t first) {
   if (grid_build_mean_ <= 0) grid_build_mean_ = info_.mean_cell_points;  // the build's
   release_grid_views();  // the update writes the arrays; grid_upload_from makes them again
-  bool in_box = true;
-  for (std::size_t i = 0; i < n && in_box; ++i) in_box = inside(s_->grid->geom, scaled + 3 * i);
+  // The new points' box, in one parallel pass (a serial test per point was a tenth of a 25 %
+  // insert's rebuild): inside the grid's box when its corners are, and the live points' box
+  // widened by it whichever way the insert goes (a rebuild takes it as the old points' box).
+  const detail::PointScan ps = detail::scan_points(scaled, n, params_.threads);
+  const bool in_box = inside(s_->grid->geom, ps.lo) && inside(s_->grid->geom, ps.hi);
+  blockhash::widen_box(s_->grid->dbox, ps.lo[0], ps.lo[1], ps.lo[2]);
+  blockhash::widen_box(s_->grid->dbox, ps.hi[0], ps.hi[1], ps.hi[2]);
   if (in_box) grid_insert(scaled, n, first);
   else grid_rebuild_live(scaled, n, first, false);
 }
@@ -191,27 +486,35 @@ void GridIndex::grid_upload_from(std::size_t point_from, std::size_t cell_from) 
 void GridIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t first) {
   blockhash::Grid& g = *s_->grid;
   if (g.geom.sparse) {
-    // The two-level directory is not merged in place (its segment tables would move): a fresh
-    // build over the live points and the new ones, as for points off the box.
-    grid_rebuild_live(scaled, m, first, false);
+    grid_insert_two_level(scaled, m, first);
     return;
   }
   if (info_.holes) grid_compact();
   const bhcl_grid_geom& geom = g.geom;
   const std::size_t nc = g.ncells(), n0 = g.n_points, n1 = n0 + m;
-  // The new points' cells and a counting sort of them alone (stable: ascending ids in a cell).
-  std::vector<std::uint32_t> cell(m), add(nc + 1, 0);
-  for (std::size_t i = 0; i < m; ++i) {
-    cell[i] = cell_of(geom, scaled + 3 * i);
-    ++add[cell[i] + 1];
+  // A large insert that a sample of it shows well past the band: one fresh build at once, without
+  // the exact count below (a 25 % insert's count took a tenth of its rebuild).
+  if (band_clearly_passed(g, scaled, m, info_.mean_cell_points, kRetuneAbove * std::max(1.0, grid_build_mean_))) {
+    grid_rebuild_live(scaled, m, first, true);
+    return;
   }
+  // The new points' cells (in parallel) and a counting sort of them alone (stable: ascending ids
+  // in a cell).
+  std::vector<std::uint32_t> cell(m), add(nc + 1, 0);
+  detail::parallel_for(m, [&](std::size_t b, std::size_t e) {
+    for (std::size_t i = b; i < e; ++i) cell[i] = cell_of(geom, scaled + 3 * i);
+  }, params_.threads, 32768);
+  for (std::size_t i = 0; i < m; ++i) ++add[cell[i] + 1];
   std::size_t first_cell = nc;
   double sum2 = 0;
   std::size_t occupied = 0;
+  std::vector<std::uint32_t> new_cells;  // empty before, holding points now (the pyramid's new bits)
   for (std::size_t c = 0; c < nc; ++c) {
-    const double v = double(g.starts[c + 1] - g.starts[c]) + add[c + 1];
+    const std::uint32_t old = g.starts[c + 1] - g.starts[c];
+    const double v = double(old) + add[c + 1];
     sum2 += v * v;
     occupied += v > 0 ? 1 : 0;
+    if (old == 0 && add[c + 1]) new_cells.push_back(static_cast<std::uint32_t>(c));
     if (add[c + 1] && first_cell == nc) first_cell = c;
     add[c + 1] += add[c];  // add[c] = new points in cells < c
   }
@@ -226,24 +529,69 @@ void GridIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t fir
     std::vector<std::uint32_t> at(add.begin(), add.end() - 1);
     for (std::size_t i = 0; i < m; ++i) order[at[cell[i]]++] = static_cast<std::uint32_t>(i);
   }
-  // Out of place, in parallel over ranges of cells: each cell's run is copied to its new start
-  // (the old start plus the new points of the cells before it) with its new points behind it,
-  // into the scratch arrays, which then change places with the grid's. The in-place backward
-  // pass this replaces was serial (half a fresh build's time for a 10 % insert).
+  // An insert moves nearly every point: the id -> position map is dropped, and the next remove
+  // (the one reader) makes it again in one parallel pass. Kept up to date here, its random
+  // writes cost more than the merge itself.
+  id_pos_.clear();
+  // In place where the arrays have room (the build reserves an eighth more), else out of place
+  // into the scratch arrays (room reserved there too), which then change places with the grid's.
+  // Both in parallel over ranges of cells (the in-place backward pass they replace was serial:
+  // half a fresh build's time for a 10 % insert).
+  if (!merge_in_place(g, scaled, m, first, add, order, first_cell)) {
+    if (!g.scratch) g.scratch = std::make_shared<blockhash::GridScratch>();
+    blockhash::GridScratch& sc = *g.scratch;
+    for (auto* v : {&sc.x, &sc.y, &sc.z}) reserve_with_room(*v, n1 + blockhash::kGridPad);
+    reserve_with_room(sc.ids, n1 + blockhash::kGridPad);
+    sc.x.resize(n1 + blockhash::kGridPad);
+    sc.y.resize(n1 + blockhash::kGridPad);
+    sc.z.resize(n1 + blockhash::kGridPad);
+    sc.ids.resize(n1 + blockhash::kGridPad);
+    merge_into_scratch(g, scaled, m, first, add, order, first_cell, sc);
+    std::swap(g.x, sc.x);
+    std::swap(g.y, sc.y);
+    std::swap(g.z, sc.z);
+    std::swap(g.ids, sc.ids);
+  }
+  // The new starts, once every range has read the old ones.
+  for (std::size_t c = first_cell; c < nc; ++c) g.starts[c] += add[c];
+  g.starts[nc] = static_cast<std::uint32_t>(n1);
+  for (std::size_t i = n1; i < n1 + blockhash::kGridPad; ++i) {
+    g.x[i] = g.y[i] = g.z[i] = INFINITY;
+    g.ids[i] = -1;
+  }
+  g.n_points = n1;
+  s_->n_points = n1;
+  const std::size_t p_from = first_cell < nc ? g.starts[first_cell] : n0;
+  occupancy_add_cells(g, new_cells, params_.threads);
+  grid_upload_from(p_from, first_cell);
+  info_.n_points = n1;
+  info_.occupied_cells = occupied;
+  info_.mean_cell_points = mean;
+  ++info_.merges;
+}
+
+void GridIndex::grid_insert_two_level(const float* scaled, std::size_t m, std::int32_t first) {
+  blockhash::Grid& g = *s_->grid;
+  const std::size_t n0 = g.n_points, n1 = n0 + m;
+  // The populations counted over the stored slots (holes included), as the build's mean is.
+  const TwoLevelAdd add = two_level_additions(g, scaled, m, info_.mean_cell_points * double(n0), info_.occupied_cells);
+  const double mean = add.sum2 / double(n1);
+  const double entries = double(g.starts.size()) + double(add.new_segs.size()) * double(1u << BHCL_GRID_SEG_BITS);
+  // Past the band (the leaf split), or a directory past its 2^31 entries: one fresh build.
+  if (mean > kRetuneAbove * std::max(1.0, grid_build_mean_) || entries >= double(BHCL_GRID_EMPTY_SEG)) {
+    grid_rebuild_live(scaled, m, first, true);
+    return;
+  }
   if (!g.scratch) g.scratch = std::make_shared<blockhash::GridScratch>();
   blockhash::GridScratch& sc = *g.scratch;
   sc.x.resize(n1 + blockhash::kGridPad);
   sc.y.resize(n1 + blockhash::kGridPad);
   sc.z.resize(n1 + blockhash::kGridPad);
   sc.ids.resize(n1 + blockhash::kGridPad);
-  // An insert moves nearly every point: the id -> position map is dropped, and the next remove
-  // (the one reader) makes it again in one parallel pass. Kept up to date here, its random
-  // writes cost more than the merge itself.
-  id_pos_.clear();
-  merge_into_scratch(g, scaled, m, first, add, order, first_cell, sc);
-  // The new starts, once every range has read the old ones.
-  for (std::size_t c = first_cell; c < nc; ++c) g.starts[c] += add[c];
-  g.starts[nc] = static_cast<std::uint32_t>(n1);
+  id_pos_.clear();  // nearly every point moves (as grid_insert's merge)
+  merge_two_level_points(g, scaled, first, add, sc);
+  const std::size_t p_from = g.start(std::size_t(add.key.front() >> 32));
+  two_level_directory_in_place(g, add, params_.threads);
   std::swap(g.x, sc.x);
   std::swap(g.y, sc.y);
   std::swap(g.z, sc.z);
@@ -254,14 +602,12 @@ void GridIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t fir
   }
   g.n_points = n1;
   s_->n_points = n1;
-  const std::size_t p_from = first_cell < nc ? g.starts[first_cell] : n0;
-  for (std::size_t i = 0; i < m; ++i)  // the live points' box
-    blockhash::widen_box(g.dbox, scaled[3 * i], scaled[3 * i + 1], scaled[3 * i + 2]);
-  blockhash::build_grid_occupancy(g, params_.threads);
-  grid_upload_from(p_from, first_cell);
+  occupancy_add_cells(g, add.new_cells, params_.threads);
+  grid_upload_from(p_from, 0);  // tables appended and moved starts anywhere in the directory: all of it
   info_.n_points = n1;
-  info_.occupied_cells = occupied;
+  info_.occupied_cells = add.occupied;
   info_.mean_cell_points = mean;
+  info_.grid_directory_bytes = g.starts.size() * 4;
   ++info_.merges;
 }
 
@@ -470,7 +816,7 @@ static void grid_live_in_cell_order(const blockhash::Grid& g, blockhash::GridVec
 // the hole id; after the build they become holes (+inf), so they are never returned and the live
 // points' box stays their own. The next inserts that land in the room merge. Returns the points
 // appended (0 or 2).
-static std::size_t add_growth_room(const blockhash::Grid& g, const float* extra, std::size_t m,
+static std::size_t add_growth_room(const blockhash::Grid& g, const detail::PointScan& extra_box, std::size_t m,
                                    blockhash::GridVec<float>& pts, blockhash::GridVec<std::int32_t>& ids) {
   if (m == 0) return 0;
   double lo[3], hi[3];
@@ -484,12 +830,8 @@ static std::size_t add_growth_room(const blockhash::Grid& g, const float* extra,
     glo[d] = o[d];
     ghi[d] = o[d] + nc[d] * double(g.geom.h);
   }
-  double nlo[3] = {INFINITY, INFINITY, INFINITY}, nhi[3] = {-INFINITY, -INFINITY, -INFINITY};
-  for (std::size_t i = 0; i < m; ++i)
-    for (int d = 0; d < 3; ++d) {
-      nlo[d] = std::min(nlo[d], double(extra[3 * i + d]));
-      nhi[d] = std::max(nhi[d], double(extra[3 * i + d]));
-    }
+  const double nlo[3] = {extra_box.lo[0], extra_box.lo[1], extra_box.lo[2]};
+  const double nhi[3] = {extra_box.hi[0], extra_box.hi[1], extra_box.hi[2]};
   const double cell = double(g.geom.h);
   float c0[3], c1[3];
   bool room = false;
@@ -528,10 +870,20 @@ void GridIndex::grid_rebuild_live(const float* extra, std::size_t m, std::int32_
   // then a pass mapping the build's indices to ids, made it 2.1x), the new points and the room's
   // corners behind them; with holes, the live points are gathered first (holes dropped).
   blockhash::Grid& g = *s_->grid;
-  blockhash::GridVec<float> add(extra, extra + 3 * m);
-  blockhash::GridVec<std::int32_t> add_ids(m);
-  for (std::size_t i = 0; i < m; ++i) add_ids[i] = first + static_cast<std::int32_t>(i);
-  const std::size_t phantoms = add_growth_room(g, extra, m, add, add_ids);
+  // The room's corners first (into `room`, with the hole id); the new points are read where they
+  // are, their ids first + i, unless corners must follow them (then a copy with the corners).
+  blockhash::GridVec<float> room;
+  blockhash::GridVec<std::int32_t> room_ids;
+  const std::size_t phantoms = m ? add_growth_room(g, detail::scan_points(extra, m, params_.threads), m, room, room_ids) : 0;
+  blockhash::GridVec<float> add;
+  blockhash::GridVec<std::int32_t> add_ids;
+  if (phantoms) {
+    add.assign(extra, extra + 3 * m);
+    add.insert(add.end(), room.begin(), room.end());
+    add_ids.resize(m);
+    for (std::size_t i = 0; i < m; ++i) add_ids[i] = first + static_cast<std::int32_t>(i);
+    add_ids.insert(add_ids.end(), room_ids.begin(), room_ids.end());
+  }
   blockhash::GridInput in;
   // A box holding every live point: the live points' box (a remove does not shrink it), or where
   // it is unset, theirs computed.
@@ -560,7 +912,12 @@ void GridIndex::grid_rebuild_live(const float* extra, std::size_t m, std::int32_
     g.scratch->ids = blockhash::GridVec<std::int32_t>();
   }
   in.x = ox.data(), in.y = oy.data(), in.z = oz.data(), in.soa_ids = oids.data(), in.n_soa = oids.size();
-  in.xyz = add.data(), in.aos_ids = add_ids.data(), in.n_aos = add_ids.size();
+  in.release = [&] {  // read by the build's first pass: freed before it allocates the new arrays
+    ox = blockhash::GridVec<float>(), oy = blockhash::GridVec<float>(), oz = blockhash::GridVec<float>();
+    oids = blockhash::GridVec<std::int32_t>();
+  };
+  if (phantoms) in.xyz = add.data(), in.aos_ids = add_ids.data(), in.n_aos = add_ids.size();
+  else in.xyz = extra, in.aos_first = first, in.n_aos = m;
   const blockhash::UpdateCounters keep(info_);
   const double side_before = info_.cell_size;
   id_pos_.clear();  // every point moves; the next remove that needs the map makes it again

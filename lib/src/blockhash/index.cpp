@@ -137,6 +137,7 @@ BlockHashIndex::~BlockHashIndex() = default;
 
 const float* BlockHashIndex::begin_build(const float* points, std::size_t n_points, std::vector<float>& scaled) {
   points = prepare_points(points, n_points, scaled);  // validates; extreme scales
+  forget_tunings();  // a rebuild over other points: nothing tuned on the old ones holds
   s_->n_points = n_points;
   s_->scale_exp = scale_exponent();
   return points;
@@ -198,10 +199,7 @@ void BlockHashIndex::insert_points(const float* points, const float* scaled, std
   const auto t0 = std::chrono::steady_clock::now();
   check_cl(runtime_ptr()->queue().finish(), "clFinish", "blockhash insert");
   insert_stored(points, scaled, n, first);
-  {
-    std::lock_guard<std::mutex> lock(tune_mutex_);
-    tuned_.clear();  // a recall tuning belongs to the point set it was measured on
-  }
+  forget_tunings();
   info_.t_update += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
@@ -209,11 +207,19 @@ void BlockHashIndex::remove_points(const std::int32_t* ids, std::size_t n) {
   const auto t0 = std::chrono::steady_clock::now();
   check_cl(runtime_ptr()->queue().finish(), "clFinish", "blockhash remove");
   remove_stored(ids, n);
-  {
-    std::lock_guard<std::mutex> lock(tune_mutex_);
-    tuned_.clear();
-  }
+  forget_tunings();
   info_.t_update += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+void BlockHashIndex::forget_tunings() {
+  // The recall tunings (tune_for_recall's and params_for_batch's) and the exact kd-tree over the
+  // indexed points that params_for_batch checks its tunings against: after an update a cached
+  // tuning, or a tuning against the old points' exact answers, would pick A for another set.
+  std::lock_guard<std::mutex> lock(tune_mutex_);
+  tuned_.clear();
+  batch_tuned_.clear();
+  exact_.reset();
+  exact_ids_.clear();
 }
 
 double BlockHashIndex::talk_overhead(std::size_t N, double A, int k, int X) {

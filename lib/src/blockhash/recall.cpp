@@ -167,8 +167,9 @@ std::string batch_distribution(const std::vector<float>& qs, const Index& exact,
 // it rather than half the time), by bisection: recall grows with A, so 1 + log2(17) ~ 5 passes
 // over the sample answer it (a linear scan took up to 17). Not reached: the largest A, or on the
 // grid its exact mode, which reaches any target.
-RecallTuning tune_on_sample(const Index& index, const Index& exact, const std::vector<float>& qs,
-                            const SearchParams& params, double target, bool has_exact_mode, double* compile_s) {
+RecallTuning tune_on_sample(const Index& index, const Index& exact, const std::vector<std::int32_t>& exact_ids,
+                            const std::vector<float>& qs, const SearchParams& params, double target, bool has_exact_mode,
+                            double* compile_s) {
   const auto t1 = std::chrono::steady_clock::now();
   const double compile0 = *compile_s;
   const std::size_t m = qs.size() / 3;
@@ -179,6 +180,8 @@ RecallTuning tune_on_sample(const Index& index, const Index& exact, const std::v
   tp.count_examined = false;
   KnnResult truth;
   *compile_s += exact.query(qs.data(), m, tp, truth).compile_s;
+  for (auto& id : truth.ids)
+    if (id >= 0) id = exact_ids[std::size_t(id)];
   RecallTuning t;
   t.sample = m;
   const double margin = std::min(1.0 - target, 1.5 * std::sqrt(target * (1.0 - target) / (double(m) * params.k)));
@@ -234,11 +237,17 @@ SearchParams BlockHashIndex::params_for_batch(const float* queries, std::size_t 
   const std::vector<float> qs = batch_sample(queries, n);
   if (qs.empty()) return p;
 
+  // The read lock before the tuning's: an update holds the write lock and then takes the tuning's
+  // (forget_tunings), so taking them the other way round (the queries below take the read lock)
+  // could deadlock against a concurrent insert.
+  ReadLock read(*this);
   std::lock_guard<std::mutex> lock(tune_mutex_);
   if (!exact_) {
     // The exact answers come from a kd-tree over the indexed points in the caller's coordinates
     // (what the batch's queries are in), kept for later tunings.
-    const std::vector<float> pts = indexed_points();
+    // After removes the live ids are sparse: the tree's answers (positions in pts) are mapped to
+    // them before they are compared with the index's.
+    const std::vector<float> pts = indexed_points(&exact_ids_);
     points_box(pts, exact_box_, &exact_spacing_);
     exact_ = std::make_shared<KdTreeIndex>(runtime_ptr(), pts.data(), size());
   }
@@ -249,7 +258,8 @@ SearchParams BlockHashIndex::params_for_batch(const float* queries, std::size_t 
   const auto key = std::make_tuple(params.k, params.neighbour_probes, target, bt.distribution);
   auto it = batch_tuned_.find(key);
   bt.cached = it != batch_tuned_.end();
-  bt.tuning = bt.cached ? it->second : (batch_tuned_[key] = tune_on_sample(*this, *exact_, qs, params, target, exact_mode(), &compile_s));
+  bt.tuning = bt.cached ? it->second
+                        : (batch_tuned_[key] = tune_on_sample(*this, *exact_, exact_ids_, qs, params, target, exact_mode(), &compile_s));
   p.A = bt.tuning.A;
   p.recall_target = 0;
   bt.compile_s = compile_s;

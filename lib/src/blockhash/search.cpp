@@ -29,6 +29,7 @@ std::optional<BlockHashIndex::RecallTuning> BlockHashIndex::recall_tuning(const 
   auto key = std::make_tuple(p.k, p.neighbour_probes, p.recall_target);
   SearchParams tp = p;
   tp.max_radius = INFINITY;
+  ReadLock read(*this);  // before the tuning's lock, as an update takes them (recall.cpp)
   std::lock_guard<std::mutex> lock(tune_mutex_);
   auto it = tuned_.find(key);
   if (it != tuned_.end()) return it->second;

@@ -58,7 +58,12 @@ class KernelArgs {
     return add(queries).add(cl_ulong(first)).add(cl_uint(count)).add(cl_uint(p.k)).add(squared_radius(p.max_radius));
   }
   // The result buffers: ids, squared distances, counts.
-  KernelArgs& add_results(const ResultBuffers& out) { return add(out.ids).add(out.dist2).add(out.counts); }
+  // The result buffers: ids, squared distances, counts, and the result rows (ResultBuffers::rows;
+  // counts stands in, unread, when there are none: a valid argument on every platform).
+  KernelArgs& add_results(const ResultBuffers& out) {
+    const bool remap = out.rows() != nullptr;
+    return add(out.ids).add(out.dist2).add(out.counts).add(remap ? out.rows : out.counts).add(cl_uint(remap ? 1 : 0));
+  }
   // What every radius kernel ends with (kernels/radius_common.h, BHCL_RADIUS_PARAMS). The
   // examined buffer is set even when not wanted (a valid argument; the kernel does not write it).
   KernelArgs& add_radius(const cl::Buffer& queries, std::size_t first, std::size_t count, float r2,

@@ -296,12 +296,15 @@ cl::Event Index::enqueue_query(const cl::CommandQueue& queue, const cl::Buffer& 
   return detail::launch_1d(queue, back, nk, local, &w1, "bhcl_scale_in_place");
 }
 
-// The kNN kind of query (query_pipeline.hpp): rows of k, one pass, written to the caller's
-// place as they come off the device (no second pass over the result).
+// The kNN kind of query (query_pipeline.hpp): rows of k, one pass. On a device that uses host
+// memory in place (a CPU) the kernel writes each row straight to the caller's row (the dispatch
+// order travels with the queries, QueryBuffers::result_rows), so nothing moves rows after it;
+// elsewhere (a GPU) each chunk's rows are copied to the caller's places as they come off it.
 class Index::KnnKind final : public Index::QueryKind {
  public:
-  KnnKind(const Index& ix, const SearchParams& p, KnnResult& out)
-      : QueryKind(ix), p_(p), sp_(ix.scaled(p)), out_(out), k_(static_cast<std::size_t>(p.k)),
+  // Into a KnnResult (resized in begin), or (res null) into the caller's memory `view`.
+  KnnKind(const Index& ix, const SearchParams& p, KnnResult* res, const KnnRowsView& view = {})
+      : QueryKind(ix), p_(p), sp_(ix.scaled(p)), res_(res), v_(view), k_(static_cast<std::size_t>(p.k)),
         r2s_(detail::squared_radius(sp_.max_radius)) {}
   const char* name() const override { return "query"; }
   const DispatchParams& dispatch() const override { return p_; }
@@ -309,7 +312,10 @@ class Index::KnnKind final : public Index::QueryKind {
   int kernel_variant() const override { return kmax_variant(p_.k); }
   void check(std::size_t n, int copies) const override {
     ix_.check_params(p_);
-    check_result_memory(n, p_.k, p_.count_examined, copies, ix_.method());
+    if (!res_ && n > 0 && (!v_.ids || !v_.dist2 || !v_.counts || (p_.count_examined && !v_.examined)))
+      throw Error("query_into: a null output array in the view (ids, dist2, counts" +
+                  std::string(p_.count_examined ? ", examined" : "") + ") for " + std::to_string(n) + " queries");
+    check_result_memory(n, p_.k, p_.count_examined, res_ ? copies : copies - 1, ix_.method());
   }
   void begin(std::size_t n) override;
   std::size_t chunk_rows(std::size_t n) const override;
@@ -324,7 +330,7 @@ class Index::KnnKind final : public Index::QueryKind {
                     std::vector<std::size_t>& suspects) override;
   void search_host(const float* queries, std::size_t n, const std::size_t* order, const float* caller_queries,
                    QueryStats& st, std::vector<std::size_t>& suspects) override;
-  void finish(const std::size_t*, const float*, QueryStats&, std::vector<std::size_t>&) override {}
+  void finish(const std::size_t*, const float*, QueryStats&, std::vector<std::size_t>&) override;
   void answer_exactly(const float* caller_queries, const std::vector<std::size_t>& rows) override;
 
  private:
@@ -333,30 +339,45 @@ class Index::KnnKind final : public Index::QueryKind {
   void store_rows(std::size_t first, std::size_t m, const std::size_t* order, const std::int32_t* ids,
                   const float* dist2, const std::int32_t* counts, const std::int32_t* exam,
                   const float* caller_queries, std::vector<std::size_t>& suspects);
+  // The caller's rows written in place by the kernel: to the caller's scale, suspect rows noted.
+  void check_rows_in_place(const float* caller_queries, std::vector<std::size_t>& suspects);
   bool row_suspect(const float* q, const std::int32_t* ids, const float* d, int count) const;
+  void wrap_caller_rows();
+  void point_view_at_result();
 
   const SearchParams& p_;
   const SearchParams sp_;  // in the structure's coordinates
-  KnnResult& out_;
+  KnnResult* res_;
+  KnnRowsView v_;  // where the rows go: res_'s arrays once begin sized them, or the caller's
   const std::size_t k_;
   const float r2s_;
+  std::size_t n_ = 0;
+  ResultBuffers in_place_;  // the caller's rows as buffers (USE_HOST_PTR) while the kernels write them
 };
 
+void Index::KnnKind::point_view_at_result() {
+  v_ = {res_->ids.data(), res_->dist2.data(), res_->counts.data(),
+        p_.count_examined ? res_->examined.data() : nullptr};
+}
+
 void Index::KnnKind::begin(std::size_t n) {
+  n_ = n;
+  if (!res_) return;  // the caller's memory, written entry by entry
   if (ix_.answers_on_host()) {
-    out_.resize(n, p_.k);  // host methods fill rows they are given
-    if (p_.count_examined) out_.examined.assign(n, 0);
-    return;
+    res_->resize(n, p_.k);  // host methods fill rows they are given
+    if (p_.count_examined) res_->examined.assign(n, 0);
+    return point_view_at_result();
   }
-  // Every row is written by the scatter: sized, not filled (a filled result is a pass of its own;
-  // a result reused from the caller's last call costs nothing here).
-  out_.n = n;
-  out_.k = p_.k;
-  out_.ids.resize(n * k_);
-  out_.dist2.resize(n * k_);
-  out_.counts.resize(n);
-  if (p_.count_examined) out_.examined.resize(n);
-  else out_.examined.clear();
+  // Every row is written by the kernel or the scatter: sized, not filled (a filled result is a
+  // pass of its own; a result reused from the caller's last call costs nothing here).
+  res_->n = n;
+  res_->k = p_.k;
+  res_->ids.resize(n * k_);
+  res_->dist2.resize(n * k_);
+  res_->counts.resize(n);
+  if (p_.count_examined) res_->examined.resize(n);
+  else res_->examined.clear();
+  point_view_at_result();
 }
 
 std::size_t Index::KnnKind::chunk_rows(std::size_t n) const {
@@ -370,7 +391,13 @@ std::size_t Index::KnnKind::chunk_rows(std::size_t n) const {
 bool Index::KnnKind::row_suspect(const float* q, const std::int32_t* ids, const float* d, int count) const {
   if (!detail::finite_query(q)) return false;  // an empty row, as the contract says
   const int full = static_cast<int>(std::min<std::size_t>(k_, ix_.size()));
-  if ((r2s_ > 0 && r2s_ < detail::trusted_min_distance()) || (std::isinf(r2s_) && count < full)) return true;
+  static const float tiny = detail::trusted_min_distance();
+  if ((r2s_ > 0 && r2s_ < tiny) || (std::isinf(r2s_) && count < full)) return true;
+  // Almost every row: each distance in [tiny, inf), which no entry_suspect case holds (a
+  // branch-free test over the row, then the cases only where it fails).
+  bool plain = true;
+  for (int j = 0; j < count; ++j) plain &= (d[j] >= tiny) & (d[j] < INFINITY);
+  if (plain) return false;
   for (int j = 0; j < count; ++j)
     if (entry_suspect(q, ids[j], d[j])) return true;
   return false;
@@ -389,15 +416,35 @@ void Index::KnnKind::store_rows(std::size_t first, std::size_t m, const std::siz
       const std::int32_t* ri = ids + i * k_;
       const float* rd = dist2 + i * k_;
       if (check && row_suspect(caller_queries + 3 * row, ri, rd, counts[i])) mine.push_back(row);
-      float* od = &out_.dist2[row * k_];
-      if (ri != &out_.ids[row * k_]) std::copy_n(ri, k_, &out_.ids[row * k_]);  // in place: the host's rows
+      float* od = v_.dist2 + row * k_;
+      if (ri != v_.ids + row * k_) std::copy_n(ri, k_, v_.ids + row * k_);  // in place: the host's rows
       if (e) {
         for (std::size_t j = 0; j < k_; ++j) od[j] = std::ldexp(rd[j], 2 * e);
       } else if (rd != od) {
         std::copy_n(rd, k_, od);
       }
-      out_.counts[row] = counts[i];
-      if (exam) out_.examined[row] = exam[i];
+      v_.counts[row] = counts[i];
+      if (exam) v_.examined[row] = exam[i];
+    }
+    if (!mine.empty()) {
+      std::lock_guard<std::mutex> lock(suspects_mutex);
+      suspects.insert(suspects.end(), mine.begin(), mine.end());
+    }
+  }, 0, 8192);
+}
+
+void Index::KnnKind::check_rows_in_place(const float* caller_queries, std::vector<std::size_t>& suspects) {
+  const bool check = checks_rows();
+  const int e = scale_exponent();
+  if (!check && !e) return;  // nothing to read: the rows are final as the kernel wrote them
+  std::mutex suspects_mutex;
+  detail::parallel_for(n_, [&](std::size_t lo, std::size_t hi) {
+    std::vector<std::size_t> mine;
+    for (std::size_t row = lo; row < hi; ++row) {
+      float* rd = v_.dist2 + row * k_;
+      if (check && row_suspect(caller_queries + 3 * row, v_.ids + row * k_, rd, v_.counts[row])) mine.push_back(row);
+      if (e)
+        for (std::size_t j = 0; j < k_; ++j) rd[j] = std::ldexp(rd[j], 2 * e);
     }
     if (!mine.empty()) {
       std::lock_guard<std::mutex> lock(suspects_mutex);
@@ -415,11 +462,14 @@ struct DownloadedRows {
   const std::int32_t *ids = nullptr, *counts = nullptr, *exam = nullptr;
   const float* dist2 = nullptr;
 
-  void map(const cl::CommandQueue& q, const ResultBuffers& rb, std::size_t m, std::size_t k, bool examined) {
-    mids = std::make_unique<detail::Mapped>(q, rb.ids, CL_MAP_READ, m * k * 4, "ids");
-    mdist2 = std::make_unique<detail::Mapped>(q, rb.dist2, CL_MAP_READ, m * k * 4, "dist2");
-    mcounts = std::make_unique<detail::Mapped>(q, rb.counts, CL_MAP_READ, m * 4, "counts");
-    if (examined) mexam = std::make_unique<detail::Mapped>(q, rb.examined, CL_MAP_READ, m * 4, "examined");
+  // The maps enqueued without a wait each: valid after the next wait on the queue (`wait`: here).
+  void map(const cl::CommandQueue& q, const ResultBuffers& rb, std::size_t m, std::size_t k, bool examined,
+           cl_map_flags flags = CL_MAP_READ, bool wait = true) {
+    mids = std::make_unique<detail::Mapped>(q, rb.ids, flags, m * k * 4, "ids", false);
+    mdist2 = std::make_unique<detail::Mapped>(q, rb.dist2, flags, m * k * 4, "dist2", false);
+    mcounts = std::make_unique<detail::Mapped>(q, rb.counts, flags, m * 4, "counts", false);
+    if (examined) mexam = std::make_unique<detail::Mapped>(q, rb.examined, flags, m * 4, "examined", false);
+    if (wait) check_cl(q.finish(), "clFinish", "kNN rows mapped");
     ids = mids->as<std::int32_t>();
     dist2 = mdist2->as<float>();
     counts = mcounts->as<std::int32_t>();
@@ -447,22 +497,56 @@ struct DownloadedRows {
 double seconds_since(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
+
+// Caller memory as a buffer the device uses in place (CL_MEM_USE_HOST_PTR on a host-memory device).
+cl::Buffer caller_buffer(const cl::Context& ctx, void* p, std::size_t bytes, const char* what) {
+  cl_int err = CL_SUCCESS;
+  cl::Buffer b(ctx, CL_MEM_READ_WRITE | CL_MEM_USE_HOST_PTR, bytes, p, &err);
+  check_cl(err, "clCreateBuffer", std::string(what) + " (the caller's rows), " + std::to_string(bytes) + " bytes");
+  return b;
+}
 }  // namespace
+
+void Index::KnnKind::wrap_caller_rows() {
+  const cl::Context& ctx = ix_.runtime_->context();
+  in_place_.ids = caller_buffer(ctx, v_.ids, n_ * k_ * 4, "ids");
+  in_place_.dist2 = caller_buffer(ctx, v_.dist2, n_ * k_ * 4, "dist2");
+  in_place_.counts = caller_buffer(ctx, v_.counts, n_ * 4, "counts");
+  if (p_.count_examined) in_place_.examined = caller_buffer(ctx, v_.examined, n_ * 4, "examined");
+}
 
 void Index::KnnKind::search_chunk(QueryBuffers& b, std::size_t first, std::size_t m, const std::size_t* order,
                                   std::size_t per, std::size_t local, const float* caller_queries, QueryStats& st,
                                   std::vector<std::size_t>& suspects) {
   const cl::CommandQueue& queue = ix_.runtime_->queue();
+  const bool in_place = b.writes_caller_rows(n_);
   ResultBuffers rb{b.ids, b.dist2, b.counts};
   if (p_.count_examined) rb.examined = b.examined_buf;
+  if (in_place) {
+    if (!in_place_.ids()) wrap_caller_rows();
+    rb = in_place_;
+    rb.rows = b.result_rows;
+  }
   std::vector<cl::Event> kernels;
   for (std::size_t f = 0; f < m; f += per)
     kernels.push_back(ix_.enqueue_batch(queue, b.q, f, std::min(per, m - f), rb, sp_, local, nullptr));
+  // The last chunk written in place: the caller's rows mapped behind the kernels, one wait for both.
+  const bool last = first + m == n_;
+  DownloadedRows rows;
+  if (in_place && last) rows.map(queue, in_place_, n_, k_, p_.count_examined, CL_MAP_READ | CL_MAP_WRITE, false);
   check_cl(queue.finish(), "clFinish", ix_.method() + " query");
   for (const auto& e : kernels) st.query_s += event_seconds(e);
   st.batches += kernels.size();
+  if (in_place) {
+    if (!last) return;
+    // Every chunk's rows are the caller's already: checked where they lie, then unmapped (the
+    // pipeline's closing wait covers the unmaps) and the buffers let go.
+    const auto tw = std::chrono::steady_clock::now();
+    check_rows_in_place(caller_queries, suspects);
+    st.unsort_s += seconds_since(tw);
+    return;
+  }
   const auto td = std::chrono::steady_clock::now();
-  DownloadedRows rows;
   if (b.host) rows.map(queue, rb, m, k_, p_.count_examined);
   else rows.read(queue, rb, m, k_, p_.count_examined);
   st.download_s += seconds_since(td);
@@ -471,12 +555,17 @@ void Index::KnnKind::search_chunk(QueryBuffers& b, std::size_t first, std::size_
   st.unsort_s += seconds_since(tw);
 }
 
+void Index::KnnKind::finish(const std::size_t*, const float*, QueryStats&, std::vector<std::size_t>&) {
+  // The caller's memory is the caller's alone again (its unmaps ran before the pipeline's wait).
+  in_place_ = ResultBuffers{};
+}
+
 void Index::KnnKind::search_host(const float* queries, std::size_t n, const std::size_t* order,
                                  const float* caller_queries, QueryStats& st, std::vector<std::size_t>& suspects) {
-  if (!order) {  // the rows searched in place; the scan notes suspects and rescales
-    st.query_s = ix_.host_search(queries, n, sp_, out_);
-    store_rows(0, n, nullptr, out_.ids.data(), out_.dist2.data(), out_.counts.data(), nullptr, caller_queries,
-               suspects);
+  if (!order && res_) {  // the rows searched in place; the scan notes suspects and rescales
+    st.query_s = ix_.host_search(queries, n, sp_, *res_);
+    point_view_at_result();
+    store_rows(0, n, nullptr, v_.ids, v_.dist2, v_.counts, nullptr, caller_queries, suspects);
     return;
   }
   // The rows in dispatch order, in arrays this thread keeps from call to call: fresh ones cost
@@ -488,6 +577,7 @@ void Index::KnnKind::search_host(const float* queries, std::size_t n, const std:
   st.query_s = ix_.host_search(queries, n, sp_, tmp);
   const auto tu = std::chrono::steady_clock::now();
   const std::int32_t* exam = p_.count_examined && !tmp.examined.empty() ? tmp.examined.data() : nullptr;
+  if (p_.count_examined && !exam) std::fill_n(v_.examined, n, 0);
   store_rows(0, n, order, tmp.ids.data(), tmp.dist2.data(), tmp.counts.data(), exam, caller_queries, suspects);
   if (tmp.ids.capacity() * 8 > kSortScratchBytes) tmp = KnnResult{};  // kept only up to the bound
   st.unsort_s = seconds_since(tu);
@@ -502,17 +592,37 @@ void Index::KnnKind::answer_exactly(const float* caller_queries, const std::vect
       const std::size_t row = rows[t];
       exact_candidates(caller_queries + 3 * row, r2, k_, best);
       for (std::size_t j = 0; j < k_; ++j) {
-        out_.ids[row * k_ + j] = j < best.size() ? best[j].second : -1;
-        out_.dist2[row * k_ + j] = j < best.size() ? detail::to_float_or_inf(best[j].first) : INFINITY;
+        v_.ids[row * k_ + j] = j < best.size() ? best[j].second : -1;
+        v_.dist2[row * k_ + j] = j < best.size() ? detail::to_float_or_inf(best[j].first) : INFINITY;
       }
-      out_.counts[row] = static_cast<std::int32_t>(best.size());
+      v_.counts[row] = static_cast<std::int32_t>(best.size());
     }
   }, 0, 1);
 }
 
 QueryStats Index::query(const float* queries, std::size_t n, const SearchParams& params,
                         KnnResult& out) const {
-  KnnKind kind(*this, params, out);
+  KnnKind kind(*this, params, &out);
+  return run_query(queries, n, kind);
+}
+
+QueryStats SearchIndex::query_into(const float* queries, std::size_t n, const SearchParams& params,
+                                   const KnnRowsView& out) const {
+  if (n > 0 && (!out.ids || !out.dist2 || !out.counts || (params.count_examined && !out.examined)))
+    throw Error("query_into: a null output array in the view for " + std::to_string(n) + " queries");
+  KnnResult r;
+  const QueryStats st = query(queries, n, params, r);
+  const std::size_t nk = n * static_cast<std::size_t>(params.k);
+  std::copy_n(r.ids.data(), nk, out.ids);
+  std::copy_n(r.dist2.data(), nk, out.dist2);
+  std::copy_n(r.counts.data(), n, out.counts);
+  if (params.count_examined) std::copy_n(r.examined.data(), n, out.examined);
+  return st;
+}
+
+QueryStats Index::query_into(const float* queries, std::size_t n, const SearchParams& params,
+                             const KnnRowsView& out) const {
+  KnnKind kind(*this, params, nullptr, out);
   return run_query(queries, n, kind);
 }
 
@@ -521,7 +631,7 @@ double Index::warm_up(const SearchParams& params) const {
   check_params(params);
   if (answers_on_host()) return 0.0;
   KnnResult unused;
-  KnnKind kind(*this, params, unused);
+  KnnKind kind(*this, params, &unused);
   return warm_up_kind(kind, local_size_for(params));
 }
 

@@ -49,6 +49,59 @@ void radix_sort_by_key(KeyedRow* v, KeyedRow* tmp, std::size_t n, int key_bits) 
   if (from != v) std::copy(from, from + n, v);
 }
 
+// The stable order by key of n keys below 2^49, n < 2^31, in three parallel passes without a
+// merge: each thread's histogram of the keys' top tb bits; a stable scatter into those buckets of
+// one word per query, (the key's lower bits, the query's index), so that sorting a bucket's words
+// sorts it by (key, index); each bucket sorted on its own (a few dozen words at 1M queries) and
+// its indices written out. Half the bytes of (key, row) pairs, and no pass is single-threaded.
+constexpr int kKeyBits = 49;  // 3 x 16 bits, and the non-finite queries' key 2^48
+bool fits_bucket_words(std::size_t n) { return n < (std::size_t(1) << 31); }
+
+std::vector<std::size_t> order_by_buckets(const std::vector<std::uint64_t>& keys, unsigned threads) {
+  const std::size_t n = keys.size();
+  int tb = 1;
+  while (tb < 16 && (std::size_t(1) << tb) < n) ++tb;  // about one query a bucket, at most 2^16
+  const int low_bits = kKeyBits - tb, row_bits = 64 - low_bits;  // row_bits = 15 + tb: n fits
+  const std::uint64_t low_mask = (std::uint64_t(1) << low_bits) - 1, row_mask = (std::uint64_t(1) << row_bits) - 1;
+  const std::size_t buckets = std::size_t(1) << tb, per = (n + threads - 1) / threads;
+  std::vector<std::size_t> pos(buckets * threads, 0);
+  parallel_for(threads, [&](std::size_t tb0, std::size_t te) {
+    for (std::size_t t = tb0; t < te; ++t) {
+      std::size_t* c = &pos[t * buckets];
+      for (std::size_t i = std::min(n, t * per), e = std::min(n, (t + 1) * per); i < e; ++i) ++c[keys[i] >> low_bits];
+    }
+  }, threads, 1);
+  std::vector<std::size_t> bucket_start(buckets + 1);
+  std::size_t sum = 0;
+  for (std::size_t b = 0; b < buckets; ++b) {
+    bucket_start[b] = sum;
+    for (unsigned t = 0; t < threads; ++t) {
+      const std::size_t c = pos[t * buckets + b];
+      pos[t * buckets + b] = sum;  // thread t's queries of bucket b after those of threads before it
+      sum += c;
+    }
+  }
+  bucket_start[buckets] = n;
+  std::vector<std::uint64_t> words(n);
+  parallel_for(threads, [&](std::size_t tb0, std::size_t te) {
+    for (std::size_t t = tb0; t < te; ++t) {
+      std::size_t* at = &pos[t * buckets];
+      for (std::size_t i = std::min(n, t * per), e = std::min(n, (t + 1) * per); i < e; ++i)
+        words[at[keys[i] >> low_bits]++] = ((keys[i] & low_mask) << row_bits) | i;
+    }
+  }, threads, 1);
+  std::vector<std::size_t> order(n);
+  // Buckets handed out in chunks: surface data fills some buckets and leaves most empty.
+  parallel_chunks(buckets, 256, threads, [&](std::size_t, std::size_t lo, std::size_t hi) {
+    for (std::size_t b = lo; b < hi; ++b) {
+      std::uint64_t *w = words.data() + bucket_start[b], *we = words.data() + bucket_start[b + 1];
+      if (we - w > 1) std::sort(w, we);
+      for (std::size_t j = bucket_start[b]; j < bucket_start[b + 1]; ++j) order[j] = words[j] & row_mask;
+    }
+  });
+  return order;
+}
+
 }  // namespace
 
 namespace {
@@ -112,6 +165,32 @@ inline std::uint32_t cell16(const sfc::Quantiser& qz, int d, float v) {
   return c > 0 ? static_cast<std::uint32_t>(std::min(c, 65535.0)) : 0u;
 }
 
+// The same order past 2^31 queries (the bucket words cannot hold the index): each thread's part
+// radix-sorted as (key, row) pairs, the parts merged pairwise.
+std::vector<std::size_t> order_by_merge(const std::vector<std::uint64_t>& keys, unsigned threads, std::size_t per) {
+  const std::size_t n = keys.size();
+  std::vector<KeyedRow> rows(n), tmp(n);
+  parallel_for(threads, [&](std::size_t tb, std::size_t te) {
+    for (std::size_t t = tb; t < te; ++t) {
+      const std::size_t lo = std::min(n, t * per), hi = std::min(n, (t + 1) * per);
+      for (std::size_t i = lo; i < hi; ++i) rows[i] = {keys[i], i};
+      radix_sort_by_key(rows.data() + lo, tmp.data() + lo, hi - lo, kKeyBits);
+    }
+  }, threads, 1);
+  // On equal keys the earlier part first (smaller rows).
+  auto by_key = [](const KeyedRow& a, const KeyedRow& b) { return a.key < b.key; };
+  for (std::size_t width = per; width < n; width *= 2) {
+    for (std::size_t lo = 0; lo < n; lo += 2 * width) {
+      const std::size_t mid = std::min(n, lo + width), hi = std::min(n, lo + 2 * width);
+      std::merge(rows.begin() + lo, rows.begin() + mid, rows.begin() + mid, rows.begin() + hi, tmp.begin() + lo, by_key);
+    }
+    rows.swap(tmp);
+  }
+  std::vector<std::size_t> order(n);
+  for (std::size_t i = 0; i < n; ++i) order[i] = rows[i].row;
+  return order;
+}
+
 }  // namespace
 
 std::uint64_t hilbert_key16(std::uint32_t x, std::uint32_t y, std::uint32_t z) {
@@ -120,10 +199,9 @@ std::uint64_t hilbert_key16(std::uint32_t x, std::uint32_t y, std::uint32_t z) {
   return key;
 }
 
-std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n) {
-  // One parallel pass for the queries' box (finite ones only), one for the keys, a radix sort of
-  // each thread's part and a merge: the order of the stable sort by (key, index), at a few
-  // milliseconds for 10^5 queries instead of tens.
+std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n, std::size_t* nonfinite) {
+  // One parallel pass for the queries' box (finite ones only), one for the keys, then the
+  // bucket sort (order_by_buckets): the order of the stable sort by (key, index).
   constexpr int kBits = 16;
   const unsigned threads = n < 16384 ? 1u : std::max(1u, std::min(default_threads(), 8u));
   const std::size_t per = (n + threads - 1) / threads;
@@ -156,8 +234,9 @@ std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n) {
       box[3 + d] = std::max(box[3 + d], boxes[t][3 + d]);
     }
   }
-  std::vector<std::size_t> order(n);
+  if (nonfinite) *nonfinite = n - finite;
   if (finite == 0) {
+    std::vector<std::size_t> order(n);
     for (std::size_t i = 0; i < n; ++i) order[i] = i;
     return order;
   }
@@ -172,7 +251,7 @@ std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n) {
   qz.scale = extent > 0 ? std::ldexp(1.0, kBits) / extent : 0.0;
   // Non-finite queries get the key past every finite one: last, in their own order.
   const std::uint64_t last = std::uint64_t(1) << (3 * kBits);
-  std::vector<KeyedRow> rows(n), tmp(n);
+  std::vector<std::uint64_t> keys(n);
   parallel_for(threads, [&](std::size_t tb, std::size_t te) {
     for (std::size_t t = tb; t < te; ++t) {
       const std::size_t lo = std::min(n, t * per), hi = std::min(n, (t + 1) * per);
@@ -185,24 +264,14 @@ std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n) {
           ok[l] = std::isfinite(q[0]) && std::isfinite(q[1]) && std::isfinite(q[2]);
           for (int d = 0; d < 3; ++d) c[d][l] = ok[l] ? cell16(qz, d, q[d]) : 0u;
         }
-        std::uint64_t keys[kLanes];
-        hilbert_keys16_lanes(c[0], c[1], c[2], keys, m);
-        for (std::size_t l = 0; l < m; ++l) rows[i0 + l] = {ok[l] ? keys[l] : last, i0 + l};
+        std::uint64_t k16[kLanes];
+        hilbert_keys16_lanes(c[0], c[1], c[2], k16, m);
+        for (std::size_t l = 0; l < m; ++l) keys[i0 + l] = ok[l] ? k16[l] : last;
       }
-      radix_sort_by_key(rows.data() + lo, tmp.data() + lo, hi - lo, 3 * kBits + 1);
     }
   }, threads, 1);
-  // The threads' sorted parts merged pairwise; on equal keys the earlier part first (smaller rows).
-  auto by_key = [](const KeyedRow& a, const KeyedRow& b) { return a.key < b.key; };
-  for (std::size_t width = per; width < n; width *= 2) {
-    for (std::size_t lo = 0; lo < n; lo += 2 * width) {
-      const std::size_t mid = std::min(n, lo + width), hi = std::min(n, lo + 2 * width);
-      std::merge(rows.begin() + lo, rows.begin() + mid, rows.begin() + mid, rows.begin() + hi, tmp.begin() + lo, by_key);
-    }
-    rows.swap(tmp);
-  }
-  for (std::size_t i = 0; i < n; ++i) order[i] = rows[i].row;
-  return order;
+  if (fits_bucket_words(n)) return order_by_buckets(keys, threads);
+  return order_by_merge(keys, threads, per);
 }
 
 std::vector<float> queries_in_order(const float* xyz, const std::vector<std::size_t>& order) {

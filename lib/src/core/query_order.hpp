@@ -12,7 +12,8 @@ namespace bhcl::detail {
 // The order that visits the queries along a 3D Hilbert curve over their own bounding box
 // (16 bits per axis); queries with a non-finite coordinate go last, in their own order.
 // order[i] = the caller's index of the i-th query to dispatch.
-std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n);
+// nonfinite (when not null): how many queries have a non-finite coordinate (the box pass counts them).
+std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n, std::size_t* nonfinite = nullptr);
 
 // sfc::hilbert_encode(x, y, z, 16), computed without branches (the query order's keys).
 std::uint64_t hilbert_key16(std::uint32_t x, std::uint32_t y, std::uint32_t z);

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <future>
 #include <limits>
 #include <memory>
 
@@ -32,10 +33,11 @@ cl::Buffer io_buffer(const Runtime& rt, bool host_visible, std::size_t bytes, co
 }
 
 Mapped::Mapped(const cl::CommandQueue& q, const cl::Buffer& b, cl_map_flags flags, std::size_t bytes,
-               const char* what)
+               const char* what, bool blocking)
     : q_(q), b_(b) {
   cl_int err = CL_SUCCESS;
-  ptr_ = q.enqueueMapBuffer(b, CL_TRUE, flags, 0, std::max<std::size_t>(bytes, 4), nullptr, nullptr, &err);
+  ptr_ = q.enqueueMapBuffer(b, blocking ? CL_TRUE : CL_FALSE, flags, 0, std::max<std::size_t>(bytes, 4), nullptr,
+                            nullptr, &err);
   check_cl(err, "clEnqueueMapBuffer", what);
 }
 
@@ -61,29 +63,42 @@ std::size_t count_nonfinite(const float* queries, std::size_t n) {
 
 // Queries [first, first + m) in dispatch order (order null: as given) into dst, scaled by 2^-e
 // into the structure's coordinates (e = 0: copied): the sort and the scale fused with the upload.
+// rows (when not null) gets each dispatch row's caller row, for the kernel's store.
 void gather_queries(const float* caller, std::size_t first, std::size_t m, const std::size_t* order, int e,
-                    float* dst) {
+                    float* dst, std::uint32_t* rows = nullptr) {
   detail::parallel_for(m, [&](std::size_t lo, std::size_t hi) {
     for (std::size_t i = lo; i < hi; ++i) {
-      const float* q = caller + 3 * (order ? order[first + i] : first + i);
+      const std::size_t row = order ? order[first + i] : first + i;
+      const float* q = caller + 3 * row;
       for (int d = 0; d < 3; ++d) dst[3 * i + d] = e ? std::ldexp(q[d], -e) : q[d];
+      if (rows) rows[i] = static_cast<std::uint32_t>(row);
     }
   }, 0, 16384);
 }
 
-// The chunk's queries into b.q: mapped in place on a CPU device, written from a staging copy on a GPU.
-void upload_queries(const cl::CommandQueue& queue, const cl::Buffer& buf, bool host, const float* caller,
-                    std::size_t first, std::size_t m, const std::size_t* order, int e, std::vector<float>& stage) {
+// The chunk's queries into b.q (and their caller rows into b.result_rows where the kernel writes
+// the caller's rows): mapped in place on a CPU device, written from a staging copy on a GPU.
+// result_rows: null where the rows are copied after the kernel.
+void upload_queries(const cl::CommandQueue& queue, const cl::Buffer& q, bool host, const cl::Buffer* result_rows,
+                    const float* caller, std::size_t first, std::size_t m, const std::size_t* order, int e,
+                    std::vector<float>& stage) {
   const std::size_t bytes = m * 3 * sizeof(float);
   if (host) {
-    detail::Mapped map(queue, buf, CL_MAP_WRITE_INVALIDATE_REGION, bytes, "queries");
-    gather_queries(caller, first, m, order, e, map.as<float>());
+    // Both maps enqueued, then one wait (each blocking map is a round trip to the device's threads).
+    detail::Mapped map(queue, q, CL_MAP_WRITE_INVALIDATE_REGION, bytes, "queries", false);
+    std::unique_ptr<detail::Mapped> rows;
+    if (result_rows)
+      rows = std::make_unique<detail::Mapped>(queue, *result_rows, CL_MAP_WRITE_INVALIDATE_REGION, m * 4,
+                                              "result rows", false);
+    check_cl(queue.finish(), "clFinish", "queries mapped");
+    gather_queries(caller, first, m, order, e, map.as<float>(), rows ? rows->as<std::uint32_t>() : nullptr);
+    if (rows) rows->unmap("result rows");
     map.unmap("queries");
     return;
   }
   stage.resize(3 * m);
   gather_queries(caller, first, m, order, e, stage.data());
-  check_cl(queue.enqueueWriteBuffer(buf, CL_FALSE, 0, bytes, stage.data()), "clEnqueueWriteBuffer", "queries");
+  check_cl(queue.enqueueWriteBuffer(q, CL_FALSE, 0, bytes, stage.data()), "clEnqueueWriteBuffer", "queries");
 }
 
 }  // namespace
@@ -129,12 +144,25 @@ QueryStats Index::run_query(const float* queries, std::size_t n, QueryKind& kind
   kind.check(n, sort ? 2 : 1);
   QueryStats st;
   st.n_queries = n;
-  st.nonfinite_queries = count_nonfinite(queries, n);
+  if (!sort) st.nonfinite_queries = count_nonfinite(queries, n);  // else counted by the sort's box pass
   std::vector<std::size_t> order;  // dispatch in Hilbert order: neighbouring work-items walk the same cells
   if (sort) {
+    // A first call's program load (the binary cache's, or a compile) on its own thread while this
+    // one sorts: they share nothing, and the load is as long as the sort of 10^5 queries.
+    std::future<double> warm;
+    if (!answers_on_host()) {
+      const std::size_t local = dp.local_size ? dp.local_size : runtime_->quirks().default_local_size;
+      bool warmed = false;
+      {
+        std::lock_guard<std::mutex> lock(warm_mutex_);
+        warmed = warmed_.count(std::make_tuple(kind.kernel_variant(), local, dp.kernel_defines)) > 0;
+      }
+      if (!warmed) warm = std::async(std::launch::async, [this, &kind, local] { return warm_up_kind(kind, local); });
+    }
     const auto ts = std::chrono::steady_clock::now();
-    order = detail::hilbert_query_order(queries, n);
+    order = detail::hilbert_query_order(queries, n, &st.nonfinite_queries);
     st.sort_s = seconds_since(ts);
+    if (warm.valid()) st.compile_s += warm.get();
   }
   const std::size_t* ord = order.empty() ? nullptr : order.data();
   kind.begin(n);
@@ -173,7 +201,8 @@ void Index::search_on_device(const float* queries, std::size_t n, const std::siz
   for (std::size_t first = 0; first < n; first += chunk) {
     const std::size_t m = std::min(chunk, n - first);
     const auto tu = std::chrono::steady_clock::now();
-    upload_queries(queue, b.q, b.host, queries, first, m, order, scale_exp_, stage);
+    upload_queries(queue, b.q, b.host, b.writes_caller_rows(n) ? &b.result_rows : nullptr, queries, first, m, order,
+                   scale_exp_, stage);
     st.upload_s += seconds_since(tu);
     kind.search_chunk(b, first, m, order, per, local, queries, st, suspects);
   }
@@ -215,6 +244,7 @@ void Index::take_query_buffers(std::size_t rows, std::size_t k, bool examined, Q
   b.q = detail::io_buffer(rt, b.host, rows * 3 * sizeof(float), "queries");
   b.counts = detail::io_buffer(rt, b.host, rows * sizeof(std::int32_t), "counts");
   if (examined) b.examined_buf = detail::io_buffer(rt, b.host, rows * sizeof(std::int32_t), "examined");
+  if (k && b.host) b.result_rows = detail::io_buffer(rt, true, rows * sizeof(std::uint32_t), "result rows");
   if (k) {
     b.ids = detail::io_buffer(rt, b.host, rows * k * sizeof(std::int32_t), "ids");
     b.dist2 = detail::io_buffer(rt, b.host, rows * k * sizeof(float), "dist2");

@@ -76,10 +76,12 @@ inline bool finite_query(const float* q) { return std::isfinite(q[0]) && std::is
 // memory itself); a GPU gets device memory and copies.
 cl::Buffer io_buffer(const Runtime& rt, bool host_visible, std::size_t bytes, const char* what);
 
-// A mapped region of a buffer, unmapped when done (also on an exception).
+// A mapped region of a buffer, unmapped when done (also on an exception). blocking false: the
+// pointer is valid once the queue has run the map (one wait for several maps, not one each).
 class Mapped {
  public:
-  Mapped(const cl::CommandQueue& q, const cl::Buffer& b, cl_map_flags flags, std::size_t bytes, const char* what);
+  Mapped(const cl::CommandQueue& q, const cl::Buffer& b, cl_map_flags flags, std::size_t bytes, const char* what,
+         bool blocking = true);
   ~Mapped() {
     if (ptr_) q_.enqueueUnmapMemObject(b_, ptr_);
   }
