@@ -226,7 +226,7 @@ Indexes build_indexes(const Options& o, const std::vector<Method>& ms, const std
 }
 
 // One k on a workload: each method's first call (kept: its rows), then `rounds` interleaved timed
-// calls.
+// calls, the order rotated by one method each round.
 struct Timings {
   std::vector<SearchParams> p;
   std::vector<KnnResult> res;
@@ -246,8 +246,12 @@ Timings time_methods(const Options& o, const std::vector<Method>& ms, const Inde
     ix.of(m).query(w.q.data(), nq, tm.p[m], tm.res[m]);
     tm.first[m] = now_s() - t0;
   }
+  // Each round starts one method later: in a fixed order the first method always ran right after
+  // the last one's host threads (FLANN), so any cost of that position (the device threads'
+  // wake-up on the short on-data calls, 10-30 ms) fell on it alone.
   for (int r = 0; r < o.rounds; ++r)
-    for (std::size_t m = 0; m < ms.size(); ++m) {
+    for (std::size_t i = 0; i < ms.size(); ++i) {
+      const std::size_t m = (i + std::size_t(r)) % ms.size();
       if (!ix.run[m]) continue;
       KnnResult tmp;
       const double t0 = now_s();

@@ -2,12 +2,13 @@
 //
 // Per data set and radius (chosen so that a query finds about `--per-query` points on average:
 // the median distance to that neighbour over a sample of the queries), every variant (each
-// method; block hashing at each --budget) runs once per round, in a shuffled order, on the same
+// method; block hashing at each --budget and with each --bh-defines) runs once per round, in a shuffled order, on the same
 // queries; the table gives per variant the median over rounds of queries/s and of its time
 // ratio to FLANN's radius search in the same round (> 1: faster than FLANN), with the min-max of
 // the ratios, and its recall against the exact answer (the points within r found, over all
 // queries; exact methods must give 1 and identical slices, checked). Compile time (the first
-// call) is reported apart and not timed.
+// call) is reported apart and not timed. --at box: the queries uniform over the points' box (a
+// LiDAR scan queried from above it: the radius walk's far case).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -37,6 +38,8 @@ struct Options {
   std::vector<long long> budgets = {0, 200, 800};
   int rounds = 5;
   std::string csv, device, data_dir;
+  std::string at = "on";                // the queries: on the data, or uniform over its box
+  std::vector<std::string> bh_defines;  // more blockhash variants (no budget), with these kernel defines
 };
 
 struct Variant {
@@ -76,6 +79,10 @@ Options parse(int argc, char** argv) {
   cli.methods(o.methods);
   cli.integers("budget", o.budgets, "blockhash: points examined per query at most (0: no budget)", 0, 4294967295.0);
   cli.integer("rounds", o.rounds, "interleaved rounds (medians over them)", 1, 1000);
+  cli.text("at", o.at, "the queries: on (the data's points, jittered) or box (uniform over the points' box)")
+      ->check(CLI::IsMember({"on", "box"}));
+  cli.names("bh-defines", o.bh_defines,
+            "blockhash: one more variant (no budget) per entry, with these kernel defines (e.g. -DBHCL_GRID_TBOX=0)");
   cli.csv(o.csv);
   cli.device(o.device);
   cli.parse(argc, argv);
@@ -104,6 +111,11 @@ std::vector<Variant> make_variants(const Options& o, const std::map<std::string,
       for (long long b : o.budgets) {
         Variant v{"blockhash budget " + (b ? std::to_string(b) : std::string("none")), m, {}, indexes.at(m).get()};
         v.params.budget = static_cast<std::uint32_t>(b);
+        vs.push_back(v);
+      }
+      for (const std::string& d : o.bh_defines) {
+        Variant v{"blockhash " + d, m, {}, indexes.at(m).get()};
+        v.params.kernel_defines = d;
         vs.push_back(v);
       }
     } else {
@@ -201,6 +213,7 @@ int main(int argc, char** argv) {
     for (const auto& set : o.data) {
       std::vector<float> pts, qs;
       if (!bench::load_set(o.data_dir, set, o.N, o.queries, pts, qs)) continue;
+      if (o.at == "box") qs = bench::box_queries(pts, o.queries, 7);
       const std::size_t N = pts.size() / 3, n = qs.size() / 3;
       std::map<std::string, std::unique_ptr<Index>> indexes;
       for (const auto& m : o.methods) indexes[m] = make_index(m, rt, pts.data(), N);

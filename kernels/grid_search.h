@@ -164,6 +164,43 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_occ_index(const bhcl_grid_geom g, bhcl_u32 o
   return off + (Z * bhcl_grid_occ_dim(g.ny, l) + Y) * bhcl_grid_occ_dim(g.nx, l) + X;
 }
 
+/* The points' box of every pyramid node of level 2 or above (4^3 fine cells and up), after the
+ * pyramid's bytes (from the first multiple of 4): six floats (lx, ly, lz, hx, hy, hz: each side a
+ * stored point's coordinate, holes left out; an empty node's is inverted) for the node whose byte
+ * is b at index b - (level 1's bytes), so level 2's come first. Why: over a surface the points lie
+ * on a thin slab of a cell, and a node's slabs, a whole cell or node thick, let a query above it
+ * see every cell within sqrt(2 D h) of its foot as within reach (k = 1 over Autzen's box examined
+ * 90 points, 4 cells); the walk clips a node's slabs to its own box and its children's (down to
+ * the fine cells) to their level-2 ancestor's. Present when level 2 exists (about ncells / 150
+ * bytes); BHCL_GRID_TBOX 0 ignores them (an experiment: the host reference follows 1). */
+#ifndef BHCL_GRID_TBOX
+#define BHCL_GRID_TBOX 1
+#endif
+BHCL_GRID_INLINE bhcl_u32 bhcl_grid_tbox_off(bhcl_u32 pyramid_bytes) { return (pyramid_bytes + 3u) & ~3u; }
+
+/* The occupancy buffer's bytes: the pyramid and, when level 2 exists, the boxes. */
+BHCL_GRID_INLINE bhcl_u32 bhcl_grid_occ_bytes(const bhcl_grid_geom g) {
+  bhcl_u32 top_off, total;
+  const bhcl_u32 top = bhcl_grid_occ_top(g, &top_off, &total);
+  if (top < 2u) return total;
+  return bhcl_grid_tbox_off(total) + 24u * (total - bhcl_grid_occ_size(g, 1u));
+}
+
+/* Box i of the occupancy buffer whose boxes start at byte off. */
+#ifdef __OPENCL_C_VERSION__
+inline bhcl_grid_dbox bhcl_grid_tbox_load(BHCL_GLOBAL const bhcl_u8* occ, bhcl_u32 off, bhcl_u32 i) {
+  BHCL_GLOBAL const float* f = (BHCL_GLOBAL const float*)(occ + off) + 6u * i;
+  const bhcl_grid_dbox b = {f[0], f[1], f[2], f[3], f[4], f[5]}; /* bhcl_grid_dbox's field order */
+  return b;
+}
+#else
+inline bhcl_grid_dbox bhcl_grid_tbox_load(const bhcl_u8* occ, bhcl_u32 off, bhcl_u32 i) {
+  bhcl_grid_dbox b;
+  std::memcpy(&b, occ + off + 24u * i, sizeof b); /* bytes, not a float array: no aliasing */
+  return b;
+}
+#endif
+
 /* The child (bx | by << 1 | bz << 2) of node (X, Y, Z) of level m + 1 on the side of the query's
  * (clamped) cell (cx, cy, cz) along each axis: the near child of BHCL_GRID_OCC_ORDER. */
 BHCL_GRID_INLINE bhcl_u32 bhcl_grid_occ_near(bhcl_u32 cx, bhcl_u32 cy, bhcl_u32 cz, bhcl_u32 X, bhcl_u32 Y,
@@ -252,12 +289,18 @@ typedef struct bhcl_grid_walk_ctx {
   float qx, qy, qz;
   bhcl_u32 cx, cy, cz;
   bhcl_u32 vx0, vy0, vz0, vx1, vy1, vz1;
+  BHCL_GLOBAL const bhcl_u8* occ;
+  bhcl_u32 size1, tboff; /* level 1's bytes; the boxes' first byte (0: no boxes, or not used) */
 } bhcl_grid_walk_ctx;
 
 /* Child o of node (X, Y, Z) of level m + 1: its squared distance from the query (a lower bound of
- * its points'), or -1 when the rings have searched all of it. *u: the child's coordinates. */
-BHCL_GRID_INLINE float bhcl_grid_walk_child(const bhcl_grid_walk_ctx* w, bhcl_u32 m, bhcl_u32 X, bhcl_u32 Y,
-                                            bhcl_u32 Z, bhcl_u32 o, bhcl_u32* ux, bhcl_u32* uy, bhcl_u32* uz) {
+ * its points'), or -1 when the rings have searched all of it. *u: the child's coordinates; moff:
+ * the first byte of level m (read for m >= 2 only). The slabs are clipped to the points' box, or
+ * with the boxes to the child's own (m >= 2) or its level-2 ancestor's (m < 2): every point of
+ * the child lies in either, so the distance stays a lower bound to the bit (bhcl_grid_slabs_in). */
+BHCL_GRID_INLINE float bhcl_grid_walk_child(const bhcl_grid_walk_ctx* w, bhcl_u32 m, bhcl_u32 moff, bhcl_u32 X,
+                                            bhcl_u32 Y, bhcl_u32 Z, bhcl_u32 o, bhcl_u32* ux, bhcl_u32* uy,
+                                            bhcl_u32* uz) {
   *ux = 2u * X + (o & 1u);
   *uy = 2u * Y + ((o >> 1) & 1u);
   *uz = 2u * Z + (o >> 2);
@@ -267,9 +310,16 @@ BHCL_GRID_INLINE float bhcl_grid_walk_child(const bhcl_grid_walk_ctx* w, bhcl_u3
   if (y1 >= w->g.ny) y1 = w->g.ny - 1u;
   if (z1 >= w->g.nz) z1 = w->g.nz - 1u;
   if (x0 >= w->vx0 && x1 <= w->vx1 && y0 >= w->vy0 && y1 <= w->vy1 && z0 >= w->vz0 && z1 <= w->vz1) return -1.0f;
-  const float ex = bhcl_grid_slabs_in(w->qx, w->g.ox, w->g.h, w->g.margin, x0, x1, w->db.lx, w->db.hx);
-  const float ey = bhcl_grid_slabs_in(w->qy, w->g.oy, w->g.h, w->g.margin, y0, y1, w->db.ly, w->db.hy);
-  const float ez = bhcl_grid_slabs_in(w->qz, w->g.oz, w->g.h, w->g.margin, z0, z1, w->db.lz, w->db.hz);
+  bhcl_grid_dbox b = w->db;
+  if (w->tboff) {
+    const bhcl_u32 s = m < 2u ? 2u - m : 0u; /* up to the level-2 ancestor */
+    const bhcl_u32 byte = m < 2u ? bhcl_grid_occ_index(w->g, w->size1, 2u, *ux >> s, *uy >> s, *uz >> s)
+                                 : bhcl_grid_occ_index(w->g, moff, m, *ux, *uy, *uz);
+    b = bhcl_grid_tbox_load(w->occ, w->tboff, byte - w->size1);
+  }
+  const float ex = bhcl_grid_slabs_in(w->qx, w->g.ox, w->g.h, w->g.margin, x0, x1, b.lx, b.hx);
+  const float ey = bhcl_grid_slabs_in(w->qy, w->g.oy, w->g.h, w->g.margin, y0, y1, b.ly, b.hy);
+  const float ez = bhcl_grid_slabs_in(w->qz, w->g.oz, w->g.h, w->g.margin, z0, z1, b.lz, b.hz);
   return ex * ex + ey * ey + ez * ez;
 }
 
@@ -316,7 +366,8 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_walk_depth_first(BHCL_GLOBAL const bhcl_u32*
     const bhcl_u32 mask = occ[bhcl_grid_occ_index(w->g, off, l, X, Y, Z)];
     if (!((mask >> o) & 1u)) continue;
     bhcl_u32 ux, uy, uz;
-    const float d = bhcl_grid_walk_child(w, m, X, Y, Z, o, &ux, &uy, &uz);
+    const bhcl_u32 moff = m >= 2u ? off - bhcl_grid_occ_size(w->g, m) : 0u;
+    const float d = bhcl_grid_walk_child(w, m, moff, X, Y, Z, o, &ux, &uy, &uz);
     if (d < 0.0f || d > BHCL_GRID_BOUND(st)) continue;
     if (m == 0u) { /* a fine cell: its run */
       BHCL_GRID_WALK_CELL(ux, uy, uz)
@@ -389,6 +440,9 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search_far(BHCL_GLOBAL const bhcl_u32* start
   wc.vx1 = r0 == 0xffffffffu ? 0u : cx + r0;
   wc.vy1 = cy + r0;
   wc.vz1 = cz + r0;
+  wc.occ = occ;
+  wc.size1 = bhcl_grid_occ_size(g, 1u);
+  wc.tboff = BHCL_GRID_TBOX && top >= 2u ? bhcl_grid_tbox_off(total) : 0u;
   /* The queue keeps a node's x in 27 bits (the level in the other 5). */
   if (walk_cap == 0u || g.nx > 0x07ffffffu)
     return bhcl_grid_walk_depth_first(starts, px, py, pz, pid, occ, w, top, 0u, 0u, 0u, top_off, examined, budget, st);
@@ -419,7 +473,7 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search_far(BHCL_GLOBAL const bhcl_u32* start
       for (bhcl_u32 o = 0u; o < 8u; ++o) {
         if (!((mask >> o) & 1u)) continue;
         bhcl_u32 ux, uy, uz;
-        float d = bhcl_grid_walk_child(w, m, X, Y, Z, o, &ux, &uy, &uz);
+        float d = bhcl_grid_walk_child(w, m, moff, X, Y, Z, o, &ux, &uy, &uz);
         if (d < 0.0f || d > BHCL_GRID_BOUND(st)) continue;
         if (BHCL_GRID_WALK_DESCEND && (nd < 0.0f || d < nd)) { /* the new nearest: queue the old one */
           const float td = nd;

@@ -251,3 +251,99 @@ TEST_CASE("grid_far_batches_vs_bruteforce: batches all near, all far, mixed and 
   test::require_identical(r, ref, "mixed, kernel vs reference");
   CHECK(r.examined == ex_ref);
 }
+
+namespace {
+
+// Rolling ground over the unit square (hills 0.2 high, many cells: a LiDAR terrain), rough by
+// 0.01; the queries above it up to half its width, and every eighth among its points.
+float ground_height(float x, float y) { return 0.1f * (std::sin(6.0f * x) + std::cos(5.0f * y)); }
+FarCase ground_case() {
+  FarCase c{"ground from above", {}, {}};
+  std::mt19937_64 rng(44);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  for (int i = 0; i < 30000; ++i) {
+    const float x = u(rng), y = u(rng);
+    c.pts.insert(c.pts.end(), {x, y, ground_height(x, y) + 0.01f * u(rng)});
+  }
+  for (int i = 0; i < 400; ++i) {
+    const float x = u(rng), y = u(rng);
+    c.qs.insert(c.qs.end(), {x, y, ground_height(x, y) + (i % 8 == 0 ? 0.01f : 0.5f) * u(rng)});
+  }
+  return c;
+}
+
+long long examined_sum(const BlockHashIndex& index, const std::vector<float>& qs, SearchParams p) {
+  p.count_examined = true;
+  long long s = 0;
+  for (std::int32_t e : index.query(qs, p).examined) s += e;
+  return s;
+}
+
+}  // namespace
+
+TEST_CASE("grid_far_node_boxes_vs_bruteforce: the nodes' point boxes keep a surface queried from above exact") {
+  // The walk clips each pyramid node's slabs to its points' box (BHCL_GRID_TBOX): exact against
+  // brute force with and without it, at k = 1, 10, 50 and on every walk form, the kernel equal to
+  // its host reference, and fewer points examined with it at k = 1 (what it is for).
+  const FarCase c = ground_case();
+  const std::size_t N = c.pts.size() / 3, n = c.qs.size() / 3;
+  for (int directory : {0, 1}) {
+    CAPTURE(directory);
+    BlockHashBuildParams bp;
+    bp.grid_directory = directory;
+    auto index = BlockHashIndex::build(test::runtime(), c.pts.data(), N, bp);
+    REQUIRE(index->info().grid);
+    for (const char* d : {"", "-DBHCL_GRID_TBOX=0", "-DBHCL_GRID_WALKCAP=0", "-DBHCL_GRID_FINE_RINGS=0"})
+      for (int k : {1, 10, 50}) {
+        CAPTURE(d);
+        CAPTURE(k);
+        const SearchParams p = exact(k, d);
+        test::require_identical(index->query(c.qs, p), reference::knn_float(c.pts.data(), N, c.qs.data(), n, p),
+                                std::string("ground ") + d);
+      }
+    SearchParams pe = exact(1);
+    pe.count_examined = true;
+    std::vector<std::int32_t> ex_ref;
+    const KnnResult r = index->query(c.qs, pe);
+    index->reference_query(c.qs.data(), n, exact(1), &ex_ref);
+    CHECK(r.examined == ex_ref);
+    const long long with = examined_sum(*index, c.qs, exact(1)), without = examined_sum(*index, c.qs, exact(1, "-DBHCL_GRID_TBOX=0"));
+    MESSAGE("k = 1 over the ground: points examined with the node boxes " << with << ", without " << without);
+    CHECK(with < without);
+  }
+}
+
+TEST_CASE("grid_far_node_boxes_after_updates: inserts widen the nodes' boxes, removes keep them right") {
+  // Points inserted 0.02 above the ground's roughness (inside its level-2 nodes, outside their old
+  // boxes) become the nearest of the queries above them: a box left as built would prune them.
+  FarCase c = ground_case();
+  auto index = BlockHashIndex::build(test::runtime(), c.pts.data(), c.pts.size() / 3);
+  std::mt19937_64 rng(45);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  std::vector<float> add;
+  for (int i = 0; i < 300; ++i) {
+    const float x = u(rng), y = u(rng);
+    add.insert(add.end(), {x, y, ground_height(x, y) + 0.03f});
+  }
+  const std::int32_t first = index->insert(add.data(), add.size() / 3);
+  REQUIRE(first == 30000);  // ids follow the ground's (the brute force's rows)
+  c.pts.insert(c.pts.end(), add.begin(), add.end());
+  for (int k : {1, 10, 50}) {
+    CAPTURE(k);
+    test::require_identical(index->query(c.qs, exact(k)),
+                            reference::knn_float(c.pts.data(), c.pts.size() / 3, c.qs.data(), c.qs.size() / 3, exact(k)),
+                            "ground after an insert above it");
+  }
+  // The inserted points removed again (ids after the ground's), and a third of the ground.
+  std::vector<std::int32_t> gone;
+  for (std::int32_t i = 0; i < 300; ++i) gone.push_back(first + i);
+  for (std::int32_t i = 0; i < 30000; i += 3) gone.push_back(i);
+  index->remove(gone.data(), gone.size());
+  for (std::int32_t i : gone) c.pts[3 * i] = c.pts[3 * i + 1] = c.pts[3 * i + 2] = 1e6f;
+  for (int k : {1, 10, 50}) {
+    CAPTURE(k);
+    test::require_identical(index->query(c.qs, exact(k)),
+                            reference::knn_float(c.pts.data(), c.pts.size() / 3, c.qs.data(), c.qs.size() / 3, exact(k)),
+                            "ground after a remove");
+  }
+}

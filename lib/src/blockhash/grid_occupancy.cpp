@@ -1,8 +1,11 @@
-// Block hashing, grid layout: the occupancy pyramid (kernels/grid_search.h) from the directory.
+// Block hashing, grid layout: the occupancy pyramid (kernels/grid_search.h) from the directory,
+// and its nodes' point boxes from the cells' points.
 // Built from the cells' runs rather than from the points, so it holds after inserts, removes and
 // loads alike; a cell whose points were all removed stays marked until the compaction (its holes
 // still fill its run), which costs a look, never a point.
 #include <algorithm>
+#include <cstring>
+#include <vector>
 
 #include "blockhash/grid.hpp"
 #include "core/parallel.hpp"
@@ -10,14 +13,38 @@
 namespace bhcl::blockhash {
 namespace {
 
+// Calls fn(x, a, b) for each cell x of row (y, z) whose run [a, b) is not empty, through either
+// directory (a two-level directory's empty segment skipped 16 cells at once).
+template <class Fn>
+void for_each_run(const Grid& g, std::size_t y, std::size_t z, Fn&& fn) {
+  const std::size_t nx = g.geom.nx;
+  const std::uint32_t* const st = g.starts.data();
+  constexpr std::size_t kSeg = std::size_t(1) << BHCL_GRID_SEG_BITS;
+  std::size_t c = (z * g.geom.ny + y) * nx;
+  if (!g.geom.sparse) {
+    for (std::size_t x = 0; x < nx; ++x, ++c)
+      if (st[c + 1] > st[c]) fn(x, st[c], st[c + 1]);
+    return;
+  }
+  std::uint32_t a = g.start(c);
+  for (std::size_t x = 0; x < nx;) {
+    if ((c & (kSeg - 1)) == 0 && x + kSeg <= nx && (st[c >> BHCL_GRID_SEG_BITS] & BHCL_GRID_EMPTY_SEG)) {
+      x += kSeg, c += kSeg;
+      a = g.start(c);
+      continue;
+    }
+    const std::uint32_t b = g.start(c + 1);
+    if (b > a) fn(x, a, b);
+    a = b;
+    ++x, ++c;
+  }
+}
+
 // Level 1 from the fine cells, row by row: one task per level-1 z index, which owns those bytes.
 void occupancy_level1(const Grid& g, std::uint8_t* occ, unsigned threads) {
   const bhcl_grid_geom& gm = g.geom;
-  const std::size_t nx = gm.nx, ny = gm.ny, nz = gm.nz;
+  const std::size_t ny = gm.ny, nz = gm.nz;
   const std::size_t dx = bhcl_grid_occ_dim(gm.nx, 1), dy = bhcl_grid_occ_dim(gm.ny, 1);
-  const std::uint32_t* const st = g.starts.data();
-  const bool sparse = gm.sparse != 0;
-  constexpr std::size_t kSeg = std::size_t(1) << BHCL_GRID_SEG_BITS;
   detail::parallel_for(
       bhcl_grid_occ_dim(gm.nz, 1),
       [&](std::size_t zb, std::size_t ze) {
@@ -26,28 +53,81 @@ void occupancy_level1(const Grid& g, std::uint8_t* occ, unsigned threads) {
           for (std::size_t y = 0; y < ny; ++y) {
             std::uint8_t* const row = occ + ((z >> 1) * dy + (y >> 1)) * dx;
             const unsigned yz = unsigned(((y & 1) << 1) | ((z & 1) << 2));
-            std::size_t c = (z * ny + y) * nx;
-            if (!sparse) {
-              for (std::size_t x = 0; x < nx; ++x, ++c)
-                if (st[c + 1] > st[c]) row[x >> 1] |= std::uint8_t(1u << ((x & 1) | yz));
-              continue;
-            }
-            std::uint32_t a = g.start(c);
-            for (std::size_t x = 0; x < nx;) {
-              // A two-level directory's empty segment: 16 empty cells at once.
-              if ((c & (kSeg - 1)) == 0 && x + kSeg <= nx && (st[c >> BHCL_GRID_SEG_BITS] & BHCL_GRID_EMPTY_SEG)) {
-                x += kSeg, c += kSeg;
-                a = g.start(c);
-                continue;
-              }
-              const std::uint32_t b = g.start(c + 1);
-              if (b > a) row[x >> 1] |= std::uint8_t(1u << ((x & 1) | yz));
-              a = b;
-              ++x, ++c;
-            }
+            for_each_run(g, y, z, [&](std::size_t x, std::uint32_t, std::uint32_t) {
+              row[x >> 1] |= std::uint8_t(1u << ((x & 1) | yz));
+            });
           }
       },
       threads, 8);
+}
+
+// b widened to hold box c (an inverted, empty c leaves it as it was).
+void unite_box(bhcl_grid_dbox& b, const bhcl_grid_dbox& c) {
+  b.lx = std::min(b.lx, c.lx), b.ly = std::min(b.ly, c.ly), b.lz = std::min(b.lz, c.lz);
+  b.hx = std::max(b.hx, c.hx), b.hy = std::max(b.hy, c.hy), b.hz = std::max(b.hz, c.hz);
+}
+
+constexpr bhcl_grid_dbox kEmptyBox{INFINITY, INFINITY, INFINITY, -INFINITY, -INFINITY, -INFINITY};
+
+// Level 2's boxes from the points of their cells (holes, at +inf, left out): one task per level-2
+// z index, which owns those boxes.
+void boxes_level2(const Grid& g, bhcl_grid_dbox* box, unsigned threads) {
+  const bhcl_grid_geom& gm = g.geom;
+  const std::size_t ny = gm.ny, nz = gm.nz;
+  const std::size_t dx = bhcl_grid_occ_dim(gm.nx, 2), dy = bhcl_grid_occ_dim(gm.ny, 2);
+  detail::parallel_for(
+      bhcl_grid_occ_dim(gm.nz, 2),
+      [&](std::size_t zb, std::size_t ze) {
+        std::fill(box + zb * dx * dy, box + ze * dx * dy, kEmptyBox);
+        for (std::size_t z = 4 * zb; z < std::min(4 * ze, nz); ++z)
+          for (std::size_t y = 0; y < ny; ++y) {
+            bhcl_grid_dbox* const row = box + ((z >> 2) * dy + (y >> 2)) * dx;
+            for_each_run(g, y, z, [&](std::size_t x, std::uint32_t a, std::uint32_t b) {
+              bhcl_grid_dbox& n = row[x >> 2];
+              for (std::uint32_t i = a; i < b; ++i)
+                if (g.x[i] < INFINITY) widen_box(n, g.x[i], g.y[i], g.z[i]);
+            });
+          }
+      },
+      threads, 4);
+}
+
+// Level l >= 3's boxes: each the union of its children's.
+void boxes_level(const bhcl_grid_geom& gm, const bhcl_grid_dbox* below, bhcl_grid_dbox* level, std::uint32_t l,
+                 unsigned threads) {
+  const std::size_t cx = bhcl_grid_occ_dim(gm.nx, l - 1), cy = bhcl_grid_occ_dim(gm.ny, l - 1);
+  const std::size_t cz = bhcl_grid_occ_dim(gm.nz, l - 1);
+  const std::size_t dx = bhcl_grid_occ_dim(gm.nx, l), dy = bhcl_grid_occ_dim(gm.ny, l);
+  detail::parallel_for(
+      bhcl_grid_occ_dim(gm.nz, l),
+      [&](std::size_t zb, std::size_t ze) {
+        for (std::size_t Z = zb; Z < ze; ++Z)
+          for (std::size_t Y = 0; Y < dy; ++Y)
+            for (std::size_t X = 0; X < dx; ++X) {
+              bhcl_grid_dbox b = kEmptyBox;
+              for (unsigned o = 0; o < 8; ++o) {
+                const std::size_t x = 2 * X + (o & 1), y = 2 * Y + ((o >> 1) & 1), z = 2 * Z + (o >> 2);
+                if (x >= cx || y >= cy || z >= cz) continue;
+                unite_box(b, below[(z * cy + y) * cx + x]);
+              }
+              level[(Z * dy + Y) * dx + X] = b;
+            }
+      },
+      threads, 16);
+}
+
+// The boxes of levels 2..top (grid_search.h) into occ from byte `off` on.
+void build_node_boxes(Grid& g, std::uint32_t top, std::size_t off, unsigned threads) {
+  const bhcl_grid_geom& gm = g.geom;
+  std::vector<bhcl_grid_dbox> box((g.occ.size() - off) / sizeof(bhcl_grid_dbox));
+  boxes_level2(g, box.data(), threads);
+  std::size_t at = 0;
+  for (std::uint32_t l = 3; l <= top; ++l) {
+    const std::size_t below = bhcl_grid_occ_size(gm, l - 1);
+    boxes_level(gm, box.data() + at, box.data() + at + below, l, threads);
+    at += below;
+  }
+  std::memcpy(g.occ.data() + off, box.data(), box.size() * sizeof(bhcl_grid_dbox));
 }
 
 // Level l >= 2 from level l - 1: a child's bit is set when its own byte is not 0.
@@ -75,11 +155,7 @@ void occupancy_level(const bhcl_grid_geom& gm, const std::uint8_t* below, std::u
 
 }  // namespace
 
-std::size_t grid_occupancy_bytes(const bhcl_grid_geom& g) {
-  std::uint32_t top_off = 0, total = 0;
-  bhcl_grid_occ_top(g, &top_off, &total);
-  return total;
-}
+std::size_t grid_occupancy_bytes(const bhcl_grid_geom& g) { return bhcl_grid_occ_bytes(g); }
 
 // The box of the live points (holes, at +inf, left out).
 bhcl_grid_dbox grid_points_box(const Grid& g, unsigned threads) {
@@ -100,10 +176,7 @@ bhcl_grid_dbox grid_points_box(const Grid& g, unsigned threads) {
       },
       parts, 1);
   bhcl_grid_dbox b = part[0];
-  for (const bhcl_grid_dbox& p : part) {
-    b.lx = std::min(b.lx, p.lx), b.ly = std::min(b.ly, p.ly), b.lz = std::min(b.lz, p.lz);
-    b.hx = std::max(b.hx, p.hx), b.hy = std::max(b.hy, p.hy), b.hz = std::max(b.hz, p.hz);
-  }
+  for (const bhcl_grid_dbox& p : part) unite_box(b, p);
   return b;
 }
 
@@ -111,7 +184,7 @@ void build_grid_occupancy(Grid& g, unsigned threads) {
   const bhcl_grid_geom& gm = g.geom;
   std::uint32_t top_off = 0, total = 0;
   const std::uint32_t top = bhcl_grid_occ_top(gm, &top_off, &total);
-  g.occ.resize(total);
+  g.occ.assign(bhcl_grid_occ_bytes(gm), std::uint8_t(0));  // the boxes' padding zeroed too
   std::uint8_t* const occ = g.occ.data();
   occupancy_level1(g, occ, threads);
   std::size_t off = 0;
@@ -120,6 +193,7 @@ void build_grid_occupancy(Grid& g, unsigned threads) {
     occupancy_level(gm, occ + off, occ + off + below, l, threads);
     off += below;
   }
+  if (top >= 2) build_node_boxes(g, top, bhcl_grid_tbox_off(total), threads);
 }
 
 }  // namespace bhcl::blockhash
