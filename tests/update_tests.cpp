@@ -253,12 +253,28 @@ TEST_CASE("updates: brute force's holes are never returned, at any radius or k")
   test::require_identical(r, fresh_answer(few, qs, sp), "bruteforce k 64 over 39 live");
 }
 
-// An insert sets the occupancy pyramid's new bits in place: the pyramid equals one built afresh
-// from the grid's directory.
+// An insert sets the occupancy pyramid's new bits in place and widens its nodes' point boxes: the
+// bits equal a pyramid built afresh from the grid's directory, and so do the boxes while no hole
+// is stored; a hole leaves its nodes' boxes as they were (loose, still holding every live point).
 void require_pyramid_as_built(const BlockHashIndex& ix) {
-  blockhash::Grid copy = *ix.structure().grid;
+  const blockhash::Grid& g = *ix.structure().grid;
+  blockhash::Grid copy = g;
   blockhash::build_grid_occupancy(copy, 1);
-  REQUIRE(copy.occ == ix.structure().grid->occ);
+  REQUIRE(copy.occ.size() == g.occ.size());
+  std::uint32_t top_off = 0, total = 0;
+  bhcl_grid_occ_top(g.geom, &top_off, &total);
+  REQUIRE(std::equal(g.occ.begin(), g.occ.begin() + total, copy.occ.begin()));
+  const bool holes = ix.info().holes > 0;
+  for (std::size_t at = bhcl_grid_tbox_off(total); at + sizeof(bhcl_grid_dbox) <= g.occ.size(); at += sizeof(bhcl_grid_dbox)) {
+    bhcl_grid_dbox b, fresh;
+    std::memcpy(&b, g.occ.data() + at, sizeof(b));
+    std::memcpy(&fresh, copy.occ.data() + at, sizeof(fresh));
+    CAPTURE(at);
+    if (!holes) REQUIRE(std::memcmp(&b, &fresh, sizeof(b)) == 0);
+    if (fresh.lx <= fresh.hx)  // a node with live points: its box holds theirs
+      REQUIRE((b.lx <= fresh.lx && b.ly <= fresh.ly && b.lz <= fresh.lz && b.hx >= fresh.hx && b.hy >= fresh.hy &&
+               b.hz >= fresh.hz));
+  }
 }
 
 // 64 random queries at A = 2: the kernel equals the host reference and returns no removed id.

@@ -230,11 +230,39 @@ void two_level_directory_in_place(blockhash::Grid& g, const TwoLevelAdd& a, unsi
 // that held no point and holds some now sets its bit at every level up to the first byte that
 // already had one (its parent's bit is set then). O(new cells x levels); build_grid_occupancy
 // reads every cell (most of a merge's time for a two-level directory of 117M cells).
-void occupancy_add_cells(blockhash::Grid& g, const std::vector<std::uint32_t>& cells, unsigned threads) {
+// The point boxes of the pyramid's nodes of level >= 2 (stored after its bits) widened by the
+// new points, level by level up from each point's level-2 node until a node already holds it (its
+// ancestors' boxes hold its own). O(new points x levels) at most.
+void node_boxes_add_points(blockhash::Grid& g, const float* scaled, std::size_t m) {
   const bhcl_grid_geom& gm = g.geom;
   std::uint32_t top_off = 0, total = 0;
   const std::uint32_t top = bhcl_grid_occ_top(gm, &top_off, &total);
-  if (g.occ.size() != total) {  // not built for this geometry: all of it
+  if (top < 2) return;
+  std::uint8_t* const boxes = g.occ.data() + bhcl_grid_tbox_off(total);
+  std::vector<std::size_t> at(top + 1, 0);  // the first box of level l
+  for (std::uint32_t l = 3; l <= top; ++l) at[l] = at[l - 1] + bhcl_grid_occ_size(gm, l - 1);
+  const std::size_t nx = gm.nx, nxy = std::size_t(gm.nx) * gm.ny;
+  for (std::size_t i = 0; i < m; ++i) {
+    const float* const p = scaled + 3 * i;
+    const std::uint32_t c = cell_of(gm, p);
+    const std::uint32_t x = std::uint32_t(c % nx), y = std::uint32_t((c % nxy) / nx), z = std::uint32_t(c / nxy);
+    for (std::uint32_t l = 2; l <= top; ++l) {
+      const std::size_t at_node = bhcl_grid_occ_index(gm, std::uint32_t(at[l]), l, x >> l, y >> l, z >> l);
+      bhcl_grid_dbox b;  // memcpy: the boxes sit at 4-byte offsets of a byte buffer
+      std::memcpy(&b, boxes + at_node * sizeof(b), sizeof(b));
+      if (b.lx <= p[0] && p[0] <= b.hx && b.ly <= p[1] && p[1] <= b.hy && b.lz <= p[2] && p[2] <= b.hz) break;
+      blockhash::widen_box(b, p[0], p[1], p[2]);
+      std::memcpy(boxes + at_node * sizeof(b), &b, sizeof(b));
+    }
+  }
+}
+
+void occupancy_add_cells(blockhash::Grid& g, const std::vector<std::uint32_t>& cells, const float* scaled,
+                         std::size_t m, unsigned threads) {
+  const bhcl_grid_geom& gm = g.geom;
+  std::uint32_t top_off = 0, total = 0;
+  const std::uint32_t top = bhcl_grid_occ_top(gm, &top_off, &total);
+  if (g.occ.size() != bhcl_grid_occ_bytes(gm)) {  // not built for this geometry: all of it
     blockhash::build_grid_occupancy(g, threads);
     return;
   }
@@ -250,7 +278,7 @@ void occupancy_add_cells(blockhash::Grid& g, const std::vector<std::uint32_t>& c
       b = std::uint8_t(b | (1u << bit));
       if (had) break;
     }
-  }
+  }  node_boxes_add_points(g, scaled, m);
 }
 
 // The points merged into the scratch arrays (n + m + pad), in parallel over ranges of the sorted
@@ -562,7 +590,7 @@ void GridIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t fir
   g.n_points = n1;
   s_->n_points = n1;
   const std::size_t p_from = first_cell < nc ? g.starts[first_cell] : n0;
-  occupancy_add_cells(g, new_cells, params_.threads);
+  occupancy_add_cells(g, new_cells, scaled, m, params_.threads);
   grid_upload_from(p_from, first_cell);
   info_.n_points = n1;
   info_.occupied_cells = occupied;
@@ -602,7 +630,7 @@ void GridIndex::grid_insert_two_level(const float* scaled, std::size_t m, std::i
   }
   g.n_points = n1;
   s_->n_points = n1;
-  occupancy_add_cells(g, add.new_cells, params_.threads);
+  occupancy_add_cells(g, add.new_cells, scaled, m, params_.threads);
   grid_upload_from(p_from, 0);  // tables appended and moved starts anywhere in the directory: all of it
   info_.n_points = n1;
   info_.occupied_cells = add.occupied;
@@ -931,7 +959,12 @@ void GridIndex::grid_rebuild_live(const float* extra, std::size_t m, std::int32_
         if (g.ids[i] == kHoleId) g.x[i] = g.y[i] = g.z[i] = INFINITY;
     });
   }
-  if (phantoms) g.dbox = blockhash::grid_points_box(g, params_.threads);  // the live points' own
+  if (phantoms) {
+    g.dbox = blockhash::grid_points_box(g, params_.threads);  // the live points' own
+    // The build's node boxes held the room's corners; built again without them (tight boxes are
+    // what make the far walk skip; loose ones stay exact).
+    blockhash::build_grid_occupancy(g, params_.threads);
+  }
   // The build uploaded the arrays with their ids; only the holes made above are new (a view
   // shows the host array itself).
   if (phantoms && !grid_in_place()) {
@@ -940,6 +973,8 @@ void GridIndex::grid_rebuild_live(const float* extra, std::size_t m, std::int32_
     check_cl(q.enqueueWriteBuffer(g_x_, CL_FALSE, 0, bytes, g.x.data()), "clEnqueueWriteBuffer", "blockhash grid x");
     check_cl(q.enqueueWriteBuffer(g_y_, CL_FALSE, 0, bytes, g.y.data()), "clEnqueueWriteBuffer", "blockhash grid y");
     check_cl(q.enqueueWriteBuffer(g_z_, CL_FALSE, 0, bytes, g.z.data()), "clEnqueueWriteBuffer", "blockhash grid z");
+    check_cl(q.enqueueWriteBuffer(g_occ_, CL_FALSE, 0, g.occ.size(), g.occ.data()), "clEnqueueWriteBuffer",
+             "blockhash grid occupancy");
     check_cl(q.enqueueWriteBuffer(g_ids_, CL_TRUE, 0, bytes, g.ids.data()), "clEnqueueWriteBuffer", "blockhash grid ids");
   }
   keep.put(info_);
