@@ -1,9 +1,11 @@
 /* Exact kNN by brute force: one work-item per query, the points streamed through local memory in
- * tiles of the work-group size. */
+ * tiles of the work-group size. Removed points (updates) stay in the array until a compaction,
+ * their ids marked in `removed`. */
 #include "knn_common.h"
 
-__kernel void bruteforce_knn(__global const float4* points, uint n_points, BHCL_KNN_QUERY_PARAMS,
-                             BHCL_KNN_RESULT_PARAMS, __local float4* tile) {
+__kernel void bruteforce_knn(__global const float4* points, uint n_points, __global const uint* removed,
+                             uint removed_words, BHCL_KNN_QUERY_PARAMS, BHCL_KNN_RESULT_PARAMS,
+                             __local float4* tile) {
   /* A warm-up launch (count 0) compiles the kernel and returns before any barrier. */
   if (count == 0) return;
   uint gid = get_global_id(0);
@@ -22,7 +24,12 @@ __kernel void bruteforce_knn(__global const float4* points, uint n_points, BHCL_
   for (uint base = 0; base < n_points; base += lsz) {
     uint m = min(lsz, n_points - base);
     barrier(CLK_LOCAL_MEM_FENCE);
-    if (lid < m) tile[lid] = points[base + lid];
+    if (lid < m) {
+      float4 p = points[base + lid];
+      /* A removed point (its id marked) made NaN: no distance comparison accepts it. */
+      if (bhcl_id_removed(removed, removed_words, as_uint(p.w))) p.x = NAN;
+      tile[lid] = p;
+    }
     barrier(CLK_LOCAL_MEM_FENCE);
     if (search) {
       for (uint j = 0; j < m; ++j) {

@@ -14,6 +14,12 @@
 /* sum((q-p)^2) on vector types (bhcl_arith.h holds the arithmetic). */
 inline float bhcl_dist2(float3 q, float4 p) { return bhcl_dist2_xyz(q.x, q.y, q.z, p.x, p.y, p.z); }
 
+/* Whether point id `id` was removed: bit id % 32 of removed[id / 32] (the index's marks, of the
+ * first `words` words; an id past them is live). */
+inline int bhcl_id_removed(__global const uint* removed, uint words, uint id) {
+  return (id >> 5) < words && ((removed[id >> 5] >> (id & 31u)) & 1u);
+}
+
 /* The query parameters every kNN kernel takes, in the order the host's KernelArgs::add_queries
  * sets them (lib/src/core/device_util.hpp), and the result buffers (add_results). */
 #define BHCL_KNN_QUERY_PARAMS \

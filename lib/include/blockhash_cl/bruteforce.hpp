@@ -35,10 +35,15 @@ class BruteForceIndex : public Index {
     std::int32_t id;
   };
   void upload_from(std::size_t from, bool fresh);
+  void upload_removed();
   std::vector<HostPoint> host_;  // the device array: ascending ids
   cl::Buffer points_;  // float4 per point, w = the point's id (int bits)
   std::size_t cap_bytes_ = 0;
-  std::size_t holes_ = 0;  // removed points still stored (NaN coordinates) until a compaction
+  std::size_t holes_ = 0;  // removed points still stored (skipped by their marks) until a compaction
+  // The removed ids' marks the kernels read (Index::removed_words): a view, or a copy of the
+  // first removed_words_ words; null while no id was removed.
+  cl::Buffer removed_;
+  std::size_t removed_words_ = 0, removed_cap_bytes_ = 0;
 };
 
 }  // namespace bhcl

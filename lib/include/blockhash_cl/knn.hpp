@@ -528,9 +528,19 @@ class Index : public SearchIndex {
   // update support). After insert_points/remove_points the base updates size() and id_bound().
   virtual void insert_points(const float* points, const float* scaled, std::size_t n, std::int32_t first);
   virtual void remove_points(const std::int32_t* ids, std::size_t n);
-  // Exact methods: the caller's point of a live id (the host copy the double-precision fallback
-  // reads; removed ids hold NaN). Empty for approximate methods.
+  // Exact methods: the caller's point of every id issued (the host copy the double-precision
+  // fallback reads; a removed id's row is left as it was: id_removed says which). Empty for
+  // approximate methods.
   const std::vector<float>& caller_points() const { return caller_points_; }
+  // The removed ids, a bit per id issued (bit id % 32 of word id / 32), set before remove_points
+  // is called: the methods' removes and the kernels that skip removed points read them (brute
+  // force's, as a device buffer). removed_words() is null and removed_word_count() 0 while no id
+  // was removed; words past the count hold no removed id.
+  bool id_removed(std::int32_t id) const {
+    return std::size_t(id >> 5) < removed_bits_.size() && ((removed_bits_[std::size_t(id) >> 5] >> (id & 31)) & 1u);
+  }
+  const std::uint32_t* removed_words() const { return removed_bits_.empty() ? nullptr : removed_bits_.data(); }
+  std::size_t removed_word_count() const { return removed_bits_.size(); }
   // The id range after a load (ids of a saved index after updates): id_bound = bound, and every
   // id below it that is not in live[] counts as removed. live: ascending ids.
   void set_id_state(std::int32_t bound, const std::vector<std::int32_t>& live);
@@ -573,6 +583,9 @@ class Index : public SearchIndex {
   class KnnKind;
   class RadiusKind;
   QueryStats run_query(const float* queries, std::size_t n, QueryKind& kind) const;
+  // A remove's ids checked and marked in removed_bits_ (update.cpp), and the marks undone.
+  void mark_removed(const std::int32_t* ids, std::size_t n);
+  void unmark_removed(const std::int32_t* ids, std::size_t n);
   void search_on_device(const float* queries, std::size_t n, const std::size_t* order, QueryKind& kind,
                         QueryStats& st, std::vector<std::size_t>& suspects) const;
   void search_on_host(const float* queries, std::size_t n, const std::size_t* order, QueryKind& kind,
@@ -594,7 +607,7 @@ class Index : public SearchIndex {
   // Updates: the lock (see insert), the ids issued and those removed (a bit per id issued).
   mutable std::shared_mutex update_mutex_;
   std::int32_t id_bound_ = 0;
-  std::vector<bool> removed_;
+  std::vector<std::uint32_t> removed_bits_;  // a bit per id issued (see id_removed); empty while none was
   std::size_t removed_n_ = 0;
   // A host-array query's device buffers, kept from call to call per kind (kNN rows of k; radius,
   // k = 0: counts, offsets and the fill pass's `fill` entries).

@@ -4,9 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdint>
-#include <limits>
 #include <vector>
-#include <map>
 
 #include "blockhash_cl/error.hpp"
 #include "core/device_util.hpp"
@@ -22,9 +20,10 @@ BruteForceIndex::BruteForceIndex(std::shared_ptr<Runtime> runtime, const float* 
   const float* pts = prepare_points(points, n_points, storage);
   // w = the point's id (int bits): the kernels rank and report by it, so that the ids stay stable
   // when updates compact the array (kept in ascending id order: ties still go to the lower id).
-  // Room for inserts of up to an eighth (2 B per point): the first insert after a build appends
-  // instead of moving every point (that move, and the upload after it, cost as much as the build).
-  host_.reserve(n_points + n_points / 8);
+  // Room for as many points again (address space: a page is faulted in only when an insert
+  // writes it): inserts append instead of moving every point (that move, and the upload after it,
+  // cost as much as the build; at 1M + 25 % more, the faults of its fresh pages 1.2-1.4x).
+  host_.reserve(2 * n_points);
   host_.resize(n_points);
   for (std::size_t i = 0; i < n_points; ++i)
     host_[i] = HostPoint{pts[3 * i], pts[3 * i + 1], pts[3 * i + 2], static_cast<std::int32_t>(i)};
@@ -64,79 +63,67 @@ std::size_t BruteForceIndex::memory_bytes() const {
   return runtime_ptr()->quirks().host_ptr_in_place ? 0 : host_.size() * sizeof(HostPoint);
 }
 
+// The removed ids' marks for the kernels, which skip a point whose id is marked (its tile entry
+// or its test made NaN: no distance comparison accepts it). Where the device reads host memory in
+// place, a view of the index's marks, made again after every update (an insert may move them);
+// elsewhere the marks written to a buffer grown by half (ids issued after it read as live).
+void BruteForceIndex::upload_removed() {
+  const auto& rt = runtime_ptr();
+  removed_words_ = removed_word_count();
+  if (removed_words_ == 0) return;
+  const std::size_t bytes = removed_words_ * 4;
+  cl_int err = CL_SUCCESS;
+  if (rt->quirks().host_ptr_in_place) {
+    removed_ = cl::Buffer(rt->context(), CL_MEM_READ_ONLY | CL_MEM_USE_HOST_PTR, bytes,
+                          const_cast<std::uint32_t*>(removed_words()), &err);
+    check_cl(err, "clCreateBuffer", "bruteforce removed ids (in place), " + std::to_string(bytes) + " bytes");
+    return;
+  }
+  if (!removed_() || bytes > removed_cap_bytes_) {
+    removed_cap_bytes_ = std::max(bytes, removed_cap_bytes_ + removed_cap_bytes_ / 2);
+    removed_ = cl::Buffer(rt->context(), CL_MEM_READ_ONLY, removed_cap_bytes_, nullptr, &err);
+    check_cl(err, "clCreateBuffer", "bruteforce removed ids, " + std::to_string(removed_cap_bytes_) + " bytes");
+  }
+  check_cl(rt->queue().enqueueWriteBuffer(removed_, CL_TRUE, 0, bytes, removed_words()), "clEnqueueWriteBuffer",
+           "bruteforce removed ids");
+}
+
 // Updates: appended (ids are issued in ascending order) or compacted in place, order kept, and
 // only the changed tail of the device array written. No structure to rebuild.
 void BruteForceIndex::insert_points(const float*, const float* scaled, std::size_t n, std::int32_t first) {
   check_cl(runtime_ptr()->queue().finish(), "clFinish", "bruteforce insert");
   const std::size_t at = host_.size();
-  // Past the room: the room a fresh build of the result keeps (an eighth), at least an eighth
-  // more than now (geometric: O(1) moves per point over any sequence). Not std::vector's
-  // doubling: the allocator serves a block of a fresh build's size from the memory a freed index
-  // left, where a doubled one takes fresh pages, and their faults cost more than the build
-  // (16 MB: 80-120 ms of faults against 1 ms reused, measured on this machine under load).
-  if (at + n > host_.capacity())
-    host_.reserve(std::max(at + n + (at + n) / 8, host_.capacity() + host_.capacity() / 8));
+  // Past the room (as many points again as the build's): twice the capacity (geometric: O(1)
+  // moves per point over any sequence).
+  if (at + n > host_.capacity()) host_.reserve(std::max(at + n, 2 * host_.capacity()));
   host_.resize(at + n);
   for (std::size_t i = 0; i < n; ++i)
     host_[at + i] = HostPoint{scaled[3 * i], scaled[3 * i + 1], scaled[3 * i + 2], first + static_cast<std::int32_t>(i)};
   try {
     upload_from(at, false);
+    if (runtime_ptr()->quirks().host_ptr_in_place) upload_removed();  // the marks may have moved
   } catch (...) {
     host_.resize(at);
     throw;
   }
 }
 
-// A remove: the points become holes in place (NaN coordinates: no distance comparison accepts
-// one, so neither kernel returns it, at any radius), written back as the span they touch (nothing
-// on an in-place device); past an eighth of holes one stable compaction drops them all, order kept.
-void BruteForceIndex::remove_points(const std::int32_t* ids, std::size_t n) {
+// A remove: the points stay where they are, skipped by the kernels by their ids' marks (the
+// index's, set before this call), so nothing of the point array is read or written (finding and
+// overwriting each removed entry with NaN was half of a 10 % remove, a cache miss per id); past an
+// eighth of removed points still stored, one stable compaction drops them all, order kept.
+void BruteForceIndex::remove_points(const std::int32_t*, std::size_t n) {
   check_cl(runtime_ptr()->queue().finish(), "clFinish", "bruteforce remove");
-  // ids ascending, host_ ascending by distinct ids from 0: the entry of an id lies at or before
-  // the id's own number and after the previous id's entry, so a binary search in that range finds
-  // it (a few steps while few were compacted away; a walk over every entry read 16 MB at 1M).
-  // Before any compaction an id's entry is the id's own number: one read, no search.
-  std::vector<std::size_t> at(n);
-  {
-    std::size_t lo = 0;
-    constexpr std::size_t kAhead = 64;  // each entry a cache miss: prefetched some ids ahead
-    for (std::size_t j = 0; j < n; ++j) {
-      if (j + kAhead < n && std::size_t(ids[j + kAhead]) < host_.size()) __builtin_prefetch(&host_[std::size_t(ids[j + kAhead])], 1);
-      const std::size_t own = std::size_t(ids[j]);
-      if (own < host_.size() && host_[own].id == ids[j] && own >= lo && !std::isnan(host_[own].x)) {
-        at[j] = own;
-        lo = own + 1;
-        continue;
-      }
-      const std::size_t hi = std::min(host_.size(), std::size_t(ids[j]) + 1);
-      const std::size_t i = std::size_t(std::lower_bound(host_.begin() + std::ptrdiff_t(std::min(lo, hi)), host_.begin() + std::ptrdiff_t(hi), ids[j],
-                                                         [](const HostPoint& p, std::int32_t id) { return p.id < id; }) -
-                                        host_.begin());
-      if (i == hi || host_[i].id != ids[j] || std::isnan(host_[i].x))
-        throw Error("bruteforce: remove: id " + std::to_string(ids[j]) + " was not stored (internal)");
-      at[j] = i;
-      lo = i + 1;
-    }
+  holes_ += n;
+  if (8 * holes_ > host_.size()) {
+    std::size_t w = 0;
+    for (std::size_t i = 0; i < host_.size(); ++i)
+      if (!id_removed(host_[i].id)) host_[w++] = host_[i];
+    host_.resize(w);
+    holes_ = 0;
+    upload_from(0, false);
   }
-  const float nan = std::numeric_limits<float>::quiet_NaN();
-  if (8 * (holes_ + n) <= host_.size()) {
-    for (std::size_t i : at) host_[i].x = host_[i].y = host_[i].z = nan;
-    holes_ += n;
-    if (!runtime_ptr()->quirks().host_ptr_in_place) {
-      const std::size_t lo = at.front(), len = at.back() - lo + 1;
-      check_cl(runtime_ptr()->queue().enqueueWriteBuffer(points_, CL_TRUE, lo * sizeof(HostPoint), len * sizeof(HostPoint),
-                                                         host_.data() + lo),
-               "clEnqueueWriteBuffer", "bruteforce points (holes)");
-    }
-    return;
-  }
-  for (std::size_t i : at) host_[i].x = nan;
-  std::size_t w = 0;
-  for (std::size_t i = 0; i < host_.size(); ++i)
-    if (!std::isnan(host_[i].x)) host_[w++] = host_[i];
-  host_.resize(w);
-  holes_ = 0;
-  upload_from(0, false);
+  upload_removed();
 }
 
 cl::Event BruteForceIndex::enqueue_batch(const cl::CommandQueue& queue, const cl::Buffer& queries,
@@ -151,6 +138,8 @@ cl::Event BruteForceIndex::enqueue_batch(const cl::CommandQueue& queue, const cl
   detail::KernelArgs args(kernel, "bruteforce_knn");
   args.add(points_)
       .add(cl_uint(host_.size()))
+      .add(removed_() ? removed_ : points_)  // points_ stands in, unread, while none was removed
+      .add(cl_uint(removed_() ? removed_words_ : 0))
       .add_queries(queries, first, count, params)
       .add_results(out)
       .add_local(local_size * sizeof(cl_float4));
@@ -166,7 +155,11 @@ cl::Event BruteForceIndex::enqueue_radius_batch(const cl::CommandQueue& queue,
   cl::Kernel kernel = runtime().kernel("bruteforce_radius.cl", "bruteforce_radius",
                                        detail::kernel_build_options("bruteforce_radius.cl", {}, params.kernel_defines));
   detail::KernelArgs args(kernel, "bruteforce_radius");
-  args.add(points_).add(cl_uint(host_.size())).add_radius(queries, first, count, r2, pass, out, params.count_examined);
+  args.add(points_)
+      .add(cl_uint(host_.size()))
+      .add(removed_() ? removed_ : points_)  // points_ stands in, unread, while none was removed
+      .add(cl_uint(removed_() ? removed_words_ : 0))
+      .add_radius(queries, first, count, r2, pass, out, params.count_examined);
   return detail::launch_1d(queue, kernel, count, local_size, wait, "bruteforce_radius");
 }
 

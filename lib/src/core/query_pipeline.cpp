@@ -113,7 +113,7 @@ bool Index::QueryKind::entry_suspect(const float* q, std::int32_t id, float d) c
 }
 
 void Index::QueryKind::exact_candidates(const float* q, double r2, std::size_t k, std::vector<Candidate>& best) const {
-  // Every id issued: a removed one holds NaN, which `d <= r2` rejects.
+  // Every id issued; a removed one is skipped by its mark (its row is left as it was).
   const std::size_t N = ix_.caller_points_.size() / 3;
   const float* pts = ix_.caller_points_.data();
   const double qx = q[0], qy = q[1], qz = q[2];
@@ -121,7 +121,7 @@ void Index::QueryKind::exact_candidates(const float* q, double r2, std::size_t k
   for (std::size_t i = 0; i < N; ++i) {
     const double dx = qx - pts[3 * i], dy = qy - pts[3 * i + 1], dz = qz - pts[3 * i + 2];
     const double d = dx * dx + dy * dy + dz * dz;
-    if (!(d <= r2)) continue;
+    if (!(d <= r2) || ix_.id_removed(static_cast<std::int32_t>(i))) continue;
     const Candidate c{d, static_cast<std::int32_t>(i)};
     if (k == 0) {
       best.push_back(c);

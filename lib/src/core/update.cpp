@@ -30,6 +30,55 @@ std::mutex& gate(const Index* ix) {
   static std::mutex gates[64];
   return gates[(reinterpret_cast<std::uintptr_t>(ix) >> 6) % 64];
 }
+
+std::size_t words_for(std::size_t ids) { return (ids + 31) / 32; }
+
+// A remove's ids refused (they were checked in one pass that stopped at the first bad one):
+// the error the checks name, an id outside the range or already removed first (in entry order),
+// else the smallest id given twice, with both entries.
+// removed: the index's marks (a bit per id issued, see Index::id_removed).
+[[noreturn]] void throw_bad_remove(const std::string& method, std::int32_t bound, const std::uint32_t* removed,
+                                   const std::int32_t* ids, std::size_t n) {
+  for (std::size_t i = 0; i < n; ++i) {
+    const std::int32_t id = ids[i];
+    if (id < 0 || id >= bound)
+      throw Error(method + ": remove: id " + std::to_string(id) + " (entry " + std::to_string(i) +
+                  ") is outside the issued ids [0, " + std::to_string(bound) + ")");
+    if ((removed[std::size_t(id) >> 5] >> (id & 31)) & 1u)
+      throw Error(method + ": remove: id " + std::to_string(id) + " (entry " + std::to_string(i) +
+                  ") was already removed");
+  }
+  std::vector<std::int32_t> sorted(ids, ids + n);
+  std::sort(sorted.begin(), sorted.end());
+  for (std::size_t i = 1; i < n; ++i) {
+    if (sorted[i] != sorted[i - 1]) continue;
+    const std::size_t at = std::size_t(std::find(ids, ids + n, sorted[i]) - ids);
+    const std::size_t again = std::size_t(std::find(ids + at + 1, ids + n, sorted[i]) - ids);
+    throw Error(method + ": remove: id " + std::to_string(sorted[i]) + " appears twice (entries " +
+                std::to_string(at) + " and " + std::to_string(again) + ")");
+  }
+  throw Error(method + ": remove: the ids were refused (internal)");
+}
+
+// Distinct ids ascending. Many (a share of the issued ones): a bit per id read back a word at a
+// time, O(n + range), where a sort of 100k ids took as long as the rest of a grid remove (and a
+// byte per id with a branch on each cost 1.5 ms of a 10 % remove at 1M: mispredicts).
+std::vector<std::int32_t> ascending(const std::int32_t* ids, std::size_t n, std::int32_t bound) {
+  std::vector<std::int32_t> sorted;
+  if (n * 16 < std::size_t(bound)) {
+    sorted.assign(ids, ids + n);
+    std::sort(sorted.begin(), sorted.end());
+    return sorted;
+  }
+  std::vector<std::uint64_t> mark((std::size_t(bound) + 63) / 64, 0);
+  for (std::size_t i = 0; i < n; ++i) mark[std::size_t(ids[i]) / 64] |= std::uint64_t(1) << (ids[i] % 64);
+  sorted.resize(n);
+  std::size_t at = 0;
+  for (std::size_t w = 0; w < mark.size(); ++w)
+    for (std::uint64_t bits = mark[w]; bits; bits &= bits - 1)
+      sorted[at++] = static_cast<std::int32_t>(64 * w + std::size_t(__builtin_ctzll(bits)));
+  return sorted;
+}
 }  // namespace
 
 Index::ReadLock::ReadLock(const Index& ix) : ix_(&ix) {
@@ -53,19 +102,20 @@ Index::ReadLock::~ReadLock() {
 void Index::set_size(std::size_t n) {
   n_points_ = n;
   id_bound_ = static_cast<std::int32_t>(std::min(n, kMaxIds));
-  removed_.clear();
+  removed_bits_.clear();
   removed_n_ = 0;
 }
 
 bool Index::contains(std::int32_t id) const {
   std::shared_lock<std::shared_mutex> lock(update_mutex_);
-  return id >= 0 && id < id_bound_ && (removed_.empty() || !removed_[std::size_t(id)]);
+  return id >= 0 && id < id_bound_ && !id_removed(id);
 }
 
 void Index::set_id_state(std::int32_t bound, const std::vector<std::int32_t>& live) {
   id_bound_ = bound;
-  removed_.assign(std::size_t(bound), true);
-  for (std::int32_t id : live) removed_[std::size_t(id)] = false;
+  removed_bits_.assign(words_for(std::size_t(bound)), ~0u);
+  if (bound % 32) removed_bits_.back() = (1u << (bound % 32)) - 1;  // no bit past the bound
+  for (std::int32_t id : live) removed_bits_[std::size_t(id) >> 5] &= ~(1u << (id & 31));
   removed_n_ = std::size_t(bound) - live.size();
   n_points_ = live.size();
 }
@@ -101,21 +151,20 @@ std::int32_t Index::insert(const float* points, std::size_t n) {
   const std::size_t had = caller_points_.size();
   const bool keep_points = exact() && !caller_points_.empty();
   if (keep_points) {
-    // Past the room: a fresh build's room (an eighth) over the result, not vector's doubling (a
-    // block of a fresh build's size comes from memory a freed index left; a doubled one faults in
-    // fresh pages, which cost more than the build: bruteforce.cpp's insert_points).
+    // The build reserves room for as many points again (prepare_points); past it, twice the
+    // capacity: an append, not a move of every row (issue 39: at 1M + 25 % the move faulted in
+    // fresh pages and cost more than a fresh build).
     const std::size_t need = caller_points_.size() + 3 * n;
-    if (need > caller_points_.capacity())
-      caller_points_.reserve(std::max(need + need / 8, caller_points_.capacity() + caller_points_.capacity() / 8));
+    if (need > caller_points_.capacity()) caller_points_.reserve(std::max(need, 2 * caller_points_.capacity()));
     caller_points_.insert(caller_points_.end(), points, points + 3 * n);
   }
-  if (!removed_.empty()) removed_.resize(std::size_t(first) + n, false);
+  if (!removed_bits_.empty()) removed_bits_.resize(words_for(std::size_t(first) + n), 0);
   id_bound_ = first + static_cast<std::int32_t>(n);
   try {
     insert_points(points, scaled, n, first);
   } catch (...) {
     if (keep_points) caller_points_.resize(had);
-    if (!removed_.empty()) removed_.resize(std::size_t(first));
+    if (!removed_bits_.empty()) removed_bits_.resize(words_for(std::size_t(first)));
     id_bound_ = first;
     throw;
   }
@@ -128,83 +177,45 @@ void Index::remove(const std::int32_t* ids, std::size_t n) {
   if (!ids) throw Error(method() + ": remove: the id array is null");
   std::lock_guard<std::mutex> turn(gate(this));  // writer preference (see gate())
   std::unique_lock<std::shared_mutex> lock(update_mutex_);
-  for (std::size_t i = 0; i < n; ++i) {
-    const std::int32_t id = ids[i];
-    if (id < 0 || id >= id_bound_)
-      throw Error(method() + ": remove: id " + std::to_string(id) + " (entry " + std::to_string(i) +
-                  ") is outside the issued ids [0, " + std::to_string(id_bound_) + ")");
-    if (!removed_.empty() && removed_[std::size_t(id)])
-      throw Error(method() + ": remove: id " + std::to_string(id) + " (entry " + std::to_string(i) +
-                  ") was already removed");
-  }
-  // The ids ascending, each once. Many ids (a share of the issued ones): marks over the id range,
-  // O(n + range), where a sort of 100k ids took as long as the rest of a grid remove.
-  std::vector<std::int32_t> sorted;
-  auto twice = [&](std::int32_t id) {
-    const std::size_t at = std::size_t(std::find(ids, ids + n, id) - ids);
-    const std::size_t again = std::size_t(std::find(ids + at + 1, ids + n, id) - ids);
-    throw Error(method() + ": remove: id " + std::to_string(id) + " appears twice (entries " +
-                std::to_string(at) + " and " + std::to_string(again) + ")");
-  };
-  if (n * 16 >= std::size_t(id_bound_)) {
-    // A bit per id, read back a word at a time (a byte per id and a branch on each cost 1.5 ms
-    // of a 10 % remove at 1M, perf: the branch mispredicts on the scattered marks).
-    std::vector<std::uint64_t> mark((std::size_t(id_bound_) + 63) / 64, 0);
-    std::int32_t dup = -1;
-    for (std::size_t i = 0; i < n; ++i) {
-      const std::size_t id = std::size_t(ids[i]);
-      const std::uint64_t bit = std::uint64_t(1) << (id % 64);
-      if ((mark[id / 64] & bit) && (dup < 0 || ids[i] < dup)) dup = ids[i];  // the smallest, as the sort reported
-      mark[id / 64] |= bit;
-    }
-    if (dup >= 0) twice(dup);
-    sorted.resize(n);
-    std::size_t at = 0;
-    for (std::size_t w = 0; w < mark.size(); ++w)
-      for (std::uint64_t bits = mark[w]; bits; bits &= bits - 1)
-        sorted[at++] = static_cast<std::int32_t>(64 * w + std::size_t(__builtin_ctzll(bits)));
-  } else {
-    sorted.assign(ids, ids + n);
-    std::sort(sorted.begin(), sorted.end());
-    for (std::size_t i = 1; i < n; ++i)
-      if (sorted[i] == sorted[i - 1]) twice(sorted[i]);
-  }
-  if (n >= n_points_)
+  mark_removed(ids, n);
+  if (n >= n_points_) {
+    unmark_removed(ids, n);
     throw Error(method() + ": remove: removing all " + std::to_string(n_points_) +
                 " live points would leave the index empty (an index holds at least one point)");
-  if (removed_.empty()) removed_.assign(std::size_t(id_bound_), false);
-  for (std::int32_t id : sorted) removed_[std::size_t(id)] = true;
-  // Exact methods: the double-precision fallback scans caller_points_; NaN is never within any
-  // radius there (its comparisons are false), so a removed point drops out of it.
-  std::vector<float> saved;
-  const bool keep_points = exact() && !caller_points_.empty();
-  if (keep_points) {
-    saved.resize(3 * n);
-    // Each id's row is a cache miss (a tenth of 1M ids: 43 % of a brute-force remove, perf); a
-    // prefetch some ids ahead overlaps them.
-    constexpr std::size_t kAhead = 64;
-    float* cp = caller_points_.data();
-    for (std::size_t i = 0; i < n; ++i) {
-      if (i + kAhead < n) __builtin_prefetch(cp + 3 * std::size_t(sorted[i + kAhead]), 1);
-      float* c = cp + 3 * std::size_t(sorted[i]);
-      for (int d = 0; d < 3; ++d) {
-        saved[3 * i + std::size_t(d)] = c[d];
-        c[d] = NAN;
-      }
-    }
   }
+  // Only the marks change here: the exact methods' copy of the caller's points keeps the removed
+  // rows (the double-precision fallback skips them by their marks; writing NaN into each row was
+  // a cache miss per id, a third of a brute-force 10 % remove).
+  const std::vector<std::int32_t> sorted = ascending(ids, n, id_bound_);
   try {
     remove_points(sorted.data(), n);
   } catch (...) {
-    for (std::size_t i = 0; i < n; ++i) {
-      removed_[std::size_t(sorted[i])] = false;
-      if (keep_points)
-        for (int d = 0; d < 3; ++d) caller_points_[3 * std::size_t(sorted[i]) + d] = saved[3 * i + d];
-    }
+    unmark_removed(ids, n);
     throw;
   }
   removed_n_ += n;
   n_points_ -= n;
+}
+
+// The checks of a remove's ids and their marks, in one pass: each id in range and not removed
+// (so, as its bit is set on the way, not given twice). At the first bad id the bits set so far
+// are cleared and throw_bad_remove names the error.
+void Index::mark_removed(const std::int32_t* ids, std::size_t n) {
+  if (removed_bits_.empty()) removed_bits_.assign(words_for(std::size_t(id_bound_)), 0);
+  std::uint32_t* const bits = removed_bits_.data();
+  for (std::size_t i = 0; i < n; ++i) {
+    const std::int32_t id = ids[i];
+    const std::uint32_t bit = 1u << (id & 31);
+    if (id < 0 || id >= id_bound_ || (bits[std::size_t(id) >> 5] & bit)) {
+      unmark_removed(ids, i);
+      throw_bad_remove(method(), id_bound_, bits, ids, n);
+    }
+    bits[std::size_t(id) >> 5] |= bit;
+  }
+}
+
+void Index::unmark_removed(const std::int32_t* ids, std::size_t n) {
+  for (std::size_t i = 0; i < n; ++i) removed_bits_[std::size_t(ids[i]) >> 5] &= ~(1u << (ids[i] & 31));
 }
 
 }  // namespace bhcl

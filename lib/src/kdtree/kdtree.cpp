@@ -236,7 +236,7 @@ void KdTreeIndex::rebuild_live() {
   live.reserve(3 * size());
   ids.reserve(size());
   for (std::size_t i = 0; i < bound; ++i)
-    if (!std::isnan(cp[3 * i])) {
+    if (!id_removed(static_cast<std::int32_t>(i))) {
       live.insert(live.end(), cp.begin() + 3 * i, cp.begin() + 3 * i + 3);
       ids.push_back(static_cast<std::int32_t>(i));
     }
@@ -314,7 +314,7 @@ void KdTreeIndex::insert_points(const float*, const float* scaled, std::size_t m
 
 void KdTreeIndex::remove_points(const std::int32_t* ids, std::size_t n) {
   if (4 * (holes_ + n) > host_points_.size()) {
-    rebuild_live();  // caller_points() already holds NaN for these ids
+    rebuild_live();  // these ids are already marked removed
     ++rebuilds_;
     return;
   }
