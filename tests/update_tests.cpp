@@ -1116,3 +1116,49 @@ TEST_CASE("updates: a large insert past the grid's band is one fresh build, exac
     budget_kernel_equals_reference(*ix, m, rng, "grid A = 2 after a merge in place, kernel vs reference");
   }
 }
+
+// The grid's point box (the traversal's bound) stays the live points' own after removes that take
+// points on it, as a load of the saved index computes it: a large remove finds its slots and the
+// live box in one chunked pass over the stored ids (issue 39), a small one through the id -> slot
+// map and a recount of the box.
+TEST_CASE("updates: removes that take the grid's extreme points leave the live points' box") {
+  std::mt19937_64 rng(3941);
+  Model m;
+  auto ix = grid_over(m, rng, 70000);  // three chunks of the pass
+  auto require_live_box = [&](const char* what) {
+    CAPTURE(what);
+    float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (const auto& kv : m.live)
+      for (int d = 0; d < 3; ++d) lo[d] = std::min(lo[d], kv.second[d]), hi[d] = std::max(hi[d], kv.second[d]);
+    const bhcl_grid_dbox& b = ix->structure().grid->dbox;
+    REQUIRE(b.lx == lo[0]);
+    REQUIRE(b.ly == lo[1]);
+    REQUIRE(b.lz == lo[2]);
+    REQUIRE(b.hx == hi[0]);
+    REQUIRE(b.hy == hi[1]);
+    REQUIRE(b.hz == hi[2]);
+  };
+  // The ids holding the extremes of each axis, and a tenth of the others (the scan's path).
+  auto extremes = [&] {
+    std::vector<std::int32_t> ids;
+    for (int d = 0; d < 3; ++d) {
+      auto lt = [d](const auto& a, const auto& b) { return a.second[d] < b.second[d]; };
+      ids.push_back(std::min_element(m.live.begin(), m.live.end(), lt)->first);
+      ids.push_back(std::max_element(m.live.begin(), m.live.end(), lt)->first);
+    }
+    std::sort(ids.begin(), ids.end());
+    ids.erase(std::unique(ids.begin(), ids.end()), ids.end());
+    return ids;
+  };
+  const std::vector<std::int32_t> ends = extremes();
+  std::vector<std::int32_t> drop = ends;
+  for (const auto& kv : m.live)
+    if (rng() % 10 == 0 && !std::binary_search(ends.begin(), ends.end(), kv.first)) drop.push_back(kv.first);
+  remove_both(*ix, m, drop);
+  REQUIRE(ix->info().holes == drop.size());  // holes in place, no compaction or build
+  require_live_box("a tenth and the extremes");
+  check_exact(*ix, m, rng);
+  remove_both(*ix, m, extremes());  // six ids: the map's path
+  require_live_box("the next extremes");
+  check_exact(*ix, m, rng);
+}

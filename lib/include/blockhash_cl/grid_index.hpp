@@ -15,6 +15,8 @@
 
 #include "blockhash_cl/blockhash.hpp"
 
+struct bhcl_grid_dbox;  // a box of points (kernels/grid_search.h)
+
 namespace bhcl {
 
 namespace blockhash {
@@ -88,8 +90,9 @@ class GridIndex final : public BlockHashIndex {
   void grid_upload_from(std::size_t point_from, std::size_t cell_from);
   void grid_positions();  // id -> position, from the grid's ids
   // The removed ids' slots found by one pass over the stored ids (many ids, or no position map).
+  // Also the live points' box after it (live_box), for when a removed point lay on the old one.
   void grid_mark_holes_by_scan(const std::int32_t* ids, std::size_t n, std::size_t& lo, std::size_t& hi,
-                               bool& on_box);
+                               bool& on_box, bhcl_grid_dbox& live_box);
   // Save / load after updates (grid_update.cpp): the state a grid file keeps, and the id state,
   // holes and counters of a loaded file.
   blockhash::GridIdState grid_update_state() const;

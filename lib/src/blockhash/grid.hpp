@@ -144,10 +144,17 @@ inline void widen_box(bhcl_grid_dbox& b, float x, float y, float z) {
   b.lx = std::min(b.lx, x), b.ly = std::min(b.ly, y), b.lz = std::min(b.lz, z);
   b.hx = std::max(b.hx, x), b.hy = std::max(b.hy, y), b.hz = std::max(b.hz, z);
 }
+// b widened to hold box c (an inverted, empty c leaves it as it was).
+inline void unite_box(bhcl_grid_dbox& b, const bhcl_grid_dbox& c) {
+  b.lx = std::min(b.lx, c.lx), b.ly = std::min(b.ly, c.ly), b.lz = std::min(b.lz, c.lz);
+  b.hx = std::max(b.hx, c.hx), b.hy = std::max(b.hy, c.hy), b.hz = std::max(b.hz, c.hz);
+}
 
 // The box of g's live points (holes left out): g.dbox on a load and after a remove that took a
 // point on it (a build takes its own box, an insert widens g.dbox by the new points').
 bhcl_grid_dbox grid_points_box(const Grid& g, unsigned threads);
+// b widened to hold the live points of slots [begin, end) (holes left out), vectorised.
+void widen_box_live(const Grid& g, std::size_t begin, std::size_t end, bhcl_grid_dbox& b);
 
 // The traversal's form, the kNN kernel's defines of the same names: row_cap BHCL_GRID_ROWCAP (the
 // runs of a ring scanned nearest first, at most BHCL_GRID_ROWBUF), fine_rings
