@@ -105,12 +105,14 @@ Answered answer_knn(const Args& args, const SearchIndex& index, const RunPlace& 
           return place.query64(queries.data() + 3 * first, m, a.params, part);
         });
   } else {
-    // int32 ids: each slice written by the search into the runner's own rows (no fill first).
+    // int32 ids: each slice written by the search into the output files' mapped pages where
+    // they are mapped (no copy after it), else into the runner's own rows (no fill first).
+    const KnnOutputs* out = files.get();
     a.st = slices_to_files<KnnOutputs, KnnSlice>(
         place, n, rows, bar, std::move(files), a, [&](std::size_t first, std::size_t m, KnnSlice& part) {
           part.reserve(rows, a.params.k, a.params.count_examined);
           part.n = m;
-          return index.query_into(queries.data() + 3 * first, m, a.params, part.view());
+          return index.query_into(queries.data() + 3 * first, m, a.params, out ? out->rows_for(part) : part.view());
         });
   }
   return a;

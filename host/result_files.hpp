@@ -18,15 +18,21 @@ namespace bhcl::cli {
 class Args;
 
 // One array: NPY when the path ends in .npy ('<f4', '<i4', '<i8'), raw bytes otherwise. rows < 0:
-// not known until commit (NPY: the header is rewritten then).
+// not known until commit (NPY: the header is rewritten then). A known length is the file mapped
+// where it can be (AtomicFile::map_append): appends are copies into the page cache without a
+// write(), and none where the rows were stored at their place already (next()).
 class ArrayOutput {
  public:
   ArrayOutput(const std::string& path, const char* descr, std::size_t item, std::int64_t rows, std::size_t cols);
   void append(const void* data, std::size_t items);
+  // Where the next items' bytes go in the mapped file (null: not mapped): a search that stores
+  // its rows there has nothing left for append() to copy.
+  void* next() const { return mapped_ ? mapped_ + items_ * item_ : nullptr; }
   void commit();
 
  private:
   std::string header(std::uint64_t rows) const;
+  void map_known_length();
   AtomicFile file_;
   std::string descr_;
   std::size_t item_, cols_;
@@ -34,6 +40,7 @@ class ArrayOutput {
   std::uint64_t items_ = 0;
   bool npy_;
   std::size_t header_bytes_ = 0;
+  char* mapped_ = nullptr;  // the array's first item in the mapped file
 };
 
 // A slice's kNN rows in memory kept across the slices of a run and never filled before the search
@@ -60,6 +67,10 @@ class KnnOutputs {
   void append(const KnnResult& part);  // the next rows, in order
   void append(const KnnResult64& part);  // the same with int64 ids (each fits when !ids64)
   void append(const KnnSlice& part);
+  // The rows the search of the next slice writes: ids and dist2 at their places in the mapped
+  // files where they are mapped (int32 ids), else the slice's own memory; counts and examined
+  // always the slice's.
+  KnnRowsView rows_for(const KnnSlice& part) const;
   void commit();
   std::size_t found() const { return found_; }
 
