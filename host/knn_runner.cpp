@@ -215,6 +215,7 @@ void report(const Args& args, const RunPlace& place, const Runtime& rt, const Se
   add_query_stats(j, r.build_s, a.st);
   if (!q.radius) {
     j["stages"] = stages_json(a.st, a.write_s, a.commit_s);
+    j["stages"]["prepare_beside_reading_s"] = a.prepare_beside_s;
     j["neighbours_found"] = a.found;
   }
   if (place.kind == IndexKind::device && r.built) j["memory_bytes"] = r.built->memory_bytes();
