@@ -112,7 +112,13 @@ Answered answer_knn(const Args& args, const SearchIndex& index, const RunPlace& 
         place, n, rows, bar, std::move(files), a, [&](std::size_t first, std::size_t m, KnnSlice& part) {
           part.reserve(rows, a.params.k, a.params.count_examined);
           part.n = m;
-          return index.query_into(queries.data() + 3 * first, m, a.params, out ? out->rows_for(part) : part.view());
+          KnnRowsView rows_to = part.view();
+          if (out) {  // the output's pages made present: the write's share of the slice
+            const auto t0 = std::chrono::steady_clock::now();
+            rows_to = out->rows_for(part);
+            a.write_s += seconds_since(t0);
+          }
+          return index.query_into(queries.data() + 3 * first, m, a.params, rows_to);
         });
   }
   return a;

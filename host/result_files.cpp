@@ -1,9 +1,13 @@
 #include "result_files.hpp"
 
 #include <cctype>
+#include <cstdint>
 #include <cstring>
 #include <type_traits>
 #include <vector>
+
+#include <sys/mman.h>
+#include <unistd.h>
 
 #include "blockhash_cl/error.hpp"
 #include "blockhash_cl/io.hpp"
@@ -57,6 +61,16 @@ std::string ArrayOutput::header(std::uint64_t rows) const {
   return npy_header(descr_.c_str(), rows, cols_, header_bytes_);
 }
 
+void ArrayOutput::populate_next(std::size_t items) const {
+  char* at = static_cast<char*>(next());
+  if (!at || items == 0) return;
+  const std::uintptr_t page = static_cast<std::uintptr_t>(::sysconf(_SC_PAGESIZE));
+  const std::uintptr_t lo = reinterpret_cast<std::uintptr_t>(at) / page * page;
+  const std::uintptr_t hi = reinterpret_cast<std::uintptr_t>(at) + items * item_;
+  // Advice only: where the kernel has no MADV_POPULATE_WRITE (before 5.14) the search faults them.
+  (void)::madvise(reinterpret_cast<void*>(lo), hi - lo, MADV_POPULATE_WRITE);
+}
+
 void ArrayOutput::append(const void* data, std::size_t items) {
   if (!mapped_) {
     file_.write(data, items * item_);
@@ -106,9 +120,16 @@ void KnnSlice::reserve(std::size_t rows, int k_, bool examined) {
 
 void KnnOutputs::append(const KnnResult& part) { append_part(part); }
 
-KnnRowsView KnnOutputs::rows_for(const KnnSlice& part) const {
+KnnRowsView KnnOutputs::rows_for(const KnnSlice& part) const { return rows_at_next(part, true); }
+
+KnnRowsView KnnOutputs::rows_at_next(const KnnSlice& part, bool populate) const {
   KnnRowsView v = part.view();
   if (ids64_) return v;  // the search's int32 ids are widened on the way to the file
+  if (populate) {
+    // One file a thread (as the writes were): the two mappings' faults do not contend.
+    const std::size_t items = part.n * static_cast<std::size_t>(part.k);
+    detail::parallel_tasks(2, [&](std::size_t t) { (t ? dist2_ : ids_)->populate_next(items); });
+  }
   if (void* at = ids_->next()) v.ids = static_cast<std::int32_t*>(at);
   if (void* at = dist2_->next()) v.dist2 = static_cast<float*>(at);
   return v;
@@ -116,7 +137,7 @@ KnnRowsView KnnOutputs::rows_for(const KnnSlice& part) const {
 
 void KnnOutputs::append(const KnnSlice& part) {
   const std::size_t nk = part.n * static_cast<std::size_t>(part.k);
-  const KnnRowsView v = rows_for(part);
+  const KnnRowsView v = rows_at_next(part, false);
   if (ids64_) {
     std::vector<std::int64_t> wide(v.ids, v.ids + nk);
     ids_->append(wide.data(), nk);
