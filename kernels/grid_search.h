@@ -240,6 +240,25 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_occ_near(bhcl_u32 cx, bhcl_u32 cy, bhcl_u32 
  * and 4 only), so the position of child o is BHCL_GRID_OCC_ORDER(o ^ near). */
 #define BHCL_GRID_OCC_ORDER(p) ((0x76534210u >> (4u * (p))) & 15u)
 
+/* The lowest set bit's position of a nonzero x (OpenCL 1.2 has clz, not ctz). */
+#ifdef __OPENCL_C_VERSION__
+#define BHCL_GRID_CTZ(x) (31u - clz((x) & (0u - (x))))
+#else
+#define BHCL_GRID_CTZ(x) ((bhcl_u32)__builtin_ctz(x))
+#endif
+
+/* A node's children that hold points (its occupancy byte), as bits by visiting position: bit p
+ * set when child BHCL_GRID_OCC_ORDER(p) ^ near is, so that the walk steps from set bit to set
+ * bit instead of testing all eight. The byte's bits j ^ near brought to j (three conditional
+ * swaps: of bits, pairs, nibbles), then positions 3 and 4 swapped (the order's one exchange). */
+BHCL_GRID_INLINE bhcl_u32 bhcl_grid_occ_pending(bhcl_u32 mask, bhcl_u32 near) {
+  bhcl_u32 m = mask;
+  m = (near & 1u) ? (((m & 0x55u) << 1) | ((m >> 1) & 0x55u)) : m;
+  m = (near & 2u) ? (((m & 0x33u) << 2) | ((m >> 2) & 0x33u)) : m;
+  m = (near & 4u) ? (((m & 0x0fu) << 4) | ((m >> 4) & 0x0fu)) : m;
+  return (m & 0xe7u) | ((m & 0x08u) << 1) | ((m & 0x10u) >> 1);
+}
+
 #endif /* BHCL_GRID_SEARCH_H */
 
 /* The search itself, once per translation unit that defines a state (the geometry above may have
@@ -293,14 +312,32 @@ typedef struct bhcl_grid_walk_ctx {
   bhcl_u32 size1, tboff; /* level 1's bytes; the boxes' first byte (0: no boxes, or not used) */
 } bhcl_grid_walk_ctx;
 
+/* The points' box of the level-2 node (X, Y, Z) (the walk's boxes are on: w->tboff != 0). */
+BHCL_GRID_INLINE bhcl_grid_dbox bhcl_grid_walk_box2(const bhcl_grid_walk_ctx* w, bhcl_u32 X, bhcl_u32 Y, bhcl_u32 Z) {
+  return bhcl_grid_tbox_load(w->occ, w->tboff, bhcl_grid_occ_index(w->g, w->size1, 2u, X, Y, Z) - w->size1);
+}
+
+/* The squared distance from the query to box b (0 inside): a lower bound of every point in b to
+ * the bit, as each side is a stored point's coordinate (rounding is monotone). An inverted box
+ * (a node whose points are all holes) is +inf away. */
+BHCL_GRID_INLINE float bhcl_grid_box_dist(const bhcl_grid_walk_ctx* w, const bhcl_grid_dbox b) {
+  const float ex = BHCL_FMAX(BHCL_FMAX(b.lx - w->qx, w->qx - b.hx), 0.0f);
+  const float ey = BHCL_FMAX(BHCL_FMAX(b.ly - w->qy, w->qy - b.hy), 0.0f);
+  const float ez = BHCL_FMAX(BHCL_FMAX(b.lz - w->qz, w->qz - b.hz), 0.0f);
+  return ex * ex + ey * ey + ez * ez;
+}
+
 /* Child o of node (X, Y, Z) of level m + 1: its squared distance from the query (a lower bound of
  * its points'), or -1 when the rings have searched all of it. *u: the child's coordinates; moff:
- * the first byte of level m (read for m >= 2 only). The slabs are clipped to the points' box, or
- * with the boxes to the child's own (m >= 2) or its level-2 ancestor's (m < 2): every point of
- * the child lies in either, so the distance stays a lower bound to the bit (bhcl_grid_slabs_in). */
+ * the first byte of level m (read for m >= 2 only). With the boxes (w->tboff), a child of level
+ * m >= 2 is as far as its own points' box (which holds every point of it, so no cell slab can
+ * be tighter: one load and three clamps, no slab arithmetic); a lower child's slabs are clipped
+ * to its level-2 ancestor's box, *b2 (the caller's copy, loaded once per level-2 node; null:
+ * loaded here). Without them the slabs are clipped to the points' box. Either way the distance
+ * stays a lower bound to the bit (bhcl_grid_slabs_in, bhcl_grid_box_dist). */
 BHCL_GRID_INLINE float bhcl_grid_walk_child(const bhcl_grid_walk_ctx* w, bhcl_u32 m, bhcl_u32 moff, bhcl_u32 X,
                                             bhcl_u32 Y, bhcl_u32 Z, bhcl_u32 o, bhcl_u32* ux, bhcl_u32* uy,
-                                            bhcl_u32* uz) {
+                                            bhcl_u32* uz, const bhcl_grid_dbox* b2) {
   *ux = 2u * X + (o & 1u);
   *uy = 2u * Y + ((o >> 1) & 1u);
   *uz = 2u * Z + (o >> 2);
@@ -312,10 +349,11 @@ BHCL_GRID_INLINE float bhcl_grid_walk_child(const bhcl_grid_walk_ctx* w, bhcl_u3
   if (x0 >= w->vx0 && x1 <= w->vx1 && y0 >= w->vy0 && y1 <= w->vy1 && z0 >= w->vz0 && z1 <= w->vz1) return -1.0f;
   bhcl_grid_dbox b = w->db;
   if (w->tboff) {
-    const bhcl_u32 s = m < 2u ? 2u - m : 0u; /* up to the level-2 ancestor */
-    const bhcl_u32 byte = m < 2u ? bhcl_grid_occ_index(w->g, w->size1, 2u, *ux >> s, *uy >> s, *uz >> s)
-                                 : bhcl_grid_occ_index(w->g, moff, m, *ux, *uy, *uz);
-    b = bhcl_grid_tbox_load(w->occ, w->tboff, byte - w->size1);
+    if (m >= 2u)
+      return bhcl_grid_box_dist(w, bhcl_grid_tbox_load(w->occ, w->tboff,
+                                                       bhcl_grid_occ_index(w->g, moff, m, *ux, *uy, *uz) - w->size1));
+    const bhcl_u32 s = 2u - m; /* up to the level-2 ancestor */
+    b = b2 ? *b2 : bhcl_grid_walk_box2(w, *ux >> s, *uy >> s, *uz >> s);
   }
   const float ex = bhcl_grid_slabs_in(w->qx, w->g.ox, w->g.h, w->g.margin, x0, x1, b.lx, b.hx);
   const float ey = bhcl_grid_slabs_in(w->qy, w->g.oy, w->g.h, w->g.margin, y0, y1, b.ly, b.hy);
@@ -347,10 +385,16 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_walk_depth_first(BHCL_GLOBAL const bhcl_u32*
                                                      bhcl_u32 l0, bhcl_u32 X0, bhcl_u32 Y0, bhcl_u32 Z0, bhcl_u32 off,
                                                      bhcl_u32 examined, bhcl_u32 budget, BHCL_GRID_STATE* st) {
   const float qx = w->qx, qy = w->qy, qz = w->qz;
-  bhcl_u32 l = l0, X = X0, Y = Y0, Z = Z0, p = 0u;
+  bhcl_u32 l = l0, X = X0, Y = Y0, Z = Z0;
+  /* Per node, read once on entering it (and again on coming back up to it): the child on the
+   * query's side and, as bits by visiting position, its children that hold points still to be
+   * visited; below level 3, the level-2 ancestor's box its children clip to. */
+  bhcl_u32 near = bhcl_grid_occ_near(w->cx, w->cy, w->cz, X, Y, Z, l - 1u);
+  bhcl_u32 pend = bhcl_grid_occ_pending(occ[bhcl_grid_occ_index(w->g, off, l, X, Y, Z)], near);
+  bhcl_grid_dbox b2 = w->db;
+  if (w->tboff && l <= 2u) b2 = bhcl_grid_walk_box2(w, X >> (2u - l), Y >> (2u - l), Z >> (2u - l));
   for (;;) {
-    const bhcl_u32 m = l - 1u; /* the children's level */
-    if (p == 8u) { /* this node is done: up to its parent, at the position after it */
+    if (pend == 0u) { /* this node is done: up to its parent, at the position after it */
       if (l == l0) break;
       const bhcl_u32 o = (X & 1u) | ((Y & 1u) << 1) | ((Z & 1u) << 2);
       off += bhcl_grid_occ_size(w->g, l);
@@ -358,16 +402,17 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_walk_depth_first(BHCL_GLOBAL const bhcl_u32*
       X >>= 1;
       Y >>= 1;
       Z >>= 1;
-      p = BHCL_GRID_OCC_ORDER(o ^ bhcl_grid_occ_near(w->cx, w->cy, w->cz, X, Y, Z, l - 1u)) + 1u;
+      near = bhcl_grid_occ_near(w->cx, w->cy, w->cz, X, Y, Z, l - 1u);
+      pend = bhcl_grid_occ_pending(occ[bhcl_grid_occ_index(w->g, off, l, X, Y, Z)], near) &
+             ~((2u << BHCL_GRID_OCC_ORDER(o ^ near)) - 1u);
       continue;
     }
-    const bhcl_u32 o = BHCL_GRID_OCC_ORDER(p) ^ bhcl_grid_occ_near(w->cx, w->cy, w->cz, X, Y, Z, m);
-    ++p;
-    const bhcl_u32 mask = occ[bhcl_grid_occ_index(w->g, off, l, X, Y, Z)];
-    if (!((mask >> o) & 1u)) continue;
+    const bhcl_u32 o = BHCL_GRID_OCC_ORDER(BHCL_GRID_CTZ(pend)) ^ near;
+    pend &= pend - 1u;
+    const bhcl_u32 m = l - 1u; /* the child's level */
     bhcl_u32 ux, uy, uz;
     const bhcl_u32 moff = m >= 2u ? off - bhcl_grid_occ_size(w->g, m) : 0u;
-    const float d = bhcl_grid_walk_child(w, m, moff, X, Y, Z, o, &ux, &uy, &uz);
+    const float d = bhcl_grid_walk_child(w, m, moff, X, Y, Z, o, &ux, &uy, &uz, &b2);
     if (d < 0.0f || d > BHCL_GRID_BOUND(st)) continue;
     if (m == 0u) { /* a fine cell: its run */
       BHCL_GRID_WALK_CELL(ux, uy, uz)
@@ -378,7 +423,9 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_walk_depth_first(BHCL_GLOBAL const bhcl_u32*
     X = ux;
     Y = uy;
     Z = uz;
-    p = 0u;
+    near = bhcl_grid_occ_near(w->cx, w->cy, w->cz, X, Y, Z, l - 1u);
+    pend = bhcl_grid_occ_pending(occ[bhcl_grid_occ_index(w->g, off, l, X, Y, Z)], near);
+    if (w->tboff && l == 2u) b2 = bhcl_grid_walk_box2(w, X, Y, Z);
   }
   return examined;
 }
@@ -391,7 +438,9 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_walk_depth_first(BHCL_GLOBAL const bhcl_u32*
 /* Nodes of this level or below (4^3 fine cells) are walked depth-first when popped, not expanded
  * into the queue: near the fine cells the depth-first child order is as good and costs no queue
  * moves. A constant, not a define: the host reference must walk the same way. */
+#ifndef BHCL_GRID_WALK_DF_LEVEL
 #define BHCL_GRID_WALK_DF_LEVEL 2u
+#endif
 #ifndef BHCL_GRID_WALK_DESCEND
 #define BHCL_GRID_WALK_DESCEND 1
 #endif
@@ -470,10 +519,10 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search_far(BHCL_GLOBAL const bhcl_u32* start
       const bhcl_u32 mask = occ[bhcl_grid_occ_index(g, off, l, X, Y, Z)];
       float nd = -1.0f; /* the nearest child so far (-1: none), kept out of the queue */
       bhcl_u32 nx_ = 0u, ny_ = 0u, nz_ = 0u;
-      for (bhcl_u32 o = 0u; o < 8u; ++o) {
-        if (!((mask >> o) & 1u)) continue;
+      for (bhcl_u32 bits = mask; bits != 0u; bits &= bits - 1u) { /* the children holding points */
+        const bhcl_u32 o = BHCL_GRID_CTZ(bits);
         bhcl_u32 ux, uy, uz;
-        float d = bhcl_grid_walk_child(w, m, moff, X, Y, Z, o, &ux, &uy, &uz);
+        float d = bhcl_grid_walk_child(w, m, moff, X, Y, Z, o, &ux, &uy, &uz, 0);
         if (d < 0.0f || d > BHCL_GRID_BOUND(st)) continue;
         if (BHCL_GRID_WALK_DESCEND && (nd < 0.0f || d < nd)) { /* the new nearest: queue the old one */
           const float td = nd;
