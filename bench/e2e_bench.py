@@ -6,9 +6,9 @@ Rows: each query count (--sizes, the first n of --queries) and each k (--k), exa
 layout's default), dispatched in Hilbert order (the default). Per row and round, the methods run
 in a shuffled order:
   - bhcl knn: one process per run (each run pays its program build: from the library's program
-    binary cache once a first run stored it), its --stats file's "stages" read back; the search
-    wall is the stats' wall_s (the query call with its output files' appends), kernel_s the
-    kernel's event time;
+    binary cache once a first run stored it, beside reading its inputs), its --stats file's
+    "stages" read back; the search wall is the stats' wall_s (the query call with its output
+    files' appends, and any wait for that program), kernel_s the kernel's event time;
   - Python: one process for all rounds, both indexes built once; the search wall is the stats
     dict's wall_s (the library call), kernel query_s. The first call of each (method, k) in the
     process is a warm-up (its compile) and not counted.
@@ -33,7 +33,9 @@ import numpy as np
 
 # What the table's "search wall" is, written under its command.
 SEARCH_WALL = ("Search wall: for `bhcl knn`, the stats file's `stages.wall_s`: the query call with its output "
-               "files' appends (ids and dist2 written as binary .npy, into the page cache), not their commit "
+               "files' appends (binary .npy; ids and dist2 mapped, stored into by the search itself, so their "
+               "appends copy nothing) and any wait for the kNN program built beside reading the inputs (in "
+               "`compile`), not their commit "
                "(flush to the disk and rename, `stages.commit_s`); for Python, the stats dict's `wall_s`: the "
                "library call (the arrays go to numpy without a copy). kernel: the kernel's event time. "
                "other: the wall less every named stage (the call's set-up, locks, the first touch of fresh "

@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <future>
 
 #include <sys/stat.h>
 
@@ -523,7 +524,8 @@ std::string method_list(const std::vector<std::string>& names) {
   return s;
 }
 
-CommandInputs read_command_inputs(const Args& args, std::vector<FileArg> outputs) {
+CommandInputs read_command_inputs(const Args& args, std::vector<FileArg> outputs,
+                                  const std::function<void(const Runtime&, const MethodOptions&)>& beside_reading) {
   CommandInputs in;
   in.mopt = method_options(args);
   outputs.push_back({"--stats", args.str("stats", "")});
@@ -531,10 +533,27 @@ CommandInputs read_command_inputs(const Args& args, std::vector<FileArg> outputs
   check_distinct_files({{"--points", args.str("points")}, {"--queries", args.str("queries")},
                         {"--load-index", in.mopt.load_index()}},
                        outputs);
+  std::future<void> beside;
+  if (beside_reading) {
+    in.rt = std::make_shared<Runtime>(args.str("device", ""));
+    beside = std::async(std::launch::async, [&beside_reading, &in] {
+      const auto t0 = std::chrono::steady_clock::now();
+      try {
+        beside_reading(*in.rt, in.mopt);
+      } catch (const std::exception&) {
+      }
+      in.beside.own_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    });
+  }
   read_points_and_queries(args, in.points, in.queries);
+  if (beside.valid()) {
+    const auto t0 = std::chrono::steady_clock::now();
+    beside.get();
+    in.beside.wait_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  }
   in.N = in.points.size() / 3;
   in.n = in.queries.size() / 3;
-  in.rt = std::make_shared<Runtime>(args.str("device", ""));
+  if (!in.rt) in.rt = std::make_shared<Runtime>(args.str("device", ""));
   return in;
 }
 

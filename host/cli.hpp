@@ -4,8 +4,8 @@
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
 
-#include <limits>
 #include <functional>
+#include <limits>
 #include <map>
 #include <set>
 #include <sstream>
@@ -174,13 +174,22 @@ void read_points_and_queries(const Args& args, std::vector<float>& points, std::
 // What knn and eval read before they search, in this order: the method options; the files,
 // checked against each other before any work (inputs --points, --queries, --load-index; the
 // command's `outputs` and --stats, --save-index); the points and queries; the device (--device).
+// With `beside_reading`: the device first, then that run (with the device and the method
+// options) on a thread of its own while the files are read (reading is one thread's work: bhcl
+// knn builds its query's program there), joined after; what it throws is dropped (the build and
+// the query name any real error again).
 struct CommandInputs {
   MethodOptions mopt;
   std::vector<float> points, queries;
   std::size_t N = 0, n = 0;  // points and queries
   std::shared_ptr<Runtime> rt;
+  struct Beside {
+    double own_s = 0;   // beside_reading's own time
+    double wait_s = 0;  // the time the join after the reading waited for it
+  } beside;
 };
-CommandInputs read_command_inputs(const Args& args, std::vector<FileArg> outputs);
+CommandInputs read_command_inputs(const Args& args, std::vector<FileArg> outputs,
+                                  const std::function<void(const Runtime&, const MethodOptions&)>& beside_reading = {});
 
 // --size WxH (each 1 to 16384); UsageError otherwise.
 void parse_image_size(const std::string& s, int& w, int& h);

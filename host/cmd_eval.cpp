@@ -153,7 +153,7 @@ int run_eval_radius(const Args& args, const std::string& method, const std::stri
   RadiusParams tp = rp;
   tp.budget = 0;  // the truth finds every point
   const EvalInputs e = read_eval_inputs(args);
-  const auto& [mopt, points, queries, N, n, rt] = e.in;
+  const auto& [mopt, points, queries, N, n, rt, beside] = e.in;
   const bool quiet = args.flag("quiet");
   const RadiusSide truth = run_radius_side(truth_method, rt, points, queries, radius, tp, e.topt, quiet);
   const RadiusSide m = run_radius_side(method, rt, points, queries, radius, rp, mopt, quiet);
@@ -239,7 +239,7 @@ int run_eval(const Args& args) {
   if (args.has("budget")) throw UsageError("--budget applies only with --radius");
   SearchParams params = search_params(args);
   const EvalInputs e = read_eval_inputs(args);
-  const auto& [mopt, points, queries, N, n, rt] = e.in;
+  const auto& [mopt, points, queries, N, n, rt, beside] = e.in;
   const MethodOptions& topt = e.topt;
   // The truth first: a bad --truth fails before the (possibly long) method run.
   Side truth = run_side(truth_method, rt, points, queries, params, topt, args.flag("quiet"));

@@ -105,12 +105,20 @@ Answered answer_knn(const Args& args, const SearchIndex& index, const RunPlace& 
           return place.query64(queries.data() + 3 * first, m, a.params, part);
         });
   } else {
-    // int32 ids: each slice written by the search into the runner's own rows (no fill first).
+    // int32 ids: each slice written by the search into the output files' mapped pages where
+    // they are mapped (no copy after it), else into the runner's own rows (no fill first).
+    const KnnOutputs* out = files.get();
     a.st = slices_to_files<KnnOutputs, KnnSlice>(
         place, n, rows, bar, std::move(files), a, [&](std::size_t first, std::size_t m, KnnSlice& part) {
           part.reserve(rows, a.params.k, a.params.count_examined);
           part.n = m;
-          return index.query_into(queries.data() + 3 * first, m, a.params, part.view());
+          KnnRowsView rows_to = part.view();
+          if (out) {  // the output's pages made present: the write's share of the slice
+            const auto t0 = std::chrono::steady_clock::now();
+            rows_to = out->rows_for(part);
+            a.write_s += seconds_since(t0);
+          }
+          return index.query_into(queries.data() + 3 * first, m, a.params, rows_to);
         });
   }
   return a;
@@ -213,6 +221,7 @@ void report(const Args& args, const RunPlace& place, const Runtime& rt, const Se
   add_query_stats(j, r.build_s, a.st);
   if (!q.radius) {
     j["stages"] = stages_json(a.st, a.write_s, a.commit_s);
+    j["stages"]["prepare_beside_reading_s"] = a.prepare_beside_s;
     j["neighbours_found"] = a.found;
   }
   if (place.kind == IndexKind::device && r.built) j["memory_bytes"] = r.built->memory_bytes();

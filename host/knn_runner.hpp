@@ -75,6 +75,7 @@ struct Answered {
   BatchTuning bt;       // kNN: what params_for_batch did
   double write_s = 0;         // the output files' appends, inside the query call's wall time
   double commit_s = 0;        // their flush to the disk and renames, after it
+  double prepare_beside_s = 0;  // the program built beside reading the inputs, before the call
   std::size_t found = 0;      // neighbours found, or radius results
   std::size_t truncated = 0;  // radius: queries cut at --max-results
 };

@@ -1,8 +1,13 @@
 #include "result_files.hpp"
 
 #include <cctype>
+#include <cstdint>
+#include <cstring>
 #include <type_traits>
 #include <vector>
+
+#include <sys/mman.h>
+#include <unistd.h>
 
 #include "blockhash_cl/error.hpp"
 #include "blockhash_cl/io.hpp"
@@ -36,11 +41,19 @@ ArrayOutput::ArrayOutput(const std::string& path, const char* descr, std::size_t
                          std::size_t cols)
     : file_(path, is_npy(path) ? "the NPY array" : "the raw array"), descr_(descr), item_(item), cols_(cols),
       rows_(rows), npy_(is_npy(path)) {
-  if (!npy_) return;
-  // An unknown length: the header of the longest one (20 digits) now, rewritten at the end.
-  const std::string h = header(rows_ >= 0 ? static_cast<std::uint64_t>(rows_) : ~std::uint64_t(0));
-  header_bytes_ = h.size();
-  file_.write(h.data(), h.size());
+  if (npy_) {
+    // An unknown length: the header of the longest one (20 digits) now, rewritten at the end.
+    const std::string h = header(rows_ >= 0 ? static_cast<std::uint64_t>(rows_) : ~std::uint64_t(0));
+    header_bytes_ = h.size();
+    file_.write(h.data(), h.size());
+  }
+  map_known_length();
+}
+
+void ArrayOutput::map_known_length() {
+  if (rows_ < 0) return;
+  const std::size_t bytes = static_cast<std::size_t>(rows_) * (cols_ ? cols_ : 1) * item_;
+  mapped_ = static_cast<char*>(file_.map_append(bytes));
 }
 
 std::string ArrayOutput::header(std::uint64_t rows) const {
@@ -48,8 +61,27 @@ std::string ArrayOutput::header(std::uint64_t rows) const {
   return npy_header(descr_.c_str(), rows, cols_, header_bytes_);
 }
 
+void ArrayOutput::populate_next(std::size_t items) const {
+  char* at = static_cast<char*>(next());
+  if (!at || items == 0) return;
+  const std::uintptr_t page = static_cast<std::uintptr_t>(::sysconf(_SC_PAGESIZE));
+  const std::uintptr_t lo = reinterpret_cast<std::uintptr_t>(at) / page * page;
+  const std::uintptr_t hi = reinterpret_cast<std::uintptr_t>(at) + items * item_;
+  // Advice only: where the kernel has no MADV_POPULATE_WRITE (before 5.14) the search faults them.
+  (void)::madvise(reinterpret_cast<void*>(lo), hi - lo, MADV_POPULATE_WRITE);
+}
+
 void ArrayOutput::append(const void* data, std::size_t items) {
-  file_.write(data, items * item_);
+  if (!mapped_) {
+    file_.write(data, items * item_);
+  } else {
+    const std::uint64_t total = static_cast<std::uint64_t>(rows_) * (cols_ ? cols_ : 1);
+    if (items_ + items > total)
+      throw Error(file_.path() + ": internal error: " + std::to_string(items_ + items) + " items written of " +
+                  std::to_string(total));
+    char* at = mapped_ + items_ * item_;
+    if (data != at) std::memcpy(at, data, items * item_);  // else stored there by the search
+  }
   items_ += items;
 }
 
@@ -88,9 +120,24 @@ void KnnSlice::reserve(std::size_t rows, int k_, bool examined) {
 
 void KnnOutputs::append(const KnnResult& part) { append_part(part); }
 
+KnnRowsView KnnOutputs::rows_for(const KnnSlice& part) const { return rows_at_next(part, true); }
+
+KnnRowsView KnnOutputs::rows_at_next(const KnnSlice& part, bool populate) const {
+  KnnRowsView v = part.view();
+  if (ids64_) return v;  // the search's int32 ids are widened on the way to the file
+  if (populate) {
+    // One file a thread (as the writes were): the two mappings' faults do not contend.
+    const std::size_t items = part.n * static_cast<std::size_t>(part.k);
+    detail::parallel_tasks(2, [&](std::size_t t) { (t ? dist2_ : ids_)->populate_next(items); });
+  }
+  if (void* at = ids_->next()) v.ids = static_cast<std::int32_t*>(at);
+  if (void* at = dist2_->next()) v.dist2 = static_cast<float*>(at);
+  return v;
+}
+
 void KnnOutputs::append(const KnnSlice& part) {
   const std::size_t nk = part.n * static_cast<std::size_t>(part.k);
-  const KnnRowsView v = part.view();
+  const KnnRowsView v = rows_at_next(part, false);
   if (ids64_) {
     std::vector<std::int64_t> wide(v.ids, v.ids + nk);
     ids_->append(wide.data(), nk);
@@ -103,6 +150,11 @@ void KnnOutputs::append(const KnnSlice& part) {
 }
 
 void KnnOutputs::append_ids_and_dist2(const void* ids, const float* dist2, std::size_t items) {
+  if (ids == ids_->next() && dist2 == dist2_->next()) {  // stored in place by the search: no copy
+    ids_->append(ids, items);
+    dist2_->append(dist2, items);
+    return;
+  }
   // Two files, two threads: the copy into the page cache (most of a large slice's write) runs on
   // both cores instead of one.
   detail::parallel_tasks(2, [&](std::size_t t) {

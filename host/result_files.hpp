@@ -18,15 +18,26 @@ namespace bhcl::cli {
 class Args;
 
 // One array: NPY when the path ends in .npy ('<f4', '<i4', '<i8'), raw bytes otherwise. rows < 0:
-// not known until commit (NPY: the header is rewritten then).
+// not known until commit (NPY: the header is rewritten then). A known length is the file mapped
+// where it can be (AtomicFile::map_append): appends are copies into the page cache without a
+// write(), and none where the rows were stored at their place already (next()).
 class ArrayOutput {
  public:
   ArrayOutput(const std::string& path, const char* descr, std::size_t item, std::int64_t rows, std::size_t cols);
   void append(const void* data, std::size_t items);
+  // Where the next items' bytes go in the mapped file (null: not mapped): a search that stores
+  // its rows there has nothing left for append() to copy.
+  void* next() const { return mapped_ ? mapped_ + items_ * item_ : nullptr; }
+  // The pages of the next `items` made present and writable, in order on this thread
+  // (MADV_POPULATE_WRITE): the search stores its rows in dispatch order, i.e. at random places,
+  // and its threads' faults on a shared file mapping contend (1M x 10: the kernel 10-30 % slower
+  // when it took them itself). Nothing where not mapped.
+  void populate_next(std::size_t items) const;
   void commit();
 
  private:
   std::string header(std::uint64_t rows) const;
+  void map_known_length();
   AtomicFile file_;
   std::string descr_;
   std::size_t item_, cols_;
@@ -34,6 +45,7 @@ class ArrayOutput {
   std::uint64_t items_ = 0;
   bool npy_;
   std::size_t header_bytes_ = 0;
+  char* mapped_ = nullptr;  // the array's first item in the mapped file
 };
 
 // A slice's kNN rows in memory kept across the slices of a run and never filled before the search
@@ -60,6 +72,10 @@ class KnnOutputs {
   void append(const KnnResult& part);  // the next rows, in order
   void append(const KnnResult64& part);  // the same with int64 ids (each fits when !ids64)
   void append(const KnnSlice& part);
+  // The rows the search of the next slice writes: ids and dist2 at their places in the mapped
+  // files where they are mapped (int32 ids; their pages made present first), else the slice's own
+  // memory; counts and examined always the slice's.
+  KnnRowsView rows_for(const KnnSlice& part) const;
   void commit();
   std::size_t found() const { return found_; }
 
@@ -67,6 +83,7 @@ class KnnOutputs {
   template <typename Part>
   void append_part(const Part& part);
   void append_ids_and_dist2(const void* ids, const float* dist2, std::size_t items);
+  KnnRowsView rows_at_next(const KnnSlice& part, bool populate) const;
   std::unique_ptr<ArrayOutput> ids_, dist2_, counts_;
   bool ids64_ = false;
   std::size_t found_ = 0;

@@ -2,10 +2,12 @@
 // renamed when complete; a failed write names the file and the system's reason and leaves the old
 // file intact), and the renderer's EXR keeps radiance beyond the half-float range.
 #include <dirent.h>
+#include <cstring>
 #include <signal.h>
 #include <sys/resource.h>
 #include <sys/stat.h>
 
+#include "blockhash_cl/atomic_file.hpp"
 #include "test_util.hpp"
 
 #ifdef BHCL_HAVE_RENDER
@@ -103,6 +105,51 @@ TEST_CASE("durability: write_file replaces atomically, and a failed write names 
   // A folder that does not exist: the reason.
   CHECK_THROWS_WITH_AS(write_file(test::tmp_path("no_such_dir/x.bin"), {"x"}, "the test file"),
                        doctest::Contains("No such file or directory"), Error);
+}
+
+TEST_CASE("durability: map_append's stores are the file's bytes, a size limit fails it as a write would, a device has none") {
+  const std::string name = "dur_mapped.bin";
+  const std::string path = test::tmp_path(name);
+  write_file(path, {"old contents"}, "the test file");
+  {
+    // Destroyed without commit: the temporary removed, the old file intact.
+    AtomicFile f(path, "the test file");
+    f.write("HDR", 3);
+    char* m = static_cast<char*>(f.map_append(4096 * 3));
+    REQUIRE(m != nullptr);
+    std::memset(m, 'x', 4096 * 3);
+  }
+  CHECK(slurp(path) == "old contents");
+  CHECK(leftover_temporaries(name) == 0);
+  {
+    // Past the header (not on a page): the mapped bytes follow what was written, and a later
+    // write follows them.
+    AtomicFile f(path, "the test file");
+    f.write("HDR", 3);
+    char* m = static_cast<char*>(f.map_append(10));
+    REQUIRE(m != nullptr);
+    CHECK(f.size() == 13u);
+    CHECK(f.map_append(4) == nullptr);  // one mapping a file
+    std::memcpy(m, "0123456789", 10);
+    f.write("END", 3);
+    f.commit();
+  }
+  CHECK(slurp(path) == "HDR0123456789END");
+  CHECK(leftover_temporaries(name) == 0);
+  // Under a file-size limit (a full disk): the reservation fails with the write's message.
+  const std::string msg = under_size_limit(4096, [&] {
+    AtomicFile f(path, "the test file");
+    f.map_append(std::size_t(1) << 20);
+  });
+  INFO(msg);
+  CHECK(msg.find(path + ": writing the test file failed") != std::string::npos);
+  CHECK(msg.find(std::strerror(EFBIG)) != std::string::npos);
+  CHECK(slurp(path) == "HDR0123456789END");
+  CHECK(leftover_temporaries(name) == 0);
+  // A device is written in place: no mapping, the caller writes.
+  AtomicFile dev("/dev/null", "the test file");
+  CHECK(dev.map_append(16) == nullptr);
+  dev.commit();
 }
 
 TEST_CASE("durability: bhcl outputs and --save-index under a full disk keep the old files") {

@@ -196,3 +196,40 @@ TEST_CASE("pocl_file_damage_names_cut_and_empty_files") {
   CHECK(detail::pocl_file_damage(dir + "/q.bc") == "not LLVM bitcode");
   fs::remove_all(dir);
 }
+
+// The grid kNN programs (one per option string) dumped under dir.
+static std::size_t grid_knn_programs(const std::string& dir) {
+  std::size_t n = 0;
+  for (const fs::path& f : files_ending(dir, ".options")) n += f.filename().string().rfind("blockhash_grid_knn.", 0) == 0;
+  return n;
+}
+
+TEST_CASE("prepare_knn builds the grid's kNN program before any index, the one the query then uses") {
+  // Every program this process builds is dumped (BHCL_DUMP_PROGRAMS) the first time its
+  // (file, options) is built on a context; a fresh runtime has its own context.
+  const std::string dir = fresh_folder("prepare_knn_dump");
+  REQUIRE(setenv("BHCL_DUMP_PROGRAMS", dir.c_str(), 1) == 0);
+  auto rt = std::make_shared<Runtime>();
+  SearchParams p;
+  p.k = 10;
+  prepare_knn("blockhash", *rt, {}, p);
+  CHECK(grid_knn_programs(dir) == 1);
+  // The index's query asks for the same program: nothing more is built (a second file would be
+  // another option string, i.e. prepare_knn built a program the query does not use).
+  const std::vector<float> pts = datasets::uniform(20000, 5);
+  auto index = make_index("blockhash", rt, pts.data(), pts.size() / 3);
+  KnnResult r;
+  index->query(pts.data(), 1000, p, r);
+  CHECK(grid_knn_programs(dir) == 1);
+  // Methods whose programs depend on their points build nothing ahead; the block layouts neither.
+  prepare_knn("kdtree", *rt, {}, p);
+  MethodOptions tables;
+  tables.set("grid", "0");
+  prepare_knn("blockhash", *rt, tables, p);
+  CHECK(grid_knn_programs(dir) == 1);
+  unsetenv("BHCL_DUMP_PROGRAMS");
+  // Bad options are the build's errors.
+  MethodOptions bad;
+  bad.set("grid", "7");
+  CHECK_THROWS_AS(prepare_knn("blockhash", *rt, bad, p), Error);
+}

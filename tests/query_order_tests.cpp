@@ -25,25 +25,30 @@ TEST_CASE("query order: branch-free 16-bit Hilbert keys equal sfc::hilbert_encod
 }
 
 TEST_CASE("query order: the parallel order equals the stable sort by (key, index), non-finite last") {
-  // 50k queries (over the threaded path's threshold) with duplicates (equal keys) and NaNs.
-  std::mt19937 rng(3);
-  std::uniform_real_distribution<float> u(-5.0f, 5.0f);
-  const std::size_t n = 50000;
-  std::vector<float> q(3 * n);
-  for (auto& v : q) v = u(rng);
-  for (std::size_t i = 0; i < n; i += 7) std::copy_n(&q[0], 3, &q[3 * i]);  // many equal keys
-  for (std::size_t i = 5; i < n; i += 1001) q[3 * i + 1] = NAN;
-  const std::vector<std::size_t> got = bhcl::detail::hilbert_query_order(q.data(), n);
-  // The reference: the finite queries' keys over their own box, sorted stably, then the rest.
-  std::vector<std::size_t> finite, rest;
-  for (std::size_t i = 0; i < n; ++i)
-    (std::isfinite(q[3 * i]) && std::isfinite(q[3 * i + 1]) && std::isfinite(q[3 * i + 2]) ? finite : rest).push_back(i);
-  std::vector<float> compact;
-  for (std::size_t i : finite) compact.insert(compact.end(), &q[3 * i], &q[3 * i] + 3);
-  const auto qz = bhcl::sfc::make_quantiser(compact.data(), finite.size(), 16);
-  const auto keys = bhcl::sfc::hilbert_keys(compact.data(), finite.size(), qz);
-  std::vector<std::size_t> want;
-  for (std::int32_t j : bhcl::sfc::hilbert_order(keys)) want.push_back(finite[static_cast<std::size_t>(j)]);
-  want.insert(want.end(), rest.begin(), rest.end());
-  CHECK(got == want);
+  // 50k queries (over the threaded path's threshold) with duplicates (equal keys), NaNs and
+  // infinities; also a count whose threads' ranges end inside a block of 16 keys (the key loop
+  // computes every lane of a block: the tail's spare lanes must not land in the order).
+  for (const std::size_t n : {std::size_t(50000), std::size_t(50007)}) {
+    CAPTURE(n);
+    std::mt19937 rng(3);
+    std::uniform_real_distribution<float> u(-5.0f, 5.0f);
+    std::vector<float> q(3 * n);
+    for (auto& v : q) v = u(rng);
+    for (std::size_t i = 0; i < n; i += 7) std::copy_n(&q[0], 3, &q[3 * i]);  // many equal keys
+    for (std::size_t i = 5; i < n; i += 1001) q[3 * i + 1] = NAN;
+    for (std::size_t i = 9; i < n; i += 2003) q[3 * i + 2] = (i / 2003) % 2 ? INFINITY : -INFINITY;
+    const std::vector<std::size_t> got = bhcl::detail::hilbert_query_order(q.data(), n);
+    // The reference: the finite queries' keys over their own box, sorted stably, then the rest.
+    std::vector<std::size_t> finite, rest;
+    for (std::size_t i = 0; i < n; ++i)
+      (std::isfinite(q[3 * i]) && std::isfinite(q[3 * i + 1]) && std::isfinite(q[3 * i + 2]) ? finite : rest).push_back(i);
+    std::vector<float> compact;
+    for (std::size_t i : finite) compact.insert(compact.end(), &q[3 * i], &q[3 * i] + 3);
+    const auto qz = bhcl::sfc::make_quantiser(compact.data(), finite.size(), 16);
+    const auto keys = bhcl::sfc::hilbert_keys(compact.data(), finite.size(), qz);
+    std::vector<std::size_t> want;
+    for (std::int32_t j : bhcl::sfc::hilbert_order(keys)) want.push_back(finite[static_cast<std::size_t>(j)]);
+    want.insert(want.end(), rest.begin(), rest.end());
+    CHECK(got == want);
+  }
 }

@@ -170,6 +170,10 @@ class BlockHashIndex : public Index {
   // non-finite points or parameters out of range.
   static std::unique_ptr<BlockHashIndex> build(std::shared_ptr<Runtime> runtime, const float* points,
                                                std::size_t n_points, const BlockHashBuildParams& params = {});
+  // Builds ahead, on rt, the kNN program a query with `search` on the index build(params) makes
+  // will use, where the layout's program does not depend on the points (the grid); else nothing.
+  // Throws what build would for bad parameters.
+  static void prepare_knn(const Runtime& rt, const BlockHashBuildParams& params, const SearchParams& search);
   ~BlockHashIndex() override;
 
   // A saved index (versioned, checksummed), as the class its file holds. Throws bhcl::Error naming

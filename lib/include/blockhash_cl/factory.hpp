@@ -33,6 +33,9 @@ struct MethodInfo {
   // Builds (or loads) the index; throws bhcl::Error for bad points or options.
   std::unique_ptr<Index> (*make)(std::shared_ptr<Runtime> runtime, const float* points,
                                  std::size_t n_points, const MethodOptions& options) = nullptr;
+  // Builds the programs a kNN query with these options will use where they do not depend on the
+  // points (prepare_knn below); null: none known before the index.
+  void (*prepare_knn)(const Runtime& rt, const MethodOptions& options, const SearchParams& search) = nullptr;
   // What a built index used and what a query resolves to: SearchIndex::build_used and
   // search_used, overridden by the method's class (MethodInfo only describes, it holds no hooks).
   using Used = UsedFields;
@@ -66,5 +69,14 @@ std::string default_truth_method();
 std::unique_ptr<Index> make_index(const std::string& method, std::shared_ptr<Runtime> runtime,
                                   const float* points, std::size_t n_points,
                                   const MethodOptions& options = {});
+
+// Builds on rt, before any index, the programs a kNN query with `search` on make_index(method,
+// rt, ..., options) will use, where the method can tell them without the points (block hashing's
+// grid: its program depends on the device and k); else does nothing. From the library's program
+// cache this is a load of 10-30 ms, most of it PoCL reading the program's bitcode, which the first
+// query otherwise pays: a tool runs it on a thread of its own while it reads its input (bhcl knn).
+// Thread-safe beside a build on the same runtime. Throws what make_index would for bad options.
+void prepare_knn(const std::string& method, const Runtime& rt, const MethodOptions& options,
+                 const SearchParams& search);
 
 }  // namespace bhcl

@@ -54,6 +54,9 @@ class GridIndex final : public BlockHashIndex {
   const GridBuildParams& params() const { return params_; }
   // rebuild(): the next frame with this build's cell side and table limits, the arrays reused.
   BHCL_BLOCKHASH_LAYOUT_API
+  // Builds the kNN program a query with `params` on rt uses: it depends on the device and k, not
+  // on the points, so it can be built before (or beside) the index (prepare_knn, factory.hpp).
+  static void prepare_knn_program(const Runtime& rt, const SearchParams& params);
 
  protected:
   BHCL_BLOCKHASH_LAYOUT_HOOKS
@@ -73,8 +76,9 @@ class GridIndex final : public BlockHashIndex {
   // arrays, dropped before the host changes those arrays (a build, an update) and made again after.
   bool grid_in_place() const;
   void release_grid_views();
-  // The library's defines of the kNN kernel variant of at most kmax (kernel_defines.hpp).
-  std::vector<std::pair<const char*, long long>> kernel_options(int kmax) const;
+  // The library's defines of the kNN kernel variant of at most kmax on rt's device
+  // (kernel_defines.hpp).
+  static std::vector<std::pair<const char*, long long>> kernel_options(const Runtime& rt, int kmax);
   void add_grid_args(detail::KernelArgs& args) const;
   // The traversal the kNN kernel runs for p (the device's form, a caller's defines over it): the
   // host reference follows the same.

@@ -295,9 +295,9 @@ void GridIndex::check_params(const SearchParams& p) const {
     throw Error("blockhash: A must be positive (+inf: exact; 0: the default, exact), got " + std::to_string(p.A));
 }
 
-detail::DefineValues GridIndex::kernel_options(int kmax) const {
+detail::DefineValues GridIndex::kernel_options(const Runtime& rt, int kmax) {
   // The device's row of the forms table (core/kernel_forms.cpp); the scalar list past 64 entries.
-  const detail::GridKernelForm& f = detail::grid_kernel_form(runtime().info());
+  const detail::GridKernelForm& f = detail::grid_kernel_form(rt.info());
   detail::DefineValues v = {{"BHCL_KMAX", kmax},
                             {"BHCL_GRID_VTOPK", f.vtopk && kmax <= 64 ? 1 : 0},
                             {"BHCL_GRID_PREFETCH", f.prefetch},
@@ -308,12 +308,23 @@ detail::DefineValues GridIndex::kernel_options(int kmax) const {
   return v;
 }
 
+namespace {
+constexpr const char* kKnnKernel = "blockhash_grid_knn";  // in blockhash_grid_knn.cl
+}
+
+void GridIndex::prepare_knn_program(const Runtime& rt, const SearchParams& params) {
+  // The program layout_kernel's enqueue_batch asks for (Runtime::program caches it by file and
+  // options): the defines of the caller's k and the device's form.
+  const std::string file = std::string(kKnnKernel) + ".cl";
+  rt.program(file, detail::kernel_build_options(file, kernel_options(rt, kmax_variant(params.k)), params.kernel_defines));
+}
+
 cl::Event GridIndex::enqueue_batch(const cl::CommandQueue& queue, const cl::Buffer& queries, std::size_t first,
                                    std::size_t count, const ResultBuffers& out, const SearchParams& params_in,
                                    std::size_t local_size, const std::vector<cl::Event>* wait) const {
   const SearchParams params = resolved(params_in);
-  const char* name = "blockhash_grid_knn";
-  cl::Kernel kernel = layout_kernel(name, kernel_options(kmax_variant(params.k)), params.kernel_defines);
+  const char* name = kKnnKernel;
+  cl::Kernel kernel = layout_kernel(name, kernel_options(runtime(), kmax_variant(params.k)), params.kernel_defines);
   detail::KernelArgs args(kernel, name);
   add_grid_args(args);
   args.add_queries(queries, first, count, params)

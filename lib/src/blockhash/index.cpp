@@ -125,6 +125,11 @@ std::unique_ptr<BlockHashIndex> BlockHashIndex::build(std::shared_ptr<Runtime> r
   return std::make_unique<BlockTablesIndex>(std::move(runtime), points, n_points, blockhash::table_params(params));
 }
 
+void BlockHashIndex::prepare_knn(const Runtime& rt, const BlockHashBuildParams& params, const SearchParams& search) {
+  check_build_fields(blockhash::option_table(), &params, "blockhash");
+  if (wants_grid(params)) GridIndex::prepare_knn_program(rt, search);
+}
+
 BlockHashIndex::BlockHashIndex(std::shared_ptr<Runtime> runtime, std::size_t n_points)
     : Index(std::move(runtime), n_points), s_(std::make_unique<blockhash::Structure>()) {}
 

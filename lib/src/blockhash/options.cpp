@@ -232,10 +232,23 @@ const std::vector<OptionInfo>& option_table() {
   return table;
 }
 
-// name, summary, exact, on a device, saves, options, maker.
+namespace {
+// The grid's kNN program, before the index (a saved index's layout is known once it is loaded).
+void prepare_grid_knn(const Runtime& rt, const MethodOptions& options, const SearchParams& search) {
+  if (!options.load_index().empty()) return;
+  refuse_retired(options);
+  BlockHashBuildParams bp;
+  apply_build_options(option_table(), options, &bp, "blockhash");
+  BlockHashIndex::prepare_knn(rt, bp, search);
+}
+}  // namespace
+
+// name, summary, exact, on a device, saves, options, maker; the kNN program ahead of the build.
 MethodInfo describe() {
-  return {"blockhash", "block hashing (Ma & McCool 2002): exact by default on auto's grid; examines at most A*k points per query with A",
-          false, true, true, option_table(), make};
+  MethodInfo m{"blockhash", "block hashing (Ma & McCool 2002): exact by default on auto's grid; examines at most A*k points per query with A",
+               false, true, true, option_table(), make};
+  m.prepare_knn = prepare_grid_knn;
+  return m;
 }
 
 }  // namespace bhcl::blockhash

@@ -14,6 +14,7 @@
 
 #include <dirent.h>
 #include <fcntl.h>
+#include <sys/mman.h>
 #include <sys/random.h>
 #include <sys/stat.h>
 #include <unistd.h>
@@ -187,7 +188,8 @@ AtomicFile::AtomicFile(const std::string& path, const std::string& what) : path_
     // Registered before it exists: a signal right after the open still finds it (an unlink of a
     // name not made yet does nothing; the random part is no other process's).
     slot_ = register_temporary(dirfd_, tmp_name_);
-    fd_ = ::openat(dirfd_, tmp_name_.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
+    // Read and write: a shared writable mapping (map_append) needs both.
+    fd_ = ::openat(dirfd_, tmp_name_.c_str(), O_RDWR | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
     err = errno;
     if (fd_ >= 0) break;
     unregister_temporary(slot_);
@@ -203,6 +205,7 @@ AtomicFile::AtomicFile(const std::string& path, const std::string& what) : path_
 }
 
 AtomicFile::~AtomicFile() {
+  unmap();
   if (fd_ >= 0) ::close(fd_);
   if (!done_) remove_temporary();
   close_directory();
@@ -221,7 +224,14 @@ void AtomicFile::close_directory() {
   dirfd_ = -1;
 }
 
+void AtomicFile::unmap() {
+  if (map_) ::munmap(map_, map_len_);
+  map_ = nullptr;
+  map_len_ = 0;
+}
+
 void AtomicFile::fail(const std::string& step, int err) {
+  unmap();
   if (fd_ >= 0) ::close(fd_);
   fd_ = -1;
   remove_temporary();
@@ -257,8 +267,35 @@ void AtomicFile::write_at(std::uint64_t offset, const void* data, std::size_t by
   }
 }
 
+void* AtomicFile::map_append(std::size_t bytes) {
+  if (fd_ < 0) throw Error(path_ + ": writing " + what_ + " after the file was closed");
+  if (in_place_ || map_ || bytes == 0) return nullptr;
+  const off_t at = static_cast<off_t>(size_), len = static_cast<off_t>(bytes);
+  int r = 0;
+  do r = ::fallocate(fd_, 0, at, len);
+  while (r != 0 && errno == EINTR);
+  if (r != 0) {
+    const int err = errno;
+    if (err == ENOSPC || err == EFBIG || err == EDQUOT) fail("", err);  // as the write would have
+    (void)::ftruncate(fd_, at);  // no fallocate here (EOPNOTSUPP): whatever it reserved let go
+    return nullptr;
+  }
+  // From offset 0 (a mapping starts on a page): the bytes already written lie before the region.
+  void* m = ::mmap(nullptr, size_ + bytes, PROT_READ | PROT_WRITE, MAP_SHARED, fd_, 0);
+  if (m == MAP_FAILED || ::lseek(fd_, 0, SEEK_END) < 0) {
+    if (m != MAP_FAILED) ::munmap(m, size_ + bytes);
+    (void)::ftruncate(fd_, at);
+    return nullptr;
+  }
+  map_ = m;
+  map_len_ = size_ + bytes;
+  size_ += bytes;
+  return static_cast<char*>(m) + at;
+}
+
 void AtomicFile::commit() {
   if (fd_ < 0) throw Error(path_ + ": writing " + what_ + " after the file was closed");
+  unmap();  // its stores are the page cache's: the fsync below flushes them with the rest
   if (in_place_) {
     const int fd = fd_;
     fd_ = -1;

@@ -66,8 +66,12 @@ std::size_t count_nonfinite(const float* queries, std::size_t n) {
 // rows (when not null) gets each dispatch row's caller row, for the kernel's store.
 void gather_queries(const float* caller, std::size_t first, std::size_t m, const std::size_t* order, int e,
                     float* dst, std::uint32_t* rows = nullptr) {
+  // In Hilbert order the caller's rows are read at random: each one's line asked for 32 rows
+  // ahead, so that the reads overlap (1M Cornell queries: 12.5 against 18 ms on 2 threads).
+  constexpr std::size_t kAhead = 32;
   detail::parallel_for(m, [&](std::size_t lo, std::size_t hi) {
     for (std::size_t i = lo; i < hi; ++i) {
+      if (order && i + kAhead < hi) __builtin_prefetch(caller + 3 * order[first + i + kAhead]);
       const std::size_t row = order ? order[first + i] : first + i;
       const float* q = caller + 3 * row;
       for (int d = 0; d < 3; ++d) dst[3 * i + d] = e ? std::ldexp(q[d], -e) : q[d];

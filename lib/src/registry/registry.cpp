@@ -62,4 +62,10 @@ std::unique_ptr<Index> make_index(const std::string& method, std::shared_ptr<Run
   return m.make(std::move(runtime), points, n_points, options);
 }
 
+void prepare_knn(const std::string& method, const Runtime& rt, const MethodOptions& options,
+                 const SearchParams& search) {
+  const MethodInfo& m = method_info(method);
+  if (m.prepare_knn) m.prepare_knn(rt, options, search);
+}
+
 }  // namespace bhcl
