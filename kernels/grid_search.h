@@ -268,6 +268,14 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_occ_pending(bhcl_u32 mask, bhcl_u32 near) {
 #ifndef BHCL_GRID_ROWBUF
 #define BHCL_GRID_ROWBUF 32
 #endif
+/* The depth-first walk keeps the level-2 box its children clip to across them (one load per
+ * level-2 node), except in the kNN kernel's GPU form (BHCL_GRID_WALKCAP 0: no private arrays,
+ * registers scarce), which reads it per child: 5 registers fewer on sm_90. Same distances. */
+#if defined(BHCL_GRID_WALKCAP) && BHCL_GRID_WALKCAP == 0
+#define BHCL_GRID_KEEP_BOX2 0
+#else
+#define BHCL_GRID_KEEP_BOX2 1
+#endif
 
 /* Runs [a, b) of a ring gathered for a nearest-first scan (row distance d), at most `cap`. */
 typedef struct bhcl_grid_rows {
@@ -392,7 +400,7 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_walk_depth_first(BHCL_GLOBAL const bhcl_u32*
   bhcl_u32 near = bhcl_grid_occ_near(w->cx, w->cy, w->cz, X, Y, Z, l - 1u);
   bhcl_u32 pend = bhcl_grid_occ_pending(occ[bhcl_grid_occ_index(w->g, off, l, X, Y, Z)], near);
   bhcl_grid_dbox b2 = w->db;
-  if (w->tboff && l <= 2u) b2 = bhcl_grid_walk_box2(w, X >> (2u - l), Y >> (2u - l), Z >> (2u - l));
+  if (BHCL_GRID_KEEP_BOX2 && w->tboff && l <= 2u) b2 = bhcl_grid_walk_box2(w, X >> (2u - l), Y >> (2u - l), Z >> (2u - l));
   for (;;) {
     if (pend == 0u) { /* this node is done: up to its parent, at the position after it */
       if (l == l0) break;
@@ -412,7 +420,7 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_walk_depth_first(BHCL_GLOBAL const bhcl_u32*
     const bhcl_u32 m = l - 1u; /* the child's level */
     bhcl_u32 ux, uy, uz;
     const bhcl_u32 moff = m >= 2u ? off - bhcl_grid_occ_size(w->g, m) : 0u;
-    const float d = bhcl_grid_walk_child(w, m, moff, X, Y, Z, o, &ux, &uy, &uz, &b2);
+    const float d = bhcl_grid_walk_child(w, m, moff, X, Y, Z, o, &ux, &uy, &uz, BHCL_GRID_KEEP_BOX2 ? &b2 : 0);
     if (d < 0.0f || d > BHCL_GRID_BOUND(st)) continue;
     if (m == 0u) { /* a fine cell: its run */
       BHCL_GRID_WALK_CELL(ux, uy, uz)
@@ -425,7 +433,7 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_walk_depth_first(BHCL_GLOBAL const bhcl_u32*
     Z = uz;
     near = bhcl_grid_occ_near(w->cx, w->cy, w->cz, X, Y, Z, l - 1u);
     pend = bhcl_grid_occ_pending(occ[bhcl_grid_occ_index(w->g, off, l, X, Y, Z)], near);
-    if (w->tboff && l == 2u) b2 = bhcl_grid_walk_box2(w, X, Y, Z);
+    if (BHCL_GRID_KEEP_BOX2 && w->tboff && l == 2u) b2 = bhcl_grid_walk_box2(w, X, Y, Z);
   }
   return examined;
 }
