@@ -380,6 +380,15 @@ BHCL_GRID_INLINE float bhcl_grid_walk_child(const bhcl_grid_walk_ctx* w, bhcl_u3
     examined += b_ - a_;                                                  \
   }
 
+/* Entering node (X, Y, Z) of level l, whose level starts at byte off: *near, its child on the
+ * query's side, and (returned) its children holding points by visiting position. */
+BHCL_GRID_INLINE bhcl_u32 bhcl_grid_walk_enter(BHCL_GLOBAL const bhcl_u8* occ, const bhcl_grid_walk_ctx* w,
+                                               bhcl_u32 off, bhcl_u32 l, bhcl_u32 X, bhcl_u32 Y, bhcl_u32 Z,
+                                               bhcl_u32* near) {
+  *near = bhcl_grid_occ_near(w->cx, w->cy, w->cz, X, Y, Z, l - 1u);
+  return bhcl_grid_occ_pending(occ[bhcl_grid_occ_index(w->g, off, l, X, Y, Z)], *near);
+}
+
 /* Every fine cell below node (X0, Y0, Z0) of level l0 (whose level starts at byte off) outside the
  * rings' cube that the pyramid shows occupied and whose slabs come within the bound, found
  * depth-first, the children of a node in BHCL_GRID_OCC_ORDER and each tested against the bound as
@@ -397,8 +406,8 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_walk_depth_first(BHCL_GLOBAL const bhcl_u32*
   /* Per node, read once on entering it (and again on coming back up to it): the child on the
    * query's side and, as bits by visiting position, its children that hold points still to be
    * visited; below level 3, the level-2 ancestor's box its children clip to. */
-  bhcl_u32 near = bhcl_grid_occ_near(w->cx, w->cy, w->cz, X, Y, Z, l - 1u);
-  bhcl_u32 pend = bhcl_grid_occ_pending(occ[bhcl_grid_occ_index(w->g, off, l, X, Y, Z)], near);
+  bhcl_u32 near;
+  bhcl_u32 pend = bhcl_grid_walk_enter(occ, w, off, l, X, Y, Z, &near);
   bhcl_grid_dbox b2 = w->db;
   if (BHCL_GRID_KEEP_BOX2 && w->tboff && l <= 2u) b2 = bhcl_grid_walk_box2(w, X >> (2u - l), Y >> (2u - l), Z >> (2u - l));
   for (;;) {
@@ -410,9 +419,8 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_walk_depth_first(BHCL_GLOBAL const bhcl_u32*
       X >>= 1;
       Y >>= 1;
       Z >>= 1;
-      near = bhcl_grid_occ_near(w->cx, w->cy, w->cz, X, Y, Z, l - 1u);
-      pend = bhcl_grid_occ_pending(occ[bhcl_grid_occ_index(w->g, off, l, X, Y, Z)], near) &
-             ~((2u << BHCL_GRID_OCC_ORDER(o ^ near)) - 1u);
+      pend = bhcl_grid_walk_enter(occ, w, off, l, X, Y, Z, &near);
+      pend &= ~((2u << BHCL_GRID_OCC_ORDER(o ^ near)) - 1u); /* the children after the one done */
       continue;
     }
     const bhcl_u32 o = BHCL_GRID_OCC_ORDER(BHCL_GRID_CTZ(pend)) ^ near;
@@ -431,8 +439,7 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_walk_depth_first(BHCL_GLOBAL const bhcl_u32*
     X = ux;
     Y = uy;
     Z = uz;
-    near = bhcl_grid_occ_near(w->cx, w->cy, w->cz, X, Y, Z, l - 1u);
-    pend = bhcl_grid_occ_pending(occ[bhcl_grid_occ_index(w->g, off, l, X, Y, Z)], near);
+    pend = bhcl_grid_walk_enter(occ, w, off, l, X, Y, Z, &near);
     if (BHCL_GRID_KEEP_BOX2 && w->tboff && l == 2u) b2 = bhcl_grid_walk_box2(w, X, Y, Z);
   }
   return examined;
