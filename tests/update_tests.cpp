@@ -260,7 +260,9 @@ TEST_CASE("updates: brute force's holes are never returned, at any radius or k")
 // An insert sets the occupancy pyramid's new bits in place and widens its nodes' point boxes: the
 // bits equal a pyramid built afresh from the grid's directory, and so do the boxes while no hole
 // is stored; a hole leaves its nodes' boxes as they were (loose, still holding every live point).
-void require_pyramid_as_built(const BlockHashIndex& ix) {
+// exact_boxes: equal even with holes (the growth room's corners, whose nodes' boxes the rebuild
+// makes again without them).
+void require_pyramid_as_built(const BlockHashIndex& ix, bool exact_boxes = false) {
   const blockhash::Grid& g = *ix.structure().grid;
   blockhash::Grid copy = g;
   blockhash::build_grid_occupancy(copy, 1);
@@ -268,7 +270,7 @@ void require_pyramid_as_built(const BlockHashIndex& ix) {
   std::uint32_t top_off = 0, total = 0;
   bhcl_grid_occ_top(g.geom, &top_off, &total);
   REQUIRE(std::equal(g.occ.begin(), g.occ.begin() + total, copy.occ.begin()));
-  const bool holes = ix.info().holes > 0;
+  const bool holes = ix.info().holes > 0 && !exact_boxes;
   for (std::size_t at = bhcl_grid_tbox_off(total); at + sizeof(bhcl_grid_dbox) <= g.occ.size(); at += sizeof(bhcl_grid_dbox)) {
     bhcl_grid_dbox b, fresh;
     std::memcpy(&b, g.occ.data() + at, sizeof(b));
@@ -467,7 +469,10 @@ TEST_CASE("updates: the grid leaves room where inserts passed its box, so a slid
     insert_both(*ix, m, scan);
     rebuilds += ix->info().update_rebuilds - r0;
     merges += ix->info().merges - g0;
-    if (ix->info().update_rebuilds > r0 && rebuilds == 1) CHECK(ix->info().holes == 2);  // the room's corners
+    if (ix->info().update_rebuilds > r0 && rebuilds == 1) {
+      CHECK(ix->info().holes == 2);  // the room's corners
+      require_pyramid_as_built(*ix, true);  // their nodes' boxes made again without them
+    }
     // The crop: the 1000 live points of smallest x leave (the population stays in the band).
     std::vector<std::pair<float, std::int32_t>> by_x;
     for (const auto& kv : m.live) by_x.emplace_back(kv.second[0], kv.first);
@@ -1076,6 +1081,35 @@ TEST_CASE("updates: the two-level grid directory merges inserts, exact against b
   CHECK(ix->info().merges == merges);
   CHECK(ix->info().update_rebuilds == rebuilds + 1);
   check_exact(*ix, m, rng);
+}
+
+// Issue 39: a merge of more than 65536 new points takes the parallel arms of the insert (the new
+// points counted and sorted by cell in two ranges with their own counts, the node boxes widened
+// per range of level-2 slabs, then the widened ones carried up): the pyramid equals one built
+// afresh and the answers equal brute force's. 800k uniform points and 66k more (8 %: inside the
+// band, and below the eighth past which the band's sample runs).
+TEST_CASE("updates: a large merge into the grid (parallel counting sort and node boxes) equals a fresh pyramid and brute force") {
+  std::mt19937_64 rng(3939);
+  Model m;
+  BlockHashBuildParams bp;
+  bp.threads = 4;  // two ranges of new points on any machine (66k / 32768), four slab ranges
+  auto ix = blockhash_over(first_points(m, rng, 800000), bp);
+  REQUIRE(ix->info().grid);
+  REQUIRE_FALSE(ix->info().grid_two_level);
+  const std::size_t rebuilds = ix->info().update_rebuilds;
+  insert_both(*ix, m, uniform(rng, 66000, 0.0f, 1.0f));
+  CHECK(ix->info().merges == 1);
+  CHECK(ix->info().update_rebuilds == rebuilds);
+  require_pyramid_as_built(*ix);
+  std::vector<float> qs = uniform(rng, 48, -0.2f, 1.2f);
+  for (std::int32_t id : {0, 799999, 800000, 832999, 865999}) {  // stored points, old and new
+    const auto& p = m.live.at(id);
+    qs.insert(qs.end(), p.begin(), p.end());
+  }
+  for (int k : {1, 16}) {
+    const SearchParams sp = test::knn_params(k);
+    test::require_identical(ix->query(qs, sp), fresh_answer(m, qs, sp), "grid after a large merge, k " + std::to_string(k));
+  }
 }
 
 // Issue 39: a large insert that a sample shows past the band goes to one fresh build without the

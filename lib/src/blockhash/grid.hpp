@@ -139,6 +139,11 @@ void build_grid(const GridInput& in, const GridBuildArgs& p, Grid& g, GridBuildS
 // parallel over `threads`: 0 all); every path that adds points to cells calls it.
 std::size_t grid_occupancy_bytes(const bhcl_grid_geom& g);
 void build_grid_occupancy(Grid& g, unsigned threads);
+// The point boxes of the pyramid's nodes holding these cells made again from the points stored
+// (holes left out): each level-2 node from its cells' points, each ancestor from its children.
+// For a few cells whose points became holes (the growth room's corners after a rebuild); the
+// bits are unchanged (a cell of holes stays marked).
+void refresh_node_boxes(Grid& g, const std::vector<std::uint32_t>& cells);
 // b widened to hold the point (x, y, z).
 inline void widen_box(bhcl_grid_dbox& b, float x, float y, float z) {
   b.lx = std::min(b.lx, x), b.ly = std::min(b.ly, y), b.lz = std::min(b.lz, z);

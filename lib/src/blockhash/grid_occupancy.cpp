@@ -196,6 +196,47 @@ bhcl_grid_dbox grid_points_box(const Grid& g, unsigned threads) {
   return b;
 }
 
+void refresh_node_boxes(Grid& g, const std::vector<std::uint32_t>& cells) {
+  const bhcl_grid_geom& gm = g.geom;
+  std::uint32_t top_off = 0, total = 0;
+  const std::uint32_t top = bhcl_grid_occ_top(gm, &top_off, &total);
+  if (top < 2 || g.occ.size() != bhcl_grid_occ_bytes(gm)) return;
+  std::uint8_t* const boxes = g.occ.data() + bhcl_grid_tbox_off(total);
+  std::vector<std::size_t> at(top + 1, 0);  // the first box of level l
+  for (std::uint32_t l = 3; l <= top; ++l) at[l] = at[l - 1] + bhcl_grid_occ_size(gm, l - 1);
+  auto box_at = [&](std::uint32_t l, std::size_t X, std::size_t Y, std::size_t Z) {
+    return boxes + sizeof(bhcl_grid_dbox) *
+                       bhcl_grid_occ_index(gm, std::uint32_t(at[l]), l, std::uint32_t(X), std::uint32_t(Y), std::uint32_t(Z));
+  };
+  const std::size_t nx = gm.nx, ny = gm.ny, nz = gm.nz, nxy = nx * ny;
+  for (const std::uint32_t c : cells) {
+    const std::size_t x = c % nx, y = (c / nx) % ny, z = c / nxy;
+    bhcl_grid_dbox b = kEmptyBox;  // level 2: the points of its 4^3 cells
+    for (std::size_t cz = z & ~std::size_t(3); cz < std::min(nz, (z | 3) + 1); ++cz)
+      for (std::size_t cy = y & ~std::size_t(3); cy < std::min(ny, (y | 3) + 1); ++cy)
+        for (std::size_t cx = x & ~std::size_t(3); cx < std::min(nx, (x | 3) + 1); ++cx) {
+          const std::size_t cell = (cz * ny + cy) * nx + cx;
+          for (std::uint32_t i = g.start(cell), e = g.start(cell + 1); i < e; ++i)
+            if (g.x[i] < INFINITY) widen_box(b, g.x[i], g.y[i], g.z[i]);
+        }
+    std::memcpy(box_at(2, x >> 2, y >> 2, z >> 2), &b, sizeof(b));
+    for (std::uint32_t l = 3; l <= top; ++l) {  // each ancestor: the union of its children
+      const std::size_t X = x >> l, Y = y >> l, Z = z >> l;
+      const std::size_t cx = bhcl_grid_occ_dim(gm.nx, l - 1), cy = bhcl_grid_occ_dim(gm.ny, l - 1);
+      const std::size_t cz = bhcl_grid_occ_dim(gm.nz, l - 1);
+      bhcl_grid_dbox u = kEmptyBox;
+      for (unsigned o = 0; o < 8; ++o) {
+        const std::size_t ux = 2 * X + (o & 1), uy = 2 * Y + ((o >> 1) & 1), uz = 2 * Z + (o >> 2);
+        if (ux >= cx || uy >= cy || uz >= cz) continue;
+        bhcl_grid_dbox child;
+        std::memcpy(&child, box_at(l - 1, ux, uy, uz), sizeof(child));
+        unite_box(u, child);
+      }
+      std::memcpy(box_at(l, X, Y, Z), &u, sizeof(u));
+    }
+  }
+}
+
 void build_grid_occupancy(Grid& g, unsigned threads) {
   const bhcl_grid_geom& gm = g.geom;
   std::uint32_t top_off = 0, total = 0;

@@ -78,13 +78,26 @@ bool inside(const bhcl_grid_geom& g, const float* p) {
   return true;
 }
 
+// The new points of an insert sorted by cell (a counting sort, stable): record j is
+// (x, y, z, index i as bits) at rec[4 j ..], cell c's at j in [add[c], add[c + 1]). Read in
+// order by the merge and the node boxes (each read the points through an index per point
+// before: two random gathers, a fifth of a 10 % insert at 1M). The records live in the build's
+// scratch (GridScratch::rec, 16 bytes per point of the build, already faulted in).
+inline void put_new_point(float* X, float* Y, float* Z, std::int32_t* I, std::size_t p, const float* r, std::int32_t first) {
+  std::uint32_t i;
+  std::memcpy(&i, r + 3, 4);
+  X[p] = r[0];
+  Y[p] = r[1];
+  Z[p] = r[2];
+  I[p] = first + static_cast<std::int32_t>(i);
+}
+
 // The merge of an insert, out of place, in parallel over ranges of cells: each cell's run copied
 // to its new start (the old start plus the new points of the cells before it, add[c]) with its
-// new points (order[add[c] ..], ids first + i) behind it, into the scratch arrays (sized n1 + pad).
+// new points (records add[c] .. of rec, ids first + i) behind it, into the scratch arrays (sized n1 + pad).
 // Cells before first_cell keep their places.
-void merge_into_scratch(const blockhash::Grid& g, const float* scaled, std::size_t m, std::int32_t first,
-                        const std::vector<std::uint32_t>& add, const std::vector<std::uint32_t>& order,
-                        std::size_t first_cell, blockhash::GridScratch& sc) {
+void merge_into_scratch(const blockhash::Grid& g, const float* rec, std::size_t m, std::int32_t first,
+                        const std::vector<std::uint32_t>& add, std::size_t first_cell, blockhash::GridScratch& sc) {
   const std::size_t nc = g.ncells(), n1 = g.n_points + m;
   const unsigned T = static_cast<unsigned>(std::min<std::size_t>(detail::default_threads(), std::max<std::size_t>(1, n1 / 65536)));
   // Cell ranges of about equal output: thread t starts at the first cell whose new start passes
@@ -99,7 +112,6 @@ void merge_into_scratch(const blockhash::Grid& g, const float* scaled, std::size
   {
     const std::uint32_t* const st = g.starts.data();
     const std::uint32_t* const ad = add.data();
-    const std::uint32_t* const ord = order.data();
     const float *const X = g.x.data(), *const Y = g.y.data(), *const Z = g.z.data();
     const std::int32_t* const I = g.ids.data();
     float *const X2 = sc.x.data(), *const Y2 = sc.y.data(), *const Z2 = sc.z.data();
@@ -123,14 +135,7 @@ void merge_into_scratch(const blockhash::Grid& g, const float* scaled, std::size
               std::memcpy(Y2 + dst, Y + a, len * 4);
               std::memcpy(Z2 + dst, Z + a, len * 4);
               std::memcpy(I2 + dst, I + a, len * 4);
-              for (std::size_t j = 0; j < k; ++j) {
-                const std::uint32_t i = ord[ad[c] + j];
-                const std::size_t p = dst + len + j;
-                X2[p] = scaled[3 * i];
-                Y2[p] = scaled[3 * i + 1];
-                Z2[p] = scaled[3 * i + 2];
-                I2[p] = first + static_cast<std::int32_t>(i);
-              }
+              for (std::size_t j = 0; j < k; ++j) put_new_point(X2, Y2, Z2, I2, dst + len + j, rec + 4 * (ad[c] + j), first);
             }
           }
         },
@@ -226,39 +231,89 @@ void two_level_directory_in_place(blockhash::Grid& g, const TwoLevelAdd& a, unsi
   });
 }
 
-// Inserts only add points, so the occupancy pyramid (grid_search.h) only gains bits: each cell
-// that held no point and holds some now sets its bit at every level up to the first byte that
-// already had one (its parent's bit is set then). O(new cells x levels); build_grid_occupancy
-// reads every cell (most of a merge's time for a two-level directory of 117M cells).
 // The point boxes of the pyramid's nodes of level >= 2 (stored after its bits) widened by the
-// new points, level by level up from each point's level-2 node until a node already holds it (its
-// ancestors' boxes hold its own). O(new points x levels) at most.
-void node_boxes_add_points(blockhash::Grid& g, const float* scaled, std::size_t m) {
+// new points. visit(cb, ce, emit) calls emit(cell, x, y, z) for each new point of cells [cb, ce)
+// in cell order, so a level-2 node's new points of a row come together: their box is taken
+// first, then written into the level-2 node unless it holds it already. In parallel over ranges
+// of level-2 z slabs (each owns its level-2 boxes); the boxes that widened a level-2 node then
+// go up, serially, until a node already holds them (its ancestors' boxes hold its own). A walk
+// per point through every level, with the cell's coordinates by divisions and the point read
+// through an index, was a sixth of a 10 % insert at 1M.
+template <class Visit>
+void node_boxes_add_points(blockhash::Grid& g, std::size_t m, unsigned threads, Visit&& visit) {
   const bhcl_grid_geom& gm = g.geom;
   std::uint32_t top_off = 0, total = 0;
   const std::uint32_t top = bhcl_grid_occ_top(gm, &top_off, &total);
-  if (top < 2) return;
+  if (top < 2 || m == 0) return;
   std::uint8_t* const boxes = g.occ.data() + bhcl_grid_tbox_off(total);
   std::vector<std::size_t> at(top + 1, 0);  // the first box of level l
   for (std::uint32_t l = 3; l <= top; ++l) at[l] = at[l - 1] + bhcl_grid_occ_size(gm, l - 1);
-  const std::size_t nx = gm.nx, nxy = std::size_t(gm.nx) * gm.ny;
-  for (std::size_t i = 0; i < m; ++i) {
-    const float* const p = scaled + 3 * i;
-    const std::uint32_t c = cell_of(gm, p);
-    const std::uint32_t x = std::uint32_t(c % nx), y = std::uint32_t((c % nxy) / nx), z = std::uint32_t(c / nxy);
-    for (std::uint32_t l = 2; l <= top; ++l) {
-      const std::size_t at_node = bhcl_grid_occ_index(gm, std::uint32_t(at[l]), l, x >> l, y >> l, z >> l);
-      bhcl_grid_dbox b;  // memcpy: the boxes sit at 4-byte offsets of a byte buffer
-      std::memcpy(&b, boxes + at_node * sizeof(b), sizeof(b));
-      if (b.lx <= p[0] && p[0] <= b.hx && b.ly <= p[1] && p[1] <= b.hy && b.lz <= p[2] && p[2] <= b.hz) break;
-      blockhash::widen_box(b, p[0], p[1], p[2]);
-      std::memcpy(boxes + at_node * sizeof(b), &b, sizeof(b));
-    }
-  }
+  const std::size_t nx = gm.nx, nxy = std::size_t(gm.nx) * gm.ny, nz = gm.nz;
+  const bhcl_grid_dbox empty{INFINITY, INFINITY, INFINITY, -INFINITY, -INFINITY, -INFINITY};
+  struct Up {
+    std::uint32_t x, y, z;  // a cell of the node
+    bhcl_grid_dbox box;
+  };
+  // Widens node (x, y, z) of level l by nb; false when it held nb already.
+  auto widen = [&](std::uint32_t l, std::uint32_t x, std::uint32_t y, std::uint32_t z, const bhcl_grid_dbox& nb) {
+    const std::size_t at_node = bhcl_grid_occ_index(gm, std::uint32_t(at[l]), l, x >> l, y >> l, z >> l);
+    bhcl_grid_dbox b;  // memcpy: the boxes sit at 4-byte offsets of a byte buffer
+    std::memcpy(&b, boxes + at_node * sizeof(b), sizeof(b));
+    if (b.lx <= nb.lx && nb.hx <= b.hx && b.ly <= nb.ly && nb.hy <= b.hy && b.lz <= nb.lz && nb.hz <= b.hz) return false;
+    blockhash::unite_box(b, nb);
+    std::memcpy(boxes + at_node * sizeof(b), &b, sizeof(b));
+    return true;
+  };
+  const std::size_t slabs = bhcl_grid_occ_dim(gm.nz, 2);
+  const unsigned T = m >= 65536 ? std::max(1u, std::min<unsigned>(threads ? threads : detail::default_threads(), unsigned(slabs))) : 1u;
+  std::vector<std::vector<Up>> up(T);
+  detail::parallel_for(
+      T,
+      [&](std::size_t tb, std::size_t te) {
+        for (std::size_t t = tb; t < te; ++t) {
+          const std::size_t zb = slabs * t / T, ze = slabs * (t + 1) / T;
+          bool have = false;
+          std::uint32_t cur = 0, x = 0, y = 0, z = 0;
+          std::size_t row0 = 0, row_y = 0, row_z = 0;  // the row of cells holding cur: its first cell, y, z
+          bhcl_grid_dbox run = empty;  // the new points of the run's level-2 node, (x, y, z) >> 2
+          auto flush = [&] {
+            if (widen(2, x, y, z, run)) up[t].push_back(Up{x, y, z, run});
+          };
+          visit(4 * zb * nxy, std::min(4 * ze, nz) * nxy, [&](std::uint32_t c, float px, float py, float pz) {
+            if (!have || c != cur) {
+              if (!have || c < row0 || c >= row0 + nx) {  // another row: the divisions once per row
+                row_z = c / nxy;
+                row_y = (c - row_z * nxy) / nx;
+                row0 = row_z * nxy + row_y * nx;
+              }
+              const std::uint32_t cx = std::uint32_t(c - row0), cy = std::uint32_t(row_y), cz = std::uint32_t(row_z);
+              if (!have || (cx >> 2) != (x >> 2) || (cy >> 2) != (y >> 2) || (cz >> 2) != (z >> 2)) {
+                if (have) flush();
+                x = cx, y = cy, z = cz, run = empty;
+              }
+              have = true;
+              cur = c;
+            }
+            blockhash::widen_box(run, px, py, pz);
+          });
+          if (have) flush();
+        }
+      },
+      T, 1);
+  for (const std::vector<Up>& part : up)
+    for (const Up& u : part)
+      for (std::uint32_t l = 3; l <= top; ++l)
+        if (!widen(l, u.x, u.y, u.z, u.box)) break;
 }
 
-void occupancy_add_cells(blockhash::Grid& g, const std::vector<std::uint32_t>& cells, const float* scaled,
-                         std::size_t m, unsigned threads) {
+// Inserts only add points, so the occupancy pyramid (grid_search.h) only gains bits: each cell
+// that held no point and holds some now sets its bit at every level up to the first byte that
+// already had one (its parent's bit is set then). O(new cells x levels); build_grid_occupancy
+// reads every cell (most of a merge's time for a two-level directory of 117M cells). Then the
+// node boxes, from the new points in cell order (node_boxes_add_points).
+template <class Visit>
+void occupancy_add_cells(blockhash::Grid& g, const std::vector<std::uint32_t>& cells, std::size_t m, unsigned threads,
+                         Visit&& visit) {
   const bhcl_grid_geom& gm = g.geom;
   std::uint32_t top_off = 0, total = 0;
   const std::uint32_t top = bhcl_grid_occ_top(gm, &top_off, &total);
@@ -278,7 +333,8 @@ void occupancy_add_cells(blockhash::Grid& g, const std::vector<std::uint32_t>& c
       b = std::uint8_t(b | (1u << bit));
       if (had) break;
     }
-  }  node_boxes_add_points(g, scaled, m);
+  }
+  node_boxes_add_points(g, m, threads, visit);
 }
 
 // The points merged into the scratch arrays (n + m + pad), in parallel over ranges of the sorted
@@ -350,8 +406,8 @@ void reserve_with_room(blockhash::GridVec<T>& v, std::size_t n) {
 // for a 10 % insert into 1M points, were most of its time: the kernel zeroes every new page).
 // Returns false (nothing changed) where the arrays have no room or a range is shorter than the
 // head it must save.
-bool merge_in_place(blockhash::Grid& g, const float* scaled, std::size_t m, std::int32_t first,
-                    const std::vector<std::uint32_t>& add, const std::vector<std::uint32_t>& order, std::size_t first_cell) {
+bool merge_in_place(blockhash::Grid& g, const float* rec, std::size_t m, std::int32_t first,
+                    const std::vector<std::uint32_t>& add, std::size_t first_cell) {
   const std::size_t nc = g.ncells(), n1 = g.n_points + m, want = n1 + blockhash::kGridPad;
   if (g.x.capacity() < want || g.y.capacity() < want || g.z.capacity() < want || g.ids.capacity() < want) return false;
   const std::uint32_t* const st = g.starts.data();
@@ -388,7 +444,6 @@ bool merge_in_place(blockhash::Grid& g, const float* scaled, std::size_t m, std:
   float *const X = g.x.data(), *const Y = g.y.data(), *const Z = g.z.data();
   std::int32_t* const I = g.ids.data();
   const std::uint32_t* const ad = add.data();
-  const std::uint32_t* const ord = order.data();
   detail::parallel_for(
       T,
       [&](std::size_t tb, std::size_t te) {
@@ -397,14 +452,8 @@ bool merge_in_place(blockhash::Grid& g, const float* scaled, std::size_t m, std:
           const std::size_t saved_end = h.lo + h.n;
           for (std::size_t c = cut[t + 1]; c-- > cut[t];) {
             const std::size_t a = st[c], len = st[c + 1] - a, dst = a + ad[c], k = ad[c + 1] - ad[c];
-            for (std::size_t j = 0; j < k; ++j) {  // the new points, behind the cell's old ones
-              const std::uint32_t i = ord[ad[c] + j];
-              const std::size_t p = dst + len + j;
-              X[p] = scaled[3 * i];
-              Y[p] = scaled[3 * i + 1];
-              Z[p] = scaled[3 * i + 2];
-              I[p] = first + static_cast<std::int32_t>(i);
-            }
+            for (std::size_t j = 0; j < k; ++j)  // the new points, behind the cell's old ones
+              put_new_point(X, Y, Z, I, dst + len + j, rec + 4 * (ad[c] + j), first);
             if (ad[c] == 0 || len == 0) continue;  // the run stays where it is
             // The run's slots past the saved head move within the arrays (right, overlapping:
             // memmove); those in it come from the copy.
@@ -436,18 +485,26 @@ bool band_clearly_passed(const blockhash::Grid& g, const float* scaled, std::siz
   constexpr std::size_t kSample = 16384;
   if (m < 4 * kSample) return false;
   const std::size_t stride = m / kSample;
-  std::vector<std::uint32_t> cells(kSample);
-  for (std::size_t i = 0; i < kSample; ++i) cells[i] = cell_of(g.geom, scaled + 3 * (i * stride));
-  std::sort(cells.begin(), cells.end());
+  // The sample's cells counted in an open-addressed table (a sort of the 16384 cells took 0.8 ms,
+  // a tenth of a 10 % insert at 1M).
+  constexpr std::size_t kSlots = 2 * kSample;
+  constexpr std::uint32_t kFree = 0xffffffffu;
+  static_assert(kSlots == std::size_t(1) << 15, "the hash below takes 15 bits");
+  std::vector<std::uint32_t> key(kSlots, kFree), count(kSlots, 0);
+  for (std::size_t i = 0; i < kSample; ++i) {
+    const std::uint32_t c = cell_of(g.geom, scaled + 3 * (i * stride));
+    std::size_t h = (std::uint64_t(c) * 0x9E3779B97F4A7C15ull) >> 49;  // 15 bits: kSlots
+    while (key[h] != kFree && key[h] != c) h = (h + 1) & (kSlots - 1);
+    key[h] = c;
+    ++count[h];
+  }
   const double f = double(kSample) / double(m);
   double cross = 0, sq = 0;
-  for (std::size_t j = 0; j < kSample;) {
-    std::size_t e = j;
-    while (e < kSample && cells[e] == cells[j]) ++e;
-    const double a = double(e - j), o = double(g.start(cells[j] + 1) - g.start(cells[j]));
+  for (std::size_t h = 0; h < kSlots; ++h) {
+    if (key[h] == kFree) continue;
+    const double a = double(count[h]), o = double(g.start(key[h] + 1) - g.start(key[h]));
     cross += 2 * o * a;
     sq += a * a;
-    j = e;
   }
   const double grow = cross / f + (sq - (1 - f) * double(kSample)) / (f * f);
   const double n0 = double(g.n_points), mean = (mean_before * n0 + grow) / (n0 + double(m));
@@ -521,30 +578,58 @@ void GridIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t fir
   const bhcl_grid_geom& geom = g.geom;
   const std::size_t nc = g.ncells(), n0 = g.n_points, n1 = n0 + m;
   // A large insert that a sample of it shows well past the band: one fresh build at once, without
-  // the exact count below (a 25 % insert's count took a tenth of its rebuild).
-  if (band_clearly_passed(g, scaled, m, info_.mean_cell_points, kRetuneAbove * std::max(1.0, grid_build_mean_))) {
+  // the exact count below (a 25 % insert's count took a tenth of its rebuild). Only past an
+  // eighth of the stored points: a smaller insert of the same distribution stays inside the
+  // band (a tenth moves the mean by 9.6 %), and the count below is cheaper than the sample.
+  if (8 * m >= n0 &&
+      band_clearly_passed(g, scaled, m, info_.mean_cell_points, kRetuneAbove * std::max(1.0, grid_build_mean_))) {
     grid_rebuild_live(scaled, m, first, true);
     return;
   }
-  // The new points' cells (in parallel) and a counting sort of them alone (stable: ascending ids
-  // in a cell).
-  std::vector<std::uint32_t> cell(m), add(nc + 1, 0);
-  detail::parallel_for(m, [&](std::size_t b, std::size_t e) {
-    for (std::size_t i = b; i < e; ++i) cell[i] = cell_of(geom, scaled + 3 * i);
-  }, params_.threads, 32768);
-  for (std::size_t i = 0; i < m; ++i) ++add[cell[i] + 1];
+  // The new points' cells and a counting sort of them alone (stable: ascending ids in a cell),
+  // in the build's scratch (sized for the build's points: no fresh pages), in parallel over T
+  // ranges of the new points: each counts its cells, then scatters its points from its own
+  // starts (the cells' starts plus the earlier ranges' counts). Per-range counts only where the
+  // cells are not many more than the new points (a two-level-sized table stays serial).
+  if (!g.scratch) g.scratch = std::make_shared<blockhash::GridScratch>();
+  blockhash::GridScratch& sc = *g.scratch;
+  if (sc.cell.size() < m) sc.cell.resize(m);
+  if (sc.rec.size() < 4 * m) sc.rec.resize(4 * m);
+  std::uint32_t* const cell = sc.cell.data();
+  float* const rec = sc.rec.data();
+  const unsigned T = nc <= 4 * m ? unsigned(std::max<std::size_t>(
+                                       1, std::min<std::size_t>(params_.threads ? params_.threads : detail::default_threads(), m / 32768)))
+                                 : 1u;
+  std::vector<std::vector<std::uint32_t>> count(T, std::vector<std::uint32_t>(nc, 0));
+  detail::parallel_for(T, [&](std::size_t tb, std::size_t te) {
+    for (std::size_t t = tb; t < te; ++t) {
+      std::uint32_t* const ct = count[t].data();
+      for (std::size_t i = m * t / T, e = m * (t + 1) / T; i < e; ++i) {
+        const std::uint32_t c = cell_of(geom, scaled + 3 * i);
+        cell[i] = c;
+        ++ct[c];
+      }
+    }
+  }, T, 1);
+  std::vector<std::uint32_t> add(nc + 1, 0);  // add[c]: new points in cells < c
   std::size_t first_cell = nc;
   double sum2 = 0;
   std::size_t occupied = 0;
   std::vector<std::uint32_t> new_cells;  // empty before, holding points now (the pyramid's new bits)
   for (std::size_t c = 0; c < nc; ++c) {
-    const std::uint32_t old = g.starts[c + 1] - g.starts[c];
-    const double v = double(old) + add[c + 1];
+    std::uint32_t k = add[c];  // count[t][c] becomes range t's first slot of cell c
+    for (unsigned t = 0; t < T; ++t) {
+      const std::uint32_t a = count[t][c];
+      count[t][c] = k;
+      k += a;
+    }
+    add[c + 1] = k;
+    const std::uint32_t old = g.starts[c + 1] - g.starts[c], a = k - add[c];
+    const double v = double(old) + a;
     sum2 += v * v;
     occupied += v > 0 ? 1 : 0;
-    if (old == 0 && add[c + 1]) new_cells.push_back(static_cast<std::uint32_t>(c));
-    if (add[c + 1] && first_cell == nc) first_cell = c;
-    add[c + 1] += add[c];  // add[c] = new points in cells < c
+    if (old == 0 && a) new_cells.push_back(static_cast<std::uint32_t>(c));
+    if (a && first_cell == nc) first_cell = c;
   }
   const double mean = sum2 / double(n1);
   // The leaf split: the cells have grown too full for the side tuned at the last full build.
@@ -552,11 +637,19 @@ void GridIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t fir
     grid_rebuild_live(scaled, m, first, true);
     return;
   }
-  std::vector<std::uint32_t> order(m);
-  {
-    std::vector<std::uint32_t> at(add.begin(), add.end() - 1);
-    for (std::size_t i = 0; i < m; ++i) order[at[cell[i]]++] = static_cast<std::uint32_t>(i);
-  }
+  detail::parallel_for(T, [&](std::size_t tb, std::size_t te) {
+    for (std::size_t t = tb; t < te; ++t) {
+      std::uint32_t* const at = count[t].data();
+      for (std::size_t i = m * t / T, e = m * (t + 1) / T; i < e; ++i) {
+        float* const r = rec + 4 * std::size_t(at[cell[i]]++);
+        const std::uint32_t bits = static_cast<std::uint32_t>(i);
+        r[0] = scaled[3 * i];
+        r[1] = scaled[3 * i + 1];
+        r[2] = scaled[3 * i + 2];
+        std::memcpy(r + 3, &bits, 4);
+      }
+    }
+  }, T, 1);
   // An insert moves nearly every point: the id -> position map is dropped, and the next remove
   // (the one reader) makes it again in one parallel pass. Kept up to date here, its random
   // writes cost more than the merge itself.
@@ -565,16 +658,14 @@ void GridIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t fir
   // into the scratch arrays (room reserved there too), which then change places with the grid's.
   // Both in parallel over ranges of cells (the in-place backward pass they replace was serial:
   // half a fresh build's time for a 10 % insert).
-  if (!merge_in_place(g, scaled, m, first, add, order, first_cell)) {
-    if (!g.scratch) g.scratch = std::make_shared<blockhash::GridScratch>();
-    blockhash::GridScratch& sc = *g.scratch;
+  if (!merge_in_place(g, rec, m, first, add, first_cell)) {
     for (auto* v : {&sc.x, &sc.y, &sc.z}) reserve_with_room(*v, n1 + blockhash::kGridPad);
     reserve_with_room(sc.ids, n1 + blockhash::kGridPad);
     sc.x.resize(n1 + blockhash::kGridPad);
     sc.y.resize(n1 + blockhash::kGridPad);
     sc.z.resize(n1 + blockhash::kGridPad);
     sc.ids.resize(n1 + blockhash::kGridPad);
-    merge_into_scratch(g, scaled, m, first, add, order, first_cell, sc);
+    merge_into_scratch(g, rec, m, first, add, first_cell, sc);
     std::swap(g.x, sc.x);
     std::swap(g.y, sc.y);
     std::swap(g.z, sc.z);
@@ -590,7 +681,10 @@ void GridIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t fir
   g.n_points = n1;
   s_->n_points = n1;
   const std::size_t p_from = first_cell < nc ? g.starts[first_cell] : n0;
-  occupancy_add_cells(g, new_cells, scaled, m, params_.threads);
+  occupancy_add_cells(g, new_cells, m, params_.threads, [&](std::size_t cb, std::size_t ce, auto&& emit) {
+    for (std::size_t c = std::max(cb, first_cell); c < ce; ++c)
+      for (std::size_t j = add[c]; j < add[c + 1]; ++j) emit(std::uint32_t(c), rec[4 * j], rec[4 * j + 1], rec[4 * j + 2]);
+  });
   grid_upload_from(p_from, first_cell);
   info_.n_points = n1;
   info_.occupied_cells = occupied;
@@ -630,7 +724,13 @@ void GridIndex::grid_insert_two_level(const float* scaled, std::size_t m, std::i
   }
   g.n_points = n1;
   s_->n_points = n1;
-  occupancy_add_cells(g, add.new_cells, scaled, m, params_.threads);
+  occupancy_add_cells(g, add.new_cells, m, params_.threads, [&](std::size_t cb, std::size_t ce, auto&& emit) {
+    auto k = std::lower_bound(add.key.begin(), add.key.end(), std::uint64_t(cb) << 32);
+    for (; k != add.key.end() && (*k >> 32) < ce; ++k) {
+      const float* const p = scaled + 3 * std::size_t(*k & 0xffffffffu);
+      emit(std::uint32_t(*k >> 32), p[0], p[1], p[2]);
+    }
+  });
   grid_upload_from(p_from, 0);  // tables appended and moved starts anywhere in the directory: all of it
   info_.n_points = n1;
   info_.occupied_cells = add.occupied;
@@ -974,9 +1074,13 @@ void GridIndex::grid_rebuild_live(const float* extra, std::size_t m, std::int32_
   }
   if (phantoms) {
     g.dbox = blockhash::grid_points_box(g, params_.threads);  // the live points' own
-    // The build's node boxes held the room's corners; built again without them (tight boxes are
-    // what make the far walk skip; loose ones stay exact).
-    blockhash::build_grid_occupancy(g, params_.threads);
+    // The build's node boxes held the room's corners; those of the nodes holding them made again
+    // without them (tight boxes are what make the far walk skip; loose ones stay exact). The
+    // pyramid's bits stay (a cell of holes stays marked): the whole pyramid built a second time
+    // read every point again.
+    std::vector<std::uint32_t> corner_cells;
+    for (std::size_t k = 0; k < phantoms; ++k) corner_cells.push_back(cell_of(g.geom, room.data() + 3 * k));
+    blockhash::refresh_node_boxes(g, corner_cells);
   }
   // The build uploaded the arrays with their ids; only the holes made above are new (a view
   // shows the host array itself).
