@@ -116,9 +116,7 @@ void merge_into_scratch(const blockhash::Grid& g, const float* rec, std::size_t 
     const std::int32_t* const I = g.ids.data();
     float *const X2 = sc.x.data(), *const Y2 = sc.y.data(), *const Z2 = sc.z.data();
     std::int32_t* const I2 = sc.ids.data();
-    detail::parallel_for(
-        T,
-        [&](std::size_t tb, std::size_t te) {
+    detail::parallel_chunks(T, 1, T, [&](std::size_t, std::size_t tb, std::size_t te) {
           for (std::size_t t = tb; t < te; ++t) {
             const std::size_t c0 = cut[t], c1 = cut[t + 1];
             if (c0 >= c1) continue;
@@ -138,8 +136,7 @@ void merge_into_scratch(const blockhash::Grid& g, const float* rec, std::size_t 
               for (std::size_t j = 0; j < k; ++j) put_new_point(X2, Y2, Z2, I2, dst + len + j, rec + 4 * (ad[c] + j), first);
             }
           }
-        },
-        T, 1);
+        });
   }
 }
 
@@ -265,13 +262,15 @@ void node_boxes_add_points(blockhash::Grid& g, std::size_t m, unsigned threads, 
     return true;
   };
   const std::size_t slabs = bhcl_grid_occ_dim(gm.nz, 2);
+  // Ranges of slabs handed out in turn, up to 4 per thread (a thread that starts late takes fewer).
   const unsigned T = m >= 65536 ? std::max(1u, std::min<unsigned>(threads ? threads : detail::default_threads(), unsigned(slabs))) : 1u;
-  std::vector<std::vector<Up>> up(T);
-  detail::parallel_for(
-      T,
-      [&](std::size_t tb, std::size_t te) {
+  const std::size_t R = T > 1 ? std::min<std::size_t>(slabs, 4 * std::size_t(T)) : 1;
+  std::vector<std::vector<Up>> up(R);
+  detail::parallel_chunks(
+      R, 1, T,
+      [&](std::size_t, std::size_t tb, std::size_t te) {
         for (std::size_t t = tb; t < te; ++t) {
-          const std::size_t zb = slabs * t / T, ze = slabs * (t + 1) / T;
+          const std::size_t zb = slabs * t / R, ze = slabs * (t + 1) / R;
           bool have = false;
           std::uint32_t cur = 0, x = 0, y = 0, z = 0;
           std::size_t row0 = 0, row_y = 0, row_z = 0;  // the row of cells holding cur: its first cell, y, z
@@ -298,8 +297,7 @@ void node_boxes_add_points(blockhash::Grid& g, std::size_t m, unsigned threads, 
           });
           if (have) flush();
         }
-      },
-      T, 1);
+      });
   for (const std::vector<Up>& part : up)
     for (const Up& u : part)
       for (std::uint32_t l = 3; l <= top; ++l)
@@ -363,9 +361,7 @@ void merge_two_level_points(const blockhash::Grid& g, const float* scaled, std::
     std::memcpy(Z2 + from + shift, Z + from, (to - from) * 4);
     std::memcpy(I2 + from + shift, I + from, (to - from) * 4);
   };
-  detail::parallel_for(
-      T,
-      [&](std::size_t tb, std::size_t te) {
+  detail::parallel_chunks(T, 1, T, [&](std::size_t, std::size_t tb, std::size_t te) {
         for (std::size_t t = tb; t < te; ++t) {
           std::size_t at = g.start(cb[t]);  // the next old slot to copy
           const std::size_t end = g.start(cb[t + 1]);
@@ -384,8 +380,7 @@ void merge_two_level_points(const blockhash::Grid& g, const float* scaled, std::
           }
           copy_old(at, end, kb[t + 1]);
         }
-      },
-      T, 1);
+      });
 }
 
 // v's capacity at least n, with an eighth more when it must grow: a merge's arrays keep room for
@@ -444,9 +439,7 @@ bool merge_in_place(blockhash::Grid& g, const float* rec, std::size_t m, std::in
   float *const X = g.x.data(), *const Y = g.y.data(), *const Z = g.z.data();
   std::int32_t* const I = g.ids.data();
   const std::uint32_t* const ad = add.data();
-  detail::parallel_for(
-      T,
-      [&](std::size_t tb, std::size_t te) {
+  detail::parallel_chunks(T, 1, T, [&](std::size_t, std::size_t tb, std::size_t te) {
         for (std::size_t t = tb; t < te; ++t) {
           const Head& h = head[t];
           const std::size_t saved_end = h.lo + h.n;
@@ -471,8 +464,7 @@ bool merge_in_place(blockhash::Grid& g, const float* rec, std::size_t m, std::in
             }
           }
         }
-      },
-      T, 1);
+      });
   return true;
 }
 
@@ -597,20 +589,23 @@ void GridIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t fir
   if (sc.rec.size() < 4 * m) sc.rec.resize(4 * m);
   std::uint32_t* const cell = sc.cell.data();
   float* const rec = sc.rec.data();
+  // Ranges handed out in turn (twice as many as threads: on a shared machine a thread that starts
+  // late takes fewer, and nobody waits for it).
   const unsigned T = nc <= 4 * m ? unsigned(std::max<std::size_t>(
                                        1, std::min<std::size_t>(params_.threads ? params_.threads : detail::default_threads(), m / 32768)))
                                  : 1u;
-  std::vector<std::vector<std::uint32_t>> count(T, std::vector<std::uint32_t>(nc, 0));
-  detail::parallel_for(T, [&](std::size_t tb, std::size_t te) {
+  const unsigned R = T > 1 ? 2 * T : 1;
+  std::vector<std::vector<std::uint32_t>> count(R, std::vector<std::uint32_t>(nc, 0));
+  detail::parallel_chunks(R, 1, T, [&](std::size_t, std::size_t tb, std::size_t te) {
     for (std::size_t t = tb; t < te; ++t) {
       std::uint32_t* const ct = count[t].data();
-      for (std::size_t i = m * t / T, e = m * (t + 1) / T; i < e; ++i) {
+      for (std::size_t i = m * t / R, e = m * (t + 1) / R; i < e; ++i) {
         const std::uint32_t c = cell_of(geom, scaled + 3 * i);
         cell[i] = c;
         ++ct[c];
       }
     }
-  }, T, 1);
+  });
   std::vector<std::uint32_t> add(nc + 1, 0);  // add[c]: new points in cells < c
   std::size_t first_cell = nc;
   double sum2 = 0;
@@ -618,7 +613,7 @@ void GridIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t fir
   std::vector<std::uint32_t> new_cells;  // empty before, holding points now (the pyramid's new bits)
   for (std::size_t c = 0; c < nc; ++c) {
     std::uint32_t k = add[c];  // count[t][c] becomes range t's first slot of cell c
-    for (unsigned t = 0; t < T; ++t) {
+    for (unsigned t = 0; t < R; ++t) {
       const std::uint32_t a = count[t][c];
       count[t][c] = k;
       k += a;
@@ -637,10 +632,10 @@ void GridIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t fir
     grid_rebuild_live(scaled, m, first, true);
     return;
   }
-  detail::parallel_for(T, [&](std::size_t tb, std::size_t te) {
+  detail::parallel_chunks(R, 1, T, [&](std::size_t, std::size_t tb, std::size_t te) {
     for (std::size_t t = tb; t < te; ++t) {
       std::uint32_t* const at = count[t].data();
-      for (std::size_t i = m * t / T, e = m * (t + 1) / T; i < e; ++i) {
+      for (std::size_t i = m * t / R, e = m * (t + 1) / R; i < e; ++i) {
         float* const r = rec + 4 * std::size_t(at[cell[i]]++);
         const std::uint32_t bits = static_cast<std::uint32_t>(i);
         r[0] = scaled[3 * i];
@@ -649,7 +644,7 @@ void GridIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t fir
         std::memcpy(r + 3, &bits, 4);
       }
     }
-  }, T, 1);
+  });
   // An insert moves nearly every point: the id -> position map is dropped, and the next remove
   // (the one reader) makes it again in one parallel pass. Kept up to date here, its random
   // writes cost more than the merge itself.
@@ -927,16 +922,16 @@ static void grid_live_in_cell_order(const blockhash::Grid& g, blockhash::GridVec
   std::vector<std::size_t> count(T + 1, 0);
   const std::size_t per = (n + T - 1) / T;
   const std::int32_t* const gid = g.ids.data();
-  detail::parallel_for(T, [&](std::size_t tb, std::size_t te) {
+  detail::parallel_chunks(T, 1, T, [&](std::size_t, std::size_t tb, std::size_t te) {
     for (std::size_t t = tb; t < te; ++t)
       for (std::size_t i = t * per, e = std::min(n, i + per); i < e; ++i) count[t + 1] += gid[i] != kHoleId;
-  }, T, 1);
+  });
   for (unsigned t = 0; t < T; ++t) count[t + 1] += count[t];
   x.resize(count[T]);
   y.resize(count[T]);
   z.resize(count[T]);
   ids.resize(count[T]);
-  detail::parallel_for(T, [&](std::size_t tb, std::size_t te) {
+  detail::parallel_chunks(T, 1, T, [&](std::size_t, std::size_t tb, std::size_t te) {
     for (std::size_t t = tb; t < te; ++t) {
       std::size_t w = count[t];
       for (std::size_t i = t * per, e = std::min(n, i + per); i < e; ++i) {
@@ -947,7 +942,7 @@ static void grid_live_in_cell_order(const blockhash::Grid& g, blockhash::GridVec
         ids[w++] = gid[i];
       }
     }
-  }, T, 1);
+  });
 }
 
 // Room to grow where an insert left the grid's box (a sensor moving on: every scan's leading edge
