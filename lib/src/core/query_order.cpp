@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <type_traits>
 #include <utility>
 
 #include "core/parallel.hpp"
@@ -74,10 +75,36 @@ void count_buckets(const KeyBuckets& kb, const std::uint64_t* keys, std::size_t 
   for (std::size_t i = lo; i < hi; ++i) ++c[kb.of(keys[i])];
 }
 
+// Words [w, w + m) sorted in place, their top `bits` bits (from bit `top` down) still unsorted:
+// where many, a stable counting pass by the next kSubBits of them into tmp and back, then each
+// sub-run likewise (an MSD radix sort); few, std::sort. Surface data fills few of the first
+// buckets with hundreds of queries: std::sort of a whole bucket was a fifth of the sort's time
+// at 1M queries.
+constexpr int kSubBits = 8;
+constexpr std::size_t kSubMin = 64;  // smaller runs: std::sort
+void sort_words(std::uint64_t* w, std::size_t m, int top, int bits, std::uint64_t* tmp) {
+  if (m < kSubMin || bits < kSubBits) {
+    if (m > 1) std::sort(w, w + m);
+    return;
+  }
+  const int shift = top - kSubBits;
+  constexpr std::uint64_t mask = (1u << kSubBits) - 1;
+  std::uint32_t start[(1u << kSubBits) + 1] = {};
+  for (std::size_t j = 0; j < m; ++j) ++start[((w[j] >> shift) & mask) + 1];
+  for (std::size_t s = 1; s <= (1u << kSubBits); ++s) start[s] += start[s - 1];
+  std::uint32_t at[1u << kSubBits];
+  std::copy(start, start + (1u << kSubBits), at);
+  for (std::size_t j = 0; j < m; ++j) tmp[at[(w[j] >> shift) & mask]++] = w[j];
+  std::copy(tmp, tmp + m, w);
+  for (std::size_t s = 0; s < (1u << kSubBits); ++s)
+    if (start[s + 1] - start[s] > 1) sort_words(w + start[s], start[s + 1] - start[s], shift, bits - kSubBits, tmp);
+}
+
 // pos: thread t's histogram at t * kb.count(), of keys [t * per, (t + 1) * per) with
-// per = ceil(n / threads) (the key pass's split); used up here.
-std::vector<std::size_t> order_by_buckets(const std::vector<std::uint64_t>& keys, unsigned threads,
-                                          const KeyBuckets& kb, std::vector<std::size_t>& pos) {
+// per = ceil(n / threads) (the key pass's split); used up here. The order is written into the
+// keys' own storage once the scatter has read them (8 bytes a query of fresh pages fewer).
+std::vector<std::size_t> order_by_buckets(std::vector<std::uint64_t>&& keys, unsigned threads, const KeyBuckets& kb,
+                                          std::vector<std::size_t>& pos) {
   const std::size_t n = keys.size();
   const int low_bits = kb.low_bits(), row_bits = 64 - low_bits;  // row_bits = 15 + top bits: n fits
   const std::uint64_t low_mask = (std::uint64_t(1) << low_bits) - 1, row_mask = (std::uint64_t(1) << row_bits) - 1;
@@ -101,13 +128,18 @@ std::vector<std::size_t> order_by_buckets(const std::vector<std::uint64_t>& keys
         words[at[keys[i] >> low_bits]++] = ((keys[i] & low_mask) << row_bits) | i;
     }
   }, threads, 1);
-  std::vector<std::size_t> order(n);
+  std::vector<std::size_t> order;
+  if constexpr (std::is_same_v<std::uint64_t, std::size_t>) order = std::move(keys);
+  else order.resize(n);
   // Buckets handed out in chunks: surface data fills some buckets and leaves most empty.
   parallel_chunks(buckets, 256, threads, [&](std::size_t, std::size_t lo, std::size_t hi) {
+    std::vector<std::uint64_t> tmp;
     for (std::size_t b = lo; b < hi; ++b) {
-      std::uint64_t *w = words.data() + bucket_start[b], *we = words.data() + bucket_start[b + 1];
-      if (we - w > 1) std::sort(w, we);
-      for (std::size_t j = bucket_start[b]; j < bucket_start[b + 1]; ++j) order[j] = words[j] & row_mask;
+      const std::size_t b0 = bucket_start[b], m = bucket_start[b + 1] - b0;
+      if (tmp.size() < m) tmp.resize(m);
+      // The words' top low_bits bits are the key's below the bucket's: those left to sort.
+      sort_words(words.data() + b0, m, 64, low_bits, tmp.data());
+      for (std::size_t j = b0; j < b0 + m; ++j) order[j] = words[j] & row_mask;
     }
   });
   return order;
@@ -306,7 +338,7 @@ std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n, st
       if (buckets) count_buckets(kb, keys.data(), lo, hi, &pos[t * kb.count()]);
     }
   }, threads, 1);
-  if (buckets) return order_by_buckets(keys, threads, kb, pos);
+  if (buckets) return order_by_buckets(std::move(keys), threads, kb, pos);
   return order_by_merge(keys, threads, per);
 }
 
