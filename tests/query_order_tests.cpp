@@ -24,6 +24,48 @@ TEST_CASE("query order: branch-free 16-bit Hilbert keys equal sfc::hilbert_encod
   }
 }
 
+namespace {
+// The reference: the finite queries' keys over their own box, sorted stably, then the rest.
+std::vector<std::size_t> reference_order(const std::vector<float>& q, std::size_t n) {
+  std::vector<std::size_t> finite, rest;
+  for (std::size_t i = 0; i < n; ++i)
+    (std::isfinite(q[3 * i]) && std::isfinite(q[3 * i + 1]) && std::isfinite(q[3 * i + 2]) ? finite : rest).push_back(i);
+  std::vector<float> compact;
+  for (std::size_t i : finite) compact.insert(compact.end(), &q[3 * i], &q[3 * i] + 3);
+  const auto qz = bhcl::sfc::make_quantiser(compact.data(), finite.size(), 16);
+  const auto keys = bhcl::sfc::hilbert_keys(compact.data(), finite.size(), qz);
+  std::vector<std::size_t> want;
+  for (std::int32_t j : bhcl::sfc::hilbert_order(keys)) want.push_back(finite[static_cast<std::size_t>(j)]);
+  want.insert(want.end(), rest.begin(), rest.end());
+  return want;
+}
+}  // namespace
+
+TEST_CASE("query order: clustered queries (large buckets, sorted by radix) keep the stable order by (key, index)") {
+  // Most queries on a thin sphere in one corner of a box stretched by a few far ones: the key's
+  // top-bit buckets then hold hundreds to thousands of distinct keys each, which the bucket pass
+  // sorts by 8-bit radix levels (kSubMin and more) before std::sort; some exact duplicates too.
+  // The pipeline's form (fresh memory, not filled first) gives the same order.
+  for (const std::size_t n : {std::size_t(100003), std::size_t(300000)}) {
+    CAPTURE(n);
+    std::mt19937 rng(11);
+    std::normal_distribution<float> g(0.0f, 1.0f);
+    std::vector<float> q(3 * n);
+    for (std::size_t i = 0; i < n; ++i) {
+      float v[3] = {g(rng), g(rng), g(rng)};
+      const float r = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) + 1e-6f;
+      for (int d = 0; d < 3; ++d) q[3 * i + d] = 0.01f * v[d] / r;
+    }
+    for (std::size_t i = 0; i < n; i += 5003) q[3 * i] = 100.0f;  // the box 10^4 times the sphere
+    for (std::size_t i = 1; i < n; i += 13) std::copy_n(&q[3 * (i - 1)], 3, &q[3 * i]);  // duplicates
+    q[3 * 17 + 2] = NAN;
+    const std::vector<std::size_t> want = reference_order(q, n);
+    CHECK(bhcl::detail::hilbert_query_order(q.data(), n) == want);
+    const auto fresh = bhcl::detail::hilbert_query_order_fresh(q.data(), n);
+    CHECK(std::equal(want.begin(), want.end(), fresh.get()));
+  }
+}
+
 TEST_CASE("query order: the parallel order equals the stable sort by (key, index), non-finite last") {
   // 50k queries (over the threaded path's threshold) with duplicates (equal keys), NaNs and
   // infinities; also a count whose threads' ranges end inside a block of 16 keys (the key loop
@@ -38,17 +80,6 @@ TEST_CASE("query order: the parallel order equals the stable sort by (key, index
     for (std::size_t i = 5; i < n; i += 1001) q[3 * i + 1] = NAN;
     for (std::size_t i = 9; i < n; i += 2003) q[3 * i + 2] = (i / 2003) % 2 ? INFINITY : -INFINITY;
     const std::vector<std::size_t> got = bhcl::detail::hilbert_query_order(q.data(), n);
-    // The reference: the finite queries' keys over their own box, sorted stably, then the rest.
-    std::vector<std::size_t> finite, rest;
-    for (std::size_t i = 0; i < n; ++i)
-      (std::isfinite(q[3 * i]) && std::isfinite(q[3 * i + 1]) && std::isfinite(q[3 * i + 2]) ? finite : rest).push_back(i);
-    std::vector<float> compact;
-    for (std::size_t i : finite) compact.insert(compact.end(), &q[3 * i], &q[3 * i] + 3);
-    const auto qz = bhcl::sfc::make_quantiser(compact.data(), finite.size(), 16);
-    const auto keys = bhcl::sfc::hilbert_keys(compact.data(), finite.size(), qz);
-    std::vector<std::size_t> want;
-    for (std::int32_t j : bhcl::sfc::hilbert_order(keys)) want.push_back(finite[static_cast<std::size_t>(j)]);
-    want.insert(want.end(), rest.begin(), rest.end());
-    CHECK(got == want);
+    CHECK(got == reference_order(q, n));
   }
 }

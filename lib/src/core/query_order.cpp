@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <memory>
 #include <utility>
 
 #include "core/parallel.hpp"
@@ -15,6 +16,10 @@
 namespace bhcl::detail {
 
 namespace {
+
+// The keys share the order's storage (written over them at the end): 64-bit size_t.
+using Key = std::size_t;
+static_assert(sizeof(Key) == 8, "the Hilbert keys are 49 bits");
 
 struct KeyedRow {
   std::uint64_t key;
@@ -58,10 +63,12 @@ void radix_sort_by_key(KeyedRow* v, KeyedRow* tmp, std::size_t n, int key_bits) 
 constexpr int kKeyBits = 49;  // 3 x 16 bits, and the non-finite queries' key 2^48
 bool fits_bucket_words(std::size_t n) { return n < (std::size_t(1) << 31); }
 
-// The buckets of n keys: their top bits, about one query a bucket, at most 2^16.
+// The buckets of n keys: their top bits, about 8 queries a bucket (sort_words sorts larger ones
+// by radix), at most 2^16: the per-thread histograms fresh pages of 2^16 x 8 bytes each at
+// 100k queries had been about one query a bucket.
 struct KeyBuckets {
   explicit KeyBuckets(std::size_t n) {
-    while (top_bits < 16 && (std::size_t(1) << top_bits) < n) ++top_bits;
+    while (top_bits < 16 && (std::size_t(1) << top_bits) < n / 8) ++top_bits;
   }
   int top_bits = 1;
   int low_bits() const { return kKeyBits - top_bits; }
@@ -70,15 +77,39 @@ struct KeyBuckets {
 };
 
 // Keys [lo, hi) counted into their buckets (c: count() entries).
-void count_buckets(const KeyBuckets& kb, const std::uint64_t* keys, std::size_t lo, std::size_t hi, std::size_t* c) {
+void count_buckets(const KeyBuckets& kb, const Key* keys, std::size_t lo, std::size_t hi, std::size_t* c) {
   for (std::size_t i = lo; i < hi; ++i) ++c[kb.of(keys[i])];
 }
 
+// Words [w, w + m) sorted in place, their top `bits` bits (from bit `top` down) still unsorted:
+// where many, a stable counting pass by the next kSubBits of them into tmp and back, then each
+// sub-run likewise (an MSD radix sort); few, std::sort. Surface data fills few of the first
+// buckets with hundreds of queries: std::sort of a whole bucket was a fifth of the sort's time
+// at 1M queries.
+constexpr int kSubBits = 8;
+constexpr std::size_t kSubMin = 64;  // smaller runs: std::sort
+void sort_words(std::uint64_t* w, std::size_t m, int top, int bits, std::uint64_t* tmp) {
+  if (m < kSubMin || bits < kSubBits) {
+    if (m > 1) std::sort(w, w + m);
+    return;
+  }
+  const int shift = top - kSubBits;
+  constexpr std::uint64_t mask = (1u << kSubBits) - 1;
+  std::uint32_t start[(1u << kSubBits) + 1] = {};
+  for (std::size_t j = 0; j < m; ++j) ++start[((w[j] >> shift) & mask) + 1];
+  for (std::size_t s = 1; s <= (1u << kSubBits); ++s) start[s] += start[s - 1];
+  std::uint32_t at[1u << kSubBits];
+  std::copy(start, start + (1u << kSubBits), at);
+  for (std::size_t j = 0; j < m; ++j) tmp[at[(w[j] >> shift) & mask]++] = w[j];
+  std::copy(tmp, tmp + m, w);
+  for (std::size_t s = 0; s < (1u << kSubBits); ++s)
+    if (start[s + 1] - start[s] > 1) sort_words(w + start[s], start[s + 1] - start[s], shift, bits - kSubBits, tmp);
+}
+
 // pos: thread t's histogram at t * kb.count(), of keys [t * per, (t + 1) * per) with
-// per = ceil(n / threads) (the key pass's split); used up here.
-std::vector<std::size_t> order_by_buckets(const std::vector<std::uint64_t>& keys, unsigned threads,
-                                          const KeyBuckets& kb, std::vector<std::size_t>& pos) {
-  const std::size_t n = keys.size();
+// per = ceil(n / threads) (the key pass's split); used up here. The order is written over the
+// keys (`keys`: n entries) once the scatter has read them (8 bytes a query of fresh pages fewer).
+void order_by_buckets(Key* keys, std::size_t n, unsigned threads, const KeyBuckets& kb, std::vector<std::size_t>& pos) {
   const int low_bits = kb.low_bits(), row_bits = 64 - low_bits;  // row_bits = 15 + top bits: n fits
   const std::uint64_t low_mask = (std::uint64_t(1) << low_bits) - 1, row_mask = (std::uint64_t(1) << row_bits) - 1;
   const std::size_t buckets = kb.count(), per = (n + threads - 1) / threads;
@@ -93,7 +124,8 @@ std::vector<std::size_t> order_by_buckets(const std::vector<std::uint64_t>& keys
     }
   }
   bucket_start[buckets] = n;
-  std::vector<std::uint64_t> words(n);
+  // Not value-initialised: its pages are first touched by the scatter's threads, not by one memset.
+  std::unique_ptr<std::uint64_t[]> words(new std::uint64_t[n]);
   parallel_for(threads, [&](std::size_t tb0, std::size_t te) {
     for (std::size_t t = tb0; t < te; ++t) {
       std::size_t* at = &pos[t * buckets];
@@ -101,16 +133,18 @@ std::vector<std::size_t> order_by_buckets(const std::vector<std::uint64_t>& keys
         words[at[keys[i] >> low_bits]++] = ((keys[i] & low_mask) << row_bits) | i;
     }
   }, threads, 1);
-  std::vector<std::size_t> order(n);
+  std::size_t* order = keys;  // the keys are read no more
   // Buckets handed out in chunks: surface data fills some buckets and leaves most empty.
   parallel_chunks(buckets, 256, threads, [&](std::size_t, std::size_t lo, std::size_t hi) {
+    std::vector<std::uint64_t> tmp;
     for (std::size_t b = lo; b < hi; ++b) {
-      std::uint64_t *w = words.data() + bucket_start[b], *we = words.data() + bucket_start[b + 1];
-      if (we - w > 1) std::sort(w, we);
-      for (std::size_t j = bucket_start[b]; j < bucket_start[b + 1]; ++j) order[j] = words[j] & row_mask;
+      const std::size_t b0 = bucket_start[b], m = bucket_start[b + 1] - b0;
+      if (tmp.size() < m) tmp.resize(m);
+      // The words' top low_bits bits are the key's below the bucket's: those left to sort.
+      sort_words(words.get() + b0, m, 64, low_bits, tmp.data());
+      for (std::size_t j = b0; j < b0 + m; ++j) order[j] = words[j] & row_mask;
     }
   });
-  return order;
 }
 
 }  // namespace
@@ -134,7 +168,7 @@ inline std::uint64_t spread3(std::uint64_t v) {
 // are independent). Bit b of axis i goes to key bit 3b + (2 - i).
 constexpr std::size_t kLanes = 16;
 inline void hilbert_keys16_lanes(const std::uint32_t* x0, const std::uint32_t* x1, const std::uint32_t* x2,
-                          std::uint64_t* keys, std::size_t m) {
+                          Key* keys, std::size_t m) {
   std::uint32_t X0[kLanes] = {}, X1[kLanes] = {}, X2[kLanes] = {};
   for (std::size_t l = 0; l < m; ++l) {
     X0[l] = x0[l];
@@ -188,7 +222,7 @@ inline std::uint32_t cell16(double c) { return c > 0 ? static_cast<std::uint32_t
 // Keys of queries [lo, hi) (non-finite ones `last`), 16 at a time, every lane computed (the
 // tail's spare lanes repeat its first query) so that no lane test breaks the vector loop.
 BHCL_KEY_CLONES void hilbert_keys_of_range(const float* xyz, std::size_t lo, std::size_t hi,
-                                           const sfc::Quantiser& qz, std::uint64_t last, std::uint64_t* keys) {
+                                           const sfc::Quantiser& qz, Key last, Key* keys) {
   const double o0 = qz.origin[0], o1 = qz.origin[1], o2 = qz.origin[2], scale = qz.scale;
   for (std::size_t i0 = lo; i0 < hi; i0 += kLanes) {
     const std::size_t m = std::min(kLanes, hi - i0);
@@ -201,7 +235,7 @@ BHCL_KEY_CLONES void hilbert_keys_of_range(const float* xyz, std::size_t lo, std
       c[1][l] = cell16((double(q[1]) - o1) * scale);
       c[2][l] = cell16((double(q[2]) - o2) * scale);
     }
-    std::uint64_t k16[kLanes];
+    Key k16[kLanes];
     hilbert_keys16_lanes(c[0], c[1], c[2], k16, kLanes);
     for (std::size_t l = 0; l < m; ++l) keys[i0 + l] = ok[l] ? k16[l] : last;
   }
@@ -209,8 +243,7 @@ BHCL_KEY_CLONES void hilbert_keys_of_range(const float* xyz, std::size_t lo, std
 
 // The same order past 2^31 queries (the bucket words cannot hold the index): each thread's part
 // radix-sorted as (key, row) pairs, the parts merged pairwise.
-std::vector<std::size_t> order_by_merge(const std::vector<std::uint64_t>& keys, unsigned threads, std::size_t per) {
-  const std::size_t n = keys.size();
+void order_by_merge(Key* keys, std::size_t n, unsigned threads, std::size_t per) {
   std::vector<KeyedRow> rows(n), tmp(n);
   parallel_for(threads, [&](std::size_t tb, std::size_t te) {
     for (std::size_t t = tb; t < te; ++t) {
@@ -228,20 +261,18 @@ std::vector<std::size_t> order_by_merge(const std::vector<std::uint64_t>& keys, 
     }
     rows.swap(tmp);
   }
-  std::vector<std::size_t> order(n);
-  for (std::size_t i = 0; i < n; ++i) order[i] = rows[i].row;
-  return order;
+  for (std::size_t i = 0; i < n; ++i) keys[i] = rows[i].row;  // the order over the keys
 }
 
 }  // namespace
 
 std::uint64_t hilbert_key16(std::uint32_t x, std::uint32_t y, std::uint32_t z) {
-  std::uint64_t key;
+  Key key;
   hilbert_keys16_lanes(&x, &y, &z, &key, 1);
   return key;
 }
 
-std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n, std::size_t* nonfinite) {
+void hilbert_query_order_into(const float* xyz, std::size_t n, std::size_t* order, std::size_t* nonfinite) {
   // One parallel pass for the queries' box (finite ones only), one for the keys, then the
   // bucket sort (order_by_buckets): the order of the stable sort by (key, index).
   constexpr int kBits = 16;
@@ -278,9 +309,8 @@ std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n, st
   }
   if (nonfinite) *nonfinite = n - finite;
   if (finite == 0) {
-    std::vector<std::size_t> order(n);
     for (std::size_t i = 0; i < n; ++i) order[i] = i;
-    return order;
+    return;
   }
   // The curve's quantiser over the finite queries' box (sfc::make_quantiser's rule).
   sfc::Quantiser qz;
@@ -292,8 +322,8 @@ std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n, st
   }
   qz.scale = extent > 0 ? std::ldexp(1.0, kBits) / extent : 0.0;
   // Non-finite queries get the key past every finite one: last, in their own order.
-  const std::uint64_t last = std::uint64_t(1) << (3 * kBits);
-  std::vector<std::uint64_t> keys(n);
+  const Key last = Key(1) << (3 * kBits);
+  Key* keys = order;  // the keys first, then the order over them
   const bool buckets = fits_bucket_words(n);
   const KeyBuckets kb(n);
   std::vector<std::size_t> pos(buckets ? kb.count() * threads : 0, 0);
@@ -302,12 +332,24 @@ std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n, st
   parallel_for(threads, [&](std::size_t tb, std::size_t te) {
     for (std::size_t t = tb; t < te; ++t) {
       const std::size_t lo = std::min(n, t * per), hi = std::min(n, (t + 1) * per);
-      hilbert_keys_of_range(xyz, lo, hi, qz, last, keys.data());
-      if (buckets) count_buckets(kb, keys.data(), lo, hi, &pos[t * kb.count()]);
+      hilbert_keys_of_range(xyz, lo, hi, qz, last, keys);
+      if (buckets) count_buckets(kb, keys, lo, hi, &pos[t * kb.count()]);
     }
   }, threads, 1);
-  if (buckets) return order_by_buckets(keys, threads, kb, pos);
-  return order_by_merge(keys, threads, per);
+  if (buckets) order_by_buckets(keys, n, threads, kb, pos);
+  else order_by_merge(keys, n, threads, per);
+}
+
+std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n, std::size_t* nonfinite) {
+  std::vector<std::size_t> order(n);
+  hilbert_query_order_into(xyz, n, order.data(), nonfinite);
+  return order;
+}
+
+std::unique_ptr<std::size_t[]> hilbert_query_order_fresh(const float* xyz, std::size_t n, std::size_t* nonfinite) {
+  std::unique_ptr<std::size_t[]> order(new std::size_t[std::max<std::size_t>(n, 1)]);  // not value-initialised
+  hilbert_query_order_into(xyz, n, order.get(), nonfinite);
+  return order;
 }
 
 std::vector<float> queries_in_order(const float* xyz, const std::vector<std::size_t>& order) {

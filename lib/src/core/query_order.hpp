@@ -5,6 +5,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 namespace bhcl::detail {
@@ -14,6 +15,11 @@ namespace bhcl::detail {
 // order[i] = the caller's index of the i-th query to dispatch.
 // nonfinite (when not null): how many queries have a non-finite coordinate (the box pass counts them).
 std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n, std::size_t* nonfinite = nullptr);
+// The same into order (n entries, used as the keys' scratch first) ...
+void hilbert_query_order_into(const float* xyz, std::size_t n, std::size_t* order, std::size_t* nonfinite = nullptr);
+// ... and into fresh memory not filled first: its pages are first touched by the key pass's
+// threads, not by one thread's memset (16 MB of fresh pages at 1M queries; the query pipeline's).
+std::unique_ptr<std::size_t[]> hilbert_query_order_fresh(const float* xyz, std::size_t n, std::size_t* nonfinite = nullptr);
 
 // sfc::hilbert_encode(x, y, z, 16), computed without branches (the query order's keys).
 std::uint64_t hilbert_key16(std::uint32_t x, std::uint32_t y, std::uint32_t z);

@@ -149,7 +149,7 @@ QueryStats Index::run_query(const float* queries, std::size_t n, QueryKind& kind
   QueryStats st;
   st.n_queries = n;
   if (!sort) st.nonfinite_queries = count_nonfinite(queries, n);  // else counted by the sort's box pass
-  std::vector<std::size_t> order;  // dispatch in Hilbert order: neighbouring work-items walk the same cells
+  std::unique_ptr<std::size_t[]> order;  // dispatch in Hilbert order: neighbouring work-items walk the same cells
   if (sort) {
     // A first call's program load (the binary cache's, or a compile) on its own thread while this
     // one sorts: they share nothing, and the load is as long as the sort of 10^5 queries.
@@ -164,11 +164,11 @@ QueryStats Index::run_query(const float* queries, std::size_t n, QueryKind& kind
       if (!warmed) warm = std::async(std::launch::async, [this, &kind, local] { return warm_up_kind(kind, local); });
     }
     const auto ts = std::chrono::steady_clock::now();
-    order = detail::hilbert_query_order(queries, n, &st.nonfinite_queries);
+    order = detail::hilbert_query_order_fresh(queries, n, &st.nonfinite_queries);
     st.sort_s = seconds_since(ts);
     if (warm.valid()) st.compile_s += warm.get();
   }
-  const std::size_t* ord = order.empty() ? nullptr : order.data();
+  const std::size_t* ord = order.get();
   kind.begin(n);
   std::vector<std::size_t> suspects;
   if (n > 0 && answers_on_host()) search_on_host(queries, n, ord, kind, st, suspects);
