@@ -17,6 +17,9 @@ inline void ge_scan(bhcl_radius_slice* e, float qx, float qy, float qz, __global
 #define BHCL_GRID_BOUND(st) ((st)->r2)
 #define BHCL_GRID_SCAN(st, a, b) ge_scan(st, qx, qy, qz, px, py, pz, pid, a, b)
 #define BHCL_GRID_ROWBUF 1 /* runs scanned as met (cap 0): every run within r is scanned anyway */
+/* The level-2 box read per child, not kept (one program for every device, and on sm_90 keeping it
+ * cost 68 registers against 63; on a CPU the box is a cached 24-byte load). */
+#define BHCL_GRID_KEEP_BOX2 0
 #include "grid_search.h"
 
 __kernel void blockhash_grid_radius(__global const uint* starts, __global const float* px,

@@ -270,11 +270,14 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_occ_pending(bhcl_u32 mask, bhcl_u32 near) {
 #endif
 /* The depth-first walk keeps the level-2 box its children clip to across them (one load per
  * level-2 node), except in the kNN kernel's GPU form (BHCL_GRID_WALKCAP 0: no private arrays,
- * registers scarce), which reads it per child: 5 registers fewer on sm_90. Same distances. */
+ * registers scarce), which reads it per child: 5 registers fewer on sm_90. Same distances. An
+ * includer may set it (the radius kernel: 0). */
+#ifndef BHCL_GRID_KEEP_BOX2
 #if defined(BHCL_GRID_WALKCAP) && BHCL_GRID_WALKCAP == 0
 #define BHCL_GRID_KEEP_BOX2 0
 #else
 #define BHCL_GRID_KEEP_BOX2 1
+#endif
 #endif
 
 /* Runs [a, b) of a ring gathered for a nearest-first scan (row distance d), at most `cap`. */
