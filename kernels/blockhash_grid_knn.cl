@@ -446,7 +446,7 @@ __kernel void blockhash_grid_knn(__global const uint* starts, __global const flo
   float fill_d[16 * VR];
   int fill_i[16 * VR];
   vt_init(&t, k, max_r2, fill_d, fill_i);
-  if (bhcl_query_is_finite(q)) examined = bhcl_grid_search(starts, px, py, pz, pid, occ, g, db, qx, qy, qz, budget, BHCL_GRID_ROWCAP, BHCL_GRID_FINE_RINGS, BHCL_GRID_WALKCAP, &t);
+  if (bhcl_query_is_finite(q)) examined = bhcl_grid_search(starts, px, py, pz, pid, occ, g, db, qx, qy, qz, budget, BHCL_GRID_ROWCAP, BHCL_GRID_FINE_RINGS, BHCL_GRID_WALKCAP, k, &t);
   VT_FINISH(&t);
   float td[16 * VR];
   int ti[16 * VR];
@@ -459,7 +459,7 @@ __kernel void blockhash_grid_knn(__global const uint* starts, __global const flo
   t.n = 0;
   t.max_r2 = max_r2;
   bhcl_topk_init(t.d, t.i, k);
-  if (bhcl_query_is_finite(q)) examined = bhcl_grid_search(starts, px, py, pz, pid, occ, g, db, qx, qy, qz, budget, BHCL_GRID_ROWCAP, BHCL_GRID_FINE_RINGS, BHCL_GRID_WALKCAP, &t);
+  if (bhcl_query_is_finite(q)) examined = bhcl_grid_search(starts, px, py, pz, pid, occ, g, db, qx, qy, qz, budget, BHCL_GRID_ROWCAP, BHCL_GRID_FINE_RINGS, BHCL_GRID_WALKCAP, k, &t);
   bhcl_write_row(out_ids, out_d2, out_counts, orow, k, t.d, t.i);
 #endif
   if (want_examined) out_examined[orow] = (int)examined;

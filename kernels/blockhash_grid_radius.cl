@@ -35,7 +35,7 @@ __kernel void blockhash_grid_radius(__global const uint* starts, __global const 
     const float qx = q.x, qy = q.y, qz = q.z;
     bhcl_radius_slice e = BHCL_RADIUS_SLICE;
     examined = bhcl_grid_search(starts, px, py, pz, pid, occ, g, db, qx, qy, qz, budget ? budget : 0xffffffffu, 0u,
-                                BHCL_GRID_FINE_RINGS, 0u, &e);
+                                BHCL_GRID_FINE_RINGS, 0u, 0u, &e);
     found = e.found;
   }
   BHCL_RADIUS_END(examined);

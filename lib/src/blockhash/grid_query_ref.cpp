@@ -68,7 +68,8 @@ void reference_query_grid(const Grid& g, const float* queries, std::size_t n, in
           std::uint32_t ex = 0;
           if (std::isfinite(qx) && std::isfinite(qy) && std::isfinite(qz))
             ex = bhcl_grid_search(g.starts.data(), g.x.data(), g.y.data(), g.z.data(), g.ids.data(),
-                                  g.occ.data(), g.geom, g.dbox, qx, qy, qz, budget, form.row_cap, form.fine_rings, form.walk_cap, &t);
+                                  g.occ.data(), g.geom, g.dbox, qx, qy, qz, budget, form.row_cap, form.fine_rings, form.walk_cap,
+                                  static_cast<std::uint32_t>(k), &t);
           std::int32_t found = 0;
           for (int j = 0; j < k; ++j) {
             const std::size_t o = q * std::size_t(k) + std::size_t(j);
