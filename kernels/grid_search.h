@@ -509,16 +509,26 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_walk_depth_first(BHCL_GLOBAL const bhcl_u32*
                                                      bhcl_u32 l0, bhcl_u32 X0, bhcl_u32 Y0, bhcl_u32 Z0, bhcl_u32 off,
                                                      bhcl_u32 examined, bhcl_u32 budget, BHCL_GRID_STATE* st) {
   const float qx = w->qx, qy = w->qy, qz = w->qz;
-  if (w->rows && l0 == 2u) return bhcl_grid_walk_block(starts, px, py, pz, pid, occ, w, X0, Y0, Z0, examined, budget, st);
   bhcl_u32 l = l0, X = X0, Y = Y0, Z = Z0;
+  /* A level-2 node to scan by its rows (w->rows): the walk's start itself (then the walk is that
+   * node alone), or a child met. One call of bhcl_grid_walk_block for both: each inlined copy
+   * of it is a large part of the kernel's compile time. */
+  const bhcl_u32 whole = w->rows && l0 == 2u;
+  bhcl_u32 block = whole, bx = X0, by = Y0, bz = Z0;
   /* Per node, read once on entering it (and again on coming back up to it): the child on the
    * query's side and, as bits by visiting position, its children that hold points still to be
    * visited; below level 3, the level-2 ancestor's box its children clip to. */
-  bhcl_u32 near;
-  bhcl_u32 pend = bhcl_grid_walk_enter(occ, w, off, l, X, Y, Z, &near);
+  bhcl_u32 near = 0u;
+  bhcl_u32 pend = whole ? 0u : bhcl_grid_walk_enter(occ, w, off, l, X, Y, Z, &near);
   bhcl_grid_dbox b2 = w->db;
   if (BHCL_GRID_KEEP_BOX2 && w->tboff && l <= 2u) b2 = bhcl_grid_walk_box2(w, X >> (2u - l), Y >> (2u - l), Z >> (2u - l));
   for (;;) {
+    if (block) {
+      block = 0u;
+      examined = bhcl_grid_walk_block(starts, px, py, pz, pid, occ, w, bx, by, bz, examined, budget, st);
+      if (whole || examined >= budget) return examined;
+      continue;
+    }
     if (pend == 0u) { /* this node is done: up to its parent, at the position after it */
       if (l == l0) break;
       const bhcl_u32 o = (X & 1u) | ((Y & 1u) << 1) | ((Z & 1u) << 2);
@@ -542,9 +552,8 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_walk_depth_first(BHCL_GLOBAL const bhcl_u32*
       BHCL_GRID_WALK_CELL(ux, uy, uz)
       continue;
     }
-    if (w->rows && m == 2u) { /* a level-2 node: by its rows */
-      examined = bhcl_grid_walk_block(starts, px, py, pz, pid, occ, w, ux, uy, uz, examined, budget, st);
-      if (examined >= budget) return examined;
+    if (w->rows && m == 2u) { /* a level-2 node: by its rows, at the loop's top */
+      block = 1u, bx = ux, by = uy, bz = uz;
       continue;
     }
     off -= bhcl_grid_occ_size(w->g, m);
