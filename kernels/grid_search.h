@@ -520,8 +520,9 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_walk_depth_first(BHCL_GLOBAL const bhcl_u32*
    * visited; below level 3, the level-2 ancestor's box its children clip to. */
   bhcl_u32 near = 0u;
   bhcl_u32 pend = whole ? 0u : bhcl_grid_walk_enter(occ, w, off, l, X, Y, Z, &near);
-  bhcl_grid_dbox b2 = w->db;
-  if (BHCL_GRID_KEEP_BOX2 && w->tboff && l <= 2u) b2 = bhcl_grid_walk_box2(w, X >> (2u - l), Y >> (2u - l), Z >> (2u - l));
+  bhcl_grid_dbox b2 = w->db; /* (a walk that is one block: the block reads its box itself) */
+  if (BHCL_GRID_KEEP_BOX2 && w->tboff && l <= 2u && !whole)
+    b2 = bhcl_grid_walk_box2(w, X >> (2u - l), Y >> (2u - l), Z >> (2u - l));
   for (;;) {
     if (block) {
       block = 0u;
