@@ -51,26 +51,34 @@ ArrayOutput::ArrayOutput(const std::string& path, const char* descr, std::size_t
                          std::size_t cols)
     : file_(path, is_npy(path) ? "the NPY array" : "the raw array"), descr_(descr), item_(item), cols_(cols),
       rows_(rows), npy_(is_npy(path)) {
+  std::string h;
   if (npy_) {
     // An unknown length: the header of the longest one (20 digits) now, rewritten at the end.
-    const std::string h = header(rows_ >= 0 ? static_cast<std::uint64_t>(rows_) : ~std::uint64_t(0));
+    h = header(rows_ >= 0 ? static_cast<std::uint64_t>(rows_) : ~std::uint64_t(0));
     header_bytes_ = h.size();
-    file_.write(h.data(), h.size());
   }
-  map_known_length();
+  // A known length: the header stored through the mapping with the rows (map_known_length), not
+  // written first: a write() leaves the file's first page a 4 KiB folio in the page cache, and
+  // then the whole first 2 MiB of the mapping is made of 4 KiB pages (no huge folio can hold it).
+  if (!map_known_length(h)) file_.write(h.data(), h.size());
 }
 
-void ArrayOutput::map_known_length() {
-  if (rows_ < 0) return;
+bool ArrayOutput::map_known_length(const std::string& head) {
+  if (rows_ < 0) return false;
   const std::size_t bytes = static_cast<std::size_t>(rows_) * (cols_ ? cols_ : 1) * item_;
-  mapped_ = static_cast<char*>(file_.map_append(bytes));
+  if (bytes == 0) return false;
+  char* const m = static_cast<char*>(file_.map_append(head.size() + bytes));
+  if (!m) return false;
 #ifdef MADV_HUGEPAGE
-  if (mapped_ && bytes >= kHugeAdviceBytes) {
-    const std::uintptr_t page = static_cast<std::uintptr_t>(::sysconf(_SC_PAGESIZE));
-    const std::uintptr_t lo = reinterpret_cast<std::uintptr_t>(mapped_) / page * page;
-    (void)::madvise(reinterpret_cast<void*>(lo), reinterpret_cast<std::uintptr_t>(mapped_) + bytes - lo, MADV_HUGEPAGE);
+  if (head.size() + bytes >= kHugeAdviceBytes) {
+    // The mapping starts on a page (it maps the file from offset 0): m is its first byte.
+    (void)::madvise(m, head.size() + bytes, MADV_HUGEPAGE);
   }
 #endif
+  // The header's page made present after the advice: the first 2 MiB a huge folio like the rest.
+  std::memcpy(m, head.data(), head.size());
+  mapped_ = m + head.size();
+  return true;
 }
 
 std::string ArrayOutput::header(std::uint64_t rows) const {

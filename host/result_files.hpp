@@ -37,7 +37,9 @@ class ArrayOutput {
 
  private:
   std::string header(std::uint64_t rows) const;
-  void map_known_length();
+  // The rows' bytes (after `head`, the NPY header or nothing) mapped where the length is known
+  // and the file can be mapped, the header stored there; false: nothing done.
+  bool map_known_length(const std::string& head);
   AtomicFile file_;
   std::string descr_;
   std::size_t item_, cols_;

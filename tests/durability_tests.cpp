@@ -225,6 +225,28 @@ std::size_t npy_rows_checked(const std::string& bytes, std::size_t item) {
   return rows;
 }
 
+TEST_CASE("durability: bhcl knn's NPY outputs (the header stored through the mapping) are the raw rows behind a valid header, for 1 query and past 2 MiB") {
+  const std::vector<float> pts = datasets::uniform(20000, 94);
+  const std::string P = test::write_points("hd_p.f32", pts);
+  const std::string Q1 = test::write_points("hd_q1.f32", std::vector<float>(pts.begin(), pts.begin() + 3));
+  const std::string O = test::tmp_path("hd_");
+  // k = 32 over 20000 queries: 2.56 MB a file (advised MADV_HUGEPAGE); one query: 128 bytes.
+  for (const auto& [Q, n] : {std::pair<std::string, std::size_t>{P, 20000}, {Q1, 1}}) {
+    for (const char* ext : {".raw", ".npy"}) {
+      const std::string cmd = "knn --points " + P + " --queries " + Q + " --method kdtree --quiet --k 32 --out-ids " +
+                              O + "ids" + ext + " --out-dist2 " + O + "d2" + ext + " --out-counts " + O + "c" + ext;
+      REQUIRE(test::run_bhcl(cmd) == 0);
+    }
+    for (const auto& [f, item] : {std::pair<const char*, std::size_t>{"ids", 128}, {"d2", 128}, {"c", 4}}) {
+      INFO(f << " n=" << n);
+      const std::string npy = slurp(O + f + ".npy"), raw = slurp(O + f + ".raw");
+      REQUIRE(npy_rows_checked(npy, item) == n);
+      CHECK(raw.size() == n * item);
+      CHECK(npy.compare(npy.size() - raw.size(), raw.size(), raw) == 0);
+    }
+  }
+}
+
 TEST_CASE("durability: bhcl knn writes its results in slices as they finish, the same bytes as one slice, and a failure partway leaves no partial output") {
   const std::vector<float> pts = datasets::uniform(20000, 93);
   const std::string P = test::write_points("sl_p.f32", pts);
