@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <mutex>
 #include <random>
 #include <vector>
 
@@ -81,5 +82,38 @@ TEST_CASE("query order: the parallel order equals the stable sort by (key, index
     for (std::size_t i = 9; i < n; i += 2003) q[3 * i + 2] = (i / 2003) % 2 ? INFINITY : -INFINITY;
     const std::vector<std::size_t> got = bhcl::detail::hilbert_query_order(q.data(), n);
     CHECK(got == reference_order(q, n));
+  }
+}
+
+TEST_CASE("query order: the sink sees every position once, each range after its order is final") {
+  // The query pipeline gathers the queries in the sort's last pass (OrderSink): every position
+  // in exactly one range, and order[lo, hi) there equal to the final order. One thread (small
+  // n), the threaded bucket path, and all queries non-finite (the identity order).
+  for (const std::size_t n : {std::size_t(2), std::size_t(1000), std::size_t(50007), std::size_t(3)}) {
+    CAPTURE(n);
+    std::mt19937 rng(11);
+    std::uniform_real_distribution<float> u(-5.0f, 5.0f);
+    std::vector<float> q(3 * n);
+    for (auto& v : q) v = n == 3 ? NAN : u(rng);
+    std::vector<std::size_t> seen(n, ~std::size_t(0));
+    std::vector<int> times(n, 0);
+    std::mutex m;
+    bool bad = false;  // (no assertion on the sort's threads)
+    const bhcl::detail::OrderSink sink = [&](std::size_t lo, std::size_t hi, const std::size_t* order) {
+      std::lock_guard<std::mutex> lock(m);
+      if (!(lo < hi && hi <= n)) {
+        bad = true;
+        return;
+      }
+      for (std::size_t i = lo; i < hi; ++i) {
+        seen[i] = order[i];
+        ++times[i];
+      }
+    };
+    const auto got = bhcl::detail::hilbert_query_order_fresh(q.data(), n, nullptr, &sink);
+    CHECK_FALSE(bad);
+    CHECK(std::count(times.begin(), times.end(), 1) == static_cast<std::ptrdiff_t>(n));
+    CHECK(std::equal(seen.begin(), seen.end(), got.get()));
+    CHECK(seen == reference_order(q, n));
   }
 }

@@ -40,6 +40,7 @@
 #include <cstddef>
 #include <algorithm>
 #include <cstdint>
+#include <functional>
 #include <limits>
 #include <memory>
 #include <mutex>
@@ -586,8 +587,13 @@ class Index : public SearchIndex {
   // A remove's ids checked and marked in removed_bits_ (update.cpp), and the marks undone.
   void mark_removed(const std::int32_t* ids, std::size_t n);
   void unmark_removed(const std::int32_t* ids, std::size_t n);
+  // sort (when set): makes the dispatch order and returns it, handed a sink that gathers each
+  // part of the order's queries as the sort's last pass finishes it (detail::OrderSink; null
+  // where the queries are uploaded after the sort): called once the query buffers are mapped.
+  using OrderPart = std::function<void(std::size_t lo, std::size_t hi, const std::size_t* order)>;
+  using SortStep = std::function<const std::size_t*(const OrderPart* sink)>;
   void search_on_device(const float* queries, std::size_t n, const std::size_t* order, QueryKind& kind,
-                        QueryStats& st, std::vector<std::size_t>& suspects) const;
+                        QueryStats& st, std::vector<std::size_t>& suspects, const SortStep* sort = nullptr) const;
   void search_on_host(const float* queries, std::size_t n, const std::size_t* order, QueryKind& kind,
                       QueryStats& st, std::vector<std::size_t>& suspects) const;
   // The kind's first launches, once per (kernel variant, local size, defines); the seconds (0

@@ -109,7 +109,8 @@ void sort_words(std::uint64_t* w, std::size_t m, int top, int bits, std::uint64_
 // pos: thread t's histogram at t * kb.count(), of keys [t * per, (t + 1) * per) with
 // per = ceil(n / threads) (the key pass's split); used up here. The order is written over the
 // keys (`keys`: n entries) once the scatter has read them (8 bytes a query of fresh pages fewer).
-void order_by_buckets(Key* keys, std::size_t n, unsigned threads, const KeyBuckets& kb, std::vector<std::size_t>& pos) {
+void order_by_buckets(Key* keys, std::size_t n, unsigned threads, const KeyBuckets& kb, std::vector<std::size_t>& pos,
+                      const OrderSink* sink) {
   const int low_bits = kb.low_bits(), row_bits = 64 - low_bits;  // row_bits = 15 + top bits: n fits
   const std::uint64_t low_mask = (std::uint64_t(1) << low_bits) - 1, row_mask = (std::uint64_t(1) << row_bits) - 1;
   const std::size_t buckets = kb.count(), per = (n + threads - 1) / threads;
@@ -144,6 +145,7 @@ void order_by_buckets(Key* keys, std::size_t n, unsigned threads, const KeyBucke
       sort_words(words.get() + b0, m, 64, low_bits, tmp.data());
       for (std::size_t j = b0; j < b0 + m; ++j) order[j] = words[j] & row_mask;
     }
+    if (sink && bucket_start[hi] > bucket_start[lo]) (*sink)(bucket_start[lo], bucket_start[hi], order);
   });
 }
 
@@ -272,7 +274,8 @@ std::uint64_t hilbert_key16(std::uint32_t x, std::uint32_t y, std::uint32_t z) {
   return key;
 }
 
-void hilbert_query_order_into(const float* xyz, std::size_t n, std::size_t* order, std::size_t* nonfinite) {
+void hilbert_query_order_into(const float* xyz, std::size_t n, std::size_t* order, std::size_t* nonfinite,
+                              const OrderSink* sink) {
   // One parallel pass for the queries' box (finite ones only), one for the keys, then the
   // bucket sort (order_by_buckets): the order of the stable sort by (key, index).
   constexpr int kBits = 16;
@@ -310,6 +313,7 @@ void hilbert_query_order_into(const float* xyz, std::size_t n, std::size_t* orde
   if (nonfinite) *nonfinite = n - finite;
   if (finite == 0) {
     for (std::size_t i = 0; i < n; ++i) order[i] = i;
+    if (sink && n) (*sink)(0, n, order);
     return;
   }
   // The curve's quantiser over the finite queries' box (sfc::make_quantiser's rule).
@@ -336,8 +340,12 @@ void hilbert_query_order_into(const float* xyz, std::size_t n, std::size_t* orde
       if (buckets) count_buckets(kb, keys, lo, hi, &pos[t * kb.count()]);
     }
   }, threads, 1);
-  if (buckets) order_by_buckets(keys, n, threads, kb, pos);
-  else order_by_merge(keys, n, threads, per);
+  if (buckets) {
+    order_by_buckets(keys, n, threads, kb, pos, sink);
+  } else {
+    order_by_merge(keys, n, threads, per);
+    if (sink && n) (*sink)(0, n, order);
+  }
 }
 
 std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n, std::size_t* nonfinite) {
@@ -346,9 +354,10 @@ std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n, st
   return order;
 }
 
-std::unique_ptr<std::size_t[]> hilbert_query_order_fresh(const float* xyz, std::size_t n, std::size_t* nonfinite) {
+std::unique_ptr<std::size_t[]> hilbert_query_order_fresh(const float* xyz, std::size_t n, std::size_t* nonfinite,
+                                                         const OrderSink* sink) {
   std::unique_ptr<std::size_t[]> order(new std::size_t[std::max<std::size_t>(n, 1)]);  // not value-initialised
-  hilbert_query_order_into(xyz, n, order.get(), nonfinite);
+  hilbert_query_order_into(xyz, n, order.get(), nonfinite, sink);
   return order;
 }
 

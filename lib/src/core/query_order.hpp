@@ -5,6 +5,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <vector>
 
@@ -16,10 +17,16 @@ namespace bhcl::detail {
 // nonfinite (when not null): how many queries have a non-finite coordinate (the box pass counts them).
 std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n, std::size_t* nonfinite = nullptr);
 // The same into order (n entries, used as the keys' scratch first) ...
-void hilbert_query_order_into(const float* xyz, std::size_t n, std::size_t* order, std::size_t* nonfinite = nullptr);
+// sink (when set): called with each range [lo, hi) of dispatch positions as soon as order[lo, hi)
+// is final (every position once, from the sort's threads, ranges in any order): the query
+// pipeline gathers the queries into the device's buffer there, in the sort's last pass.
+using OrderSink = std::function<void(std::size_t lo, std::size_t hi, const std::size_t* order)>;
+void hilbert_query_order_into(const float* xyz, std::size_t n, std::size_t* order, std::size_t* nonfinite = nullptr,
+                              const OrderSink* sink = nullptr);
 // ... and into fresh memory not filled first: its pages are first touched by the key pass's
 // threads, not by one thread's memset (16 MB of fresh pages at 1M queries; the query pipeline's).
-std::unique_ptr<std::size_t[]> hilbert_query_order_fresh(const float* xyz, std::size_t n, std::size_t* nonfinite = nullptr);
+std::unique_ptr<std::size_t[]> hilbert_query_order_fresh(const float* xyz, std::size_t n, std::size_t* nonfinite = nullptr,
+                                                         const OrderSink* sink = nullptr);
 
 // sfc::hilbert_encode(x, y, z, 16), computed without branches (the query order's keys).
 std::uint64_t hilbert_key16(std::uint32_t x, std::uint32_t y, std::uint32_t z);

@@ -61,22 +61,30 @@ std::size_t count_nonfinite(const float* queries, std::size_t n) {
   return c;
 }
 
-// Queries [first, first + m) in dispatch order (order null: as given) into dst, scaled by 2^-e
-// into the structure's coordinates (e = 0: copied): the sort and the scale fused with the upload.
-// rows (when not null) gets each dispatch row's caller row, for the kernel's store.
-void gather_queries(const float* caller, std::size_t first, std::size_t m, const std::size_t* order, int e,
-                    float* dst, std::uint32_t* rows = nullptr) {
+// Queries [lo, hi) in dispatch order (order null: as given) into dst[0, hi - lo), scaled by
+// 2^-e into the structure's coordinates (e = 0: copied); rows (when not null) gets each dispatch
+// row's caller row, for the kernel's store. One thread.
+void gather_range(const float* caller, std::size_t lo, std::size_t hi, const std::size_t* order, int e, float* dst,
+                  std::uint32_t* rows) {
   // In Hilbert order the caller's rows are read at random: each one's line asked for 32 rows
   // ahead, so that the reads overlap (1M Cornell queries: 12.5 against 18 ms on 2 threads).
   constexpr std::size_t kAhead = 32;
+  for (std::size_t i = lo; i < hi; ++i) {
+    if (order && i + kAhead < hi) __builtin_prefetch(caller + 3 * order[i + kAhead]);
+    const std::size_t row = order ? order[i] : i;
+    const float* q = caller + 3 * row;
+    float* d = dst + 3 * (i - lo);
+    for (int c = 0; c < 3; ++c) d[c] = e ? std::ldexp(q[c], -e) : q[c];
+    if (rows) rows[i - lo] = static_cast<std::uint32_t>(row);
+  }
+}
+
+// Queries [first, first + m) in dispatch order into dst (rows: as gather_range), on the threads:
+// the sort and the scale fused with the upload.
+void gather_queries(const float* caller, std::size_t first, std::size_t m, const std::size_t* order, int e,
+                    float* dst, std::uint32_t* rows = nullptr) {
   detail::parallel_for(m, [&](std::size_t lo, std::size_t hi) {
-    for (std::size_t i = lo; i < hi; ++i) {
-      if (order && i + kAhead < hi) __builtin_prefetch(caller + 3 * order[first + i + kAhead]);
-      const std::size_t row = order ? order[first + i] : first + i;
-      const float* q = caller + 3 * row;
-      for (int d = 0; d < 3; ++d) dst[3 * i + d] = e ? std::ldexp(q[d], -e) : q[d];
-      if (rows) rows[i] = static_cast<std::uint32_t>(row);
-    }
+    gather_range(caller, first + lo, first + hi, order, e, dst + 3 * lo, rows ? rows + lo : nullptr);
   }, 0, 16384);
 }
 
@@ -150,29 +158,33 @@ QueryStats Index::run_query(const float* queries, std::size_t n, QueryKind& kind
   st.n_queries = n;
   if (!sort) st.nonfinite_queries = count_nonfinite(queries, n);  // else counted by the sort's box pass
   std::unique_ptr<std::size_t[]> order;  // dispatch in Hilbert order: neighbouring work-items walk the same cells
-  if (sort) {
-    // A first call's program load (the binary cache's, or a compile) on its own thread while this
-    // one sorts: they share nothing, and the load is as long as the sort of 10^5 queries.
-    std::future<double> warm;
-    if (!answers_on_host()) {
-      const std::size_t local = dp.local_size ? dp.local_size : runtime_->quirks().default_local_size;
-      bool warmed = false;
-      {
-        std::lock_guard<std::mutex> lock(warm_mutex_);
-        warmed = warmed_.count(std::make_tuple(kind.kernel_variant(), local, dp.kernel_defines)) > 0;
-      }
-      if (!warmed) warm = std::async(std::launch::async, [this, &kind, local] { return warm_up_kind(kind, local); });
+  // A first call's program load (the binary cache's, or a compile) on its own thread while this
+  // one sorts: they share nothing, and the load is as long as the sort of 10^5 queries.
+  std::future<double> warm;
+  if (sort && !answers_on_host()) {
+    const std::size_t local = dp.local_size ? dp.local_size : runtime_->quirks().default_local_size;
+    bool warmed = false;
+    {
+      std::lock_guard<std::mutex> lock(warm_mutex_);
+      warmed = warmed_.count(std::make_tuple(kind.kernel_variant(), local, dp.kernel_defines)) > 0;
     }
+    if (!warmed) warm = std::async(std::launch::async, [this, &kind, local] { return warm_up_kind(kind, local); });
+  }
+  // The sort: on a device, where search_on_device calls it once the query buffer is mapped (a
+  // sink set: the sort's last pass also gathers the queries there, no pass of their own after it).
+  const SortStep sort_step = [&](const OrderPart* sink) -> const std::size_t* {
     const auto ts = std::chrono::steady_clock::now();
-    order = detail::hilbert_query_order_fresh(queries, n, &st.nonfinite_queries);
+    order = detail::hilbert_query_order_fresh(queries, n, &st.nonfinite_queries, sink);
     st.sort_s = seconds_since(ts);
     if (warm.valid()) st.compile_s += warm.get();
-  }
-  const std::size_t* ord = order.get();
+    return order.get();
+  };
+  if (sort && answers_on_host()) sort_step(nullptr);
   kind.begin(n);
   std::vector<std::size_t> suspects;
-  if (n > 0 && answers_on_host()) search_on_host(queries, n, ord, kind, st, suspects);
-  else if (n > 0) search_on_device(queries, n, ord, kind, st, suspects);
+  if (n > 0 && answers_on_host()) search_on_host(queries, n, order.get(), kind, st, suspects);
+  else if (n > 0) search_on_device(queries, n, nullptr, kind, st, suspects, sort ? &sort_step : nullptr);
+  const std::size_t* ord = order.get();
   kind.finish(ord, queries, st, suspects);
   // The rows in ascending order: the answers do not depend on the thread count.
   std::sort(suspects.begin(), suspects.end());
@@ -191,7 +203,7 @@ void Index::search_on_host(const float* queries, std::size_t n, const std::size_
 }
 
 void Index::search_on_device(const float* queries, std::size_t n, const std::size_t* order, QueryKind& kind,
-                             QueryStats& st, std::vector<std::size_t>& suspects) const {
+                             QueryStats& st, std::vector<std::size_t>& suspects, const SortStep* sort) const {
   const cl::CommandQueue& queue = runtime_->queue();
   const DispatchParams& dp = kind.dispatch();
   const std::size_t local = dp.local_size ? dp.local_size : runtime_->quirks().default_local_size;
@@ -200,14 +212,45 @@ void Index::search_on_device(const float* queries, std::size_t n, const std::siz
   const std::size_t chunk = std::min(kind.chunk_rows(n), n);
   QueryBuffers b;
   take_query_buffers(chunk, kind.row_k(), dp.count_examined, b);
+  // One chunk in host memory (a CPU device): the sort's last pass gathers each finished part of
+  // the order into the mapped buffers (no gather pass of its own after the sort, no second read
+  // of the order); else the sort, then each chunk's upload.
+  bool uploaded = false;
+  if (sort && b.host && chunk == n) {
+    const auto tu = std::chrono::steady_clock::now();
+    detail::Mapped map(queue, b.q, CL_MAP_WRITE_INVALIDATE_REGION, n * 3 * sizeof(float), "queries", false);
+    std::unique_ptr<detail::Mapped> rows;
+    if (b.writes_caller_rows(n))
+      rows = std::make_unique<detail::Mapped>(queue, b.result_rows, CL_MAP_WRITE_INVALIDATE_REGION, n * 4,
+                                              "result rows", false);
+    check_cl(queue.finish(), "clFinish", "queries mapped");
+    st.upload_s += seconds_since(tu);
+    float* dst = map.as<float>();
+    std::uint32_t* rdst = rows ? rows->as<std::uint32_t>() : nullptr;
+    const int e = scale_exp_;
+    const OrderPart sink = [&](std::size_t lo, std::size_t hi, const std::size_t* ord) {
+      gather_range(queries, lo, hi, ord, e, dst + 3 * lo, rdst ? rdst + lo : nullptr);
+    };
+    order = (*sort)(&sink);
+    const auto tm = std::chrono::steady_clock::now();
+    if (rows) rows->unmap("result rows");
+    map.unmap("queries");
+    st.upload_s += seconds_since(tm);
+    uploaded = true;
+  } else if (sort) {
+    order = (*sort)(nullptr);
+  }
   st.compile_s += warm_up_kind(kind, local);
   std::vector<float> stage;  // device memory only: the gathered queries before their copy
   for (std::size_t first = 0; first < n; first += chunk) {
     const std::size_t m = std::min(chunk, n - first);
-    const auto tu = std::chrono::steady_clock::now();
-    upload_queries(queue, b.q, b.host, b.writes_caller_rows(n) ? &b.result_rows : nullptr, queries, first, m, order,
-                   scale_exp_, stage);
-    st.upload_s += seconds_since(tu);
+    if (!uploaded) {
+      const auto tu = std::chrono::steady_clock::now();
+      upload_queries(queue, b.q, b.host, b.writes_caller_rows(n) ? &b.result_rows : nullptr, queries, first, m,
+                     order, scale_exp_, stage);
+      st.upload_s += seconds_since(tu);
+    }
+    uploaded = false;
     kind.search_chunk(b, first, m, order, per, local, queries, st, suspects);
   }
   // The last chunk's unmaps done before its buffers serve another call.
