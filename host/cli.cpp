@@ -379,8 +379,11 @@ std::size_t knn_slice_rows(std::size_t n, int k, bool count_examined, bool bar) 
   if (const std::size_t o = slice_rows_override()) return std::max<std::size_t>(1, std::min(o, n));
   // About 256 MiB of rows a slice (ids, squared distances, the count, the examined count), at
   // least 2^15 queries (large enough for the Hilbert dispatch order and full devices); with a
-  // progress bar also about a hundredth of the batch.
-  const std::size_t row = static_cast<std::size_t>(k) * 8 + (count_examined ? 8 : 4);
+  // progress bar also about a hundredth of the batch. Counted with the query's 12 bytes as the
+  // library's chunks are (Index::KnnKind::chunk_rows: 8 k + 12 a query), so that a slice is one
+  // chunk: at k = 50 a 664k-query slice had been a 651k chunk and a 13k one (two launches, and
+  // no gather in the sort's pass).
+  const std::size_t row = static_cast<std::size_t>(k) * 8 + 12 + (count_examined ? 4 : 0);
   std::size_t rows = std::max<std::size_t>(std::size_t(1) << 15, (std::size_t(256) << 20) / row);
   if (bar) rows = std::min(rows, std::max<std::size_t>(std::size_t(1) << 15, n / 100));
   return std::max<std::size_t>(1, std::min(rows, n));
