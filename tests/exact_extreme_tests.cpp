@@ -155,6 +155,28 @@ TEST_CASE("exact extreme: one far outlier among unit-cube points (1e19 .. 3e38)"
   }
 }
 
+TEST_CASE("exact extreme: the Hilbert dispatch at an extreme scale (queries gathered and scaled in the sort's pass) answers as the given order") {
+  // Points and queries in a cube of side 1e25 (squared distances past FLT_MAX): the structure's
+  // coordinates are scaled by 2^-e, and on a CPU device the sorted dispatch gathers and scales the
+  // queries in the sort's last pass; its rows must equal the given order's, and the exact answer.
+  std::vector<float> pts = unit_points(6000, 4);
+  std::vector<float> qs = unit_points(2000, 5);
+  for (auto& x : pts) x *= 1e25f;
+  for (auto& x : qs) x *= 1e25f;
+  qs.insert(qs.end(), {pts[0], pts[1], pts[2], NAN, 0.0f, 0.0f});
+  const Ref ref = double_knn(pts, qs, 10, INFINITY);
+  for (const auto& index : exact_indexes(pts)) {
+    SearchParams given = test::knn_params(10), sorted = test::knn_params(10);
+    given.sort_queries = 0;
+    sorted.sort_queries = 1;
+    KnnResult a, b;
+    index->query(qs.data(), qs.size() / 3, given, a);
+    index->query(qs.data(), qs.size() / 3, sorted, b);
+    test::require_identical(b, a, index->method() + ": sorted dispatch at scale 1e25");
+    check_exact(b, ref, pts, qs, index->method() + " sorted, scale 1e25");
+  }
+}
+
 TEST_CASE("exact extreme: mixed scales (clusters at 1e-20 and 1, outliers of both signs)") {
   std::vector<float> pts = unit_points(3000, 2);
   std::vector<float> tiny = unit_points(2000, 3);
