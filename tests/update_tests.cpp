@@ -1155,12 +1155,12 @@ TEST_CASE("updates: a large insert past the grid's band is one fresh build, exac
   }
 }
 
-// Issue 39: degenerate inserts into the grid, each at most one build and exact against brute force
+// Issue 39: degenerate updates of the grid, each at most one build and exact against brute force
 // after it: an empty insert (refused, nothing changed); a quarter more inside the box (past the
-// band: one build, written into the old point arrays' memory, whose room then keeps an eighth for
-// the next merge in place); duplicates of stored points and one point thousands of times (ties by
-// id); points far outside the box.
-TEST_CASE("updates: degenerate grid inserts (empty, across the band into the old arrays, duplicates, far off the box) build at most once") {
+// band: one build), then a merge in place; a remove below the band (one build, written into the
+// old point arrays' memory, which holds the result with an eighth to spare); duplicates of stored
+// points and one point thousands of times (ties by id); points far outside the box.
+TEST_CASE("updates: degenerate grid inserts (empty, across the band, duplicates, far off the box) build at most once") {
   std::mt19937_64 rng(3939);
   Model m;
   auto ix = grid_over(m, rng, 40000);
@@ -1170,19 +1170,29 @@ TEST_CASE("updates: degenerate grid inserts (empty, across the band into the old
   CHECK(ix->id_bound() == 40000);
   CHECK(ix->info().merges == 0);
   CHECK(ix->info().update_rebuilds == 0);
-  // A quarter more, inside the box: past the band, one build into the same arrays.
-  const float* const x_before = ix->structure().grid->x.data();
+  // A quarter more, inside the box: past the band, one build.
   insert_both(*ix, m, uniform(rng, 10000, 0.01f, 0.99f));
   CHECK(ix->info().update_rebuilds == 1);
   CHECK(ix->info().retunes == 1);
   CHECK(ix->info().merges == 0);
-  CHECK(ix->structure().grid->x.data() == x_before);
   require_pyramid_as_built(*ix);
   check_exact(*ix, m, rng);
   // A twentieth more: merged in place (the arrays kept an eighth of room), no build.
+  const float* const x_before = ix->structure().grid->x.data();
   insert_both(*ix, m, uniform(rng, 2500, 0.01f, 0.99f));
   CHECK(ix->info().update_rebuilds == 1);
   CHECK(ix->info().merges == 1);
+  CHECK(ix->structure().grid->x.data() == x_before);
+  require_pyramid_as_built(*ix);
+  check_exact(*ix, m, rng);
+  // Three tenths removed: below the band, one build, into the same arrays.
+  std::vector<std::int32_t> drop;
+  for (const auto& kv : m.live)
+    if (rng() % 10 < 3) drop.push_back(kv.first);
+  remove_both(*ix, m, drop);
+  CHECK(ix->info().update_rebuilds == 2);
+  CHECK(ix->info().retunes == 2);
+  CHECK(ix->info().holes == 0);
   CHECK(ix->structure().grid->x.data() == x_before);
   require_pyramid_as_built(*ix);
   check_exact(*ix, m, rng);

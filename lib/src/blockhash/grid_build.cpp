@@ -32,10 +32,10 @@ double since(std::chrono::steady_clock::time_point t0) {
 // v sized n, its old contents not kept: a vector growing past its capacity is freed first, so
 // that the build neither copies the previous build's arrays into the new ones (a 25 % insert's
 // rebuild copied 16 MB of records it then overwrote) nor holds both at once.
-// room: the capacity an allocation reserves past n, in eighths of n (the point arrays keep half
-// again: an insert merges in place, and a rebuild after an insert of up to a quarter writes into
-// the old arrays' memory with an eighth still to spare, grid_update.cpp; capacity never written
-// is never faulted in, so it costs address space only).
+// room: the capacity an allocation reserves past n, in eighths of n (the point arrays keep an
+// eighth so that an insert merges in place, grid_update.cpp; capacity never written is never
+// faulted in, so it costs address space only; half again, tried so that a rebuild after a 25 %
+// insert could write into the old arrays, made fresh builds about 12 % slower in update_bench).
 template <typename T>
 void resize_discarding(GridVec<T>& v, std::size_t n, std::size_t room_eighths = 0) {
   if (v.capacity() < n) {
@@ -539,10 +539,10 @@ void size_arrays(const Buckets& bk, const std::vector<std::uint32_t>& seg_base, 
     g.starts[bk.ncells] = static_cast<std::uint32_t>(n);
     g.starts[0] = 0;
   }
-  resize_discarding(g.x, n + kGridPad, 4);
-  resize_discarding(g.y, n + kGridPad, 4);
-  resize_discarding(g.z, n + kGridPad, 4);
-  resize_discarding(g.ids, n + kGridPad, 4);
+  resize_discarding(g.x, n + kGridPad, 1);
+  resize_discarding(g.y, n + kGridPad, 1);
+  resize_discarding(g.z, n + kGridPad, 1);
+  resize_discarding(g.ids, n + kGridPad, 1);
 }
 
 // Pass 3: each bucket on its own, in parallel over buckets: its cells' counts, its part of the

@@ -10,7 +10,7 @@
 //  - insert, points inside the grid's box: the B+ tree's leaf insert done in bulk. A counting
 //    sort of the new points alone into the existing cells, then one parallel pass over ranges of
 //    cells moving each cell's run to its new start (moved right by the new points before it) with
-//    its new points behind it: in place where the arrays have room (the build reserves half again),
+//    its new points behind it: in place where the arrays have room (the build reserves an eighth),
 //    else into scratch arrays that then change places with the grid's (O(N) moves, no tuning, no
 //    sort of the old points). The two-level directory merges the same way (merge_two_level_points,
 //    its starts moved in place). Ids stay ascending inside a cell (new ids are larger), as a fresh
@@ -667,7 +667,7 @@ void GridIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t fir
   // (the one reader) makes it again in one parallel pass. Kept up to date here, its random
   // writes cost more than the merge itself.
   id_pos_.clear();
-  // In place where the arrays have room (the build reserves half again), else out of place
+  // In place where the arrays have room (the build reserves an eighth more), else out of place
   // into the scratch arrays (room reserved there too), which then change places with the grid's.
   // Both in parallel over ranges of cells (the in-place backward pass they replace was serial:
   // half a fresh build's time for a 10 % insert).
@@ -1049,12 +1049,13 @@ void GridIndex::grid_rebuild_live(const float* extra, std::size_t m, std::int32_
   for (int d = 0; d < 3; ++d) in.soa_lo[d] = lo[d], in.soa_hi[d] = hi[d];
   blockhash::GridVec<float> ox, oy, oz;
   blockhash::GridVec<std::int32_t> oids;
-  // The old arrays' memory is the new arrays' (issue 39): once the build's first pass has read
-  // the input into its records, the old arrays go back into g where they hold the new points
-  // with an eighth to spare (the next insert's merge in place; the build reserves half again),
-  // and the build writes its points there, so that only the room the new points take is
-  // faulted in. Freed and allocated again, the new arrays' pages were faulted in afresh: a third
-  // of a 25 % insert's rebuild where the allocator gave fresh pages.
+  // The old arrays' memory is the new arrays' where it fits (issue 39): once the build's first
+  // pass has read the input into its records, the old arrays go back into g where they hold the
+  // result with an eighth to spare (the next insert's merge in place) and at most twice over (a
+  // large remove's rebuild gives its memory back), and the build writes its points there. A
+  // rebuild of about the old size (a scan past the box's edge, a remove below the band) then
+  // faults in no fresh pages; freed and allocated again, the arrays' pages were faulted in
+  // afresh wherever the allocator gave fresh ones (a third of a 1M rebuild's time).
   blockhash::GridVec<float> hx, hy, hz;
   blockhash::GridVec<std::int32_t> hids;
   if (info_.holes) {  // the live points copied out, the old arrays held until the copy is read
@@ -1079,8 +1080,8 @@ void GridIndex::grid_rebuild_live(const float* extra, std::size_t m, std::int32_
     } else {
       hx = std::move(ox), hy = std::move(oy), hz = std::move(oz), hids = std::move(oids);
     }
-    const bool fits = hx.capacity() >= need + need / 8 && hy.capacity() >= need + need / 8 &&
-                      hz.capacity() >= need + need / 8 && hids.capacity() >= need + need / 8;
+    auto fits_in = [&](std::size_t cap) { return cap >= need + need / 8 && cap <= 2 * need; };
+    const bool fits = fits_in(hx.capacity()) && fits_in(hy.capacity()) && fits_in(hz.capacity()) && fits_in(hids.capacity());
     if (fits) g.x = std::move(hx), g.y = std::move(hy), g.z = std::move(hz), g.ids = std::move(hids);
     hx = blockhash::GridVec<float>(), hy = blockhash::GridVec<float>(), hz = blockhash::GridVec<float>();
     hids = blockhash::GridVec<std::int32_t>();
