@@ -601,6 +601,11 @@ void GridIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t fir
   if (sc.count.size() < std::size_t(R) * nc) sc.count.resize(std::size_t(R) * nc);
   std::uint32_t* const count = sc.count.data();
   std::fill_n(count, std::size_t(R) * nc, 0u);
+  // Kept only where the cells are not many more than the points (a direct table of 8 cells per
+  // point would keep 64 bytes per point between inserts); else freed after this insert.
+  auto release_counts = [&] {
+    if (nc > g.n_points) sc.count = blockhash::GridVec<std::uint32_t>(), sc.add = blockhash::GridVec<std::uint32_t>();
+  };
   const bhcl_grid_geom gg = geom;  // in a local: the stores below would reload it through the reference
   detail::parallel_chunks(R, 1, T, [&](std::size_t, std::size_t tb, std::size_t te) {
     for (std::size_t t = tb; t < te; ++t) {
@@ -640,6 +645,7 @@ void GridIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t fir
   const double mean = double(sum2) / double(n1);
   // The leaf split: the cells have grown too full for the side tuned at the last full build.
   if (mean > kRetuneAbove * std::max(1.0, grid_build_mean_)) {
+    release_counts();
     grid_rebuild_live(scaled, m, first, true);
     return;
   }
@@ -699,6 +705,7 @@ void GridIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t fir
       for (std::size_t j = add[c]; j < add[c + 1]; ++j) emit(std::uint32_t(c), rec[4 * j], rec[4 * j + 1], rec[4 * j + 2]);
   });
   grid_upload_from(p_from, first_cell);
+  release_counts();
   info_.n_points = n1;
   info_.occupied_cells = occupied;
   info_.mean_cell_points = mean;
