@@ -1155,6 +1155,75 @@ TEST_CASE("updates: a large insert past the grid's band is one fresh build, exac
   }
 }
 
+// Issue 39: degenerate updates of the grid, each at most one build and exact against brute force
+// after it: an empty insert (refused, nothing changed); a quarter more inside the box (past the
+// band: one build), then a merge in place; a remove below the band (one build, written into the
+// old point arrays' memory, which holds the result with an eighth to spare); duplicates of stored
+// points and one point thousands of times (ties by id); points far outside the box.
+TEST_CASE("updates: degenerate grid inserts (empty, across the band, duplicates, far off the box) build at most once") {
+  std::mt19937_64 rng(3939);
+  Model m;
+  auto ix = grid_over(m, rng, 40000);
+  std::vector<float> none;
+  CHECK_THROWS_WITH_AS(ix->insert(none.data(), 0), doctest::Contains("no points"), Error);
+  CHECK(ix->size() == 40000);
+  CHECK(ix->id_bound() == 40000);
+  CHECK(ix->info().merges == 0);
+  CHECK(ix->info().update_rebuilds == 0);
+  // A quarter more, inside the box: past the band, one build.
+  insert_both(*ix, m, uniform(rng, 10000, 0.01f, 0.99f));
+  CHECK(ix->info().update_rebuilds == 1);
+  CHECK(ix->info().retunes == 1);
+  CHECK(ix->info().merges == 0);
+  require_pyramid_as_built(*ix);
+  check_exact(*ix, m, rng);
+  // A twentieth more: merged in place (the arrays kept an eighth of room), no build.
+  const float* const x_before = ix->structure().grid->x.data();
+  insert_both(*ix, m, uniform(rng, 2500, 0.01f, 0.99f));
+  CHECK(ix->info().update_rebuilds == 1);
+  CHECK(ix->info().merges == 1);
+  CHECK(ix->structure().grid->x.data() == x_before);
+  require_pyramid_as_built(*ix);
+  check_exact(*ix, m, rng);
+  // Three tenths removed: below the band, one build, into the same arrays.
+  std::vector<std::int32_t> drop;
+  for (const auto& kv : m.live)
+    if (rng() % 10 < 3) drop.push_back(kv.first);
+  remove_both(*ix, m, drop);
+  CHECK(ix->info().update_rebuilds == 2);
+  CHECK(ix->info().retunes == 2);
+  CHECK(ix->info().holes == 0);
+  CHECK(ix->structure().grid->x.data() == x_before);
+  require_pyramid_as_built(*ix);
+  check_exact(*ix, m, rng);
+  // Duplicates: every 20th live point again, then one stored point 3000 times (one cell far past
+  // the band: one build).
+  std::vector<float> dup;
+  std::size_t i = 0;
+  for (const auto& kv : m.live)
+    if (i++ % 20 == 0) dup.insert(dup.end(), kv.second.begin(), kv.second.end());
+  std::size_t r0 = ix->info().update_rebuilds;
+  insert_both(*ix, m, dup);
+  CHECK(ix->info().update_rebuilds <= r0 + 1);
+  check_exact(*ix, m, rng);
+  const std::array<float, 3> one = m.live.begin()->second;
+  std::vector<float> same;
+  for (int j = 0; j < 3000; ++j) same.insert(same.end(), one.begin(), one.end());
+  r0 = ix->info().update_rebuilds;
+  insert_both(*ix, m, same);
+  CHECK(ix->info().update_rebuilds == r0 + 1);
+  CHECK(ix->info().retunes >= 2);
+  check_exact(*ix, m, rng);
+  // Far outside the box: one build over the live points and the new ones.
+  std::vector<float> far = uniform(rng, 200, 1.0e4f, 1.0e4f + 1.0f);
+  r0 = ix->info().update_rebuilds;
+  insert_both(*ix, m, far);
+  CHECK(ix->info().update_rebuilds == r0 + 1);
+  CHECK(ix->size() == m.live.size());
+  check_exact(*ix, m, rng);
+  budget_kernel_equals_reference(*ix, m, rng, "grid A = 2 after degenerate inserts, kernel vs reference");
+}
+
 // The grid's point box (the traversal's bound) stays the live points' own after removes that take
 // points on it, as a load of the saved index computes it: a large remove finds its slots and the
 // live box in one chunked pass over the stored ids (issue 39), a small one through the id -> slot

@@ -59,6 +59,8 @@ struct GridScratch {
   GridVec<float> rec;              // (x, y, z, index bits) per point, bucketed by cell range
   GridVec<float> x, y, z;          // an insert's merged arrays (grid_update.cpp), then swapped
   GridVec<std::int32_t> ids;       //   with the grid's
+  GridVec<std::uint32_t> count;    // an insert's per-range cell counts (grid_update.cpp)
+  GridVec<std::uint32_t> add;      // an insert's new points before each cell
 };
 
 struct Grid {

@@ -97,7 +97,7 @@ inline void put_new_point(float* X, float* Y, float* Z, std::int32_t* I, std::si
 // new points (records add[c] .. of rec, ids first + i) behind it, into the scratch arrays (sized n1 + pad).
 // Cells before first_cell keep their places.
 void merge_into_scratch(const blockhash::Grid& g, const float* rec, std::size_t m, std::int32_t first,
-                        const std::vector<std::uint32_t>& add, std::size_t first_cell, blockhash::GridScratch& sc) {
+                        const std::uint32_t* add, std::size_t first_cell, blockhash::GridScratch& sc) {
   const std::size_t nc = g.ncells(), n1 = g.n_points + m;
   const unsigned T = static_cast<unsigned>(std::min<std::size_t>(detail::default_threads(), std::max<std::size_t>(1, n1 / 65536)));
   // Cell ranges of about equal output: thread t starts at the first cell whose new start passes
@@ -111,7 +111,7 @@ void merge_into_scratch(const blockhash::Grid& g, const float* rec, std::size_t 
   }
   {
     const std::uint32_t* const st = g.starts.data();
-    const std::uint32_t* const ad = add.data();
+    const std::uint32_t* const ad = add;
     const float *const X = g.x.data(), *const Y = g.y.data(), *const Z = g.z.data();
     const std::int32_t* const I = g.ids.data();
     float *const X2 = sc.x.data(), *const Y2 = sc.y.data(), *const Z2 = sc.z.data();
@@ -402,7 +402,7 @@ void reserve_with_room(blockhash::GridVec<T>& v, std::size_t n) {
 // Returns false (nothing changed) where the arrays have no room or a range is shorter than the
 // head it must save.
 bool merge_in_place(blockhash::Grid& g, const float* rec, std::size_t m, std::int32_t first,
-                    const std::vector<std::uint32_t>& add, std::size_t first_cell) {
+                    const std::uint32_t* add, std::size_t first_cell) {
   const std::size_t nc = g.ncells(), n1 = g.n_points + m, want = n1 + blockhash::kGridPad;
   if (g.x.capacity() < want || g.y.capacity() < want || g.z.capacity() < want || g.ids.capacity() < want) return false;
   const std::uint32_t* const st = g.starts.data();
@@ -438,7 +438,7 @@ bool merge_in_place(blockhash::Grid& g, const float* rec, std::size_t m, std::in
   g.ids.resize(want);
   float *const X = g.x.data(), *const Y = g.y.data(), *const Z = g.z.data();
   std::int32_t* const I = g.ids.data();
-  const std::uint32_t* const ad = add.data();
+  const std::uint32_t* const ad = add;
   detail::parallel_chunks(T, 1, T, [&](std::size_t, std::size_t tb, std::size_t te) {
         for (std::size_t t = tb; t < te; ++t) {
           const Head& h = head[t];
@@ -449,7 +449,8 @@ bool merge_in_place(blockhash::Grid& g, const float* rec, std::size_t m, std::in
               put_new_point(X, Y, Z, I, dst + len + j, rec + 4 * (ad[c] + j), first);
             if (ad[c] == 0 || len == 0) continue;  // the run stays where it is
             // The run's slots past the saved head move within the arrays (right, overlapping:
-            // memmove); those in it come from the copy.
+            // memmove, the C library's AVX-512 one; an inline chunked copy, built for the
+            // baseline x86-64, made a 1 % insert 1.25x slower); those in it come from the copy.
             const std::size_t from = std::max(a, std::min(saved_end, a + len));
             std::memmove(X + dst + (from - a), X + from, (a + len - from) * 4);
             std::memmove(Y + dst + (from - a), Y + from, (a + len - from) * 4);
@@ -589,59 +590,82 @@ void GridIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t fir
   if (sc.rec.size() < 4 * m) sc.rec.resize(4 * m);
   std::uint32_t* const cell = sc.cell.data();
   float* const rec = sc.rec.data();
-  // Ranges handed out in turn (twice as many as threads: on a shared machine a thread that starts
-  // late takes fewer, and nobody waits for it).
+  // A range per thread, handed out in turn (a thread that starts late on a shared machine takes
+  // fewer). The per-range counts and the cells' new starts live in the scratch (kept with the
+  // grid: the next insert faults in no fresh pages for them; before, two count tables per thread
+  // were allocated, zeroed and faulted in anew by every insert).
   const unsigned T = nc <= 4 * m ? unsigned(std::max<std::size_t>(
                                        1, std::min<std::size_t>(params_.threads ? params_.threads : detail::default_threads(), m / 32768)))
                                  : 1u;
-  const unsigned R = T > 1 ? 2 * T : 1;
-  std::vector<std::vector<std::uint32_t>> count(R, std::vector<std::uint32_t>(nc, 0));
+  const unsigned R = T;
+  if (sc.count.size() < std::size_t(R) * nc) sc.count.resize(std::size_t(R) * nc);
+  std::uint32_t* const count = sc.count.data();
+  std::fill_n(count, std::size_t(R) * nc, 0u);
+  // Kept only where the cells are not many more than the points (a direct table of 8 cells per
+  // point would keep 64 bytes per point between inserts); else freed after this insert.
+  auto release_counts = [&] {
+    if (nc > g.n_points) sc.count = blockhash::GridVec<std::uint32_t>(), sc.add = blockhash::GridVec<std::uint32_t>();
+  };
+  const bhcl_grid_geom gg = geom;  // in a local: the stores below would reload it through the reference
   detail::parallel_chunks(R, 1, T, [&](std::size_t, std::size_t tb, std::size_t te) {
     for (std::size_t t = tb; t < te; ++t) {
-      std::uint32_t* const ct = count[t].data();
+      std::uint32_t* const ct = count + t * nc;
+      const float* const P = scaled;
+      std::uint32_t* const C = cell;
       for (std::size_t i = m * t / R, e = m * (t + 1) / R; i < e; ++i) {
-        const std::uint32_t c = cell_of(geom, scaled + 3 * i);
-        cell[i] = c;
+        const std::uint32_t c = cell_of(gg, P + 3 * i);
+        C[i] = c;
         ++ct[c];
       }
     }
   });
-  std::vector<std::uint32_t> add(nc + 1, 0);  // add[c]: new points in cells < c
+  sc.add.resize(nc + 1);
+  std::uint32_t* const add = sc.add.data();  // add[c]: new points in cells < c
+  add[0] = 0;
   std::size_t first_cell = nc;
-  double sum2 = 0;
+  std::uint64_t sum2 = 0;  // in integers: a double's add chain bounded this loop
   std::size_t occupied = 0;
   std::vector<std::uint32_t> new_cells;  // empty before, holding points now (the pyramid's new bits)
+  const std::uint32_t* const st = g.starts.data();
   for (std::size_t c = 0; c < nc; ++c) {
     std::uint32_t k = add[c];  // count[t][c] becomes range t's first slot of cell c
     for (unsigned t = 0; t < R; ++t) {
-      const std::uint32_t a = count[t][c];
-      count[t][c] = k;
+      const std::uint32_t a = count[t * nc + c];
+      count[t * nc + c] = k;
       k += a;
     }
     add[c + 1] = k;
-    const std::uint32_t old = g.starts[c + 1] - g.starts[c], a = k - add[c];
-    const double v = double(old) + a;
+    const std::uint32_t old = st[c + 1] - st[c], a = k - add[c];
+    const std::uint64_t v = std::uint64_t(old) + a;
     sum2 += v * v;
     occupied += v > 0 ? 1 : 0;
     if (old == 0 && a) new_cells.push_back(static_cast<std::uint32_t>(c));
     if (a && first_cell == nc) first_cell = c;
   }
-  const double mean = sum2 / double(n1);
+  const double mean = double(sum2) / double(n1);
   // The leaf split: the cells have grown too full for the side tuned at the last full build.
   if (mean > kRetuneAbove * std::max(1.0, grid_build_mean_)) {
+    release_counts();
     grid_rebuild_live(scaled, m, first, true);
     return;
   }
   detail::parallel_chunks(R, 1, T, [&](std::size_t, std::size_t tb, std::size_t te) {
     for (std::size_t t = tb; t < te; ++t) {
-      std::uint32_t* const at = count[t].data();
+      // Pointers in locals, the index stored as a float's bits by a plain store: a memcpy store
+      // may alias anything and made every pointer reload per point.
+      std::uint32_t* const at = count + t * nc;
+      const float* const P = scaled;
+      const std::uint32_t* const C = cell;
+      float* const Rc = rec;
       for (std::size_t i = m * t / R, e = m * (t + 1) / R; i < e; ++i) {
-        float* const r = rec + 4 * std::size_t(at[cell[i]]++);
+        float* const r = Rc + 4 * std::size_t(at[C[i]]++);
         const std::uint32_t bits = static_cast<std::uint32_t>(i);
-        r[0] = scaled[3 * i];
-        r[1] = scaled[3 * i + 1];
-        r[2] = scaled[3 * i + 2];
-        std::memcpy(r + 3, &bits, 4);
+        float fb;
+        std::memcpy(&fb, &bits, 4);
+        r[0] = P[3 * i];
+        r[1] = P[3 * i + 1];
+        r[2] = P[3 * i + 2];
+        r[3] = fb;
       }
     }
   });
@@ -681,6 +705,7 @@ void GridIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t fir
       for (std::size_t j = add[c]; j < add[c + 1]; ++j) emit(std::uint32_t(c), rec[4 * j], rec[4 * j + 1], rec[4 * j + 2]);
   });
   grid_upload_from(p_from, first_cell);
+  release_counts();
   info_.n_points = n1;
   info_.occupied_cells = occupied;
   info_.mean_cell_points = mean;
@@ -1031,13 +1056,19 @@ void GridIndex::grid_rebuild_live(const float* extra, std::size_t m, std::int32_
   for (int d = 0; d < 3; ++d) in.soa_lo[d] = lo[d], in.soa_hi[d] = hi[d];
   blockhash::GridVec<float> ox, oy, oz;
   blockhash::GridVec<std::int32_t> oids;
-  if (info_.holes) {
+  // The old arrays' memory is the new arrays' where it fits (issue 39): once the build's first
+  // pass has read the input into its records, the old arrays go back into g where they hold the
+  // result with an eighth to spare (the next insert's merge in place) and at most twice over (a
+  // large remove's rebuild gives its memory back), and the build writes its points there. A
+  // rebuild of about the old size (a scan past the box's edge, a remove below the band) then
+  // faults in no fresh pages; freed and allocated again, the arrays' pages were faulted in
+  // afresh wherever the allocator gave fresh ones (a third of a 1M rebuild's time).
+  blockhash::GridVec<float> hx, hy, hz;
+  blockhash::GridVec<std::int32_t> hids;
+  if (info_.holes) {  // the live points copied out, the old arrays held until the copy is read
     grid_live_in_cell_order(g, ox, oy, oz, oids);
-    g.x = blockhash::GridVec<float>();  // freed before the build allocates the new arrays
-    g.y = blockhash::GridVec<float>();
-    g.z = blockhash::GridVec<float>();
-    g.ids = blockhash::GridVec<std::int32_t>();
-  } else {  // moved out: the build fills g's arrays anew
+    hx = std::move(g.x), hy = std::move(g.y), hz = std::move(g.z), hids = std::move(g.ids);
+  } else {  // moved out and read where they are
     ox = std::move(g.x), oy = std::move(g.y), oz = std::move(g.z), oids = std::move(g.ids);
     oids.resize(g.n_points);  // the pad not read
   }
@@ -1048,9 +1079,19 @@ void GridIndex::grid_rebuild_live(const float* extra, std::size_t m, std::int32_
     g.scratch->ids = blockhash::GridVec<std::int32_t>();
   }
   in.x = ox.data(), in.y = oy.data(), in.z = oz.data(), in.soa_ids = oids.data(), in.n_soa = oids.size();
-  in.release = [&] {  // read by the build's first pass: freed before it allocates the new arrays
-    ox = blockhash::GridVec<float>(), oy = blockhash::GridVec<float>(), oz = blockhash::GridVec<float>();
-    oids = blockhash::GridVec<std::int32_t>();
+  const std::size_t need = oids.size() + (phantoms ? add_ids.size() : m) + blockhash::kGridPad;
+  in.release = [&] {  // read by the build's first pass: back into g (or freed) before it sizes the new arrays
+    if (info_.holes) {
+      ox = blockhash::GridVec<float>(), oy = blockhash::GridVec<float>(), oz = blockhash::GridVec<float>();
+      oids = blockhash::GridVec<std::int32_t>();
+    } else {
+      hx = std::move(ox), hy = std::move(oy), hz = std::move(oz), hids = std::move(oids);
+    }
+    auto fits_in = [&](std::size_t cap) { return cap >= need + need / 8 && cap <= 2 * need; };
+    const bool fits = fits_in(hx.capacity()) && fits_in(hy.capacity()) && fits_in(hz.capacity()) && fits_in(hids.capacity());
+    if (fits) g.x = std::move(hx), g.y = std::move(hy), g.z = std::move(hz), g.ids = std::move(hids);
+    hx = blockhash::GridVec<float>(), hy = blockhash::GridVec<float>(), hz = blockhash::GridVec<float>();
+    hids = blockhash::GridVec<std::int32_t>();
   };
   if (phantoms) in.xyz = add.data(), in.aos_ids = add_ids.data(), in.n_aos = add_ids.size();
   else in.xyz = extra, in.aos_first = first, in.n_aos = m;

@@ -9,6 +9,7 @@
 
 #include "blockhash_cl/error.hpp"
 #include "blockhash_cl/knn.hpp"
+#include "core/point_scan.hpp"
 
 namespace bhcl {
 namespace {
@@ -131,7 +132,9 @@ void Index::remove_points(const std::int32_t*, std::size_t) {
 std::int32_t Index::insert(const float* points, std::size_t n) {
   if (n == 0) throw Error(method() + ": insert: no points (n = 0)");
   if (!points) throw Error(method() + ": insert: the point array is null");
-  validate_points(points, n, "inserted points");  // names the first non-finite point
+  // One parallel pass (the serial check per point was a fortieth of a 10 % insert at 1M); the
+  // serial one only to name the first non-finite point.
+  if (!detail::scan_points(points, n).finite) validate_points(points, n, "inserted points");
   std::lock_guard<std::mutex> turn(gate(this));  // writer preference (see gate())
   std::unique_lock<std::shared_mutex> lock(update_mutex_);
   if (std::size_t(id_bound_) + n > kMaxIds)
