@@ -22,6 +22,8 @@
  *   BHCL_GRID_STATE           the state's type (a top-k list, or a radius emitter)
  *   BHCL_GRID_BOUND(st)       float: the squared distance a point must be within to matter
  *   BHCL_GRID_SCAN(st, a, b)  scans sorted points [a, b) (px, py, pz, pid and q in scope)
+ * and may define BHCL_GRID_SCAN_WALK(st, a, b), the same for the far walk's runs (default
+ * BHCL_GRID_SCAN; the kNN kernel's scans few points one at a time there).
  */
 #ifndef BHCL_GRID_SEARCH_H
 #define BHCL_GRID_SEARCH_H
@@ -267,6 +269,9 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_occ_pending(bhcl_u32 mask, bhcl_u32 near) {
  * been included before without one). */
 #if defined(BHCL_GRID_STATE) && !defined(BHCL_GRID_SEARCH_FN)
 #define BHCL_GRID_SEARCH_FN
+#ifndef BHCL_GRID_SCAN_WALK
+#define BHCL_GRID_SCAN_WALK(st, a, b) BHCL_GRID_SCAN(st, a, b)
+#endif
 #ifndef BHCL_GRID_ROWBUF
 #define BHCL_GRID_ROWBUF 32
 #endif
@@ -382,7 +387,7 @@ BHCL_GRID_INLINE float bhcl_grid_walk_child(const bhcl_grid_walk_ctx* w, bhcl_u3
     const bhcl_u32 c_ = ((z_) * w->g.ny + (y_)) * w->g.nx + (x_);         \
     const bhcl_u32 a_ = bhcl_grid_start(starts, w->g.sparse, c_);         \
     const bhcl_u32 b_ = bhcl_grid_start(starts, w->g.sparse, c_ + 1u);    \
-    BHCL_GRID_SCAN(st, a_, b_);                                           \
+    BHCL_GRID_SCAN_WALK(st, a_, b_);                                      \
     examined += b_ - a_;                                                  \
   }
 
@@ -501,7 +506,7 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_walk_block(BHCL_GLOBAL const bhcl_u32* start
         if (examined >= budget) return examined;
         const bhcl_u32 a = bhcl_grid_start(starts, g.sparse, row + ra);
         const bhcl_u32 e = bhcl_grid_start(starts, g.sparse, row + rb + 1u);
-        BHCL_GRID_SCAN(st, a, e);
+        BHCL_GRID_SCAN_WALK(st, a, e);
         examined += e - a;
       }
     }
