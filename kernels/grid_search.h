@@ -22,6 +22,8 @@
  *   BHCL_GRID_STATE           the state's type (a top-k list, or a radius emitter)
  *   BHCL_GRID_BOUND(st)       float: the squared distance a point must be within to matter
  *   BHCL_GRID_SCAN(st, a, b)  scans sorted points [a, b) (px, py, pz, pid and q in scope)
+ * and may define BHCL_GRID_SCAN_WALK(st, a, b), the same for the far walk's runs (default
+ * BHCL_GRID_SCAN; the kNN kernel's scans few points one at a time there).
  */
 #ifndef BHCL_GRID_SEARCH_H
 #define BHCL_GRID_SEARCH_H
@@ -267,6 +269,9 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_occ_pending(bhcl_u32 mask, bhcl_u32 near) {
  * been included before without one). */
 #if defined(BHCL_GRID_STATE) && !defined(BHCL_GRID_SEARCH_FN)
 #define BHCL_GRID_SEARCH_FN
+#ifndef BHCL_GRID_SCAN_WALK
+#define BHCL_GRID_SCAN_WALK(st, a, b) BHCL_GRID_SCAN(st, a, b)
+#endif
 #ifndef BHCL_GRID_ROWBUF
 #define BHCL_GRID_ROWBUF 32
 #endif
@@ -382,7 +387,7 @@ BHCL_GRID_INLINE float bhcl_grid_walk_child(const bhcl_grid_walk_ctx* w, bhcl_u3
     const bhcl_u32 c_ = ((z_) * w->g.ny + (y_)) * w->g.nx + (x_);         \
     const bhcl_u32 a_ = bhcl_grid_start(starts, w->g.sparse, c_);         \
     const bhcl_u32 b_ = bhcl_grid_start(starts, w->g.sparse, c_ + 1u);    \
-    BHCL_GRID_SCAN(st, a_, b_);                                           \
+    BHCL_GRID_SCAN_WALK(st, a_, b_);                                      \
     examined += b_ - a_;                                                  \
   }
 
@@ -432,10 +437,20 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_walk_block(BHCL_GLOBAL const bhcl_u32* start
   const bhcl_grid_dbox b = w->tboff ? bhcl_grid_walk_box2(w, X, Y, Z) : w->db;
   const bhcl_u32 x0 = X << 2, y0 = Y << 2, z0 = Z << 2;
   const bhcl_u32 d1x = bhcl_grid_occ_dim(g.nx, 1u), d1y = bhcl_grid_occ_dim(g.ny, 1u), d1z = bhcl_grid_occ_dim(g.nz, 1u);
-  bhcl_u32 l1[8]; /* the level-1 children's bytes (0 outside the grid) */
-  for (bhcl_u32 o = 0; o < 8u; ++o) {
-    const bhcl_u32 cx = 2u * X + (o & 1u), cy = 2u * Y + ((o >> 1) & 1u), cz = 2u * Z + (o >> 2);
-    l1[o] = cx < d1x && cy < d1y && cz < d1z ? occ[bhcl_grid_occ_index(g, 0u, 1u, cx, cy, cz)] : 0u;
+  /* The level-1 children's bytes (0 outside the grid), an x pair from one index (x is fastest
+   * in the level's bytes; the first of a pair is inside, as the node is), and per (y, z) pair
+   * the rows they show occupied: rowp[by | bz << 1] bit (y & 1) << 1 | (z & 1) << 2. */
+  bhcl_u32 l1[8], rowp[4];
+  const bhcl_u32 i1 = bhcl_grid_occ_index(g, 0u, 1u, 2u * X, 2u * Y, 2u * Z);
+  const bhcl_u32 x1in = 2u * X + 1u < d1x;
+  for (bhcl_u32 o = 0; o < 8u; o += 2u) {
+    const bhcl_u32 oy = (o >> 1) & 1u, oz = o >> 2;
+    const bhcl_u32 in = 2u * Y + oy < d1y && 2u * Z + oz < d1z;
+    const bhcl_u32 i = i1 + (oz * d1y + oy) * d1x;
+    l1[o] = in ? occ[i] : 0u;
+    l1[o + 1u] = in && x1in ? occ[i + 1u] : 0u;
+    const bhcl_u32 c = l1[o] | l1[o + 1u];
+    rowp[o >> 1] = c | (c >> 1);
   }
   float ey2[4];
   for (bhcl_u32 j = 0; j < 4u; ++j) {
@@ -445,17 +460,20 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_walk_block(BHCL_GLOBAL const bhcl_u32* start
   /* Rows nearest first along z, then y (the bound tightens before the far rows). */
   const bhcl_u32 oz = bhcl_grid_block_order(w->cz, z0), oy = bhcl_grid_block_order(w->cy, y0);
   for (bhcl_u32 i = 0; i < 4u; ++i) {
-    const bhcl_u32 z = z0 + ((oz >> (4u * i)) & 15u);
-    if (z >= g.nz) continue;
+    const bhcl_u32 zl = (oz >> (4u * i)) & 15u, z = z0 + zl;
+    /* the plane's occupied rows, bit y - y0 (none outside the grid): most planes of a sparse
+     * node have none, and cost this test alone */
+    const bhcl_u32 sh = (zl & 1u) << 2, p0 = rowp[(zl >> 1) << 1] >> sh, p1 = rowp[((zl >> 1) << 1) | 1u] >> sh;
+    const bhcl_u32 plane = (p0 & 1u) | ((p0 >> 1) & 2u) | ((p1 & 1u) << 2) | ((p1 << 1) & 8u);
+    if (plane == 0u) continue;
     const float ez = bhcl_grid_slabs_in(qz, g.oz, g.h, g.margin, z, z, b.lz, b.hz);
     const float ez2 = ez * ez;
     if (ez2 > BHCL_GRID_BOUND(st)) continue;
     for (bhcl_u32 jj = 0; jj < 4u; ++jj) {
       const bhcl_u32 j = (oy >> (4u * jj)) & 15u, y = y0 + j;
-      if (y >= g.ny) continue;
+      if (((plane >> j) & 1u) == 0u) continue;
       if (ey2[j] + ez2 > BHCL_GRID_BOUND(st)) continue;
       bhcl_u32 bits = bhcl_grid_block_row_bits(l1, y, z);
-      if (bits == 0u) continue;
       bhcl_u32 xa = x0 + BHCL_GRID_CTZ(bits), xb = x0 + (31u - BHCL_GRID_CLZ(bits));
       while (xa <= xb) { /* the row's ends, clipped by the bound (the cells between are scanned) */
         const float ex = bhcl_grid_slabs_in(qx, g.ox, g.h, g.margin, xa, xa, b.lx, b.hx);
@@ -488,7 +506,7 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_walk_block(BHCL_GLOBAL const bhcl_u32* start
         if (examined >= budget) return examined;
         const bhcl_u32 a = bhcl_grid_start(starts, g.sparse, row + ra);
         const bhcl_u32 e = bhcl_grid_start(starts, g.sparse, row + rb + 1u);
-        BHCL_GRID_SCAN(st, a, e);
+        BHCL_GRID_SCAN_WALK(st, a, e);
         examined += e - a;
       }
     }

@@ -165,6 +165,23 @@ TEST_CASE("grid_far_vs_bruteforce: the best-first walk without its descent (the 
   }
 }
 
+TEST_CASE("grid_far_vs_bruteforce: the walk's runs scanned one point at a time (BHCL_GRID_SHORT_RUN) exact") {
+  // The register list scans the far walk's runs of BHCL_GRID_SHORT_RUN points or fewer one point
+  // at a time (the default takes both ways); 1024 takes the scalar way for every run of the walk,
+  // through the list's fill and insertions: the same distances, so the same rows.
+  for (const FarCase& c : far_cases()) {
+    auto index = BlockHashIndex::build(test::runtime(), c.pts.data(), c.pts.size() / 3);
+    for (int k : {10, 17}) {  // one register, four
+      CAPTURE(c.name);
+      CAPTURE(k);
+      const SearchParams p = exact(k, "-DBHCL_GRID_SHORT_RUN=1024");
+      test::require_identical(index->query(c.qs, p),
+                              reference::knn_float(c.pts.data(), c.pts.size() / 3, c.qs.data(), c.qs.size() / 3, p),
+                              c.name + " short runs");
+    }
+  }
+}
+
 TEST_CASE("grid_far_radius_vs_bruteforce: radius search exact where the query is far") {
   for (const FarCase& c : far_cases()) {
     CAPTURE(c.name);
