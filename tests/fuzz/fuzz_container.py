@@ -32,7 +32,9 @@ class Refused(Exception):
     """The one exception a refusal may raise (load() passes blockhash_cl.Error)."""
 
 
-_fd, _file = tempfile.mkstemp(suffix=".npz", prefix="bhcl_fuzz_")
+# In BHCL_FUZZ_TMPDIR (.ci/fuzz: a folder of the fuzz build it empties after the run; libFuzzer's
+# exit at -max_total_time skips Python's atexit) or the system's temporary folder.
+_fd, _file = tempfile.mkstemp(suffix=".npz", prefix="bhcl_fuzz_", dir=os.environ.get("BHCL_FUZZ_TMPDIR") or None)
 os.close(_fd)
 
 

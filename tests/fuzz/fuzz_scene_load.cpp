@@ -15,8 +15,12 @@
 #include "scene.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
-  // The loader reads a path: the input goes to a file of this process's own.
-  static const std::string path = "/tmp/bhcl_fuzz_scene_" + std::to_string(getpid()) + ".obj";
+  // The loader reads a path: the input goes to a file of this process's own, in
+  // BHCL_FUZZ_TMPDIR (.ci/fuzz: a folder of the fuzz build it empties after the run) or /tmp.
+  static const std::string path = [] {
+    const char* dir = std::getenv("BHCL_FUZZ_TMPDIR");
+    return std::string(dir && *dir ? dir : "/tmp") + "/bhcl_fuzz_scene_" + std::to_string(getpid()) + ".obj";
+  }();
   {
     std::ofstream f(path, std::ios::binary | std::ios::trunc);
     f.write(reinterpret_cast<const char*>(data), static_cast<std::streamsize>(size));
