@@ -106,7 +106,11 @@ TEST_CASE("grid_far_vs_reference: kernel == host reference, walk from ring 0, af
     for (const char* d : {"-DBHCL_GRID_FINE_RINGS=0", "-DBHCL_GRID_FINE_RINGS=1", "-DBHCL_GRID_FINE_RINGS=0xffffffff",
                           "-DBHCL_GRID_VTOPK=0 -DBHCL_GRID_PREFETCH=0 -DBHCL_GRID_ROWCAP=0",
                           // the walk depth-first, and best-first with a queue that overflows at once or soon
-                          "-DBHCL_GRID_WALKCAP=0", "-DBHCL_GRID_WALKCAP=1", "-DBHCL_GRID_WALKCAP=3"})
+                          // (the last with every run of the walk measured one point at a time by the
+                          // register list, BHCL_GRID_SHORT_RUN: the same distances, so the same rows;
+                          // the default takes both ways)
+                          "-DBHCL_GRID_WALKCAP=0", "-DBHCL_GRID_WALKCAP=1",
+                          "-DBHCL_GRID_WALKCAP=3 -DBHCL_GRID_SHORT_RUN=1024"})
       for (int k : {1, 16, 17, 65})
         for (float A : {2.0f, INFINITY}) {
           CAPTURE(c.name);
@@ -161,23 +165,6 @@ TEST_CASE("grid_far_vs_bruteforce: the best-first walk without its descent (the 
       test::require_identical(index->query(c.qs, p),
                               reference::knn_float(c.pts.data(), c.pts.size() / 3, c.qs.data(), c.qs.size() / 3, p),
                               c.name + " no descent");
-    }
-  }
-}
-
-TEST_CASE("grid_far_vs_bruteforce: the walk's runs scanned one point at a time (BHCL_GRID_SHORT_RUN) exact") {
-  // The register list scans the far walk's runs of BHCL_GRID_SHORT_RUN points or fewer one point
-  // at a time (the default takes both ways); 1024 takes the scalar way for every run of the walk,
-  // through the list's fill and insertions: the same distances, so the same rows.
-  for (const FarCase& c : far_cases()) {
-    auto index = BlockHashIndex::build(test::runtime(), c.pts.data(), c.pts.size() / 3);
-    for (int k : {10, 17}) {  // one register, four
-      CAPTURE(c.name);
-      CAPTURE(k);
-      const SearchParams p = exact(k, "-DBHCL_GRID_SHORT_RUN=1024");
-      test::require_identical(index->query(c.qs, p),
-                              reference::knn_float(c.pts.data(), c.pts.size() / 3, c.qs.data(), c.qs.size() / 3, p),
-                              c.name + " short runs");
     }
   }
 }
