@@ -91,26 +91,40 @@ void gather_queries(const float* caller, std::size_t first, std::size_t m, const
 // The chunk's queries into b.q (and their caller rows into b.result_rows where the kernel writes
 // the caller's rows): mapped in place on a CPU device, written from a staging copy on a GPU.
 // result_rows: null where the rows are copied after the kernel.
-void upload_queries(const cl::CommandQueue& queue, const cl::Buffer& q, bool host, const cl::Buffer* result_rows,
-                    const float* caller, std::size_t first, std::size_t m, const std::size_t* order, int e,
-                    std::vector<float>& stage) {
-  const std::size_t bytes = m * 3 * sizeof(float);
-  if (host) {
-    // Both maps enqueued, then one wait (each blocking map is a round trip to the device's threads).
-    detail::Mapped map(queue, q, CL_MAP_WRITE_INVALIDATE_REGION, bytes, "queries", false);
-    std::unique_ptr<detail::Mapped> rows;
+// A CPU device's query buffer (and caller-row buffer, when not null) mapped for writing m
+// dispatch rows: both maps enqueued, then one wait (each blocking map is a round trip to the
+// device's threads); unmap() hands them back (the destructors do on an exception).
+struct MappedQueries {
+  detail::Mapped q;
+  std::unique_ptr<detail::Mapped> rows;
+  MappedQueries(const cl::CommandQueue& queue, const cl::Buffer& qb, const cl::Buffer* result_rows, std::size_t m)
+      : q(queue, qb, CL_MAP_WRITE_INVALIDATE_REGION, m * 3 * sizeof(float), "queries", false) {
     if (result_rows)
       rows = std::make_unique<detail::Mapped>(queue, *result_rows, CL_MAP_WRITE_INVALIDATE_REGION, m * 4,
                                               "result rows", false);
     check_cl(queue.finish(), "clFinish", "queries mapped");
-    gather_queries(caller, first, m, order, e, map.as<float>(), rows ? rows->as<std::uint32_t>() : nullptr);
+  }
+  float* queries() const { return q.as<float>(); }
+  std::uint32_t* caller_rows() const { return rows ? rows->as<std::uint32_t>() : nullptr; }
+  void unmap() {
     if (rows) rows->unmap("result rows");
-    map.unmap("queries");
+    q.unmap("queries");
+  }
+};
+
+void upload_queries(const cl::CommandQueue& queue, const cl::Buffer& q, bool host, const cl::Buffer* result_rows,
+                    const float* caller, std::size_t first, std::size_t m, const std::size_t* order, int e,
+                    std::vector<float>& stage) {
+  if (host) {
+    MappedQueries map(queue, q, result_rows, m);
+    gather_queries(caller, first, m, order, e, map.queries(), map.caller_rows());
+    map.unmap();
     return;
   }
   stage.resize(3 * m);
   gather_queries(caller, first, m, order, e, stage.data());
-  check_cl(queue.enqueueWriteBuffer(q, CL_FALSE, 0, bytes, stage.data()), "clEnqueueWriteBuffer", "queries");
+  check_cl(queue.enqueueWriteBuffer(q, CL_FALSE, 0, m * 3 * sizeof(float), stage.data()), "clEnqueueWriteBuffer",
+           "queries");
 }
 
 }  // namespace
@@ -218,23 +232,17 @@ void Index::search_on_device(const float* queries, std::size_t n, const std::siz
   bool uploaded = false;
   if (sort && b.host && chunk == n) {
     const auto tu = std::chrono::steady_clock::now();
-    detail::Mapped map(queue, b.q, CL_MAP_WRITE_INVALIDATE_REGION, n * 3 * sizeof(float), "queries", false);
-    std::unique_ptr<detail::Mapped> rows;
-    if (b.writes_caller_rows(n))
-      rows = std::make_unique<detail::Mapped>(queue, b.result_rows, CL_MAP_WRITE_INVALIDATE_REGION, n * 4,
-                                              "result rows", false);
-    check_cl(queue.finish(), "clFinish", "queries mapped");
+    MappedQueries map(queue, b.q, b.writes_caller_rows(n) ? &b.result_rows : nullptr, n);
     st.upload_s += seconds_since(tu);
-    float* dst = map.as<float>();
-    std::uint32_t* rdst = rows ? rows->as<std::uint32_t>() : nullptr;
+    float* dst = map.queries();
+    std::uint32_t* rdst = map.caller_rows();
     const int e = scale_exp_;
     const OrderPart sink = [&](std::size_t lo, std::size_t hi, const std::size_t* ord) {
       gather_range(queries, lo, hi, ord, e, dst + 3 * lo, rdst ? rdst + lo : nullptr);
     };
     order = (*sort)(&sink);
     const auto tm = std::chrono::steady_clock::now();
-    if (rows) rows->unmap("result rows");
-    map.unmap("queries");
+    map.unmap();
     st.upload_s += seconds_since(tm);
     uploaded = true;
   } else if (sort) {
