@@ -71,8 +71,22 @@ TEST_CASE("multi-device: the split adapts to measured throughput, and bad input 
   const auto w = multi.weights();
   REQUIRE(w.size() == 2);
   CHECK(std::abs(w[0] + w[1] - 1.0) < 1e-9);
-  // Both devices are the same CPU: a 9:1 split measures them about equal and moves toward 1:1.
-  CHECK(w[0] < 0.9);
+  // Both devices are the same CPU, but a shared machine's timings are noise: the direction of the
+  // move is checked on given timings below, the live call only keeps a valid split.
+  CHECK(w[0] > 0);
+  CHECK(w[1] > 0);
+  // The rule: equal throughput moves a 9:1 split half way to 1:1; twice as fast gets 2/3 of the
+  // measured share; a part too small to time, or untimed, keeps its weight.
+  auto near = [](const std::vector<double>& a, const std::vector<double>& b) {
+    for (std::size_t i = 0; i < a.size(); ++i)
+      if (std::abs(a[i] - b[i]) > 1e-12) return false;
+    return a.size() == b.size();
+  };
+  CHECK(near(adapted_weights({0.9, 0.1}, {36000, 4000}, {0.9, 0.1}), {0.7, 0.3}));
+  CHECK(near(adapted_weights({0.5, 0.5}, {5000, 5000}, {0.5, 1.0}), {0.5 * 0.5 + 0.5 * 2.0 / 3, 0.5 * 0.5 + 0.5 / 3}));
+  CHECK(near(adapted_weights({0.6, 0.3, 0.1}, {6000, 3000, 100}, {1.0, 1.0, 0.01}), {0.6 * 0.5 + 0.5 * 0.9 * 2 / 3, 0.3 * 0.5 + 0.5 * 0.9 / 3, 0.1}));
+  CHECK(near(adapted_weights({0.5, 0.5}, {5000, 5000}, {0.0, 0.0}), {0.5, 0.5}));
+  CHECK_THROWS_AS(adapted_weights({0.5, 0.5}, {1}, {1.0, 1.0}), Error);
   CHECK_THROWS_WITH_AS(MultiDeviceIndex({}, "kdtree", pts.data(), 10), doctest::Contains("no devices"), Error);
   CHECK_THROWS_WITH_AS(MultiDeviceIndex({runtime(), nullptr}, "kdtree", pts.data(), 10),
                        doctest::Contains("runtime 1 is null"), Error);

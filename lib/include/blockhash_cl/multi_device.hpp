@@ -91,6 +91,7 @@ class MultiDeviceIndex final : public SearchIndex {
  private:
   // Parts of n by the current weights: first[d] .. first[d + 1].
   std::vector<std::size_t> split(std::size_t n) const;
+  // Moves the weights to adapted_weights() of this call's parts.
   void learn(const std::vector<std::size_t>& counts, const std::vector<double>& seconds) const;
   // One batch over every device (kNN and radius alike), under the shared lock: run(d, first, m)
   // answers queries [first, first + m) on device d (all devices at once), then merge(d, first)
@@ -107,6 +108,13 @@ class MultiDeviceIndex final : public SearchIndex {
   mutable std::mutex weights_mutex_;
   mutable std::vector<double> weights_;
 };
+
+// The split's learning rule, apart so that it is testable without timing a machine: the devices'
+// throughput on one call (counts[d] queries in seconds[d]; parts under 256 queries or untimed are
+// left out and keep their weight), and new weights that mix half of the old ones with half of the
+// measured shares, so that one noisy call does not swing the split. The result sums as `old` does.
+std::vector<double> adapted_weights(const std::vector<double>& old, const std::vector<std::size_t>& counts,
+                                    const std::vector<double>& seconds);
 
 // Parses a --device list ("pocl,nvidia", "0:0,1:0"): comma-separated specs, each as Runtime
 // takes it. Throws bhcl::Error for an empty entry.

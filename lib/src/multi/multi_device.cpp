@@ -136,20 +136,27 @@ std::vector<std::size_t> MultiDeviceIndex::split(std::size_t n) const {
   return first;
 }
 
-void MultiDeviceIndex::learn(const std::vector<std::size_t>& counts, const std::vector<double>& seconds) const {
-  // Throughput of the devices measured on this call (parts too small to time are left out); the
-  // new weights mix half of the old ones with half of the measured shares, so that one noisy call
-  // does not swing the split.
+std::vector<double> adapted_weights(const std::vector<double>& old, const std::vector<std::size_t>& counts,
+                                    const std::vector<double>& seconds) {
+  if (counts.size() != old.size() || seconds.size() != old.size())
+    throw Error("adapted_weights: " + std::to_string(old.size()) + " weights, " + std::to_string(counts.size()) +
+                " counts and " + std::to_string(seconds.size()) + " times");
   std::vector<double> qps(counts.size(), 0);
   double sum = 0;
   for (std::size_t d = 0; d < counts.size(); ++d)
-    if (counts[d] >= 256 && seconds[d] > 0) sum += qps[d] = double(counts[d]) / seconds[d];
-  std::lock_guard<std::mutex> lock(weights_mutex_);
+    if (counts[d] >= 256 && seconds[d] > 0 && std::isfinite(seconds[d])) sum += qps[d] = double(counts[d]) / seconds[d];
   double known = 0;
-  for (std::size_t d = 0; d < counts.size(); ++d) known += qps[d] > 0 ? weights_[d] : 0;
-  if (sum <= 0 || known <= 0) return;
+  for (std::size_t d = 0; d < counts.size(); ++d) known += qps[d] > 0 ? old[d] : 0;
+  std::vector<double> w = old;
+  if (sum <= 0 || known <= 0) return w;
   for (std::size_t d = 0; d < counts.size(); ++d)
-    if (qps[d] > 0) weights_[d] = 0.5 * weights_[d] + 0.5 * known * qps[d] / sum;
+    if (qps[d] > 0) w[d] = 0.5 * old[d] + 0.5 * known * qps[d] / sum;
+  return w;
+}
+
+void MultiDeviceIndex::learn(const std::vector<std::size_t>& counts, const std::vector<double>& seconds) const {
+  std::lock_guard<std::mutex> lock(weights_mutex_);
+  weights_ = adapted_weights(weights_, counts, seconds);
 }
 
 QueryStats MultiDeviceIndex::on_devices(
