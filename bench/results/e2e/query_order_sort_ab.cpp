@@ -3,6 +3,8 @@
 // replaced, kept for n >= 2^31). Keys: 1M Cornell queries' order permuted by a multiplicative hash.
 //   g++ -std=c++17 -O3 -Ilib/include -Ilib/src -Ikernels bench/results/e2e/query_order_sort_ab.cpp lib/src/sfc/hilbert.cpp -o /tmp/sort_ab -lpthread
 //   /tmp/sort_ab   (reads /tmp/h37w_data/cornell_q1m.npy: make_dataset's 1M Cornell queries)
+// Builds against the sources of commit 3608be4 (git worktree add /tmp/qo 3608be4; the internal
+// sorters' signatures changed since); kept as the record of that A/B.
 // Result (AVX-512 EPYC, 2 threads, load 11): median ms: full order 132.1  bucket sort 59.7  radix+merge 83.6
 #include "core/query_order.cpp"
 #include <chrono>
