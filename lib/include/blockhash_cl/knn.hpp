@@ -53,6 +53,7 @@
 #include <vector>
 
 #include "blockhash_cl/runtime.hpp"
+#include "blockhash_cl/spatial_order.hpp"  // detail::OrderSink
 
 namespace bhcl {
 
@@ -588,10 +589,9 @@ class Index : public SearchIndex {
   void mark_removed(const std::int32_t* ids, std::size_t n);
   void unmark_removed(const std::int32_t* ids, std::size_t n);
   // sort (when set): makes the dispatch order and returns it, handed a sink that gathers each
-  // part of the order's queries as the sort's last pass finishes it (detail::OrderSink; null
-  // where the queries are uploaded after the sort): called once the query buffers are mapped.
-  using OrderPart = std::function<void(std::size_t lo, std::size_t hi, const std::size_t* order)>;
-  using SortStep = std::function<const std::size_t*(const OrderPart* sink)>;
+  // part of the order's queries as the sort's last pass finishes it (null where the queries are
+  // uploaded after the sort): called once the query buffers are mapped.
+  using SortStep = std::function<const std::size_t*(const detail::OrderSink* sink)>;
   void search_on_device(const float* queries, std::size_t n, const std::size_t* order, QueryKind& kind,
                         QueryStats& st, std::vector<std::size_t>& suspects, const SortStep* sort = nullptr) const;
   void search_on_host(const float* queries, std::size_t n, const std::size_t* order, QueryKind& kind,

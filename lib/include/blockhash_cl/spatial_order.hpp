@@ -4,6 +4,7 @@
 #pragma once
 
 #include <cstddef>
+#include <functional>
 #include <vector>
 
 namespace bhcl {
@@ -12,5 +13,12 @@ namespace bhcl {
 // per axis; points with equal keys keep their order); points with a non-finite coordinate go
 // last, in their own order. order[i] = the index of the i-th point to visit. n = 0: empty.
 std::vector<std::size_t> hilbert_order(const float* xyz, std::size_t n);
+
+namespace detail {
+// The library's own order takes a sink: called with each range [lo, hi) of dispatch positions
+// as soon as order[lo, hi) is final (lib/src/core/query_order.hpp); here, not there, because
+// Index's private query pipeline (knn.hpp) names it too.
+using OrderSink = std::function<void(std::size_t lo, std::size_t hi, const std::size_t* order)>;
+}  // namespace detail
 
 }  // namespace bhcl

@@ -9,6 +9,8 @@
 #include <memory>
 #include <vector>
 
+#include "blockhash_cl/spatial_order.hpp"  // OrderSink
+
 namespace bhcl::detail {
 
 // The order that visits the queries along a 3D Hilbert curve over their own bounding box
@@ -20,7 +22,6 @@ std::vector<std::size_t> hilbert_query_order(const float* xyz, std::size_t n, st
 // sink (when set): called with each range [lo, hi) of dispatch positions as soon as order[lo, hi)
 // is final (every position once, from the sort's threads, ranges in any order): the query
 // pipeline gathers the queries into the device's buffer there, in the sort's last pass.
-using OrderSink = std::function<void(std::size_t lo, std::size_t hi, const std::size_t* order)>;
 void hilbert_query_order_into(const float* xyz, std::size_t n, std::size_t* order, std::size_t* nonfinite = nullptr,
                               const OrderSink* sink = nullptr);
 // ... and into fresh memory not filled first: its pages are first touched by the key pass's

@@ -186,7 +186,7 @@ QueryStats Index::run_query(const float* queries, std::size_t n, QueryKind& kind
   }
   // The sort: on a device, where search_on_device calls it once the query buffer is mapped (a
   // sink set: the sort's last pass also gathers the queries there, no pass of their own after it).
-  const SortStep sort_step = [&](const OrderPart* sink) -> const std::size_t* {
+  const SortStep sort_step = [&](const detail::OrderSink* sink) -> const std::size_t* {
     const auto ts = std::chrono::steady_clock::now();
     order = detail::hilbert_query_order_fresh(queries, n, &st.nonfinite_queries, sink);
     st.sort_s = seconds_since(ts);
@@ -237,7 +237,7 @@ void Index::search_on_device(const float* queries, std::size_t n, const std::siz
     float* dst = map.queries();
     std::uint32_t* rdst = map.caller_rows();
     const int e = scale_exp_;
-    const OrderPart sink = [&](std::size_t lo, std::size_t hi, const std::size_t* ord) {
+    const detail::OrderSink sink = [&](std::size_t lo, std::size_t hi, const std::size_t* ord) {
       gather_range(queries, lo, hi, ord, e, dst + 3 * lo, rdst ? rdst + lo : nullptr);
     };
     order = (*sort)(&sink);
