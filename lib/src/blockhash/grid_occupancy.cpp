@@ -86,9 +86,11 @@ void boxes_level2(const Grid& g, bhcl_grid_dbox* box, unsigned threads) {
       threads, 4);
 }
 
-// Level l >= 3's boxes: each the union of its children's.
-void boxes_level(const bhcl_grid_geom& gm, const bhcl_grid_dbox* below, bhcl_grid_dbox* level, std::uint32_t l,
-                 unsigned threads) {
+// Each node of level l from its (up to 8) children of level l - 1: level[node] =
+// make(child_at), where child_at(o) is the index in `below` of child o (bit 0: x, 1: y, 2: z)
+// or -1 past the grid's edge. One task per level-l z index, which owns those nodes.
+template <class T, class Make>
+void from_children(const bhcl_grid_geom& gm, T* level, std::uint32_t l, unsigned threads, Make&& make) {
   const std::size_t cx = bhcl_grid_occ_dim(gm.nx, l - 1), cy = bhcl_grid_occ_dim(gm.ny, l - 1);
   const std::size_t cz = bhcl_grid_occ_dim(gm.nz, l - 1);
   const std::size_t dx = bhcl_grid_occ_dim(gm.nx, l), dy = bhcl_grid_occ_dim(gm.ny, l);
@@ -98,16 +100,25 @@ void boxes_level(const bhcl_grid_geom& gm, const bhcl_grid_dbox* below, bhcl_gri
         for (std::size_t Z = zb; Z < ze; ++Z)
           for (std::size_t Y = 0; Y < dy; ++Y)
             for (std::size_t X = 0; X < dx; ++X) {
-              bhcl_grid_dbox b = kEmptyBox;
-              for (unsigned o = 0; o < 8; ++o) {
+              auto child_at = [&](unsigned o) -> std::ptrdiff_t {
                 const std::size_t x = 2 * X + (o & 1), y = 2 * Y + ((o >> 1) & 1), z = 2 * Z + (o >> 2);
-                if (x >= cx || y >= cy || z >= cz) continue;
-                unite_box(b, below[(z * cy + y) * cx + x]);
-              }
-              level[(Z * dy + Y) * dx + X] = b;
+                return x < cx && y < cy && z < cz ? std::ptrdiff_t((z * cy + y) * cx + x) : -1;
+              };
+              level[(Z * dy + Y) * dx + X] = make(child_at);
             }
       },
       threads, 16);
+}
+
+// Level l >= 3's boxes: each the union of its children's.
+void boxes_level(const bhcl_grid_geom& gm, const bhcl_grid_dbox* below, bhcl_grid_dbox* level, std::uint32_t l,
+                 unsigned threads) {
+  from_children(gm, level, l, threads, [&](auto child_at) {
+    bhcl_grid_dbox b = kEmptyBox;
+    for (unsigned o = 0; o < 8; ++o)
+      if (const std::ptrdiff_t i = child_at(o); i >= 0) unite_box(b, below[i]);
+    return b;
+  });
 }
 
 // The boxes of levels 2..top (grid_search.h) into occ from byte `off` on.
@@ -127,24 +138,12 @@ void build_node_boxes(Grid& g, std::uint32_t top, std::size_t off, unsigned thre
 // Level l >= 2 from level l - 1: a child's bit is set when its own byte is not 0.
 void occupancy_level(const bhcl_grid_geom& gm, const std::uint8_t* below, std::uint8_t* level, std::uint32_t l,
                      unsigned threads) {
-  const std::size_t cx = bhcl_grid_occ_dim(gm.nx, l - 1), cy = bhcl_grid_occ_dim(gm.ny, l - 1);
-  const std::size_t cz = bhcl_grid_occ_dim(gm.nz, l - 1);
-  const std::size_t dx = bhcl_grid_occ_dim(gm.nx, l), dy = bhcl_grid_occ_dim(gm.ny, l);
-  detail::parallel_for(
-      bhcl_grid_occ_dim(gm.nz, l),
-      [&](std::size_t zb, std::size_t ze) {
-        for (std::size_t Z = zb; Z < ze; ++Z)
-          for (std::size_t Y = 0; Y < dy; ++Y)
-            for (std::size_t X = 0; X < dx; ++X) {
-              unsigned m = 0;
-              for (unsigned o = 0; o < 8; ++o) {
-                const std::size_t x = 2 * X + (o & 1), y = 2 * Y + ((o >> 1) & 1), z = 2 * Z + (o >> 2);
-                if (x < cx && y < cy && z < cz && below[(z * cy + y) * cx + x]) m |= 1u << o;
-              }
-              level[(Z * dy + Y) * dx + X] = std::uint8_t(m);
-            }
-      },
-      threads, 16);
+  from_children(gm, level, l, threads, [&](auto child_at) {
+    unsigned m = 0;
+    for (unsigned o = 0; o < 8; ++o)
+      if (const std::ptrdiff_t i = child_at(o); i >= 0 && below[i]) m |= 1u << o;
+    return std::uint8_t(m);
+  });
 }
 
 // The box of points [b, e) of one coordinate array, holes (+inf) left out: lanes of 16 points
