@@ -71,6 +71,34 @@ TEST_CASE("pipeline: kNN and radius, every method: dispatches split by the batch
   }
 }
 
+TEST_CASE("pipeline: a batch past the driver's launch limit is split below it (Quirks::max_launch_items) and equals brute force") {
+  const Quirks& q = runtime()->quirks();
+  if (q.max_launch_items == 0) return;  // no limit on this device: nothing to split
+  // 70,000 queries: one launch past PoCL's 65535 items; the split keeps every launch below it in
+  // whole groups, so the variant the warm-up compiled is the one that runs.
+  const auto pts = datasets::uniform(2000, 71);
+  const auto qs = datasets::uniform(70000, 72);
+  const std::size_t n = qs.size() / 3;
+  const std::size_t local = q.default_local_size;
+  const std::size_t per = (q.max_launch_items - 1) / local * local;
+  REQUIRE(per < q.max_launch_items);
+  const KnnResult ref = knn_reference(pts, qs, 4);
+  for (const char* m : {"blockhash", "kdtree", "bruteforce"}) {
+    INFO("method " << m);
+    auto ix = make_index(m, runtime(), pts.data(), pts.size() / 3);
+    KnnResult got;
+    const QueryStats st = ix->query(qs.data(), n, knn_params(4), got);
+    require_identical(got, ref, std::string(m) + ": kNN past the launch limit");
+    CHECK(st.batches == (n + per - 1) / per);
+    SearchParams wish = knn_params(4);
+    wish.max_batch = 1u << 30;  // a caller's bound above the limit does not lift it
+    CHECK(ix->query(qs.data(), n, wish, got).batches == (n + per - 1) / per);
+    RadiusResult rr;
+    const QueryStats rs = ix->radius_search(qs.data(), n, 0.02f, RadiusParams{}, rr);
+    CHECK(rs.batches >= (n + per - 1) / per);
+  }
+}
+
 TEST_CASE("pipeline: kNN and radius, every method: the Hilbert dispatch order does not change answers") {
   Case c;
   c.qs.insert(c.qs.end(), {NAN, 0.5f, 0.5f, 0.25f, INFINITY, 0.5f});  // non-finite queries: empty rows

@@ -561,6 +561,9 @@ class Index : public SearchIndex {
 
   // The most queries per dispatch this method allows (e.g. to bound scratch memory).
   virtual std::size_t max_dispatch_queries() const { return std::size_t(1) << 20; }
+  // Queries per launch: the caller's max_batch (0: no wish), max_dispatch_queries() and the
+  // driver's launch limit (Quirks::max_launch_items, whole groups of `local` below it); >= 1.
+  std::size_t queries_per_launch(std::size_t max_batch, std::size_t local) const;
 
   std::size_t local_size_for(const SearchParams& params) const;
 

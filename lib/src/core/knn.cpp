@@ -212,6 +212,13 @@ void Index::rebuild(const float*, std::size_t) {
   throw Error("rebuild: method '" + method() + "' has no rebuild in place (build a new index)");
 }
 
+std::size_t Index::queries_per_launch(std::size_t max_batch, std::size_t local) const {
+  std::size_t per = max_batch ? std::min(max_batch, max_dispatch_queries()) : max_dispatch_queries();
+  if (const std::size_t limit = runtime_->quirks().max_launch_items; limit && local && limit > local)
+    per = std::min(per, (limit - 1) / local * local);  // strictly below the limit, in whole groups
+  return std::max<std::size_t>(per, 1);
+}
+
 cl::Event Index::enqueue_impl(const cl::CommandQueue& queue, const cl::Buffer& queries,
                               std::size_t n, const ResultBuffers& out, const SearchParams& params,
                               const std::vector<cl::Event>* wait, std::vector<cl::Event>* kernels,
@@ -220,9 +227,7 @@ cl::Event Index::enqueue_impl(const cl::CommandQueue& queue, const cl::Buffer& q
   double c = warm_up(params);
   if (compile_s) *compile_s += c;
   std::size_t local = local_size_for(params);
-  std::size_t per = params.max_batch ? params.max_batch : max_dispatch_queries();
-  if (per > max_dispatch_queries()) per = max_dispatch_queries();
-  per = std::max<std::size_t>(per, 1);
+  const std::size_t per = queries_per_launch(params.max_batch, local);
   // Every batch waits for the caller's list (an out-of-order queue would not order them after the
   // first), and more than one batch ends in a marker on all of them, so the event returned means
   // "every row written" on any queue.

@@ -221,8 +221,7 @@ void Index::search_on_device(const float* queries, std::size_t n, const std::siz
   const cl::CommandQueue& queue = runtime_->queue();
   const DispatchParams& dp = kind.dispatch();
   const std::size_t local = dp.local_size ? dp.local_size : runtime_->quirks().default_local_size;
-  std::size_t per = dp.max_batch ? std::min(dp.max_batch, max_dispatch_queries()) : max_dispatch_queries();
-  per = std::max<std::size_t>(per, 1);
+  const std::size_t per = queries_per_launch(dp.max_batch, local);
   const std::size_t chunk = std::min(kind.chunk_rows(n), n);
   QueryBuffers b;
   take_query_buffers(chunk, kind.row_k(), dp.count_examined, b);

@@ -28,7 +28,8 @@ Quirks quirks_for(const DeviceInfo& device) {
     // On the pthread device a work-group runs as one loop on one core: 64 items amortise the
     // per-group cost while keeping enough groups for every core.
     q.default_local_size = 64;
-    q.description = "pocl: compiles at first launch (warm-up launch before timing)";
+    q.max_launch_items = 65535;
+    q.description = "pocl: compiles at first launch (warm-up launch before timing), launches under 65535 items";
   } else if (info.is_nvidia) {
     // NVIDIA's driver compiles at clBuildProgram. 64 items = 2 warps a group (the private top-k
     // list's registers are per work-item: the group size does not change them).
