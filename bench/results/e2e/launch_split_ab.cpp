@@ -3,6 +3,8 @@
 // Run: POCL_MAX_PTHREAD_COUNT=2 /tmp/launch_ab 1000000 10   (and 50). Built at e25ca3e (before the quirk; after it both arms split).
 // Result (AVX-512 AMD EPYC, 2 threads, load 3-4.8, 2026-12-05 04:10-04:18 UTC, uniform 1M points and 1M queries, 7 rounds):
 //   k = 10: one / split kernel 1.054, wall 1.044 (split faster); k = 50: 1.003 / 1.004; rows equal.
+//   Two clusters (far_bench's, 60000 points, 100k queries between them, k = 10, 15 rounds, the same program with its data
+//   swapped, load ~1.2): one / split (2 launches) kernel 0.979, wall 0.980 (split 2 % slower). Within noise both ways.
 #include <blockhash_cl/blockhash_cl.hpp>
 #include <algorithm>
 #include <cstdio>
