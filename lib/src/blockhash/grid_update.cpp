@@ -1084,7 +1084,7 @@ void GridIndex::grid_rebuild_live(const float* extra, std::size_t m, std::int32_
   const std::size_t need = oids.size() + (phantoms ? add_ids.size() : m) + blockhash::kGridPad;
   const bool old_arrays_kept = old_cap >= need + need / 8 && old_max <= 2 * need;
   // Where the old arrays will not hold the result (an insert past the band grows them), the build
-  // reads them twice, in their cell order (no records: sorts_from_cells), and they are freed
+  // reads them twice, in their cell order (no records: grid_build.cpp's count_from_cells), and they are freed
   // after; where they will, they go back into g before the build writes there.
   in.soa_in_cells = !old_arrays_kept;
   in.release = [&] {  // read by the build's first pass: back into g (or freed) before it sizes the new arrays
