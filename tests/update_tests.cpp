@@ -1157,9 +1157,10 @@ TEST_CASE("updates: a large insert past the grid's band is one fresh build, exac
 }
 
 // Issue 39: a rebuild whose old points are a grid's arrays in cell order sorts them straight into
-// the new arrays (no records); the arrays, directory and pyramid must equal the bucket passes'
-// build of the same input bit for bit, in parallel ranges (4 of them here) and where the cells
-// outnumber the points (then the bucket passes run).
+// the new arrays (the new points through records); the arrays, directory and pyramid must equal
+// the bucket passes' build of the same input bit for bit, in parallel ranges (2 of old points and
+// 2 of new here), without new points, and where the cells outnumber the points (then the bucket
+// passes run).
 TEST_CASE("updates: the grid's build from cell order equals the bucket passes' build") {
   std::mt19937_64 rng(3940);
   blockhash::GridBuildArgs args;
@@ -1172,14 +1173,16 @@ TEST_CASE("updates: the grid's build from cell order equals the bucket passes' b
     blockhash::build_grid(in, args, old, nullptr);
   }
   const std::vector<float> more = uniform(rng, 40000, 0.1f, 0.9f);
+  for (std::size_t extra : {40000, 0})  // new points (their records), none (a remove's rebuild)
   for (double side : {-1.0, 0.012}) {  // tuned; so small that the cells outnumber the points (direct)
+    CAPTURE(extra);
     CAPTURE(side);
     args.cell_size = side;
     blockhash::GridInput in;
     in.x = old.x.data(), in.y = old.y.data(), in.z = old.z.data(), in.soa_ids = old.ids.data(), in.n_soa = old.n_points;
     const float lo[3] = {old.dbox.lx, old.dbox.ly, old.dbox.lz}, hi[3] = {old.dbox.hx, old.dbox.hy, old.dbox.hz};
     for (int d = 0; d < 3; ++d) in.soa_lo[d] = lo[d], in.soa_hi[d] = hi[d];
-    in.xyz = more.data(), in.aos_first = 150000, in.n_aos = 40000;
+    in.xyz = more.data(), in.aos_first = 150000, in.n_aos = extra;
     blockhash::Grid a, b;
     blockhash::GridBuildStats sa, sb;
     blockhash::build_grid(in, args, a, &sa);
