@@ -1135,6 +1135,7 @@ TEST_CASE("updates: a large insert past the grid's band is one fresh build, exac
   CHECK(ix->info().update_rebuilds == 1);
   CHECK(ix->info().retunes == 1);
   CHECK(ix->info().merges == 0);
+  require_pyramid_as_built(*ix);  // built from the old arrays' cell order (no records)
   check_exact(*ix, m, rng);
   budget_kernel_equals_reference(*ix, m, rng, "grid A = 2 after a large insert's build, kernel vs reference");
   // As many again, sparser, into the empty half: the population falls, so the insert merges.
@@ -1152,6 +1153,54 @@ TEST_CASE("updates: a large insert past the grid's band is one fresh build, exac
     require_pyramid_as_built(*ix);
     check_exact(*ix, m, rng);
     budget_kernel_equals_reference(*ix, m, rng, "grid A = 2 after a merge in place, kernel vs reference");
+  }
+}
+
+// Issue 39: a rebuild whose old points are a grid's arrays in cell order sorts them straight into
+// the new arrays (the new points through records); the arrays, directory and pyramid must equal
+// the bucket passes' build of the same input bit for bit, in parallel ranges (2 of old points and
+// 2 of new here), without new points, and where the cells outnumber the points (then the bucket
+// passes run).
+TEST_CASE("updates: the grid's build from cell order equals the bucket passes' build") {
+  std::mt19937_64 rng(3940);
+  blockhash::GridBuildArgs args;
+  args.threads = 4;
+  blockhash::Grid old;
+  {
+    const std::vector<float> p0 = uniform(rng, 150000, 0.0f, 1.0f);
+    blockhash::GridInput in;
+    in.xyz = p0.data(), in.n_aos = 150000;
+    blockhash::build_grid(in, args, old, nullptr);
+  }
+  const std::vector<float> more = uniform(rng, 40000, 0.1f, 0.9f);
+  for (std::size_t extra : {40000, 0})  // new points (their records), none (a remove's rebuild)
+  for (double side : {-1.0, 0.012}) {  // tuned; so small that the cells outnumber the points (direct)
+    CAPTURE(extra);
+    CAPTURE(side);
+    args.cell_size = side;
+    blockhash::GridInput in;
+    in.x = old.x.data(), in.y = old.y.data(), in.z = old.z.data(), in.soa_ids = old.ids.data(), in.n_soa = old.n_points;
+    const float lo[3] = {old.dbox.lx, old.dbox.ly, old.dbox.lz}, hi[3] = {old.dbox.hx, old.dbox.hy, old.dbox.hz};
+    for (int d = 0; d < 3; ++d) in.soa_lo[d] = lo[d], in.soa_hi[d] = hi[d];
+    in.xyz = more.data(), in.aos_first = 150000, in.n_aos = extra;
+    blockhash::Grid a, b;
+    blockhash::GridBuildStats sa, sb;
+    blockhash::build_grid(in, args, a, &sa);
+    in.soa_in_cells = true;
+    blockhash::build_grid(in, args, b, &sb);
+    CHECK_FALSE(sa.from_cells);
+    CHECK(sb.from_cells == (side < 0));
+    REQUIRE(std::memcmp(&a.geom, &b.geom, sizeof(a.geom)) == 0);
+    CHECK(a.n_points == b.n_points);
+    CHECK(sa.occupied == sb.occupied);
+    CHECK(sa.mean_cell_points == sb.mean_cell_points);
+    CHECK(std::memcmp(&a.dbox, &b.dbox, sizeof(a.dbox)) == 0);
+    CHECK(std::equal(a.starts.begin(), a.starts.end(), b.starts.begin(), b.starts.end()));
+    CHECK(std::equal(a.ids.begin(), a.ids.end(), b.ids.begin(), b.ids.end()));
+    CHECK(std::memcmp(a.x.data(), b.x.data(), a.x.size() * 4) == 0);
+    CHECK(std::memcmp(a.y.data(), b.y.data(), a.y.size() * 4) == 0);
+    CHECK(std::memcmp(a.z.data(), b.z.data(), a.z.size() * 4) == 0);
+    CHECK(std::equal(a.occ.begin(), a.occ.end(), b.occ.begin(), b.occ.end()));
   }
 }
 

@@ -107,6 +107,7 @@ struct GridBuildStats {
   std::size_t occupied_segments = 0;  // two-level directory: segments holding a point
   double mean_cell_points = 0;  // point-weighted mean population (each point's cell, averaged)
   bool capped = false;          // the cells were grown to fit max_cells_per_point
+  bool from_cells = false;      // sorted from the SoA part's cell order (GridInput::soa_in_cells)
 };
 
 // A build's points (in the index's coordinates), in two parts taken in this order: first a
@@ -127,6 +128,10 @@ struct GridInput {
   // Called once the build has read the points (before it sizes its arrays): an update's rebuild
   // frees the old grid's arrays there, so that the new ones may take their memory.
   std::function<void()> release;
+  // The SoA part is a grid's points in cell order (an update's rebuild): a direct table is then
+  // sorted straight into the arrays, no records (build_grid), reading the input twice, so
+  // release() comes once the points are placed and must leave g's arrays alone.
+  bool soa_in_cells = false;
   std::size_t size() const { return n_soa + n_aos; }
 };
 

@@ -1065,6 +1065,8 @@ void GridIndex::grid_rebuild_live(const float* extra, std::size_t m, std::int32_
   // afresh wherever the allocator gave fresh ones (a third of a 1M rebuild's time).
   blockhash::GridVec<float> hx, hy, hz;
   blockhash::GridVec<std::int32_t> hids;
+  const std::size_t old_cap = std::min({g.x.capacity(), g.y.capacity(), g.z.capacity(), g.ids.capacity()}),
+                    old_max = std::max({g.x.capacity(), g.y.capacity(), g.z.capacity(), g.ids.capacity()});
   if (info_.holes) {  // the live points copied out, the old arrays held until the copy is read
     grid_live_in_cell_order(g, ox, oy, oz, oids);
     hx = std::move(g.x), hy = std::move(g.y), hz = std::move(g.z), hids = std::move(g.ids);
@@ -1080,6 +1082,11 @@ void GridIndex::grid_rebuild_live(const float* extra, std::size_t m, std::int32_
   }
   in.x = ox.data(), in.y = oy.data(), in.z = oz.data(), in.soa_ids = oids.data(), in.n_soa = oids.size();
   const std::size_t need = oids.size() + (phantoms ? add_ids.size() : m) + blockhash::kGridPad;
+  const bool old_arrays_kept = old_cap >= need + need / 8 && old_max <= 2 * need;
+  // Where the old arrays will not hold the result (an insert past the band grows them), the build
+  // reads them twice, in their cell order (no records: grid_build.cpp's count_from_cells), and they are freed
+  // after; where they will, they go back into g before the build writes there.
+  in.soa_in_cells = !old_arrays_kept;
   in.release = [&] {  // read by the build's first pass: back into g (or freed) before it sizes the new arrays
     if (info_.holes) {
       ox = blockhash::GridVec<float>(), oy = blockhash::GridVec<float>(), oz = blockhash::GridVec<float>();
@@ -1087,9 +1094,7 @@ void GridIndex::grid_rebuild_live(const float* extra, std::size_t m, std::int32_
     } else {
       hx = std::move(ox), hy = std::move(oy), hz = std::move(oz), hids = std::move(oids);
     }
-    auto fits_in = [&](std::size_t cap) { return cap >= need + need / 8 && cap <= 2 * need; };
-    const bool fits = fits_in(hx.capacity()) && fits_in(hy.capacity()) && fits_in(hz.capacity()) && fits_in(hids.capacity());
-    if (fits) g.x = std::move(hx), g.y = std::move(hy), g.z = std::move(hz), g.ids = std::move(hids);
+    if (old_arrays_kept) g.x = std::move(hx), g.y = std::move(hy), g.z = std::move(hz), g.ids = std::move(hids);
     hx = blockhash::GridVec<float>(), hy = blockhash::GridVec<float>(), hz = blockhash::GridVec<float>();
     hids = blockhash::GridVec<std::int32_t>();
   };
