@@ -1,6 +1,7 @@
 #!/usr/bin/env python3
 """Plots mapping_bench's per-scan CSV: update time and query time per point, per scan, for block
-hashing and nanoflann's dynamic adaptor (issue 39).
+hashing, nanoflann's dynamic adaptor and, where the CSV has its columns (mapping_bench built
+with ikd-Tree), ikd-Tree (issue 39).
 
     /usr/bin/python3 bench/plot_mapping.py bench/results/mapping/autzen_80.csv docs/mapping_autzen.png
 
@@ -41,6 +42,8 @@ def main(argv):
         "block hashing (grid, exact)": ("bh_update_s", "bh_query_s", "tab:blue"),
         "nanoflann dynamic adaptor": ("nf_update_s", "nf_query_s", "tab:orange"),
     }
+    if "ik_update_s" in rows[0]:
+        series["ikd-Tree"] = ("ik_update_s", "ik_query_s", "tab:green")
     fig, (a, b) = plt.subplots(2, 1, figsize=(8, 6.5), sharex=True)
     for name, (u, q, colour) in series.items():
         a.plot(scan, [1e3 * float(r[u]) for r in rows], label=name, color=colour, lw=1.2)
