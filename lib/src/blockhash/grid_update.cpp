@@ -597,22 +597,21 @@ void GridIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t fir
   const unsigned T = nc <= 4 * m ? unsigned(std::max<std::size_t>(
                                        1, std::min<std::size_t>(params_.threads ? params_.threads : detail::default_threads(), m / 32768)))
                                  : 1u;
-  const unsigned R = T;
-  if (sc.count.size() < std::size_t(R) * nc) sc.count.resize(std::size_t(R) * nc);
+  if (sc.count.size() < std::size_t(T) * nc) sc.count.resize(std::size_t(T) * nc);
   std::uint32_t* const count = sc.count.data();
-  std::fill_n(count, std::size_t(R) * nc, 0u);
+  std::fill_n(count, std::size_t(T) * nc, 0u);
   // Kept only where the cells are not many more than the points (a direct table of 8 cells per
   // point would keep 64 bytes per point between inserts); else freed after this insert.
   auto release_counts = [&] {
     if (nc > g.n_points) sc.count = blockhash::GridVec<std::uint32_t>(), sc.add = blockhash::GridVec<std::uint32_t>();
   };
   const bhcl_grid_geom gg = geom;  // in a local: the stores below would reload it through the reference
-  detail::parallel_chunks(R, 1, T, [&](std::size_t, std::size_t tb, std::size_t te) {
+  detail::parallel_chunks(T, 1, T, [&](std::size_t, std::size_t tb, std::size_t te) {
     for (std::size_t t = tb; t < te; ++t) {
       std::uint32_t* const ct = count + t * nc;
       const float* const P = scaled;
       std::uint32_t* const C = cell;
-      for (std::size_t i = m * t / R, e = m * (t + 1) / R; i < e; ++i) {
+      for (std::size_t i = m * t / T, e = m * (t + 1) / T; i < e; ++i) {
         const std::uint32_t c = cell_of(gg, P + 3 * i);
         C[i] = c;
         ++ct[c];
@@ -629,7 +628,7 @@ void GridIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t fir
   const std::uint32_t* const st = g.starts.data();
   for (std::size_t c = 0; c < nc; ++c) {
     std::uint32_t k = add[c];  // count[t][c] becomes range t's first slot of cell c
-    for (unsigned t = 0; t < R; ++t) {
+    for (unsigned t = 0; t < T; ++t) {
       const std::uint32_t a = count[t * nc + c];
       count[t * nc + c] = k;
       k += a;
@@ -649,7 +648,7 @@ void GridIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t fir
     grid_rebuild_live(scaled, m, first, true);
     return;
   }
-  detail::parallel_chunks(R, 1, T, [&](std::size_t, std::size_t tb, std::size_t te) {
+  detail::parallel_chunks(T, 1, T, [&](std::size_t, std::size_t tb, std::size_t te) {
     for (std::size_t t = tb; t < te; ++t) {
       // Pointers in locals, the index stored as a float's bits by a plain store: a memcpy store
       // may alias anything and made every pointer reload per point.
@@ -657,7 +656,7 @@ void GridIndex::grid_insert(const float* scaled, std::size_t m, std::int32_t fir
       const float* const P = scaled;
       const std::uint32_t* const C = cell;
       float* const Rc = rec;
-      for (std::size_t i = m * t / R, e = m * (t + 1) / R; i < e; ++i) {
+      for (std::size_t i = m * t / T, e = m * (t + 1) / T; i < e; ++i) {
         float* const r = Rc + 4 * std::size_t(at[C[i]]++);
         const std::uint32_t bits = static_cast<std::uint32_t>(i);
         float fb;
