@@ -375,7 +375,17 @@ static std::size_t slice_rows_override() {
   return static_cast<std::size_t>(v);
 }
 
-std::size_t knn_slice_rows(std::size_t n, int k, bool count_examined, bool bar) {
+std::size_t direct_slice_bytes() {
+  // BHCL_DIRECT_SLICE_MB (a positive count of MiB) overrides the 32 MiB (experiments).
+  if (const char* e = std::getenv("BHCL_DIRECT_SLICE_MB"); e && *e) {
+    char* end = nullptr;
+    const unsigned long long v = std::strtoull(e, &end, 10);
+    if (*end == '\0' && v > 0) return static_cast<std::size_t>(v) << 20;
+  }
+  return std::size_t(32) << 20;
+}
+
+std::size_t knn_slice_rows(std::size_t n, int k, bool count_examined, bool bar, std::size_t slice_bytes) {
   if (const std::size_t o = slice_rows_override()) return std::max<std::size_t>(1, std::min(o, n));
   // About 256 MiB of rows a slice (ids, squared distances, the count, the examined count), at
   // least 2^15 queries (large enough for the Hilbert dispatch order and full devices); with a
@@ -384,7 +394,8 @@ std::size_t knn_slice_rows(std::size_t n, int k, bool count_examined, bool bar) 
   // chunk: at k = 50 a 664k-query slice had been a 651k chunk and a 13k one (two launches, and
   // no gather in the sort's pass).
   const std::size_t row = static_cast<std::size_t>(k) * 8 + 12 + (count_examined ? 4 : 0);
-  std::size_t rows = std::max<std::size_t>(std::size_t(1) << 15, (std::size_t(256) << 20) / row);
+  if (slice_bytes == 0) slice_bytes = std::size_t(256) << 20;
+  std::size_t rows = std::max<std::size_t>(std::size_t(1) << 15, slice_bytes / row);
   if (bar) rows = std::min(rows, std::max<std::size_t>(std::size_t(1) << 15, n / 100));
   return std::max<std::size_t>(1, std::min(rows, n));
 }
