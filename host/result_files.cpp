@@ -42,12 +42,13 @@ const Out* ids_as(const std::vector<In>& ids, std::size_t count, std::vector<Out
 constexpr std::size_t kHugeAdviceBytes = std::size_t(2) << 20;
 
 // Outputs of at least this size are written with O_DIRECT (issue 37). Smaller ones stay mapped:
-// bhcl knn, Cornell 1M, 100k queries, k = 10 (4 MB a file, one slice, whose direct write cannot
-// overlap a next search), AVX-512, 2 threads: the write stage 6 against 1 ms, the process the
-// same (0.99 of main's); at k = 50 (20 MB a file) 6 against 28 ms.
-constexpr std::size_t kDirectBytes = std::size_t(16) << 20;
+// bhcl knn, Cornell 1M, AVX-512, 2 threads, alternating with the mapped path (main), the whole
+// process at 1M x 50 (200 MB a file) 0.81-0.91 of main's in four sessions, but at 1M x 10 (40 MB)
+// 0.89 / 1.01 / 1.05 / 1.11 and at 100k x 50 (20 MB) 0.94-1.11: the search's kernel 15-25 %
+// slower beside the direct writes and in 2^18-query slices (bench/results/e2e/direct_output_h37f.md).
+constexpr std::size_t kDirectBytes = std::size_t(128) << 20;
 
-// BHCL_DIRECT_OUTPUT: unset: direct outputs (O_DIRECT) for known lengths of 16 MiB or more; "0":
+// BHCL_DIRECT_OUTPUT: unset: direct outputs (O_DIRECT) for known lengths of 128 MiB or more; "0":
 // never (the mapped path); "1": every known length (the tests' small outputs).
 int direct_output_mode() {
   const char* e = std::getenv("BHCL_DIRECT_OUTPUT");
