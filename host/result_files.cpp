@@ -43,12 +43,12 @@ constexpr std::size_t kHugeAdviceBytes = std::size_t(2) << 20;
 
 // Outputs of at least this size are written with O_DIRECT (issue 37). Smaller ones stay mapped:
 // bhcl knn, Cornell 1M, AVX-512, 2 threads, alternating with the mapped path (main), the whole
-// process at 1M x 50 (200 MB a file) 0.81-0.91 of main's in four sessions, but at 1M x 10 (40 MB)
-// 0.89 / 1.01 / 1.05 / 1.11 and at 100k x 50 (20 MB) 0.94-1.11: the search's kernel 15-25 %
-// slower beside the direct writes and in 2^18-query slices (bench/results/e2e/direct_output_h37f.md).
-constexpr std::size_t kDirectBytes = std::size_t(128) << 20;
+// process with direct outputs forced at 100k x 10 (4 MB a file, one slice: its write cannot
+// overlap a next search) 1.02 of main's, its search wall 1.13; at 100k x 50 (20 MB) 0.98 / 1.00;
+// at 1M x 10 (40 MB) 0.84 / 0.88; at 1M x 50 (200 MB) 0.90 / 0.94 (bench/results/e2e/direct_output_h37f.md).
+constexpr std::size_t kDirectBytes = std::size_t(32) << 20;
 
-// BHCL_DIRECT_OUTPUT: unset: direct outputs (O_DIRECT) for known lengths of 128 MiB or more; "0":
+// BHCL_DIRECT_OUTPUT: unset: direct outputs (O_DIRECT) for known lengths of 32 MiB or more; "0":
 // never (the mapped path); "1": every known length (the tests' small outputs).
 int direct_output_mode() {
   const char* e = std::getenv("BHCL_DIRECT_OUTPUT");
@@ -126,8 +126,21 @@ void ArrayOutput::append_direct(char* rows, std::size_t items) {
 
 void DirectBuffer::reserve(std::size_t bytes) {
   if (bytes <= cap_ && mem_) return;
-  // Room for the carried block before the rows and the padding after; not filled.
-  mem_.reset(aligned_bytes(kAlign + bytes + kAlign, kAlign));
+  // Room for the carried block before the rows and the padding after. On 2 MiB boundaries,
+  // advised MADV_HUGEPAGE and made present (MADV_POPULATE_WRITE; both advice only) before the
+  // search (timed as the write stage): the kernel stores each row at its caller's row, i.e. at
+  // random places, and in 4 KiB pages it was 1.15-1.25x the mapped path's (whose file pages are
+  // 2 MiB folios); with them 0.76 (1M x 50, Cornell, AVX-512, 2 threads, alternating processes,
+  // median of 4). BHCL_DIRECT_THP=0: neither (the experiment's other arm).
+  const char* e = std::getenv("BHCL_DIRECT_THP");
+  const bool thp = !(e && e[0] == '0');
+  const std::size_t huge = std::size_t(2) << 20;
+  const std::size_t len = thp ? (kAlign + bytes + kAlign + huge - 1) / huge * huge : kAlign + bytes + kAlign;
+  mem_.reset(aligned_bytes(len, thp ? huge : kAlign));
+  if (thp) {
+    (void)::madvise(mem_.get(), len, MADV_HUGEPAGE);
+    (void)::madvise(mem_.get(), len, MADV_POPULATE_WRITE);
+  }
   cap_ = bytes;
 }
 

@@ -37,7 +37,7 @@ class ArrayOutput {
   void populate_next(std::size_t items) const;
   // Direct output (O_DIRECT, issue 37): the block alignment its writes keep, 0 where the file is
   // written through the page cache (mapped or write()). Chosen at construction for a known length
-  // of 128 MiB or more where the file system takes O_DIRECT (BHCL_DIRECT_OUTPUT=0: never, =1: any
+  // of 32 MiB or more where the file system takes O_DIRECT (BHCL_DIRECT_OUTPUT=0: never, =1: any
   // known length). The NPY header is the first block's start; the rows follow in whole blocks, the
   // part of a block left over carried to the next append; the last rows' append writes the tail
   // padded and cuts the file to its size, so commit() is the flush and the rename only.
