@@ -76,7 +76,8 @@ class ArrayOutput {
 
 // Memory for a direct output's rows: `bytes` at rows(lead), `lead` bytes after its aligned start
 // (room for the carried part of a block: ArrayOutput::append_direct), and room for the padding
-// of the last block after. Never filled: its pages are first touched by the search.
+// of the last block after. Never filled; on 2 MiB boundaries, advised MADV_HUGEPAGE and made
+// present at reserve (BHCL_DIRECT_THP=0: 4 KiB pages, first touched by the search).
 class DirectBuffer {
  public:
   void reserve(std::size_t bytes);
@@ -134,8 +135,8 @@ class KnnOutputs {
   bool ids64_ = false;
   std::size_t found_ = 0;
   std::uint64_t items_ = 0, total_items_ = 0;
-  // Declared after the files and before nothing they use: destroyed first, each future waits
-  // for its write (std::async's), so no write outlives its buffer or its file.
+  // The futures declared last: destroyed first, each waiting for its write (std::async's), so no
+  // write outlives its buffer or its file.
   DirectBuffer ids_buf_[2], dist2_buf_[2];
   int buf_ = 0;  // the buffer the next slice's rows land in
   std::size_t handed_items_ = ~std::size_t(0);  // the items rows_for's view holds (none: ~0)
