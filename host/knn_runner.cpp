@@ -98,7 +98,7 @@ Answered answer_knn(const Args& args, const SearchIndex& index, const RunPlace& 
   render::Progress bar("query " + index.method() + " (" + std::to_string(n) + " queries)",
                        place.writes && !args.flag("quiet"));
   auto files = open_outputs<KnnOutputs>(args, place, n, a.params.k);
-  // Direct outputs: slices of about 32 MiB of rows and at least 2^18 queries (knn_slice_rows),
+  // Direct outputs: slices of about 32 MiB of rows and at least 2^17 queries (knn_slice_rows),
   // whose two buffers are reused slice after slice (fresh pages cost on VMs).
   const std::size_t rows = knn_slice_rows(n, a.params.k, a.params.count_examined, bar.enabled(),
                                           files && files->direct() ? direct_slice_bytes() : 0);
