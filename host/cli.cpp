@@ -375,7 +375,17 @@ static std::size_t slice_rows_override() {
   return static_cast<std::size_t>(v);
 }
 
-std::size_t knn_slice_rows(std::size_t n, int k, bool count_examined, bool bar) {
+std::size_t direct_slice_bytes() {
+  // BHCL_DIRECT_SLICE_MB (a positive count of MiB) overrides the 32 MiB (experiments).
+  if (const char* e = std::getenv("BHCL_DIRECT_SLICE_MB"); e && *e) {
+    char* end = nullptr;
+    const unsigned long long v = std::strtoull(e, &end, 10);
+    if (*end == '\0' && v > 0) return static_cast<std::size_t>(v) << 20;
+  }
+  return std::size_t(32) << 20;
+}
+
+std::size_t knn_slice_rows(std::size_t n, int k, bool count_examined, bool bar, std::size_t slice_bytes) {
   if (const std::size_t o = slice_rows_override()) return std::max<std::size_t>(1, std::min(o, n));
   // About 256 MiB of rows a slice (ids, squared distances, the count, the examined count), at
   // least 2^15 queries (large enough for the Hilbert dispatch order and full devices); with a
@@ -384,7 +394,14 @@ std::size_t knn_slice_rows(std::size_t n, int k, bool count_examined, bool bar) 
   // chunk: at k = 50 a 664k-query slice had been a 651k chunk and a 13k one (two launches, and
   // no gather in the sort's pass).
   const std::size_t row = static_cast<std::size_t>(k) * 8 + 12 + (count_examined ? 4 : 0);
-  std::size_t rows = std::max<std::size_t>(std::size_t(1) << 15, (std::size_t(256) << 20) / row);
+  // A smaller slice_bytes (direct outputs) keeps at least 2^17 queries a slice: 81k-query slices
+  // in 4 KiB pages made the kernel 1.2x slower at 1M x 50 (Cornell 1M, AVX-512, 2 threads); in the
+  // direct buffers' 2 MiB pages 2^17 against 2^18: kernel 1.045, process 0.875 (half the fresh
+  // memory), 2^16 against 2^17: 0.99 (bench/results/e2e/direct_output_h37f.md).
+  const std::size_t floor_rows = slice_bytes ? std::size_t(1) << 17 : std::size_t(1) << 15;
+  if (slice_bytes == 0) slice_bytes = std::size_t(256) << 20;
+  std::size_t rows = std::max<std::size_t>(floor_rows, slice_bytes / row);
+  rows = std::min(rows, std::max<std::size_t>(std::size_t(1) << 15, (std::size_t(256) << 20) / row));
   if (bar) rows = std::min(rows, std::max<std::size_t>(std::size_t(1) << 15, n / 100));
   return std::max<std::size_t>(1, std::min(rows, n));
 }

@@ -142,7 +142,9 @@ QueryStats query_in_slices(const SearchIndex& index, const std::vector<float>& q
                            bool quiet, const KnnSink& sink);
 QueryStats radius_in_slices(const SearchIndex& index, const std::vector<float>& queries, float radius,
                             const RadiusParams& params, bool quiet, const RadiusSink& sink);
-std::size_t knn_slice_rows(std::size_t n, int k, bool count_examined, bool bar);
+// slice_bytes: the rows' bytes a slice aims at (0: 256 MiB); direct outputs ask direct_slice_bytes().
+std::size_t knn_slice_rows(std::size_t n, int k, bool count_examined, bool bar, std::size_t slice_bytes = 0);
+std::size_t direct_slice_bytes();
 std::size_t radius_slice_rows(std::size_t n, bool bar);
 // The slice loop under bhcl's runners: the slices of `rows` queries of a call of n_all, each
 // through answer(first, m) for this process's part of it (n of them: n_all in one process; an MPI

@@ -97,8 +97,11 @@ Answered answer_knn(const Args& args, const SearchIndex& index, const RunPlace& 
   a.params = index.params_for_batch(queries.data(), n, asked, &a.bt);
   render::Progress bar("query " + index.method() + " (" + std::to_string(n) + " queries)",
                        place.writes && !args.flag("quiet"));
-  const std::size_t rows = knn_slice_rows(n, a.params.k, a.params.count_examined, bar.enabled());
   auto files = open_outputs<KnnOutputs>(args, place, n, a.params.k);
+  // Direct outputs: slices of about 32 MiB of rows and at least 2^17 queries (knn_slice_rows),
+  // whose two buffers are reused slice after slice (fresh pages cost on VMs).
+  const std::size_t rows = knn_slice_rows(n, a.params.k, a.params.count_examined, bar.enabled(),
+                                          files && files->direct() ? direct_slice_bytes() : 0);
   if constexpr (std::is_same_v<Id, std::int64_t>) {
     a.st = slices_to_files<KnnOutputs, KnnRows<Id>>(
         place, n, rows, bar, std::move(files), a, [&](std::size_t first, std::size_t m, KnnRows<Id>& part) {
@@ -107,7 +110,7 @@ Answered answer_knn(const Args& args, const SearchIndex& index, const RunPlace& 
   } else {
     // int32 ids: each slice written by the search into the output files' mapped pages where
     // they are mapped (no copy after it), else into the runner's own rows (no fill first).
-    const KnnOutputs* out = files.get();
+    KnnOutputs* out = files.get();
     a.st = slices_to_files<KnnOutputs, KnnSlice>(
         place, n, rows, bar, std::move(files), a, [&](std::size_t first, std::size_t m, KnnSlice& part) {
           part.reserve(rows, a.params.k, a.params.count_examined);

@@ -3,6 +3,8 @@
 #include <cctype>
 #include <cstdint>
 #include <cstring>
+#include <exception>
+#include <new>
 #include <type_traits>
 #include <vector>
 
@@ -39,6 +41,27 @@ const Out* ids_as(const std::vector<In>& ids, std::size_t count, std::vector<Out
 // refinement; not measured under memory pressure.
 constexpr std::size_t kHugeAdviceBytes = std::size_t(2) << 20;
 
+// Outputs of at least this size are written with O_DIRECT (issue 37). Smaller ones stay mapped:
+// bhcl knn, Cornell 1M, AVX-512, 2 threads, alternating with the mapped path (main), the whole
+// process with direct outputs forced at 100k x 10 (4 MB a file, one slice: its write cannot
+// overlap a next search) 1.02 of main's, its search wall 1.13; at 100k x 50 (20 MB) 0.98 / 1.00;
+// at 1M x 10 (40 MB) 0.84 / 0.88; at 1M x 50 (200 MB) 0.90 / 0.94 (bench/results/e2e/direct_output_h37f.md).
+constexpr std::size_t kDirectBytes = std::size_t(32) << 20;
+
+// BHCL_DIRECT_OUTPUT: unset: direct outputs (O_DIRECT) for known lengths of 32 MiB or more; "0":
+// never (the mapped path); "1": every known length (the tests' small outputs).
+int direct_output_mode() {
+  const char* e = std::getenv("BHCL_DIRECT_OUTPUT");
+  if (!e || !*e) return -1;
+  return e[0] == '0' ? 0 : 1;
+}
+
+char* aligned_bytes(std::size_t bytes, std::size_t align) {
+  void* p = nullptr;
+  if (::posix_memalign(&p, align, (bytes + align - 1) / align * align) != 0) throw std::bad_alloc();
+  return static_cast<char*>(p);
+}
+
 bool is_npy(const std::string& path) {
   if (path.size() < 4) return false;
   std::string e = path.substr(path.size() - 4);
@@ -60,7 +83,65 @@ ArrayOutput::ArrayOutput(const std::string& path, const char* descr, std::size_t
   // A known length: the header stored through the mapping with the rows (map_known_length), not
   // written first: a write() leaves the file's first page a 4 KiB folio in the page cache, and
   // then the whole first 2 MiB of the mapping is made of 4 KiB pages (no huge folio can hold it).
-  if (!map_known_length(h)) file_.write(h.data(), h.size());
+  const std::size_t bytes = rows_ >= 0 ? static_cast<std::size_t>(rows_) * (cols_ ? cols_ : 1) * item_ : 0;
+  const int mode = direct_output_mode();
+  if (bytes > 0 && (mode == 1 || (mode < 0 && h.size() + bytes >= kDirectBytes))) open_direct(h, bytes);
+  if (!align_ && !map_known_length(h)) file_.write(h.data(), h.size());
+}
+
+void ArrayOutput::open_direct(const std::string& head, std::size_t bytes) {
+  const std::size_t align = file_.open_direct(head.size() + bytes);
+  if (!align || head.size() >= align || align > DirectBuffer::kAlign) return;  // written as before
+  align_ = align;
+  carry_.reset(aligned_bytes(align, align));
+  std::memcpy(carry_.get(), head.data(), head.size());
+  carry_len_ = head.size();
+  pos_ = head.size();
+}
+
+void ArrayOutput::append_direct(char* rows, std::size_t items) {
+  const std::uint64_t total = static_cast<std::uint64_t>(rows_) * (cols_ ? cols_ : 1);
+  if (!align_ || items_ + items > total)
+    throw Error(file_.path() + ": internal error: a direct append of " + std::to_string(items_ + items) +
+                " items of " + std::to_string(total));
+  const std::size_t bytes = items * item_;
+  char* const start = rows - carry_len_;  // the carried part of a block before the rows
+  if (reinterpret_cast<std::uintptr_t>(start) % align_ != 0)
+    throw Error(file_.path() + ": internal error: direct rows not placed after their block's carried bytes");
+  std::memcpy(start, carry_.get(), carry_len_);
+  const std::size_t all = carry_len_ + bytes, whole = all / align_ * align_;
+  if (whole) file_.write_direct(pos_ - carry_len_, start, whole);
+  carry_len_ = all - whole;
+  std::memcpy(carry_.get(), start + whole, carry_len_);
+  pos_ += bytes;
+  items_ += items;
+  if (items_ == total) {  // the last rows: the tail block padded, then the file cut to its size
+    if (carry_len_) {
+      std::memset(carry_.get() + carry_len_, 0, align_ - carry_len_);
+      file_.write_direct(pos_ - carry_len_, carry_.get(), align_);
+    }
+    file_.truncate(pos_);
+  }
+}
+
+void DirectBuffer::reserve(std::size_t bytes) {
+  if (bytes <= cap_ && mem_) return;
+  // Room for the carried block before the rows and the padding after. On 2 MiB boundaries,
+  // advised MADV_HUGEPAGE and made present (MADV_POPULATE_WRITE; both advice only) before the
+  // search (timed as the write stage): the kernel stores each row at its caller's row, i.e. at
+  // random places, and in 4 KiB pages it was 1.15-1.25x the mapped path's (whose file pages are
+  // 2 MiB folios); with them 0.76 (1M x 50, Cornell, AVX-512, 2 threads, alternating processes,
+  // median of 4). BHCL_DIRECT_THP=0: neither (the experiment's other arm).
+  const char* e = std::getenv("BHCL_DIRECT_THP");
+  const bool thp = !(e && e[0] == '0');
+  const std::size_t huge = std::size_t(2) << 20;
+  const std::size_t len = thp ? (kAlign + bytes + kAlign + huge - 1) / huge * huge : kAlign + bytes + kAlign;
+  mem_.reset(aligned_bytes(len, thp ? huge : kAlign));
+  if (thp) {
+    (void)::madvise(mem_.get(), len, MADV_HUGEPAGE);
+    (void)::madvise(mem_.get(), len, MADV_POPULATE_WRITE);
+  }
+  cap_ = bytes;
 }
 
 bool ArrayOutput::map_known_length(const std::string& head) {
@@ -97,6 +178,19 @@ void ArrayOutput::populate_next(std::size_t items) const {
 }
 
 void ArrayOutput::append(const void* data, std::size_t items) {
+  if (align_) {  // direct: copied through an aligned staging buffer, 4 MiB at a time
+    const std::size_t chunk = std::size_t(4) << 20, per = chunk / item_;
+    if (!staging_) staging_.reset(aligned_bytes(DirectBuffer::kAlign + chunk + DirectBuffer::kAlign, DirectBuffer::kAlign));
+    const char* p = static_cast<const char*>(data);
+    for (std::size_t done = 0; done < items;) {
+      const std::size_t m = std::min(per, items - done);
+      char* rows = staging_.get() + carry_len_;
+      std::memcpy(rows, p + done * item_, m * item_);
+      append_direct(rows, m);
+      done += m;
+    }
+    return;
+  }
   if (!mapped_) {
     file_.write(data, items * item_);
   } else {
@@ -127,6 +221,7 @@ KnnOutputs::KnnOutputs(const Args& args, std::size_t n, int k, bool ids64) : ids
   const std::size_t cols = static_cast<std::size_t>(k);
   ids_ = std::make_unique<ArrayOutput>(args.str("out-ids"), ids64 ? "<i8" : "<i4", ids64 ? 8 : 4, rows, cols);
   dist2_ = std::make_unique<ArrayOutput>(args.str("out-dist2"), "<f4", 4, rows, cols);
+  total_items_ = static_cast<std::uint64_t>(n) * cols;
   if (args.has("out-counts")) counts_ = std::make_unique<ArrayOutput>(args.str("out-counts"), "<i4", 4, rows, 0);
 }
 
@@ -145,7 +240,37 @@ void KnnSlice::reserve(std::size_t rows, int k_, bool examined) {
 
 void KnnOutputs::append(const KnnResult& part) { append_part(part); }
 
-KnnRowsView KnnOutputs::rows_for(const KnnSlice& part) const { return rows_at_next(part, true); }
+KnnRowsView KnnOutputs::rows_for(const KnnSlice& part) {
+  if (!direct()) return rows_at_next(part, true);
+  KnnRowsView v = part.view();
+  const std::size_t bytes = part.n * static_cast<std::size_t>(part.k) * 4;
+  DirectBuffer &ib = ids_buf_[buf_], &db = dist2_buf_[buf_];
+  if (bytes > ib.capacity() || ib.capacity() == 0) {
+    // The two buffers' rows (the slice's own rows were counted by KnnSlice::reserve).
+    check_result_memory(part.n, part.k, false, 2, "bhcl knn");
+    ib.reserve(bytes);
+    db.reserve(bytes);
+  }
+  // Each file's rows placed after room for the part of a block the previous slices left over.
+  v.ids = reinterpret_cast<std::int32_t*>(ib.rows(ids_->direct_lead(items_)));
+  v.dist2 = reinterpret_cast<float*>(db.rows(dist2_->direct_lead(items_)));
+  handed_items_ = part.n * static_cast<std::size_t>(part.k);
+  return v;
+}
+
+void KnnOutputs::wait_direct() {
+  // Both waited before either rethrows: no write outlives this call.
+  std::exception_ptr err;
+  for (std::future<void>* f : {&ids_write_, &dist2_write_}) {
+    if (!f->valid()) continue;
+    try {
+      f->get();
+    } catch (...) {
+      if (!err) err = std::current_exception();
+    }
+  }
+  if (err) std::rethrow_exception(err);
+}
 
 KnnRowsView KnnOutputs::rows_at_next(const KnnSlice& part, bool populate) const {
   KnnRowsView v = part.view();
@@ -162,8 +287,30 @@ KnnRowsView KnnOutputs::rows_at_next(const KnnSlice& part, bool populate) const 
 
 void KnnOutputs::append(const KnnSlice& part) {
   const std::size_t nk = part.n * static_cast<std::size_t>(part.k);
-  const KnnRowsView v = rows_at_next(part, false);
-  if (ids64_) {
+  KnnRowsView v = rows_at_next(part, false);
+  const bool handed = handed_items_ == nk;
+  handed_items_ = ~std::size_t(0);
+  if (direct()) {
+    if (!handed || nk == 0) {
+      // Rows not in this output's buffers (rows_for not asked): copied through append's staging.
+      wait_direct();
+      append_ids_and_dist2(v.ids, v.dist2, nk);
+      if (counts_) counts_->append(v.counts, part.n);
+      for (std::size_t i = 0; i < part.n; ++i) found_ += static_cast<std::size_t>(v.counts[i]);
+      items_ += nk;
+      return;
+    }
+    // The rows the search stored in this slice's buffers (rows_for): their writes started on two
+    // threads after the previous slice's finished; the last slice's waited for here.
+    char *ids = ids_buf_[buf_].rows(ids_->direct_lead(items_)), *d2 = dist2_buf_[buf_].rows(dist2_->direct_lead(items_));
+    wait_direct();
+    ids_write_ = std::async(std::launch::async, [this, ids, nk] { ids_->append_direct(ids, nk); });
+    dist2_write_ = std::async(std::launch::async, [this, d2, nk] { dist2_->append_direct(d2, nk); });
+    buf_ ^= 1;
+    items_ += nk;
+    if (items_ == total_items_) wait_direct();
+    v = part.view();
+  } else if (ids64_) {
     std::vector<std::int64_t> wide(v.ids, v.ids + nk);
     ids_->append(wide.data(), nk);
   } else {
@@ -191,6 +338,8 @@ void KnnOutputs::append(const KnnResult64& part) { append_part(part); }
 
 template <typename Part>
 void KnnOutputs::append_part(const Part& part) {
+  wait_direct();
+  items_ += part.ids.size();
   if (ids64_) {
     std::vector<std::int64_t> tmp;
     append_ids_and_dist2(ids_as(part.ids, part.ids.size(), tmp), part.dist2.data(), part.ids.size());
@@ -203,6 +352,7 @@ void KnnOutputs::append_part(const Part& part) {
 }
 
 void KnnOutputs::commit() {
+  wait_direct();
   ids_->commit();
   dist2_->commit();
   if (counts_) counts_->commit();

@@ -7,6 +7,8 @@
 #pragma once
 
 #include <cstdint>
+#include <cstdlib>
+#include <future>
 #include <memory>
 #include <string>
 
@@ -33,6 +35,20 @@ class ArrayOutput {
   // and its threads' faults on a shared file mapping contend (1M x 10: the kernel 10-30 % slower
   // when it took them itself). Nothing where not mapped.
   void populate_next(std::size_t items) const;
+  // Direct output (O_DIRECT, issue 37): the block alignment its writes keep, 0 where the file is
+  // written through the page cache (mapped or write()). Chosen at construction for a known length
+  // of 32 MiB or more where the file system takes O_DIRECT (BHCL_DIRECT_OUTPUT=0: never, =1: any
+  // known length). The NPY header is the first block's start; the rows follow in whole blocks, the
+  // part of a block left over carried to the next append; the last rows' append writes the tail
+  // padded and cuts the file to its size, so commit() is the flush and the rename only.
+  std::size_t direct_align() const { return align_; }
+  // Where the rows after `items` written lie in their block: the bytes of it before them.
+  std::size_t direct_lead(std::uint64_t items) const { return align_ ? (header_bytes_ + items * item_) % align_ : 0; }
+  // The next `items` from `rows`, a direct output's: `rows` lies direct_lead(items written) bytes
+  // after an aligned address, those bytes writable, and the memory up to the next aligned address
+  // after its last byte writable (DirectBuffer::rows). Those bytes are overwritten. On any thread,
+  // one call at a time.
+  void append_direct(char* rows, std::size_t items);
   void commit();
 
  private:
@@ -48,6 +64,30 @@ class ArrayOutput {
   bool npy_;
   std::size_t header_bytes_ = 0;
   char* mapped_ = nullptr;  // the array's first item in the mapped file
+  // Direct output: the part of a block not written yet (carry_len_ bytes; at first the header),
+  // and the file's length so far (pos_; pos_ - carry_len_ is aligned).
+  void open_direct(const std::string& head, std::size_t bytes);
+  std::size_t align_ = 0;
+  std::unique_ptr<char, decltype(&std::free)> carry_{nullptr, &std::free};
+  std::size_t carry_len_ = 0;
+  std::uint64_t pos_ = 0;
+  std::unique_ptr<char, decltype(&std::free)> staging_{nullptr, &std::free};  // append()'s copies
+};
+
+// Memory for a direct output's rows: `bytes` at rows(lead), `lead` bytes after its aligned start
+// (room for the carried part of a block: ArrayOutput::append_direct), and room for the padding
+// of the last block after. Never filled; on 2 MiB boundaries, advised MADV_HUGEPAGE and made
+// present at reserve (BHCL_DIRECT_THP=0: 4 KiB pages, first touched by the search).
+class DirectBuffer {
+ public:
+  void reserve(std::size_t bytes);
+  char* rows(std::size_t lead) const { return mem_.get() + lead; }  // lead < kAlign
+  std::size_t capacity() const { return cap_; }
+  static constexpr std::size_t kAlign = 4096;
+
+ private:
+  std::unique_ptr<char, decltype(&std::free)> mem_{nullptr, &std::free};
+  std::size_t cap_ = 0;
 };
 
 // A slice's kNN rows in memory kept across the slices of a run and never filled before the search
@@ -77,7 +117,11 @@ class KnnOutputs {
   // The rows the search of the next slice writes: ids and dist2 at their places in the mapped
   // files where they are mapped (int32 ids; their pages made present first), else the slice's own
   // memory; counts and examined always the slice's.
-  KnnRowsView rows_for(const KnnSlice& part) const;
+  // Direct outputs (ids and dist2 both): the rows land in one of two DirectBuffers, and each
+  // slice's O_DIRECT writes run on threads beside the next slice's search (append waits for the
+  // previous slice's; the last slice's append for its own, so that the call's wall holds them).
+  KnnRowsView rows_for(const KnnSlice& part);
+  bool direct() const { return !ids64_ && ids_->direct_align() && dist2_->direct_align(); }
   void commit();
   std::size_t found() const { return found_; }
 
@@ -86,9 +130,17 @@ class KnnOutputs {
   void append_part(const Part& part);
   void append_ids_and_dist2(const void* ids, const float* dist2, std::size_t items);
   KnnRowsView rows_at_next(const KnnSlice& part, bool populate) const;
+  void wait_direct();
   std::unique_ptr<ArrayOutput> ids_, dist2_, counts_;
   bool ids64_ = false;
   std::size_t found_ = 0;
+  std::uint64_t items_ = 0, total_items_ = 0;
+  // The futures declared last: destroyed first, each waiting for its write (std::async's), so no
+  // write outlives its buffer or its file.
+  DirectBuffer ids_buf_[2], dist2_buf_[2];
+  int buf_ = 0;  // the buffer the next slice's rows land in
+  std::size_t handed_items_ = ~std::size_t(0);  // the items rows_for's view holds (none: ~0)
+  std::future<void> ids_write_, dist2_write_;
 };
 
 // --out-offsets, --out-ids, --out-dist2 and --out-counts of a radius call of n queries.

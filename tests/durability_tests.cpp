@@ -3,6 +3,7 @@
 // file intact), and the renderer's EXR keeps radiance beyond the half-float range.
 #include <dirent.h>
 #include <cstring>
+#include <memory>
 #include <signal.h>
 #include <sys/resource.h>
 #include <sys/stat.h>
@@ -150,6 +151,127 @@ TEST_CASE("durability: map_append's stores are the file's bytes, a size limit fa
   AtomicFile dev("/dev/null", "the test file");
   CHECK(dev.map_append(16) == nullptr);
   dev.commit();
+}
+
+TEST_CASE("durability: direct (O_DIRECT) writes are the file's bytes, a failed one fails the file, a refusal leaves it to write()") {
+  const std::string name = "dur_direct.bin";
+  const std::string path = test::tmp_path(name);
+  write_file(path, {"old contents"}, "the test file");
+  std::string want(3 * 4096 + 100, '\0');
+  for (std::size_t i = 0; i < want.size(); ++i) want[i] = static_cast<char>('a' + i % 23);
+  void* mem = nullptr;
+  REQUIRE(posix_memalign(&mem, 4096, 4 * 4096) == 0);
+  std::unique_ptr<char, decltype(&std::free)> buf(static_cast<char*>(mem), &std::free);
+  std::memcpy(buf.get(), want.data(), want.size());
+  std::size_t align = 0;
+  {
+    AtomicFile f(path, "the test file");
+    align = f.open_direct(want.size());
+    INFO("O_DIRECT alignment here: " << align);
+    if (align == 0) {
+      f.write(want.data(), want.size());  // refused (this file system): the caller writes as before
+    } else {
+      CHECK(align == 4096u);
+      CHECK(f.open_direct(0) == 0u);  // once a file
+      f.write_direct(4096, buf.get() + 4096, 3 * 4096);  // out of order: offsets, not appends
+      f.write_direct(0, buf.get(), 4096);
+      CHECK(f.size() == 4u * 4096);
+      f.truncate(want.size());  // the last block's padding cut off
+      CHECK(f.size() == want.size());
+    }
+    f.commit();
+  }
+  CHECK(slurp(path) == want);
+  CHECK(leftover_temporaries(name) == 0);
+  {
+    AtomicFile f(path, "the test file");  // destroyed without commit: nothing left, the old file kept
+    if (f.open_direct(0)) f.write_direct(0, buf.get(), 4096);
+  }
+  CHECK(slurp(path) == want);
+  CHECK(leftover_temporaries(name) == 0);
+  if (align) {
+    // Under a file-size limit (a full disk): the reservation fails as a write would, and so does a
+    // direct write past the limit with nothing reserved.
+    std::string msg = under_size_limit(4096, [&] {
+      AtomicFile f(path, "the test file");
+      f.open_direct(std::size_t(1) << 20);
+    });
+    INFO(msg);
+    CHECK(msg.find(path + ": writing the test file failed (" + std::strerror(EFBIG) + ")") != std::string::npos);
+    msg = under_size_limit(4096, [&] {
+      AtomicFile f(path, "the test file");
+      REQUIRE(f.open_direct(0) == 4096u);
+      f.write_direct(0, buf.get(), 4096);
+      f.write_direct(4096, buf.get() + 4096, 4096);
+      f.commit();
+    });
+    INFO(msg);
+    CHECK(msg.find(path + ": writing the test file failed (" + std::strerror(EFBIG) + ")") != std::string::npos);
+    CHECK(slurp(path) == want);
+    CHECK(leftover_temporaries(name) == 0);
+  }
+  // A device: no direct descriptor, written in place.
+  AtomicFile dev("/dev/null", "the test file");
+  CHECK(dev.open_direct(16) == 0u);
+  dev.write("x", 1);
+  dev.commit();
+}
+
+TEST_CASE("durability: bhcl knn's direct outputs (O_DIRECT) are the bytes of the mapped path, over many slices, raw and NPY") {
+  const std::vector<float> pts = datasets::uniform(20000, 95);
+  const std::string P = test::write_points("dio_p.f32", pts);
+  // The test folder, and /dev/shm where it exists (tmpfs: O_DIRECT refused on older kernels, the
+  // mapped path then; taken on newer ones).
+  std::vector<std::string> dirs = {test::tmp_path("dio_")};
+  struct stat st {};
+  if (::stat("/dev/shm", &st) == 0 && S_ISDIR(st.st_mode)) dirs.push_back("/dev/shm/bhcl_dio_" + std::to_string(getpid()) + "_");
+  for (const std::string& O : dirs) {
+    for (const char* method : {"kdtree", "blockhash"}) {
+      for (const char* ext : {".raw", ".npy"}) {
+        // k = 7: 28-byte rows, so that slices end inside a block and carry its part to the next.
+        auto with = [&](const std::string& tag) {
+          return std::string("knn --points ") + P + " --queries " + P + " --method " + method +
+                 " --quiet --k 7 --out-ids " + O + "ids" + tag + ext + " --out-dist2 " + O + "d2" + tag + ext +
+                 " --out-counts " + O + "c" + tag + ext;
+        };
+        test::run_bhcl_ok(with("M"), "BHCL_DIRECT_OUTPUT=0");  // the mapped path, one slice
+        test::run_bhcl_ok(with("D"), "BHCL_DIRECT_OUTPUT=1 BHCL_SLICE_ROWS=999");  // direct, 21 slices
+        test::run_bhcl_ok(with("1"), "BHCL_DIRECT_OUTPUT=1");  // direct, one slice
+        for (const char* f : {"ids", "d2", "c"}) {
+          INFO(O << " " << method << " " << f << ext);
+          const std::string m = slurp(O + f + "M" + ext);
+          CHECK(m.size() > 20000u);
+          CHECK(slurp(O + f + "D" + ext) == m);
+          CHECK(slurp(O + f + "1" + ext) == m);
+        }
+        for (const char* f : {"ids", "d2", "c"})
+          for (const char* tag : {"M", "D", "1"}) {
+            std::remove((O + f + tag + ext).c_str());
+            const std::string file = O + f + tag + ext;
+            CHECK(leftover_temporaries(file.substr(file.find_last_of('/') + 1)) == 0);  // (the test folder's)
+          }
+      }
+    }
+  }
+  // A failed write is still an error: under a file-size limit the direct output's reservation
+  // fails before the search, exit 1 with the file and the reason, the old file as it was.
+  const std::string O = dirs[0];
+  test::run_bhcl_ok("knn --points " + P + " --queries " + P + " --method kdtree --quiet --k 7 --out-ids " + O +
+                    "old_ids.raw --out-dist2 " + O + "old_d2.raw");
+  const std::string old_ids = slurp(O + "old_ids.raw");
+  const std::string cmd = "sh -c 'trap \"\" XFSZ; ulimit -f 128; BHCL_DIRECT_OUTPUT=1 BHCL_SLICE_ROWS=1000 exec \"" +
+                          std::string(BHCL_TOOL_PATH) + "\" knn --points " + P + " --queries " + P +
+                          " --method kdtree --quiet --k 7 --out-ids " + O + "old_ids.raw --out-dist2 " + O +
+                          "old_d2.raw' > " + O + "log.txt 2>&1";
+  const int status = std::system(cmd.c_str());
+  const std::string log = slurp(O + "log.txt");
+  INFO(log);
+  CHECK(WIFEXITED(status));
+  CHECK(WEXITSTATUS(status) == 1);
+  CHECK(log.find(std::strerror(EFBIG)) != std::string::npos);
+  CHECK(slurp(O + "old_ids.raw") == old_ids);
+  CHECK(leftover_temporaries("dio_old_ids.raw") == 0);
+  CHECK(leftover_temporaries("dio_old_d2.raw") == 0);
 }
 
 TEST_CASE("durability: bhcl outputs and --save-index under a full disk keep the old files") {

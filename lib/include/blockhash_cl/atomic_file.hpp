@@ -42,6 +42,20 @@ class AtomicFile {
   // file system without fallocate): the caller writes instead. At most one mapping per file,
   // unmapped at commit (before the flush) or destruction.
   void* map_append(std::size_t bytes);
+  // O_DIRECT writes past the page cache (issue 37: on VMs whose fresh pages cost 1-2 ms a MB, a
+  // 400 MB result's page-cache pages cost more than its disk write). Opens a second descriptor on
+  // the temporary with O_DIRECT and returns the alignment its writes keep (offset, length and
+  // memory: 4096), or 0 where it cannot (a device or FIFO, a file system that refuses O_DIRECT:
+  // EINVAL on some): the caller writes as before. `reserve` bytes after what was written are
+  // reserved first (fallocate; a full disk or a size limit fails here as a write would; none
+  // where the file system has no fallocate). At most once a file, before any map_append.
+  std::size_t open_direct(std::uint64_t reserve);
+  // Whole aligned blocks at `offset` through the O_DIRECT descriptor; the file's size counts
+  // them (the largest end written). A failure is the write's (the temporary removed). May run
+  // on another thread than the rest, one call at a time.
+  void write_direct(std::uint64_t offset, const void* data, std::size_t bytes);
+  // The file cut to `size` bytes (after direct writes: the padding of the last block).
+  void truncate(std::uint64_t size);
   std::uint64_t size() const { return size_; }
   bool in_place() const { return in_place_; }  // a device or FIFO: written directly
   void commit();
@@ -52,9 +66,11 @@ class AtomicFile {
   void remove_temporary();
   void close_directory();
   void unmap();
+  void close_direct();
   std::string path_, what_, target_, tmp_;
   std::string name_, tmp_name_;  // the target's and the temporary's names in the directory dirfd_
   int fd_ = -1, dirfd_ = -1;
+  int direct_fd_ = -1;  // open_direct's descriptor on the temporary (-1: none)
   int slot_ = -1;                 // the signal handler's table entry (-1: none)
   bool in_place_ = false, done_ = false;
   std::uint64_t size_ = 0;

@@ -206,6 +206,7 @@ AtomicFile::AtomicFile(const std::string& path, const std::string& what) : path_
 
 AtomicFile::~AtomicFile() {
   unmap();
+  close_direct();
   if (fd_ >= 0) ::close(fd_);
   if (!done_) remove_temporary();
   close_directory();
@@ -230,8 +231,14 @@ void AtomicFile::unmap() {
   map_len_ = 0;
 }
 
+void AtomicFile::close_direct() {
+  if (direct_fd_ >= 0) ::close(direct_fd_);
+  direct_fd_ = -1;
+}
+
 void AtomicFile::fail(const std::string& step, int err) {
   unmap();
+  close_direct();
   if (fd_ >= 0) ::close(fd_);
   fd_ = -1;
   remove_temporary();
@@ -293,9 +300,59 @@ void* AtomicFile::map_append(std::size_t bytes) {
   return static_cast<char*>(m) + at;
 }
 
+std::size_t AtomicFile::open_direct(std::uint64_t reserve) {
+  if (fd_ < 0) throw Error(path_ + ": writing " + what_ + " after the file was closed");
+#ifdef O_DIRECT
+  if (in_place_ || map_ || direct_fd_ >= 0) return 0;
+  const int fd = ::openat(dirfd_, tmp_name_.c_str(), O_WRONLY | O_DIRECT | O_CLOEXEC);
+  if (fd < 0) return 0;  // EINVAL: this file system has no O_DIRECT
+  direct_fd_ = fd;
+  if (reserve > 0) {
+    int r = 0;
+    do r = ::fallocate(fd_, 0, static_cast<off_t>(size_), static_cast<off_t>(reserve));
+    while (r != 0 && errno == EINTR);
+    if (r != 0) {
+      const int err = errno;
+      if (err == ENOSPC || err == EFBIG || err == EDQUOT) fail("", err);  // as the write would have
+      (void)::ftruncate(fd_, static_cast<off_t>(size_));  // no fallocate here: whatever it reserved let go
+    }
+  }
+  return 4096;
+#else
+  (void)reserve;
+  return 0;
+#endif
+}
+
+void AtomicFile::write_direct(std::uint64_t offset, const void* data, std::size_t bytes) {
+  if (direct_fd_ < 0) throw Error(path_ + ": internal error: a direct write without open_direct");
+  const char* p = static_cast<const char*>(data);
+  while (bytes > 0) {
+    const ssize_t w = ::pwrite(direct_fd_, p, std::min<std::size_t>(bytes, std::size_t(1) << 30), static_cast<off_t>(offset));
+    if (w < 0 && errno == EINTR) continue;
+    if (w <= 0) fail("", w < 0 ? errno : ENOSPC);
+    if (static_cast<std::size_t>(w) % 4096 != 0 && static_cast<std::size_t>(w) != bytes)
+      fail("a short direct write", EIO);  // the rest would be misaligned
+    p += w;
+    bytes -= static_cast<std::size_t>(w);
+    offset += static_cast<std::uint64_t>(w);
+    size_ = std::max<std::uint64_t>(size_, offset);
+  }
+}
+
+void AtomicFile::truncate(std::uint64_t size) {
+  if (fd_ < 0) throw Error(path_ + ": writing " + what_ + " after the file was closed");
+  int r = 0;
+  do r = ::ftruncate(fd_, static_cast<off_t>(size));
+  while (r != 0 && errno == EINTR);
+  if (r != 0) fail("truncate", errno);
+  size_ = size;
+}
+
 void AtomicFile::commit() {
   if (fd_ < 0) throw Error(path_ + ": writing " + what_ + " after the file was closed");
-  unmap();  // its stores are the page cache's: the fsync below flushes them with the rest
+  unmap();
+  close_direct();  // its writes are on the disk already: the fsync below writes the metadata  // its stores are the page cache's: the fsync below flushes them with the rest
   if (in_place_) {
     const int fd = fd_;
     fd_ = -1;
