@@ -13,24 +13,17 @@
 #include <cmath>
 #include <random>
 #include <vector>
-#include "blockhash/grid.hpp"
+#include "two_clusters_grid.hpp"
 using namespace bhcl::blockhash;
 extern "C" __attribute__((noinline)) void run_q(const Grid& g, const float* q, int k, float r2, bhcl::KnnResult& out, std::vector<std::int32_t>* ex) {
   reference_query_grid(g, q, 1, k, r2, 0xffffffffu, grid_traversal(true), out, ex, 1);
 }
 int main(int argc, char** argv) {
   int k = atoi(argv[1]); size_t nq = atoi(argv[2]); int mode = atoi(argv[3]);
-  size_t n = 60000;
-  std::mt19937_64 rng(11);
-  std::normal_distribution<float> gd(0.0f, 0.01f);
-  std::vector<float> pts(3 * n), q(3 * nq);
-  for (size_t i = 0; i < n; ++i) { pts[3*i] = gd(rng) + (i % 2 ? 1.0f : 0.0f); pts[3*i+1] = gd(rng); pts[3*i+2] = gd(rng); }
-  std::uniform_real_distribution<float> ux(0.1f, 0.9f), uyz(-0.05f, 0.05f);
-  for (size_t i = 0; i < nq; ++i) q[3*i] = ux(rng), q[3*i+1] = uyz(rng), q[3*i+2] = uyz(rng);
-  GridInput in; in.xyz = pts.data(); in.n_aos = n;
-  GridBuildArgs a; a.target_cell_points = 24; a.threads = 1;
-  Grid g; GridBuildStats st; build_grid(in, a, g, &st);
-  build_grid_occupancy(g, 1);
+  std::vector<float> pts, q;
+  two_clusters(nq, pts, q);
+  Grid g;
+  build_clusters_grid(pts, 24, g);
   bhcl::KnnResult truth; std::vector<std::int32_t> ex;
   reference_query_grid(g, q.data(), nq, k, INFINITY, 0xffffffffu, grid_traversal(true), truth, &ex, 1);
   double s = 0; long diff = 0;
