@@ -67,6 +67,9 @@ class AtomicFile {
   void close_directory();
   void unmap();
   void close_direct();
+  // Reserves `bytes` after what was written (fallocate): false, nothing kept, where the file
+  // system has no fallocate; a full disk or a size limit fails here as a write would.
+  bool reserve_after(std::uint64_t bytes);
   std::string path_, what_, target_, tmp_;
   std::string name_, tmp_name_;  // the target's and the temporary's names in the directory dirfd_
   int fd_ = -1, dirfd_ = -1;

@@ -274,19 +274,23 @@ void AtomicFile::write_at(std::uint64_t offset, const void* data, std::size_t by
   }
 }
 
+bool AtomicFile::reserve_after(std::uint64_t bytes) {
+  const off_t at = static_cast<off_t>(size_);
+  int r = 0;
+  do r = ::fallocate(fd_, 0, at, static_cast<off_t>(bytes));
+  while (r != 0 && errno == EINTR);
+  if (r == 0) return true;
+  const int err = errno;
+  if (err == ENOSPC || err == EFBIG || err == EDQUOT) fail("", err);  // as the write would have
+  (void)::ftruncate(fd_, at);  // no fallocate here (EOPNOTSUPP): whatever it reserved let go
+  return false;
+}
+
 void* AtomicFile::map_append(std::size_t bytes) {
   if (fd_ < 0) throw Error(path_ + ": writing " + what_ + " after the file was closed");
   if (in_place_ || map_ || bytes == 0) return nullptr;
-  const off_t at = static_cast<off_t>(size_), len = static_cast<off_t>(bytes);
-  int r = 0;
-  do r = ::fallocate(fd_, 0, at, len);
-  while (r != 0 && errno == EINTR);
-  if (r != 0) {
-    const int err = errno;
-    if (err == ENOSPC || err == EFBIG || err == EDQUOT) fail("", err);  // as the write would have
-    (void)::ftruncate(fd_, at);  // no fallocate here (EOPNOTSUPP): whatever it reserved let go
-    return nullptr;
-  }
+  const off_t at = static_cast<off_t>(size_);
+  if (!reserve_after(bytes)) return nullptr;
   // From offset 0 (a mapping starts on a page): the bytes already written lie before the region.
   void* m = ::mmap(nullptr, size_ + bytes, PROT_READ | PROT_WRITE, MAP_SHARED, fd_, 0);
   if (m == MAP_FAILED || ::lseek(fd_, 0, SEEK_END) < 0) {
@@ -307,16 +311,7 @@ std::size_t AtomicFile::open_direct(std::uint64_t reserve) {
   const int fd = ::openat(dirfd_, tmp_name_.c_str(), O_WRONLY | O_DIRECT | O_CLOEXEC);
   if (fd < 0) return 0;  // EINVAL: this file system has no O_DIRECT
   direct_fd_ = fd;
-  if (reserve > 0) {
-    int r = 0;
-    do r = ::fallocate(fd_, 0, static_cast<off_t>(size_), static_cast<off_t>(reserve));
-    while (r != 0 && errno == EINTR);
-    if (r != 0) {
-      const int err = errno;
-      if (err == ENOSPC || err == EFBIG || err == EDQUOT) fail("", err);  // as the write would have
-      (void)::ftruncate(fd_, static_cast<off_t>(size_));  // no fallocate here: whatever it reserved let go
-    }
-  }
+  if (reserve > 0) (void)reserve_after(reserve);  // without fallocate the writes reserve as they go
   return 4096;
 #else
   (void)reserve;
@@ -351,8 +346,8 @@ void AtomicFile::truncate(std::uint64_t size) {
 
 void AtomicFile::commit() {
   if (fd_ < 0) throw Error(path_ + ": writing " + what_ + " after the file was closed");
-  unmap();
-  close_direct();  // its writes are on the disk already: the fsync below writes the metadata  // its stores are the page cache's: the fsync below flushes them with the rest
+  unmap();         // its stores are the page cache's: the fsync below flushes them with the rest
+  close_direct();  // its writes are on the disk already: the fsync below writes the metadata
   if (in_place_) {
     const int fd = fd_;
     fd_ = -1;
