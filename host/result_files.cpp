@@ -290,16 +290,7 @@ void KnnOutputs::append(const KnnSlice& part) {
   KnnRowsView v = rows_at_next(part, false);
   const bool handed = handed_items_ == nk;
   handed_items_ = ~std::size_t(0);
-  if (direct()) {
-    if (!handed || nk == 0) {
-      // Rows not in this output's buffers (rows_for not asked): copied through append's staging.
-      wait_direct();
-      append_ids_and_dist2(v.ids, v.dist2, nk);
-      if (counts_) counts_->append(v.counts, part.n);
-      for (std::size_t i = 0; i < part.n; ++i) found_ += static_cast<std::size_t>(v.counts[i]);
-      items_ += nk;
-      return;
-    }
+  if (direct() && handed && nk > 0) {
     // The rows the search stored in this slice's buffers (rows_for): their writes started on two
     // threads after the previous slice's finished; the last slice's waited for here.
     char *ids = ids_buf_[buf_].rows(ids_->direct_lead(items_)), *d2 = dist2_buf_[buf_].rows(dist2_->direct_lead(items_));
@@ -310,6 +301,11 @@ void KnnOutputs::append(const KnnSlice& part) {
     items_ += nk;
     if (items_ == total_items_) wait_direct();
     v = part.view();
+  } else if (direct()) {
+    // Rows not in this output's buffers (rows_for not asked): copied through append's staging.
+    wait_direct();
+    append_ids_and_dist2(v.ids, v.dist2, nk);
+    items_ += nk;
   } else if (ids64_) {
     std::vector<std::int64_t> wide(v.ids, v.ids + nk);
     ids_->append(wide.data(), nk);
