@@ -151,6 +151,15 @@ void build_grid_occupancy(Grid& g, unsigned threads);
 // For a few cells whose points became holes (the growth room's corners after a rebuild); the
 // bits are unchanged (a cell of holes stays marked).
 void refresh_node_boxes(Grid& g, const std::vector<std::uint32_t>& cells);
+// The fine cell holding point (x, y, z), as the kernels compute a query's (bhcl_grid_cell per
+// axis): the one index every build pass, the insert and the rebuild file a point under.
+inline std::uint32_t grid_cell_index(const bhcl_grid_geom& g, float x, float y, float z) {
+  const std::uint32_t cx = bhcl_grid_cell(x, g.ox, g.inv_h, g.nx);
+  const std::uint32_t cy = bhcl_grid_cell(y, g.oy, g.inv_h, g.ny);
+  const std::uint32_t cz = bhcl_grid_cell(z, g.oz, g.inv_h, g.nz);
+  return (cz * g.ny + cy) * g.nx + cx;
+}
+
 // b widened to hold the point (x, y, z).
 inline void widen_box(bhcl_grid_dbox& b, float x, float y, float z) {
   b.lx = std::min(b.lx, x), b.ly = std::min(b.ly, y), b.lz = std::min(b.lz, z);

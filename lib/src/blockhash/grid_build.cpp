@@ -305,10 +305,7 @@ struct RecordCell {
   bhcl_grid_geom g;
   std::uint32_t operator()(std::uint32_t r) const {
     const float* p = rec + 4 * std::size_t(r);
-    const std::uint32_t cx = bhcl_grid_cell(p[0], g.ox, g.inv_h, g.nx);
-    const std::uint32_t cy = bhcl_grid_cell(p[1], g.oy, g.inv_h, g.ny);
-    const std::uint32_t cz = bhcl_grid_cell(p[2], g.oz, g.inv_h, g.nz);
-    return (cz * g.ny + cy) * g.nx + cx;
+    return grid_cell_index(g, p[0], p[1], p[2]);
   }
 };
 
@@ -354,10 +351,7 @@ Buckets bucket_records(const GridInput& in, const bhcl_grid_geom& geom, unsigned
         for (std::size_t j = tb; j < te; ++j) {
           std::uint32_t* const hj = hist.data() + j * nb;
           for_input(in, j * per, std::min(n, (j + 1) * per), [&](std::size_t i, float x, float y, float z, std::int32_t) {
-            const std::uint32_t cx = bhcl_grid_cell(x, gg.ox, gg.inv_h, gg.nx);
-            const std::uint32_t cy = bhcl_grid_cell(y, gg.oy, gg.inv_h, gg.ny);
-            const std::uint32_t cz = bhcl_grid_cell(z, gg.oz, gg.inv_h, gg.nz);
-            const std::uint32_t c = (cz * gg.ny + cy) * gg.nx + cx;
+            const std::uint32_t c = grid_cell_index(gg, x, y, z);
             cell[i] = c;
             ++hj[c >> shift];
           });
@@ -644,10 +638,7 @@ BucketCounts count_from_cells(const GridInput& in, const bhcl_grid_geom& geom, u
     std::uint32_t* const ct = count + t * nc;
     const auto r = fc.range(in, t);
     for_input(in, r.first, r.second, [&](std::size_t i, float x, float y, float z, std::int32_t) {
-      const std::uint32_t cx = bhcl_grid_cell(x, gg.ox, gg.inv_h, gg.nx);
-      const std::uint32_t cy = bhcl_grid_cell(y, gg.oy, gg.inv_h, gg.ny);
-      const std::uint32_t cz = bhcl_grid_cell(z, gg.oz, gg.inv_h, gg.nz);
-      const std::uint32_t c = (cz * gg.ny + cy) * gg.nx + cx;
+      const std::uint32_t c = grid_cell_index(gg, x, y, z);
       cell[i] = c;
       ++ct[c];
     });

@@ -61,12 +61,7 @@ constexpr std::int32_t kHoleId = BHCL_EMPTY_SLOT_ID;
 // rebuilding; growth by 1.1x per retune still amortises the rebuilds to O(1) per point.
 constexpr double kRetuneAbove = 1.10, kRetuneBelow = 0.90;
 
-std::uint32_t cell_of(const bhcl_grid_geom& g, const float* p) {
-  std::uint32_t cx = bhcl_grid_cell(p[0], g.ox, g.inv_h, g.nx);
-  std::uint32_t cy = bhcl_grid_cell(p[1], g.oy, g.inv_h, g.ny);
-  std::uint32_t cz = bhcl_grid_cell(p[2], g.oz, g.inv_h, g.nz);
-  return (cz * g.ny + cy) * g.nx + cx;
-}
+std::uint32_t cell_of(const bhcl_grid_geom& g, const float* p) { return blockhash::grid_cell_index(g, p[0], p[1], p[2]); }
 
 // Inside the grid's box: [o, o + n h] per axis (in double: the last cell's slab ends there; the
 // geometry's margin covers the float rounding of the cell assignment, as for a fresh build's points).
