@@ -18,8 +18,8 @@ __kernel void bhcl_density_estimate(__global const int* ids, __global const floa
                                     __global const float* power, __global const float* direction,
                                     const int k, const float max_radius, const int estimator,
                                     const int filter, const float cone, const float scale2,
-                                    const uint n, __global float* out) {
-  const uint q = get_global_id(0);
+                                    const uint n, __global float* out, const ulong first) {
+  const size_t q = first + get_global_id(0); /* launches stay below the driver's limit (launch_1d_split) */
   if (q >= n) return;
   __global const float* d2 = dist2 + (size_t)q * (size_t)k;
   __global const int* id = ids + (size_t)q * (size_t)k;

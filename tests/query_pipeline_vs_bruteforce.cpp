@@ -4,6 +4,7 @@
 // every method, checked against brute force (the float reference).
 #include <cstring>
 
+#include "blockhash_cl/density_query.hpp"
 #include "test_util.hpp"
 
 namespace bhcl::test {
@@ -97,6 +98,53 @@ TEST_CASE("pipeline: a batch past the driver's launch limit is split below it (Q
     const QueryStats rs = ix->radius_search(qs.data(), n, 0.02f, RadiusParams{}, rr);
     CHECK(rs.batches >= (n + per - 1) / per);
   }
+}
+
+TEST_CASE("pipeline: the helper kernels past the driver's launch limit (scale copies, the density estimate) run in launches below it") {
+  // detail::launch_1d_split: each launch's first item is a kernel argument; an item past the
+  // first launch that read it wrong would leave its value unscaled (or its estimate unwritten).
+  const Quirks& q = runtime()->quirks();
+  if (q.max_launch_items == 0) return;  // no limit on this device: one launch each
+  // Extreme scales through the buffer-level call: 30,000 queries (90,000 coordinates scaled in a
+  // copy) at k = 4 (120,000 distances scaled back): two launches of each scale kernel.
+  const auto tiny = datasets::uniform(3000, 81, 0.0f, 1e-30f);
+  const auto tiny_q = datasets::uniform(30000, 82, 0.0f, 1e-30f);
+  for (const char* m : {"blockhash", "bruteforce"}) {
+    INFO("method " << m);
+    auto ix = make_index(m, runtime(), tiny.data(), tiny.size() / 3);
+    KnnResult host;
+    ix->query(tiny_q.data(), tiny_q.size() / 3, knn_params(4), host);
+    require_identical(buffer_query(*ix, tiny_q, knn_params(4)), host, std::string(m) + ": extreme scale, buffer call");
+  }
+  // The density estimate of 70,000 queries in one chunk (its kernel in two launches) equals the
+  // estimate in chunks of 5,000 and with the default chunk, bit for bit.
+  const auto pts = datasets::uniform(2000, 83);
+  const auto qs = datasets::uniform(70000, 84);
+  const std::size_t n = qs.size() / 3;
+  std::vector<float> normals(3 * n), power(pts.size(), 1.0f), direction(pts.size());
+  for (std::size_t i = 0; i < n; ++i) normals[3 * i + 2] = 1.0f;
+  for (std::size_t i = 0; i < pts.size() / 3; ++i) {
+    direction[3 * i + 2] = 1.0f;  // facing the queries (normal +z)
+    power[3 * i] = 1.0f + float(i % 7);
+  }
+  auto ix = make_index("kdtree", runtime(), pts.data(), pts.size() / 3);
+  const DensityWeights w(*ix, power.data(), direction.data(), pts.size() / 3);
+  DensityParams dp;
+  dp.search = knn_params(8);
+  DensityResult whole, parts, dflt;
+  dp.chunk = n;
+  density_estimate(*ix, w, qs.data(), normals.data(), n, dp, whole);
+  dp.chunk = 5000;
+  density_estimate(*ix, w, qs.data(), normals.data(), n, dp, parts);
+  dp.chunk = 0;
+  density_estimate(*ix, w, qs.data(), normals.data(), n, dp, dflt);
+  REQUIRE(whole.estimate.size() == 3 * n);
+  CHECK(whole.estimate == parts.estimate);
+  CHECK(whole.radius2 == parts.radius2);
+  CHECK(dflt.estimate == parts.estimate);
+  std::size_t lit = 0;
+  for (std::size_t i = 0; i < n; ++i) lit += whole.radius2[i] > 0 && whole.estimate[3 * i] > 0;
+  CHECK(lit == n);  // every query's disc found points facing it (the last launch's too)
 }
 
 TEST_CASE("pipeline: kNN and radius, every method: the Hilbert dispatch order does not change answers") {

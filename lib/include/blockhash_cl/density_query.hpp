@@ -40,7 +40,8 @@ struct DensityParams {
   DiscFilter filter = DiscFilter::Cone;
   float cone = 1.1f;          // the cone filter's c (>= 1)
   float radius_scale2 = 1.0f; // in (0, 1]
-  // Queries per chunk (0: automatic, 65536, fewer when k x chunk does not fit a device buffer).
+  // Queries per chunk (0: automatic: 65536, or 65280 on PoCL, whose launches stay below 65535 items;
+  // fewer when k x chunk does not fit a device buffer).
   std::size_t chunk = 0;
 };
 

@@ -95,7 +95,10 @@ QueryStats density_estimate(const Index& index, const DensityWeights& weights, c
   const cl::CommandQueue& queue = rt.queue();
   const std::size_t k = static_cast<std::size_t>(sp.k);
   const std::size_t max_alloc = rt.info().max_alloc_bytes ? rt.info().max_alloc_bytes : (std::size_t(1) << 30);
-  std::size_t chunk = params.chunk ? params.chunk : 65536;
+  // By default 65536 queries a chunk, or as many whole groups of up to 256 as a launch below the
+  // driver's limit holds (PoCL: 65280), so that a chunk is one launch of the kNN and one of ours.
+  const std::size_t limit = rt.quirks().max_launch_items;
+  std::size_t chunk = params.chunk ? params.chunk : limit > 256 ? std::min<std::size_t>(65536, (limit - 1) / 256 * 256) : 65536;
   chunk = std::max<std::size_t>(1, std::min({chunk, n, max_alloc / (4 * std::max<std::size_t>(k, 1))}));
   auto make = [&](std::size_t bytes, const char* what) {
     return detail::device_buffer(rt, bytes, std::string("density_estimate ") + what);
@@ -131,8 +134,8 @@ QueryStats density_estimate(const Index& index, const DensityWeights& weights, c
         .add(cl_int(sp.k)).add(max_r).add(cl_int(rk)).add(cl_int(fk)).add(params.cone).add(params.radius_scale2)
         .add(cl_uint(m)).add(ebuf);
     const std::vector<cl::Event> after_knn = {knn};
-    const cl::Event red = detail::launch_1d(queue, kern, m, rt.quirks().default_local_size, &after_knn,
-                                            "bhcl_density_estimate");
+    const cl::Event red = detail::launch_1d_split(queue, kern, 14, m, rt.quirks().default_local_size,
+                                                  rt.quirks().max_launch_items, &after_knn, "bhcl_density_estimate");
     check_cl(queue.enqueueReadBuffer(ebuf, CL_FALSE, 0, m * 4 * sizeof(float), est.data(), nullptr, &down),
              "clEnqueueReadBuffer", "density_estimate estimates");
     check_cl(queue.finish(), "clFinish", index.method() + " density_estimate");

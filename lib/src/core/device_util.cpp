@@ -44,4 +44,24 @@ cl::Event launch_1d(const cl::CommandQueue& queue, const cl::Kernel& kernel, std
   return e;
 }
 
+cl::Event launch_1d_split(const cl::CommandQueue& queue, cl::Kernel& kernel, cl_uint first_arg, std::size_t count,
+                          std::size_t local_size, std::size_t max_items, const std::vector<cl::Event>* wait,
+                          const char* name) {
+  local_size = std::max<std::size_t>(local_size, 1);
+  std::size_t per = count;
+  if (max_items > local_size) per = std::min(per, (max_items - 1) / local_size * local_size);
+  per = std::max<std::size_t>(per, 1);
+  std::vector<cl::Event> parts;
+  std::size_t first = 0;
+  do {
+    check_cl(kernel.setArg(first_arg, cl_ulong(first)), "clSetKernelArg", std::string(name) + " first item");
+    parts.push_back(launch_1d(queue, kernel, std::min(per, count - first), local_size, wait, name));
+    first += per;
+  } while (first < count);
+  if (parts.size() == 1) return parts.front();
+  cl::Event all;
+  check_cl(queue.enqueueMarkerWithWaitList(&parts, &all), "clEnqueueMarkerWithWaitList", name);
+  return all;
+}
+
 }  // namespace bhcl::detail

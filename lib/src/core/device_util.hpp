@@ -57,7 +57,6 @@ class KernelArgs {
                           const SearchParams& p) {
     return add(queries).add(cl_ulong(first)).add(cl_uint(count)).add(cl_uint(p.k)).add(squared_radius(p.max_radius));
   }
-  // The result buffers: ids, squared distances, counts.
   // The result buffers: ids, squared distances, counts, and the result rows (ResultBuffers::rows;
   // counts stands in, unread, when there are none: a valid argument on every platform).
   KernelArgs& add_results(const ResultBuffers& out) {
@@ -88,5 +87,14 @@ class KernelArgs {
 // Launches count work-items (rounded up to the local size; at least one group).
 cl::Event launch_1d(const cl::CommandQueue& queue, const cl::Kernel& kernel, std::size_t count,
                     std::size_t local_size, const std::vector<cl::Event>* wait, const char* name);
+
+// The same for a kernel whose argument first_arg (a ulong) is the index of its first item (item i
+// of a launch is first + get_global_id(0)): in launches below max_items (whole groups; 0: one
+// launch), each waiting for `wait`. PoCL compiles a second variant of a kernel, inside the launch,
+// for 65535 items or more (Quirks::max_launch_items). Returns the launch's event, or a marker on
+// all of them.
+cl::Event launch_1d_split(const cl::CommandQueue& queue, cl::Kernel& kernel, cl_uint first_arg, std::size_t count,
+                          std::size_t local_size, std::size_t max_items, const std::vector<cl::Event>* wait,
+                          const char* name);
 
 }  // namespace bhcl::detail

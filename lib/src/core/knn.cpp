@@ -292,14 +292,15 @@ cl::Event Index::enqueue_query(const cl::CommandQueue& queue, const cl::Buffer& 
   check_cl(err, "clCreateBuffer", "scaled queries");
   const std::size_t local = local_size_for(params);
   cl::Kernel copy = runtime_->kernel("scale.cl", "bhcl_scale_copy");
+  const std::size_t limit = runtime_->quirks().max_launch_items;
   detail::KernelArgs(copy, "bhcl_scale_copy").add(queries).add(scaled_q).add(cl_ulong(n * 3)).add(cl_int(-scale_exp_));
-  cl::Event e0 = detail::launch_1d(queue, copy, n * 3, local, wait, "bhcl_scale_copy");
+  cl::Event e0 = detail::launch_1d_split(queue, copy, 4, n * 3, local, limit, wait, "bhcl_scale_copy");
   std::vector<cl::Event> w0{e0};
   cl::Event e1 = enqueue_impl(queue, scaled_q, n, out, sp, &w0, nullptr, nullptr);
   cl::Kernel back = runtime_->kernel("scale.cl", "bhcl_scale_in_place");
   detail::KernelArgs(back, "bhcl_scale_in_place").add(out.dist2).add(cl_ulong(nk)).add(cl_int(2 * scale_exp_));
   std::vector<cl::Event> w1{e1};
-  return detail::launch_1d(queue, back, nk, local, &w1, "bhcl_scale_in_place");
+  return detail::launch_1d_split(queue, back, 3, nk, local, limit, &w1, "bhcl_scale_in_place");
 }
 
 // The kNN kind of query (query_pipeline.hpp): rows of k, one pass. On a device that uses host
