@@ -1317,4 +1317,38 @@ TEST_CASE("updates: removes that take the grid's extreme points leave the live p
   remove_both(*ix, m, extremes());  // six ids: the map's path
   require_live_box("the next extremes");
   check_exact(*ix, m, rng);
+  // A fresh grid whose top plane of cells along x loses every point (the refit scans inward past
+  // it) and whose low y and z sides lose their extreme point.
+  Model m2;
+  auto ix2 = grid_over(m2, rng, 70000);
+  std::swap(m, m2);
+  std::swap(ix, ix2);
+  std::vector<std::pair<float, std::int32_t>> by_x;
+  for (const auto& kv : m.live) by_x.emplace_back(kv.second[0], kv.first);
+  std::sort(by_x.begin(), by_x.end());
+  std::vector<std::int32_t> top;
+  for (std::size_t i = by_x.size() - by_x.size() / 12; i < by_x.size(); ++i) top.push_back(by_x[i].second);
+  const std::size_t cells_x = ix->structure().grid->geom.nx;
+  REQUIRE(double(by_x.size()) / 12 > 1.2 * double(by_x.size()) / double(cells_x));  // past a plane of cells
+  for (int d = 1; d < 3; ++d) {
+    auto lt = [d](const auto& a, const auto& b) { return a.second[d] < b.second[d]; };
+    const std::int32_t low = std::min_element(m.live.begin(), m.live.end(), lt)->first;
+    if (std::find(top.begin(), top.end(), low) == top.end()) top.push_back(low);
+  }
+  remove_both(*ix, m, top);
+  REQUIRE(ix->info().holes == top.size());
+  require_live_box("the top twelfth along x and the low y and z ends");
+  check_exact(*ix, m, rng);
+  // An outlier far along y, then removed: the planes between it and the rest are empty, more
+  // cells than points, and the box is taken from every live point instead.
+  Model m3;
+  std::vector<float> p3 = uniform(rng, 20000, 0.0f, 1.0f);
+  p3.insert(p3.end(), {0.5f, 400.0f, 0.5f});
+  m3.add(p3);
+  auto ix3 = blockhash_over(p3);
+  std::swap(m, m3);
+  std::swap(ix, ix3);
+  remove_both(*ix, m, {20000});
+  require_live_box("the outlier removed");
+  check_exact(*ix, m, rng);
 }

@@ -94,9 +94,9 @@ class GridIndex final : public BlockHashIndex {
   void grid_upload_from(std::size_t point_from, std::size_t cell_from);
   void grid_positions();  // id -> position, from the grid's ids
   // The removed ids' slots found by one pass over the stored ids (many ids, or no position map).
-  // Also the live points' box after it (live_box), for when a removed point lay on the old one.
+  // faces: the sides of the points' box a removed point lay on (blockhash::box_faces_of).
   void grid_mark_holes_by_scan(const std::int32_t* ids, std::size_t n, std::size_t& lo, std::size_t& hi,
-                               bool& on_box, bhcl_grid_dbox& live_box);
+                               unsigned& faces);
   // Save / load after updates (grid_update.cpp): the state a grid file keeps, and the id state,
   // holes and counters of a loaded file.
   blockhash::GridIdState grid_update_state() const;

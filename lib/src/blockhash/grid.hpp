@@ -171,11 +171,22 @@ inline void unite_box(bhcl_grid_dbox& b, const bhcl_grid_dbox& c) {
   b.hx = std::max(b.hx, c.hx), b.hy = std::max(b.hy, c.hy), b.hz = std::max(b.hz, c.hz);
 }
 
-// The box of g's live points (holes left out): g.dbox on a load and after a remove that took a
-// point on it (a build takes its own box, an insert widens g.dbox by the new points').
+// The box of g's live points (holes left out): g.dbox on a load (a build takes its own box, an
+// insert widens g.dbox by the new points', a remove refits the sides it took a point of).
 bhcl_grid_dbox grid_points_box(const Grid& g, unsigned threads);
-// b widened to hold the live points of slots [begin, end) (holes left out), vectorised.
-void widen_box_live(const Grid& g, std::size_t begin, std::size_t end, bhcl_grid_dbox& b);
+// The sides of box b that point (x, y, z) lies on, as bits: 1 low x, 2 high x, 4 low y, 8 high y,
+// 16 low z, 32 high z.
+inline unsigned box_faces_of(const bhcl_grid_dbox& b, float x, float y, float z) {
+  return unsigned(x == b.lx) | unsigned(x == b.hx) << 1 | unsigned(y == b.ly) << 2 | unsigned(y == b.hy) << 3 |
+         unsigned(z == b.lz) << 4 | unsigned(z == b.hz) << 5;
+}
+// g.dbox's sides in `faces` (box_faces_of's bits) made the live points' again after a remove took
+// points off them (the other sides' extreme points are still live, so they stand). A point's cell
+// is monotone in each coordinate (bhcl_grid_cell), so the live point farthest toward a side lies
+// in the first plane of cells from that side that holds one: the planes are scanned inward from
+// it, about N / n_axis points at uniform density, where the box of every live point read all N
+// (as it still does when the planes would hold more cells than there are points).
+void refit_box_faces(Grid& g, unsigned faces, unsigned threads);
 
 // The traversal's form, the kNN kernel's defines of the same names: row_cap BHCL_GRID_ROWCAP (the
 // runs of a ring scanned nearest first, at most BHCL_GRID_ROWBUF), fine_rings

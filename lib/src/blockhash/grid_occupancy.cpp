@@ -7,6 +7,7 @@
 #include <cstring>
 #include <vector>
 
+#include "bhcl_shared.h"
 #include "blockhash/grid.hpp"
 #include "core/parallel.hpp"
 
@@ -148,8 +149,7 @@ void occupancy_level(const bhcl_grid_geom& gm, const std::uint8_t* below, std::u
 
 // The box of points [b, e) of one coordinate array, holes (+inf) left out: lanes of 16 points
 // without branches, so that it vectorises (a hole is +inf: the minima take it as it is, the
-// maxima skip it). The per-point test and widen it replaces took 3 ms at 1M points, as long as
-// the rest of a 10 % remove.
+// maxima skip it). The per-point test and widen it replaces took 3 ms at 1M points.
 void extent_live(const float* v, std::size_t b, std::size_t e, float& lo, float& hi) {
   constexpr std::size_t kLanes = 16;
   float l[kLanes], h[kLanes];
@@ -168,15 +168,16 @@ void extent_live(const float* v, std::size_t b, std::size_t e, float& lo, float&
   for (std::size_t j = 0; j < kLanes; ++j) lo = std::min(lo, l[j]), hi = std::max(hi, h[j]);
 }
 
-}  // namespace
-
-std::size_t grid_occupancy_bytes(const bhcl_grid_geom& g) { return bhcl_grid_occ_bytes(g); }
-
+// b widened to hold the live points of slots [begin, end) (holes left out), vectorised.
 void widen_box_live(const Grid& g, std::size_t begin, std::size_t end, bhcl_grid_dbox& b) {
   extent_live(g.x.data(), begin, end, b.lx, b.hx);  // holes are +inf in every coordinate
   extent_live(g.y.data(), begin, end, b.ly, b.hy);
   extent_live(g.z.data(), begin, end, b.lz, b.hz);
 }
+
+}  // namespace
+
+std::size_t grid_occupancy_bytes(const bhcl_grid_geom& g) { return bhcl_grid_occ_bytes(g); }
 
 // The box of the live points (holes, at +inf in every coordinate, left out).
 bhcl_grid_dbox grid_points_box(const Grid& g, unsigned threads) {
@@ -193,6 +194,65 @@ bhcl_grid_dbox grid_points_box(const Grid& g, unsigned threads) {
   bhcl_grid_dbox b = part[0];
   for (const bhcl_grid_dbox& p : part) unite_box(b, p);
   return b;
+}
+
+namespace {
+
+// The live points' extreme coordinate along `axis` toward its high (or low) end: the planes of
+// cells across the axis from that end inward, until one holds a live point (refit_box_faces). A
+// plane's rows along x are one run of slots each where x is not the axis. No live point: the
+// inverted box's value (+inf low, -inf high). False when the planes' cells would pass `budget`
+// (cells left to look at, decremented).
+bool live_extreme(const Grid& g, int axis, bool high, std::size_t& budget, float& out) {
+  const bhcl_grid_geom& gm = g.geom;
+  const std::uint32_t dim[3] = {gm.nx, gm.ny, gm.nz};
+  const float* v = axis == 0 ? g.x.data() : axis == 1 ? g.y.data() : g.z.data();
+  const std::int32_t* id = g.ids.data();
+  const std::uint32_t* starts = g.starts.data();
+  float best = high ? -INFINITY : INFINITY;
+  auto take = [&](std::uint32_t c0, std::uint32_t c1) {  // the live slots of cells [c0, c1)
+    const std::uint32_t a = bhcl_grid_start(starts, gm.sparse, c0), b = bhcl_grid_start(starts, gm.sparse, c1);
+    for (std::uint32_t i = a; i < b; ++i)
+      if (id[i] != BHCL_EMPTY_SLOT_ID) best = high ? std::max(best, v[i]) : std::min(best, v[i]);
+  };
+  const int u = axis == 2 ? 1 : 2;  // the outer axis of a plane's rows (z, or y for a z plane)
+  const std::size_t plane_cells = std::size_t(gm.nx) * gm.ny * gm.nz / dim[axis];
+  for (std::uint32_t s = 0; s < dim[axis]; ++s) {
+    if (plane_cells > budget) return false;
+    budget -= plane_cells;
+    std::uint32_t c[3] = {0, 0, 0};
+    c[axis] = high ? dim[axis] - 1u - s : s;
+    for (c[u] = 0; c[u] < dim[u]; ++c[u]) {
+      if (axis == 0) {  // cells one by one along y
+        for (c[1] = 0; c[1] < dim[1]; ++c[1]) {
+          const std::uint32_t cell = (c[2] * gm.ny + c[1]) * gm.nx + c[0];
+          take(cell, cell + 1u);
+        }
+      } else {  // a row along x
+        const std::uint32_t row = (c[2] * gm.ny + c[1]) * gm.nx;
+        take(row, row + gm.nx);
+      }
+    }
+    if (high ? best > -INFINITY : best < INFINITY) break;
+  }
+  out = best;
+  return true;
+}
+
+}  // namespace
+
+void refit_box_faces(Grid& g, unsigned faces, unsigned threads) {
+  // At most a cell per four stored points looked at in all: past that (empty planes between a
+  // removed outlier and the rest, a sparse directory's wide planes) every live point is read
+  // instead, as before (the cells looked at then cost at most about a quarter more).
+  std::size_t budget = std::max<std::size_t>(g.n_points / 4, 4096);
+  float side[6] = {g.dbox.lx, g.dbox.hx, g.dbox.ly, g.dbox.hy, g.dbox.lz, g.dbox.hz};
+  for (int f = 0; f < 6; ++f)
+    if ((faces >> f & 1u) && !live_extreme(g, f >> 1, f & 1, budget, side[f])) {
+      g.dbox = grid_points_box(g, threads);
+      return;
+    }
+  g.dbox = bhcl_grid_dbox{side[0], side[2], side[4], side[1], side[3], side[5]};
 }
 
 void refresh_node_boxes(Grid& g, const std::vector<std::uint32_t>& cells) {
