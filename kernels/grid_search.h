@@ -81,6 +81,13 @@ inline bhcl_grid_dbox bhcl_grid_dbox_from(float4 lo, float4 hi) {
 }
 #endif
 
+/* max(a, b) as a select: the walk's slab and box distances (bhcl_grid_slabs_in, bhcl_grid_box_dist)
+ * never see a NaN (the query is finite, a side is a finite coordinate or an empty box's +-inf, so
+ * no inf - inf), where fmax's NaN rule cost two more instructions each on x86 (AVX-512: vmaxss,
+ * not vmaxss + vcmpunordss + vblendvps); the same values. Host reference, two clusters: -0.9 % of
+ * the instructions at k = 10. */
+BHCL_GRID_INLINE float bhcl_grid_maxf(float a, float b) { return a > b ? a : b; }
+
 /* The cell of coordinate t along an axis of n cells from origin o: floor((t - o) / h), clamped. */
 BHCL_GRID_INLINE bhcl_u32 bhcl_grid_cell(float t, float o, float inv_h, bhcl_u32 n) {
   float f = (t - o) * inv_h;
@@ -108,7 +115,7 @@ BHCL_GRID_INLINE float bhcl_grid_slabs_in(float t, float o, float h, float margi
   float mlo = margin, mhi = margin;
   if (dl >= lo) lo = dl, mlo = 0.0f;
   if (dh <= hi) hi = dh, mhi = 0.0f;
-  return BHCL_FMAX(BHCL_FMAX((lo - t) - mlo, (t - hi) - mhi), 0.0f);
+  return bhcl_grid_maxf(bhcl_grid_maxf((lo - t) - mlo, (t - hi) - mhi), 0.0f);
 }
 
 /* Distance from t to the slab of cell i (lowered by the margin, never negative). */
@@ -340,9 +347,9 @@ BHCL_GRID_INLINE bhcl_grid_dbox bhcl_grid_walk_box2(const bhcl_grid_walk_ctx* w,
  * the bit, as each side is a stored point's coordinate (rounding is monotone). An inverted box
  * (a node whose points are all holes) is +inf away. */
 BHCL_GRID_INLINE float bhcl_grid_box_dist(const bhcl_grid_walk_ctx* w, const bhcl_grid_dbox b) {
-  const float ex = BHCL_FMAX(BHCL_FMAX(b.lx - w->qx, w->qx - b.hx), 0.0f);
-  const float ey = BHCL_FMAX(BHCL_FMAX(b.ly - w->qy, w->qy - b.hy), 0.0f);
-  const float ez = BHCL_FMAX(BHCL_FMAX(b.lz - w->qz, w->qz - b.hz), 0.0f);
+  const float ex = bhcl_grid_maxf(bhcl_grid_maxf(b.lx - w->qx, w->qx - b.hx), 0.0f);
+  const float ey = bhcl_grid_maxf(bhcl_grid_maxf(b.ly - w->qy, w->qy - b.hy), 0.0f);
+  const float ez = bhcl_grid_maxf(bhcl_grid_maxf(b.lz - w->qz, w->qz - b.hz), 0.0f);
   return ex * ex + ey * ey + ez * ez;
 }
 
@@ -378,6 +385,32 @@ BHCL_GRID_INLINE float bhcl_grid_walk_child(const bhcl_grid_walk_ctx* w, bhcl_u3
   const float ey = bhcl_grid_slabs_in(w->qy, w->g.oy, w->g.h, w->g.margin, y0, y1, b.ly, b.hy);
   const float ez = bhcl_grid_slabs_in(w->qz, w->g.oz, w->g.h, w->g.margin, z0, z1, b.lz, b.hz);
   return ex * ex + ey * ey + ez * ez;
+}
+
+/* Along one axis of n cells, the children 2U and 2U + 1 of level m whose cells
+ * [u << m, min(((u + 1) << m) - 1, n - 1)] lie inside [v0, v1], as bits 1 and 2: u << m >= v0
+ * when u >= ceil(v0 / 2^m), and the child's last cell is <= v1 when n - 1 <= v1 or u < (v1 + 1) >> m. */
+BHCL_GRID_INLINE bhcl_u32 bhcl_grid_cube_axis(bhcl_u32 U, bhcl_u32 m, bhcl_u32 v0, bhcl_u32 v1, bhcl_u32 n) {
+  const bhcl_u32 lo = (v0 + (1u << m) - 1u) >> m;
+  const bhcl_u32 hi = v1 >= n - 1u ? 0xffffffffu : (v1 + 1u) >> m;
+  const bhcl_u32 u = 2u * U;
+  return (u >= lo && u < hi ? 1u : 0u) | (u + 1u >= lo && u + 1u < hi ? 2u : 0u);
+}
+
+/* The children o of node (X, Y, Z) of level m + 1 that the rings have searched all of (those for
+ * which bhcl_grid_walk_child returns -1), as bits o: the best-first walk's cube test, once per
+ * node instead of once per child (most nodes miss the cube, and cost the first test alone). */
+BHCL_GRID_INLINE bhcl_u32 bhcl_grid_cube_children(const bhcl_grid_walk_ctx* w, bhcl_u32 m, bhcl_u32 X, bhcl_u32 Y,
+                                                  bhcl_u32 Z) {
+  const bhcl_u32 l = m + 1u; /* a node that misses the cube has no child inside it */
+  if (X < (w->vx0 >> l) || X > (w->vx1 >> l) || Y < (w->vy0 >> l) || Y > (w->vy1 >> l) || Z < (w->vz0 >> l) ||
+      Z > (w->vz1 >> l))
+    return 0u;
+  const bhcl_u32 ax = bhcl_grid_cube_axis(X, m, w->vx0, w->vx1, w->g.nx);
+  const bhcl_u32 ay = bhcl_grid_cube_axis(Y, m, w->vy0, w->vy1, w->g.ny);
+  const bhcl_u32 az = bhcl_grid_cube_axis(Z, m, w->vz0, w->vz1, w->g.nz);
+  return ((ax & 1u) * 0x55u | (ax >> 1) * 0xaau) & ((ay & 1u) * 0x33u | (ay >> 1) * 0xccu) &
+         ((az & 1u) * 0x0fu | (az >> 1) * 0xf0u);
 }
 
 /* Scans fine cell (x, y, z) (a level-0 child of the walk). Returns 0 when the budget stops it. */
@@ -440,9 +473,9 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_walk_block(BHCL_GLOBAL const bhcl_u32* start
   const bhcl_u32 x0 = X << 2, y0 = Y << 2, z0 = Z << 2;
   const bhcl_u32 d1x = bhcl_grid_occ_dim(g.nx, 1u), d1y = bhcl_grid_occ_dim(g.ny, 1u), d1z = bhcl_grid_occ_dim(g.nz, 1u);
   /* The level-1 children's bytes (0 outside the grid), an x pair from one index (x is fastest
-   * in the level's bytes; the first of a pair is inside, as the node is), and per (y, z) pair
-   * the rows they show occupied: rowp[by | bz << 1] bit (y & 1) << 1 | (z & 1) << 2. */
-  bhcl_u32 l1[8], rowp[4];
+   * in the level's bytes; the first of a pair is inside, as the node is), and the rows they show
+   * occupied as one mask: rm bit (y - y0) + 4 (z - z0). */
+  bhcl_u32 l1[8], rm = 0u;
   const bhcl_u32 i1 = bhcl_grid_occ_index(g, 0u, 1u, 2u * X, 2u * Y, 2u * Z);
   const bhcl_u32 x1in = 2u * X + 1u < d1x;
   for (bhcl_u32 o = 0; o < 8u; o += 2u) {
@@ -451,8 +484,9 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_walk_block(BHCL_GLOBAL const bhcl_u32* start
     const bhcl_u32 i = i1 + (oz * d1y + oy) * d1x;
     l1[o] = in ? occ[i] : 0u;
     l1[o + 1u] = in && x1in ? occ[i + 1u] : 0u;
-    const bhcl_u32 c = l1[o] | l1[o + 1u];
-    rowp[o >> 1] = c | (c >> 1);
+    /* r = c | c >> 1: bits 0, 2, 4, 6 the rows (y & 1, z & 1) = (0, 0), (1, 0), (0, 1), (1, 1) */
+    const bhcl_u32 c = l1[o] | l1[o + 1u], r = c | (c >> 1);
+    rm |= ((r & 1u) | ((r >> 1) & 2u) | (r & 16u) | ((r >> 1) & 32u)) << (2u * oy + 8u * oz);
   }
   float ey2[4], ex2[4];
   for (bhcl_u32 j = 0; j < 4u; ++j) {
@@ -461,21 +495,25 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_walk_block(BHCL_GLOBAL const bhcl_u32* start
     const float f = bhcl_grid_slabs_in(qx, g.ox, g.h, g.margin, x0 + j, x0 + j, b.lx, b.hx);
     ex2[j] = f * f;
   }
-  /* Rows nearest first along z, then y (the bound tightens before the far rows). */
+  /* Rows nearest first along z, then y (the bound tightens before the far rows), stepping from
+   * occupied row to occupied row (none outside the grid; most planes of a sparse node have none):
+   * rv, the occupied rows by visiting position (bit jj + 4 (z - z0) for row y0 + ((oy >> 4 jj) & 15)),
+   * zv the planes holding one (bit i for plane z0 + ((oz >> 4 i) & 15)). Why: the rows' and planes'
+   * bits from the level-1 bytes had been computed at each of the 16 rows and 4 planes, where a
+   * node far from the points has about 5 and 2.5 occupied; host reference, two clusters, k = 10:
+   * -2.6 % of the instructions (the mask -1.1 %, the steps by bits -0.7 % and -0.8 %). */
   const bhcl_u32 oz = bhcl_grid_block_order(w->cz, z0), oy = bhcl_grid_block_order(w->cy, y0);
-  for (bhcl_u32 i = 0; i < 4u; ++i) {
-    const bhcl_u32 zl = (oz >> (4u * i)) & 15u, z = z0 + zl;
-    /* the plane's occupied rows, bit y - y0 (none outside the grid): most planes of a sparse
-     * node have none, and cost this test alone */
-    const bhcl_u32 sh = (zl & 1u) << 2, p0 = rowp[(zl >> 1) << 1] >> sh, p1 = rowp[((zl >> 1) << 1) | 1u] >> sh;
-    const bhcl_u32 plane = (p0 & 1u) | ((p0 >> 1) & 2u) | ((p1 & 1u) << 2) | ((p1 << 1) & 8u);
-    if (plane == 0u) continue;
+  bhcl_u32 rv = 0u, zv = 0u;
+  for (bhcl_u32 jj = 0; jj < 4u; ++jj) rv |= ((rm >> ((oy >> (4u * jj)) & 15u)) & 0x1111u) << jj;
+  const bhcl_u32 ne = (rm | (rm >> 1) | (rm >> 2) | (rm >> 3)) & 0x1111u; /* bit 4 (z - z0): a row of z */
+  for (bhcl_u32 i = 0; i < 4u; ++i) zv |= ((ne >> (4u * ((oz >> (4u * i)) & 15u))) & 1u) << i;
+  for (; zv != 0u; zv &= zv - 1u) {
+    const bhcl_u32 zl = (oz >> (4u * BHCL_GRID_CTZ(zv))) & 15u, z = z0 + zl;
     const float ez = bhcl_grid_slabs_in(qz, g.oz, g.h, g.margin, z, z, b.lz, b.hz);
     const float ez2 = ez * ez;
     if (ez2 > BHCL_GRID_BOUND(st)) continue;
-    for (bhcl_u32 jj = 0; jj < 4u; ++jj) {
-      const bhcl_u32 j = (oy >> (4u * jj)) & 15u, y = y0 + j;
-      if (((plane >> j) & 1u) == 0u) continue;
+    for (bhcl_u32 pv = (rv >> (4u * zl)) & 15u; pv != 0u; pv &= pv - 1u) {
+      const bhcl_u32 j = (oy >> (4u * BHCL_GRID_CTZ(pv))) & 15u, y = y0 + j;
       if (ey2[j] + ez2 > BHCL_GRID_BOUND(st)) continue;
       bhcl_u32 bits = bhcl_grid_block_row_bits(l1, y, z);
       bhcl_u32 xa = x0 + BHCL_GRID_CTZ(bits), xb = x0 + (31u - BHCL_GRID_CLZ(bits));
@@ -589,7 +627,13 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_walk_depth_first(BHCL_GLOBAL const bhcl_u32*
 }
 
 /* The best-first walk's queue: pyramid nodes by level and coordinates, in descending squared
- * distance from the query (the nearest is popped from the back). */
+ * distance from the query (the nearest is popped from the back; of equal distances the last
+ * queued). The order is kept on one 64-bit key per entry, the distance's bits (a distance is
+ * >= +0, so its bits order as it does) above the slot of the node's fields, which stay where
+ * they were written (the slots freed by pops are reused). Why: a query between two clusters
+ * (k = 10) queues 25 nodes and pops 8, each queued one moving 4 nearer ones, which had moved
+ * five arrays each; host reference: -2.6 % of the instructions at k = 10, -1.4 % at k = 50 (an
+ * unsorted queue searched at each pop: -1.7 % / +0.8 %). */
 #ifndef BHCL_GRID_WALKBUF
 #define BHCL_GRID_WALKBUF 32
 #endif
@@ -607,9 +651,18 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_walk_depth_first(BHCL_GLOBAL const bhcl_u32*
 #ifndef BHCL_GRID_BLOCK_ROWS
 #define BHCL_GRID_BLOCK_ROWS 1
 #endif
+#ifdef __OPENCL_C_VERSION__
+#define BHCL_GRID_FBITS(f) as_uint(f)
+#define BHCL_GRID_BITSF(u) as_float(u)
+#else
+inline bhcl_u32 bhcl_grid_fbits(float f) { bhcl_u32 u; std::memcpy(&u, &f, 4); return u; }
+inline float bhcl_grid_bitsf(bhcl_u32 u) { float f; std::memcpy(&f, &u, 4); return f; }
+#define BHCL_GRID_FBITS(f) bhcl_grid_fbits(f)
+#define BHCL_GRID_BITSF(u) bhcl_grid_bitsf(u)
+#endif
 typedef struct bhcl_grid_walk_queue {
-  float d[BHCL_GRID_WALKBUF];
-  bhcl_u32 xl[BHCL_GRID_WALKBUF]; /* X | level << 27 */
+  bhcl_u64 key[BHCL_GRID_WALKBUF]; /* the distance's bits << 32 | the slot of the node's fields */
+  bhcl_u32 xl[BHCL_GRID_WALKBUF]; /* by slot: X | level << 27 */
   bhcl_u32 y[BHCL_GRID_WALKBUF], z[BHCL_GRID_WALKBUF];
   bhcl_u32 off[BHCL_GRID_WALKBUF]; /* the byte of the node's level */
 } bhcl_grid_walk_queue;
@@ -665,15 +718,19 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search_far(BHCL_GLOBAL const bhcl_u32* start
     return bhcl_grid_walk_depth_first(starts, px, py, pz, pid, occ, w, top, 0u, 0u, 0u, top_off, examined, budget, st);
   bhcl_grid_walk_queue qu;
   bhcl_u32 nq = 1u;
-  qu.d[0] = 0.0f;
+  bhcl_u32 hw = 1u, nf = 0u; /* the slots written so far; the free ones among them, fs[0, nf) */
+  bhcl_u8 fs[BHCL_GRID_WALKBUF];
+  qu.key[0] = 0u; /* distance +0, slot 0 */
   qu.xl[0] = top << 27;
   qu.y[0] = qu.z[0] = 0u;
   qu.off[0] = top_off;
   while (nq > 0u) {
     --nq;
-    if (qu.d[nq] > BHCL_GRID_BOUND(st)) break; /* the rest are farther still */
-    bhcl_u32 l = qu.xl[nq] >> 27, X = qu.xl[nq] & 0x07ffffffu, Y = qu.y[nq], Z = qu.z[nq];
-    bhcl_u32 off = qu.off[nq];
+    if (BHCL_GRID_BITSF((bhcl_u32)(qu.key[nq] >> 32)) > BHCL_GRID_BOUND(st)) break; /* the rest are farther still */
+    const bhcl_u32 t = (bhcl_u32)qu.key[nq] & 0xffu; /* its slot, free again */
+    fs[nf++] = (bhcl_u8)t;
+    bhcl_u32 l = qu.xl[t] >> 27, X = qu.xl[t] & 0x07ffffffu, Y = qu.y[t], Z = qu.z[t];
+    bhcl_u32 off = qu.off[t];
     /* Down from the popped node, BHCL_GRID_WALK_DESCEND: always into its nearest child, the others
      * queued, so that the first fine cells are reached (and the bound made) after one descent, not
      * after every coarse node nearer than them has been expanded; the queue then prunes. */
@@ -684,13 +741,24 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search_far(BHCL_GLOBAL const bhcl_u32* start
         break;
       }
       const bhcl_u32 m = l - 1u, moff = off - bhcl_grid_occ_size(g, m);
-      const bhcl_u32 mask = occ[bhcl_grid_occ_index(g, off, l, X, Y, Z)];
+      /* The children (of level m >= 2) are tested here, not by bhcl_grid_walk_child: the rings'
+       * cube once for all eight (bhcl_grid_cube_children), and each child's box (with the boxes,
+       * always but in the BHCL_GRID_TBOX 0 experiment) from the node's first child's index, the
+       * level's dimensions read once. The same distances. Why: the per-child form recomputed the
+       * child's cell span, its clamps, the cube test and the level's dimensions, 105 instructions
+       * a child (two clusters, k = 10: 44 child tests a query, 21 % of the instructions); host
+       * reference -12.2 % of the instructions at k = 10, -5.9 % at k = 50. */
+      const bhcl_u32 mask = occ[bhcl_grid_occ_index(g, off, l, X, Y, Z)] & ~bhcl_grid_cube_children(w, m, X, Y, Z);
+      const bhcl_u32 dxm = bhcl_grid_occ_dim(g.nx, m), dxym = dxm * bhcl_grid_occ_dim(g.ny, m);
+      const bhcl_u32 box0 = moff - w->size1 + 2u * Z * dxym + 2u * Y * dxm + 2u * X; /* child 0's box */
       float nd = -1.0f; /* the nearest child so far (-1: none), kept out of the queue */
       bhcl_u32 nx_ = 0u, ny_ = 0u, nz_ = 0u;
       for (bhcl_u32 bits = mask; bits != 0u; bits &= bits - 1u) { /* the children holding points */
         const bhcl_u32 o = BHCL_GRID_CTZ(bits);
-        bhcl_u32 ux, uy, uz;
-        float d = bhcl_grid_walk_child(w, m, moff, X, Y, Z, o, &ux, &uy, &uz, 0);
+        bhcl_u32 ux = 2u * X + (o & 1u), uy = 2u * Y + ((o >> 1) & 1u), uz = 2u * Z + (o >> 2);
+        float d = w->tboff ? bhcl_grid_box_dist(w, bhcl_grid_tbox_load(occ, w->tboff,
+                                                                       box0 + (o & 1u) + ((o >> 1) & 1u) * dxm + (o >> 2) * dxym))
+                           : bhcl_grid_walk_child(w, m, moff, X, Y, Z, o, &ux, &uy, &uz, 0);
         if (d < 0.0f || d > BHCL_GRID_BOUND(st)) continue;
         if (BHCL_GRID_WALK_DESCEND && (nd < 0.0f || d < nd)) { /* the new nearest: queue the old one */
           const float td = nd;
@@ -700,16 +768,17 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search_far(BHCL_GLOBAL const bhcl_u32* start
           d = td, ux = tx, uy = ty, uz = tz;
         }
         if (nq < walk_cap) { /* m >= BHCL_GRID_WALK_DF_LEVEL: never a fine cell */
+          /* above the farther and the equal ones (popped before them), below the nearer (kb's
+           * low bits 0: a key of equal distance is >= kb) */
           bhcl_u32 j = nq++;
-          while (j > 0u && qu.d[j - 1u] < d) {
-            qu.d[j] = qu.d[j - 1u];
-            qu.xl[j] = qu.xl[j - 1u];
-            qu.y[j] = qu.y[j - 1u];
-            qu.z[j] = qu.z[j - 1u];
-            qu.off[j] = qu.off[j - 1u];
+          const bhcl_u64 kb = (bhcl_u64)BHCL_GRID_FBITS(d) << 32;
+          while (j > 0u && qu.key[j - 1u] < kb) {
+            qu.key[j] = qu.key[j - 1u];
             --j;
           }
-          qu.d[j] = d;
+          const bhcl_u32 sl = nf > 0u ? fs[--nf] : hw++; /* < walk_cap: nq - 1 slots are taken */
+          qu.key[j] = kb | sl;
+          j = sl;
           qu.xl[j] = ux | (m << 27);
           qu.y[j] = uy;
           qu.z[j] = uz;
