@@ -97,8 +97,7 @@ QueryStats density_estimate(const Index& index, const DensityWeights& weights, c
   const std::size_t max_alloc = rt.info().max_alloc_bytes ? rt.info().max_alloc_bytes : (std::size_t(1) << 30);
   // By default 65536 queries a chunk, or as many whole groups of up to 256 as a launch below the
   // driver's limit holds (PoCL: 65280), so that a chunk is one launch of the kNN and one of ours.
-  const std::size_t limit = rt.quirks().max_launch_items;
-  std::size_t chunk = params.chunk ? params.chunk : limit > 256 ? std::min<std::size_t>(65536, (limit - 1) / 256 * 256) : 65536;
+  std::size_t chunk = params.chunk ? params.chunk : detail::items_per_launch(65536, 256, rt.quirks().max_launch_items);
   chunk = std::max<std::size_t>(1, std::min({chunk, n, max_alloc / (4 * std::max<std::size_t>(k, 1))}));
   auto make = [&](std::size_t bytes, const char* what) {
     return detail::device_buffer(rt, bytes, std::string("density_estimate ") + what);

@@ -44,13 +44,23 @@ cl::Event launch_1d(const cl::CommandQueue& queue, const cl::Kernel& kernel, std
   return e;
 }
 
+std::size_t items_per_launch(std::size_t wanted, std::size_t local, std::size_t limit) {
+  if (local && limit > local) wanted = std::min(wanted, (limit - 1) / local * local);  // strictly below it
+  return std::max<std::size_t>(wanted, 1);
+}
+
+cl::Event one_event(const cl::CommandQueue& queue, std::vector<cl::Event>& events, const std::string& what) {
+  if (events.size() == 1) return events.front();
+  cl::Event all;
+  check_cl(queue.enqueueMarkerWithWaitList(&events, &all), "clEnqueueMarkerWithWaitList", what);
+  return all;
+}
+
 cl::Event launch_1d_split(const cl::CommandQueue& queue, cl::Kernel& kernel, cl_uint first_arg, std::size_t count,
                           std::size_t local_size, std::size_t max_items, const std::vector<cl::Event>* wait,
                           const char* name) {
   local_size = std::max<std::size_t>(local_size, 1);
-  std::size_t per = count;
-  if (max_items > local_size) per = std::min(per, (max_items - 1) / local_size * local_size);
-  per = std::max<std::size_t>(per, 1);
+  const std::size_t per = items_per_launch(count, local_size, max_items);
   std::vector<cl::Event> parts;
   std::size_t first = 0;
   do {
@@ -58,10 +68,7 @@ cl::Event launch_1d_split(const cl::CommandQueue& queue, cl::Kernel& kernel, cl_
     parts.push_back(launch_1d(queue, kernel, std::min(per, count - first), local_size, wait, name));
     first += per;
   } while (first < count);
-  if (parts.size() == 1) return parts.front();
-  cl::Event all;
-  check_cl(queue.enqueueMarkerWithWaitList(&parts, &all), "clEnqueueMarkerWithWaitList", name);
-  return all;
+  return one_event(queue, parts, name);
 }
 
 }  // namespace bhcl::detail

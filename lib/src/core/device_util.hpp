@@ -88,11 +88,18 @@ class KernelArgs {
 cl::Event launch_1d(const cl::CommandQueue& queue, const cl::Kernel& kernel, std::size_t count,
                     std::size_t local_size, const std::vector<cl::Event>* wait, const char* name);
 
-// The same for a kernel whose argument first_arg (a ulong) is the index of its first item (item i
-// of a launch is first + get_global_id(0)): in launches below max_items (whole groups; 0: one
-// launch), each waiting for `wait`. PoCL compiles a second variant of a kernel, inside the launch,
-// for 65535 items or more (Quirks::max_launch_items). Returns the launch's event, or a marker on
-// all of them.
+// The work-items a launch takes: at most `wanted`, and below the driver's launch limit
+// (Quirks::max_launch_items; 0: none) in whole groups of `local`; >= 1. PoCL compiles a second
+// variant of a kernel, inside the launch, for 65535 items or more.
+std::size_t items_per_launch(std::size_t wanted, std::size_t local, std::size_t limit);
+
+// One event for enqueued commands: the only one, or a marker on all of them (none: on the queue's
+// earlier commands), so that it means "all done" on any queue.
+cl::Event one_event(const cl::CommandQueue& queue, std::vector<cl::Event>& events, const std::string& what);
+
+// launch_1d for a kernel whose argument first_arg (a ulong) is the index of its first item (item
+// i of a launch is first + get_global_id(0)): in launches of items_per_launch(count, local,
+// max_items), each waiting for `wait`. Returns one_event of them.
 cl::Event launch_1d_split(const cl::CommandQueue& queue, cl::Kernel& kernel, cl_uint first_arg, std::size_t count,
                           std::size_t local_size, std::size_t max_items, const std::vector<cl::Event>* wait,
                           const char* name);

@@ -213,10 +213,8 @@ void Index::rebuild(const float*, std::size_t) {
 }
 
 std::size_t Index::queries_per_launch(std::size_t max_batch, std::size_t local) const {
-  std::size_t per = max_batch ? std::min(max_batch, max_dispatch_queries()) : max_dispatch_queries();
-  if (const std::size_t limit = runtime_->quirks().max_launch_items; limit && local && limit > local)
-    per = std::min(per, (limit - 1) / local * local);  // strictly below the limit, in whole groups
-  return std::max<std::size_t>(per, 1);
+  const std::size_t per = max_batch ? std::min(max_batch, max_dispatch_queries()) : max_dispatch_queries();
+  return detail::items_per_launch(per, local, runtime_->quirks().max_launch_items);
 }
 
 cl::Event Index::enqueue_impl(const cl::CommandQueue& queue, const cl::Buffer& queries,
@@ -237,10 +235,7 @@ cl::Event Index::enqueue_impl(const cl::CommandQueue& queue, const cl::Buffer& q
     batches.push_back(enqueue_batch(queue, queries, first, count, out, params, local, wait));
     if (kernels) kernels->push_back(batches.back());
   }
-  if (batches.size() == 1) return batches.front();
-  cl::Event all;
-  check_cl(queue.enqueueMarkerWithWaitList(&batches, &all), "clEnqueueMarkerWithWaitList", method());
-  return all;
+  return detail::one_event(queue, batches, method());
 }
 
 cl::Event Index::enqueue_query(const cl::CommandQueue& queue, const cl::Buffer& queries,
