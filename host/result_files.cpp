@@ -248,9 +248,8 @@ KnnRowsView KnnOutputs::rows_for(const KnnSlice& part) {
   if (bytes > ib.capacity() || ib.capacity() == 0) {
     // The two buffers' rows (the slice's own rows were counted by KnnSlice::reserve).
     check_result_memory(part.n, part.k, false, 2, "bhcl knn");
-    // One buffer a thread: making 2 x 20 MiB present (100k x 50) is a fault per 2 MiB page that
-    // zeroes it, one core's work each; one after the other it was most of the write stage.
-    detail::parallel_tasks(2, [&](std::size_t t) { (t ? db : ib).reserve(bytes); });
+    ib.reserve(bytes);
+    db.reserve(bytes);
   }
   // Each file's rows placed after room for the part of a block the previous slices left over.
   v.ids = reinterpret_cast<std::int32_t*>(ib.rows(ids_->direct_lead(items_)));
