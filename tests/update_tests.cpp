@@ -1413,7 +1413,7 @@ TEST_CASE("host cache: a freed large block serves the next request that fits, no
   CHECK(release_host_cache() == 0);
 }
 
-TEST_CASE("host cache: the bound holds, oldest out first; 0 caches nothing; BHCL_HOST_CACHE_MB's values") {
+TEST_CASE("host cache: the bound holds (the oldest out first), 0 caches nothing, and BHCL_HOST_CACHE_MB's values") {
   CacheBound bound(14 * kMiB);
   void* a = blockhash::grid_allocate(6 * kMiB);
   void* b = blockhash::grid_allocate(6 * kMiB);
