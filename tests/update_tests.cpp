@@ -7,6 +7,7 @@
 #include <atomic>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <fstream>
 #include <iterator>
@@ -15,9 +16,11 @@
 #include <thread>
 
 #include "blockhash/build.hpp"
+#include "blockhash/grid.hpp"
 #include "blockhash_cl/blockhash.hpp"
 #include "blockhash_cl/bruteforce.hpp"
 #include "blockhash_cl/factory.hpp"
+#include "blockhash_cl/grid_index.hpp"
 #include "blockhash_cl/kdtree.hpp"
 #include "blockhash_cl/metrics.hpp"
 #include "blockhash_cl/multi_device.hpp"
@@ -1003,7 +1006,7 @@ TEST_CASE("updates: params_for_batch tunes again after every update, against the
   };
   tune_and_check("the build", false);
   tune_and_check("the build, again", true);
-  // A remove of half of the points (the side retuned), then a 10 % insert (a merge).
+  // A remove of half of the points (the side retuned), then an 8 % insert (a merge).
   std::vector<std::int32_t> drop;
   for (const auto& kv : m.live)
     if (rng() % 2) drop.push_back(kv.first);
@@ -1351,4 +1354,170 @@ TEST_CASE("updates: removes that take the grid's extreme points leave the live p
   remove_both(*ix, m, {20000});
   require_live_box("the outlier removed");
   check_exact(*ix, m, rng);
+}
+
+// Issue 39: the cache of freed large grid blocks (lib/src/blockhash/grid_memory.cpp). Each case
+// sets its own bound and empties the cache first, and restores the bound after.
+namespace {
+
+constexpr std::size_t kMiB = std::size_t(1) << 20;
+
+struct CacheBound {
+  std::size_t old;
+  explicit CacheBound(std::size_t bytes) : old(blockhash::host_cache_set_limit(bytes)) { release_host_cache(); }
+  ~CacheBound() { blockhash::host_cache_set_limit(old); }
+};
+
+}  // namespace
+
+TEST_CASE("host cache: a freed large block serves the next request that fits, not a much smaller one") {
+  CacheBound bound(64 * kMiB);
+  REQUIRE(blockhash::host_cache_state().bytes == 0);
+  void* p = blockhash::grid_allocate(6 * kMiB - 100);  // 6 MiB rounded
+  std::memset(p, 1, 6 * kMiB - 100);
+  blockhash::grid_deallocate(p, 6 * kMiB - 100);
+  CHECK(blockhash::host_cache_state().bytes == 6 * kMiB);
+  CHECK(blockhash::host_cache_state().blocks == 1);
+  // 5 MiB rounds to 6: the same block back.
+  void* q = blockhash::grid_allocate(5 * kMiB);
+  CHECK(q == p);
+  CHECK(blockhash::host_cache_state().bytes == 0);
+  blockhash::grid_deallocate(q, 5 * kMiB);
+  CHECK(blockhash::host_cache_state().bytes == 6 * kMiB);
+  // 4 MiB: the 6 MiB block is 1.5x it, too large; a new one, the cached one kept.
+  void* r = blockhash::grid_allocate(4 * kMiB);
+  CHECK(r != p);
+  CHECK(blockhash::host_cache_state().bytes == 6 * kMiB);
+  blockhash::grid_deallocate(r, 4 * kMiB);
+  CHECK(blockhash::host_cache_state().bytes == 10 * kMiB);
+  CHECK(blockhash::host_cache_state().blocks == 2);
+  // A block up to 1.25x the request serves it, and goes back at its own size.
+  void* big = blockhash::grid_allocate(10 * kMiB);
+  blockhash::grid_deallocate(big, 10 * kMiB);
+  void* s = blockhash::grid_allocate(8 * kMiB);
+  CHECK(s == big);
+  CHECK(blockhash::host_cache_state().bytes == 10 * kMiB);
+  blockhash::grid_deallocate(s, 8 * kMiB);
+  CHECK(blockhash::host_cache_state().bytes == 20 * kMiB);
+  // The smallest that fits: the 6 MiB block for 6 MiB, not the 10.
+  void* t = blockhash::grid_allocate(6 * kMiB);
+  CHECK(t == p);
+  blockhash::grid_deallocate(t, 6 * kMiB);
+  // Small arrays are not cached.
+  void* small = blockhash::grid_allocate(kMiB);
+  blockhash::grid_deallocate(small, kMiB);
+  CHECK(blockhash::host_cache_state().bytes == 20 * kMiB);
+  CHECK(release_host_cache() == 20 * kMiB);
+  CHECK(blockhash::host_cache_state().bytes == 0);
+  CHECK(blockhash::host_cache_state().blocks == 0);
+  CHECK(release_host_cache() == 0);
+}
+
+TEST_CASE("host cache: the bound holds (the oldest out first), 0 caches nothing, and BHCL_HOST_CACHE_MB's values") {
+  CacheBound bound(14 * kMiB);
+  void* a = blockhash::grid_allocate(6 * kMiB);
+  void* b = blockhash::grid_allocate(6 * kMiB);
+  void* c = blockhash::grid_allocate(6 * kMiB);
+  blockhash::grid_deallocate(a, 6 * kMiB);
+  blockhash::grid_deallocate(b, 6 * kMiB);
+  CHECK(blockhash::host_cache_state().bytes == 12 * kMiB);
+  blockhash::grid_deallocate(c, 6 * kMiB);  // 18 > 14: a, the oldest, freed
+  CHECK(blockhash::host_cache_state().bytes == 12 * kMiB);
+  CHECK(blockhash::host_cache_state().blocks == 2);
+  void* x = blockhash::grid_allocate(6 * kMiB);
+  void* y = blockhash::grid_allocate(6 * kMiB);
+  CHECK(((x == b && y == c) || (x == c && y == b)));
+  CHECK(blockhash::host_cache_state().bytes == 0);
+  void* huge = blockhash::grid_allocate(16 * kMiB);  // larger than the bound: freed, not cached
+  blockhash::grid_deallocate(huge, 16 * kMiB);
+  CHECK(blockhash::host_cache_state().bytes == 0);
+  blockhash::grid_deallocate(x, 6 * kMiB);
+  blockhash::grid_deallocate(y, 6 * kMiB);
+  CHECK(blockhash::host_cache_state().bytes == 12 * kMiB);
+  // A lower bound frees what is over it at once; 0 frees all and caches nothing more.
+  CHECK(blockhash::host_cache_set_limit(8 * kMiB) == 14 * kMiB);
+  CHECK(blockhash::host_cache_state().bytes == 6 * kMiB);
+  blockhash::host_cache_set_limit(0);
+  CHECK(blockhash::host_cache_state().bytes == 0);
+  void* z = blockhash::grid_allocate(6 * kMiB);
+  blockhash::grid_deallocate(z, 6 * kMiB);
+  CHECK(blockhash::host_cache_state().bytes == 0);
+  CHECK(blockhash::host_cache_state().limit == 0);
+  // The variable's values: MiB, 0 for none; anything else the default, min(512 MiB, memory / 8).
+  CHECK(blockhash::host_cache_limit_from("0") == 0);
+  CHECK(blockhash::host_cache_limit_from("16") == 16 * kMiB);
+  const std::size_t dflt = blockhash::host_cache_limit_from(nullptr);
+  CHECK(dflt > 0);
+  CHECK(dflt <= 512 * kMiB);
+  CHECK(blockhash::host_cache_limit_from("") == dflt);
+  CHECK(blockhash::host_cache_limit_from("-3") == dflt);
+  CHECK(blockhash::host_cache_limit_from("12x") == dflt);
+  if (!std::getenv("BHCL_HOST_CACHE_MB")) CHECK(bound.old == dflt);  // the bound the process started with
+}
+
+TEST_CASE("host cache: concurrent allocations and frees never hand one block to two owners") {
+  CacheBound bound(64 * kMiB);
+  std::atomic<bool> clash{false};
+  auto worker = [&](unsigned char tag) {
+    for (int i = 0; i < 200; ++i) {
+      const std::size_t bytes = (4 + std::size_t(i % 3) * 2) * kMiB;
+      auto* p = static_cast<unsigned char*>(blockhash::grid_allocate(bytes));
+      p[0] = tag, p[bytes - 1] = tag;
+      std::this_thread::yield();
+      if (p[0] != tag || p[bytes - 1] != tag) clash = true;
+      blockhash::grid_deallocate(p, bytes);
+    }
+  };
+  std::thread t1(worker, 1), t2(worker, 2);
+  t1.join();
+  t2.join();
+  CHECK(!clash);
+  CHECK(blockhash::host_cache_state().bytes <= 64 * kMiB);
+}
+
+// Cached blocks come back with what their last owner wrote: the grid must write every element it
+// reads. Blocks of every size a 1M-point grid asks for, filled with NaN bits, cached first; then
+// a build, a 25 % insert (one rebuild across the band, its arrays new), an 8 % insert (a merge)
+// and a 10 % remove, each answering bit for bit as brute force over the live points.
+TEST_CASE("host cache: a grid built, grown and thinned on reused dirty blocks answers exactly") {
+  CacheBound bound(512 * kMiB);
+  std::vector<std::pair<void*, std::size_t>> dirty;
+  for (std::size_t mib = 4; mib <= 24; mib += 2)  // 344 MiB: under the bound, none evicted
+    for (int copy = 0; copy < (mib == 6 ? 8 : 2); ++copy) {  // 6 MiB: a 1M-point array with its room
+      void* p = blockhash::grid_allocate(mib * kMiB);
+      std::memset(p, 0xff, mib * kMiB);
+      dirty.emplace_back(p, mib * kMiB);
+    }
+  for (auto [p, bytes] : dirty) blockhash::grid_deallocate(p, bytes);
+  const std::size_t cached = blockhash::host_cache_state().bytes;
+  REQUIRE(cached == 344 * kMiB);
+  std::mt19937_64 rng(4539);
+  Model m;
+  auto ix = grid_over(m, rng, 1000000);
+  CHECK(blockhash::host_cache_state().bytes < cached);  // the build took dirty blocks
+  auto check = [&](const char* stage) {
+    CAPTURE(stage);
+    std::vector<float> qs = uniform(rng, 120, -0.1f, 1.1f);
+    std::size_t k = 0;
+    for (const auto& kv : m.live)
+      if (k++ % 9973 == 0) qs.insert(qs.end(), kv.second.begin(), kv.second.end());
+    const SearchParams sp = test::knn_params(16);
+    const KnnResult got = ix->query(qs, sp);
+    require_no_removed(got, m);
+    test::require_identical(got, fresh_answer(m, qs, sp), stage);
+  };
+  check("built");
+  const std::size_t rebuilds = ix->info().update_rebuilds;
+  insert_both(*ix, m, uniform(rng, 250000, 0.0f, 1.0f));
+  CHECK(ix->info().update_rebuilds == rebuilds + 1);
+  check("25 % inserted");
+  const std::size_t merges = ix->info().merges;
+  insert_both(*ix, m, uniform(rng, 100000, 0.0f, 1.0f));
+  CHECK(ix->info().merges == merges + 1);
+  check("8 % inserted");
+  std::vector<std::int32_t> drop;
+  for (const auto& kv : m.live)
+    if (rng() % 10 == 0) drop.push_back(kv.first);
+  remove_both(*ix, m, drop);
+  check("10 % removed");
 }

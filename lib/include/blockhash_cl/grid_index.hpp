@@ -111,4 +111,11 @@ class GridIndex final : public BlockHashIndex {
   std::size_t g_starts_cap_ = 0, g_points_cap_ = 0, g_occ_cap_ = 0;
 };
 
+// The grid index keeps the large host arrays (4 MiB and up) it frees, up to min(512 MiB, an
+// eighth of physical memory), and reuses them for the next arrays that fit: pages a process gave
+// back can be slow to touch again (on a VM that reports free pages to its host, a third or more
+// of a rebuild's time). BHCL_HOST_CACHE_MB sets the bound in MiB (0: no cache), read once.
+// release_host_cache frees what the cache holds now and returns the bytes released. Thread-safe.
+std::size_t release_host_cache();
+
 }  // namespace bhcl

@@ -27,8 +27,22 @@ inline constexpr std::size_t kGridPad = 16;
 // parallel: a serial zero fill first would only cost time and fault every page on one core), and
 // whose large arrays sit on transparent huge pages where the system offers them (the build's
 // scatters write to hundreds of places at once: with 4 KiB pages each is a TLB miss).
+// Large blocks (4 MiB and up) freed are kept, up to a bound, for the next allocation that fits
+// (grid_memory.cpp: a rebuild's fresh pages cost a third or more of it on this VM); `bytes` is
+// the size the block was allocated with.
 void* grid_allocate(std::size_t bytes);
-void grid_deallocate(void* p) noexcept;
+void grid_deallocate(void* p, std::size_t bytes) noexcept;
+// The cache of freed large blocks (grid_memory.cpp; bhcl::release_host_cache empties it): its
+// bound set (bytes, 0: no cache; BHCL_HOST_CACHE_MB sets it once, at first use), the blocks over
+// it freed oldest first, the old bound returned; and what it holds.
+std::size_t host_cache_set_limit(std::size_t bytes);
+struct HostCacheState {
+  std::size_t bytes = 0, blocks = 0, limit = 0;
+};
+HostCacheState host_cache_state();
+// The bound BHCL_HOST_CACHE_MB's value `env` sets: env MiB, or where env is null, empty or not
+// a number, min(512 MiB, an eighth of physical memory).
+std::size_t host_cache_limit_from(const char* env);
 template <typename T>
 struct NoInitAllocator {
   using value_type = T;
@@ -39,7 +53,7 @@ struct NoInitAllocator {
     if (n > std::size_t(-1) / sizeof(T)) throw std::bad_alloc();
     return static_cast<T*>(grid_allocate(n * sizeof(T)));
   }
-  void deallocate(T* p, std::size_t) noexcept { grid_deallocate(p); }
+  void deallocate(T* p, std::size_t n) noexcept { grid_deallocate(p, n * sizeof(T)); }
   template <typename U, typename... Args>
   void construct(U* p, Args&&... args) {
     if constexpr (sizeof...(Args) == 0) ::new (static_cast<void*>(p)) U;

@@ -785,24 +785,6 @@ void build_grid(const GridInput& in, const GridBuildArgs& p, Grid& g, GridBuildS
   if (stats) *stats = st;
 }
 
-void* grid_allocate(std::size_t bytes) {
-  constexpr std::size_t kHuge = std::size_t(2) << 20;
-  if (bytes >= 2 * kHuge) {
-    const std::size_t rounded = (bytes + kHuge - 1) / kHuge * kHuge;
-    if (void* p = std::aligned_alloc(kHuge, rounded)) {
-#ifdef MADV_HUGEPAGE
-      ::madvise(p, rounded, MADV_HUGEPAGE);  // advice only: without it the pages are 4 KiB
-#endif
-      return p;
-    }
-    throw std::bad_alloc();
-  }
-  if (void* p = std::malloc(bytes ? bytes : 1)) return p;
-  throw std::bad_alloc();
-}
-
-void grid_deallocate(void* p) noexcept { std::free(p); }
-
 void Grid::validate(const std::string& what) const {
   auto bad = [&](const std::string& m) { throw Error(what + ": corrupt grid index: " + m); };
   if (geom.nx == 0 || geom.ny == 0 || geom.nz == 0) bad("a grid dimension is 0");
