@@ -12,6 +12,7 @@
 #include <sys/resource.h>
 
 #include "blockhash_cl/error.hpp"
+#include "blockhash_cl/grid_index.hpp"  // release_host_cache
 
 namespace bhcl {
 namespace {
@@ -69,13 +70,21 @@ std::uint64_t allocatable_bytes(std::string* bound) {
   return best;
 }
 
+// allocatable_bytes, and where `need` is more than that, again after the grid's host block cache
+// has given its blocks back (they count as used here, and only grid arrays can reuse them).
+std::uint64_t allocatable_for(double need, std::string* bound) {
+  const std::uint64_t can = allocatable_bytes(bound);
+  if (need <= double(can) || release_host_cache() == 0) return can;
+  return allocatable_bytes(bound);
+}
+
 }  // namespace
 
 void check_result_memory(std::size_t n, int k, bool examined, int copies, const std::string& method) {
   const double bytes = (double(n) * k * 8.0 + double(n) * (examined ? 8.0 : 4.0)) * copies + (copies > 1 ? 20.0 * n : 0.0);
   if (bytes < double(std::size_t(64) << 20)) return;  // small results: not worth the /proc reads
   std::string bound;
-  const std::uint64_t can = allocatable_bytes(&bound);
+  const std::uint64_t can = allocatable_for(bytes, &bound);
   if (bytes > double(std::numeric_limits<std::size_t>::max() / 2) || bytes > double(can)) {
     std::ostringstream os;
     os << method << " query: the result needs " << gigabytes(bytes) << " (n = " << n << " queries x k = " << k
@@ -93,7 +102,7 @@ void check_radius_memory(std::size_t n, std::size_t entries, bool examined, int 
                        double(device_bytes);
   if (bytes < double(std::size_t(64) << 20)) return;  // small: not worth the /proc reads
   std::string bound;
-  const std::uint64_t can = allocatable_bytes(&bound);
+  const std::uint64_t can = allocatable_for(bytes, &bound);
   if (bytes > double(std::numeric_limits<std::size_t>::max() / 2) || bytes > double(can)) {
     std::ostringstream os;
     os << method << " radius search: the radius result needs " << gigabytes(bytes) << " (n = " << n << " queries";
