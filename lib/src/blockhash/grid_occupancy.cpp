@@ -78,20 +78,13 @@ void boxes_level2(const Grid& g, bhcl_grid_dbox* box, unsigned threads) {
           for (std::size_t y = 0; y < ny; ++y) {
             bhcl_grid_dbox* const row = box + ((z >> 2) * dy + (y >> 2)) * dx;
             for_each_run(g, y, z, [&](std::size_t x, std::uint32_t a, std::uint32_t b) {
-              // The box in locals and the arrays through local pointers: widened in memory, the
+              // Widened in a local copy, the arrays through local pointers: widened in place, the
               // node's box could alias the points and was stored and reloaded at every point.
-              bhcl_grid_dbox& n = row[x >> 2];
-              const float* const X = g.x.data();
-              const float* const Y = g.y.data();
-              const float* const Z = g.z.data();
-              float lx = n.lx, ly = n.ly, lz = n.lz, hx = n.hx, hy = n.hy, hz = n.hz;
-              for (std::uint32_t i = a; i < b; ++i) {
-                const float px = X[i], py = Y[i], pz = Z[i];
-                const bool live = px < INFINITY;  // a hole is +inf in every coordinate
-                lx = px < lx ? px : lx, ly = py < ly ? py : ly, lz = pz < lz ? pz : lz;  // +inf never lowers them
-                hx = live && px > hx ? px : hx, hy = live && py > hy ? py : hy, hz = live && pz > hz ? pz : hz;
-              }
-              n = bhcl_grid_dbox{lx, ly, lz, hx, hy, hz};
+              bhcl_grid_dbox n = row[x >> 2];
+              const float *const X = g.x.data(), *const Y = g.y.data(), *const Z = g.z.data();
+              for (std::uint32_t i = a; i < b; ++i)
+                if (X[i] < INFINITY) widen_box(n, X[i], Y[i], Z[i]);
+              row[x >> 2] = n;
             });
           }
       },
