@@ -204,35 +204,6 @@ TEST_CASE("grid index: a changed cell side with its checksum recomputed is refus
   std::remove(bad.c_str());
 }
 
-// Runs fn in a forked child whose address space may grow by at most `extra` bytes; returns the
-// child's exit status: 0 fn returned, 1 it threw bhcl::Error, 2 std::bad_alloc, 3 anything else.
-template <typename Fn>
-int with_memory_limit(std::size_t extra, Fn fn) {
-  const pid_t pid = fork();
-  REQUIRE(pid >= 0);
-  if (pid == 0) {
-    std::ifstream statm("/proc/self/statm");
-    std::size_t pages = 0;
-    statm >> pages;
-    const rlim_t limit = rlim_t(pages) * rlim_t(sysconf(_SC_PAGESIZE)) + extra;
-    struct rlimit rl {limit, limit};
-    setrlimit(RLIMIT_AS, &rl);
-    try {
-      fn();
-    } catch (const Error&) {
-      _exit(1);
-    } catch (const std::bad_alloc&) {
-      _exit(2);
-    } catch (...) {
-      _exit(3);
-    }
-    _exit(0);
-  }
-  int status = 0;
-  REQUIRE(waitpid(pid, &status, 0) == pid);
-  return WIFEXITED(status) ? WEXITSTATUS(status) : 100 + WTERMSIG(status);
-}
-
 TEST_CASE("grid and block index: an id bound of 2^31 - 2 allocates nothing by it and is refused against the points") {
   const std::vector<float> pts = cloud(2000, 3);
   const std::string path = test::tmp_path("crafted_bound.bhidx"), bad = test::tmp_path("crafted_bound_bad.bhidx");
@@ -244,7 +215,7 @@ TEST_CASE("grid and block index: an id bound of 2^31 - 2 allocates nothing by it
     grid_checksum(d);
     spit_file(bad, d);
     // Parsing needs memory of the order of the file, not of the bound (8 GiB before the fix).
-    CHECK(with_memory_limit(std::size_t(512) << 20, [&] { blockhash::parse_grid(d, bad); }) == 0);
+    CHECK(test::with_memory_limit(std::size_t(512) << 20, [&] { blockhash::parse_grid(d, bad); }) == 0);
     CHECK_THROWS_WITH_AS(make_index("blockhash", test::runtime(), pts.data(), 2000, MethodOptions().set("load-index", bad)),
                          doctest::Contains("of ids 0 .. 2147483645"), Error);
   }
@@ -256,7 +227,7 @@ TEST_CASE("grid and block index: an id bound of 2^31 - 2 allocates nothing by it
     std::string d = slurp_file(path);
     const std::uint32_t hb = field_at<std::uint32_t>(d, 16);
     set_field<std::uint64_t>(d, hb - 16, 0x7ffffffeull);
-    CHECK(with_memory_limit(std::size_t(512) << 20, [&] { blockhash::parse_structure(d, bad, false); }) == 0);
+    CHECK(test::with_memory_limit(std::size_t(512) << 20, [&] { blockhash::parse_structure(d, bad, false); }) == 0);
   }
   std::remove(path.c_str());
   std::remove(bad.c_str());
@@ -362,7 +333,7 @@ TEST_CASE("parallel: threads the OS cannot start never abort, the work runs on t
   // std::system_error; before the fix that destroyed joinable threads (std::terminate).
   for (int shape = 0; shape < 3; ++shape) {
     INFO("shape " << shape);
-    const int rc = with_memory_limit(std::size_t(4) << 20, [shape] {
+    const int rc = test::with_memory_limit(std::size_t(4) << 20, [shape] {
       std::vector<int> hit(64, 0);
       if (shape == 0) {
         detail::parallel_for(64, [&](std::size_t b, std::size_t e) { for (std::size_t i = b; i < e; ++i) hit[i] += 1; }, 8, 1);

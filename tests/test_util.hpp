@@ -16,6 +16,7 @@
 #include <array>
 #include <set>
 #include <sstream>
+#include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
 #include <string>
@@ -239,6 +240,35 @@ std::vector<T> read_raw(const std::string& path) {
   in.seekg(0);
   in.read(reinterpret_cast<char*>(v.data()), static_cast<std::streamsize>(size));
   return v;
+}
+
+// Runs fn in a forked child whose address space may grow by at most `extra` bytes; returns the
+// child's exit status: 0 fn returned, 1 it threw bhcl::Error, 2 std::bad_alloc, 3 anything else.
+template <typename Fn>
+int with_memory_limit(std::size_t extra, Fn fn) {
+  const pid_t pid = fork();
+  REQUIRE(pid >= 0);
+  if (pid == 0) {
+    std::ifstream statm("/proc/self/statm");
+    std::size_t pages = 0;
+    statm >> pages;
+    const rlim_t limit = rlim_t(pages) * rlim_t(sysconf(_SC_PAGESIZE)) + extra;
+    struct rlimit rl {limit, limit};
+    setrlimit(RLIMIT_AS, &rl);
+    try {
+      fn();
+    } catch (const Error&) {
+      _exit(1);
+    } catch (const std::bad_alloc&) {
+      _exit(2);
+    } catch (...) {
+      _exit(3);
+    }
+    _exit(0);
+  }
+  int status = 0;
+  REQUIRE(waitpid(pid, &status, 0) == pid);
+  return WIFEXITED(status) ? WEXITSTATUS(status) : 100 + WTERMSIG(status);
 }
 
 }  // namespace bhcl::test
