@@ -545,15 +545,33 @@ void size_arrays(const Buckets& bk, const std::vector<std::uint32_t>& seg_base, 
   resize_discarding(g.ids, n + kGridPad, 1);
 }
 
+// The buckets cut into `parts` contiguous ranges of about equal work (records, plus a cell for an
+// eighth of a record: count_direct's scan): first[w] .. first[w + 1] is range w's.
+std::vector<std::size_t> bucket_ranges(const Buckets& bk, std::size_t parts) {
+  auto work = [&](std::size_t b) { return double(bk.start[b]) + double(std::min(bk.ncells, b << bk.shift)) / 8; };
+  std::vector<std::size_t> first(parts + 1, bk.nb);
+  first[0] = 0;
+  std::size_t b = 0;
+  for (std::size_t w = 1; w < parts; ++w) {
+    const double goal = work(bk.nb) * double(w) / double(parts);
+    while (b < bk.nb && work(b) < goal) ++b;
+    first[w] = b;
+  }
+  return first;
+}
+
 // Pass 3: each bucket on its own, in parallel over buckets: its cells' counts, its part of the
 // directory, its points placed (stable). Returns the occupied cells and the sum of squared counts.
+// pyramid (a direct directory only): the buckets go to the threads in contiguous ranges, each
+// gathering the pyramid of the slabs its range holds whole (PyramidGather); else one at a time.
 BucketCounts place_buckets(const Buckets& bk, const std::vector<std::uint32_t>& seg_base, bool sparse,
-                           const RecordCell& rec_cell, const float* rec, unsigned threads, Grid& g) {
+                           const RecordCell& rec_cell, const float* rec, unsigned threads, Grid& g,
+                           PyramidGather* pyramid) {
   const std::size_t nb = bk.nb, ncells = bk.ncells, top = Grid::top_entries(ncells);
   const std::size_t cells_per_bucket = std::size_t(1) << bk.shift;
   const std::size_t seg_per_bucket = std::size_t(1) << (bk.shift - (sparse ? BHCL_GRID_SEG_BITS : 0));
   std::vector<BucketCounts> per(nb);
-  detail::parallel_chunks(nb, 1, threads, [&](std::size_t b, std::size_t, std::size_t) {
+  auto place = [&](std::size_t b, const PyramidGather::Range* owned) {
     static thread_local BucketScratch ws;
     if (ws.cnt.size() < cells_per_bucket) ws.cnt.assign(cells_per_bucket, 0);
     if (sparse && ws.seg.size() < seg_per_bucket) ws.seg.assign(seg_per_bucket, 0);
@@ -566,6 +584,7 @@ BucketCounts place_buckets(const Buckets& bk, const std::vector<std::uint32_t>& 
     if (!sparse) {
       per[b] = count_direct(c0, c1, rb, re, rec_cell, ws, g);
       place_records(rb, re, ws.lcell.data(), g.starts.data() + c0 + 1, rec, g);
+      if (owned) pyramid->add_cells(g, *owned, c0, c1, rb, g.starts.data() + c0 + 1);  // starts[c + 1]: cell c's end now
       return;
     }
     std::uint32_t nocc = 0;
@@ -573,7 +592,24 @@ BucketCounts place_buckets(const Buckets& bk, const std::vector<std::uint32_t>& 
     place_records(rb, re, ws.lcell.data(), ws.cnt.data(), rec, g);
     // Clear the counts this bucket used (they became write positions).
     std::fill(ws.cnt.data(), ws.cnt.data() + std::size_t(nocc) * (1u << BHCL_GRID_SEG_BITS), 0u);
-  });
+  };
+  if (pyramid && !sparse) {
+    const std::size_t parts = std::max(1u, threads);
+    const std::vector<std::size_t> first = bucket_ranges(bk, parts);
+    detail::parallel_for(
+        parts,
+        [&](std::size_t wb, std::size_t we) {
+          for (std::size_t w = wb; w < we; ++w) {
+            if (first[w] == first[w + 1]) continue;
+            const PyramidGather::Range owned =
+                pyramid->begin_range(g, first[w] << bk.shift, std::min(ncells, first[w + 1] << bk.shift));
+            for (std::size_t b = first[w]; b < first[w + 1]; ++b) place(b, &owned);
+          }
+        },
+        threads, 1);
+  } else {
+    detail::parallel_chunks(nb, 1, threads, [&](std::size_t b, std::size_t, std::size_t) { place(b, nullptr); });
+  }
   // The top entry past the last segment (a run ending at the last cell reads it).
   if (sparse && (ncells & ((std::size_t(1) << BHCL_GRID_SEG_BITS) - 1)) == 0)
     g.starts[top - 1] = BHCL_GRID_EMPTY_SEG | static_cast<std::uint32_t>(g.n_points);
@@ -753,6 +789,8 @@ void build_grid(const GridInput& in, const GridBuildArgs& p, Grid& g, GridBuildS
   if (!g.scratch) g.scratch = std::make_shared<GridScratch>();
   GridScratch& sc = *g.scratch;
   BucketCounts counts;
+  PyramidGather pyramid;  // the pyramid's levels 1 and 2, gathered by the bucket passes' placement
+  bool gathered = false;
   if (sorts_from_cells(in, geom)) {
     counts = count_from_cells(in, geom, threads, sc, g, st);
     st.from_cells = true;
@@ -769,7 +807,9 @@ void build_grid(const GridInput& in, const GridBuildArgs& p, Grid& g, GridBuildS
     const std::vector<std::uint32_t> seg_base =
         sparse ? number_segments(bk, rec_cell, threads) : std::vector<std::uint32_t>(bk.nb + 1, 0);
     size_arrays(bk, seg_base, sparse, n, g, st);
-    counts = place_buckets(bk, seg_base, sparse, rec_cell, sc.rec.data(), threads, g);
+    gathered = PyramidGather::apply(geom);
+    if (gathered) pyramid.start(g);
+    counts = place_buckets(bk, seg_base, sparse, rec_cell, sc.rec.data(), threads, g, gathered ? &pyramid : nullptr);
   }
   st.occupied = counts.occupied;
   st.mean_cell_points = double(counts.sum2) / double(n);
@@ -780,7 +820,10 @@ void build_grid(const GridInput& in, const GridBuildArgs& p, Grid& g, GridBuildS
   st.t_scatter = since(t0);
   t0 = std::chrono::steady_clock::now();
   g.dbox = bhcl_grid_dbox{box.lo[0], box.lo[1], box.lo[2], box.hi[0], box.hi[1], box.hi[2]};  // the points stored
-  build_grid_occupancy(g, p.threads);
+  if (gathered)
+    pyramid.finish(g, p.threads);
+  else
+    build_grid_occupancy(g, p.threads);
   st.t_occupancy = since(t0);
   if (stats) *stats = st;
 }

@@ -64,38 +64,124 @@ void occupancy_level1(const Grid& g, std::uint8_t* occ, unsigned threads) {
 
 constexpr bhcl_grid_dbox kEmptyBox{INFINITY, INFINITY, INFINITY, -INFINITY, -INFINITY, -INFINITY};
 
-// Level 2's boxes from the points of their cells (holes, at +inf, left out): one task per level-2
-// z index, which owns those boxes.
-void boxes_level2(const Grid& g, bhcl_grid_dbox* box, unsigned threads) {
-  const bhcl_grid_geom& gm = g.geom;
-  const std::size_t ny = gm.ny, nz = gm.nz;
-  const std::size_t dx = bhcl_grid_occ_dim(gm.nx, 2), dy = bhcl_grid_occ_dim(gm.ny, 2);
-  detail::parallel_for(
-      bhcl_grid_occ_dim(gm.nz, 2),
-      [&](std::size_t zb, std::size_t ze) {
-        std::fill(box + zb * dx * dy, box + ze * dx * dy, kEmptyBox);
-        for (std::size_t z = 4 * zb; z < std::min(4 * ze, nz); ++z)
-          for (std::size_t y = 0; y < ny; ++y) {
-            bhcl_grid_dbox* const row = box + ((z >> 2) * dy + (y >> 2)) * dx;
-            for_each_run(g, y, z, [&](std::size_t x, std::uint32_t a, std::uint32_t b) {
-              // Widened in a local copy, the arrays through local pointers: widened in place, the
-              // node's box could alias the points and was stored and reloaded at every point.
-              bhcl_grid_dbox n = row[x >> 2];
-              const float *const X = g.x.data(), *const Y = g.y.data(), *const Z = g.z.data();
-              for (std::uint32_t i = a; i < b; ++i)
-                if (X[i] < INFINITY) widen_box(n, X[i], Y[i], Z[i]);
-              row[x >> 2] = n;
-            });
-          }
-      },
-      threads, 4);
+// Box n widened by the live points of slots [a, b). Holes (+inf in every coordinate; none in a
+// fresh build, Holes false) left out by a select: the minima take +inf as it is, the maxima see
+// -inf. In registers, through local pointers: widened in place, the box could alias the points
+// and was stored and reloaded at every point.
+template <bool Holes = true>
+inline void widen_by_slots(bhcl_grid_dbox& box, const Grid& g, std::uint32_t a, std::uint32_t b) {
+  const float *const X = g.x.data(), *const Y = g.y.data(), *const Z = g.z.data();
+  bhcl_grid_dbox n = box;
+  for (std::uint32_t i = a; i < b; ++i) {
+    const float px = X[i], py = Y[i], pz = Z[i];
+    const bool live = !Holes || px < INFINITY;
+    n.lx = std::min(n.lx, px), n.ly = std::min(n.ly, py), n.lz = std::min(n.lz, pz);
+    n.hx = std::max(n.hx, live ? px : -INFINITY), n.hy = std::max(n.hy, live ? py : -INFINITY);
+    n.hz = std::max(n.hz, live ? pz : -INFINITY);
+  }
+  box = n;
 }
 
-// Each node of level l from its (up to 8) children of level l - 1: level[node] =
-// make(child_at), where child_at(o) is the index in `below` of child o (bit 0: x, 1: y, 2: z)
-// or -1 past the grid's edge. One task per level-l z index, which owns those nodes.
-template <class T, class Make>
-void from_children(const bhcl_grid_geom& gm, T* level, std::uint32_t l, unsigned threads, Make&& make) {
+// Calls fn(X, m, a, b) for each level-2 segment X of row (y, z) (its cells 4X .. 4X + 3) that
+// holds a run: m has bit j set when cell 4X + j's run is not empty, [a, b) is the segment's slots
+// (its cells' runs are adjacent). A direct directory reads two entries to skip an empty segment.
+template <class Fn>
+void for_each_segment(const Grid& g, std::size_t y, std::size_t z, Fn&& fn) {
+  const std::size_t nx = g.geom.nx, row = (z * g.geom.ny + y) * nx;
+  if (!g.geom.sparse) {
+    const std::uint32_t* const st = g.starts.data() + row;
+    for (std::size_t x0 = 0; x0 < nx; x0 += 4) {
+      const std::size_t x1 = std::min(nx, x0 + 4);
+      if (st[x1] == st[x0]) continue;
+      unsigned m = 0;
+      for (std::size_t x = x0; x < x1; ++x) m |= unsigned(st[x + 1] > st[x]) << (x - x0);
+      fn(x0 >> 2, m, st[x0], st[x1]);
+    }
+    return;
+  }
+  std::size_t X = SIZE_MAX;
+  unsigned m = 0;
+  std::uint32_t sa = 0, sb = 0;
+  for_each_run(g, y, z, [&](std::size_t x, std::uint32_t a, std::uint32_t b) {
+    if ((x >> 2) != X) {
+      if (m) fn(X, m, sa, sb);
+      X = x >> 2, m = 0, sa = a;
+    }
+    m |= 1u << (x & 3);
+    sb = b;
+  });
+  if (m) fn(X, m, sa, sb);
+}
+
+// Levels 1 and 2 of g's pyramid in g.occ (sized): level 1's bytes from byte 0, level 2's after
+// them, level 2's boxes first at the boxes' offset (loaded and stored through memcpy: occ is bytes).
+struct Levels12 {
+  std::size_t d1x, d1y, d1z, dx, dy, dz;
+  std::uint8_t *l1, *l2, *box2;
+  explicit Levels12(Grid& g)
+      : d1x(bhcl_grid_occ_dim(g.geom.nx, 1)), d1y(bhcl_grid_occ_dim(g.geom.ny, 1)), d1z(bhcl_grid_occ_dim(g.geom.nz, 1)),
+        dx(bhcl_grid_occ_dim(g.geom.nx, 2)), dy(bhcl_grid_occ_dim(g.geom.ny, 2)), dz(bhcl_grid_occ_dim(g.geom.nz, 2)) {
+    std::uint32_t top_off = 0, total = 0;
+    bhcl_grid_occ_top(g.geom, &top_off, &total);
+    l1 = g.occ.data();
+    l2 = l1 + d1x * d1y * d1z;
+    box2 = l1 + bhcl_grid_tbox_off(total);
+  }
+  // Level 1's byte and bit of fine cell (x, y, z); level 2's node.
+  std::size_t byte1(std::size_t x, std::size_t y, std::size_t z) const { return ((z >> 1) * d1y + (y >> 1)) * d1x + (x >> 1); }
+  static unsigned bit1(std::size_t x, std::size_t y, std::size_t z) {
+    return 1u << ((x & 1) | ((y & 1) << 1) | ((z & 1) << 2));
+  }
+  std::size_t node2(std::size_t x, std::size_t y, std::size_t z) const { return ((z >> 2) * dy + (y >> 2)) * dx + (x >> 2); }
+  bhcl_grid_dbox box(std::size_t i) const {
+    bhcl_grid_dbox b;
+    std::memcpy(&b, box2 + i * sizeof(b), sizeof(b));
+    return b;
+  }
+  void set_box(std::size_t i, const bhcl_grid_dbox& b) const { std::memcpy(box2 + i * sizeof(b), &b, sizeof(b)); }
+  // Level 2's boxes of z indices [zb, ze) emptied (inverted).
+  void empty_boxes(std::size_t zb, std::size_t ze) const {
+    for (std::size_t i = zb * dx * dy; i < ze * dx * dy; ++i) set_box(i, kEmptyBox);
+  }
+  // Level 1's bytes (zero before) and level 2's boxes (empty before) of level-2 z indices [zb, ze)
+  // from the directory and the points, a pass over each.
+  void from_cells(const Grid& g, std::size_t zb, std::size_t ze) const {
+    for (std::size_t z = 4 * zb; z < std::min<std::size_t>(4 * ze, g.geom.nz); ++z)
+      for (std::size_t y = 0; y < g.geom.ny; ++y) {
+        std::uint8_t* const row1 = l1 + byte1(0, y, z);
+        const unsigned yz = bit1(0, y, z);
+        const std::size_t row2 = node2(0, y, z);
+        for_each_segment(g, y, z, [&](std::size_t s, unsigned m, std::uint32_t a, std::uint32_t b) {
+          row1[2 * s] |= std::uint8_t((m & 3u) * yz);  // cells 4s, 4s + 1: x bits 0 and 1
+          if (m >> 2) row1[2 * s + 1] |= std::uint8_t((m >> 2) * yz);
+          bhcl_grid_dbox n = box(row2 + s);
+          widen_by_slots(n, g, a, b);
+          set_box(row2 + s, n);
+        });
+      }
+  }
+  // Level 2's bytes of z indices [zb, ze) from level 1's (a child's bit set when its byte is not 0).
+  void bits2(std::size_t zb, std::size_t ze) const {
+    for (std::size_t Z = zb; Z < ze; ++Z)
+      for (std::size_t Y = 0; Y < dy; ++Y)
+        for (std::size_t X = 0; X < dx; ++X) {
+          unsigned m = 0;
+          for (unsigned o = 0; o < 8; ++o) {
+            const std::size_t x = 2 * X + (o & 1), y = 2 * Y + ((o >> 1) & 1), z = 2 * Z + (o >> 2);
+            if (x < d1x && y < d1y && z < d1z && l1[(z * d1y + y) * d1x + x]) m |= 1u << o;
+          }
+          l2[(Z * dy + Y) * dx + X] = std::uint8_t(m);
+        }
+  }
+};
+
+// Each node of level l from its (up to 8) children of level l - 1: put(node, make(child_at)),
+// where child_at(o) is the index in level l - 1 of child o (bit 0: x, 1: y, 2: z) or -1 past the
+// grid's edge. One task per level-l z index, which owns those nodes; threads only for levels of
+// 64k nodes or more (a thread's start, about 20 us here, costs more than a small level: levels
+// 2 and up of Cornell 1M, 53k nodes and less, took 0.6 ms on 2 threads).
+template <class Put, class Make>
+void from_children(const bhcl_grid_geom& gm, std::uint32_t l, unsigned threads, Put&& put, Make&& make) {
   const std::size_t cx = bhcl_grid_occ_dim(gm.nx, l - 1), cy = bhcl_grid_occ_dim(gm.ny, l - 1);
   const std::size_t cz = bhcl_grid_occ_dim(gm.nz, l - 1);
   const std::size_t dx = bhcl_grid_occ_dim(gm.nx, l), dy = bhcl_grid_occ_dim(gm.ny, l);
@@ -109,46 +195,48 @@ void from_children(const bhcl_grid_geom& gm, T* level, std::uint32_t l, unsigned
                 const std::size_t x = 2 * X + (o & 1), y = 2 * Y + ((o >> 1) & 1), z = 2 * Z + (o >> 2);
                 return x < cx && y < cy && z < cz ? std::ptrdiff_t((z * cy + y) * cx + x) : -1;
               };
-              level[(Z * dy + Y) * dx + X] = make(child_at);
+              put((Z * dy + Y) * dx + X, make(child_at));
             }
       },
-      threads, 16);
+      threads, std::max<std::size_t>(1, (std::size_t(1) << 16) / (dx * dy)));
 }
 
-// Level l >= 3's boxes: each the union of its children's.
-void boxes_level(const bhcl_grid_geom& gm, const bhcl_grid_dbox* below, bhcl_grid_dbox* level, std::uint32_t l,
-                 unsigned threads) {
-  from_children(gm, level, l, threads, [&](auto child_at) {
-    bhcl_grid_dbox b = kEmptyBox;
-    for (unsigned o = 0; o < 8; ++o)
-      if (const std::ptrdiff_t i = child_at(o); i >= 0) unite_box(b, below[i]);
-    return b;
-  });
-}
-
-// The boxes of levels 2..top (grid_search.h) into occ from byte `off` on.
-void build_node_boxes(Grid& g, std::uint32_t top, std::size_t off, unsigned threads) {
+// Levels 3 .. top, bits and boxes, from level 2's (g.occ holding levels 1 and 2 and their boxes).
+void levels_above2(Grid& g, std::uint32_t top, unsigned threads) {
   const bhcl_grid_geom& gm = g.geom;
-  std::vector<bhcl_grid_dbox> box((g.occ.size() - off) / sizeof(bhcl_grid_dbox));
-  boxes_level2(g, box.data(), threads);
-  std::size_t at = 0;
+  std::uint8_t* const occ = g.occ.data();
+  const Levels12 lv(g);
+  std::size_t off = bhcl_grid_occ_size(gm, 1), at = 0;  // level l - 1's first byte, first box
   for (std::uint32_t l = 3; l <= top; ++l) {
     const std::size_t below = bhcl_grid_occ_size(gm, l - 1);
-    boxes_level(gm, box.data() + at, box.data() + at + below, l, threads);
+    const std::uint8_t* const bits = occ + off;
+    from_children(
+        gm, l, threads, [&](std::size_t i, std::uint8_t m) { occ[off + below + i] = m; },
+        [&](auto child_at) {
+          unsigned m = 0;
+          for (unsigned o = 0; o < 8; ++o)
+            if (const std::ptrdiff_t i = child_at(o); i >= 0 && bits[i]) m |= 1u << o;
+          return std::uint8_t(m);
+        });
+    from_children(
+        gm, l, threads, [&](std::size_t i, const bhcl_grid_dbox& b) { lv.set_box(at + below + i, b); },
+        [&](auto child_at) {
+          bhcl_grid_dbox b = kEmptyBox;
+          for (unsigned o = 0; o < 8; ++o)
+            if (const std::ptrdiff_t i = child_at(o); i >= 0) unite_box(b, lv.box(at + std::size_t(i)));
+          return b;
+        });
+    off += below;
     at += below;
   }
-  std::memcpy(g.occ.data() + off, box.data(), box.size() * sizeof(bhcl_grid_dbox));
 }
 
-// Level l >= 2 from level l - 1: a child's bit is set when its own byte is not 0.
-void occupancy_level(const bhcl_grid_geom& gm, const std::uint8_t* below, std::uint8_t* level, std::uint32_t l,
-                     unsigned threads) {
-  from_children(gm, level, l, threads, [&](auto child_at) {
-    unsigned m = 0;
-    for (unsigned o = 0; o < 8; ++o)
-      if (const std::ptrdiff_t i = child_at(o); i >= 0 && below[i]) m |= 1u << o;
-    return std::uint8_t(m);
-  });
+// g.occ sized and zeroed for g's geometry; the top level.
+std::uint32_t start_pyramid(Grid& g) {
+  std::uint32_t top_off = 0, total = 0;
+  const std::uint32_t top = bhcl_grid_occ_top(g.geom, &top_off, &total);
+  g.occ.assign(bhcl_grid_occ_bytes(g.geom), std::uint8_t(0));  // the boxes' padding zeroed too
+  return top;
 }
 
 // The box of points [b, e) of one coordinate array, holes (+inf) left out: lanes of 16 points
@@ -301,19 +389,100 @@ void refresh_node_boxes(Grid& g, const std::vector<std::uint32_t>& cells) {
 }
 
 void build_grid_occupancy(Grid& g, unsigned threads) {
-  const bhcl_grid_geom& gm = g.geom;
-  std::uint32_t top_off = 0, total = 0;
-  const std::uint32_t top = bhcl_grid_occ_top(gm, &top_off, &total);
-  g.occ.assign(bhcl_grid_occ_bytes(gm), std::uint8_t(0));  // the boxes' padding zeroed too
-  std::uint8_t* const occ = g.occ.data();
-  occupancy_level1(g, occ, threads);
-  std::size_t off = 0;
-  for (std::uint32_t l = 2; l <= top; ++l) {
-    const std::size_t below = bhcl_grid_occ_size(gm, l - 1);
-    occupancy_level(gm, occ + off, occ + off + below, l, threads);
-    off += below;
+  const std::uint32_t top = start_pyramid(g);
+  if (top < 2) {
+    occupancy_level1(g, g.occ.data(), threads);
+    return;
   }
-  if (top >= 2) build_node_boxes(g, top, bhcl_grid_tbox_off(total), threads);
+  const Levels12 lv(g);
+  detail::parallel_for(
+      lv.dz,
+      [&](std::size_t zb, std::size_t ze) {
+        lv.empty_boxes(zb, ze);
+        lv.from_cells(g, zb, ze);
+        lv.bits2(zb, ze);
+      },
+      threads, 4);
+  levels_above2(g, top, threads);
+}
+
+bool PyramidGather::apply(const bhcl_grid_geom& g) {
+  std::uint32_t top_off = 0, total = 0;
+  return !g.sparse && bhcl_grid_occ_top(g, &top_off, &total) >= 2;
+}
+
+void PyramidGather::start(Grid& g) {
+  start_pyramid(g);
+  owned.assign(bhcl_grid_occ_dim(g.geom.nz, 2), 0);
+}
+
+PyramidGather::Range PyramidGather::begin_range(Grid& g, std::size_t c_lo, std::size_t c_hi) {
+  const std::size_t slab = std::size_t(4) * g.geom.nx * g.geom.ny;  // cells per level-2 z index
+  const std::size_t zb = (c_lo + slab - 1) / slab;
+  const std::size_t ze = c_hi == g.ncells() ? owned.size() : c_hi / slab;
+  if (zb >= ze) return {0, 0};
+  std::fill(owned.begin() + std::ptrdiff_t(zb), owned.begin() + std::ptrdiff_t(ze), std::uint8_t(1));
+  Levels12(g).empty_boxes(zb, ze);
+  return {zb * slab, std::min(g.ncells(), ze * slab)};
+}
+
+void PyramidGather::add_cells(Grid& g, const Range& r, std::size_t c0, std::size_t c1, std::uint32_t a,
+                              const std::uint32_t* ends) const {
+  const std::size_t lo = std::max(c0, r.c_lo), hi = std::min(c1, r.c_hi);  // the owned cells
+  if (lo >= hi) return;
+  if (lo > c0) a = ends[lo - 1 - c0];
+  ends += lo - c0;
+  const Levels12 lv(g);
+  const std::size_t nx = g.geom.nx;
+  for (std::size_t c = lo; c < hi;) {  // by pieces of rows
+    const std::size_t row = c / nx, y = row % g.geom.ny, z = row / g.geom.ny, x0 = c - row * nx;
+    const std::size_t x1 = std::min(nx, x0 + (hi - c));
+    const std::uint32_t* const e = ends + (c - lo);  // e[x - x0]: the end of cell x of the row
+    if (e[x1 - 1 - x0] != a) {  // the piece holds a point (the runs are adjacent)
+      std::uint8_t* const row1 = lv.l1 + lv.byte1(0, y, z);
+      const std::size_t row2 = lv.node2(0, y, z);
+      const unsigned yz = Levels12::bit1(0, y, z);
+      for (std::size_t x = x0; x < x1;) {
+        const std::size_t xb = std::min(x1, x + 16);
+        if (e[xb - 1 - x0] == a) {  // 16 empty cells at once (the ends ascend)
+          x = xb;
+          continue;
+        }
+        for (; x < xb; ++x) {
+          const std::uint32_t b = e[x - x0];
+          if (b == a) continue;
+          row1[x >> 1] |= std::uint8_t(yz << (x & 1));
+          bhcl_grid_dbox n = lv.box(row2 + (x >> 2));
+          widen_by_slots<false>(n, g, a, b);  // a fresh build stores no hole
+          lv.set_box(row2 + (x >> 2), n);
+          a = b;
+        }
+      }
+    }
+    c += x1 - x0;
+  }
+}
+
+void PyramidGather::finish(Grid& g, unsigned threads) {
+  std::uint32_t top_off = 0, total = 0;
+  const std::uint32_t top = bhcl_grid_occ_top(g.geom, &top_off, &total);
+  const Levels12 lv(g);
+  std::vector<std::size_t> rest;  // the slabs that no worker's range held whole
+  for (std::size_t z = 0; z < owned.size(); ++z)
+    if (!owned[z]) rest.push_back(z);
+  detail::parallel_for(
+      rest.size(),
+      [&](std::size_t b, std::size_t e) {
+        for (std::size_t i = b; i < e; ++i) {
+          lv.empty_boxes(rest[i], rest[i] + 1);
+          lv.from_cells(g, rest[i], rest[i] + 1);
+        }
+      },
+      threads, 1);
+  detail::parallel_for(
+      lv.dz, [&](std::size_t zb, std::size_t ze) { lv.bits2(zb, ze); }, threads,
+      std::max<std::size_t>(1, (std::size_t(1) << 16) / (lv.dx * lv.dy)));
+  levels_above2(g, top, threads);
 }
 
 }  // namespace bhcl::blockhash
