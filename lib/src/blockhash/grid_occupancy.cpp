@@ -82,6 +82,40 @@ inline void widen_by_slots(bhcl_grid_dbox& box, const Grid& g, std::uint32_t a, 
   box = n;
 }
 
+// The box of a fresh build's points (no holes) of slots [a, b), four at a time (GCC and Clang
+// vector extensions: SSE on x86-64, NEON on ARM): the points of a level-2 node's row of 4 cells
+// are adjacent, 28 on average for Cornell 1M, where the widening point by point took 19
+// instructions a point (box gathered during the placement, callgrind: 36M a build).
+using V4 = float __attribute__((vector_size(16)));
+inline V4 load4(const float* p) {
+  V4 v;
+  std::memcpy(&v, p, sizeof(v));
+  return v;
+}
+inline V4 vmin(V4 a, V4 b) { return a < b ? a : b; }
+inline V4 vmax(V4 a, V4 b) { return a > b ? a : b; }
+inline float hmin(V4 v) { return std::min(std::min(v[0], v[1]), std::min(v[2], v[3])); }
+inline float hmax(V4 v) { return std::max(std::max(v[0], v[1]), std::max(v[2], v[3])); }
+void widen_by_slots_fresh(bhcl_grid_dbox& box, const Grid& g, std::uint32_t a, std::uint32_t b) {
+  if (b - a < 4) {
+    widen_by_slots<false>(box, g, a, b);
+    return;
+  }
+  const float *const X = g.x.data(), *const Y = g.y.data(), *const Z = g.z.data();
+  V4 lx = load4(X + a), ly = load4(Y + a), lz = load4(Z + a);
+  V4 hx = lx, hy = ly, hz = lz;
+  auto take = [&](std::uint32_t i) {
+    const V4 x = load4(X + i), y = load4(Y + i), z = load4(Z + i);
+    lx = vmin(lx, x), ly = vmin(ly, y), lz = vmin(lz, z);
+    hx = vmax(hx, x), hy = vmax(hy, y), hz = vmax(hz, z);
+  };
+  std::uint32_t i = a + 4;
+  for (; i + 4 <= b; i += 4) take(i);
+  if (i < b) take(b - 4);  // the last four again with the tail: a minimum does not mind
+  box.lx = std::min(box.lx, hmin(lx)), box.ly = std::min(box.ly, hmin(ly)), box.lz = std::min(box.lz, hmin(lz));
+  box.hx = std::max(box.hx, hmax(hx)), box.hy = std::max(box.hy, hmax(hy)), box.hz = std::max(box.hz, hmax(hz));
+}
+
 // Calls fn(X, m, a, b) for each level-2 segment X of row (y, z) (its cells 4X .. 4X + 3) that
 // holds a run: m has bit j set when cell 4X + j's run is not empty, [a, b) is the segment's slots
 // (its cells' runs are adjacent). A direct directory reads two entries to skip an empty segment.
@@ -448,14 +482,21 @@ void PyramidGather::add_cells(Grid& g, const Range& r, std::size_t c0, std::size
           x = xb;
           continue;
         }
-        for (; x < xb; ++x) {
-          const std::uint32_t b = e[x - x0];
-          if (b == a) continue;
-          row1[x >> 1] |= std::uint8_t(yz << (x & 1));
-          bhcl_grid_dbox n = lv.box(row2 + (x >> 2));
-          widen_by_slots<false>(n, g, a, b);  // a fresh build stores no hole
-          lv.set_box(row2 + (x >> 2), n);
-          a = b;
+        while (x < xb) {  // by level-2 segments (4 cells, or the piece's part of one)
+          const std::size_t xs = std::min(xb, (x | 3) + 1);
+          const std::uint32_t b = e[xs - 1 - x0];
+          if (b != a) {
+            for (std::uint32_t prev = a; x < xs; ++x) {  // the segment's level-1 bits
+              const std::uint32_t end = e[x - x0];
+              if (end != prev) row1[x >> 1] |= std::uint8_t(yz << (x & 1));
+              prev = end;
+            }
+            bhcl_grid_dbox n = lv.box(row2 + ((xs - 1) >> 2));
+            widen_by_slots_fresh(n, g, a, b);  // a fresh build stores no hole
+            lv.set_box(row2 + ((xs - 1) >> 2), n);
+            a = b;
+          }
+          x = xs;
         }
       }
     }
