@@ -4,6 +4,7 @@
 // save/load, rebuild, and the parameters' checks.
 #include <cstdio>
 #include <cstring>
+#include <random>
 #include <fstream>
 
 #include "blockhash/build.hpp"
@@ -162,12 +163,23 @@ TEST_CASE("blockhash_grid_build: independent of threads, stable, every point in 
 
 // A fresh build of a direct directory gathers levels 1 and 2 of the pyramid and level 2's boxes
 // while it places each bucket's points, one part per worker, merged at the end: the pyramid must
-// be the one build_grid_occupancy makes from the directory and the points, byte for byte, at any
-// thread count (the workers' buckets differ) and for dims that are not multiples of 4.
+// be the one build_grid_occupancy makes from the directory and the points, at any thread count
+// (the workers' buckets differ) and for dims that are not multiples of 4. The bits byte for
+// byte, the boxes by value (the gathering's four-wide minima may keep -0 where the directory's
+// pass keeps +0: equal as numbers, which is all the kernels compare).
 TEST_CASE("blockhash_grid_build: the pyramid gathered while placing equals the one from the directory") {
   std::vector<test::PointSet> sets = test::exact_point_sets();
   sets.push_back({"clustered 150k", datasets::clustered(150000, 11, 12, 0.02f), {}});
   sets.push_back({"cornell 200k", datasets::cornell_photons(200000, 5), {}});
+  std::vector<float> zeros;  // the plane z = 0, each point's zero of either sign
+  std::mt19937 rng(17);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  for (int i = 0; i < 60000; ++i) {
+    zeros.push_back(u(rng));
+    zeros.push_back(u(rng));
+    zeros.push_back(rng() & 1u ? 0.0f : -0.0f);
+  }
+  sets.push_back({"plane of signed zeros 60k", zeros, {}});
   int gathered = 0;
   for (const test::PointSet& s : sets)
     for (unsigned threads : {1u, 2u, 3u, 8u}) {
@@ -181,7 +193,15 @@ TEST_CASE("blockhash_grid_build: the pyramid gathered while placing equals the o
       blockhash::Grid copy = g;
       blockhash::build_grid_occupancy(copy, threads);
       REQUIRE(copy.occ.size() == g.occ.size());
-      REQUIRE(std::memcmp(copy.occ.data(), g.occ.data(), g.occ.size()) == 0);
+      std::uint32_t top_off = 0, total = 0;
+      bhcl_grid_occ_top(g.geom, &top_off, &total);
+      REQUIRE(std::memcmp(copy.occ.data(), g.occ.data(), total) == 0);
+      for (std::size_t at = bhcl_grid_tbox_off(total); at + sizeof(bhcl_grid_dbox) <= g.occ.size(); at += sizeof(bhcl_grid_dbox)) {
+        float a[6], b[6];
+        std::memcpy(a, g.occ.data() + at, sizeof(a));
+        std::memcpy(b, copy.occ.data() + at, sizeof(b));
+        for (int j = 0; j < 6; ++j) REQUIRE(a[j] == b[j]);
+      }
     }
   CHECK(gathered >= 8);  // the gathering path ran (a direct directory with a level 2)
 }
