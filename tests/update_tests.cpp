@@ -26,6 +26,7 @@
 #include "blockhash_cl/kdtree.hpp"
 #include "blockhash_cl/metrics.hpp"
 #include "blockhash_cl/multi_device.hpp"
+#include "grid_test_util.hpp"
 #include "test_util.hpp"
 
 using namespace bhcl;
@@ -262,34 +263,6 @@ TEST_CASE("updates: brute force's holes are never returned, at any radius or k")
   test::require_identical(r, fresh_answer(few, qs, sp), "bruteforce k 64 over 39 live");
 }
 
-// An insert sets the occupancy pyramid's new bits in place and widens its nodes' point boxes: the
-// bits equal a pyramid built afresh from the grid's directory, and so do the boxes while no hole
-// is stored; a hole leaves its nodes' boxes as they were (loose, still holding every live point).
-// exact_boxes: equal even with holes (the growth room's corners, whose nodes' boxes the rebuild
-// makes again without them).
-void require_pyramid_as_built(const BlockHashIndex& ix, bool exact_boxes = false) {
-  const blockhash::Grid& g = *ix.structure().grid;
-  blockhash::Grid copy = g;
-  blockhash::build_grid_occupancy(copy, 1);
-  REQUIRE(copy.occ.size() == g.occ.size());
-  std::uint32_t top_off = 0, total = 0;
-  bhcl_grid_occ_top(g.geom, &top_off, &total);
-  REQUIRE(std::equal(g.occ.begin(), g.occ.begin() + total, copy.occ.begin()));
-  const bool holes = ix.info().holes > 0 && !exact_boxes;
-  for (std::size_t at = bhcl_grid_tbox_off(total); at + sizeof(bhcl_grid_dbox) <= g.occ.size(); at += sizeof(bhcl_grid_dbox)) {
-    bhcl_grid_dbox b, fresh;
-    std::memcpy(&b, g.occ.data() + at, sizeof(b));
-    std::memcpy(&fresh, copy.occ.data() + at, sizeof(fresh));
-    CAPTURE(at);
-    if (!holes)  // by value: a fresh build's gathered boxes may keep -0 where this pass keeps +0
-      REQUIRE((b.lx == fresh.lx && b.ly == fresh.ly && b.lz == fresh.lz && b.hx == fresh.hx && b.hy == fresh.hy &&
-               b.hz == fresh.hz));
-    if (fresh.lx <= fresh.hx)  // a node with live points: its box holds theirs
-      REQUIRE((b.lx <= fresh.lx && b.ly <= fresh.ly && b.lz <= fresh.lz && b.hx >= fresh.hx && b.hy >= fresh.hy &&
-               b.hz >= fresh.hz));
-  }
-}
-
 // 64 random queries at A = 2: the kernel equals the host reference and returns no removed id.
 template <typename Rng>
 void budget_kernel_equals_reference(const BlockHashIndex& ix, const Model& m, Rng& rng, const char* what) {
@@ -308,7 +281,7 @@ TEST_CASE("updates: block hashing's grid (exact mode) after random inserts and r
   for (std::size_t step = 0; step < 12; ++step) {
     CAPTURE(step);
     random_step(*ix, m, rng, step);
-    require_pyramid_as_built(*ix);
+    test::require_pyramid_as_built(*ix);
     check_exact(*ix, m, rng);  // A = 0: the grid's exact mode
     // The host reference sees the same arrays as the kernel.
     budget_kernel_equals_reference(*ix, m, rng, "grid budget A = 2, kernel vs reference");
@@ -478,7 +451,7 @@ TEST_CASE("updates: the grid leaves room where inserts passed its box, so a slid
     merges += ix->info().merges - g0;
     if (ix->info().update_rebuilds > r0 && rebuilds == 1) {
       CHECK(ix->info().holes == 2);  // the room's corners
-      require_pyramid_as_built(*ix, true);  // their nodes' boxes made again without them
+      test::require_pyramid_as_built(*ix, true);  // their nodes' boxes made again without them
     }
     // The crop: the 1000 live points of smallest x leave (the population stays in the band).
     std::vector<std::pair<float, std::int32_t>> by_x;
@@ -1055,7 +1028,7 @@ TEST_CASE("updates: the two-level grid directory merges inserts, exact against b
     CHECK(ix->info().update_rebuilds == rebuilds);
     REQUIRE(ix->info().grid_two_level);
     CHECK(ix->info().grid_directory_bytes >= bytes);
-    require_pyramid_as_built(*ix);
+    test::require_pyramid_as_built(*ix);
     check_exact(*ix, m, rng);
     budget_kernel_equals_reference(*ix, m, rng, "two-level merge A = 2, kernel vs reference");
   };
@@ -1107,7 +1080,7 @@ TEST_CASE("updates: a large merge into the grid (parallel counting sort and node
   insert_both(*ix, m, uniform(rng, 66000, 0.0f, 1.0f));
   CHECK(ix->info().merges == 1);
   CHECK(ix->info().update_rebuilds == rebuilds);
-  require_pyramid_as_built(*ix);
+  test::require_pyramid_as_built(*ix);
   std::vector<float> qs = uniform(rng, 48, -0.2f, 1.2f);
   for (std::int32_t id : {0, 799999, 800000, 832999, 865999}) {  // stored points, old and new
     const auto& p = m.live.at(id);
@@ -1142,7 +1115,7 @@ TEST_CASE("updates: a large insert past the grid's band is one fresh build, exac
   CHECK(ix->info().update_rebuilds == 1);
   CHECK(ix->info().retunes == 1);
   CHECK(ix->info().merges == 0);
-  require_pyramid_as_built(*ix);  // built from the old arrays' cell order (no records)
+  test::require_pyramid_as_built(*ix);  // built from the old arrays' cell order (no records)
   check_exact(*ix, m, rng);
   budget_kernel_equals_reference(*ix, m, rng, "grid A = 2 after a large insert's build, kernel vs reference");
   // As many again, sparser, into the empty half: the population falls, so the insert merges.
@@ -1157,7 +1130,7 @@ TEST_CASE("updates: a large insert past the grid's band is one fresh build, exac
     insert_both(*ix, m, uniform(rng, 17500, 0.01f, 0.99f));
     CHECK(ix->info().update_rebuilds == 1);
     CHECK(ix->info().merges == std::size_t(2 + i));
-    require_pyramid_as_built(*ix);
+    test::require_pyramid_as_built(*ix);
     check_exact(*ix, m, rng);
     budget_kernel_equals_reference(*ix, m, rng, "grid A = 2 after a merge in place, kernel vs reference");
   }
@@ -1231,7 +1204,7 @@ TEST_CASE("updates: degenerate grid inserts (empty, across the band, duplicates,
   CHECK(ix->info().update_rebuilds == 1);
   CHECK(ix->info().retunes == 1);
   CHECK(ix->info().merges == 0);
-  require_pyramid_as_built(*ix);
+  test::require_pyramid_as_built(*ix);
   check_exact(*ix, m, rng);
   // A twentieth more: merged in place (the arrays kept an eighth of room), no build.
   const float* const x_before = ix->structure().grid->x.data();
@@ -1239,7 +1212,7 @@ TEST_CASE("updates: degenerate grid inserts (empty, across the band, duplicates,
   CHECK(ix->info().update_rebuilds == 1);
   CHECK(ix->info().merges == 1);
   CHECK(ix->structure().grid->x.data() == x_before);
-  require_pyramid_as_built(*ix);
+  test::require_pyramid_as_built(*ix);
   check_exact(*ix, m, rng);
   // Three tenths removed: below the band, one build, into the same arrays.
   std::vector<std::int32_t> drop;
@@ -1250,7 +1223,7 @@ TEST_CASE("updates: degenerate grid inserts (empty, across the band, duplicates,
   CHECK(ix->info().retunes == 2);
   CHECK(ix->info().holes == 0);
   CHECK(ix->structure().grid->x.data() == x_before);
-  require_pyramid_as_built(*ix);
+  test::require_pyramid_as_built(*ix);
   check_exact(*ix, m, rng);
   // Duplicates: every 20th live point again, then one stored point 3000 times (one cell far past
   // the band: one build).
