@@ -69,8 +69,8 @@ TEST_CASE("query order: clustered queries (large buckets, sorted by radix) keep 
 
 TEST_CASE("query order: the parallel order equals the stable sort by (key, index), non-finite last") {
   // 50k queries (over the threaded path's threshold) with duplicates (equal keys), NaNs and
-  // infinities; also a count whose threads' ranges end inside a block of 16 keys (the key loop
-  // computes every lane of a block: the tail's spare lanes must not land in the order).
+  // infinities; also a count whose threads' ranges end inside a block of keys (the key loop
+  // computes every lane of a block of kLanes: the tail's spare lanes must not land in the order).
   for (const std::size_t n : {std::size_t(50000), std::size_t(50007)}) {
     CAPTURE(n);
     std::mt19937 rng(3);

@@ -6,6 +6,7 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <limits>
 #include <memory>
 #include <utility>
@@ -167,8 +168,11 @@ inline std::uint64_t spread3(std::uint64_t v) {
 // Skilling's transpose as kernels/bhcl_arith.h's bh_hilbert_encode at 16 bits, for m <= kLanes
 // cells at once: a mask instead of each of its tests, and the lanes innermost, so that the
 // compiler runs the lanes in vector registers (one key is a chain of 45 dependent steps; lanes
-// are independent). Bit b of axis i goes to key bit 3b + (2 - i).
-constexpr std::size_t kLanes = 16;
+// are independent). Bit b of axis i goes to key bit 3b + (2 - i). 32 lanes: two AVX-512 or four
+// AVX2 registers an axis, whose chains the core overlaps; 16 lanes (one chain) had left it waiting
+// on each step's latency: 1M Cornell keys on one thread of an AVX-512 EPYC, 16 / 32 / 64 lanes,
+// AVX-512 clone 11.2 / 7.8 / 7.0 ms, AVX2 clone 9.9 / 8.1 / 8.5 ms (bench/results/e2e/query_keys.md).
+constexpr std::size_t kLanes = 32;
 inline void hilbert_keys16_lanes(const std::uint32_t* x0, const std::uint32_t* x1, const std::uint32_t* x2,
                           Key* keys, std::size_t m) {
   std::uint32_t X0[kLanes] = {}, X1[kLanes] = {}, X2[kLanes] = {};
@@ -207,35 +211,56 @@ inline void hilbert_keys16_lanes(const std::uint32_t* x0, const std::uint32_t* x
 }
 
 // The quantiser's cell at 16 bits (sfc::Quantiser::cell without its per-call ldexp): the
-// truncation is the floor where c > 0, and c <= 0 (or NaN) is cell 0, so no floor call (the
-// lanes' loop vectorises).
-inline std::uint32_t cell16(double c) { return c > 0 ? static_cast<std::uint32_t>(std::min(c, 65535.0)) : 0u; }
+// truncation is the floor where c > 0, and c <= 0 (or NaN) is cell 0, so no floor call; through
+// int32 (the value is at most 65535), which AVX2 converts from double in a vector and uint32 not.
+inline std::uint32_t cell16(double c) {
+  return c > 0 ? static_cast<std::uint32_t>(static_cast<std::int32_t>(std::min(c, 65535.0))) : 0u;
+}
+
+// std::isfinite by the exponent's bits: a vector compare where the call had kept the cells' loop
+// scalar (with it, the cells were a third of the keys' time).
+inline bool finite_bits(float v) {
+  std::uint32_t b;
+  std::memcpy(&b, &v, sizeof b);
+  return (b & 0x7f800000u) != 0x7f800000u;
+}
 
 // The library is built for the baseline x86-64 (SSE2: four 32-bit lanes); the keys, a chain of
-// vector steps per 16 queries, are also compiled for AVX2 and AVX-512 and the CPU's picked at load
-// (GCC/Clang function multiversioning, glibc's ifunc): 1M keys in 25 against 33-44 ms on 2 threads
-// of an AVX-512 EPYC. The same keys on every path (integer steps; the cells' doubles are exact).
+// vector steps per kLanes queries, are also compiled for AVX2 and AVX-512 and the CPU's picked at
+// load (GCC/Clang function multiversioning, glibc's ifunc): on one thread of an AVX-512 EPYC, 1M
+// keys in 7.8 ms against 16 for the SSE2 code. The same keys on every path (integer steps; the
+// cells' doubles are exact).
 #if defined(__x86_64__) && defined(__GLIBC__) && (!defined(__clang__) || __clang_major__ >= 14)
 #define BHCL_KEY_CLONES __attribute__((target_clones("avx512f", "avx2", "default")))
 #else
 #define BHCL_KEY_CLONES
 #endif
 
-// Keys of queries [lo, hi) (non-finite ones `last`), 16 at a time, every lane computed (the
-// tail's spare lanes repeat its first query) so that no lane test breaks the vector loop.
+// Keys of queries [lo, hi) (non-finite ones `last`), kLanes at a time, every lane computed (the
+// tail's spare lanes repeat its first query) so that no lane test breaks the vector loop. The
+// coordinates first split by axis (a whole block's stride-3 loads vectorise), then the cells.
 BHCL_KEY_CLONES void hilbert_keys_of_range(const float* xyz, std::size_t lo, std::size_t hi,
                                            const sfc::Quantiser& qz, Key last, Key* keys) {
   const double o0 = qz.origin[0], o1 = qz.origin[1], o2 = qz.origin[2], scale = qz.scale;
   for (std::size_t i0 = lo; i0 < hi; i0 += kLanes) {
     const std::size_t m = std::min(kLanes, hi - i0);
+    float p[3][kLanes];
+    if (m == kLanes) {
+      const float* q = xyz + 3 * i0;
+      for (std::size_t l = 0; l < kLanes; ++l) p[0][l] = q[3 * l], p[1][l] = q[3 * l + 1], p[2][l] = q[3 * l + 2];
+    } else {
+      for (std::size_t l = 0; l < kLanes; ++l) {
+        const float* q = xyz + 3 * (i0 + (l < m ? l : 0));
+        p[0][l] = q[0], p[1][l] = q[1], p[2][l] = q[2];
+      }
+    }
     std::uint32_t c[3][kLanes];
     bool ok[kLanes];
     for (std::size_t l = 0; l < kLanes; ++l) {
-      const float* q = xyz + 3 * (i0 + (l < m ? l : 0));
-      ok[l] = std::isfinite(q[0]) & std::isfinite(q[1]) & std::isfinite(q[2]);
-      c[0][l] = cell16((double(q[0]) - o0) * scale);
-      c[1][l] = cell16((double(q[1]) - o1) * scale);
-      c[2][l] = cell16((double(q[2]) - o2) * scale);
+      ok[l] = finite_bits(p[0][l]) & finite_bits(p[1][l]) & finite_bits(p[2][l]);
+      c[0][l] = cell16((double(p[0][l]) - o0) * scale);
+      c[1][l] = cell16((double(p[1][l]) - o1) * scale);
+      c[2][l] = cell16((double(p[2][l]) - o2) * scale);
     }
     Key k16[kLanes];
     hilbert_keys16_lanes(c[0], c[1], c[2], k16, kLanes);
