@@ -146,12 +146,21 @@ QueryStats radius_in_slices(const SearchIndex& index, const std::vector<float>& 
 std::size_t knn_slice_rows(std::size_t n, int k, bool count_examined, bool bar, std::size_t slice_bytes = 0);
 std::size_t direct_slice_bytes();
 std::size_t radius_slice_rows(std::size_t n, bool bar);
-// The slice loop under bhcl's runners: the slices of `rows` queries of a call of n_all, each
-// through answer(first, m) for this process's part of it (n of them: n_all in one process; an MPI
-// job's ranks make every call, rank 0 with its queries, the others with none, n = 0); no queries:
-// one empty slice. The stats summed, the bar drawn, the wall time of the whole loop.
+// The last slice of a batch whose slices' writes run beside the next slice's search (direct
+// outputs): a quarter of `rows`, at least 2^15 queries (BHCL_LAST_SLICE_ROWS overrides; 0: as
+// the others). Its write is the one no search hides.
+std::size_t direct_last_slice_rows(std::size_t rows);
+// Where each slice of a call of n_all queries starts (and n_all at the end): slices of `rows`, the
+// remainder last; with last_rows (0: none), a last slice of last_rows and the rest spread evenly
+// over as few slices of at most `rows` as hold them. The same on every rank of a job (n_all and
+// rows are).
+std::vector<std::size_t> slice_starts(std::size_t n_all, std::size_t rows, std::size_t last_rows = 0);
+// The slice loop under bhcl's runners: the slices of slice_starts(n_all, rows, last_rows) of a
+// call of n_all, each through answer(first, m) for this process's part of it (n of them: n_all in
+// one process; an MPI job's ranks make every call, rank 0 with its queries, the others with none,
+// n = 0); no queries: one empty slice. The stats summed, the bar drawn, the wall time of the loop.
 QueryStats in_slices(std::size_t n, std::size_t n_all, std::size_t rows, render::Progress& bar,
-                     const std::function<QueryStats(std::size_t, std::size_t)>& answer);
+                     const std::function<QueryStats(std::size_t, std::size_t)>& answer, std::size_t last_rows = 0);
 // --radius and the tables' radius options, checked for `methods`: --k, --max-radius and the
 // kNN-only options are refused with it, r must be finite and >= 0 (the caller adds its own, e.g.
 // knn's --max-results).

@@ -193,10 +193,10 @@ RunPlace job_place(const Job& job, const DistributedIndex& index, const Runtime&
   place.where = std::to_string(job.ranks) + " rank(s) (" + rt.info().device_name + " on rank 0)";
   place.writes = job.rank == 0;
   place.ids64 = !index.ids_fit_int32();
-  place.agree_slices = [](std::size_t n, std::size_t rows) {
-    std::uint64_t v[2] = {n, rows};
-    MPI_Bcast(v, 2, MPI_UINT64_T, 0, MPI_COMM_WORLD);
-    return std::pair{static_cast<std::size_t>(v[0]), static_cast<std::size_t>(v[1])};
+  place.agree_slices = [](const Slicing& mine) {
+    std::uint64_t v[3] = {mine.n_all, mine.rows, mine.last_rows};
+    MPI_Bcast(v, 3, MPI_UINT64_T, 0, MPI_COMM_WORLD);
+    return Slicing{static_cast<std::size_t>(v[0]), static_cast<std::size_t>(v[1]), static_cast<std::size_t>(v[2])};
   };
   place.agree = [](const std::string& err) { mpi_agree(MPI_COMM_WORLD, err, "bhcl knn --distributed"); };
   place.query64 = [&summed](const float* q, std::size_t n, const SearchParams& p, KnnResult64& out) {

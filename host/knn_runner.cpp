@@ -40,20 +40,20 @@ class Failure {
   std::string err_;
 };
 
-// The job's query count and slice size: this process's own in one process, rank 0's in a job.
-std::pair<std::size_t, std::size_t> slicing(const RunPlace& place, std::size_t n, std::size_t rows) {
-  return place.agree_slices ? place.agree_slices(n, rows) : std::pair{n, rows};
+// The job's slicing: this process's own in one process, rank 0's in a job.
+Slicing slicing(const RunPlace& place, const Slicing& mine) {
+  return place.agree_slices ? place.agree_slices(mine) : mine;
 }
 
 // Every slice through search(first, m, part), each part appended to `files` (this process's
 // outputs; none on the ranks that do not write) as it comes back; committed at the end.
 template <typename Outputs, typename Part, typename Search>
-QueryStats slices_to_files(const RunPlace& place, std::size_t n, std::size_t rows, render::Progress& bar,
+QueryStats slices_to_files(const RunPlace& place, std::size_t n, const Slicing& mine, render::Progress& bar,
                            std::unique_ptr<Outputs> files, Answered& a, const Search& search) {
   Failure failure(place);
-  const auto [n_all, job_rows] = slicing(place, n, rows);
+  const Slicing job = slicing(place, mine);
   Part part;
-  const QueryStats st = in_slices(n, n_all, job_rows, bar, [&](std::size_t first, std::size_t m) {
+  const QueryStats st = in_slices(n, job.n_all, job.rows, bar, [&](std::size_t first, std::size_t m) {
     const QueryStats ps = search(first, m, part);
     if (files) failure.attempt([&] {
         const auto t0 = std::chrono::steady_clock::now();
@@ -61,7 +61,7 @@ QueryStats slices_to_files(const RunPlace& place, std::size_t n, std::size_t row
         a.write_s += seconds_since(t0);
       });
     return ps;
-  });
+  }, job.last_rows);
   if (files) failure.attempt([&] {
       const auto t0 = std::chrono::steady_clock::now();
       files->commit();  // after the wall time: the files' flush to the disk and their renames
@@ -99,12 +99,15 @@ Answered answer_knn(const Args& args, const SearchIndex& index, const RunPlace& 
                        place.writes && !args.flag("quiet"));
   auto files = open_outputs<KnnOutputs>(args, place, n, a.params.k);
   // Direct outputs: slices of about 32 MiB of rows and at least 2^17 queries (knn_slice_rows),
-  // whose two buffers are reused slice after slice (fresh pages cost on VMs).
+  // whose two buffers are reused slice after slice (fresh pages cost on VMs), the last a quarter
+  // of that (direct_last_slice_rows): its write is the one that no next search hides.
+  const bool direct = files && files->direct();
   const std::size_t rows = knn_slice_rows(n, a.params.k, a.params.count_examined, bar.enabled(),
-                                          files && files->direct() ? direct_slice_bytes() : 0);
+                                          direct ? direct_slice_bytes() : 0);
+  const Slicing mine{n, rows, direct ? direct_last_slice_rows(rows) : 0};
   if constexpr (std::is_same_v<Id, std::int64_t>) {
     a.st = slices_to_files<KnnOutputs, KnnRows<Id>>(
-        place, n, rows, bar, std::move(files), a, [&](std::size_t first, std::size_t m, KnnRows<Id>& part) {
+        place, n, mine, bar, std::move(files), a, [&](std::size_t first, std::size_t m, KnnRows<Id>& part) {
           return place.query64(queries.data() + 3 * first, m, a.params, part);
         });
   } else {
@@ -112,7 +115,7 @@ Answered answer_knn(const Args& args, const SearchIndex& index, const RunPlace& 
     // they are mapped (no copy after it), else into the runner's own rows (no fill first).
     KnnOutputs* out = files.get();
     a.st = slices_to_files<KnnOutputs, KnnSlice>(
-        place, n, rows, bar, std::move(files), a, [&](std::size_t first, std::size_t m, KnnSlice& part) {
+        place, n, mine, bar, std::move(files), a, [&](std::size_t first, std::size_t m, KnnSlice& part) {
           part.reserve(rows, a.params.k, a.params.count_examined);
           part.n = m;
           KnnRowsView rows_to = part.view();
@@ -136,7 +139,7 @@ Answered answer_radius(const Args& args, const SearchIndex& index, const RunPlac
                        place.writes && !args.flag("quiet"));
   auto files = open_outputs<RadiusOutputs>(args, place, n);
   a.st = slices_to_files<RadiusOutputs, RadiusRows<Id>>(
-      place, n, radius_slice_rows(n, bar.enabled()), bar, std::move(files), a,
+      place, n, Slicing{n, radius_slice_rows(n, bar.enabled()), 0}, bar, std::move(files), a,
       [&](std::size_t first, std::size_t m, RadiusRows<Id>& part) {
         if constexpr (std::is_same_v<Id, std::int64_t>)
           return place.radius64(queries.data() + 3 * first, m, r, rp, part);

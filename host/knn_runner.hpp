@@ -17,6 +17,11 @@ namespace bhcl::cli {
 
 enum class IndexKind { device, devices, distributed };
 
+// A call's slices: n_all queries in slices of `rows`, the last of last_rows where not 0 (slice_starts).
+struct Slicing {
+  std::size_t n_all = 0, rows = 0, last_rows = 0;
+};
+
 // Where the runner answers, as data. One process: the defaults (it writes, int32 ids, nothing to
 // agree). An MPI job: every rank makes every call (rank 0 with the queries, the others with
 // none), only rank 0 writes, and the ranks agree on the slices and on any failure.
@@ -25,8 +30,9 @@ struct RunPlace {
   std::string where;     // the summary line's "on ...": a device, "2 devices", "3 rank(s) (...)"
   bool writes = true;    // this process writes the outputs, the summary and the stats
   bool ids64 = false;    // the ids are int64 (a distributed index past 2^31)
-  // A job: this rank's (queries, slice rows) -> the job's (rank 0's). Unset: one process.
-  std::function<std::pair<std::size_t, std::size_t>(std::size_t n, std::size_t rows)> agree_slices;
+  // A job: this rank's slicing (its queries, slice rows, last slice) -> the job's (rank 0's).
+  // Unset: one process.
+  std::function<Slicing(const Slicing&)> agree_slices;
   // A job: every rank learns whether any failed (`err` non-empty here) and throws when one did.
   std::function<void(const std::string& err)> agree;
   // ids64: the calls that answer with int64 ids (SearchIndex's answer with int32 ones).

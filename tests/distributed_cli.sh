@@ -26,6 +26,12 @@ BHCL_SLICE_ROWS=700 "$mpiexec" -np "$np" "$@" "$bhcl" knn $args --out-ids iS --o
 "$bhcl" knn $args --out-ids i1 --out-dist2 d1 --out-counts c1
 cmp i1 iS && cmp d1 dS && cmp c1 cS
 echo "kdtree in slices: $np rank(s) wrote the one-process files"
+# Direct outputs with the taper (3000 queries: 4 slices of 700, a last of 200): only rank 0 writes, so only its
+# slicing has the taper; every rank must take rank 0's (else the ranks' calls part and it hangs).
+BHCL_DIRECT_OUTPUT=1 BHCL_SLICE_ROWS=700 BHCL_LAST_SLICE_ROWS=200 "$mpiexec" -np "$np" "$@" "$bhcl" knn $args \
+  --out-ids iT --out-dist2 dT --out-counts cT --distributed
+cmp i1 iT && cmp d1 dT && cmp c1 cT
+echo "kdtree in tapered direct slices: $np rank(s) wrote the one-process files"
 # Issue 25: an id base of 2^32: the ids are written as int64, each the one-process id plus the
 # base (-1 stays -1); distances as one process's; NPY gets '<i8'.
 "$mpiexec" -np "$np" "$@" "$bhcl" knn $args --out-ids iB --out-dist2 dB --distributed --id-base 4294967296

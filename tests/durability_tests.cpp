@@ -8,6 +8,8 @@
 #include <sys/resource.h>
 #include <sys/stat.h>
 
+#include <nlohmann/json.hpp>
+
 #include "blockhash_cl/atomic_file.hpp"
 #include "test_util.hpp"
 
@@ -237,15 +239,23 @@ TEST_CASE("durability: bhcl knn's direct outputs (O_DIRECT) are the bytes of the
         test::run_bhcl_ok(with("M"), "BHCL_DIRECT_OUTPUT=0");  // the mapped path, one slice
         test::run_bhcl_ok(with("D"), "BHCL_DIRECT_OUTPUT=1 BHCL_SLICE_ROWS=999");  // direct, 21 slices
         test::run_bhcl_ok(with("1"), "BHCL_DIRECT_OUTPUT=1");  // direct, one slice
+        // Tapered: 20 slices of 985 (the rest spread evenly), then one of 300 (the write no search
+        // hides); the stats' launch count says the taper was taken (one launch a slice here).
+        const std::string stats = O + "taper_stats.json";
+        test::run_bhcl_ok(with("T") + " --stats " + stats,
+                          "BHCL_DIRECT_OUTPUT=1 BHCL_SLICE_ROWS=1000 BHCL_LAST_SLICE_ROWS=300");
+        CHECK(nlohmann::json::parse(slurp(stats)).at("batches").get<int>() == 21);
+        std::remove(stats.c_str());
         for (const char* f : {"ids", "d2", "c"}) {
           INFO(O << " " << method << " " << f << ext);
           const std::string m = slurp(O + f + "M" + ext);
           CHECK(m.size() > 20000u);
           CHECK(slurp(O + f + "D" + ext) == m);
           CHECK(slurp(O + f + "1" + ext) == m);
+          CHECK(slurp(O + f + "T" + ext) == m);
         }
         for (const char* f : {"ids", "d2", "c"})
-          for (const char* tag : {"M", "D", "1"}) {
+          for (const char* tag : {"M", "D", "1", "T"}) {
             std::remove((O + f + tag + ext).c_str());
             const std::string file = O + f + tag + ext;
             CHECK(leftover_temporaries(file.substr(file.find_last_of('/') + 1)) == 0);  // (the test folder's)
