@@ -44,13 +44,15 @@ using namespace bhcl;
 namespace {
 
 // The block-hash search options the harness sweeps: its table's search options but A and recall
-// (swept as --A and --recall) and the device options every method shares.
+// (swept as --A and --recall) and the device options every method shares, save the work-group
+// size (a kernel form's field, kernel_forms.hpp: block hashing's alone is swept, the baselines
+// keep their device default).
 std::vector<const OptionInfo*> sweep_options() {
   std::vector<const OptionInfo*> out;
   const std::vector<OptionInfo> device = device_search_options();
   for (const OptionInfo* o : method_info("blockhash").search_options()) {
     const bool shared = std::any_of(device.begin(), device.end(), [&](const OptionInfo& d) { return d.name == o->name; });
-    if (o->name != "A" && o->name != "recall" && !shared) out.push_back(o);
+    if (o->name != "A" && o->name != "recall" && (!shared || o->name == "local-size")) out.push_back(o);
   }
   return out;
 }
@@ -255,7 +257,8 @@ std::string sweep_tag(const OptionInfo& o, const std::string& v) {
 }
 std::string sweep_tags(const Options& o, const std::vector<std::string>& values) {
   std::string t;
-  for (std::size_t i = 0; i < values.size(); ++i) t += (i ? "," : "") + sweep_tag(*o.sweep[i], values[i]);
+  // "+" between them: the names are CSV cells.
+  for (std::size_t i = 0; i < values.size(); ++i) t += (i ? "+" : "") + sweep_tag(*o.sweep[i], values[i]);
   return t;
 }
 

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Measures this device's row of the grid kernel's forms table (lib/src/core/kernel_forms.cpp):
 # perf_harness runs the device's current row ("base") beside candidate forms, each one change
-# from it, in interleaved rounds in one process, on each data set and order; tune_pick.py takes
+# from it (a kernel define, the grid's cell population, the work-group size; three runs, each
+# with its own base), in interleaved rounds in one process, on each data set and order; tune_pick.py takes
 # the median over rows of each candidate's speed against base (same queries, exact, so the rows
 # are the same) and prints the winning row in the table's format, with the figures to quote.
 #   bench/tune_kernel.sh [build-dir] [data-dir] [rounds]     (POCL_MAX_PTHREAD_COUNT as you run)
@@ -19,7 +20,14 @@ cands="base:;fill1:-DBHCL_GRID_FILLSORT=1;fill0:-DBHCL_GRID_FILLSORT=0;rowcap0:-
 cands+="rowcap8:-DBHCL_GRID_ROWCAP=8;lines1:-DBHCL_GRID_PREFETCH_LINES=1;lines4:-DBHCL_GRID_PREFETCH_LINES=4;"
 cands+="pf0:-DBHCL_GRID_PREFETCH=0;walk0:-DBHCL_GRID_WALKCAP=0"
 sets=${TUNE_SETS:-uniform,cornell,autzen}
-rm -f "$out.csv"
-"$harness" --data "$sets" --data-dir "$data" --N "${TUNE_N:-1000000}" --queries "${TUNE_Q:-100000}" --k 10,50 --order sorted,random --A 1000000 --rounds "$rounds" \
-  --defines "$cands" --csv "$out.csv" | tee "$out.txt"
-/usr/bin/env python3 bench/tune_pick.py "$out.csv" | tee -a "$out.txt"
+common=(--data "$sets" --data-dir "$data" --N "${TUNE_N:-1000000}" --queries "${TUNE_Q:-100000}" --k 10,50
+        --order sorted,random --A 1000000 --rounds "$rounds")
+rm -f "$out.csv" "$out.cells.csv" "$out.local.csv"
+# 1. The kernel's fields (defines).
+"$harness" "${common[@]}" --defines "$cands" --csv "$out.csv" | tee "$out.txt"
+# 2. The cell population the grid aims at (the build's target_cell_points; base: the row's).
+"$harness" "${common[@]}" --bh-build "base:preset=auto;cells16:target_cell_points=16;cells32:target_cell_points=32;cells48:target_cell_points=48" \
+  --csv "$out.cells.csv" | tee -a "$out.txt"
+# 3. The work-group size (0: the row's).
+"$harness" "${common[@]}" --local-size 0,16,32,128 --csv "$out.local.csv" | tee -a "$out.txt"
+/usr/bin/env python3 bench/tune_pick.py "$out.csv" "$out.cells.csv" "$out.local.csv" | tee -a "$out.txt"

@@ -222,7 +222,7 @@ Json search_json(const Index& index, const SearchParams& p) {
   s["max_radius"] = p.max_radius;  // null: unbounded
   for (const auto& [name, value] : index.search_used(p)) s[name] = Json::parse(value);
   if (method_info(index.method()).on_device) {
-    s["local_size"] = p.local_size ? p.local_size : index.runtime().quirks().default_local_size;
+    s["local_size"] = index.local_size_for(p);
     s["max_batch"] = p.max_batch;  // 0: automatic
   }
   s["sort_queries"] = p.sort_queries;

@@ -73,6 +73,11 @@ TEST_CASE("kernel forms: every row's kernel gives the exact rows (grid_forms_vs_
     CAPTURE(f.name);
     ScopedEnv e("BHCL_KERNEL_FORM", f.name);
     auto index = BlockHashIndex::build(test::runtime(), pts.data(), pts.size() / 3);
+    // The row's cell population is the build's aim where the caller sets none (the secant tunes
+    // the point-weighted mean to within a few per cent of it), and its work-group size the launch's.
+    CHECK(index->info().mean_cell_points == doctest::Approx(f.cell_target).epsilon(0.15));
+    const std::size_t quirks = test::runtime()->quirks().default_local_size;
+    CHECK(index->local_size_for(SearchParams{}) == (f.local_size ? f.local_size : quirks));
     for (int k : {1, 16, 50}) {
       CAPTURE(k);
       SearchParams p = test::knn_params(k);

@@ -97,7 +97,8 @@ struct BlockHashBuildParams {
   // grid. A field of another layout than the one chosen is refused (bhcl::Error), never ignored.
   int grid = -1;
   // Grid: the cells' side in the points' units (> 0), or -1 to choose it from a sample so that
-  // the point-weighted mean cell population is target_cell_points (-1: 24).
+  // the point-weighted mean cell population is target_cell_points (-1: the device's kernel form's
+  // cell_target, kernel_forms.hpp: 24 on every row so far).
   double cell_size = -1;
   // Grid: the most cells per point of the direct cell table; past it the directory is two-level
   // (up to 16x as many cells: 4 bytes per 16 cells plus 64 per occupied 16), past that the cells

@@ -28,7 +28,8 @@ struct GridInput;      // a build's points (lib/src/blockhash/grid.hpp)
 // The grid's own build parameters (BlockHashBuildParams' grid fields; the same meanings).
 struct GridBuildParams {
   // The cells' side in the points' units (> 0), or -1 to choose it from a sample so that the
-  // point-weighted mean cell population is target_cell_points (-1: 24).
+  // point-weighted mean cell population is target_cell_points (-1: the device's kernel form's
+  // cell_target, kernel_forms.hpp: 24 on every row so far).
   double cell_size = -1;
   double target_cell_points = -1;
   // The most cells per point of the direct cell table; past it the directory is two-level (up
@@ -57,6 +58,9 @@ class GridIndex final : public BlockHashIndex {
   // Builds the kNN program a query with `params` on rt uses: it depends on the device and k, not
   // on the points, so it can be built before (or beside) the index (prepare_knn, factory.hpp).
   static void prepare_knn_program(const Runtime& rt, const SearchParams& params);
+
+  // The device's kernel form's work-group size where it sets one, else the quirks'.
+  std::size_t default_local_size() const override;
 
  protected:
   BHCL_BLOCKHASH_LAYOUT_HOOKS

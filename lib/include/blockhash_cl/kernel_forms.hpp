@@ -1,8 +1,9 @@
 // The grid kNN kernel's form per device, as a measured table (as CLBlast keeps per-device tuning
-// values and Embree builds per ISA): which list, prefetch, gathered rings and far walk a device
-// runs, chosen from what the device reports, with a safe row for devices nobody measured.
-// bench/perf_harness --tune measures a device's candidates and prints the winner as a row of
-// this table (lib/src/core/kernel_forms.cpp; bench/tune_kernel.sh), so a user on a new CPU can add theirs.
+// values and Embree builds per ISA): which list, prefetch, gathered rings, far walk, work-group
+// size and cell population a device runs, chosen from what the device reports, with a safe row
+// for devices nobody measured.
+// bench/tune_kernel.sh measures a device's candidates (perf_harness runs) and prints the winner
+// as a row of this table (lib/src/core/kernel_forms.cpp), so a user on a new CPU can add theirs.
 #pragma once
 
 #include <cstddef>
@@ -26,6 +27,8 @@ struct GridKernelForm {
   std::uint32_t walk_cap;  // BHCL_GRID_WALKCAP: the far walk's best-first queue (0: depth-first)
   int fill_sort;         // BHCL_GRID_FILLSORT: -1 the kernel's default (sorted fill past 16)
   int prefetch_lines;    // BHCL_GRID_PREFETCH_LINES: -1 the kernel's default
+  std::uint32_t local_size;  // the grid kernels' work-group size where the caller sets none (0: the quirks')
+  double cell_target;        // the grid's mean cell population where the build sets none (target_cell_points)
 };
 
 // The rows, most specific first; the last is the safe default.

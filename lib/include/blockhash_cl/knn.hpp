@@ -389,6 +389,12 @@ class Index : public SearchIndex {
   double build_seconds() const { return build_seconds_; }
   Runtime& runtime() const { return *runtime_; }
   const std::shared_ptr<Runtime>& runtime_ptr() const { return runtime_; }
+  // The work-group size a call with `params` launches with: params.local_size, else
+  // default_local_size().
+  std::size_t local_size_for(const SearchParams& params) const;
+  // Where the caller sets none: the device's quirks' (Quirks::default_local_size); the grid
+  // takes its kernel form's where the form sets one (kernel_forms.hpp).
+  virtual std::size_t default_local_size() const;
 
   // Host arrays. queries: n x 3 floats. Fills out (resized to n x k). Returns the call's stats.
   QueryStats query(const float* queries, std::size_t n, const SearchParams& params,
@@ -565,7 +571,6 @@ class Index : public SearchIndex {
   // driver's launch limit (Quirks::max_launch_items, whole groups of `local` below it); >= 1.
   std::size_t queries_per_launch(std::size_t max_batch, std::size_t local) const;
 
-  std::size_t local_size_for(const SearchParams& params) const;
 
   void set_build_seconds(double s) { build_seconds_ = s; }
   // A rebuild over another point set: n points with ids 0 .. n - 1 (the update state reset).

@@ -82,7 +82,9 @@ void GridIndex::build_scaled(const blockhash::GridInput& input, double cell_size
   GridBuildArgs gp;
   // The cell side is kept in the caller's units; the grid is built in the index's coordinates.
   gp.cell_size = cell_size > 0 ? std::ldexp(cell_size, -s.scale_exp) : -1.0;
-  gp.target_cell_points = params_.target_cell_points > 0 ? params_.target_cell_points : 24.0;
+  // Unset: the device's kernel form's population (24 on every row measured so far).
+  gp.target_cell_points = params_.target_cell_points > 0 ? params_.target_cell_points
+                                                         : detail::grid_kernel_form(runtime().info()).cell_target;
   gp.max_cells_per_point = params_.max_cells_per_point;
   gp.directory = params_.grid_directory;
   gp.threads = params_.threads;
@@ -336,6 +338,12 @@ cl::Event GridIndex::enqueue_batch(const cl::CommandQueue& queue, const cl::Buff
 BlockHashIndex::RadiusKernel GridIndex::radius_kernel() const { return {"blockhash_grid_radius", {}}; }
 
 void GridIndex::add_radius_layout_args(detail::KernelArgs& args, const RadiusParams&) const { add_grid_args(args); }
+
+std::size_t GridIndex::default_local_size() const {
+  const std::size_t form = detail::grid_kernel_form(runtime().info()).local_size;
+  const std::size_t max = runtime().info().max_work_group_size;
+  return form ? (max ? std::min(form, max) : form) : Index::default_local_size();
+}
 
 blockhash::GridTraversal GridIndex::traversal_for(const SearchParams& p) const {
   const detail::GridKernelForm& f = detail::grid_kernel_form(runtime().info());

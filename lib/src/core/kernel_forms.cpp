@@ -9,23 +9,26 @@
 namespace bhcl::detail {
 
 const std::vector<GridKernelForm>& grid_kernel_forms() {
-  // name, match, measured, vtopk, prefetch, row_cap, walk_cap, fill_sort, prefetch_lines
+  // name, match, measured, vtopk, prefetch, row_cap, walk_cap, fill_sort, prefetch_lines,
+  // local_size, cell_target
   static const std::vector<GridKernelForm> rows = {
       {"cpu-avx512", "cpu-avx512",
        "AMD EPYC, PoCL 3.1 pthread-skylake-avx512, 2 threads: bench/results/harness/tune_avx512.txt "
        "(bench/tune_kernel.sh, 3 rounds, 12 rows): no candidate one change away 3 % ahead on the median "
-       "without a row 10 % behind, so the AVX2 row's values stand (best: fill0 1.045, lines4 1.047)",
-       true, 2, 32, 32, -1, -1},
+       "without a row 10 % behind, so the AVX2 row's values stand (best: fill0 1.045, lines4 1.047); "
+       "work-group 16 / 32 / 128 against 64: 0.999 / 1.003 / 0.998, cell population 16 / 32 / 48 "
+       "against 24: 0.950 / 0.910 / 0.954 (bench/results/harness/tune_cells_local_avx512.txt)",
+       true, 2, 32, 32, -1, -1, 0, 24.0},
       {"cpu-avx2", "cpu",
        "AMD EPYC, PoCL 3.1 pthread-haswell (AVX2), 2 threads: the last round's perf_harness rows "
        "(docs/PERFORMANCE.md); the far walk's queue on the AVX-512 machine (bench/results/far)",
-       true, 2, 32, 32, -1, -1},
+       true, 2, 32, 32, -1, -1, 0, 24.0},
       {"gpu-nvidia", "gpu-nvidia",
        "sm_90 by ptxas (bench/gpu_kernel_table.sh): no private arrays, 46 registers, 144 B / 528 B "
        "of stack at k <= 16 / 64, no spills; not timed on a GPU yet",
-       false, 0, 0, 0, -1, -1},
+       false, 0, 0, 0, -1, -1, 0, 24.0},
       {"safe", "any", "no measurement: the scalar list, no prefetch, no private arrays (any OpenCL device)",
-       false, 0, 0, 0, -1, -1},
+       false, 0, 0, 0, -1, -1, 0, 24.0},
   };
   return rows;
 }

@@ -200,8 +200,10 @@ void Index::check_params(const SearchParams& p) const {
                 std::to_string(runtime_->info().max_work_group_size));
 }
 
+std::size_t Index::default_local_size() const { return runtime_->quirks().default_local_size; }
+
 std::size_t Index::local_size_for(const SearchParams& p) const {
-  return p.local_size ? p.local_size : runtime_->quirks().default_local_size;
+  return p.local_size ? p.local_size : default_local_size();
 }
 
 void Index::save(const std::string& path) const {
