@@ -76,7 +76,8 @@ struct DispatchParams {
   // Block hashing's block layouts: probe the near-side neighbour cells as well (-1: the index
   // preset decides).
   int neighbour_probes = -1;
-  // Dispatch: 0 picks the device default (Quirks::default_local_size).
+  // Dispatch: 0 picks the device default (Quirks::default_local_size; the grid: its kernel form's
+  // where the form sets one, kernel_forms.hpp).
   std::size_t local_size = 0;
   // Host-array calls split the batch so that one dispatch has at most this many queries
   // (0: automatic, bounded by device memory). Results do not depend on it.
