@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <fstream>
 #include <future>
+#include <optional>
 
 #include <sys/stat.h>
 
@@ -364,16 +365,21 @@ Json table_values(const Args& args, const std::string& method, unsigned scope) {
   return j;
 }
 
-// BHCL_SLICE_ROWS (a positive count): the most queries a slice holds, overriding the sizes below
-// (the tests drive many slices through small batches with it). 0: not set.
-static std::size_t slice_rows_override() {
-  const char* e = std::getenv("BHCL_SLICE_ROWS");
-  if (!e || !*e) return 0;
+// The count in environment variable `var` (unset or empty: nullopt); anything but a count (or 0,
+// where `positive`) is a usage error that names the variable.
+static std::optional<std::size_t> env_count(const char* var, bool positive) {
+  const char* e = std::getenv(var);
+  if (!e || !*e) return std::nullopt;
   char* end = nullptr;
   const unsigned long long v = std::strtoull(e, &end, 10);
-  if (*end != '\0' || v == 0) throw UsageError(std::string("BHCL_SLICE_ROWS must be a positive count, got '") + e + "'");
+  if (*end != '\0' || (positive && v == 0))
+    throw UsageError(std::string(var) + (positive ? " must be a positive count" : " must be a count") + ", got '" + e + "'");
   return static_cast<std::size_t>(v);
 }
+
+// BHCL_SLICE_ROWS (a positive count): the most queries a slice holds, overriding the sizes below
+// (the tests drive many slices through small batches with it). 0: not set.
+static std::size_t slice_rows_override() { return env_count("BHCL_SLICE_ROWS", true).value_or(0); }
 
 std::size_t direct_slice_bytes() {
   // BHCL_DIRECT_SLICE_MB (a positive count of MiB) overrides the 32 MiB (experiments).
@@ -407,14 +413,10 @@ std::size_t knn_slice_rows(std::size_t n, int k, bool count_examined, bool bar, 
 }
 
 std::size_t direct_last_slice_rows(std::size_t rows) {
-  if (const char* e = std::getenv("BHCL_LAST_SLICE_ROWS"); e && *e) {  // experiments
-    char* end = nullptr;
-    const unsigned long long v = std::strtoull(e, &end, 10);
-    if (*end != '\0') throw UsageError(std::string("BHCL_LAST_SLICE_ROWS must be a count, got '") + e + "'");
-    return static_cast<std::size_t>(v);
-  }
-  // The slice before it writes rows / 4 x 4 rows' bytes beside it: its search (270 ns a query at
-  // k = 10, Cornell 1M, AVX-512, 2 threads) outlasts that write (about 40 ns a query's 40 bytes).
+  if (const std::optional<std::size_t> v = env_count("BHCL_LAST_SLICE_ROWS", false)) return *v;  // experiments
+  // The slice before it writes its `rows` rows beside this one's search of rows / 4 queries; at
+  // k = 10 (Cornell 1M, AVX-512, 2 threads) a query's search took 270 ns and a row's 40 bytes
+  // about 40 ns to write, so the quarter's search still outlasts that write.
   return std::max<std::size_t>(std::size_t(1) << 15, rows / 4);
 }
 
