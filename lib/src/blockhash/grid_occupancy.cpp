@@ -402,8 +402,7 @@ void refresh_node_boxes(Grid& g, const std::vector<std::uint32_t>& cells) {
       for (std::size_t cy = y & ~std::size_t(3); cy < std::min(ny, (y | 3) + 1); ++cy)
         for (std::size_t cx = x & ~std::size_t(3); cx < std::min(nx, (x | 3) + 1); ++cx) {
           const std::size_t cell = (cz * ny + cy) * nx + cx;
-          for (std::uint32_t i = g.start(cell), e = g.start(cell + 1); i < e; ++i)
-            if (g.x[i] < INFINITY) widen_box(b, g.x[i], g.y[i], g.z[i]);
+          widen_by_slots(b, g, g.start(cell), g.start(cell + 1));  // holes left out
         }
     std::memcpy(box_at(2, x >> 2, y >> 2, z >> 2), &b, sizeof(b));
     for (std::uint32_t l = 3; l <= top; ++l) {  // each ancestor: the union of its children
