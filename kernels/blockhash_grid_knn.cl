@@ -380,7 +380,11 @@ inline __attribute__((always_inline)) void vt_scan(bhcl_vtopk* t, float3 q, __gl
     while (mask) {
       int j = 31 - (int)clz(mask & (0u - mask));
       mask &= mask - 1u;
-      if (dd[j] <= vt_bound(t)) VT_OFFER(t, dd[j], pid[p + (uint)j]);
+      /* Offered without testing the bound again: a lane past it now (the list took a nearer
+       * point of this chunk) leaves an insertion unchanged, and the list's fill takes only lanes
+       * under max_r2. The test's branch, taken at random, cost more than the insertions it saved:
+       * +2-34 % (median 11 %) over the 12 exact rows, k = 10 and 50 (Intel Xeon, AVX-512). */
+      VT_OFFER(t, dd[j], pid[p + (uint)j]);
     }
   }
 }
