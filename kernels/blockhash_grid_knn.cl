@@ -55,6 +55,11 @@
 #define BHCL_GRID_ROWCAP 0
 #endif
 #define BHCL_GRID_ROWBUF (BHCL_GRID_ROWCAP > 0 ? BHCL_GRID_ROWCAP : 1)
+/* The rings' slab distances within this many cells of the query's kept (grid_search.h): where
+ * the form gathers the rings' runs (private arrays allowed), 3. */
+#ifndef BHCL_GRID_NEAR
+#define BHCL_GRID_NEAR (BHCL_GRID_ROWCAP > 0 ? 3 : 0)
+#endif
 
 /* The pyramid nodes the far walk queues, nearest first (0: depth-first, no queue; grid_search.h). */
 #ifndef BHCL_GRID_WALKCAP

@@ -118,6 +118,9 @@ BHCL_GRID_INLINE float bhcl_grid_slabs_in(float t, float o, float h, float margi
   return bhcl_grid_maxf(bhcl_grid_maxf((lo - t) - mlo, (t - hi) - mhi), 0.0f);
 }
 
+/* x squared, as its own rounding (FP_CONTRACT OFF): a sum of squares made from it is the same. */
+BHCL_GRID_INLINE float bhcl_grid_sq(float x) { return x * x; }
+
 /* Distance from t to the slab of cell i (lowered by the margin, never negative). */
 BHCL_GRID_INLINE float bhcl_grid_slab(float t, float o, float h, float margin, bhcl_u32 i) {
   return bhcl_grid_slabs(t, o, h, margin, i, i);
@@ -143,6 +146,16 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_start(BHCL_GLOBAL const bhcl_u32* starts, bh
 
 /* Row offset j of a ring (0, -1, +1, -2, +2, ...). */
 BHCL_GRID_INLINE int bhcl_grid_offset(int j) { return (j & 1) ? -((j + 1) >> 1) : (j >> 1); }
+
+/* The rings' squared slab distances of the cells within BHCL_GRID_NEAR of the query's cell, per
+ * axis, each made once (at the ring of its offset) and kept in a private array; the rows of those
+ * rings read them. Without it every row made its own: a slab is about 15 instructions (two
+ * conversions, the ends, the margin), and ring 1's nine rows asked for 30 of them where 6 are
+ * distinct. The same values (each the square of bhcl_grid_slab, summed as before). 0: none (the
+ * forms without private arrays). */
+#ifndef BHCL_GRID_NEAR
+#define BHCL_GRID_NEAR 0
+#endif
 
 /* The occupancy pyramid: the empty space a far query skips. Level l >= 1 has
  * ((n - 1) >> l) + 1 nodes along an axis of n cells; node (X, Y, Z) of level l covers the fine
@@ -828,20 +841,40 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search(BHCL_GLOBAL const bhcl_u32* starts,
       walk_r0 = 0xffffffffu;
   }
   bhcl_grid_rows rows;
+#if BHCL_GRID_NEAR > 0
+  /* n?[o + BHCL_GRID_NEAR]: the squared slab distance of cell c? + o (filled at ring |o|, inside
+   * the grid only: the rows skip the others before they read them) */
+  float nx2[2 * BHCL_GRID_NEAR + 1], ny2[2 * BHCL_GRID_NEAR + 1], nz2[2 * BHCL_GRID_NEAR + 1];
+#define BHCL_GRID_SQ(arr, o, t, o0, c)                                                       \
+  (((o) >= -BHCL_GRID_NEAR && (o) <= BHCL_GRID_NEAR) ? arr[(o) + BHCL_GRID_NEAR]             \
+                                                     : bhcl_grid_sq(bhcl_grid_slab(t, o0, g.h, g.margin, (bhcl_u32)(c))))
+#else
+#define BHCL_GRID_SQ(arr, o, t, o0, c) bhcl_grid_sq(bhcl_grid_slab(t, o0, g.h, g.margin, (bhcl_u32)(c)))
+#endif
   for (bhcl_u32 r = 0; walk_r0 == kNoWalk && r <= rmax; ++r) {
     const int side = 2 * (int)r + 1;
     bhcl_u32 nr = 0;
+#if BHCL_GRID_NEAR > 0
+    if (r <= BHCL_GRID_NEAR) {
+      const int N = BHCL_GRID_NEAR, ir = (int)r;
+      if (cx >= r) nx2[N - ir] = bhcl_grid_sq(bhcl_grid_slab(qx, g.ox, g.h, g.margin, cx - r));
+      if (cx + r < g.nx) nx2[N + ir] = bhcl_grid_sq(bhcl_grid_slab(qx, g.ox, g.h, g.margin, cx + r));
+      if (cy >= r) ny2[N - ir] = bhcl_grid_sq(bhcl_grid_slab(qy, g.oy, g.h, g.margin, cy - r));
+      if (cy + r < g.ny) ny2[N + ir] = bhcl_grid_sq(bhcl_grid_slab(qy, g.oy, g.h, g.margin, cy + r));
+      if (cz >= r) nz2[N - ir] = bhcl_grid_sq(bhcl_grid_slab(qz, g.oz, g.h, g.margin, cz - r));
+      if (cz + r < g.nz) nz2[N + ir] = bhcl_grid_sq(bhcl_grid_slab(qz, g.oz, g.h, g.margin, cz + r));
+    }
+#endif
     for (int jz = 0; jz < side; ++jz) {
       const int oz = bhcl_grid_offset(jz);
       const int z = (int)cz + oz;
       if (z < 0 || z >= (int)g.nz) continue;
-      const float ez = bhcl_grid_slab(qz, g.oz, g.h, g.margin, (bhcl_u32)z);
+      const float ez2 = BHCL_GRID_SQ(nz2, oz, qz, g.oz, z);
       for (int jy = 0; jy < side; ++jy) {
         const int oy = bhcl_grid_offset(jy);
         const int y = (int)cy + oy;
         if (y < 0 || y >= (int)g.ny) continue;
-        const float ey = bhcl_grid_slab(qy, g.oy, g.h, g.margin, (bhcl_u32)y);
-        const float syz = ey * ey + ez * ez;
+        const float syz = BHCL_GRID_SQ(ny2, oy, qy, g.oy, y) + ez2;
         const float bound = BHCL_GRID_BOUND(st);
         if (syz > bound) continue;
         const bhcl_u32 row = ((bhcl_u32)z * g.ny + (bhcl_u32)y) * g.nx;
@@ -852,13 +885,11 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search(BHCL_GLOBAL const bhcl_u32* starts,
           if (xa < 0) xa = 0;
           if (xb > (int)g.nx - 1) xb = (int)g.nx - 1;
           while (xa <= xb) {
-            float ex = bhcl_grid_slab(qx, g.ox, g.h, g.margin, (bhcl_u32)xa);
-            if (ex * ex + syz <= bound) break;
+            if (BHCL_GRID_SQ(nx2, xa - (int)cx, qx, g.ox, xa) + syz <= bound) break;
             ++xa;
           }
           while (xb > xa) {
-            float ex = bhcl_grid_slab(qx, g.ox, g.h, g.margin, (bhcl_u32)xb);
-            if (ex * ex + syz <= bound) break;
+            if (BHCL_GRID_SQ(nx2, xb - (int)cx, qx, g.ox, xb) + syz <= bound) break;
             --xb;
           }
           if (xa > xb) continue;
@@ -870,8 +901,7 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search(BHCL_GLOBAL const bhcl_u32* starts,
           for (int e = 0; e < 2; ++e) {
             const int x = e == 0 ? (int)cx - (int)r : (int)cx + (int)r;
             if (x < 0 || x >= (int)g.nx) continue;
-            const float ex = bhcl_grid_slab(qx, g.ox, g.h, g.margin, (bhcl_u32)x);
-            const float d = ex * ex + syz;
+            const float d = BHCL_GRID_SQ(nx2, x - (int)cx, qx, g.ox, x) + syz;
             if (d > bound) continue;
             const bhcl_u32 a = bhcl_grid_start(starts, g.sparse, row + (bhcl_u32)x);
             const bhcl_u32 b = bhcl_grid_start(starts, g.sparse, row + (bhcl_u32)x + 1u);
@@ -906,6 +936,7 @@ BHCL_GRID_INLINE bhcl_u32 bhcl_grid_search(BHCL_GLOBAL const bhcl_u32* starts,
       if (!(BHCL_GRID_BOUND(st) < reach * reach) || r >= fine_rings + BHCL_GRID_RING_CAP) walk_r0 = r;
     }
   }
+#undef BHCL_GRID_SQ
   if (walk_r0 == kNoWalk) return examined;
   return bhcl_grid_search_far(starts, px, py, pz, pid, occ, g, db, qx, qy, qz, cx, cy, cz, walk_r0, examined, budget,
                               walk_cap, kth, st);
