@@ -17,7 +17,10 @@ const std::vector<GridKernelForm>& grid_kernel_forms() {
        "(bench/tune_kernel.sh, 3 rounds, 12 rows): no candidate one change away 3 % ahead on the median "
        "without a row 10 % behind, so the AVX2 row's values stand (best: fill0 1.045, lines4 1.047); "
        "work-group 16 / 32 / 128 against 64: 0.999 / 1.003 / 0.998, cell population 16 / 32 / 48 "
-       "against 24: 0.950 / 0.910 / 0.954 (bench/results/harness/tune_cells_local_avx512.txt)",
+       "against 24: 0.950 / 0.910 / 0.954 (bench/results/harness/tune_cells_local_avx512.txt); "
+       "Intel Xeon (Sapphire Rapids class), the same PoCL target, session 15's kernel: "
+       "bench/results/harness/tune_intel_avx512.txt (3 rounds, 12 rows): no candidate wins either "
+       "(best: cells48 1.046 with a row 10 % behind, local16 1.023)",
        true, 2, 32, 32, -1, -1, 0, 24.0},
       {"cpu-avx2", "cpu",
        "AMD EPYC, PoCL 3.1 pthread-haswell (AVX2), 2 threads: the last round's perf_harness rows "
