@@ -72,7 +72,9 @@ struct In {
     if ((data.size() - pos) / sizeof(T) < n)
       throw Error(what + ": truncated grid index (array '" + field + "' at byte " + std::to_string(pos) + ")");
     v.resize(n);
-    std::memcpy(v.data(), data.data() + pos, n * sizeof(T));
+    // n = 0: v.data() may be null, and memcpy's pointers must not be even for no bytes (UBSan;
+    // fuzz_grid_load's seed regress_empty_array.bhgrid).
+    if (n) std::memcpy(v.data(), data.data() + pos, n * sizeof(T));
     pos += n * sizeof(T);
   }
 };
