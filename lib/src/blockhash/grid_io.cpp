@@ -30,6 +30,7 @@
 #include "blockhash/grid_io.hpp"
 #include "blockhash_cl/error.hpp"
 #include "blockhash_cl/io.hpp"
+#include "core/byte_reader.hpp"
 
 namespace bhcl::blockhash {
 namespace {
@@ -52,32 +53,6 @@ template <typename T>
 void put(std::string& b, const T& v) { b.append(reinterpret_cast<const char*>(&v), sizeof(T)); }
 template <typename T>
 void put_n(std::string& b, const T* v, std::size_t n) { b.append(reinterpret_cast<const char*>(v), n * sizeof(T)); }
-
-struct In {
-  const std::string& data;
-  const std::string& what;
-  std::size_t pos = 0;
-  template <typename T>
-  T get(const char* field) {
-    if (data.size() - pos < sizeof(T))
-      throw Error(what + ": truncated grid index (field '" + field + "' at byte " + std::to_string(pos) + ")");
-    T v;
-    std::memcpy(&v, data.data() + pos, sizeof(T));
-    pos += sizeof(T);
-    return v;
-  }
-  template <typename V>
-  void get_n(V& v, std::size_t n, const char* field) {
-    using T = typename V::value_type;
-    if ((data.size() - pos) / sizeof(T) < n)
-      throw Error(what + ": truncated grid index (array '" + field + "' at byte " + std::to_string(pos) + ")");
-    v.resize(n);
-    // n = 0: v.data() may be null, and memcpy's pointers must not be even for no bytes (UBSan;
-    // fuzz_grid_load's seed regress_empty_array.bhgrid).
-    if (n) std::memcpy(v.data(), data.data() + pos, n * sizeof(T));
-    pos += n * sizeof(T);
-  }
-};
 
 // Every invariant of the kernel (Grid::validate) and those of the ids after updates: each slot a
 // live id in [0, id_bound), no id twice, or a hole (BHCL_EMPTY_SLOT_ID with x = y = z = +inf, which
@@ -254,7 +229,7 @@ GridFile parse_grid(const std::string& data, const std::string& what) {
 
 GridFile parse_grid(const std::string& data, const std::string& what, GridIdState* ids, bool verify_checksum) {
   GridIdState st;
-  In in{data, what};
+  detail::ByteReader in{data, what, "grid index"};
   if (data.size() < 8 || std::memcmp(data.data(), kGridMagic, 8) != 0)
     throw Error(what + ": not a block-hash grid index (bad magic)");
   in.pos = 8;

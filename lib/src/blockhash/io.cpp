@@ -27,6 +27,7 @@
 #include "blockhash/build.hpp"
 #include "blockhash_cl/error.hpp"
 #include "blockhash_cl/io.hpp"
+#include "core/byte_reader.hpp"
 
 namespace bhcl::blockhash {
 namespace {
@@ -56,31 +57,6 @@ struct Writer {
   template <typename T>
   void put_vec(const std::vector<T>& v) {
     buf.append(reinterpret_cast<const char*>(v.data()), v.size() * sizeof(T));
-  }
-};
-
-struct Reader {
-  const std::string& data;
-  std::size_t pos;
-  const std::string& path;
-  template <typename T>
-  T get(const char* field) {
-    if (data.size() - pos < sizeof(T))
-      throw Error(path + ": truncated block-hash index (field '" + field + "' at byte " +
-                  std::to_string(pos) + ")");
-    T v;
-    std::memcpy(&v, data.data() + pos, sizeof(T));
-    pos += sizeof(T);
-    return v;
-  }
-  template <typename T>
-  void get_vec(std::vector<T>& v, std::uint64_t n, const char* field) {
-    if (n > (data.size() - pos) / sizeof(T))
-      throw Error(path + ": truncated block-hash index (array '" + field + "' of " +
-                  std::to_string(n) + " elements at byte " + std::to_string(pos) + ")");
-    v.resize(static_cast<std::size_t>(n));
-    if (n) std::memcpy(v.data(), data.data() + pos, n * sizeof(T));
-    pos += n * sizeof(T);
   }
 };
 
@@ -267,7 +243,7 @@ std::unique_ptr<Structure> load_structure(const std::string& path, std::int64_t*
 
 std::unique_ptr<Structure> parse_structure(const std::string& data, const std::string& path,
                                            bool verify_checksum, std::int64_t* id_bound) {
-  Reader r{data, 0, path};
+  detail::ByteReader r{data, path, "block-hash index"};
   char magic[8];
   for (char& c : magic) c = r.get<char>("magic");
   if (std::memcmp(magic, kMagic, 8) != 0) throw Error(path + ": not a block-hash index (bad magic)");
@@ -340,15 +316,15 @@ std::unique_ptr<Structure> parse_structure(const std::string& data, const std::s
       fnv1a(reinterpret_cast<const unsigned char*>(data.data() + r.pos), have, head) != checksum)
     throw Error(path + ": block-hash index checksum mismatch (corrupt file)");
   s->n_points = static_cast<std::size_t>(n[0]);
-  r.get_vec(s->order, n[0], "order");
-  r.get_vec(s->blocks, n[1], "blocks");
-  r.get_vec(s->boxes, n[1], "boxes");
-  r.get_vec(s->thresholds, n[2], "thresholds");
-  r.get_vec(s->table_starts, n[3], "table_starts");
-  r.get_vec(s->keys, n[4], "keys");
-  r.get_vec(s->buckets, n[5], "buckets");
-  r.get_vec(s->refs, n[6], "refs");
-  r.get_vec(s->block_keys, n[1], "block_keys");
+  r.get_n(s->order, n[0], "order");
+  r.get_n(s->blocks, n[1], "blocks");
+  r.get_n(s->boxes, n[1], "boxes");
+  r.get_n(s->thresholds, n[2], "thresholds");
+  r.get_n(s->table_starts, n[3], "table_starts");
+  r.get_n(s->keys, n[4], "keys");
+  r.get_n(s->buckets, n[5], "buckets");
+  r.get_n(s->refs, n[6], "refs");
+  r.get_n(s->block_keys, n[1], "block_keys");
   info.n_points = s->n_points;
   info.n_blocks = s->blocks.size();
   if (bound == n[0]) {
