@@ -392,7 +392,7 @@ class Index : public SearchIndex {
   const std::shared_ptr<Runtime>& runtime_ptr() const { return runtime_; }
   // The work-group size a call with `params` launches with: params.local_size, else
   // default_local_size().
-  std::size_t local_size_for(const SearchParams& params) const;
+  std::size_t local_size_for(const DispatchParams& params) const;
   // Where the caller sets none: the device's quirks' (Quirks::default_local_size); the grid
   // takes its kernel form's where the form sets one (kernel_forms.hpp).
   virtual std::size_t default_local_size() const;

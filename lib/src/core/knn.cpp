@@ -202,7 +202,7 @@ void Index::check_params(const SearchParams& p) const {
 
 std::size_t Index::default_local_size() const { return runtime_->quirks().default_local_size; }
 
-std::size_t Index::local_size_for(const SearchParams& p) const {
+std::size_t Index::local_size_for(const DispatchParams& p) const {
   return p.local_size ? p.local_size : default_local_size();
 }
 

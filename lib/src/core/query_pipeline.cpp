@@ -176,7 +176,7 @@ QueryStats Index::run_query(const float* queries, std::size_t n, QueryKind& kind
   // one sorts: they share nothing, and the load is as long as the sort of 10^5 queries.
   std::future<double> warm;
   if (sort && !answers_on_host()) {
-    const std::size_t local = dp.local_size ? dp.local_size : default_local_size();
+    const std::size_t local = local_size_for(dp);
     bool warmed = false;
     {
       std::lock_guard<std::mutex> lock(warm_mutex_);
@@ -220,7 +220,7 @@ void Index::search_on_device(const float* queries, std::size_t n, const std::siz
                              QueryStats& st, std::vector<std::size_t>& suspects, const SortStep* sort) const {
   const cl::CommandQueue& queue = runtime_->queue();
   const DispatchParams& dp = kind.dispatch();
-  const std::size_t local = dp.local_size ? dp.local_size : default_local_size();
+  const std::size_t local = local_size_for(dp);
   const std::size_t per = queries_per_launch(dp.max_batch, local);
   const std::size_t chunk = std::min(kind.chunk_rows(n), n);
   QueryBuffers b;
