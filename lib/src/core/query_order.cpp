@@ -64,12 +64,15 @@ void radix_sort_by_key(KeyedRow* v, KeyedRow* tmp, std::size_t n, int key_bits) 
 constexpr int kKeyBits = 49;  // 3 x 16 bits, and the non-finite queries' key 2^48
 bool fits_bucket_words(std::size_t n) { return n < (std::size_t(1) << 31); }
 
-// The buckets of n keys: their top bits, about 8 queries a bucket (sort_words sorts larger ones
-// by radix), at most 2^16: the per-thread histograms fresh pages of 2^16 x 8 bytes each at
-// 100k queries had been about one query a bucket.
+// The buckets of n keys: their top bits, about 64 queries a bucket (sort_words sorts them by
+// radix), at most 2^16. At 8 a bucket the scatter's stores went to as many lines as queries on
+// uniform queries, and surface queries left most buckets empty. With sort_words' 6-bit levels and
+// the vector box pass, the whole order took 0.66-0.89 of the time before at 100k and 303k queries
+// and 0.68-0.95 at 1M (Cornell, Autzen, uniform; AVX-512 Xeon, 2 threads;
+// bench/results/e2e/query_order_s16.txt).
 struct KeyBuckets {
   explicit KeyBuckets(std::size_t n) {
-    while (top_bits < 16 && (std::size_t(1) << top_bits) < n / 8) ++top_bits;
+    while (top_bits < 16 && (std::size_t(1) << top_bits) < n / 64) ++top_bits;
   }
   int top_bits = 1;
   int low_bits() const { return kKeyBits - top_bits; }
@@ -83,17 +86,24 @@ void count_buckets(const KeyBuckets& kb, const Key* keys, std::size_t lo, std::s
 }
 
 // Words [w, w + m) sorted in place, their top `bits` bits (from bit `top` down) still unsorted:
-// where many, a stable counting pass by the next kSubBits of them into tmp and back, then each
-// sub-run likewise (an MSD radix sort); few, std::sort. Surface data fills few of the first
-// buckets with hundreds of queries: std::sort of a whole bucket was a fifth of the sort's time
-// at 1M queries.
-constexpr int kSubBits = 8;
-constexpr std::size_t kSubMin = 64;  // smaller runs: std::sort
-void sort_words(std::uint64_t* w, std::size_t m, int top, int bits, std::uint64_t* tmp) {
-  if (m < kSubMin || bits < kSubBits) {
-    if (m > 1) std::sort(w, w + m);
-    return;
+// where more than kSubMin, a stable counting pass by the next kSubBits of them into tmp and back,
+// then each sub-run likewise (an MSD radix sort); fewer, an insertion sort (std::sort past
+// kSubMin where the bits ran out). 6-bit levels (2 bits an axis) leave runs of a few queries even
+// in the buckets surfaces crowd; 8-bit levels down to 64 and std::sort below had made the
+// in-bucket sort half of the order's time (std::sort's calls on runs of tens).
+constexpr int kSubBits = 6;
+constexpr std::size_t kSubMin = 16;
+inline void insertion_sort(std::uint64_t* w, std::size_t m) {
+  for (std::size_t i = 1; i < m; ++i) {
+    const std::uint64_t v = w[i];
+    std::size_t j = i;
+    for (; j > 0 && w[j - 1] > v; --j) w[j] = w[j - 1];
+    w[j] = v;
   }
+}
+void sort_words(std::uint64_t* w, std::size_t m, int top, int bits, std::uint64_t* tmp) {
+  if (m <= kSubMin) return insertion_sort(w, m);
+  if (bits < kSubBits) return std::sort(w, w + m);
   const int shift = top - kSubBits;
   constexpr std::uint64_t mask = (1u << kSubBits) - 1;
   std::uint32_t start[(1u << kSubBits) + 1] = {};
@@ -236,6 +246,49 @@ inline bool finite_bits(float v) {
 #define BHCL_KEY_CLONES
 #endif
 
+// The box of the finite queries of [lo, hi) (in float: the box of floats is exact in float) and
+// their count, kLanes at a time: a query with a non-finite coordinate enters as +inf on the low
+// side and -inf on the high side, a select where the branch past it had kept the loop scalar
+// (0.55 -> 0.1 ms for 303k Cornell queries on 2 threads of the AVX-512 Xeon).
+BHCL_KEY_CLONES void box_of_range(const float* xyz, std::size_t lo, std::size_t hi, std::array<float, 6>& box,
+                                  std::size_t& finite) {
+  float mn[3][kLanes], mx[3][kLanes];
+  std::uint32_t cnt[kLanes];
+  for (std::size_t l = 0; l < kLanes; ++l) {
+    cnt[l] = 0;
+    for (int d = 0; d < 3; ++d) mn[d][l] = INFINITY, mx[d][l] = -INFINITY;
+  }
+  std::size_t i0 = lo;
+  for (; i0 + kLanes <= hi; i0 += kLanes) {
+    const float* q = xyz + 3 * i0;
+    float p[3][kLanes];
+    for (std::size_t l = 0; l < kLanes; ++l) p[0][l] = q[3 * l], p[1][l] = q[3 * l + 1], p[2][l] = q[3 * l + 2];
+    for (std::size_t l = 0; l < kLanes; ++l) {
+      const bool ok = finite_bits(p[0][l]) & finite_bits(p[1][l]) & finite_bits(p[2][l]);
+      cnt[l] += ok;
+      for (int d = 0; d < 3; ++d) {
+        const float a = ok ? p[d][l] : INFINITY, b = ok ? p[d][l] : -INFINITY;
+        mn[d][l] = a < mn[d][l] ? a : mn[d][l];
+        mx[d][l] = b > mx[d][l] ? b : mx[d][l];
+      }
+    }
+  }
+  std::size_t count = 0;
+  float out[6] = {INFINITY, INFINITY, INFINITY, -INFINITY, -INFINITY, -INFINITY};
+  for (std::size_t l = 0; l < kLanes; ++l) {
+    count += cnt[l];
+    for (int d = 0; d < 3; ++d) out[d] = std::min(out[d], mn[d][l]), out[3 + d] = std::max(out[3 + d], mx[d][l]);
+  }
+  for (std::size_t i = i0; i < hi; ++i) {  // the tail
+    const float* q = xyz + 3 * i;
+    if (!(finite_bits(q[0]) & finite_bits(q[1]) & finite_bits(q[2]))) continue;
+    ++count;
+    for (int d = 0; d < 3; ++d) out[d] = std::min(out[d], q[d]), out[3 + d] = std::max(out[3 + d], q[d]);
+  }
+  for (int d = 0; d < 6; ++d) box[d] = out[d];
+  finite = count;
+}
+
 // Keys of queries [lo, hi) (non-finite ones `last`), kLanes at a time, every lane computed (the
 // tail's spare lanes repeat its first query) so that no lane test breaks the vector loop. The
 // coordinates first split by axis (a whole block's stride-3 loads vectorise), then the cells.
@@ -306,35 +359,22 @@ void hilbert_query_order_into(const float* xyz, std::size_t n, std::size_t* orde
   constexpr int kBits = 16;
   const unsigned threads = n < 16384 ? 1u : std::max(1u, std::min(default_threads(), 8u));
   const std::size_t per = (n + threads - 1) / threads;
-  std::vector<std::array<double, 6>> boxes(threads, {INFINITY, INFINITY, INFINITY, -INFINITY, -INFINITY, -INFINITY});
+  std::vector<std::array<float, 6>> boxes(threads);
   std::vector<std::size_t> finite_of(threads, 0);
   parallel_for(threads, [&](std::size_t tb, std::size_t te) {
-    for (std::size_t t = tb; t < te; ++t) {
-      // Locals, in float (the box of floats is exact in float): the loop keeps them in registers.
-      float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-      std::size_t count = 0;
-      const std::size_t b = std::min(n, t * per), e = std::min(n, (t + 1) * per);
-      for (std::size_t i = b; i < e; ++i) {
-        const float x = xyz[3 * i], y = xyz[3 * i + 1], z = xyz[3 * i + 2];
-        if (!(std::isfinite(x) && std::isfinite(y) && std::isfinite(z))) continue;
-        ++count;
-        lo[0] = std::min(lo[0], x), hi[0] = std::max(hi[0], x);
-        lo[1] = std::min(lo[1], y), hi[1] = std::max(hi[1], y);
-        lo[2] = std::min(lo[2], z), hi[2] = std::max(hi[2], z);
-      }
-      finite_of[t] = count;
-      for (int d = 0; d < 3; ++d) boxes[t][d] = lo[d], boxes[t][3 + d] = hi[d];
-    }
+    for (std::size_t t = tb; t < te; ++t)
+      box_of_range(xyz, std::min(n, t * per), std::min(n, (t + 1) * per), boxes[t], finite_of[t]);
   }, threads, 1);
   std::size_t finite = 0;
-  std::array<double, 6> box = boxes[0];
+  std::array<float, 6> fbox = boxes[0];
   for (unsigned t = 0; t < threads; ++t) {
     finite += finite_of[t];
     for (int d = 0; d < 3; ++d) {
-      box[d] = std::min(box[d], boxes[t][d]);
-      box[3 + d] = std::max(box[3 + d], boxes[t][3 + d]);
+      fbox[d] = std::min(fbox[d], boxes[t][d]);
+      fbox[3 + d] = std::max(fbox[3 + d], boxes[t][3 + d]);
     }
   }
+  const std::array<double, 6> box = {fbox[0], fbox[1], fbox[2], fbox[3], fbox[4], fbox[5]};
   if (nonfinite) *nonfinite = n - finite;
   if (finite == 0) {
     for (std::size_t i = 0; i < n; ++i) order[i] = i;
