@@ -45,7 +45,7 @@ std::vector<std::size_t> reference_order(const std::vector<float>& q, std::size_
 TEST_CASE("query order: clustered queries (large buckets, sorted by radix) keep the stable order by (key, index)") {
   // Most queries on a thin sphere in one corner of a box stretched by a few far ones: the key's
   // top-bit buckets then hold hundreds to thousands of distinct keys each, which the bucket pass
-  // sorts by 8-bit radix levels (kSubMin and more) before std::sort; some exact duplicates too.
+  // sorts by 6-bit radix levels down to runs of kSubMin and insertion sort below; some exact duplicates too.
   // The pipeline's form (fresh memory, not filled first) gives the same order.
   for (const std::size_t n : {std::size_t(100003), std::size_t(300000)}) {
     CAPTURE(n);
