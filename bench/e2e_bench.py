@@ -33,8 +33,10 @@ import numpy as np
 
 # What the table's "search wall" is, written under its command.
 SEARCH_WALL = ("Search wall: for `bhcl knn`, the stats file's `stages.wall_s`: the query call with its output "
-               "files' appends (binary .npy; ids and dist2 mapped, stored into by the search itself, so their "
-               "appends copy nothing) and any wait for the kNN program built beside reading the inputs (in "
+               "files' appends (binary .npy; where the file system takes O_DIRECT, ids and dist2 stored by the "
+               "search into two page-aligned buffers per slice whose writes run beside the next slice's search: "
+               "the write stage is those buffers made present and the last slice's write; else the files mapped "
+               "and stored into) and any wait for the kNN program built beside reading the inputs (in "
                "`compile`), not their commit "
                "(flush to the disk and rename, `stages.commit_s`); for Python, the stats dict's `wall_s`: the "
                "library call (the arrays go to numpy without a copy). kernel: the kernel's event time. "
