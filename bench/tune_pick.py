@@ -18,9 +18,10 @@ import statistics
 import sys
 
 FIELDS = {"BHCL_GRID_FILLSORT": "fill_sort", "BHCL_GRID_ROWCAP": "row_cap", "BHCL_GRID_PREFETCH_LINES": "prefetch_lines",
+          "BHCL_GRID_PREFETCH_RING": "prefetch_ring (k <= 8 run: ring0 -> prefetch_ring_from 16, ring1 -> 0)",
           "BHCL_GRID_PREFETCH": "prefetch", "BHCL_GRID_WALKCAP": "walk_cap", "BHCL_GRID_VTOPK": "vtopk"}
-ROW = ("name, match, measured, vtopk, prefetch, row_cap, walk_cap, fill_sort, prefetch_lines, local_size, "
-       "cell_target")
+ROW = ("name, match, measured, vtopk, prefetch, row_cap, walk_cap, fill_sort, prefetch_lines, "
+       "prefetch_ring_from, local_size, cell_target")
 
 
 def candidate(r):

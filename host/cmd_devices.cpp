@@ -40,9 +40,9 @@ int run_devices(const Args& args) {
               quirks_for(pick).description.c_str());
   const detail::GridKernelForm& f = detail::grid_kernel_form(pick);
   std::printf("grid kernel form: %s (isa '%s'; vtopk %d, prefetch %d, row_cap %u, walk_cap %u, fill_sort %d, "
-              "prefetch_lines %d, local_size %u, cell_target %g)\n  measured: %s\n",
+              "prefetch_lines %d, prefetch_ring_from %d, local_size %u, cell_target %g)\n  measured: %s\n",
               f.name, detail::device_isa(pick).c_str(), f.vtopk ? 1 : 0, f.prefetch, f.row_cap, f.walk_cap, f.fill_sort,
-              f.prefetch_lines, f.local_size, f.cell_target, f.measured);
+              f.prefetch_lines, f.prefetch_ring_from, f.local_size, f.cell_target, f.measured);
   const char* cache = std::getenv("POCL_CACHE_DIR");
   std::printf("PoCL kernel cache: %s\n", cache && *cache ? cache : "PoCL's default");
   return 0;

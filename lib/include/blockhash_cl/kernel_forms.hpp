@@ -27,6 +27,10 @@ struct GridKernelForm {
   std::uint32_t walk_cap;  // BHCL_GRID_WALKCAP: the far walk's best-first queue (0: depth-first)
   int fill_sort;         // BHCL_GRID_FILLSORT: -1 the kernel's default (sorted fill past 16)
   int prefetch_lines;    // BHCL_GRID_PREFETCH_LINES: -1 the kernel's default
+  // BHCL_GRID_PREFETCH_RING per k variant: the 9 rows around the home cell prefetched from this
+  // BHCL_KMAX up, only the home cell's below it (0: the 9 rows at every k). At small k a query's
+  // search is short and the 9 rows' lookups cost more than the misses they hide.
+  int prefetch_ring_from;
   std::uint32_t local_size;  // the grid kernels' work-group size where the caller sets none (0: the quirks')
   double cell_target;        // the grid's mean cell population where the build sets none (target_cell_points)
 };

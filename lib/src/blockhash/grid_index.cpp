@@ -307,6 +307,9 @@ detail::DefineValues GridIndex::kernel_options(const Runtime& rt, int kmax) {
                             {"BHCL_GRID_WALKCAP", f.walk_cap}};
   if (f.fill_sort >= 0) v.push_back({"BHCL_GRID_FILLSORT", f.fill_sort});
   if (f.prefetch_lines >= 0) v.push_back({"BHCL_GRID_PREFETCH_LINES", f.prefetch_lines});
+  // Only where it differs from the kernel's default (1): the other variants' programs, and their
+  // binary-cache keys, stay as they were.
+  if (f.prefetch > 0 && kmax < f.prefetch_ring_from) v.push_back({"BHCL_GRID_PREFETCH_RING", 0});
   return v;
 }
 
