@@ -169,14 +169,19 @@ std::vector<CallerDefine> parse_kernel_defines(const std::string& defines) {
 std::string kernel_build_options(const std::string& file, const DefineValues& library,
                                  const std::string& caller_defines) {
   std::string options;
+  const std::vector<CallerDefine> caller = parse_kernel_defines(caller_defines);
   for (const auto& [name, value] : library) {
     const KernelDefine* d = find_kernel_define(name);
     if (!d || !d->read_by(file))
       throw Error("internal error: the library sets " + std::string(name) + ", which " + file +
                   " does not read (kernel_defines.cpp's table)");
+    // A define the caller sets too is the caller's alone: two -D of one name build as the last,
+    // but clang warns of the redefinition ("N warnings generated" on PoCL's stderr).
+    if (std::any_of(caller.begin(), caller.end(), [&](const CallerDefine& c) { return std::string(c.define->name) == name; }))
+      continue;
     options += (options.empty() ? "-D" : " -D") + std::string(name) + "=" + std::to_string(value);
   }
-  for (const CallerDefine& c : parse_kernel_defines(caller_defines)) {
+  for (const CallerDefine& c : caller) {
     const KernelDefine& d = *c.define;
     if (!d.read_by(file))
       throw Error("kernel_defines: " + std::string(d.name) + " (" + kind_name(d.kind) + ") is not read by " + file +

@@ -48,8 +48,9 @@ struct CallerDefine {
 std::vector<CallerDefine> parse_kernel_defines(const std::string& defines);
 
 // The build options of kernel `file`: the library's own defines (each must be in the table and
-// read by `file`: an internal error otherwise), then the caller's, each of which `file` must read
-// (bhcl::Error naming the define, the kernel and the kernels that do read it).
+// read by `file`: an internal error otherwise) but those the caller sets, then the caller's, each
+// of which `file` must read (bhcl::Error naming the define, the kernel and the kernels that do
+// read it): a caller's define replaces the library's value of it.
 using DefineValues = std::vector<std::pair<const char*, long long>>;
 std::string kernel_build_options(const std::string& file, const DefineValues& library,
                                  const std::string& caller_defines);
