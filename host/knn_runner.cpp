@@ -224,6 +224,9 @@ void report(const Args& args, const RunPlace& place, const Runtime& rt, const Se
                                                                                                   : "distributed";
   if (q.radius) add_radius_fields(j, args, index, q, a, r);
   else add_knn_fields(j, args, a, r);
+  // Whether this run's rows are exact: an exact method, or a kNN search in an exact mode (block
+  // hashing's grid at A = +inf, its default); "exact": false had read as an approximate run.
+  if (!q.radius && j.contains("search") && j["search"].value("exact", false)) j["exact"] = true;
   add_query_stats(j, r.build_s, a.st);
   if (!q.radius) {
     j["stages"] = stages_json(a.st, a.write_s, a.commit_s);

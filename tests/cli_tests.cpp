@@ -72,6 +72,14 @@ TEST_CASE("cli: the stats of a block-hash run carry the build and search paramet
   CHECK(sp.at("k") == 5);
   CHECK(sp.at("max_radius").get<double>() == doctest::Approx(0.5));
   CHECK(sp.at("neighbour_probes").is_number_integer());  // 0, 1 or 2 as used
+  CHECK(j.at("exact") == false);  // the paper's tables at A = 3
+  // The default (the grid, exact): the run's "exact" says so.
+  test::run_bhcl_ok("knn --points " + P + " --queries " + P + " --k 5 --method blockhash --out-ids " + I +
+                    " --out-dist2 " + D + " --stats " + S);
+  std::ifstream s2(S);
+  const nlohmann::json j2 = nlohmann::json::parse(s2);
+  CHECK(j2.at("search").at("exact") == true);
+  CHECK(j2.at("exact") == true);
 }
 
 TEST_CASE("cli: bad input exits non-zero with one clear line") {
