@@ -1,10 +1,12 @@
 #include "knn_runner.hpp"
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <exception>
 #include <memory>
 
+#include "blockhash_cl/io.hpp"
 #include "blockhash_cl/runtime.hpp"
 #include "progress.hpp"
 #include "result_files.hpp"
@@ -89,6 +91,16 @@ std::unique_ptr<Outputs> open_outputs(const Args& args, const RunPlace& place, E
   return files;
 }
 
+// The slicing of a kNN call of n queries whose outputs are direct or not (answer_knn's and
+// prefault_knn_outputs'): slices of about 32 MiB of rows and at least 2^17 queries
+// (knn_slice_rows), whose two buffers are reused slice after slice (fresh pages cost on VMs),
+// the last a quarter of that (direct_last_slice_rows): its write is the one that no next search
+// hides.
+Slicing knn_slicing(std::size_t n, const SearchParams& p, bool bar, bool direct) {
+  const std::size_t rows = knn_slice_rows(n, p.k, p.count_examined, bar, direct ? direct_slice_bytes() : 0);
+  return Slicing{n, rows, direct ? direct_last_slice_rows(rows) : 0};
+}
+
 template <typename Id>
 Answered answer_knn(const Args& args, const SearchIndex& index, const RunPlace& place,
                     const std::vector<float>& queries, const SearchParams& asked) {
@@ -98,13 +110,8 @@ Answered answer_knn(const Args& args, const SearchIndex& index, const RunPlace& 
   render::Progress bar("query " + index.method() + " (" + std::to_string(n) + " queries)",
                        place.writes && !args.flag("quiet"));
   auto files = open_outputs<KnnOutputs>(args, place, n, a.params.k);
-  // Direct outputs: slices of about 32 MiB of rows and at least 2^17 queries (knn_slice_rows),
-  // whose two buffers are reused slice after slice (fresh pages cost on VMs), the last a quarter
-  // of that (direct_last_slice_rows): its write is the one that no next search hides.
-  const bool direct = files && files->direct();
-  const std::size_t rows = knn_slice_rows(n, a.params.k, a.params.count_examined, bar.enabled(),
-                                          direct ? direct_slice_bytes() : 0);
-  const Slicing mine{n, rows, direct ? direct_last_slice_rows(rows) : 0};
+  const Slicing mine = knn_slicing(n, a.params, bar.enabled(), files && files->direct());
+  const std::size_t rows = mine.rows;
   if constexpr (std::is_same_v<Id, std::int64_t>) {
     a.st = slices_to_files<KnnOutputs, KnnRows<Id>>(
         place, n, mine, bar, std::move(files), a, [&](std::size_t first, std::size_t m, KnnRows<Id>& part) {
@@ -212,6 +219,19 @@ void add_radius_fields(Json& j, const Args& args, const SearchIndex& index, cons
 
 }  // namespace
 
+void prefault_knn_outputs(const Args& args, const SearchParams& params) {
+  const std::uint64_t n = declared_point_count(args.str("queries"));
+  const std::size_t k = static_cast<std::size_t>(params.k);
+  if (n == 0 || k == 0 || !direct_output_expected(n * k * 4)) return;
+  const bool bar = !args.flag("quiet") && render::Progress::stderr_is_terminal();
+  const Slicing s = knn_slicing(static_cast<std::size_t>(n), params, bar, true);
+  const std::vector<std::size_t> starts = slice_starts(s.n_all, s.rows, s.last_rows);
+  std::size_t largest = 0;
+  for (std::size_t i = 0; i + 1 < starts.size(); ++i) largest = std::max(largest, starts[i + 1] - starts[i]);
+  // A pair (ids, dist2) a slice, two pairs where a slice's write runs beside the next's search.
+  prefault_direct_buffers(largest * k * 4, starts.size() > 2 ? 4 : 2);
+}
+
 void report(const Args& args, const RunPlace& place, const Runtime& rt, const SearchIndex& index,
             const RunQuery& q, const Answered& a, const RunReport& r) {
   if (!place.writes) return;
@@ -231,6 +251,7 @@ void report(const Args& args, const RunPlace& place, const Runtime& rt, const Se
   if (!q.radius) {
     j["stages"] = stages_json(a.st, a.write_s, a.commit_s);
     j["stages"]["prepare_beside_reading_s"] = a.prepare_beside_s;
+    j["stages"]["output_buffers_ahead"] = direct_buffers_taken_ahead();  // made present beside the reading
     j["neighbours_found"] = a.found;
   }
   if (place.kind == IndexKind::device && r.built) j["memory_bytes"] = r.built->memory_bytes();

@@ -86,6 +86,12 @@ struct Answered {
   std::size_t truncated = 0;  // radius: queries cut at --max-results
 };
 
+// The direct (O_DIRECT) outputs' slice buffers of `bhcl knn` on one device, made present now
+// (prefault_direct_buffers) for the query count its --queries file declares, the slicing answer
+// will use and its k: called beside reading the inputs, where a core is idle, so that the search
+// finds them made. Nothing where the file declares no count or the outputs will not be direct.
+void prefault_knn_outputs(const Args& args, const SearchParams& params);
+
 // The query call over any SearchIndex: kNN with the batch's parameters (block hashing: a recall
 // target, or the block layouts' default one, tuned on a sample of these queries, not on the
 // index's own points) or radius search; in slices (a progress bar on a terminal), each slice's

@@ -4,6 +4,7 @@
 #include <cstdint>
 #include <cstring>
 #include <exception>
+#include <mutex>
 #include <new>
 #include <type_traits>
 #include <vector>
@@ -124,23 +125,88 @@ void ArrayOutput::append_direct(char* rows, std::size_t items) {
   }
 }
 
+namespace {
+
+// A direct buffer's bytes for `bytes` of rows: room for the carried block before them and the
+// padding after; on 2 MiB boundaries where advised MADV_HUGEPAGE (BHCL_DIRECT_THP=0: neither).
+bool direct_thp() {
+  const char* e = std::getenv("BHCL_DIRECT_THP");
+  return !(e && e[0] == '0');
+}
+std::size_t direct_len(std::size_t bytes, bool thp) {
+  constexpr std::size_t huge = std::size_t(2) << 20;
+  return thp ? (DirectBuffer::kAlign + bytes + DirectBuffer::kAlign + huge - 1) / huge * huge
+             : DirectBuffer::kAlign + bytes + DirectBuffer::kAlign;
+}
+char* make_direct(std::size_t len, bool thp) {
+  char* p = aligned_bytes(len, thp ? std::size_t(2) << 20 : DirectBuffer::kAlign);
+  if (thp) {
+    (void)::madvise(p, len, MADV_HUGEPAGE);
+    (void)::madvise(p, len, MADV_POPULATE_WRITE);
+  }
+  return p;
+}
+
+// prefault_direct_buffers' buffers, taken by DirectBuffer::reserve.
+struct DirectPool {
+  std::mutex m;
+  std::vector<std::pair<char*, std::size_t>> free;  // (memory, len)
+  int taken = 0;                                    // reserves it served
+  ~DirectPool() {
+    for (auto& b : free) std::free(b.first);
+  }
+};
+DirectPool& direct_pool() {
+  static DirectPool pool;
+  return pool;
+}
+
+}  // namespace
+
+int direct_buffers_taken_ahead() {
+  std::lock_guard<std::mutex> lock(direct_pool().m);
+  return direct_pool().taken;
+}
+
+bool direct_output_expected(std::uint64_t bytes) {
+  const int mode = direct_output_mode();
+  return bytes > 0 && (mode == 1 || (mode < 0 && bytes >= kDirectBytes));
+}
+
+void prefault_direct_buffers(std::size_t bytes, int count) {
+  const bool thp = direct_thp();
+  const std::size_t len = direct_len(bytes, thp);
+  for (int i = 0; i < count; ++i) {
+    char* p = make_direct(len, thp);
+    std::lock_guard<std::mutex> lock(direct_pool().m);
+    direct_pool().free.emplace_back(p, len);
+  }
+}
+
 void DirectBuffer::reserve(std::size_t bytes) {
   if (bytes <= cap_ && mem_) return;
-  // Room for the carried block before the rows and the padding after. On 2 MiB boundaries,
-  // advised MADV_HUGEPAGE and made present (MADV_POPULATE_WRITE; both advice only) before the
-  // search (timed as the write stage): the kernel stores each row at its caller's row, i.e. at
-  // random places, and in 4 KiB pages it was 1.15-1.25x the mapped path's (whose file pages are
-  // 2 MiB folios); with them 0.76 (1M x 50, Cornell, AVX-512, 2 threads, alternating processes,
-  // median of 4). BHCL_DIRECT_THP=0: neither (the experiment's other arm).
-  const char* e = std::getenv("BHCL_DIRECT_THP");
-  const bool thp = !(e && e[0] == '0');
-  const std::size_t huge = std::size_t(2) << 20;
-  const std::size_t len = thp ? (kAlign + bytes + kAlign + huge - 1) / huge * huge : kAlign + bytes + kAlign;
-  mem_.reset(aligned_bytes(len, thp ? huge : kAlign));
-  if (thp) {
-    (void)::madvise(mem_.get(), len, MADV_HUGEPAGE);
-    (void)::madvise(mem_.get(), len, MADV_POPULATE_WRITE);
+  // Made present here (timed as the write stage) unless prefault_direct_buffers made one of at
+  // least this size ahead. In 2 MiB pages: the kernel stores each row at its caller's row, i.e.
+  // at random places, and in 4 KiB pages it was 1.15-1.25x the mapped path's (whose file pages
+  // are 2 MiB folios); with them 0.76 (1M x 50, Cornell, AVX-512, 2 threads, alternating
+  // processes, median of 4). BHCL_DIRECT_THP=0: 4 KiB pages (the experiment's other arm).
+  const bool thp = direct_thp();
+  const std::size_t len = direct_len(bytes, thp);
+  {
+    std::lock_guard<std::mutex> lock(direct_pool().m);
+    auto& free = direct_pool().free;
+    auto best = free.end();
+    for (auto it = free.begin(); it != free.end(); ++it)
+      if (it->second >= len && (best == free.end() || it->second < best->second)) best = it;
+    if (best != free.end()) {
+      mem_.reset(best->first);
+      free.erase(best);
+      ++direct_pool().taken;
+      cap_ = bytes;
+      return;
+    }
   }
+  mem_.reset(make_direct(len, thp));
   cap_ = bytes;
 }
 

@@ -206,3 +206,18 @@ TEST_CASE("point_io: bhcl knn reads PLY and text, writes NPY results, refuses a 
   CHECK(rc == 1);
   CHECK(out.find(bad + ": looks like a text file") != std::string::npos);
 }
+
+TEST_CASE("point_io: declared_point_count reads a file's declared count without its body") {
+  std::string f4, f8;
+  for (float v : kPts) {
+    f4 += bytes_of(v);
+    f8 += bytes_of(static_cast<double>(v));
+  }
+  CHECK(declared_point_count(write_bytes("dc_f4.npy", npy("{'descr': '<f4', 'fortran_order': False, 'shape': (3, 3), }", f4))) == 3u);
+  CHECK(declared_point_count(write_bytes("dc_f8.npy", npy("{'descr': '<f8', 'fortran_order': False, 'shape': (3, 3), }", f8))) == 3u);
+  // A header that declares more than its body holds: the declared count (read_points_file refuses it).
+  CHECK(declared_point_count(write_bytes("dc_big.npy", npy("{'descr': '<f4', 'fortran_order': False, 'shape': (70000, 3), }", f4))) == 70000u);
+  CHECK(declared_point_count(write_bytes("dc.f32", f4)) == 3u);  // raw: by its size
+  CHECK(declared_point_count(write_bytes("dc.txt", "0 0 0\n1 1 1\n")) == 0u);  // text: not declared
+  CHECK(declared_point_count(test::tmp_path("dc_missing.npy")) == 0u);
+}

@@ -40,6 +40,11 @@ PointFormat sniff_point_format(const void* data, std::size_t size);
 std::vector<float> read_points_file(const std::string& path, bool require_finite = true,
                                     std::size_t max_points = 0x7ffffffe);
 
+// The point count a file declares before its body is read (raw: by its size; NPY, PLY: by its
+// header), read from its first 4 KiB; 0 where it does not say (text) or the file cannot be read.
+// Not checked against the body: a size hint for what is made ahead of reading it.
+std::uint64_t declared_point_count(const std::string& path) noexcept;
+
 // float64 kept: the file's coordinates as it holds them (a text file's decimals, a float64 PLY or
 // NPY in double; float32 sources widened), after the same checks as read_points_file, whose
 // float copy goes to *as_float when given.

@@ -137,6 +137,20 @@ std::uint64_t declared_points(const std::string& path, const char* head, std::si
 
 }  // namespace
 
+std::uint64_t declared_point_count(const std::string& path) noexcept {
+  try {
+    const std::uint64_t size = regular_file_size(path, "a point file");
+    std::ifstream in(path, std::ios::binary);
+    if (!in) return 0;
+    char head[4096];
+    in.read(head, static_cast<std::streamsize>(std::min<std::uint64_t>(size, sizeof head)));
+    const char* by = "";
+    return declared_points(path, head, static_cast<std::size_t>(in.gcount()), size, &by);
+  } catch (...) {
+    return 0;
+  }
+}
+
 std::vector<float> read_points_file(const std::string& path, bool require_finite, std::size_t max_points) {
   const std::uint64_t size = regular_file_size(path, "a point file");
   std::ifstream in(path, std::ios::binary);
