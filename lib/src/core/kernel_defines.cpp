@@ -177,7 +177,8 @@ std::string kernel_build_options(const std::string& file, const DefineValues& li
                   " does not read (kernel_defines.cpp's table)");
     // A define the caller sets too is the caller's alone: two -D of one name build as the last,
     // but clang warns of the redefinition ("N warnings generated" on PoCL's stderr).
-    if (std::any_of(caller.begin(), caller.end(), [&](const CallerDefine& c) { return std::string(c.define->name) == name; }))
+    const std::string n = name;  // (a structured binding: not capturable in C++17)
+    if (std::any_of(caller.begin(), caller.end(), [&](const CallerDefine& c) { return c.define->name == n; }))
       continue;
     options += (options.empty() ? "-D" : " -D") + std::string(name) + "=" + std::to_string(value);
   }
