@@ -71,6 +71,11 @@ bool is_npy(const std::string& path) {
 }
 }  // namespace
 
+bool direct_output_expected(std::uint64_t bytes) {
+  const int mode = direct_output_mode();
+  return bytes > 0 && (mode == 1 || (mode < 0 && bytes >= kDirectBytes));
+}
+
 ArrayOutput::ArrayOutput(const std::string& path, const char* descr, std::size_t item, std::int64_t rows,
                          std::size_t cols)
     : file_(path, is_npy(path) ? "the NPY array" : "the raw array"), descr_(descr), item_(item), cols_(cols),
@@ -85,8 +90,7 @@ ArrayOutput::ArrayOutput(const std::string& path, const char* descr, std::size_t
   // written first: a write() leaves the file's first page a 4 KiB folio in the page cache, and
   // then the whole first 2 MiB of the mapping is made of 4 KiB pages (no huge folio can hold it).
   const std::size_t bytes = rows_ >= 0 ? static_cast<std::size_t>(rows_) * (cols_ ? cols_ : 1) * item_ : 0;
-  const int mode = direct_output_mode();
-  if (bytes > 0 && (mode == 1 || (mode < 0 && h.size() + bytes >= kDirectBytes))) open_direct(h, bytes);
+  if (bytes > 0 && direct_output_expected(h.size() + bytes)) open_direct(h, bytes);
   if (!align_ && !map_known_length(h)) file_.write(h.data(), h.size());
 }
 
@@ -166,11 +170,6 @@ DirectPool& direct_pool() {
 int direct_buffers_taken_ahead() {
   std::lock_guard<std::mutex> lock(direct_pool().m);
   return direct_pool().taken;
-}
-
-bool direct_output_expected(std::uint64_t bytes) {
-  const int mode = direct_output_mode();
-  return bytes > 0 && (mode == 1 || (mode < 0 && bytes >= kDirectBytes));
 }
 
 void prefault_direct_buffers(std::size_t bytes, int count) {

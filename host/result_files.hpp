@@ -74,20 +74,16 @@ class ArrayOutput {
   std::unique_ptr<char, decltype(&std::free)> staging_{nullptr, &std::free};  // append()'s copies
 };
 
+// Whether an output file of `bytes` (header and rows) will be written with O_DIRECT
+// (BHCL_DIRECT_OUTPUT and the size threshold; ArrayOutput's rule): a file system that refuses
+// O_DIRECT is known only when the file is opened.
+bool direct_output_expected(std::uint64_t bytes);
+
 // Memory for a direct output's rows: `bytes` at rows(lead), `lead` bytes after its aligned start
 // (room for the carried part of a block: ArrayOutput::append_direct), and room for the padding
 // of the last block after. Never filled; on 2 MiB boundaries, advised MADV_HUGEPAGE and made
-// present at reserve (BHCL_DIRECT_THP=0: 4 KiB pages, first touched by the search).
-// Direct buffers of `bytes` rows' bytes each made present ahead of a search, on a thread with
-// nothing else to do (bhcl knn: beside reading its inputs); DirectBuffer::reserve takes one of at
-// least its size from them before it makes its own.
-void prefault_direct_buffers(std::size_t bytes, int count);
-// How many DirectBuffer::reserve calls took one of them (bhcl knn's stats: output_buffers_ahead).
-int direct_buffers_taken_ahead();
-// Whether an output file of `bytes` of rows will be written with O_DIRECT (BHCL_DIRECT_OUTPUT and
-// the size threshold; a file system that refuses O_DIRECT is known only when the file is opened).
-bool direct_output_expected(std::uint64_t bytes);
-
+// present at reserve, or taken there from prefault_direct_buffers' (BHCL_DIRECT_THP=0: 4 KiB
+// pages, first touched by the search).
 class DirectBuffer {
  public:
   void reserve(std::size_t bytes);
@@ -99,6 +95,13 @@ class DirectBuffer {
   std::unique_ptr<char, decltype(&std::free)> mem_{nullptr, &std::free};
   std::size_t cap_ = 0;
 };
+
+// Direct buffers of `bytes` rows' bytes each made present ahead of a search, on a thread with
+// nothing else to do (bhcl knn: beside reading its inputs); DirectBuffer::reserve takes one of at
+// least its size from them before it makes its own.
+void prefault_direct_buffers(std::size_t bytes, int count);
+// How many DirectBuffer::reserve calls took one of them (bhcl knn's stats: output_buffers_ahead).
+int direct_buffers_taken_ahead();
 
 // A slice's kNN rows in memory kept across the slices of a run and never filled before the search
 // writes it (SearchIndex::query_into): a KnnResult's resize is a single-threaded pass over every
