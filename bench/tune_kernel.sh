@@ -2,8 +2,9 @@
 # Measures this device's row of the grid kernel's forms table (lib/src/core/kernel_forms.cpp):
 # perf_harness runs the device's current row ("base") beside candidate forms, each one change
 # from it (a kernel define, the grid's cell population, the work-group size; three runs at k = 10
-# and 50, each with its own base, and a fourth at k = 1 and 8 for the small-k variant's prefetch), in interleaved rounds in one process, on each data set and order; tune_pick.py takes
-# the median over rows of each candidate's speed against base (same queries, exact, so the rows
+# and 50, each with its own base, and a fourth at k = 1 and 8 for the small-k variant's prefetch),
+# in interleaved rounds in one process, on each data set and order; tune_pick.py takes the
+# median over rows of each candidate's speed against base (same queries, exact, so the rows
 # are the same) and prints the winning row in the table's format, with the figures to quote.
 #   bench/tune_kernel.sh [build-dir] [data-dir] [rounds]     (POCL_MAX_PTHREAD_COUNT as you run)
 set -euo pipefail
