@@ -135,17 +135,21 @@ std::uint64_t declared_points(const std::string& path, const char* head, std::si
   }
 }
 
+// declared_points of the file's first 4 KiB, read from `in` (left where that read stopped).
+std::uint64_t declared_in_head(std::istream& in, const std::string& path, std::uint64_t size, const char** by) {
+  char head[4096];
+  in.read(head, static_cast<std::streamsize>(std::min<std::uint64_t>(size, sizeof head)));
+  return declared_points(path, head, static_cast<std::size_t>(in.gcount()), size, by);
+}
+
 }  // namespace
 
 std::uint64_t declared_point_count(const std::string& path) noexcept {
   try {
     const std::uint64_t size = regular_file_size(path, "a point file");
     std::ifstream in(path, std::ios::binary);
-    if (!in) return 0;
-    char head[4096];
-    in.read(head, static_cast<std::streamsize>(std::min<std::uint64_t>(size, sizeof head)));
     const char* by = "";
-    return declared_points(path, head, static_cast<std::size_t>(in.gcount()), size, &by);
+    return in ? declared_in_head(in, path, size, &by) : 0;
   } catch (...) {
     return 0;
   }
@@ -158,11 +162,8 @@ std::vector<float> read_points_file(const std::string& path, bool require_finite
   if (max_points) {
     // Sizes before allocation: a file that declares more points than the index range is refused
     // from its size or header, before its body is read.
-    char head[4096];
-    in.read(head, static_cast<std::streamsize>(std::min<std::uint64_t>(size, sizeof head)));
-    const std::size_t got = static_cast<std::size_t>(in.gcount());
     const char* by = "";
-    const std::uint64_t declared = declared_points(path, head, got, size, &by);
+    const std::uint64_t declared = declared_in_head(in, path, size, &by);
     if (declared > max_points)
       throw Error(path + ": holds " + std::to_string(declared) + " points (by its " + by +
                   "), more than the index range allows (" + std::to_string(max_points) +
